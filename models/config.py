@@ -1,0 +1,158 @@
+"""Configuration of the CNEP model and of its training, validated on construction.
+
+A trajectory is a `(T, C)` float array: one row per time step, `C` columns. A `Layout` says which
+columns the encoder observes (besides the time), which extra columns a query carries (besides the
+time) and which columns the experts predict. Columns are given as half-open `(start, stop)` spans so
+the 1288-d pipeline layout stays short in `config.json`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field, fields
+
+from models.errors import ConfigError
+
+Spans = tuple[tuple[int, int], ...]
+
+
+def _spans(value, name: str, width: int) -> Spans:
+    spans = tuple((int(a), int(b)) for a, b in value)
+    for a, b in spans:
+        if not 0 <= a < b <= width:
+            raise ConfigError(f"Layout span {name}=({a}, {b}) must satisfy 0 <= start < stop <= width={width}.")
+    return spans
+
+
+def span_indices(spans: Spans) -> list[int]:
+    """The column indices covered by `spans`, in order."""
+    return [i for a, b in spans for i in range(a, b)]
+
+
+@dataclass(frozen=True)
+class Layout:
+    """Which columns of a `(T, width)` trajectory the model observes, queries with and predicts."""
+
+    width: int = 1
+    observed: Spans = ((0, 1),)
+    query: Spans = ()
+    predicted: Spans = ((0, 1),)
+
+    def __post_init__(self) -> None:
+        if self.width < 1:
+            raise ConfigError(f"Layout width must be >= 1, got {self.width}.")
+        for name in ("observed", "query", "predicted"):
+            object.__setattr__(self, name, _spans(getattr(self, name), name, self.width))
+        if not self.observed or not self.predicted:
+            raise ConfigError("A layout needs at least one observed and one predicted column.")
+
+    @property
+    def obs_dim(self) -> int:
+        return len(span_indices(self.observed))
+
+    @property
+    def query_dim(self) -> int:
+        return len(span_indices(self.query))
+
+    @property
+    def out_dim(self) -> int:
+        return len(span_indices(self.predicted))
+
+
+def authors_coefficients(n_experts: int) -> tuple[float, float, float]:
+    """(a_rec, a_batch, a_ind) as the authors rescaled their d=2 sweep: a1*d/2, a2/log2(d), a3/log2(d)."""
+    if n_experts == 1:
+        return 16.81 / 2, 0.0, 0.0  # CNMP: the entropy terms are meaningless with one expert
+    return 16.81 * n_experts / 2, 10.672 / math.log2(n_experts), 7.553 / math.log2(n_experts)
+
+
+@dataclass(frozen=True)
+class CNEPConfig:
+    """The network and its loss. `n_experts=1` is a CNMP.
+
+    The loss is `a_rec * L_rec - a_batch * L_batch + a_ind * L_ind` (the paper prints `+ a_batch`; the
+    authors' code subtracts it, which matches the stated intent of maximising batch entropy).
+    Coefficients left as None take the authors' values rescaled with the number of experts.
+    """
+
+    layout: Layout = field(default_factory=Layout)
+    n_experts: int = 2
+    encoder_widths: tuple[int, ...] = (128, 128)  # the last width is the latent size
+    expert_widths: tuple[int, ...] = (128, 128)
+    min_std: float = 1e-3  # floor of the predicted std, in normalised units
+    a_rec: float | None = None
+    a_batch: float | None = None
+    a_ind: float | None = None
+
+    def __post_init__(self) -> None:
+        if isinstance(self.layout, dict):
+            object.__setattr__(self, "layout", Layout(**self.layout))
+        object.__setattr__(self, "encoder_widths", tuple(int(w) for w in self.encoder_widths))
+        object.__setattr__(self, "expert_widths", tuple(int(w) for w in self.expert_widths))
+        if self.n_experts < 1:
+            raise ConfigError(f"n_experts must be >= 1, got {self.n_experts}.")
+        if not self.encoder_widths or min(self.encoder_widths + self.expert_widths or (1,)) < 1:
+            raise ConfigError(
+                f"Widths must be positive and the encoder needs at least one layer, got encoder "
+                f"{self.encoder_widths} and experts {self.expert_widths}."
+            )
+        if not self.min_std > 0:
+            raise ConfigError(f"min_std must be > 0 (it keeps the likelihood finite), got {self.min_std}.")
+        defaults = authors_coefficients(self.n_experts)
+        for name, default in zip(("a_rec", "a_batch", "a_ind"), defaults):
+            value = default if getattr(self, name) is None else float(getattr(self, name))
+            if value < 0:
+                raise ConfigError(f"{name} must be >= 0 (signs are fixed by the loss), got {value}.")
+            object.__setattr__(self, name, value)
+
+    @property
+    def latent_dim(self) -> int:
+        return self.encoder_widths[-1]
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "CNEPConfig":
+        return cls(**_known(cls, data))
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """How `fit` trains. Steps and widths follow the spec's CPU recipe (see docs/training.md)."""
+
+    steps: int = 20_000
+    batch_size: int = 32
+    n_max: int = 10  # observations per sample: n ~ U{1..n_max}
+    m_max: int = 10  # targets per sample: m ~ U{1..m_max}
+    lr: float = 1e-3
+    warmup_steps: int = 2_000
+    gate_freeze_fraction: float = 0.3  # the gate stays uniform for this fraction of the steps
+    grad_clip: float = 10.0
+    val_every: int = 500
+    patience: int | None = None  # validations without improvement before stopping early
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        for name in ("steps", "batch_size", "n_max", "m_max", "val_every"):
+            if getattr(self, name) < 1:
+                raise ConfigError(f"TrainConfig.{name} must be >= 1, got {getattr(self, name)}.")
+        if not 0 <= self.gate_freeze_fraction < 1:
+            raise ConfigError(f"gate_freeze_fraction must be in [0, 1), got {self.gate_freeze_fraction}.")
+        if not self.lr > 0 or self.warmup_steps < 0:
+            raise ConfigError(f"lr must be > 0 and warmup_steps >= 0, got {self.lr} and {self.warmup_steps}.")
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "TrainConfig":
+        return cls(**_known(cls, data))
+
+
+def _known(cls, data: dict) -> dict:
+    names = {f.name for f in fields(cls)}
+    unknown = sorted(set(data) - names)
+    if unknown:
+        raise ConfigError(f"Unknown {cls.__name__} field(s) {unknown}; known fields are {sorted(names)}.")
+    return dict(data)

@@ -1,0 +1,73 @@
+"""The `cnep` command: one subcommand per pipeline stage.
+
+Each subcommand lives in `pipeline/commands/<name>.py` and exposes `HELP`, `add_arguments(parser)`
+and `run(args) -> int`. Those modules import only argparse at module level, so `cnep --help` stays
+instant; torch, rerun and friends are imported inside `run`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+
+# Subcommand name -> module under pipeline.commands (kept in pipeline order).
+COMMANDS = (
+    "ingest",
+    "inspect",
+    "repair",
+    "extract",
+    "train",
+    "replay",
+    "evaluate",
+    "demo",
+)
+
+
+def _available_commands() -> list[tuple[str, object]]:
+    found = []
+    for name in COMMANDS:
+        try:
+            module = importlib.import_module(f"pipeline.commands.{name}")
+        except ModuleNotFoundError as exc:
+            if exc.name != f"pipeline.commands.{name}":
+                raise
+            continue  # that stage is not part of this build yet
+        found.append((name, module))
+    return found
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="cnep",
+        description="Learn multimodal movement primitives (CNEP) from recorded demonstrations.",
+    )
+    parser.add_argument("-q", "--quiet", action="store_true", help="only warnings and errors, no progress bars")
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for name, module in _available_commands():
+        p = sub.add_parser(name, help=module.HELP, description=module.HELP)
+        module.add_arguments(p)
+        p.set_defaults(_run=module.run)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    level = logging.WARNING if args.quiet else logging.DEBUG if args.verbose else logging.INFO
+    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    from pipeline.errors import USER_ERRORS
+
+    try:
+        return int(args._run(args) or 0)
+    except USER_ERRORS as exc:
+        print(f"cnep {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"cnep {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
