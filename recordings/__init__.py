@@ -1,0 +1,51 @@
+"""The recording layer: MCAP demonstration and trajectory files (numpy only, never torch).
+
+Public API (stable; see docs/recordings.md for the file contract):
+
+    records      Episode, Demonstration, Trajectory, Event
+    writing      DemonstrationWriter, TrajectoryWriter, write_demonstration, write_trajectory
+    reading      DemonstrationReader, TrajectoryReader, read_demonstration, read_trajectory
+    events       add_events, read_events
+    errors       RecordingError
+    constants    recordings.constants (topics, schemas, LAYOUT_FULL, LAYOUT_MOTION, FORMAT_VERSION, ...)
+"""
+
+from recordings import constants
+from recordings.constants import (
+    FEATURE_DIM,
+    FORMAT_VERSION,
+    LAYOUT_FULL,
+    LAYOUT_MOTION,
+    MOTION_DIM,
+    STEP_DIM,
+)
+from recordings.errors import RecordingError
+from recordings.events import add_events, read_events
+from recordings.readers import DemonstrationReader, TrajectoryReader, read_demonstration, read_trajectory
+from recordings.records import Demonstration, Episode, Event, Trajectory
+from recordings.writers import DemonstrationWriter, TrajectoryWriter, write_demonstration, write_trajectory
+
+__all__ = [
+    "FEATURE_DIM",
+    "FORMAT_VERSION",
+    "LAYOUT_FULL",
+    "LAYOUT_MOTION",
+    "MOTION_DIM",
+    "STEP_DIM",
+    "Demonstration",
+    "DemonstrationReader",
+    "DemonstrationWriter",
+    "Episode",
+    "Event",
+    "RecordingError",
+    "Trajectory",
+    "TrajectoryReader",
+    "TrajectoryWriter",
+    "add_events",
+    "constants",
+    "read_demonstration",
+    "read_events",
+    "read_trajectory",
+    "write_demonstration",
+    "write_trajectory",
+]

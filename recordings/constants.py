@@ -1,0 +1,87 @@
+"""Names, schemas and layouts of the recording files: the one place they are spelled out.
+
+Every other module (and every other package) imports these; never retype a topic name or a column
+range. Changing anything here that changes what a file contains means bumping `FORMAT_VERSION`.
+"""
+
+from __future__ import annotations
+
+from types import MappingProxyType
+from typing import Mapping
+
+# Version of the file contract written into every file's `episode` metadata. Readers refuse others.
+FORMAT_VERSION = "1"
+SUPPORTED_FORMAT_VERSIONS = frozenset({FORMAT_VERSION})
+
+# File kinds, stored as `episode.kind`.
+KIND_DEMONSTRATION = "demonstration"
+KIND_TRAJECTORY = "trajectory"
+
+# Topics.
+TOPIC_IMAGE = "/camera/rgb"  # foxglove.CompressedImage, JPEG
+TOPIC_POSE = "/ee/pose"  # foxglove.PoseInFrame, xyz in m + quaternion xyzw
+TOPIC_GRIPPER = "/gripper"  # foxglove.JointStates with one joint named GRIPPER_JOINT
+TOPIC_TRAJECTORY = "/trajectory"  # cnep.FeatureVector, packed float32, width = layout width
+TOPIC_EVENTS = "/events"  # foxglove.Event, metadata key/value pairs (e.g. expert switches)
+
+# Schema names (protobuf full names).
+SCHEMA_IMAGE = "foxglove.CompressedImage"
+SCHEMA_POSE = "foxglove.PoseInFrame"
+SCHEMA_GRIPPER = "foxglove.JointStates"
+SCHEMA_TRAJECTORY = "cnep.FeatureVector"
+SCHEMA_EVENT = "foxglove.Event"
+
+GRIPPER_JOINT = "gripper"
+IMAGE_FORMAT = "jpeg"
+FRAME_ID_CAMERA = "camera"
+FRAME_ID_BASE = "base"
+
+# Metadata record names.
+METADATA_EPISODE = "episode"  # written when a writer opens: survives a killed recorder
+METADATA_STEPS = "steps"  # written when a writer closes cleanly: n_steps, start/end/duration in ns
+METADATA_EXTRACTOR = "extractor"  # feature extractor identity (trajectories with features only)
+
+# Channel metadata keys of TOPIC_TRAJECTORY.
+CHANNEL_KEY_LAYOUT = "layout"  # JSON {block: [start, stop]}
+CHANNEL_KEY_WIDTH = "width"
+CHANNEL_KEY_DTYPE = "dtype"
+
+# The per-step vector [features(1280) | pose_xyz(3) | pose_quat_xyzw(4) | gripper(1)].
+FEATURE_DIM = 1280
+POSE_DIM = 7
+STEP_DIM = FEATURE_DIM + POSE_DIM + 1  # 1288
+MOTION_DIM = POSE_DIM + 1  # 8: the same vector without the feature block
+
+BLOCK_FEATURES = "features"
+BLOCK_POSE_XYZ = "pose_xyz"
+BLOCK_POSE_QUAT = "pose_quat_xyzw"
+BLOCK_GRIPPER = "gripper"
+
+Layout = Mapping[str, tuple[int, int]]  # block name -> [start, stop) column range
+
+LAYOUT_FULL: Layout = MappingProxyType(
+    {
+        BLOCK_FEATURES: (0, FEATURE_DIM),
+        BLOCK_POSE_XYZ: (FEATURE_DIM, FEATURE_DIM + 3),
+        BLOCK_POSE_QUAT: (FEATURE_DIM + 3, FEATURE_DIM + 7),
+        BLOCK_GRIPPER: (FEATURE_DIM + 7, STEP_DIM),
+    }
+)
+LAYOUT_MOTION: Layout = MappingProxyType(
+    {
+        BLOCK_POSE_XYZ: (0, 3),
+        BLOCK_POSE_QUAT: (3, 7),
+        BLOCK_GRIPPER: (7, MOTION_DIM),
+    }
+)
+# The only layouts a trajectory file may carry, by width.
+LAYOUTS: Mapping[int, Layout] = MappingProxyType({STEP_DIM: LAYOUT_FULL, MOTION_DIM: LAYOUT_MOTION})
+
+# Writing. Chunk compression by file kind: trajectories are float32 vectors that zstd shrinks by
+# only ~7-10% while decompressing ~2x slower than lz4 (measured: benchmarks/bench_recordings.py),
+# so they use lz4; demonstrations (protobuf pose/gripper, JPEG frames) use zstd.
+CHUNK_SIZE_BYTES = 1024 * 1024
+COMPRESSION_BY_KIND: Mapping[str, str] = MappingProxyType({KIND_DEMONSTRATION: "zstd", KIND_TRAJECTORY: "lz4"})
+DEFAULT_COMPRESSION = "zstd"
+JPEG_QUALITY = 90  # used only when a frame has to be (re-)encoded during ingest
+LIBRARY_NAME = "cnep-pipeline recordings"

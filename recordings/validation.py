@@ -1,0 +1,158 @@
+"""Validation of everything that goes into or comes out of a recording file, in one place.
+
+Each function takes the value, the expected sizes and `where` (the file or record being checked,
+used as the message prefix), converts to the canonical dtype and shape, and raises `RecordingError`
+stating the rule, the offending value and the fix.
+"""
+
+from __future__ import annotations
+
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from recordings.constants import (
+    BLOCK_FEATURES,
+    LAYOUTS,
+    POSE_DIM,
+    SUPPORTED_FORMAT_VERSIONS,
+)
+from recordings.errors import RecordingError
+
+JPEG_MAGIC = b"\xff\xd8"
+
+
+def _first_bad(mask: np.ndarray) -> int:
+    return int(np.flatnonzero(mask)[0])
+
+
+def check_timestamps(timestamps_ns: object, where: str) -> np.ndarray:
+    """Return timestamps as int64 (T,) with T >= 1, all >= 0 and strictly increasing (ns)."""
+    ts = np.asarray(timestamps_ns)
+    if ts.ndim != 1 or ts.shape[0] == 0:
+        raise RecordingError(f"{where}: timestamps_ns must have shape (T,) with T >= 1, got shape {ts.shape}")
+    if not np.issubdtype(ts.dtype, np.integer):
+        raise RecordingError(f"{where}: timestamps_ns must be integer nanoseconds, got dtype {ts.dtype}")
+    ts = ts.astype(np.int64, copy=False)
+    if (ts < 0).any():
+        i = _first_bad(ts < 0)
+        raise RecordingError(f"{where}: timestamp {ts[i]} ns at step {i} is negative; MCAP log times are unsigned")
+    back = np.diff(ts) <= 0
+    if back.any():
+        i = _first_bad(back)
+        raise RecordingError(
+            f"{where}: timestamps go backwards (or repeat) at step {i + 1}: "
+            f"{ts[i]} ns then {ts[i + 1]} ns; each step needs a strictly later time"
+        )
+    return ts
+
+
+def check_finite(values: np.ndarray, name: str, where: str) -> None:
+    """Raise if `values` holds NaN or infinity, naming the first bad (step, column)."""
+    bad = ~np.isfinite(values)
+    if bad.any():
+        idx = np.argwhere(bad)[0]
+        raise RecordingError(
+            f"{where}: {name} holds a non-finite value ({values[tuple(idx)]}) at index {tuple(int(i) for i in idx)}; "
+            "drop or repair that step before writing"
+        )
+
+
+def check_pose(pose: object, n_steps: int, where: str) -> np.ndarray:
+    """Return pose as float64 (T, 7): xyz in m, then a non-zero quaternion xyzw."""
+    arr = np.asarray(pose, dtype=np.float64)
+    if arr.shape != (n_steps, POSE_DIM):
+        raise RecordingError(f"{where}: pose must have shape ({n_steps}, {POSE_DIM}) (xyz + quaternion xyzw), got {arr.shape}")
+    check_finite(arr, "pose", where)
+    norms = np.linalg.norm(arr[:, 3:], axis=1)
+    if (norms < 1e-6).any():
+        i = _first_bad(norms < 1e-6)
+        raise RecordingError(f"{where}: pose quaternion at step {i} has zero length; use (0, 0, 0, 1) for no rotation")
+    return arr
+
+
+def check_gripper(gripper: object, n_steps: int, where: str) -> np.ndarray:
+    """Return gripper state as float64 (T,), in the recording's own units."""
+    arr = np.asarray(gripper, dtype=np.float64)
+    if arr.shape != (n_steps,):
+        raise RecordingError(f"{where}: gripper must have shape ({n_steps},), got {arr.shape}")
+    check_finite(arr, "gripper", where)
+    return arr
+
+
+def check_frames(frames: Sequence[bytes] | None, n_steps: int, where: str) -> list[bytes] | None:
+    """Return frames as a list of T JPEG byte strings, or None for a motion-only recording."""
+    if frames is None:
+        return None
+    out = list(frames)
+    if len(out) != n_steps:
+        raise RecordingError(f"{where}: {len(out)} frames for {n_steps} steps; give one JPEG frame per step or none")
+    for i, frame in enumerate(out):
+        if not isinstance(frame, (bytes, bytearray)) or not bytes(frame[:2]) == JPEG_MAGIC:
+            raise RecordingError(f"{where}: frame {i} is not JPEG data (it must start with bytes FF D8)")
+    return [bytes(f) for f in out]
+
+
+def check_layout(layout: Mapping[str, Sequence[int]] | None, width: int, where: str) -> dict[str, tuple[int, int]]:
+    """Return the column layout for a matrix of `width` columns; only the layouts in `LAYOUTS` exist."""
+    if width not in LAYOUTS:
+        raise RecordingError(
+            f"{where}: vector width {width} is not a known layout; expected one of {sorted(LAYOUTS)} "
+            "(1288 = features|pose|gripper, 8 = pose|gripper for motion-only recordings)"
+        )
+    expected = {k: tuple(v) for k, v in LAYOUTS[width].items()}
+    if layout is None:
+        return expected
+    try:
+        given = {str(k): (int(v[0]), int(v[1])) for k, v in layout.items()}
+    except (TypeError, ValueError, IndexError, AttributeError) as exc:
+        raise RecordingError(f"{where}: column layout is not a {{block: [start, stop]}} mapping ({exc})") from None
+    if given != expected:
+        raise RecordingError(f"{where}: column layout {given} does not match the width-{width} layout {expected}")
+    return expected
+
+
+def check_matrix(data: object, n_steps: int, where: str) -> np.ndarray:
+    """Return the per-step vectors as C-contiguous float32 (T, D) with finite values."""
+    arr = np.ascontiguousarray(np.asarray(data, dtype=np.float32))
+    if arr.ndim != 2 or arr.shape[0] != n_steps:
+        raise RecordingError(f"{where}: data must have shape ({n_steps}, D), got {arr.shape}")
+    check_finite(arr, "data", where)
+    return arr
+
+
+def check_extractor(extractor: Mapping[str, str] | None, layout: Mapping[str, object], where: str) -> dict[str, str]:
+    """Return the extractor identity: required (non-empty) with a feature block, empty without one."""
+    ident = {} if extractor is None else dict(extractor)
+    for k, v in ident.items():
+        if not isinstance(k, str) or not isinstance(v, str):
+            raise RecordingError(f"{where}: extractor identity must map str to str, got {k!r}: {v!r}")
+    if BLOCK_FEATURES in layout and not ident:
+        raise RecordingError(
+            f"{where}: a trajectory with a feature block needs the feature extractor's identity "
+            "(e.g. architecture, weights name, weights hash)"
+        )
+    if BLOCK_FEATURES not in layout and ident:
+        raise RecordingError(f"{where}: extractor identity given but the layout has no feature block")
+    return ident
+
+
+def check_format_version(version: str | None, where: str) -> str:
+    """Return `version` if this library reads it; otherwise say what to do."""
+    if version not in SUPPORTED_FORMAT_VERSIONS:
+        raise RecordingError(
+            f"{where}: unknown format_version {version!r}; this cnep-pipeline reads "
+            f"{sorted(SUPPORTED_FORMAT_VERSIONS)}. Upgrade cnep-pipeline or re-create the file with this version"
+        )
+    return version
+
+
+def check_fps(fps: object, where: str) -> float:
+    """Return the nominal step rate in Hz, a finite number > 0."""
+    try:
+        value = float(fps)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        raise RecordingError(f"{where}: fps must be a number in Hz, got {fps!r}") from None
+    if not np.isfinite(value) or value <= 0:
+        raise RecordingError(f"{where}: fps must be finite and > 0 Hz, got {value}")
+    return value

@@ -1,0 +1,294 @@
+"""Writers of demonstration and trajectory files: context managers, atomic (temp name + rename).
+
+    with DemonstrationWriter(path, episode) as w:
+        for t, pose, grip, jpeg in steps:
+            w.write_step(t, pose, grip, frame=jpeg)      # frame=None for every step: motion-only
+
+    with TrajectoryWriter(path, episode, width=1288, extractor={...}) as w:
+        w.write_steps(timestamps_ns, data)               # or write_step(t, row) per step
+
+The `episode` metadata record is written when the writer opens (so it survives a recorder killed
+mid-way, see `cnep repair`), the `steps` record (n_steps, start/end/duration in ns) when it closes.
+If the block raises, nothing is left at `path`.
+"""
+
+from __future__ import annotations
+
+import json
+import mimetypes
+import os
+from contextlib import ExitStack
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from recordings.constants import (
+    BLOCK_POSE_QUAT,
+    BLOCK_POSE_XYZ,
+    CHANNEL_KEY_DTYPE,
+    CHANNEL_KEY_LAYOUT,
+    CHANNEL_KEY_WIDTH,
+    COMPRESSION_BY_KIND,
+    FORMAT_VERSION,
+    KIND_DEMONSTRATION,
+    KIND_TRAJECTORY,
+    METADATA_EPISODE,
+    METADATA_EXTRACTOR,
+    METADATA_STEPS,
+    SCHEMA_GRIPPER,
+    SCHEMA_IMAGE,
+    SCHEMA_POSE,
+    SCHEMA_TRAJECTORY,
+    TOPIC_GRIPPER,
+    TOPIC_IMAGE,
+    TOPIC_POSE,
+    TOPIC_TRAJECTORY,
+)
+from recordings.container import atomic_output, new_writer
+from recordings.errors import RecordingError
+from recordings.records import Demonstration, Episode, Trajectory
+from recordings.schemas import (
+    FOXGLOVE_CLASSES,
+    encode_gripper,
+    encode_image,
+    encode_pose,
+    encode_vector,
+    feature_vector_schema,
+    schema_data,
+)
+from recordings.validation import (
+    check_extractor,
+    check_frames,
+    check_gripper,
+    check_layout,
+    check_matrix,
+    check_pose,
+    check_timestamps,
+)
+
+
+def episode_metadata(episode: Episode, kind: str) -> dict[str, str]:
+    """The `episode` metadata record of a file of `kind`."""
+    return {
+        "episode_id": episode.episode_id,
+        "task": episode.task,
+        "source": episode.source,
+        "fps": repr(float(episode.fps)),
+        "kind": kind,
+        "format_version": FORMAT_VERSION,
+        **episode.extra,
+    }
+
+
+def steps_metadata(timestamps_ns: Sequence[int]) -> dict[str, str]:
+    """The `steps` metadata record: n_steps and start/end/duration in ns."""
+    n = len(timestamps_ns)
+    start, end = (int(timestamps_ns[0]), int(timestamps_ns[-1])) if n else (0, 0)
+    return {"n_steps": str(n), "start_ns": str(start), "end_ns": str(end), "duration_ns": str(end - start)}
+
+
+class _McapFile:
+    """An open output MCAP file: schema/channel registry over the mcap Writer, atomic on close."""
+
+    def __init__(self, path: str | os.PathLike, kind: str, episode: Episode, attachments: Mapping[str, bytes]):
+        self.path = Path(path)
+        self._stack = ExitStack()
+        stream = self._stack.enter_context(atomic_output(self.path))
+        self.writer = new_writer(stream, COMPRESSION_BY_KIND[kind])
+        self._schema_ids: dict[str, int] = {}
+        self.channels: dict[str, int] = {}
+        for name, data in attachments.items():
+            media = mimetypes.guess_type(name)[0] or "application/octet-stream"
+            self.writer.add_attachment(create_time=0, log_time=0, name=name, media_type=media, data=bytes(data))
+        self.writer.add_metadata(METADATA_EPISODE, episode_metadata(episode, kind))
+
+    def channel(self, topic: str, schema_name: str, metadata: Mapping[str, str] | None = None) -> int:
+        """Id of the channel of `topic`, registering it (and its schema) on first use."""
+        if topic not in self.channels:
+            if schema_name not in self._schema_ids:
+                data = feature_vector_schema() if schema_name == SCHEMA_TRAJECTORY else schema_data(FOXGLOVE_CLASSES[schema_name])
+                self._schema_ids[schema_name] = self.writer.register_schema(name=schema_name, encoding="protobuf", data=data)
+            self.channels[topic] = self.writer.register_channel(
+                topic=topic, message_encoding="protobuf", schema_id=self._schema_ids[schema_name], metadata=dict(metadata or {})
+            )
+        return self.channels[topic]
+
+    def add(self, channel_id: int, t_ns: int, data: bytes) -> None:
+        self.writer.add_message(channel_id=channel_id, log_time=t_ns, data=data, publish_time=t_ns)
+
+    def finish(self, metadata: Mapping[str, Mapping[str, str]]) -> None:
+        """Write closing metadata, the summary and footer; rename into place."""
+        for name, data in metadata.items():
+            self.writer.add_metadata(name, dict(data))
+        self.writer.finish()
+        self._stack.close()
+
+    def abort(self, exc: BaseException) -> None:
+        """Drop the temporary file (the exception propagates to the caller)."""
+        self._stack.__exit__(type(exc), exc, exc.__traceback__)
+
+
+class _StepWriter:
+    """Shared lifecycle of the two writers: per-step time checks, frames, atomic close."""
+
+    kind = ""
+
+    def __init__(self, path: str | os.PathLike, episode: Episode, attachments: Mapping[str, bytes] | None = None):
+        self.path = Path(path)
+        self.episode = episode
+        self._attachments = dict(attachments or {})
+        self._file: _McapFile | None = None
+        self._times: list[int] = []
+        self._with_frames: bool | None = None
+
+    def __enter__(self) -> Any:
+        self._file = _McapFile(self.path, self.kind, self.episode, self._attachments)
+        self._open(self._file)
+        return self
+
+    def _open(self, f: _McapFile) -> None:
+        """Register channels known up front (subclasses)."""
+
+    def __exit__(self, exc_type: Any, exc: BaseException | None, tb: Any) -> None:
+        assert self._file is not None, "writer used outside its `with` block"
+        if exc is None:
+            try:
+                self._close(self._file)
+            except BaseException as close_exc:
+                self._file.abort(close_exc)
+                raise
+        else:
+            self._file.abort(exc)
+
+    def _close(self, f: _McapFile) -> None:
+        if not self._times:
+            raise RecordingError(f"{self.path}: no steps were written; a recording needs at least one step")
+        f.finish(self._closing_metadata())
+
+    def _closing_metadata(self) -> dict[str, Mapping[str, str]]:
+        return {METADATA_STEPS: steps_metadata(self._times)}
+
+    def _where(self) -> str:
+        return f"{self.path} (step {len(self._times)})"
+
+    def _next_time(self, t_ns: int) -> int:
+        t = int(t_ns)
+        if t < 0:
+            raise RecordingError(f"{self._where()}: timestamp {t} ns is negative")
+        if self._times and t <= self._times[-1]:
+            raise RecordingError(
+                f"{self._where()}: timestamps go backwards (or repeat): {self._times[-1]} ns then {t} ns"
+            )
+        return t
+
+    def _frame(self, t: int, frame: bytes | None) -> None:
+        has = frame is not None
+        if self._with_frames is None:
+            self._with_frames = has
+        elif has != self._with_frames:
+            raise RecordingError(f"{self._where()}: give a frame at every step or at none (motion-only)")
+        if has:
+            check_frames([frame], 1, self._where())  # type: ignore[list-item]
+            assert self._file is not None
+            self._file.add(self._file.channel(TOPIC_IMAGE, SCHEMA_IMAGE), t, encode_image(t, frame))  # type: ignore[arg-type]
+
+    @property
+    def n_steps(self) -> int:
+        return len(self._times)
+
+
+class DemonstrationWriter(_StepWriter):
+    """Writes a demonstration file: `/camera/rgb` (optional), `/ee/pose`, `/gripper` per step."""
+
+    kind = KIND_DEMONSTRATION
+
+    def _open(self, f: _McapFile) -> None:
+        self._pose_ch = f.channel(TOPIC_POSE, SCHEMA_POSE)
+        self._grip_ch = f.channel(TOPIC_GRIPPER, SCHEMA_GRIPPER)
+
+    def write_step(self, t_ns: int, pose: Sequence[float], gripper: float, frame: bytes | None = None) -> None:
+        """One step at `t_ns` (ns): pose (7,) xyz m + quaternion xyzw, gripper scalar, JPEG frame or None."""
+        assert self._file is not None, "writer used outside its `with` block"
+        t = self._next_time(t_ns)
+        p = check_pose(np.asarray(pose, dtype=np.float64)[None], 1, self._where())[0]
+        g = check_gripper([gripper], 1, self._where())[0]
+        self._frame(t, frame)
+        self._file.add(self._pose_ch, t, encode_pose(t, p))
+        self._file.add(self._grip_ch, t, encode_gripper(t, g))
+        self._times.append(t)
+
+
+class TrajectoryWriter(_StepWriter):
+    """Writes a trajectory file: `/trajectory` (one packed float32 vector per step), frames optional.
+
+    width: 1288 ([features|pose|gripper]) or 8 ([pose|gripper]); the layout goes into the channel
+    metadata. extractor: feature extractor identity (str -> str), required iff width is 1288.
+    """
+
+    kind = KIND_TRAJECTORY
+
+    def __init__(
+        self,
+        path: str | os.PathLike,
+        episode: Episode,
+        width: int,
+        extractor: Mapping[str, str] | None = None,
+        attachments: Mapping[str, bytes] | None = None,
+    ):
+        super().__init__(path, episode, attachments)
+        self.layout = check_layout(None, width, str(self.path))
+        self.extractor = check_extractor(extractor, self.layout, str(self.path))
+        self.width = width
+
+    def _open(self, f: _McapFile) -> None:
+        meta = {
+            CHANNEL_KEY_LAYOUT: json.dumps({k: list(v) for k, v in self.layout.items()}),
+            CHANNEL_KEY_WIDTH: str(self.width),
+            CHANNEL_KEY_DTYPE: "float32",
+        }
+        self._vec_ch = f.channel(TOPIC_TRAJECTORY, SCHEMA_TRAJECTORY, meta)
+
+    def _closing_metadata(self) -> dict[str, Mapping[str, str]]:
+        meta = super()._closing_metadata()
+        if self.extractor:
+            meta[METADATA_EXTRACTOR] = self.extractor
+        return meta
+
+    def write_step(self, t_ns: int, vector: np.ndarray, frame: bytes | None = None) -> None:
+        """One step at `t_ns` (ns): `vector` (width,) float32, JPEG frame or None."""
+        self.write_steps(np.asarray([t_ns]), np.asarray(vector)[None], None if frame is None else [frame])
+
+    def write_steps(self, timestamps_ns: np.ndarray, data: np.ndarray, frames: Sequence[bytes] | None = None) -> None:
+        """Several steps: timestamps (N,) int ns, data (N, width) float32, frames N JPEGs or None."""
+        assert self._file is not None, "writer used outside its `with` block"
+        where = self._where()
+        ts = check_timestamps(timestamps_ns, where)
+        rows = check_matrix(data, ts.shape[0], where)
+        if rows.shape[1] != self.width:
+            raise RecordingError(f"{where}: vector width {rows.shape[1]} does not match this file's width {self.width}")
+        pose_cols = slice(self.layout[BLOCK_POSE_XYZ][0], self.layout[BLOCK_POSE_QUAT][1])
+        check_pose(rows[:, pose_cols], ts.shape[0], where)
+        check_frames(frames, ts.shape[0], where)
+        self._next_time(int(ts[0]))
+        for i, t in enumerate(ts.tolist()):
+            self._frame(t, None if frames is None else frames[i])
+            self._file.add(self._vec_ch, t, encode_vector(t, rows[i]))
+        self._times.extend(ts.tolist())
+
+
+def write_demonstration(path: str | os.PathLike, demo: Demonstration) -> Path:
+    """Write `demo` to `path` atomically; returns the path."""
+    frames = demo.frames or [None] * demo.n_steps
+    with DemonstrationWriter(path, demo.episode, demo.attachments) as w:
+        for t, pose, grip, frame in zip(demo.timestamps_ns.tolist(), demo.pose, demo.gripper.tolist(), frames):
+            w.write_step(t, pose, grip, frame)
+    return Path(path)
+
+
+def write_trajectory(path: str | os.PathLike, traj: Trajectory) -> Path:
+    """Write `traj` to `path` atomically; returns the path."""
+    with TrajectoryWriter(path, traj.episode, traj.width, traj.extractor) as w:
+        w.write_steps(traj.timestamps_ns, traj.data, traj.frames)
+    return Path(path)
+

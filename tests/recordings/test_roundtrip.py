@@ -1,0 +1,164 @@
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
+
+import recordings
+from recordings import (
+    LAYOUT_FULL,
+    LAYOUT_MOTION,
+    DemonstrationReader,
+    DemonstrationWriter,
+    Episode,
+    Trajectory,
+    TrajectoryReader,
+    TrajectoryWriter,
+    read_demonstration,
+    read_trajectory,
+    write_demonstration,
+    write_trajectory,
+)
+from recordings.constants import METADATA_STEPS, TOPIC_GRIPPER, TOPIC_IMAGE, TOPIC_POSE, TOPIC_TRAJECTORY
+from recordings.container import read_mcap
+from tests.recordings.factories import demonstration_factory, random_pose, trajectory_factory
+
+
+def assert_same_demo(a, b):
+    assert a.episode == b.episode
+    np.testing.assert_array_equal(a.timestamps_ns, b.timestamps_ns)
+    np.testing.assert_array_equal(a.pose, b.pose)
+    np.testing.assert_array_equal(a.gripper, b.gripper)
+    assert a.frames == b.frames
+    assert a.attachments == b.attachments
+
+
+def test_public_api_is_importable():
+    for name in recordings.__all__:
+        assert getattr(recordings, name) is not None
+
+
+@pytest.mark.parametrize("frames", [True, False])
+def test_demonstration_round_trip(tmp_path, frames):
+    demo = demonstration_factory(steps=15, frames=frames)
+    path = write_demonstration(tmp_path / "d.mcap", demo)
+    back = read_demonstration(path)
+    assert_same_demo(demo, back)
+    assert back.has_frames is frames
+    contents = read_mcap(path)
+    topics = {c.topic for c in contents.channels.values()}
+    assert topics == ({TOPIC_POSE, TOPIC_GRIPPER} | ({TOPIC_IMAGE} if frames else set()))
+    assert contents.metadata[METADATA_STEPS]["n_steps"] == "15"
+    assert contents.metadata["episode"]["format_version"] == recordings.FORMAT_VERSION
+
+
+@pytest.mark.parametrize("features,frames", [(True, False), (False, False), (True, True)])
+def test_trajectory_round_trip(tmp_path, features, frames):
+    traj = trajectory_factory(steps=12, features=features, frames=frames)
+    back = read_trajectory(write_trajectory(tmp_path / "t.mcap", traj))
+    np.testing.assert_array_equal(back.data, traj.data)
+    np.testing.assert_array_equal(back.timestamps_ns, traj.timestamps_ns)
+    assert back.layout == dict(LAYOUT_FULL if features else LAYOUT_MOTION)
+    assert back.extractor == traj.extractor
+    assert back.episode == traj.episode
+    assert back.frames == traj.frames
+    assert back.width == (1288 if features else 8)
+    assert (back.features is not None) is features
+
+
+def test_trajectory_blocks_view_the_right_columns():
+    demo = demonstration_factory(steps=5, frames=False)
+    feats = np.arange(5 * 1280, dtype=np.float32).reshape(5, 1280)
+    traj = Trajectory.from_demonstration(demo, feats, {"architecture": "x"})
+    np.testing.assert_array_equal(traj.features, feats)
+    np.testing.assert_allclose(traj.pose, demo.pose.astype(np.float32))
+    np.testing.assert_allclose(traj.gripper, demo.gripper.astype(np.float32))
+    np.testing.assert_array_equal(traj.block("pose_xyz"), traj.data[:, 1280:1283])
+    np.testing.assert_array_equal(traj.data[:, 1287], traj.gripper)
+
+
+def test_streaming_writers_and_readers(tmp_path):
+    demo = demonstration_factory(steps=6)
+    with DemonstrationWriter(tmp_path / "d.mcap", demo.episode, demo.attachments) as w:
+        for i in range(demo.n_steps):
+            w.write_step(demo.timestamps_ns[i], demo.pose[i], demo.gripper[i], demo.frames[i])
+    with DemonstrationReader(tmp_path / "d.mcap") as r:
+        assert r.episode == demo.episode and r.n_steps == 6 and r.has_frames
+        assert_same_demo(r.read(), demo)
+
+    traj = trajectory_factory(steps=7)
+    with TrajectoryWriter(tmp_path / "t.mcap", traj.episode, 1288, traj.extractor) as w:
+        w.write_steps(traj.timestamps_ns[:3], traj.data[:3])
+        for i in range(3, 7):
+            w.write_step(traj.timestamps_ns[i], traj.data[i])
+    with TrajectoryReader(tmp_path / "t.mcap") as r:
+        assert r.width == 1288 and r.layout == dict(LAYOUT_FULL) and r.extractor == traj.extractor and r.n_steps == 7
+        np.testing.assert_array_equal(r.read().data, traj.data)
+
+
+def test_failed_writer_leaves_nothing(tmp_path):
+    demo = demonstration_factory(steps=3, frames=False)
+    with pytest.raises(RuntimeError):
+        with DemonstrationWriter(tmp_path / "d.mcap", demo.episode) as w:
+            w.write_step(0, demo.pose[0], 1.0)
+            raise RuntimeError("recorder crashed")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_existing_output_is_kept_if_writing_fails(tmp_path):
+    path = write_trajectory(tmp_path / "t.mcap", trajectory_factory(steps=4, features=False))
+    before = path.read_bytes()
+    with pytest.raises(recordings.RecordingError):
+        with TrajectoryWriter(path, trajectory_factory().episode, 8) as w:
+            w.write_step(5, np.zeros(8, np.float32))  # zero quaternion: rejected
+    assert path.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["t.mcap"]
+
+
+finite32 = st.floats(-1e6, 1e6, allow_nan=False, allow_infinity=False, width=32)
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(
+    steps=st.integers(1, 40),
+    features=st.booleans(),
+    seed=st.integers(0, 2**32 - 1),
+    start=st.integers(0, 2**62),
+    gaps=st.lists(st.integers(1, 10**10), min_size=39, max_size=39),
+    extreme=finite32,
+)
+def test_trajectory_round_trip_property(tmp_path, steps, features, seed, start, gaps, extreme):
+    rng = np.random.default_rng(seed)
+    width = 1288 if features else 8
+    data = rng.normal(scale=1e3, size=(steps, width)).astype(np.float32)
+    data[rng.integers(steps), rng.integers(width)] = extreme
+    data[:, width - 5 : width - 1] = random_pose(steps, rng)[:, 3:]  # non-zero quaternion
+    ts = start + np.concatenate([[0], np.cumsum(gaps[: steps - 1])]).astype(np.int64)
+    traj = Trajectory(
+        episode=Episode("prop", fps=rng.uniform(0.1, 1000)),
+        timestamps_ns=ts,
+        data=data,
+        extractor={"architecture": "x"} if features else {},
+    )
+    back = read_trajectory(write_trajectory(tmp_path / "p.mcap", traj))
+    np.testing.assert_array_equal(back.data, data)
+    np.testing.assert_array_equal(back.timestamps_ns, ts)
+    assert back.episode == traj.episode
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(
+    pose_xyz=hnp.arrays(np.float64, st.tuples(st.integers(1, 30), st.just(3)), elements=st.floats(-1e9, 1e9)),
+    seed=st.integers(0, 2**32 - 1),
+    task=st.text(max_size=20),
+)
+def test_demonstration_round_trip_property(tmp_path, pose_xyz, seed, task):
+    rng = np.random.default_rng(seed)
+    steps = pose_xyz.shape[0]
+    demo = recordings.Demonstration(
+        episode=Episode("prop-demo", fps=30.0, task=task),
+        timestamps_ns=np.sort(rng.choice(10**15, size=steps, replace=False)).astype(np.int64),
+        pose=np.concatenate([pose_xyz, random_pose(steps, rng)[:, 3:]], axis=1),
+        gripper=rng.normal(size=steps),
+    )
+    assert_same_demo(demo, read_demonstration(write_demonstration(tmp_path / "p.mcap", demo)))
