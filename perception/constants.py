@@ -1,0 +1,34 @@
+"""Constants of the feature extractor: sizes, normalisation, weight file names, backend order."""
+
+from __future__ import annotations
+
+ARCHITECTURE = "torchvision.mobilenet_v2.features+global_avg_pool"
+FEATURE_DIM = 1280  # width of one feature vector (channels of the last MobileNet-v2 block)
+IMAGE_SIZE = 224  # frames are resized to IMAGE_SIZE x IMAGE_SIZE pixels before the network
+
+# ImageNet statistics the torchvision weights were trained with (RGB order, on [0, 1] pixels).
+IMAGENET_MEAN = (0.485, 0.456, 0.406)
+IMAGENET_STD = (0.229, 0.224, 0.225)
+
+PREPROCESSING = (
+    f"uint8 RGB -> cv2.resize {IMAGE_SIZE}x{IMAGE_SIZE} INTER_AREA (full frame, no crop) "
+    f"-> /255 -> ImageNet mean {IMAGENET_MEAN} std {IMAGENET_STD}"
+)
+
+# ImageNet weights: an explicit file (environment variable) or the torch hub cache, in this order.
+WEIGHTS_ENV_VAR = "CNEP_MOBILENET_WEIGHTS"
+IMAGENET_WEIGHT_FILES = {
+    "mobilenet_v2-b0353104.pth": "https://download.pytorch.org/models/mobilenet_v2-b0353104.pth",
+    "mobilenet_v2-7ebf99e0.pth": "https://download.pytorch.org/models/mobilenet_v2-7ebf99e0.pth",
+}
+
+# Batch-norm re-estimation for seeded random weights (see docs/perception.md).
+CALIBRATION_FRAMES = 256  # frames used to re-estimate the statistics (spread over the inputs)
+CALIBRATION_BATCH = 32  # frames per forward pass while re-estimating
+
+DEFAULT_BATCH_SIZE = 4  # frames per forward pass: small batches stay in cache (measured fastest, see docs)
+# Fastest first, as measured by `python -m benchmarks.bench_perception` on the 2-core machines.
+BACKENDS = ("onnxruntime", "torchscript", "eager")
+
+# Identity fields that must agree for features from two files to be mixed (the backend may differ).
+COMPATIBILITY_FIELDS = ("architecture", "feature_dim", "weights_sha256", "preprocessing")

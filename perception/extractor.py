@@ -1,0 +1,125 @@
+"""The feature extractor: uint8 RGB frames of any size (N, H, W, 3) -> float32 features (N, 1280)."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from perception.backends import Runner, available_backends, build_runner
+from perception.calibration import ACTIVATION_BIAS, calibrate_random_network
+from perception.constants import (ARCHITECTURE, CALIBRATION_BATCH, COMPATIBILITY_FIELDS, DEFAULT_BATCH_SIZE,
+                                  FEATURE_DIM, IMAGE_SIZE, PREPROCESSING)
+from perception.errors import PerceptionError
+from perception.frames import decode_image, resize_frames
+from perception.network import FeatureNet, mobilenet_v2_features
+from perception.weights import resolve_weights, save_state_dict, state_dict_sha256
+
+log = logging.getLogger(__name__)
+
+
+class FeatureExtractor:
+    """MobileNet-v2 features + global average pool, batched, eval + inference mode.
+
+    weights: `imagenet`, a state-dict path, or `random` (seeded by `seed`; call `calibrate` on frames of
+    the recordings before extracting, see perception.calibration). backend: `auto` (fastest available),
+    `onnxruntime`, `torchscript` or `eager`. threads: CPU threads for inference (None: library default).
+    """
+
+    def __init__(self, weights: str | Path = "imagenet", backend: str = "auto", threads: int | None = None,
+                 batch_size: int = DEFAULT_BATCH_SIZE, seed: int = 0) -> None:
+        if batch_size < 1:
+            raise PerceptionError(f"batch_size must be >= 1, got {batch_size}")
+        if threads is not None and threads < 1:
+            raise PerceptionError(f"threads must be >= 1 (or None for the default), got {threads}")
+        if backend != "auto" and backend not in available_backends():
+            raise PerceptionError(f"backend {backend!r} is not available; choose `auto` or one of "
+                                  f"{available_backends()} (onnxruntime needs: pip install 'cnep-pipeline[onnx]')")
+        resolved = resolve_weights(weights, seed)
+        features = mobilenet_v2_features()
+        features.load_state_dict(resolved.state_dict)
+        self.net = FeatureNet(features).eval()
+        self.weights_name = resolved.name
+        self.calibrated_on = 0  # frames used to re-estimate batch-norm statistics (0: as loaded)
+        self.backend, self.threads, self.batch_size = backend, threads, batch_size
+        self._runner: Runner | None = None
+        self._sha256 = state_dict_sha256(self.net.features.state_dict())
+        self._needs_calibration = resolved.is_random
+
+    @property
+    def needs_calibration(self) -> bool:
+        """True for random weights whose batch-norm statistics were not re-estimated yet."""
+        return self._needs_calibration
+
+    def calibrate(self, frames: np.ndarray) -> None:
+        """Calibrate random weights on (N, H, W, 3) uint8 frames, N >= 2 (perception.calibration); changes the hash."""
+        if not self.weights_name.startswith("random:"):
+            raise PerceptionError(f"calibrate() is for seeded random weights; {self.weights_name} are used as given")
+        pixels = resize_frames(frames)  # (N, 224, 224, 3)
+        batches = (pixels[i:i + CALIBRATION_BATCH] for i in range(0, len(pixels), CALIBRATION_BATCH))
+        self.calibrated_on = calibrate_random_network(self.net, batches)
+        self._sha256 = state_dict_sha256(self.net.features.state_dict())
+        self._needs_calibration = False
+        self._runner = None  # compiled backends hold a frozen copy of the old statistics
+        log.info("calibrated random weights on %d frames (weights sha256 %s)", self.calibrated_on, self._sha256[:12])
+
+    @property
+    def identity(self) -> dict[str, str]:
+        """What produced the features, as flat strings for file metadata (see `compatibility_key`)."""
+        weights = self.weights_name
+        if self.calibrated_on:
+            weights += f"+calibrated:bias={ACTIVATION_BIAS},frames={self.calibrated_on}"
+        return {
+            "architecture": ARCHITECTURE,
+            "feature_dim": str(FEATURE_DIM),
+            "weights": weights,
+            "weights_sha256": self._sha256,
+            "preprocessing": PREPROCESSING,
+            "backend": self._resolved_backend(),
+        }
+
+    def __call__(self, frames: np.ndarray) -> np.ndarray:
+        """Features of (N, H, W, 3) uint8 RGB frames of any size: (N, 1280) float32, in batches of batch_size."""
+        return self.features(resize_frames(frames))
+
+    def features(self, pixels: np.ndarray) -> np.ndarray:
+        """Features of frames already resized to (N, 224, 224, 3) uint8: (N, 1280) float32."""
+        if self._needs_calibration:
+            raise PerceptionError(f"weights {self.weights_name} are freshly initialised: their features are ~1e-9 "
+                                  f"and carry no signal; call calibrate(frames) with frames of the recordings first")
+        runner = self._get_runner()
+        out = np.empty((len(pixels), FEATURE_DIM), dtype=np.float32)  # (N, 1280)
+        for i in range(0, len(pixels), self.batch_size):
+            out[i:i + self.batch_size] = runner(np.ascontiguousarray(pixels[i:i + self.batch_size]))
+        return out
+
+    def decode(self, images: Sequence[bytes]) -> np.ndarray:
+        """Decode compressed images (JPEG/PNG bytes) and resize them: (N, 224, 224, 3) uint8."""
+        out = np.empty((len(images), IMAGE_SIZE, IMAGE_SIZE, 3), dtype=np.uint8)  # (N, 224, 224, 3)
+        for i, data in enumerate(images):
+            out[i] = resize_frames(decode_image(data)[None])[0]
+        return out
+
+    def save_weights(self, path: Path) -> None:
+        """Save the (possibly calibrated) weights, to reuse them later as weights=`path`."""
+        save_state_dict(self.net.features.state_dict(), path)
+
+    def _get_runner(self) -> Runner:
+        if self._runner is None:
+            self._runner = build_runner(self._resolved_backend(), self.net, self.threads)
+        return self._runner
+
+    def _resolved_backend(self) -> str:
+        return available_backends()[0] if self.backend == "auto" else self.backend
+
+
+def compatibility_key(identity: dict[str, str]) -> tuple[str, ...]:
+    """The identity fields that must match for features to be mixed (COMPATIBILITY_FIELDS, as `field=value`).
+
+    The backend and the weights' name are left out: backends run the same graph and agree to cosine
+    similarity >= 0.9999 (tests/perception/test_backends.py), and equal weights have equal sha256 whatever
+    their file is called.
+    """
+    return tuple(f"{field}={identity.get(field, '(missing)')}" for field in COMPATIBILITY_FIELDS)

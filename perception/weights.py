@@ -1,0 +1,129 @@
+"""Weights of the feature network, chosen explicitly: `imagenet`, a path to a state dict, or `random`.
+
+A `Weights` holds the state dict of MobileNet-v2's `features` block (keys like `0.0.weight`) and the
+name written into the extractor identity.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+
+from perception.constants import IMAGENET_WEIGHT_FILES, WEIGHTS_ENV_VAR
+from perception.errors import PerceptionError
+from perception.network import mobilenet_v2_features
+
+_FEATURES_PREFIX = "features."  # keys of a full torchvision mobilenet_v2 state dict
+
+
+@dataclass(frozen=True)
+class Weights:
+    """A `features` state dict and its name (`imagenet:<file>`, `path:<file>` or `random:seed=<n>`)."""
+
+    name: str
+    state_dict: dict[str, torch.Tensor]
+
+    @property
+    def is_random(self) -> bool:
+        """True for seeded random initialisation (its batch-norm statistics need re-estimating)."""
+        return self.name.startswith("random:")
+
+
+def resolve_weights(spec: str | Path, seed: int = 0) -> Weights:
+    """Turn `imagenet`, `random` or a state-dict path into Weights; `seed` only matters for `random`."""
+    if str(spec) == "random":
+        return Weights(f"random:seed={seed}", random_state_dict(seed))
+    if str(spec) == "imagenet":
+        path = find_imagenet_weights()
+        return Weights(f"imagenet:{path.name}", load_state_dict(path))
+    path = Path(spec)
+    if not path.is_file():
+        raise PerceptionError(f"weights file {path} does not exist; pass `imagenet`, `random` or the path of a "
+                              f"MobileNet-v2 state dict (.pth/.pt or .safetensors)")
+    return Weights(f"path:{path.name}", load_state_dict(path))
+
+
+def imagenet_search_paths() -> list[Path]:
+    """Where ImageNet weights are looked for, in order: the environment variable, then the torch hub cache."""
+    paths = [Path(os.environ[WEIGHTS_ENV_VAR]).expanduser()] if os.environ.get(WEIGHTS_ENV_VAR) else []
+    checkpoints = Path(torch.hub.get_dir()) / "checkpoints"
+    return paths + [checkpoints / name for name in IMAGENET_WEIGHT_FILES]
+
+
+def find_imagenet_weights() -> Path:
+    """The first existing ImageNet weight file, or a PerceptionError saying where to put one and where to get it."""
+    candidates = imagenet_search_paths()
+    for path in candidates:
+        if path.is_file():
+            return path
+    if os.environ.get(WEIGHTS_ENV_VAR):
+        raise PerceptionError(f"{WEIGHTS_ENV_VAR}={os.environ[WEIGHTS_ENV_VAR]} is not a file; point it at a "
+                              f"MobileNet-v2 ImageNet state dict")
+    checkpoints = candidates[0].parent
+    names = " or ".join(IMAGENET_WEIGHT_FILES)
+    urls = " or ".join(IMAGENET_WEIGHT_FILES.values())
+    raise PerceptionError(f"ImageNet weights for MobileNet-v2 not found: put {names} in {checkpoints} (or set "
+                          f"{WEIGHTS_ENV_VAR} to the file); download it from {urls} on a machine with internet "
+                          f"access, or choose weights `random` (seeded) explicitly")
+
+
+def random_state_dict(seed: int) -> dict[str, torch.Tensor]:
+    """torchvision's initialisation of MobileNet-v2 `features`, seeded, without touching the global RNG."""
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(seed)
+        return mobilenet_v2_features().state_dict()
+
+
+def load_state_dict(path: Path) -> dict[str, torch.Tensor]:
+    """Load a MobileNet-v2 state dict (full model or `features` only) from .pth/.pt (weights_only) or .safetensors.
+
+    Returns the `features` part with keys relative to it, checked against the architecture.
+    """
+    try:
+        if path.suffix == ".safetensors":
+            from safetensors.torch import load_file
+
+            raw = load_file(str(path))
+        else:
+            raw = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # pickle, zip and safetensors errors have no common base class
+        raise PerceptionError(f"cannot load weights file {path}: {exc}; expected a state dict saved with "
+                              f"torch.save(model.state_dict(), path)") from exc
+    if not isinstance(raw, dict):
+        raise PerceptionError(f"weights file {path} holds a {type(raw).__name__}, not a state dict; save it with "
+                              f"torch.save(model.state_dict(), path)")
+    if any(key.startswith(_FEATURES_PREFIX) for key in raw):
+        raw = {k[len(_FEATURES_PREFIX):]: v for k, v in raw.items() if k.startswith(_FEATURES_PREFIX)}
+    reference = mobilenet_v2_features().state_dict()
+    missing = sorted(set(reference) - set(raw))
+    if missing:
+        raise PerceptionError(f"weights file {path} is not a MobileNet-v2 state dict: {len(missing)} keys missing "
+                              f"(e.g. features.{missing[0]})")
+    for key, tensor in reference.items():
+        if not isinstance(raw[key], torch.Tensor) or raw[key].shape != tensor.shape:
+            shape = getattr(raw[key], "shape", type(raw[key]).__name__)
+            raise PerceptionError(f"weights file {path}: features.{key} has shape {tuple(shape)}, MobileNet-v2 "
+                                  f"expects {tuple(tensor.shape)}")
+    return {key: raw[key].to(tensor.dtype) for key, tensor in reference.items()}
+
+
+def save_state_dict(state_dict: dict[str, torch.Tensor], path: Path) -> None:
+    """Write a `features` state dict as a torchvision-style file (keys `features.*`), atomically."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp")
+    torch.save({_FEATURES_PREFIX + k: v.detach().clone() for k, v in state_dict.items()}, tmp)
+    tmp.replace(path)
+
+
+def state_dict_sha256(state_dict: dict[str, torch.Tensor]) -> str:
+    """sha256 over every tensor's name, dtype, shape and bytes, in key order (hex string of 64 characters)."""
+    digest = hashlib.sha256()
+    for key in sorted(state_dict):
+        tensor = state_dict[key].detach().contiguous().cpu()
+        digest.update(f"{key}|{tensor.dtype}|{tuple(tensor.shape)}|".encode())
+        digest.update(tensor.numpy().tobytes())
+    return digest.hexdigest()

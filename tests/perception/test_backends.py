@@ -1,0 +1,31 @@
+import numpy as np
+import pytest
+
+from perception import FeatureExtractor, available_backends
+
+from .conftest import scene_frames
+
+
+def test_eager_is_always_available_and_auto_picks_the_first():
+    backends = available_backends()
+    assert "eager" in backends and "torchscript" in backends
+    assert FeatureExtractor("random", threads=1).identity["backend"] == backends[0]
+
+
+def test_all_backends_agree_on_the_same_frames():
+    frames = np.concatenate([scene_frames(k, n=3, seed=k) for k in range(2)])  # (6, 60, 80, 3)
+    features = {}
+    for backend in available_backends():
+        extractor = FeatureExtractor("random", backend=backend, threads=1, batch_size=4)
+        extractor.calibrate(frames)
+        features[backend] = extractor(frames)
+        assert features[backend].shape == (6, 1280) and features[backend].dtype == np.float32
+    reference = features.pop("eager")
+    for backend, values in features.items():
+        cosine = (values * reference).sum(1) / np.linalg.norm(values, axis=1) / np.linalg.norm(reference, axis=1)
+        assert cosine.min() >= 0.9999, (backend, cosine.min())
+
+
+@pytest.mark.skipif("onnxruntime" not in available_backends(), reason="needs the onnx extra")
+def test_onnxruntime_is_the_default_when_installed():
+    assert available_backends()[0] == "onnxruntime"
