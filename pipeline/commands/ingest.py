@@ -1,0 +1,64 @@
+"""`cnep ingest SRC --out DIR`: raw recordings -> demonstration MCAP files."""
+
+from __future__ import annotations
+
+import argparse
+
+HELP = "convert recordings (video/images + CSV, motion-only CSV, or a robot's MCAP) into demonstration MCAP files"
+
+COLUMN_KEYS = "time time_unit x y z qx qy qz qw gripper"
+
+
+def _key_value(text: str) -> tuple[str, str]:
+    key, sep, value = text.partition("=")
+    if not sep:
+        raise argparse.ArgumentTypeError(f"expected KEY=NAME, got {text!r}")
+    return key.strip(), value.strip()
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("src", help="a recording folder, a CSV file or an MCAP file (read only)")
+    parser.add_argument("--out", required=True, help="folder for the demonstration files (created if missing)")
+    parser.add_argument("--task", default="", help="task label stored in each file's episode metadata")
+    g = parser.add_argument_group("CSV (defaults: the Baxter format, Time in ms)")
+    g.add_argument(
+        "--column",
+        action="append",
+        type=_key_value,
+        default=[],
+        metavar="KEY=NAME",
+        help=f"map a key to a CSV column (keys: {COLUMN_KEYS}); gripper= for none; repeatable",
+    )
+    g.add_argument("--frame-rate", type=float, default=None, metavar="HZ", help="camera rate when frames are not one per CSV row")
+    g.add_argument("--frame-offset-ms", type=float, default=0.0, metavar="MS", help="time of the first frame after the first CSV row")
+    m = parser.add_argument_group("MCAP input (Foxglove schemas)")
+    m.add_argument("--image-topic", default="/camera/rgb", help='image topic ("" for motion-only)')
+    m.add_argument("--pose-topic", default="/ee/pose", help="end-effector pose topic")
+    m.add_argument("--gripper-topic", default="/gripper", help='gripper JointStates topic ("" for none)')
+    m.add_argument("--gripper-joint", default="gripper", help="joint name of the gripper in that topic")
+
+
+def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from pipeline.ingest import IngestConfig, ingest
+    from recordings.adapters import FrameTiming
+    from recordings.csv_motion import CsvColumns
+    from recordings.mcap_source import McapTopics
+
+    config = IngestConfig(
+        src=Path(args.src),
+        out=Path(args.out),
+        columns=CsvColumns.from_overrides(dict(args.column)),
+        timing=FrameTiming(frame_rate=args.frame_rate, offset_ms=args.frame_offset_ms),
+        topics=McapTopics(image=args.image_topic, pose=args.pose_topic, gripper=args.gripper_topic, gripper_joint=args.gripper_joint),
+        task=args.task,
+        quiet=args.quiet,
+    )
+    done = ingest(config)
+    with_frames = sum(d.has_frames for d in done)
+    print(
+        f"ingested {len(done)} demonstration(s) into {config.out} "
+        f"({with_frames} with frames, {len(done) - with_frames} motion-only, {sum(d.n_steps for d in done)} steps)"
+    )
+    return 0

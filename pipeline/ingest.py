@@ -1,0 +1,121 @@
+"""Stage `ingest`: raw recordings -> one demonstration MCAP file per demonstration.
+
+Sources found under SRC (a file or a folder, searched recursively, in sorted order):
+- a folder holding a video (MP4/AVI/MOV/MKV) or numbered images, plus one CSV -> one demonstration;
+- any other CSV -> one motion-only demonstration (the Baxter format works without options);
+- an MCAP file -> one demonstration from its Foxglove image/pose/gripper topics.
+Each is written to OUT/<path relative to SRC>.mcap (atomically); SRC is only read.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from tqdm import tqdm
+from tqdm.contrib.logging import logging_redirect_tqdm
+
+from recordings import Demonstration, RecordingError, write_demonstration
+from recordings.adapters import FrameTiming, demonstration_from_csv, demonstration_from_folder, media_of
+from recordings.csv_motion import CsvColumns
+from recordings.mcap_source import McapTopics, demonstration_from_mcap
+
+log = logging.getLogger(__name__)
+
+SUFFIX = ".mcap"
+
+
+@dataclass(frozen=True)
+class IngestConfig:
+    """src: file or folder to read; out: folder to write (created if missing, never inside src)."""
+
+    src: Path
+    out: Path
+    columns: CsvColumns = field(default_factory=CsvColumns)
+    timing: FrameTiming = field(default_factory=FrameTiming)
+    topics: McapTopics = field(default_factory=McapTopics)
+    task: str = ""
+    quiet: bool = False
+
+
+@dataclass(frozen=True)
+class Source:
+    kind: str  # "folder", "csv" or "mcap"
+    path: Path
+    episode_id: str  # path relative to src, without suffix ("/"-separated)
+
+
+@dataclass(frozen=True)
+class Ingested:
+    source: Source
+    output: Path
+    n_steps: int
+    has_frames: bool
+    fps: float
+
+
+def _episode_id(src: Path, path: Path, strip_suffix: bool) -> str:
+    rel = path.relative_to(src) if path != src else Path(src.name)
+    if strip_suffix:
+        rel = rel.with_suffix("")
+    return rel.as_posix() if rel.parts else src.resolve().name
+
+
+def discover(src: Path) -> list[Source]:
+    """Every demonstration source under `src` (see the module docstring)."""
+    if not src.exists():
+        raise RecordingError(f"{src}: no such file or folder")
+    if src.is_file():
+        kind = {".csv": "csv", SUFFIX: "mcap"}.get(src.suffix.lower())
+        if kind is None:
+            raise RecordingError(f"{src}: cannot ingest a {src.suffix or 'suffix-less'} file; give a CSV, an MCAP or a folder")
+        return [Source(kind, src, src.stem)]
+    found: list[Source] = []
+    for folder in sorted([src, *(d for d in src.rglob("*") if d.is_dir())]):
+        videos, images = media_of(folder)
+        if videos or images:
+            found.append(Source("folder", folder, _episode_id(src, folder, strip_suffix=False)))
+            continue
+        for f in sorted(folder.iterdir()):
+            kind = {".csv": "csv", SUFFIX: "mcap"}.get(f.suffix.lower()) if f.is_file() else None
+            if kind:
+                found.append(Source(kind, f, _episode_id(src, f, strip_suffix=True)))
+    if not found:
+        raise RecordingError(f"{src}: no recordings found (looked for CSV and MCAP files, and folders with a video or images)")
+    return found
+
+
+def load(source: Source, config: IngestConfig) -> Demonstration:
+    """The demonstration of one source."""
+    if source.kind == "folder":
+        return demonstration_from_folder(source.path, source.episode_id, config.columns, config.timing, config.task)
+    if source.kind == "csv":
+        return demonstration_from_csv(source.path, source.episode_id, config.columns, config.task)
+    return demonstration_from_mcap(source.path, source.episode_id, config.topics, config.task)
+
+
+def ingest(config: IngestConfig) -> list[Ingested]:
+    """Convert every source under `config.src`; returns what was written, in source order."""
+    src, out = Path(config.src), Path(config.out)
+    sources = discover(src)
+    if src.is_dir() and out.resolve().is_relative_to(src.resolve()):
+        raise RecordingError(f"{out}: the output folder is inside the source folder {src}; choose one outside it")
+    out.mkdir(parents=True, exist_ok=True)
+    done = []
+    with logging_redirect_tqdm():
+        for source in tqdm(sources, desc="ingest", unit="demo", disable=config.quiet):
+            demo = load(source, config)
+            target = out / f"{source.episode_id}{SUFFIX}"
+            target.parent.mkdir(parents=True, exist_ok=True)
+            write_demonstration(target, demo)
+            kind = "frames" if demo.has_frames else "motion-only"
+            log.info("%s -> %s: %d steps, %s, %.1f Hz", source.path, target, demo.n_steps, kind, demo.episode.fps)
+            done.append(Ingested(source, target, demo.n_steps, demo.has_frames, demo.episode.fps))
+    return done
+
+
+def run(config: IngestConfig) -> Path:
+    """Stage entry point: ingest everything and return the output folder."""
+    ingest(config)
+    return Path(config.out)

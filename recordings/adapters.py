@@ -1,0 +1,149 @@
+"""Build a `Demonstration` from what robot teams record: a folder of video or numbered images plus a
+CSV of pose and gripper values, or a motion-only CSV.
+
+Time base: the CSV's time column. Frames get times as follows:
+- one image per CSV row (same count): image i takes the time of row i; nothing is interpolated;
+- otherwise (a video, or a different number of images): frame i is at
+  `t_first_row + offset + i / frame_rate` (the video's own rate unless `frame_rate` is given);
+  pose and gripper are then interpolated at the frame times (xyz and gripper linearly, the
+  quaternion by slerp), and frames outside the CSV's time span are dropped (never extrapolated).
+A motion-only CSV gives one step per row.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from recordings.csv_motion import CsvColumns, MotionTable, read_motion_csv
+from recordings.errors import RecordingError
+from recordings.interpolate import interpolate_linear, slerp
+from recordings.media import VIDEO_SUFFIXES, numbered_images, read_images, read_video
+from recordings.records import Demonstration, Episode
+
+log = logging.getLogger(__name__)
+
+NS_PER_S = 1_000_000_000
+
+
+@dataclass(frozen=True)
+class FrameTiming:
+    """How frames map to time when they are not one per CSV row.
+
+    frame_rate: Hz (None: the video's own rate; required for numbered images).
+    offset_ms: time of the first frame after the first CSV row, in ms.
+    """
+
+    frame_rate: float | None = None
+    offset_ms: float = 0.0
+
+
+def median_rate(timestamps_ns: np.ndarray) -> float:
+    """Median step rate in Hz of strictly increasing ns timestamps (>= 2 of them)."""
+    return float(NS_PER_S / np.median(np.diff(timestamps_ns)))
+
+
+def motion_at(
+    times_ns: np.ndarray,
+    pose_t: np.ndarray,
+    pose: np.ndarray,
+    grip_t: np.ndarray,
+    gripper: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pose (Q, 7) and gripper (Q,) at those of `times_ns` (Q0,) inside both sample spans.
+
+    Returns (kept mask (Q0,), pose, gripper): xyz and gripper linear, quaternion by slerp.
+    """
+    keep = (times_ns >= max(pose_t[0], grip_t[0])) & (times_ns <= min(pose_t[-1], grip_t[-1]))  # (Q0,)
+    t = times_ns[keep]
+    xyz = interpolate_linear(pose_t, pose[:, :3], t)  # (Q, 3)
+    quat = slerp(pose_t, pose[:, 3:], t)  # (Q, 4)
+    return keep, np.concatenate([xyz, quat], axis=1), interpolate_linear(grip_t, gripper, t)
+
+
+def demonstration_with_frames(
+    episode_id: str,
+    table: MotionTable,
+    frames: list[bytes],
+    frame_times_ns: np.ndarray | None,
+    task: str,
+    extra: dict[str, str],
+) -> Demonstration:
+    """Frames at `frame_times_ns` (None: one frame per CSV row) with pose/gripper from `table`."""
+    if frame_times_ns is None:
+        times, pose, gripper, kept = table.timestamps_ns, table.pose, table.gripper, frames
+        extra = {**extra, "frame_times": "one frame per CSV row", "interpolation": "none"}
+    else:
+        keep, pose, gripper = motion_at(frame_times_ns, table.timestamps_ns, table.pose, table.timestamps_ns, table.gripper)
+        dropped = int((~keep).sum())
+        if dropped:
+            log.info("%s: %d of %d frames lie outside the CSV's time span and are dropped", table.path, dropped, len(frames))
+        if keep.sum() < 2:
+            raise RecordingError(f"{table.path}: fewer than 2 frames fall inside the CSV's time span; check --frame-offset-ms")
+        times, kept = frame_times_ns[keep], [f for f, k in zip(frames, keep) if k]
+        extra = {**extra, "interpolation": "pose xyz and gripper linear, quaternion slerp, at frame times"}
+    return Demonstration(
+        episode=Episode(episode_id, fps=median_rate(times), task=task, source=str(table.path.parent), extra=extra),
+        timestamps_ns=times,
+        pose=pose,
+        gripper=gripper,
+        frames=kept,
+    )
+
+
+def demonstration_from_csv(path: str | os.PathLike, episode_id: str, columns: CsvColumns = CsvColumns(), task: str = "") -> Demonstration:
+    """A motion-only demonstration: one step per CSV row."""
+    table = read_motion_csv(path, columns)
+    return Demonstration(
+        episode=Episode(episode_id, fps=median_rate(table.timestamps_ns), task=task, source=str(table.path), extra={"frames": "none"}),
+        timestamps_ns=table.timestamps_ns,
+        pose=table.pose,
+        gripper=table.gripper,
+    )
+
+
+def media_of(folder: Path) -> tuple[list[Path], list[Path]]:
+    """(videos, numbered images) directly in `folder`."""
+    videos = sorted(f for f in folder.iterdir() if f.is_file() and f.suffix.lower() in VIDEO_SUFFIXES)
+    return videos, numbered_images(folder)
+
+
+def demonstration_from_folder(
+    folder: str | os.PathLike,
+    episode_id: str,
+    columns: CsvColumns = CsvColumns(),
+    timing: FrameTiming = FrameTiming(),
+    task: str = "",
+) -> Demonstration:
+    """A demonstration from a folder with one CSV and either one video or numbered image files."""
+    d = Path(folder)
+    csvs = sorted(f for f in d.iterdir() if f.is_file() and f.suffix.lower() == ".csv")
+    if len(csvs) != 1:
+        raise RecordingError(f"{d}: a folder with frames needs exactly one CSV of pose and gripper values, found {len(csvs)}")
+    table = read_motion_csv(csvs[0], columns)
+    videos, images = media_of(d)
+    t0 = int(table.timestamps_ns[0] + round(timing.offset_ms * 1e6))
+    if videos:
+        if len(videos) > 1 or images:
+            raise RecordingError(f"{d}: give one video or numbered images per folder, found {len(videos)} videos and {len(images)} images")
+        frames, video_fps = read_video(videos[0])
+        rate = timing.frame_rate or video_fps
+        extra = {"frame_source": videos[0].name, "frame_times": f"first CSV time + {timing.offset_ms} ms + i / {rate} Hz"}
+        times = t0 + np.round(np.arange(len(frames)) * (NS_PER_S / rate)).astype(np.int64)
+        return demonstration_with_frames(episode_id, table, frames, times, task, extra)
+    frames = read_images(images)
+    extra = {"frame_source": f"{len(images)} numbered images"}
+    if len(frames) == len(table.timestamps_ns) and timing.frame_rate is None:
+        return demonstration_with_frames(episode_id, table, frames, None, task, extra)
+    if timing.frame_rate is None:
+        raise RecordingError(
+            f"{d}: {len(frames)} images for {len(table.timestamps_ns)} CSV rows; give the camera rate with --frame-rate HZ "
+            "(or one image per CSV row)"
+        )
+    extra["frame_times"] = f"first CSV time + {timing.offset_ms} ms + i / {timing.frame_rate} Hz"
+    times = t0 + np.round(np.arange(len(frames)) * (NS_PER_S / timing.frame_rate)).astype(np.int64)
+    return demonstration_with_frames(episode_id, table, frames, times, task, extra)

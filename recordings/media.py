@@ -1,0 +1,93 @@
+"""Frames from a video file or from numbered image files, as JPEG bytes (OpenCV, imported lazily).
+
+JPEG images are kept byte for byte; other images and video frames are encoded as JPEG at
+`JPEG_QUALITY`. All frames of one demonstration are held in memory (~35 KB per 640x480 frame).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+
+from recordings.constants import JPEG_QUALITY
+from recordings.errors import RecordingError
+from recordings.validation import JPEG_MAGIC
+
+VIDEO_SUFFIXES = frozenset({".mp4", ".avi", ".mov", ".mkv"})
+IMAGE_SUFFIXES = frozenset({".jpg", ".jpeg", ".png", ".bmp"})
+_NUMBER = re.compile(r"(\d+)")
+
+
+def _encode_jpeg(image: object, where: str) -> bytes:
+    import cv2
+
+    ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
+    if not ok:
+        raise RecordingError(f"{where}: could not encode the frame as JPEG")
+    return buf.tobytes()
+
+
+def read_video(path: str | os.PathLike) -> tuple[list[bytes], float]:
+    """All frames of a video as JPEG bytes, and the video's frame rate in Hz."""
+    import cv2
+
+    p = Path(path)
+    cap = cv2.VideoCapture(str(p))
+    try:
+        if not cap.isOpened():
+            raise RecordingError(f"{p}: OpenCV cannot open this video")
+        fps = float(cap.get(cv2.CAP_PROP_FPS) or 0.0)
+        frames = []
+        while True:
+            ok, image = cap.read()
+            if not ok:
+                break
+            frames.append(_encode_jpeg(image, f"{p} frame {len(frames)}"))
+    finally:
+        cap.release()
+    if not frames:
+        raise RecordingError(f"{p}: the video has no readable frames")
+    if not fps > 0:
+        raise RecordingError(f"{p}: the video does not state its frame rate; give it with --frame-rate HZ")
+    return frames, fps
+
+
+def numbered_images(folder: str | os.PathLike) -> list[Path]:
+    """Image files in `folder` with a number in their name, ordered by that (last) number.
+
+    frame_2 comes before frame_10; images without a number (a plot, a thumbnail) are not frames.
+    """
+    keyed = []
+    for f in Path(folder).iterdir():
+        numbers = _NUMBER.findall(f.stem)
+        if f.is_file() and f.suffix.lower() in IMAGE_SUFFIXES and numbers:
+            keyed.append((int(numbers[-1]), f))
+    keyed.sort()
+    for (a, fa), (b, fb) in zip(keyed, keyed[1:]):
+        if a == b:
+            raise RecordingError(f"{fa} and {fb} carry the same frame number {a}")
+    return [f for _, f in keyed]
+
+
+def read_images(paths: list[Path]) -> list[bytes]:
+    """JPEG bytes of each image (JPEG files as they are, others re-encoded)."""
+    import cv2
+    import numpy as np
+
+    frames = []
+    for p in paths:
+        data = p.read_bytes()
+        if data[:2] == JPEG_MAGIC:
+            frames.append(data)
+            continue
+        image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+        if image is None:
+            raise RecordingError(f"{p}: OpenCV cannot decode this image")
+        frames.append(_encode_jpeg(image, str(p)))
+    return frames
+
+
+def encode_raw_image(image: object, where: str) -> bytes:
+    """JPEG bytes of an HxWx3 BGR (or HxW grey) uint8 array."""
+    return _encode_jpeg(image, where)

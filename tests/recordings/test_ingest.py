@@ -1,0 +1,176 @@
+import hashlib
+
+import numpy as np
+import pytest
+
+from pipeline.cli import main
+from pipeline.ingest import IngestConfig, ingest
+from recordings import RecordingError, read_demonstration
+from recordings.adapters import FrameTiming
+from recordings.csv_motion import CsvColumns
+from recordings.mcap_source import McapTopics
+from tests.recordings.sources import baxter_csv, images, motion, robot_mcap, video
+
+
+def tree_digest(folder):
+    return {p.relative_to(folder): hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def baxter_times(n, seed=0):
+    """Irregular ms times like the Baxter recordings (10-22 ms apart), starting at 6 ms."""
+    rng = np.random.default_rng(seed)
+    return 6 + np.concatenate([[0], np.cumsum(rng.integers(10, 23, size=n - 1))]).astype(float)
+
+
+def test_baxter_folder_motion_only_out_of_the_box(tmp_path):
+    src = tmp_path / "first"
+    (src / "start_end").mkdir(parents=True)
+    times = {"0": baxter_times(40, 0), "start_end/demo_a": baxter_times(30, 1)}
+    for name, t in times.items():
+        baxter_csv(src / f"{name}.csv", t)
+    (src / "data.png").write_bytes(b"\x89PNG not a frame")  # a plot beside the data is ignored
+    before = tree_digest(src)
+    done = ingest(IngestConfig(src=src, out=tmp_path / "out", task="avoid", quiet=True))
+    assert tree_digest(src) == before
+    assert sorted(d.source.episode_id for d in done) == sorted(times)
+    for name, t in times.items():
+        demo = read_demonstration(tmp_path / "out" / f"{name}.mcap")
+        pose, grip = motion(t / 1000)
+        np.testing.assert_array_equal(demo.timestamps_ns, (t * 1e6).astype(np.int64))
+        np.testing.assert_allclose(demo.pose, pose, atol=1e-12)
+        np.testing.assert_allclose(demo.gripper, grip, atol=1e-12)
+        assert demo.frames is None
+        assert demo.episode.episode_id == name and demo.episode.task == "avoid"
+        assert demo.episode.fps == pytest.approx(1000 / np.median(np.diff(t)))
+
+
+def test_one_numbered_image_per_row_keeps_csv_times(tmp_path):
+    src = tmp_path / "demo"
+    src.mkdir()
+    t = baxter_times(12)
+    baxter_csv(src / "pose.csv", t)
+    images(src, 12, ".png")
+    demo = ingest(IngestConfig(src=src, out=tmp_path / "out", quiet=True))
+    back = read_demonstration(demo[0].output)
+    np.testing.assert_array_equal(back.timestamps_ns, (t * 1e6).astype(np.int64))
+    np.testing.assert_allclose(back.pose, motion(t / 1000)[0], atol=1e-12)
+    import cv2
+
+    # frame_10 and frame_11 come after frame_9 (numeric, not text order); brightness encodes the index
+    levels = [cv2.imdecode(np.frombuffer(f, np.uint8), cv2.IMREAD_GRAYSCALE).mean() for f in back.frames]
+    np.testing.assert_allclose(levels, [(i * 20) % 256 for i in range(12)], atol=2)
+
+
+def test_video_frames_get_interpolated_pose(tmp_path):
+    src = tmp_path / "demo"
+    src.mkdir()
+    t = baxter_times(80)  # ~1.3 s of poses at ~60-100 Hz
+    baxter_csv(src / "pose.csv", t)
+    video(src / "cam.avi", 60, fps=25.0)  # 2.4 s of video: frames past the CSV's end are dropped
+    out = ingest(IngestConfig(src=src, out=tmp_path / "out", quiet=True))[0]
+    demo = read_demonstration(out.output)
+    frame_t = t[0] + 40.0 * np.arange(60)
+    kept = frame_t[frame_t <= t[-1]]
+    assert demo.n_steps == len(kept) < 60
+    np.testing.assert_array_equal(demo.timestamps_ns, (kept * 1e6).astype(np.int64))
+    pose, grip = motion(kept / 1000)  # linear xyz/gripper and a constant-rate rotation: interpolation is exact
+    np.testing.assert_allclose(demo.pose, pose, atol=1e-9)
+    np.testing.assert_allclose(demo.gripper, grip, atol=1e-9)
+    assert demo.episode.fps == pytest.approx(25.0)
+    assert "slerp" in demo.episode.extra["interpolation"]
+
+
+def test_image_count_mismatch_needs_a_frame_rate(tmp_path):
+    src = tmp_path / "demo"
+    src.mkdir()
+    t = baxter_times(30)
+    baxter_csv(src / "pose.csv", t)
+    images(src, 5, ".jpg")
+    with pytest.raises(RecordingError, match="--frame-rate"):
+        ingest(IngestConfig(src=src, out=tmp_path / "out", quiet=True))
+    done = ingest(IngestConfig(src=src, out=tmp_path / "out", timing=FrameTiming(frame_rate=20.0, offset_ms=10.0), quiet=True))
+    demo = read_demonstration(done[0].output)
+    expected_t = t[0] + 10.0 + 50.0 * np.arange(5)
+    np.testing.assert_array_equal(demo.timestamps_ns, (expected_t * 1e6).astype(np.int64))
+    np.testing.assert_allclose(demo.pose, motion(expected_t / 1000)[0], atol=1e-9)
+    assert demo.frames == [p.read_bytes() for p in sorted(src.glob("*.jpg"))]  # JPEG files kept byte for byte
+
+
+def test_custom_column_mapping(tmp_path):
+    path = tmp_path / "log.csv"
+    t = np.array([0.0, 0.5, 1.0])
+    pose, grip = motion(t)
+    lines = ["stamp,x,y,z,rx,ry,rz,rw"] + [",".join(repr(float(v)) for v in [ti, *p]) for ti, p in zip(t, pose)]
+    path.write_text("\n".join(lines))
+    cols = CsvColumns.from_overrides(dict(time="stamp", time_unit="s", x="x", y="y", z="z", qx="rx", qy="ry", qz="rz", qw="rw", gripper=""))
+    demo = read_demonstration(ingest(IngestConfig(src=path, out=tmp_path / "out", columns=cols, quiet=True))[0].output)
+    np.testing.assert_array_equal(demo.timestamps_ns, [0, 500_000_000, 1_000_000_000])
+    np.testing.assert_allclose(demo.pose, pose)
+    np.testing.assert_array_equal(demo.gripper, 0.0)
+    with pytest.raises(RecordingError, match="unknown keys"):
+        CsvColumns.from_overrides({"colour": "c"})
+
+
+def test_robot_mcap_with_other_topic_names(tmp_path):
+    src = robot_mcap(tmp_path / "robot.mcap")
+    topics = McapTopics(image="/robot/camera", pose="/robot/ee", gripper="/robot/joints", gripper_joint="gripper_joint")
+    demo = read_demonstration(ingest(IngestConfig(src=src, out=tmp_path / "out", topics=topics, quiet=True))[0].output)
+    frame_t = np.arange(11) * 0.1
+    assert demo.n_steps == 11
+    np.testing.assert_array_equal(demo.timestamps_ns - demo.timestamps_ns[0], np.round(frame_t * 1e9).astype(np.int64))
+    pose, grip = motion(frame_t)
+    np.testing.assert_allclose(demo.pose, pose, atol=1e-9)
+    np.testing.assert_allclose(demo.gripper, grip, atol=1e-9)
+    assert len(demo.frames) == 11 and all(f[:2] == b"\xff\xd8" for f in demo.frames)
+
+    motion_only = McapTopics(image="", pose="/robot/ee", gripper="/robot/joints", gripper_joint="gripper_joint")
+    demo = read_demonstration(ingest(IngestConfig(src=src, out=tmp_path / "out2", topics=motion_only, quiet=True))[0].output)
+    assert demo.n_steps == 51 and demo.frames is None
+
+
+def test_robot_mcap_missing_topic_names_the_topics(tmp_path):
+    src = robot_mcap(tmp_path / "robot.mcap")
+    with pytest.raises(RecordingError) as info:
+        ingest(IngestConfig(src=src, out=tmp_path / "out", quiet=True))
+    msg = str(info.value)
+    assert str(src) in msg and "'/ee/pose'" in msg and "/robot/ee" in msg and "--pose-topic" in msg
+    assert not (tmp_path / "out" / "robot.mcap").exists()
+
+
+@pytest.mark.parametrize(
+    "line,column,value,words",
+    [
+        (4, 3, "nan", "line 4, column 'p_x' is nan"),
+        (4, 3, "abc", "line 4, column 'p_x': 'abc' is not a number"),
+        (5, 0, "1", "backwards (or repeats) at line 5"),
+        (1, 10, "grip", "missing CSV columns ['gripper_position']"),
+    ],
+)
+def test_bad_csv(tmp_path, line, column, value, words):
+    path = baxter_csv(tmp_path / "bad.csv", baxter_times(6))
+    rows = [r.split(",") for r in path.read_text().splitlines()]
+    rows[line - 1][column] = value
+    path.write_text("\n".join(",".join(r) for r in rows))
+    before = path.read_bytes()
+    with pytest.raises(RecordingError) as info:
+        ingest(IngestConfig(src=path, out=tmp_path / "out", quiet=True))
+    assert str(path) in str(info.value) and words in str(info.value)
+    assert path.read_bytes() == before
+    assert not list((tmp_path / "out").glob("*.mcap"))
+
+
+def test_output_inside_source_is_refused(tmp_path):
+    baxter_csv(tmp_path / "a.csv", baxter_times(5))
+    with pytest.raises(RecordingError, match="inside the source folder"):
+        ingest(IngestConfig(src=tmp_path, out=tmp_path / "out", quiet=True))
+
+
+def test_cli_ingest(tmp_path, capsys):
+    src = tmp_path / "src"
+    src.mkdir()
+    baxter_csv(src / "a.csv", baxter_times(5))
+    assert main(["-q", "ingest", str(src), "--out", str(tmp_path / "out")]) == 0
+    assert "ingested 1 demonstration(s)" in capsys.readouterr().out
+    assert main(["-q", "ingest", str(tmp_path / "missing"), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no such file or folder" in err[0] and "Traceback" not in err[0]
