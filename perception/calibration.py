@@ -54,6 +54,8 @@ def recalibrate_batchnorm(net: nn.Module, batches: Iterable[np.ndarray]) -> int:
         norm.reset_running_stats()
         norm.momentum = None  # cumulative average over all calibration batches, not an exponential one
     seen = 0
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # a fixed reduction order: the same frames give bit-identical statistics and hash
     net.train()
     try:
         with torch.no_grad():
@@ -61,6 +63,7 @@ def recalibrate_batchnorm(net: nn.Module, batches: Iterable[np.ndarray]) -> int:
                 net(torch.from_numpy(np.ascontiguousarray(batch)))  # (B, 1280), only the statistics matter
                 seen += len(batch)
     finally:
+        torch.set_num_threads(threads)
         net.eval()
         for norm, momentum in zip(norms, momenta):
             norm.momentum = momentum

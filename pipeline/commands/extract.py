@@ -1,0 +1,48 @@
+"""`cnep extract IN... --out DIR`: demonstration MCAP files -> trajectory MCAP files (1288-d steps)."""
+
+from __future__ import annotations
+
+import argparse
+
+HELP = "turn demonstration files into trajectory files of MobileNet-v2 features + pose + gripper"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("inputs", nargs="+", metavar="IN", help="demonstration files or folders of them (read only)")
+    parser.add_argument("--out", required=True, help="folder for the trajectory files (created if missing)")
+    parser.add_argument("--weights", default="imagenet",
+                        help="`imagenet` (torch hub cache or $CNEP_MOBILENET_WEIGHTS), `random` (seeded, calibrated "
+                             "on the inputs' frames) or the path of a MobileNet-v2 state dict (default: imagenet)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the random weights (default 0)")
+    parser.add_argument("--save-weights", metavar="PATH", default=None,
+                        help="save the weights used (after calibration) to reuse them later with --weights PATH")
+    parser.add_argument("--backend", default="auto", choices=("auto", "onnxruntime", "torchscript", "eager"),
+                        help="inference backend (default: the fastest available)")
+    parser.add_argument("--threads", type=int, default=None, help="CPU threads for inference (default: all cores)")
+    parser.add_argument("--batch-size", type=int, default=None, help="frames per forward pass")
+    parser.add_argument("--force", action="store_true", help="re-extract outputs that are already up to date")
+
+
+def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from pipeline.extract import ExtractConfig, extract
+
+    options = {"batch_size": args.batch_size} if args.batch_size is not None else {}
+    config = ExtractConfig(
+        inputs=tuple(Path(p) for p in args.inputs),
+        out=Path(args.out),
+        weights=args.weights,
+        backend=args.backend,
+        threads=args.threads,
+        seed=args.seed,
+        force=args.force,
+        save_weights=Path(args.save_weights) if args.save_weights else None,
+        quiet=args.quiet,
+        **options,
+    )
+    done = extract(config)
+    skipped = sum(item.skipped for item in done)
+    print(f"extracted {len(done) - skipped} trajectory file(s) into {config.out} ({skipped} up to date, "
+          f"{sum(item.n_steps for item in done)} steps)")
+    return 0

@@ -1,0 +1,260 @@
+"""Stage `extract`: demonstration MCAP files -> trajectory MCAP files of 1288-d steps [features | pose | gripper].
+
+Each input is a demonstration file or a folder searched recursively for `*.mcap` (sorted). Outputs go
+to OUT/<name> (folder inputs keep their relative paths), written atomically by the recording layer;
+an input is never overwritten. An output is skipped when it is up to date: newer than its input and
+made by an extractor with the same identity (perception.compatibility_key). Demonstrations without
+frames become motion-only trajectories (8-d, no feature block).
+
+With `weights="random"` the network is first calibrated on frames sampled evenly over all inputs
+(perception.calibration), so every file of one run shares one extractor; save it with
+`save_weights` to extract more files later with identical features.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from perception import FeatureExtractor, PerceptionError, compatibility_key
+from perception.constants import CALIBRATION_FRAMES, DEFAULT_BATCH_SIZE, FEATURE_DIM
+from perception.frames import decode_image, resize_frames
+from pipeline.errors import PipelineError
+from recordings import RecordingError, Trajectory, TrajectoryReader, read_demonstration, write_trajectory
+from recordings.constants import TOPIC_IMAGE
+
+log = logging.getLogger(__name__)
+
+SUFFIX = ".mcap"
+
+
+@dataclass(frozen=True)
+class ExtractConfig:
+    """inputs: demonstration files or folders (read only); out: folder for the trajectory files (created).
+
+    weights: `imagenet`, `random` (seeded by `seed`, calibrated on the inputs) or a state-dict path.
+    backend: `auto` (fastest available), `onnxruntime`, `torchscript` or `eager`; threads: CPU threads
+    (None: library default); batch_size: frames per forward pass; force: re-extract up-to-date outputs;
+    save_weights: where to save the (calibrated) weights, to reuse them as `weights` later.
+    """
+
+    inputs: tuple[Path, ...]
+    out: Path
+    weights: str = "imagenet"
+    backend: str = "auto"
+    threads: int | None = None
+    batch_size: int = DEFAULT_BATCH_SIZE
+    seed: int = 0
+    force: bool = False
+    save_weights: Path | None = None
+    quiet: bool = False
+
+
+@dataclass(frozen=True)
+class Extracted:
+    """What happened to one input: its output, step count, and whether it was skipped as up to date."""
+
+    source: Path
+    output: Path
+    n_steps: int
+    skipped: bool
+
+
+def extract(config: ExtractConfig) -> list[Extracted]:
+    """Run the stage; returns one Extracted per input demonstration, in input order.
+
+    The extractor is built (and for random weights calibrated) only once a file needs it, so inputs
+    without frames or outputs already up to date with fixed weights cost no network.
+    """
+    pairs = plan_outputs(config.inputs, config.out)
+    config.out.mkdir(parents=True, exist_ok=True)
+    built: list[FeatureExtractor] = []
+
+    def extractor() -> FeatureExtractor:
+        if not built:
+            built.append(build_extractor(config, [src for src, _ in pairs]))
+        return built[0]
+
+    if config.save_weights is not None:
+        extractor().save_weights(config.save_weights)
+        log.info("saved the extractor weights to %s (reuse them with --weights %s)", config.save_weights,
+                 config.save_weights)
+    done = []
+    with tqdm(total=0, unit="frame", desc="extract", disable=config.quiet, dynamic_ncols=True) as bar:
+        for src, dst in pairs:
+            steps = None if config.force else up_to_date_steps(src, dst, extractor)
+            if steps is not None:
+                log.info("%s is up to date, skipped", dst)
+                done.append(Extracted(src, dst, steps, skipped=True))
+                continue
+            done.append(extract_file(src, dst, extractor, bar))
+    return done
+
+
+def build_extractor(config: ExtractConfig, sources: Sequence[Path]) -> FeatureExtractor:
+    """The configured extractor; random weights are calibrated on frames sampled from `sources`."""
+    extractor = FeatureExtractor(config.weights, backend=config.backend, threads=config.threads,
+                                 batch_size=config.batch_size, seed=config.seed)
+    if extractor.needs_calibration:
+        extractor.calibrate(calibration_frames(sources, CALIBRATION_FRAMES))
+    return extractor
+
+
+def extract_file(src: Path, dst: Path, extractor: Callable[[], FeatureExtractor], bar: tqdm | None = None) -> Extracted:
+    """Extract demonstration file `src` into trajectory file `dst` (atomic); `extractor()` gives the network."""
+    demo = read_demonstration(src)
+    if demo.frames is None:
+        log.info("%s has no frames: writing a motion-only trajectory", src)
+        trajectory = Trajectory.from_demonstration(demo)
+    else:
+        if bar is not None:
+            bar.total += demo.n_steps
+            bar.refresh()
+        features = features_of_frames(demo.frames, extractor(), src, bar)  # (T, 1280)
+        trajectory = Trajectory.from_demonstration(demo, features, extractor().identity)
+    write_trajectory(dst, trajectory)
+    log.info("%s -> %s (%d steps)", src, dst, demo.n_steps)
+    return Extracted(src, dst, demo.n_steps, skipped=False)
+
+
+def features_of_frames(frames: Sequence[bytes], extractor: FeatureExtractor, src: Path,
+                       bar: tqdm | None = None) -> np.ndarray:
+    """Features of JPEG frames: (T, 1280) float32. Decoding of the next batch overlaps inference of this one."""
+    out = np.empty((len(frames), FEATURE_DIM), dtype=np.float32)  # (T, 1280)
+    starts = range(0, len(frames), extractor.batch_size)
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="decode") as pool:  # OpenCV releases the GIL
+        pending = pool.submit(decode_batch, frames, 0, extractor.batch_size, src)
+        for start in starts:
+            pixels = pending.result()  # (B, 224, 224, 3) uint8
+            if start + extractor.batch_size < len(frames):
+                pending = pool.submit(decode_batch, frames, start + extractor.batch_size, extractor.batch_size, src)
+            out[start:start + len(pixels)] = extractor.features(pixels)
+            if bar is not None:
+                bar.update(len(pixels))
+    return out
+
+
+def decode_batch(frames: Sequence[bytes], start: int, size: int, src: Path) -> np.ndarray:
+    """Decode and resize frames[start:start+size] -> (B, 224, 224, 3) uint8; a corrupt frame names file and step."""
+    decoded = []
+    for step in range(start, min(start + size, len(frames))):
+        try:
+            decoded.append(resize_frames(decode_image(frames[step])[None])[0])  # (224, 224, 3)
+        except PerceptionError as exc:
+            raise PerceptionError(f"{src}: step {step} on {TOPIC_IMAGE}: {exc}; the frame is corrupt: re-ingest "
+                                  f"the recording from its source") from None
+    return np.stack(decoded)
+
+
+def calibration_frames(sources: Sequence[Path], count: int) -> np.ndarray:
+    """Up to `count` frames spread evenly over the demonstrations in `sources` (sorted by path): (N, 224, 224, 3) uint8.
+
+    Sorting makes the calibration, hence the weights hash, independent of the order inputs were given in.
+    """
+    with_frames = []
+    for src in sorted(sources):
+        demo = read_demonstration(src)
+        if demo.frames is not None:
+            with_frames.append((src, demo.frames))
+    if not with_frames:
+        raise PipelineError("random weights are calibrated on the recordings' frames, but no input has frames; "
+                            "give demonstrations with a camera topic, or use --weights imagenet or a weights file")
+    per_file = math.ceil(count / len(with_frames))
+    frames = []
+    for src, jpegs in with_frames:
+        for step in np.linspace(0, len(jpegs) - 1, min(per_file, len(jpegs))).round().astype(int):
+            frames.append(decode_batch(jpegs, int(step), 1, src))  # (1, 224, 224, 3)
+    return np.concatenate(frames[:count])  # (N, 224, 224, 3)
+
+
+def up_to_date_steps(src: Path, dst: Path, extractor: Callable[[], FeatureExtractor]) -> int | None:
+    """Step count of `dst` if it is newer than `src` and its features come from an extractor compatible with ours."""
+    if not dst.is_file() or dst.stat().st_mtime < src.stat().st_mtime:
+        return None
+    try:
+        with TrajectoryReader(dst) as reader:
+            if not reader.extractor:  # motion-only: its source had no frames, and the source did not change
+                return reader.n_steps
+            same = compatibility_key(reader.extractor) == compatibility_key(extractor().identity)
+            return reader.n_steps if same else None
+    except RecordingError as exc:
+        log.warning("%s will be rewritten: %s", dst, exc)
+        return None
+
+
+def plan_outputs(inputs: Sequence[Path], out: Path) -> list[tuple[Path, Path]]:
+    """(demonstration file, trajectory file) pairs; raises PipelineError for missing inputs and clashing outputs."""
+    pairs: list[tuple[Path, Path]] = []
+    for given in inputs:
+        if given.is_dir():
+            found = sorted(p for p in given.rglob(f"*{SUFFIX}") if p.is_file())
+            if not found:
+                raise PipelineError(f"{given}: no {SUFFIX} files in this folder; give demonstration files made by "
+                                    f"`cnep ingest`")
+            pairs += [(p, out / p.relative_to(given)) for p in found]
+        elif given.is_file():
+            pairs.append((given, out / given.name))
+        else:
+            raise PipelineError(f"{given}: no such file or folder; give demonstration files made by `cnep ingest`")
+    sources: dict[Path, Path] = {}
+    for src, dst in pairs:
+        if dst.resolve() == src.resolve():
+            raise PipelineError(f"{src}: the output would overwrite this input; choose another --out folder")
+        if dst.resolve() in sources:
+            raise PipelineError(f"{sources[dst.resolve()]} and {src} would both be written to {dst}; extract them "
+                                f"into different --out folders")
+        sources[dst.resolve()] = src
+    inputs_resolved = {src.resolve() for src, _ in pairs}
+    for dst in sources:
+        if dst in inputs_resolved:
+            raise PipelineError(f"{dst} is an input and would be overwritten by another input's output; choose "
+                                f"another --out folder")
+    return pairs
+
+
+def check_same_extractor(paths: Sequence[Path]) -> dict[str, str]:
+    """Read the extractor identity of trajectory files and require one; returns it ({} if none has features)."""
+    identities = {}
+    for path in paths:
+        with TrajectoryReader(path) as reader:
+            identities[Path(path)] = reader.extractor
+    return check_identities(identities)
+
+
+def check_identities(identities: Mapping[Path, Mapping[str, str]]) -> dict[str, str]:
+    """Require one extractor for all files ({} = motion-only file); raise PipelineError naming the files that differ.
+
+    Files agree when their compatibility keys agree (architecture, feature width, weights hash and
+    preprocessing; the backend may differ). Returns the shared identity of the first file.
+    """
+    groups: dict[tuple[str, ...], list[Path]] = {}
+    for path, identity in identities.items():
+        groups.setdefault(compatibility_key(identity) if identity else (), []).append(path)
+    if len(groups) <= 1:
+        return dict(next(iter(identities.values()), {}))
+    ordered = sorted(groups.values(), key=len, reverse=True)  # the largest group is the reference
+    described = "; ".join(f"{len(files)} file(s) {_describe(identities[files[0]])}: {_names(files)}"
+                          for files in ordered)
+    raise PipelineError(f"trajectory files come from different feature extractors and cannot be mixed: {described}; "
+                        f"re-extract the odd files with the same --weights (one `cnep extract` run for random "
+                        f"weights, or --weights with the file saved by --save-weights)")
+
+
+def _describe(identity: Mapping[str, str]) -> str:
+    if not identity:
+        return "without features (motion-only)"
+    return (f"with weights {identity.get('weights', '?')} (sha256 {identity.get('weights_sha256', '?')[:12]}), "
+            f"{identity.get('architecture', '?')}")
+
+
+def _names(files: Sequence[Path], shown: int = 5) -> str:
+    names = ", ".join(str(f) for f in files[:shown])
+    return names + (f" and {len(files) - shown} more" if len(files) > shown else "")
+

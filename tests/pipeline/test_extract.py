@@ -1,0 +1,161 @@
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from perception import FeatureExtractor, PerceptionError
+from perception.constants import WEIGHTS_ENV_VAR
+from pipeline.cli import main
+from pipeline.errors import PipelineError
+from pipeline.extract import (ExtractConfig, calibration_frames, check_identities, check_same_extractor, extract,
+                              plan_outputs)
+from recordings import read_trajectory, write_demonstration
+from tests.recordings.factories import demonstration_factory
+
+
+@pytest.fixture
+def demos(tmp_path) -> list[Path]:
+    """Two demonstration files with 6 frames each, in tmp_path/demos."""
+    folder = tmp_path / "demos"
+    folder.mkdir()
+    return [write_demonstration(folder / f"demo-{k}.mcap", demonstration_factory(6, seed=k, episode_id=f"demo-{k}"))
+            for k in range(2)]
+
+
+def _config(inputs, out, **overrides) -> ExtractConfig:
+    settings = {"weights": "random", "backend": "eager", "threads": 1, "quiet": True, **overrides}
+    return ExtractConfig(inputs=tuple(inputs), out=out, **settings)
+
+
+def test_trajectories_hold_features_pose_gripper_and_identity(demos, tmp_path):
+    done = extract(_config(demos, tmp_path / "out"))
+    assert [item.output.name for item in done] == ["demo-0.mcap", "demo-1.mcap"]
+    reference = FeatureExtractor("random", backend="eager", threads=1)
+    reference.calibrate(calibration_frames(demos, 256))
+    for item, demo_path in zip(done, demos):
+        traj = read_trajectory(item.output)
+        demo = demonstration_factory(6, seed=int(demo_path.stem[-1]))
+        assert traj.width == 1288 and traj.features.shape == (6, 1280)
+        np.testing.assert_allclose(traj.pose, demo.pose, rtol=1e-6)
+        np.testing.assert_allclose(traj.gripper, demo.gripper, rtol=1e-6)
+        np.testing.assert_array_equal(traj.timestamps_ns, demo.timestamps_ns)
+        np.testing.assert_allclose(traj.features, reference.features(reference.decode(demo.frames)), atol=1e-5)
+        assert traj.extractor == reference.identity
+        assert traj.frames == demo.frames  # kept for replay
+    assert check_same_extractor([item.output for item in done]) == reference.identity
+
+
+def test_calibration_does_not_depend_on_input_order(demos, tmp_path):
+    first = extract(_config(demos, tmp_path / "a"))
+    second = extract(_config(demos[::-1], tmp_path / "b"))
+    assert read_trajectory(first[0].output).extractor == read_trajectory(second[1].output).extractor
+
+
+def test_up_to_date_outputs_are_skipped_and_stale_ones_redone(demos, tmp_path):
+    out = tmp_path / "out"
+    extract(_config(demos, out))
+    stamps = {p.name: p.stat().st_mtime_ns for p in out.iterdir()}
+    again = extract(_config(demos, out))
+    assert all(item.skipped for item in again) and [item.n_steps for item in again] == [6, 6]
+    assert {p.name: p.stat().st_mtime_ns for p in out.iterdir()} == stamps
+    later = max(stamps.values()) + 10**9
+    os.utime(demos[1], ns=(later, later))  # the input changed after its output was written
+    assert [item.skipped for item in extract(_config(demos, out))] == [True, False]
+    assert [item.skipped for item in extract(_config(demos, out, force=True))] == [False, False]
+    assert [item.skipped for item in extract(_config(demos, out, seed=1))] == [False, False]  # other weights
+
+
+def test_corrupt_frame_names_file_and_step_and_leaves_no_output(tmp_path):
+    demo = demonstration_factory(6, seed=0)
+    demo.frames[3] = b"\xff\xd8" + bytes(40)  # starts like a JPEG, decodes to nothing
+    src = write_demonstration(tmp_path / "broken.mcap", demo)
+    out = tmp_path / "out"
+    with pytest.raises(PerceptionError, match=r"broken\.mcap: step 3 on /camera/rgb: cannot decode image"):
+        extract(_config([src], out, weights="random"))
+    assert list(out.iterdir()) == []
+
+
+def test_corrupt_frame_after_calibration_leaves_other_outputs(demos, tmp_path):
+    # weights from a file: no calibration pass, so the corrupt frame is met during extraction itself
+    weights = tmp_path / "w.pt"
+    extract(_config(demos[:1], tmp_path / "first", save_weights=weights))
+    demo = demonstration_factory(6, seed=5)
+    demo.frames[5] = b"\xff\xd8\xff" + bytes(10)
+    broken = write_demonstration(tmp_path / "demos" / "z-broken.mcap", demo)
+    out = tmp_path / "out"
+    with pytest.raises(PerceptionError, match=r"z-broken\.mcap: step 5"):
+        extract(_config([*demos, broken], out, weights=str(weights)))
+    assert sorted(p.name for p in out.iterdir()) == ["demo-0.mcap", "demo-1.mcap"]
+
+
+def test_saved_weights_reproduce_the_features(demos, tmp_path):
+    weights = tmp_path / "calibrated.pt"
+    first = extract(_config(demos, tmp_path / "a", save_weights=weights))
+    second = extract(_config(demos[1:], tmp_path / "b", weights=str(weights)))
+    a, b = read_trajectory(first[1].output), read_trajectory(second[0].output)
+    np.testing.assert_array_equal(a.features, b.features)
+    check_same_extractor([first[0].output, second[0].output])  # same weights hash: may be mixed
+
+
+def test_motion_only_demonstration_gives_motion_only_trajectory(tmp_path):
+    src = write_demonstration(tmp_path / "motion.mcap", demonstration_factory(5, frames=False))
+    done = extract(_config([src], tmp_path / "out", weights="imagenet"))  # no frames: no weights needed
+    assert read_trajectory(done[0].output).width == 8
+    assert extract(_config([src], tmp_path / "out", weights="imagenet"))[0].skipped
+
+
+def test_mixing_extractors_is_refused_naming_the_odd_files(demos, tmp_path):
+    a = extract(_config(demos, tmp_path / "a"))
+    b = extract(_config(demos[:1], tmp_path / "b", seed=1))
+    with pytest.raises(PipelineError) as info:
+        check_same_extractor([a[0].output, a[1].output, b[0].output])
+    message = str(info.value)
+    assert "different feature extractors" in message
+    assert f"1 file(s) with weights random:seed=1" in message and str(b[0].output) in message
+    assert f"2 file(s) with weights random:seed=0" in message
+
+
+def test_backend_alone_does_not_prevent_mixing():
+    identity = {"architecture": "a", "feature_dim": "1280", "weights": "w", "weights_sha256": "0" * 64,
+                "preprocessing": "p", "backend": "eager"}
+    shared = check_identities({Path("x"): identity, Path("y"): {**identity, "backend": "onnxruntime"}})
+    assert shared == identity
+    with pytest.raises(PipelineError, match="without features \\(motion-only\\): z"):
+        check_identities({Path("x"): identity, Path("y"): identity, Path("z"): {}})
+
+
+def test_outputs_never_overwrite_inputs(demos, tmp_path):
+    with pytest.raises(PipelineError, match="would overwrite this input"):
+        plan_outputs(demos, demos[0].parent)
+    with pytest.raises(PipelineError, match="no such file or folder"):
+        plan_outputs([tmp_path / "missing.mcap"], tmp_path / "out")
+    other = tmp_path / "other"
+    other.mkdir()
+    clash = write_demonstration(other / "demo-0.mcap", demonstration_factory(3))
+    with pytest.raises(PipelineError, match="would both be written to"):
+        plan_outputs([demos[0], clash], tmp_path / "out")
+
+
+def test_folder_inputs_keep_relative_paths(tmp_path):
+    nested = tmp_path / "in" / "day1"
+    nested.mkdir(parents=True)
+    write_demonstration(nested / "a.mcap", demonstration_factory(3))
+    assert plan_outputs([tmp_path / "in"], tmp_path / "out") == [(nested / "a.mcap", tmp_path / "out/day1/a.mcap")]
+
+
+def test_cli_extracts_and_reports(demos, tmp_path, capsys):
+    out = tmp_path / "out"
+    code = main(["-q", "extract", str(demos[0].parent), "--out", str(out), "--weights", "random", "--backend",
+                 "eager", "--threads", "1"])
+    assert code == 0
+    assert "extracted 2 trajectory file(s)" in capsys.readouterr().out
+    assert sorted(p.name for p in out.iterdir()) == ["demo-0.mcap", "demo-1.mcap"]
+
+
+def test_cli_without_imagenet_weights_is_a_one_line_error(demos, tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("TORCH_HOME", str(tmp_path / "torch"))
+    monkeypatch.delenv(WEIGHTS_ENV_VAR, raising=False)
+    assert main(["-q", "extract", str(demos[0]), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("cnep extract: error: ImageNet weights for MobileNet-v2 not found") and "\n" not in err
