@@ -39,7 +39,8 @@ FRAME_ID_BASE = "base"
 # Metadata record names.
 METADATA_EPISODE = "episode"  # written when a writer opens: survives a killed recorder
 METADATA_STEPS = "steps"  # written when a writer closes cleanly: n_steps, start/end/duration in ns
-METADATA_EXTRACTOR = "extractor"  # feature extractor identity (trajectories with features only)
+METADATA_EXTRACTOR = "extractor"  # feature extractor identity (trajectories with features only), at open
+METADATA_REPAIR = "repair"  # written by `cnep repair`: source file, bytes and chunks used, what was lost
 
 # Channel metadata keys of TOPIC_TRAJECTORY.
 CHANNEL_KEY_LAYOUT = "layout"  # JSON {block: [start, stop]}

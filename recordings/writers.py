@@ -7,8 +7,9 @@
     with TrajectoryWriter(path, episode, width=1288, extractor={...}) as w:
         w.write_steps(timestamps_ns, data)               # or write_step(t, row) per step
 
-The `episode` metadata record is written when the writer opens (so it survives a recorder killed
-mid-way, see `cnep repair`), the `steps` record (n_steps, start/end/duration in ns) when it closes.
+The `episode` (and `extractor`) metadata records are written when the writer opens, so they survive
+a recorder killed mid-way (see `cnep repair`); the `steps` record (n_steps, start/end/duration in ns)
+when it closes.
 If the block raises, nothing is left at `path`.
 """
 
@@ -164,10 +165,7 @@ class _StepWriter:
     def _close(self, f: _McapFile) -> None:
         if not self._times:
             raise RecordingError(f"{self.path}: no steps were written; a recording needs at least one step")
-        f.finish(self._closing_metadata())
-
-    def _closing_metadata(self) -> dict[str, Mapping[str, str]]:
-        return {METADATA_STEPS: steps_metadata(self._times)}
+        f.finish({METADATA_STEPS: steps_metadata(self._times)})
 
     def _where(self) -> str:
         return f"{self.path} (step {len(self._times)})"
@@ -248,12 +246,8 @@ class TrajectoryWriter(_StepWriter):
             CHANNEL_KEY_DTYPE: "float32",
         }
         self._vec_ch = f.channel(TOPIC_TRAJECTORY, SCHEMA_TRAJECTORY, meta)
-
-    def _closing_metadata(self) -> dict[str, Mapping[str, str]]:
-        meta = super()._closing_metadata()
-        if self.extractor:
-            meta[METADATA_EXTRACTOR] = self.extractor
-        return meta
+        if self.extractor:  # at open, like `episode`: a salvaged file still says where its features came from
+            f.writer.add_metadata(METADATA_EXTRACTOR, self.extractor)
 
     def write_step(self, t_ns: int, vector: np.ndarray, frame: bytes | None = None) -> None:
         """One step at `t_ns` (ns): `vector` (width,) float32, JPEG frame or None."""

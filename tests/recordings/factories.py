@@ -27,14 +27,16 @@ def random_pose(steps: int, rng: np.random.Generator) -> np.ndarray:
     return np.concatenate([rng.uniform(-1, 1, size=(steps, 3)), quat], axis=1)
 
 
-def demonstration_factory(steps: int = 20, frames: bool = True, seed: int = 0, episode_id: str = "demo-0") -> Demonstration:
+def demonstration_factory(
+    steps: int = 20, frames: bool = True, seed: int = 0, episode_id: str = "demo-0", frame_size: int = 16
+) -> Demonstration:
     rng = np.random.default_rng(seed)
     return Demonstration(
         episode=Episode(episode_id=episode_id, fps=10.0, task="pick", source="synthetic", extra={"robot": "sim"}),
         timestamps_ns=1_700_000_000_000_000_000 + np.arange(steps, dtype=np.int64) * 100_000_000,
         pose=random_pose(steps, rng),
         gripper=rng.uniform(0, 100, size=steps),
-        frames=jpeg_frames(steps, seed=seed) if frames else None,
+        frames=jpeg_frames(steps, size=frame_size, seed=seed) if frames else None,
         attachments={"calibration.json": b'{"fx": 500}'},
     )
 

@@ -1,0 +1,115 @@
+import numpy as np
+import pytest
+
+from pipeline.cli import main
+from recordings import RecordingError, read_demonstration, read_trajectory, write_demonstration, write_trajectory
+from recordings.inspection import format_report, inspect_file
+from recordings.repair import repair
+from tests.recordings.factories import demonstration_factory, trajectory_factory
+
+
+@pytest.fixture(scope="module")
+def long_traj():
+    return trajectory_factory(steps=700, features=True)  # ~3.6 MB: several 1 MiB chunks
+
+
+def truncate(path, fraction):
+    data = path.read_bytes()
+    path.write_bytes(data[: int(len(data) * fraction)])
+    return path.read_bytes()
+
+
+@pytest.mark.parametrize("fraction", [0.5, 0.9])
+def test_repair_salvages_complete_chunks_of_a_truncated_trajectory(tmp_path, long_traj, fraction):
+    src = write_trajectory(tmp_path / "t.mcap", long_traj)
+    damaged = truncate(src, fraction)
+    report = repair(src, tmp_path / "fixed.mcap")
+    assert src.read_bytes() == damaged  # input untouched
+    back = read_trajectory(report.dst)
+    assert 0 < back.n_steps < long_traj.n_steps and report.steps == back.n_steps
+    assert report.chunks_read >= 1 and not report.was_complete and "truncated" in report.problem
+    np.testing.assert_array_equal(back.data, long_traj.data[: back.n_steps])  # a prefix, bit for bit
+    np.testing.assert_array_equal(back.timestamps_ns, long_traj.timestamps_ns[: back.n_steps])
+    assert back.extractor == long_traj.extractor and back.episode == long_traj.episode
+    assert f"{back.n_steps} complete steps" in report.summary()
+    # more of the file -> at least as many steps
+    if fraction == 0.9:
+        assert back.n_steps >= long_traj.n_steps * 0.6
+
+
+def test_repair_skips_a_damaged_chunk_in_the_middle(tmp_path, long_traj):
+    from tests.recordings.test_bad_input import chunk_offsets
+
+    src = write_trajectory(tmp_path / "t.mcap", long_traj)
+    start, length = chunk_offsets(src)[1]
+    data = bytearray(src.read_bytes())
+    data[start + length // 2] ^= 0xFF
+    src.write_bytes(bytes(data))
+    report = repair(src, tmp_path / "fixed.mcap")
+    assert report.chunks_lost == 1
+    back = read_trajectory(report.dst)
+    kept = np.isin(long_traj.timestamps_ns, back.timestamps_ns)
+    assert 0 < back.n_steps < long_traj.n_steps
+    np.testing.assert_array_equal(back.data, long_traj.data[kept])
+
+
+def test_repair_trims_a_half_written_demonstration_step(tmp_path):
+    demo = demonstration_factory(steps=200, frames=True, frame_size=128)  # ~2 MB: two chunks
+    src = write_demonstration(tmp_path / "d.mcap", demo)
+    truncate(src, 0.7)
+    back = read_demonstration(repair(src, tmp_path / "fixed.mcap").dst)
+    assert 0 < back.n_steps < 200
+    np.testing.assert_array_equal(back.pose, demo.pose[: back.n_steps])
+    assert back.frames == demo.frames[: back.n_steps]
+
+
+def test_repair_refuses_what_it_cannot_help(tmp_path, long_traj):
+    src = write_trajectory(tmp_path / "t.mcap", long_traj)
+    with pytest.raises(RecordingError, match="output is the input"):
+        repair(src, src)
+    truncate(src, 0.05)  # before the first chunk ends
+    with pytest.raises(RecordingError, match="nothing to salvage"):
+        repair(src, tmp_path / "fixed.mcap")
+    assert not (tmp_path / "fixed.mcap").exists()
+
+
+def test_inspect_reports_topics_rates_metadata_and_layout(tmp_path):
+    traj = trajectory_factory(steps=30, features=False)
+    report = inspect_file(write_trajectory(tmp_path / "t.mcap", traj))
+    assert report.complete and report.check == "ok"
+    (topic,) = report.topics
+    assert (topic.topic, topic.schema, topic.count) == ("/trajectory", "cnep.FeatureVector", 30)
+    assert topic.rate_hz == pytest.approx(10.0)
+    assert report.duration_s == pytest.approx(2.9)
+    assert report.layouts["/trajectory"]["gripper"] == [7, 8]
+    assert report.metadata["steps"]["n_steps"] == "30"
+    text = format_report(report)
+    assert "complete: yes" in text and "cnep.FeatureVector" in text and "format_version=1" in text
+
+
+def test_inspect_a_truncated_file(tmp_path, long_traj):
+    src = write_trajectory(tmp_path / "t.mcap", long_traj)
+    truncate(src, 0.5)
+    report = inspect_file(src)
+    assert not report.complete and "truncated" in report.problem and report.check.startswith("refused")
+    assert 0 < report.topics[0].count < long_traj.n_steps
+
+
+def test_cli_inspect_and_repair(tmp_path, capsys, long_traj):
+    good = write_trajectory(tmp_path / "good.mcap", trajectory_factory(steps=5, features=False))
+    bad = write_trajectory(tmp_path / "bad.mcap", long_traj)
+    truncate(bad, 0.6)
+    (tmp_path / "empty.mcap").write_bytes(b"")
+    assert main(["inspect", str(good)]) == 0
+    assert "complete: yes" in capsys.readouterr().out
+    assert main(["inspect", str(good), str(bad)]) == 1
+    assert "complete: NO" in capsys.readouterr().out
+    assert main(["inspect", str(tmp_path / "empty.mcap")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "empty file" in err[0]
+    assert main(["repair", str(bad), str(tmp_path / "fixed.mcap")]) == 0
+    assert "complete steps" in capsys.readouterr().out
+    assert main(["inspect", str(tmp_path / "fixed.mcap")]) == 0
+    assert main(["repair", str(tmp_path / "empty.mcap"), str(tmp_path / "x.mcap")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("cnep repair: error:") and "empty file" in err[-1]
