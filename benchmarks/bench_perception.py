@@ -7,6 +7,8 @@ Measures in one run: (a) a naive per-frame eager torchvision loop, (b) the proje
 (FeatureExtractor with backend `auto`), (c) every other backend, and the CPU's fp32 matmul GFLOP/s.
 Reports the ratio b/a and the fraction of the matmul limit each path reaches, counting 0.6 GFLOP per
 224x224 frame for MobileNet-v2's features. All paths include resizing the 640x480 frames to 224x224.
+Then the extract stage's path from JPEG bytes (q90), decoding all frames first vs decoding the next
+batch while the current one runs through the network.
 """
 
 from __future__ import annotations
@@ -15,13 +17,16 @@ import argparse
 import os
 import time
 from collections.abc import Callable
+from pathlib import Path
 
+import cv2
 import numpy as np
 import torch
 from torchvision.models import mobilenet_v2
 from torchvision.transforms.v2 import functional as tvf
 
 from perception import FeatureExtractor, available_backends
+from pipeline.extract import decode_batch, features_of_frames
 from perception.constants import DEFAULT_BATCH_SIZE, IMAGE_SIZE, IMAGENET_MEAN, IMAGENET_STD
 
 GFLOP_PER_FRAME = 0.6  # MobileNet-v2 features at 224x224: ~0.3 G multiply-adds
@@ -103,6 +108,22 @@ def extractor_path(frames: np.ndarray, backend: str, threads: int, batch_size: i
     return lambda: extractor(frames)
 
 
+def jpeg_frames(frames: np.ndarray, quality: int = 90) -> list[bytes]:
+    """JPEG bytes of (N, H, W, 3) uint8 RGB frames, as a demonstration file stores them."""
+    encoded = [cv2.imencode(".jpg", cv2.cvtColor(f, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, quality])[1]
+               for f in frames]
+    return [e.tobytes() for e in encoded]
+
+
+def stage_paths(frames: np.ndarray, threads: int, batch_size: int) -> dict[str, Callable[[], object]]:
+    """The extract stage's JPEG -> features path, decoding up front vs overlapped with inference."""
+    extractor = FeatureExtractor("random", backend="auto", threads=threads, batch_size=batch_size)
+    extractor.calibrate(frames[:8])
+    jpegs, src = jpeg_frames(frames), Path("benchmark.mcap")
+    return {"(d) JPEG: decode all, then infer": lambda: extractor.features(decode_batch(jpegs, 0, len(jpegs), src)),
+            "(d) JPEG: decode overlapped (stage)": lambda: features_of_frames(jpegs, extractor, src)}
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=64, help="frames per timed pass (default 64)")
@@ -135,6 +156,9 @@ def main(argv: list[str] | None = None) -> None:
         fps[name] = args.frames / best_seconds(run, args.repeats)
         print(f"{name:<40} {fps[name]:7.1f} frames/s  {fps[name] * GFLOP_PER_FRAME:6.1f} GFLOP/s  "
               f"{fps[name] / limit_fps:5.1%} of limit")
+    for name, run in stage_paths(frames, args.threads, args.batch_size).items():
+        fps[name] = args.frames / best_seconds(run, args.repeats)
+        print(f"{name:<40} {fps[name]:7.1f} frames/s")
     naive, project = list(fps.values())[:2]
     print(f"ratio b/a (project default / naive loop): {project / naive:.2f}x")
     after = max(matmul_gflops(args.repeats, args.threads).values())

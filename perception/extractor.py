@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -11,9 +10,9 @@ import numpy as np
 from perception.backends import Runner, available_backends, build_runner
 from perception.calibration import ACTIVATION_BIAS, calibrate_random_network
 from perception.constants import (ARCHITECTURE, CALIBRATION_BATCH, COMPATIBILITY_FIELDS, DEFAULT_BATCH_SIZE,
-                                  FEATURE_DIM, IMAGE_SIZE, PREPROCESSING)
+                                  FEATURE_DIM, PREPROCESSING)
 from perception.errors import PerceptionError
-from perception.frames import decode_image, resize_frames
+from perception.frames import resize_frames
 from perception.network import FeatureNet, mobilenet_v2_features
 from perception.weights import resolve_weights, save_state_dict, state_dict_sha256
 
@@ -93,13 +92,6 @@ class FeatureExtractor:
         out = np.empty((len(pixels), FEATURE_DIM), dtype=np.float32)  # (N, 1280)
         for i in range(0, len(pixels), self.batch_size):
             out[i:i + self.batch_size] = runner(np.ascontiguousarray(pixels[i:i + self.batch_size]))
-        return out
-
-    def decode(self, images: Sequence[bytes]) -> np.ndarray:
-        """Decode compressed images (JPEG/PNG bytes) and resize them: (N, 224, 224, 3) uint8."""
-        out = np.empty((len(images), IMAGE_SIZE, IMAGE_SIZE, 3), dtype=np.uint8)  # (N, 224, 224, 3)
-        for i, data in enumerate(images):
-            out[i] = resize_frames(decode_image(data)[None])[0]
         return out
 
     def save_weights(self, path: Path) -> None:

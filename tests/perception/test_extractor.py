@@ -141,15 +141,6 @@ def test_saved_calibrated_weights_reload_with_the_same_features(calibrated, two_
     np.testing.assert_array_equal(reloaded(two_scenes[0]), calibrated(two_scenes[0]))
 
 
-def test_decode_matches_resizing_decoded_frames(calibrated):
-    import cv2
-
-    frame = scene_frames(3, n=1)[0]
-    ok, data = cv2.imencode(".png", cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))  # lossless
-    assert ok
-    np.testing.assert_array_equal(calibrated.decode([data.tobytes()]), _pixels(frame[None]))
-
-
 @pytest.mark.parametrize("kwargs, message", [
     ({"backend": "tensorrt"}, "backend 'tensorrt' is not available"),
     ({"batch_size": 0}, "batch_size must be >= 1"),

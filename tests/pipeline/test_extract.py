@@ -4,7 +4,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from perception import FeatureExtractor, PerceptionError
+from perception import FeatureExtractor, PerceptionError, decode_image
 from perception.constants import WEIGHTS_ENV_VAR
 from pipeline.cli import main
 from pipeline.errors import PipelineError
@@ -40,7 +40,8 @@ def test_trajectories_hold_features_pose_gripper_and_identity(demos, tmp_path):
         np.testing.assert_allclose(traj.pose, demo.pose, rtol=1e-6)
         np.testing.assert_allclose(traj.gripper, demo.gripper, rtol=1e-6)
         np.testing.assert_array_equal(traj.timestamps_ns, demo.timestamps_ns)
-        np.testing.assert_allclose(traj.features, reference.features(reference.decode(demo.frames)), atol=1e-5)
+        expected = reference(np.stack([decode_image(f) for f in demo.frames]))  # (6, 1280)
+        np.testing.assert_allclose(traj.features, expected, atol=1e-5)
         assert traj.extractor == reference.identity
         assert traj.frames == demo.frames  # kept for replay
     assert check_same_extractor([item.output for item in done]) == reference.identity
@@ -112,8 +113,8 @@ def test_mixing_extractors_is_refused_naming_the_odd_files(demos, tmp_path):
         check_same_extractor([a[0].output, a[1].output, b[0].output])
     message = str(info.value)
     assert "different feature extractors" in message
-    assert f"1 file(s) with weights random:seed=1" in message and str(b[0].output) in message
-    assert f"2 file(s) with weights random:seed=0" in message
+    assert "1 file(s) with weights random:seed=1" in message and str(b[0].output) in message
+    assert "2 file(s) with weights random:seed=0" in message
 
 
 def test_backend_alone_does_not_prevent_mixing():
