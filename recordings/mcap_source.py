@@ -1,10 +1,17 @@
-"""Build a `Demonstration` from a robot's MCAP recording with Foxglove image, pose and gripper topics.
+"""Build a `Demonstration` from a robot's MCAP recording: image, pose and gripper topics.
 
-Supported schemas (protobuf): images `foxglove.CompressedImage` (JPEG kept as is, other formats
-re-encoded) or `foxglove.RawImage` (rgb8, bgr8, mono8); pose `foxglove.PoseInFrame`; gripper
-`foxglove.JointStates` (one joint picked by name). Each message's own timestamp is used (its log
-time when the timestamp is unset). With an image topic, pose and gripper are interpolated at the
-frame times (see `recordings.adapters`); without one, steps are the pose messages.
+Supported schemas:
+
+| role | Foxglove (protobuf) | ROS 2 (cdr, needs `mcap-ros2-support`) |
+|---|---|---|
+| image | `foxglove.CompressedImage`, `foxglove.RawImage` | `sensor_msgs/msg/CompressedImage`, `sensor_msgs/msg/Image` |
+| pose | `foxglove.PoseInFrame` | `geometry_msgs/msg/PoseStamped` |
+| gripper | `foxglove.JointStates` | `sensor_msgs/msg/JointState` |
+
+JPEG images are kept as they are; other compressed formats and raw images (rgb8, bgr8, mono8) are
+encoded as JPEG. Each message's own timestamp is used (its log time when the timestamp is unset).
+With an image topic, pose and gripper are interpolated at the frame times (xyz and gripper
+linearly, quaternion by slerp); without one, steps are the pose messages.
 """
 
 from __future__ import annotations
@@ -12,7 +19,7 @@ from __future__ import annotations
 import logging
 import os
 from dataclasses import dataclass
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
@@ -31,6 +38,7 @@ from recordings.validation import JPEG_MAGIC
 log = logging.getLogger(__name__)
 
 NS_PER_S = 1_000_000_000
+PROTOBUF_CLASSES = {c.DESCRIPTOR.full_name: c for c in (CompressedImage, RawImage, PoseInFrame, JointStates)}
 
 
 @dataclass(frozen=True)
@@ -43,72 +51,106 @@ class McapTopics:
     gripper_joint: str = "gripper"
 
 
-def _stamp(ts: object, log_time: int) -> int:
-    ns = ts.seconds * NS_PER_S + ts.nanos  # type: ignore[attr-defined]
+# --- timestamps and images shared by both schema families -----------------------------------------
+
+
+def _foxglove_stamp(msg: Any, log_time: int) -> int:
+    ns = msg.timestamp.seconds * NS_PER_S + msg.timestamp.nanos
     return ns if ns > 0 else log_time
 
 
-def _image_compressed(data: bytes, log_time: int, where: str) -> tuple[int, bytes]:
-    msg = CompressedImage.FromString(data)
-    if msg.data[:2] == JPEG_MAGIC:
-        return _stamp(msg.timestamp, log_time), msg.data
+def _ros_stamp(msg: Any, log_time: int) -> int:
+    ns = msg.header.stamp.sec * NS_PER_S + msg.header.stamp.nanosec
+    return ns if ns > 0 else log_time
+
+
+def _jpeg_of_compressed(data: bytes, fmt: str, where: str) -> bytes:
+    if bytes(data[:2]) == JPEG_MAGIC:
+        return bytes(data)
     import cv2
 
-    image = cv2.imdecode(np.frombuffer(msg.data, np.uint8), cv2.IMREAD_COLOR)
+    image = cv2.imdecode(np.frombuffer(bytes(data), np.uint8), cv2.IMREAD_COLOR)
     if image is None:
-        raise RecordingError(f"{where}: cannot decode a {msg.format!r} image")
-    return _stamp(msg.timestamp, log_time), encode_raw_image(image, where)
+        raise RecordingError(f"{where}: cannot decode a {fmt!r} image")
+    return encode_raw_image(image, where)
 
 
 _RAW_CHANNELS = {"rgb8": 3, "bgr8": 3, "mono8": 1}
 
 
-def _image_raw(data: bytes, log_time: int, where: str) -> tuple[int, bytes]:
-    msg = RawImage.FromString(data)
-    if msg.encoding not in _RAW_CHANNELS:
-        raise RecordingError(f"{where}: raw image encoding {msg.encoding!r} is not one of {sorted(_RAW_CHANNELS)}")
-    ch = _RAW_CHANNELS[msg.encoding]
-    step = msg.step or msg.width * ch
-    rows = np.frombuffer(msg.data, np.uint8)[: step * msg.height].reshape(msg.height, step)  # (H, step)
-    image = rows[:, : msg.width * ch].reshape(msg.height, msg.width, ch)  # (H, W, C)
-    if msg.encoding == "rgb8":
+def _jpeg_of_raw(width: int, height: int, encoding: str, step: int, data: bytes, where: str) -> bytes:
+    if encoding not in _RAW_CHANNELS:
+        raise RecordingError(f"{where}: raw image encoding {encoding!r} is not one of {sorted(_RAW_CHANNELS)}")
+    ch = _RAW_CHANNELS[encoding]
+    step = step or width * ch
+    rows = np.frombuffer(bytes(data), np.uint8)[: step * height].reshape(height, step)  # (H, step)
+    image = rows[:, : width * ch].reshape(height, width, ch)  # (H, W, C)
+    if encoding == "rgb8":
         image = image[:, :, ::-1]  # OpenCV encodes BGR
-    return _stamp(msg.timestamp, log_time), encode_raw_image(np.ascontiguousarray(image), where)
+    return encode_raw_image(np.ascontiguousarray(image), where)
 
 
-def _pose(data: bytes, log_time: int, where: str) -> tuple[int, list[float]]:
-    msg = PoseInFrame.FromString(data)
-    p, o = msg.pose.position, msg.pose.orientation
-    return _stamp(msg.timestamp, log_time), [p.x, p.y, p.z, o.x, o.y, o.z, o.w]
+def _pose_of(pose: Any) -> list[float]:
+    p, o = pose.position, pose.orientation  # same field names in Foxglove and ROS 2
+    return [p.x, p.y, p.z, o.x, o.y, o.z, o.w]
 
 
-def _joint(joint: str) -> Callable[[bytes, int, str], tuple[int, float]]:
-    def decode(data: bytes, log_time: int, where: str) -> tuple[int, float]:
-        msg = JointStates.FromString(data)
-        for j in msg.joints:
-            if j.name == joint:
-                return _stamp(msg.timestamp, log_time), j.position
-        raise RecordingError(f"{where}: a message has no joint {joint!r} (joints: {[j.name for j in msg.joints]}); set --gripper-joint")
-
-    return decode
+def _joint_position(names: list[str], positions: list[float], joint: str, where: str) -> float:
+    if joint not in names:
+        raise RecordingError(f"{where}: a message has no joint {joint!r} (joints: {list(names)}); set --gripper-joint")
+    return float(positions[list(names).index(joint)])
 
 
-IMAGE_DECODERS = {"foxglove.CompressedImage": _image_compressed, "foxglove.RawImage": _image_raw}
-POSE_DECODERS = {"foxglove.PoseInFrame": _pose}
-GRIPPER_SCHEMAS = ("foxglove.JointStates",)
+# Extractors: (decoded message, log time, where, options) -> (timestamp ns, value), by schema name.
+Extractor = Callable[[Any, int, str, McapTopics], tuple[int, Any]]
+IMAGE_EXTRACTORS: dict[str, Extractor] = {
+    "foxglove.CompressedImage": lambda m, t, w, o: (_foxglove_stamp(m, t), _jpeg_of_compressed(m.data, m.format, w)),
+    "foxglove.RawImage": lambda m, t, w, o: (_foxglove_stamp(m, t), _jpeg_of_raw(m.width, m.height, m.encoding, m.step, m.data, w)),
+    "sensor_msgs/msg/CompressedImage": lambda m, t, w, o: (_ros_stamp(m, t), _jpeg_of_compressed(m.data, m.format, w)),
+    "sensor_msgs/msg/Image": lambda m, t, w, o: (_ros_stamp(m, t), _jpeg_of_raw(m.width, m.height, m.encoding, m.step, m.data, w)),
+}
+POSE_EXTRACTORS: dict[str, Extractor] = {
+    "foxglove.PoseInFrame": lambda m, t, w, o: (_foxglove_stamp(m, t), _pose_of(m.pose)),
+    "geometry_msgs/msg/PoseStamped": lambda m, t, w, o: (_ros_stamp(m, t), _pose_of(m.pose)),
+}
+GRIPPER_EXTRACTORS: dict[str, Extractor] = {
+    "foxglove.JointStates": lambda m, t, w, o: (
+        _foxglove_stamp(m, t),
+        _joint_position([j.name for j in m.joints], [j.position for j in m.joints], o.gripper_joint, w),
+    ),
+    "sensor_msgs/msg/JointState": lambda m, t, w, o: (_ros_stamp(m, t), _joint_position(m.name, m.position, o.gripper_joint, w)),
+}
 
 
-def _series(contents: McapContents, topic: str, decoders: dict[str, Callable], flag: str) -> tuple[np.ndarray, list]:
+def _decoder(contents: McapContents, topic: str) -> Callable[[bytes], Any]:
+    """Function bytes -> message object for the channel of `topic` (protobuf or ROS 2 cdr)."""
+    ch = contents.channel_of_topic(topic)
+    assert ch is not None
+    schema = contents.schemas.get(ch.schema_id)
+    if ch.message_encoding == "protobuf" and schema is not None and schema.name in PROTOBUF_CLASSES:
+        return PROTOBUF_CLASSES[schema.name].FromString
+    if ch.message_encoding == "cdr" and schema is not None:
+        try:
+            from mcap_ros2.decoder import DecoderFactory
+        except ImportError:
+            raise RecordingError(f"{contents.path}: {topic!r} is ROS 2 data; install mcap-ros2-support to read it") from None
+        decode = DecoderFactory().decoder_for(ch.message_encoding, schema)
+        if decode is not None:
+            return decode
+    name = schema.name if schema is not None else "no schema"
+    raise RecordingError(f"{contents.path}: cannot decode {topic!r} ({ch.message_encoding}, {name})")
+
+
+def _series(contents: McapContents, topic: str, extractors: dict[str, Extractor], flag: str, topics: McapTopics) -> tuple[np.ndarray, list]:
     """(times (N,) int64 sorted, values) of `topic`; duplicate times keep their first message."""
     if contents.channel_of_topic(topic) is None:
         have = sorted({c.topic for c in contents.channels.values()})
         raise RecordingError(f"{contents.path}: missing topic {topic!r} (topics in the file: {have}); choose one with {flag}")
     schema = contents.schema_name(topic)
-    if schema not in decoders:
-        raise RecordingError(f"{contents.path}: topic {topic!r} has schema {schema!r}; supported: {sorted(decoders)}")
-    where = f"{contents.path} {topic}"
-    decoded = [decoders[schema](m.data, m.log_time, where) for m in contents.topic_messages(topic)]
-    decoded.sort(key=lambda tv: tv[0])
+    if schema not in extractors:
+        raise RecordingError(f"{contents.path}: topic {topic!r} has schema {schema!r}; supported: {sorted(extractors)}")
+    decode, extract, where = _decoder(contents, topic), extractors[schema], f"{contents.path} {topic}"
+    decoded = sorted((extract(decode(m.data), m.log_time, where, topics) for m in contents.topic_messages(topic)), key=lambda tv: tv[0])
     times = np.array([t for t, _ in decoded], dtype=np.int64)
     first = np.concatenate([[True], np.diff(times) > 0])
     if not first.all():
@@ -122,20 +164,20 @@ def demonstration_from_mcap(path: str | os.PathLike, episode_id: str, topics: Mc
     """Read a robot's MCAP recording (strict: a damaged file is refused; `cnep repair` it first)."""
     contents = read_mcap(path)
     with in_file(contents.path):
-        pose_t, pose_v = _series(contents, topics.pose, POSE_DECODERS, "--pose-topic")
+        pose_t, pose_v = _series(contents, topics.pose, POSE_EXTRACTORS, "--pose-topic", topics)
         pose = np.asarray(pose_v, dtype=np.float64)  # (N, 7)
         norms = np.linalg.norm(pose[:, 3:], axis=1)
         if (norms < 1e-6).any():
             raise RecordingError(f"{contents.path}: a pose on {topics.pose!r} has a zero quaternion")
         pose[:, 3:] /= norms[:, None]
         if topics.gripper:
-            grip_t, grip_v = _series(contents, topics.gripper, dict.fromkeys(GRIPPER_SCHEMAS, _joint(topics.gripper_joint)), "--gripper-topic")
+            grip_t, grip_v = _series(contents, topics.gripper, GRIPPER_EXTRACTORS, "--gripper-topic", topics)
             gripper = np.asarray(grip_v, dtype=np.float64)
         else:
             grip_t, gripper = pose_t, np.zeros(len(pose_t))
         extra = {"image_topic": topics.image, "pose_topic": topics.pose, "gripper_topic": topics.gripper}
         if topics.image:
-            times, frames = _series(contents, topics.image, IMAGE_DECODERS, "--image-topic")
+            times, frames = _series(contents, topics.image, IMAGE_EXTRACTORS, "--image-topic", topics)
             extra["interpolation"] = "pose xyz and gripper linear, quaternion slerp, at frame times"
         else:
             times, frames = pose_t, None

@@ -57,6 +57,25 @@ def video(path: Path, n: int, fps: float, size: int = 32) -> Path:
     return path
 
 
+T0_NS = 1_700_000_000_000_000_000
+
+
+def robot_samples(duration_s: float, camera_hz: float, pose_hz: float, gripper_hz: float) -> list[tuple[int, str, object]]:
+    """(time ns, role, value) of a robot's streams sampling `motion`, sorted by time.
+
+    role "camera": an 8x8 RGB uint8 image whose brightness encodes the frame index;
+    role "pose": (7,) pose; role "gripper": gripper value.
+    """
+    samples = []
+    for role, hz in (("camera", camera_hz), ("pose", pose_hz), ("gripper", gripper_hz)):
+        for i in range(int(duration_s * hz) + 1):
+            t = T0_NS + round(i * 1e9 / hz)
+            pose, grip = motion(np.array([(t - T0_NS) / 1e9]))
+            value = {"camera": np.full((8, 8, 3), (i * 20) % 256, np.uint8), "pose": pose[0], "gripper": grip[0]}[role]
+            samples.append((t, role, value))
+    return sorted(samples, key=lambda s: s[0])
+
+
 def robot_mcap(path: Path, duration_s: float = 1.0, camera_hz: float = 10.0, pose_hz: float = 50.0, gripper_hz: float = 20.0) -> Path:
     """A robot's MCAP with Foxglove schemas on non-default topics: /robot/camera (RawImage rgb8),
     /robot/ee (PoseInFrame), /robot/joints (JointStates with joints `finger` and `gripper_joint`).
@@ -68,30 +87,85 @@ def robot_mcap(path: Path, duration_s: float = 1.0, camera_hz: float = 10.0, pos
     from google.protobuf.timestamp_pb2 import Timestamp
     from mcap_protobuf.writer import Writer
 
-    t0 = 1_700_000_000_000_000_000
-    lag = 3_000_000
+    def message(t: int, role: str, value):
+        stamp = Timestamp(seconds=t // 10**9, nanos=t % 10**9)
+        if role == "camera":
+            return "/robot/camera", RawImage(timestamp=stamp, width=8, height=8, encoding="rgb8", step=24, data=value.tobytes())
+        if role == "pose":
+            msg = PoseInFrame(timestamp=stamp, frame_id="base")
+            msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = value[:3]
+            msg.pose.orientation.x, msg.pose.orientation.y, msg.pose.orientation.z, msg.pose.orientation.w = value[3:]
+            return "/robot/ee", msg
+        joints = [JointState(name="finger", position=-1.0), JointState(name="gripper_joint", position=value)]
+        return "/robot/joints", JointStates(timestamp=stamp, joints=joints)
 
-    def stamp(t_ns: int) -> Timestamp:
-        return Timestamp(seconds=t_ns // 10**9, nanos=t_ns % 10**9)
-
-    events = []
-    for i in range(int(duration_s * camera_hz) + 1):
-        t = t0 + round(i * 1e9 / camera_hz)
-        img = np.full((8, 8, 3), (i * 20) % 256, np.uint8)
-        events.append((t, "/robot/camera", RawImage(timestamp=stamp(t), width=8, height=8, encoding="rgb8", step=24, data=img.tobytes())))
-    for i in range(int(duration_s * pose_hz) + 1):
-        t = t0 + round(i * 1e9 / pose_hz)
-        p = motion(np.array([(t - t0) / 1e9]))[0][0]
-        msg = PoseInFrame(timestamp=stamp(t), frame_id="base")
-        msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = p[:3]
-        msg.pose.orientation.x, msg.pose.orientation.y, msg.pose.orientation.z, msg.pose.orientation.w = p[3:]
-        events.append((t, "/robot/ee", msg))
-    for i in range(int(duration_s * gripper_hz) + 1):
-        t = t0 + round(i * 1e9 / gripper_hz)
-        g = motion(np.array([(t - t0) / 1e9]))[1][0]
-        joints = [JointState(name="finger", position=-1.0), JointState(name="gripper_joint", position=g)]
-        events.append((t, "/robot/joints", JointStates(timestamp=stamp(t), joints=joints)))
     with open(path, "wb") as f, Writer(f) as w:
-        for t, topic, msg in sorted(events, key=lambda e: e[0]):
-            w.write_message(topic, msg, log_time=t + lag, publish_time=t + lag)
+        for t, role, value in robot_samples(duration_s, camera_hz, pose_hz, gripper_hz):
+            topic, msg = message(t, role, value)
+            w.write_message(topic, msg, log_time=t + 3_000_000, publish_time=t + 3_000_000)
+    return path
+
+
+SEPARATOR = "=" * 80
+HEADER_DEFS = f"""{SEPARATOR}
+MSG: std_msgs/Header
+builtin_interfaces/Time stamp
+string frame_id
+{SEPARATOR}
+MSG: builtin_interfaces/Time
+int32 sec
+uint32 nanosec"""
+ROS2_MSGDEFS = {
+    "sensor_msgs/msg/CompressedImage": f"std_msgs/Header header\nstring format\nuint8[] data\n{HEADER_DEFS}",
+    "geometry_msgs/msg/PoseStamped": f"""std_msgs/Header header
+geometry_msgs/Pose pose
+{HEADER_DEFS}
+{SEPARATOR}
+MSG: geometry_msgs/Pose
+Point position
+Quaternion orientation
+{SEPARATOR}
+MSG: geometry_msgs/Point
+float64 x
+float64 y
+float64 z
+{SEPARATOR}
+MSG: geometry_msgs/Quaternion
+float64 x
+float64 y
+float64 z
+float64 w""",
+    "sensor_msgs/msg/JointState": f"std_msgs/Header header\nstring[] name\nfloat64[] position\nfloat64[] velocity\nfloat64[] effort\n{HEADER_DEFS}",
+}
+
+
+def jpeg_of(rgb: np.ndarray) -> bytes:
+    """JPEG bytes (OpenCV defaults) of an RGB uint8 image."""
+    ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(rgb[:, :, ::-1]))
+    assert ok
+    return buf.tobytes()
+
+
+def ros2_robot_mcap(path: Path, duration_s: float = 1.0, camera_hz: float = 10.0, pose_hz: float = 50.0, gripper_hz: float = 20.0) -> Path:
+    """The same streams as `robot_mcap` as ROS 2 messages (cdr): /cam/compressed
+    (sensor_msgs/CompressedImage, JPEG), /ee_pose (geometry_msgs/PoseStamped), /joint_states
+    (sensor_msgs/JointState with `finger` and `gripper_joint`)."""
+    from mcap_ros2.writer import Writer
+
+    with open(path, "wb") as f:
+        w = Writer(f)
+        schemas = {name: w.register_msgdef(name, text) for name, text in ROS2_MSGDEFS.items()}
+        for t, role, value in robot_samples(duration_s, camera_hz, pose_hz, gripper_hz):
+            header = {"stamp": {"sec": t // 10**9, "nanosec": t % 10**9}, "frame_id": "base"}
+            if role == "camera":
+                data = jpeg_of(value)
+                topic, schema, msg = "/cam/compressed", "sensor_msgs/msg/CompressedImage", {"header": header, "format": "jpeg", "data": data}
+            elif role == "pose":
+                pose = {"position": dict(zip("xyz", value[:3])), "orientation": dict(zip("xyzw", value[3:]))}
+                topic, schema, msg = "/ee_pose", "geometry_msgs/msg/PoseStamped", {"header": header, "pose": pose}
+            else:
+                msg = {"header": header, "name": ["finger", "gripper_joint"], "position": [-1.0, value], "velocity": [], "effort": []}
+                topic, schema = "/joint_states", "sensor_msgs/msg/JointState"
+            w.write_message(topic, schemas[schema], msg, log_time=t + 3_000_000, publish_time=t + 3_000_000)
+        w.finish()
     return path

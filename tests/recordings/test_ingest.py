@@ -9,7 +9,7 @@ from recordings import RecordingError, read_demonstration
 from recordings.adapters import FrameTiming
 from recordings.csv_motion import CsvColumns
 from recordings.mcap_source import McapTopics
-from tests.recordings.sources import baxter_csv, images, motion, robot_mcap, video
+from tests.recordings.sources import baxter_csv, images, jpeg_of, motion, robot_mcap, robot_samples, ros2_robot_mcap, video
 
 
 def tree_digest(folder):
@@ -126,6 +126,19 @@ def test_robot_mcap_with_other_topic_names(tmp_path):
     motion_only = McapTopics(image="", pose="/robot/ee", gripper="/robot/joints", gripper_joint="gripper_joint")
     demo = read_demonstration(ingest(IngestConfig(src=src, out=tmp_path / "out2", topics=motion_only, quiet=True))[0].output)
     assert demo.n_steps == 51 and demo.frames is None
+
+
+def test_ros2_mcap(tmp_path):
+    src = ros2_robot_mcap(tmp_path / "ros2.mcap")
+    topics = McapTopics(image="/cam/compressed", pose="/ee_pose", gripper="/joint_states", gripper_joint="gripper_joint")
+    demo = read_demonstration(ingest(IngestConfig(src=src, out=tmp_path / "out", topics=topics, quiet=True))[0].output)
+    frame_t = np.arange(11) * 0.1
+    np.testing.assert_array_equal(demo.timestamps_ns - demo.timestamps_ns[0], np.round(frame_t * 1e9).astype(np.int64))
+    pose, grip = motion(frame_t)
+    np.testing.assert_allclose(demo.pose, pose, atol=1e-9)
+    np.testing.assert_allclose(demo.gripper, grip, atol=1e-9)
+    camera = [v for _, role, v in robot_samples(1.0, 10.0, 50.0, 20.0) if role == "camera"]
+    assert demo.frames == [jpeg_of(img) for img in camera]  # JPEG frames kept byte for byte
 
 
 def test_robot_mcap_missing_topic_names_the_topics(tmp_path):
