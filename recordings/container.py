@@ -120,12 +120,17 @@ class McapContents:
                 return ch
         return None
 
-    def topic_messages(self, topic: str) -> list[Message]:
-        """Messages on `topic` in file order; RecordingError naming the file if the topic is absent."""
+    def require_channel(self, topic: str, hint: str = "") -> Channel:
+        """The channel of `topic`; RecordingError naming the file and its topics if it is absent."""
         ch = self.channel_of_topic(topic)
         if ch is None:
             have = sorted({c.topic for c in self.channels.values()}) or "none"
-            raise RecordingError(f"{self.path}: missing topic {topic!r} (topics in the file: {have})")
+            raise RecordingError(f"{self.path}: missing topic {topic!r} (topics in the file: {have}){hint}")
+        return ch
+
+    def topic_messages(self, topic: str) -> list[Message]:
+        """Messages on `topic` in file order; RecordingError naming the file if the topic is absent."""
+        ch = self.require_channel(topic)
         return [m for m in self.messages if m.channel_id == ch.id]
 
     def schema_name(self, topic: str) -> str:

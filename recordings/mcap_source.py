@@ -124,8 +124,7 @@ GRIPPER_EXTRACTORS: dict[str, Extractor] = {
 
 def _decoder(contents: McapContents, topic: str) -> Callable[[bytes], Any]:
     """Function bytes -> message object for the channel of `topic` (protobuf or ROS 2 cdr)."""
-    ch = contents.channel_of_topic(topic)
-    assert ch is not None
+    ch = contents.require_channel(topic)
     schema = contents.schemas.get(ch.schema_id)
     if ch.message_encoding == "protobuf" and schema is not None and schema.name in PROTOBUF_CLASSES:
         return PROTOBUF_CLASSES[schema.name].FromString
@@ -143,9 +142,7 @@ def _decoder(contents: McapContents, topic: str) -> Callable[[bytes], Any]:
 
 def _series(contents: McapContents, topic: str, extractors: dict[str, Extractor], flag: str, topics: McapTopics) -> tuple[np.ndarray, list]:
     """(times (N,) int64 sorted, values) of `topic`; duplicate times keep their first message."""
-    if contents.channel_of_topic(topic) is None:
-        have = sorted({c.topic for c in contents.channels.values()})
-        raise RecordingError(f"{contents.path}: missing topic {topic!r} (topics in the file: {have}); choose one with {flag}")
+    contents.require_channel(topic, hint=f"; choose one with {flag}")
     schema = contents.schema_name(topic)
     if schema not in extractors:
         raise RecordingError(f"{contents.path}: topic {topic!r} has schema {schema!r}; supported: {sorted(extractors)}")

@@ -155,10 +155,7 @@ def trajectory_from(contents: McapContents) -> Trajectory:
 
 def channel_layout(contents: McapContents) -> tuple[dict[str, tuple[int, int]], int]:
     """(layout, width) from the channel metadata of /trajectory, checked against the known layouts."""
-    ch = contents.channel_of_topic(TOPIC_TRAJECTORY)
-    if ch is None:
-        contents.topic_messages(TOPIC_TRAJECTORY)  # raises the missing-topic error
-    assert ch is not None
+    ch = contents.require_channel(TOPIC_TRAJECTORY)
     try:
         width = int(ch.metadata[CHANNEL_KEY_WIDTH])
         layout = json.loads(ch.metadata[CHANNEL_KEY_LAYOUT])

@@ -14,7 +14,7 @@ is a record that can be written.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Mapping, Sequence
+from typing import Mapping
 
 import numpy as np
 
@@ -217,7 +217,3 @@ class Event:
         object.__setattr__(self, "duration_ns", int(self.duration_ns))
         object.__setattr__(self, "metadata", meta)
 
-
-def frames_or_none(frames: Sequence[bytes]) -> list[bytes] | None:
-    """An empty frame list means a motion-only recording."""
-    return list(frames) if len(frames) else None

@@ -152,15 +152,20 @@ class _StepWriter:
         """Register channels known up front (subclasses)."""
 
     def __exit__(self, exc_type: Any, exc: BaseException | None, tb: Any) -> None:
-        assert self._file is not None, "writer used outside its `with` block"
+        f = self._open_file()
         if exc is None:
             try:
-                self._close(self._file)
+                self._close(f)
             except BaseException as close_exc:
-                self._file.abort(close_exc)
+                f.abort(close_exc)
                 raise
         else:
-            self._file.abort(exc)
+            f.abort(exc)
+
+    def _open_file(self) -> _McapFile:
+        if self._file is None:
+            raise RecordingError(f"{self.path}: use the writer in a `with` block")
+        return self._file
 
     def _close(self, f: _McapFile) -> None:
         if not self._times:
@@ -188,8 +193,8 @@ class _StepWriter:
             raise RecordingError(f"{self._where()}: give a frame at every step or at none (motion-only)")
         if has:
             check_frames([frame], 1, self._where())  # type: ignore[list-item]
-            assert self._file is not None
-            self._file.add(self._file.channel(TOPIC_IMAGE, SCHEMA_IMAGE), t, encode_image(t, frame))  # type: ignore[arg-type]
+            f = self._open_file()
+            f.add(f.channel(TOPIC_IMAGE, SCHEMA_IMAGE), t, encode_image(t, frame))  # type: ignore[arg-type]
 
     @property
     def n_steps(self) -> int:
@@ -207,13 +212,13 @@ class DemonstrationWriter(_StepWriter):
 
     def write_step(self, t_ns: int, pose: Sequence[float], gripper: float, frame: bytes | None = None) -> None:
         """One step at `t_ns` (ns): pose (7,) xyz m + quaternion xyzw, gripper scalar, JPEG frame or None."""
-        assert self._file is not None, "writer used outside its `with` block"
+        f = self._open_file()
         t = self._next_time(t_ns)
         p = check_pose(np.asarray(pose, dtype=np.float64)[None], 1, self._where())[0]
         g = check_gripper([gripper], 1, self._where())[0]
         self._frame(t, frame)
-        self._file.add(self._pose_ch, t, encode_pose(t, p))
-        self._file.add(self._grip_ch, t, encode_gripper(t, g))
+        f.add(self._pose_ch, t, encode_pose(t, p))
+        f.add(self._grip_ch, t, encode_gripper(t, g))
         self._times.append(t)
 
 
@@ -255,7 +260,7 @@ class TrajectoryWriter(_StepWriter):
 
     def write_steps(self, timestamps_ns: np.ndarray, data: np.ndarray, frames: Sequence[bytes] | None = None) -> None:
         """Several steps: timestamps (N,) int ns, data (N, width) float32, frames N JPEGs or None."""
-        assert self._file is not None, "writer used outside its `with` block"
+        f = self._open_file()
         where = self._where()
         ts = check_timestamps(timestamps_ns, where)
         rows = check_matrix(data, ts.shape[0], where)
@@ -267,7 +272,7 @@ class TrajectoryWriter(_StepWriter):
         self._next_time(int(ts[0]))
         for i, t in enumerate(ts.tolist()):
             self._frame(t, None if frames is None else frames[i])
-            self._file.add(self._vec_ch, t, encode_vector(t, rows[i]))
+            f.add(self._vec_ch, t, encode_vector(t, rows[i]))
         self._times.extend(ts.tolist())
 
 

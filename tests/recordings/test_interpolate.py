@@ -1,5 +1,7 @@
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from recordings import RecordingError
 from recordings.interpolate import interpolate_linear, slerp
@@ -39,3 +41,24 @@ def test_no_extrapolation():
     with pytest.raises(RecordingError, match="outside"):
         interpolate_linear(t, np.zeros(2), np.array([25]))
 
+
+
+@settings(max_examples=50, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(2, 20), q=st.integers(1, 30))
+def test_slerp_properties(seed, n, q):
+    rng = np.random.default_rng(seed)
+    t = np.cumsum(rng.integers(1, 10**9, size=n)).astype(np.int64)
+    quats = rng.normal(size=(n, 4))
+    quats /= np.linalg.norm(quats, axis=1, keepdims=True)
+    # at the sample times: the samples themselves (up to sign)
+    at = slerp(t, quats, t)
+    np.testing.assert_allclose(np.abs(np.sum(at * quats, axis=1)), 1.0, atol=1e-9)
+    # anywhere inside: unit length, and on the shorter arc between the neighbours
+    tq = np.sort(rng.integers(t[0], t[-1] + 1, size=q))
+    out = slerp(t, quats, tq)
+    np.testing.assert_allclose(np.linalg.norm(out, axis=1), 1.0, atol=1e-9)
+    i = np.clip(np.searchsorted(t, tq, side="right") - 1, 0, n - 2)
+    gap = np.arccos(np.clip(np.abs(np.sum(quats[i] * quats[i + 1], axis=1)), 0, 1))
+    to_left = np.arccos(np.clip(np.abs(np.sum(out * quats[i], axis=1)), 0, 1))
+    to_right = np.arccos(np.clip(np.abs(np.sum(out * quats[i + 1], axis=1)), 0, 1))
+    np.testing.assert_allclose(to_left + to_right, gap, atol=1e-6)

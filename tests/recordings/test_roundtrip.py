@@ -162,3 +162,36 @@ def test_demonstration_round_trip_property(tmp_path, pose_xyz, seed, task):
         gripper=rng.normal(size=steps),
     )
     assert_same_demo(demo, read_demonstration(write_demonstration(tmp_path / "p.mcap", demo)))
+
+
+def test_feature_vector_bytes_decode_with_the_protobuf_runtime():
+    """Any protobuf-aware MCAP tool builds the class from the schema in the file: check it decodes ours."""
+    from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+
+    from recordings.schemas import encode_vector, feature_vector_schema, vector_payload
+
+    pool = descriptor_pool.DescriptorPool()
+    for fd in descriptor_pb2.FileDescriptorSet.FromString(feature_vector_schema()).file:
+        pool.Add(fd)
+    cls = message_factory.GetMessageClass(pool.FindMessageTypeByName("cnep.FeatureVector"))
+    row = np.random.default_rng(0).normal(size=1288).astype(np.float32)
+    t = 1_700_000_000_123_456_789
+    msg = cls.FromString(encode_vector(t, row))
+    assert (msg.timestamp.seconds, msg.timestamp.nanos) == (1_700_000_000, 123_456_789)
+    np.testing.assert_array_equal(np.array(msg.data, dtype=np.float32), row)
+    # and our decoder reads what the protobuf runtime writes (packed and unpacked encodings)
+    np.testing.assert_array_equal(np.frombuffer(vector_payload(msg.SerializeToString()), "<f4"), row)
+    unpacked = b"".join(b"\x15" + np.float32(v).tobytes() for v in row[:3])  # field 2, wire type 5
+    np.testing.assert_array_equal(np.frombuffer(vector_payload(unpacked), "<f4"), row[:3])
+
+
+def test_recordings_never_imports_torch_pipeline_or_opencv_at_import():
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, recordings, recordings.repair, recordings.inspection, recordings.mcap_source, recordings.adapters; "
+        "print(','.join(m for m in ('torch', 'pipeline', 'cv2', 'perception', 'models') if m in sys.modules))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == ""
