@@ -15,7 +15,7 @@ from __future__ import annotations
 import argparse
 import os
 import tempfile
-import time
+import timeit
 from collections.abc import Callable
 from pathlib import Path
 from unittest import mock
@@ -32,12 +32,7 @@ READ_TARGET = 50_000  # steps/s, from issue 3
 def best_seconds(fn: Callable[[], object], repeats: int) -> float:
     """The fastest of `repeats` timed calls after one warm-up call, in seconds."""
     fn()
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return min(times)
+    return min(timeit.repeat(fn, number=1, repeat=repeats))
 
 
 def make_trajectory(steps: int, seed: int = 0) -> Trajectory:

@@ -107,6 +107,8 @@ def ingest(config: IngestConfig) -> list[Ingested]:
         for source in tqdm(sources, desc="ingest", unit="demo", disable=config.quiet):
             demo = load(source, config)
             target = out / f"{source.episode_id}{SUFFIX}"
+            if target.resolve() == source.path.resolve():
+                raise RecordingError(f"{target}: the output would replace its input; choose another --out folder")
             target.parent.mkdir(parents=True, exist_ok=True)
             write_demonstration(target, demo)
             kind = "frames" if demo.has_frames else "motion-only"

@@ -178,6 +178,15 @@ def test_output_inside_source_is_refused(tmp_path):
         ingest(IngestConfig(src=tmp_path, out=tmp_path / "out", quiet=True))
 
 
+def test_output_replacing_its_input_is_refused(tmp_path):
+    src = robot_mcap(tmp_path / "robot.mcap")
+    before = src.read_bytes()
+    topics = McapTopics(image="", pose="/robot/ee", gripper="/robot/joints", gripper_joint="gripper_joint")
+    with pytest.raises(RecordingError, match="replace its input"):
+        ingest(IngestConfig(src=src, out=tmp_path, topics=topics, quiet=True))
+    assert src.read_bytes() == before
+
+
 def test_cli_ingest(tmp_path, capsys):
     src = tmp_path / "src"
     src.mkdir()
