@@ -195,3 +195,22 @@ def test_recordings_never_imports_torch_pipeline_or_opencv_at_import():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == ""
+
+
+@pytest.mark.parametrize("compression", ["", "lz4", "zstd"])
+def test_reader_accepts_any_chunk_compression(tmp_path, compression):
+    from recordings.container import new_writer
+
+    traj = trajectory_factory(steps=9, features=False)
+    contents = read_mcap(write_trajectory(tmp_path / "t.mcap", traj))
+    with open(tmp_path / "c.mcap", "wb") as f:
+        w = new_writer(f, compression)
+        for name, data in contents.metadata.items():
+            w.add_metadata(name, data)
+        sid = {k: w.register_schema(s.name, s.encoding, s.data) for k, s in contents.schemas.items()}
+        cid = {k: w.register_channel(c.topic, c.message_encoding, sid[c.schema_id], c.metadata) for k, c in contents.channels.items()}
+        for m in contents.messages:
+            w.add_message(cid[m.channel_id], m.log_time, m.data, m.publish_time)
+        w.finish()
+    back = read_trajectory(tmp_path / "c.mcap")
+    np.testing.assert_array_equal(back.data, traj.data)
