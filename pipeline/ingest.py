@@ -101,7 +101,10 @@ def ingest(config: IngestConfig) -> list[Ingested]:
     sources = discover(src)
     if src.is_dir() and out.resolve().is_relative_to(src.resolve()):
         raise RecordingError(f"{out}: the output folder is inside the source folder {src}; choose one outside it")
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise RecordingError(f"{out}: cannot create the output folder ({exc.strerror})") from None
     done = []
     with logging_redirect_tqdm():
         for source in tqdm(sources, desc="ingest", unit="demo", disable=config.quiet):
@@ -109,7 +112,7 @@ def ingest(config: IngestConfig) -> list[Ingested]:
             target = out / f"{source.episode_id}{SUFFIX}"
             if target.resolve() == source.path.resolve():
                 raise RecordingError(f"{target}: the output would replace its input; choose another --out folder")
-            target.parent.mkdir(parents=True, exist_ok=True)
+            target.parent.mkdir(parents=True, exist_ok=True)  # inside `out`, which we could create
             write_demonstration(target, demo)
             kind = "frames" if demo.has_frames else "motion-only"
             log.info("%s -> %s: %d steps, %s, %.1f Hz", source.path, target, demo.n_steps, kind, demo.episode.fps)

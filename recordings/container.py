@@ -59,7 +59,10 @@ def atomic_output(path: str | os.PathLike) -> Iterator[IO[bytes]]:
     target = Path(path)
     if not target.parent.is_dir():
         raise RecordingError(f"{target}: output folder {target.parent} does not exist; create it first")
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+    except OSError as exc:
+        raise RecordingError(f"{target}: cannot write in {target.parent} ({exc.strerror})") from None
     try:
         with os.fdopen(fd, "wb") as stream:
             yield stream

@@ -196,3 +196,10 @@ def test_cli_ingest(tmp_path, capsys):
     assert main(["-q", "ingest", str(tmp_path / "missing"), "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "no such file or folder" in err[0] and "Traceback" not in err[0]
+
+
+def test_unwritable_output_is_one_clear_error(tmp_path):
+    path = baxter_csv(tmp_path / "a.csv", baxter_times(5))
+    (tmp_path / "file").write_text("not a folder")
+    with pytest.raises(RecordingError, match="cannot create the output folder"):
+        ingest(IngestConfig(src=path, out=tmp_path / "file" / "out", quiet=True))
