@@ -186,7 +186,8 @@ class _Reader:
     def __enter__(self) -> Any:
         self._contents = read_mcap(self.path)
         self.episode = read_episode(self._contents, self.kind)
-        self.n_steps = int(self._contents.metadata[METADATA_STEPS]["n_steps"])
+        with in_file(self.path):
+            self.n_steps = int(self._contents.metadata[METADATA_STEPS]["n_steps"])
         return self
 
     def __exit__(self, *exc: Any) -> None:
