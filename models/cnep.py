@@ -34,25 +34,36 @@ def mlp(widths: list[int]) -> nn.Sequential:
     return nn.Sequential(*layers)
 
 
-class BatchedMLP(nn.Module):
-    """`d` independent MLPs with the same widths, evaluated together with `torch.baddbmm`."""
+class Experts(nn.Module):
+    """`d` expert MLPs with the same widths on `[r, query]`, evaluated together.
 
-    def __init__(self, d: int, widths: list[int]) -> None:
+    The first layer is split into a latent part and a query part: the latent part is computed once
+    per sample (not once per query) for all experts in one matrix product; the hidden layers run as
+    one `torch.baddbmm` over stacked weights.
+    """
+
+    def __init__(self, d: int, latent_dim: int, query_dim: int, widths: list[int]) -> None:
         super().__init__()
+        self.d = d
+        fan_in = latent_dim + query_dim
+        bound = 1 / math.sqrt(fan_in)  # the same range as nn.Linear's default initialisation
+        self.first_r = nn.Parameter(torch.empty(latent_dim, d * widths[0]).uniform_(-bound, bound))
+        self.first_q = nn.Parameter(torch.empty(query_dim, d * widths[0]).uniform_(-bound, bound))
+        self.first_b = nn.Parameter(torch.empty(d * widths[0]).uniform_(-bound, bound))
         self.weights = nn.ParameterList()
         self.biases = nn.ParameterList()
         for a, b in zip(widths[:-1], widths[1:]):
-            bound = 1 / math.sqrt(a)  # the same range as nn.Linear's default initialisation
+            bound = 1 / math.sqrt(a)
             self.weights.append(nn.Parameter(torch.empty(d, a, b).uniform_(-bound, bound)))
             self.biases.append(nn.Parameter(torch.empty(d, 1, b).uniform_(-bound, bound)))
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """x (d, R, in) -> (d, R, out)."""
-        last = len(self.weights) - 1
-        for i, (w, b) in enumerate(zip(self.weights, self.biases)):
-            x = torch.baddbmm(b, x, w)  # (d, R, width)
-            if i < last:
-                x = F.relu(x)
+    def forward(self, r: torch.Tensor, query: torch.Tensor) -> torch.Tensor:
+        """r (B, H), query (B, M, dq) -> (d, B*M, out)."""
+        B, M, _ = query.shape
+        h = (r @ self.first_r + self.first_b).unsqueeze(1) + query @ self.first_q  # (B, M, d*w0)
+        x = h.view(B * M, self.d, -1).transpose(0, 1)  # (d, B*M, w0)
+        for w, b in zip(self.weights, self.biases):
+            x = torch.baddbmm(b, F.relu(x), w)  # (d, B*M, width)
         return x
 
 
@@ -81,26 +92,34 @@ class CNEP(nn.Module):
         for name, spans in (("obs_columns", lay.observed), ("query_columns", lay.query), ("out_columns", lay.predicted)):
             self.register_buffer(name, torch.tensor(span_indices(spans), dtype=torch.long), persistent=False)
         H, dy = config.latent_dim, lay.out_dim
-        self.encoder = mlp([1 + lay.obs_dim, *config.encoder_widths])
+        time_dim = 1 + 2 * config.time_frequencies
+        self.register_buffer("frequencies", math.pi * torch.arange(1, config.time_frequencies + 1.0), persistent=False)
+        self.encoder = mlp([time_dim + lay.obs_dim, *config.encoder_widths])
         self.gate = nn.Linear(H, config.n_experts)
-        self.experts = BatchedMLP(config.n_experts, [H + 1 + lay.query_dim, *config.expert_widths, 2 * dy])
+        self.experts = Experts(config.n_experts, H, time_dim + lay.query_dim, [*config.expert_widths, 2 * dy])
 
     @property
     def n_experts(self) -> int:
         return self.config.n_experts
 
+    def embed_time(self, x: torch.Tensor) -> torch.Tensor:
+        """(..., 1 + k) with t first -> (..., 1 + 2K + k) with the time's Fourier features."""
+        if not len(self.frequencies):
+            return x
+        angle = x[..., :1] * self.frequencies  # (..., K)
+        return torch.cat([x[..., :1], angle.sin(), angle.cos(), x[..., 1:]], dim=-1)
+
     def encode(self, obs: torch.Tensor, obs_mask: torch.Tensor) -> torch.Tensor:
         """Masked mean of the observation encodings: (B, N, 1+obs_dim), (B, N) -> (B, H)."""
         w = obs_mask.to(obs.dtype).unsqueeze(-1)  # (B, N, 1)
-        enc = self.encoder(obs) * w  # (B, N, H); padded rows contribute exactly 0
+        enc = self.encoder(self.embed_time(obs)) * w  # (B, N, H); padded rows contribute exactly 0
         return enc.sum(1) / w.sum(1).clamp_min(1.0)  # (B, H)
 
     def decode(self, r: torch.Tensor, query: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """All experts at once: r (B, H), query (B, M, dq) -> mean, std (B, d, M, dy)."""
         B, M, _ = query.shape
         d, dy = self.n_experts, self.config.layout.out_dim
-        x = torch.cat([r.unsqueeze(1).expand(B, M, -1), query], dim=-1)  # (B, M, H + dq)
-        out = self.experts(x.reshape(1, B * M, -1).expand(d, -1, -1))  # (d, B*M, 2dy)
+        out = self.experts(r, self.embed_time(query))  # (d, B*M, 2dy)
         out = out.view(d, B, M, 2 * dy).transpose(0, 1)  # (B, d, M, 2dy)
         mean, raw = out.split(dy, dim=-1)  # (B, d, M, dy) each
         return mean, self.config.min_std + F.softplus(raw)

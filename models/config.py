@@ -80,6 +80,7 @@ class CNEPConfig:
     encoder_widths: tuple[int, ...] = (128, 128)  # the last width is the latent size
     expert_widths: tuple[int, ...] = (128, 128)
     min_std: float = 1e-3  # floor of the predicted std, in normalised units
+    time_frequencies: int = 8  # K: t is fed as [t, sin(pi k t), cos(pi k t) for k = 1..K]
     a_rec: float | None = None
     a_batch: float | None = None
     a_ind: float | None = None
@@ -96,6 +97,8 @@ class CNEPConfig:
                 f"Widths must be positive and the encoder needs at least one layer, got encoder "
                 f"{self.encoder_widths} and experts {self.expert_widths}."
             )
+        if self.time_frequencies < 0:
+            raise ConfigError(f"time_frequencies must be >= 0, got {self.time_frequencies}.")
         if not self.min_std > 0:
             raise ConfigError(f"min_std must be > 0 (it keeps the likelihood finite), got {self.min_std}.")
         defaults = authors_coefficients(self.n_experts)

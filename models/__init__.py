@@ -1,0 +1,26 @@
+"""CNEP (and CNMP as one expert) on arrays: the model, its loss, training, checkpoints, evaluation.
+
+Takes numpy arrays, never files or images.
+"""
+
+from models.checkpoint import load_checkpoint, read_checkpoint_config, save_checkpoint
+from models.cnep import CNEP, Prediction
+from models.config import CNEPConfig, Layout, TrainConfig, authors_coefficients
+from models.errors import ConfigError
+from models.train import Trainer, build_model, fit
+
+__all__ = [
+    "CNEP",
+    "CNEPConfig",
+    "ConfigError",
+    "Layout",
+    "Prediction",
+    "TrainConfig",
+    "Trainer",
+    "authors_coefficients",
+    "build_model",
+    "fit",
+    "load_checkpoint",
+    "read_checkpoint_config",
+    "save_checkpoint",
+]

@@ -1,0 +1,72 @@
+"""Random conditioning batches drawn from a padded stack of trajectories, without Python loops.
+
+Each sample: a trajectory i, n ~ U{1..min(n_max, T_i)} observation steps and m ~ U{1..min(m_max, T_i)}
+target steps, each set drawn without replacement (the two sets are independent). Time of step k of a
+trajectory of length T is k / (T - 1), so 0 and 1 are both reachable.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+
+@dataclass
+class Batch:
+    obs: torch.Tensor  # (B, n_max, 1 + obs_dim)
+    obs_mask: torch.Tensor  # (B, n_max) bool
+    query: torch.Tensor  # (B, m_max, 1 + query_dim)
+    target: torch.Tensor  # (B, m_max, dy)
+    target_mask: torch.Tensor  # (B, m_max) bool
+
+
+class TrajectoryStack:
+    """Normalised trajectories padded to one tensor, split into observed / query / predicted columns."""
+
+    def __init__(self, trajectories: Sequence[np.ndarray], model) -> None:
+        lengths = [len(t) for t in trajectories]
+        T, C = max(lengths), model.config.layout.width
+        data = torch.zeros(len(trajectories), T, C)
+        for i, traj in enumerate(trajectories):
+            data[i, : len(traj)] = torch.as_tensor(np.asarray(traj, dtype=np.float32))
+        idx = torch.arange(C)
+        with torch.no_grad():
+            data = model.normaliser.normalise(data, idx)
+        self.lengths = torch.tensor(lengths)  # (N,)
+        self.observed = data[..., model.obs_columns].contiguous()  # (N, T, obs_dim)
+        self.query = data[..., model.query_columns].contiguous()  # (N, T, query_dim)
+        self.predicted = data[..., model.out_columns].contiguous()  # (N, T, dy)
+
+    def __len__(self) -> int:
+        return len(self.lengths)
+
+    def times(self, traj: torch.Tensor, steps: torch.Tensor) -> torch.Tensor:
+        """Normalised time of `steps` (B, k) of trajectories `traj` (B,) -> (B, k)."""
+        return steps / (self.lengths[traj] - 1).clamp_min(1).unsqueeze(1)
+
+
+def _random_steps(lengths: torch.Tensor, k_max: int, T: int, g: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
+    """Up to k_max distinct random steps below each length: indices (B, k) and mask (B, k)."""
+    B = len(lengths)
+    keys = torch.rand(B, T, generator=g)  # (B, T)
+    keys.masked_fill_(torch.arange(T) >= lengths.unsqueeze(1), 2.0)  # invalid steps sort last
+    k = min(k_max, T)
+    steps = keys.topk(k, dim=1, largest=False).indices  # (B, k) a random subset of valid steps
+    limit = torch.minimum(lengths, torch.tensor(k_max))  # (B,)
+    count = 1 + (torch.rand(B, generator=g) * limit).long()  # (B,) ~ U{1..limit}
+    mask = torch.arange(k) < count.unsqueeze(1)  # (B, k)
+    return steps, mask
+
+
+def sample_batch(stack: TrajectoryStack, batch_size: int, n_max: int, m_max: int, g: torch.Generator) -> Batch:
+    traj = torch.randint(len(stack), (batch_size,), generator=g)  # (B,)
+    lengths, T = stack.lengths[traj], stack.observed.shape[1]
+    obs_steps, obs_mask = _random_steps(lengths, n_max, T, g)  # (B, n)
+    tgt_steps, tgt_mask = _random_steps(lengths, m_max, T, g)  # (B, m)
+    rows = traj.unsqueeze(1)  # (B, 1)
+    obs = torch.cat([stack.times(traj, obs_steps).unsqueeze(-1), stack.observed[rows, obs_steps]], -1)
+    query = torch.cat([stack.times(traj, tgt_steps).unsqueeze(-1), stack.query[rows, tgt_steps]], -1)
+    return Batch(obs, obs_mask, query, stack.predicted[rows, tgt_steps], tgt_mask)

@@ -1,0 +1,185 @@
+"""Training CNEP on a list of trajectories: seeded, vectorised batches, best-model keeping.
+
+The optimiser recipe for a CPU budget of minutes (measured, see docs/training.md): Adam, a linear
+learning-rate warm-up then cosine decay, and the gate held uniform (zero-initialised, not updated) for
+the first `gate_freeze_fraction` of the steps, so that the experts learn to reconstruct before the
+gate starts to commit.
+"""
+
+from __future__ import annotations
+
+import copy
+import logging
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from models.cnep import CNEP
+from models.config import CNEPConfig, TrainConfig
+from models.errors import ConfigError
+from models.loss import cnep_loss
+from models.sampler import Batch, TrajectoryStack, sample_batch
+
+log = logging.getLogger(__name__)
+
+VAL_BATCHES = 8  # fixed validation batches, drawn once
+VAL_BATCH_SIZE = 64
+
+
+def build_model(config: CNEPConfig, train: Sequence[np.ndarray], seed: int) -> CNEP:
+    """A freshly initialised model (seeded) whose normaliser is fitted on `train`."""
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(seed)
+        model = CNEP(config)
+    with torch.no_grad():  # the gate starts uniform: zero weights, zero bias
+        model.gate.weight.zero_()
+        model.gate.bias.zero_()
+    model.normaliser.fit(train)
+    return model
+
+
+def split_validation(trajectories: Sequence[np.ndarray], fraction: float, seed: int):
+    """Split by whole trajectory (never by time step): (train, validation)."""
+    n = len(trajectories)
+    n_val = max(1, round(n * fraction)) if n >= 2 else 0
+    if n_val == 0:
+        raise ConfigError(f"Need at least 2 trajectories to hold one out for validation, got {n}.")
+    order = np.random.default_rng(seed).permutation(n)
+    val = set(order[:n_val].tolist())
+    return [t for i, t in enumerate(trajectories) if i not in val], [t for i, t in enumerate(trajectories) if i in val]
+
+
+def lr_factor(step: int, cfg: TrainConfig) -> float:
+    """Linear warm-up to 1, then cosine decay to 0.05 at the last step."""
+    if step < cfg.warmup_steps:
+        return (step + 1) / cfg.warmup_steps
+    progress = (step - cfg.warmup_steps) / max(1, cfg.steps - cfg.warmup_steps)
+    return 0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * min(1.0, progress)))
+
+
+@torch.no_grad()
+def wta_error(model: CNEP, batch: Batch) -> float:
+    """Mean squared error (normalised units) of the most probable expert's mean on the targets."""
+    mean, _, gate = model(batch.obs, batch.obs_mask, batch.query)  # (B, d, M, dy), (B, d)
+    chosen = mean[torch.arange(len(gate)), gate.argmax(-1)]  # (B, M, dy)
+    w = batch.target_mask.unsqueeze(-1).to(chosen.dtype)  # (B, M, 1)
+    return float(((chosen - batch.target) ** 2 * w).sum() / (w.sum() * chosen.shape[-1]))
+
+
+@dataclass
+class Trainer:
+    """One training run; `state_dict` / `load_state_dict` make it resumable step for step."""
+
+    model: CNEP
+    train: TrajectoryStack
+    val: TrajectoryStack
+    cfg: TrainConfig
+    step: int = 0
+    best_error: float = math.inf
+    best_state: dict = field(default_factory=dict)
+    history: list[dict] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        self.optimizer = torch.optim.Adam(self.model.parameters(), lr=self.cfg.lr, foreach=True)
+        self.generator = torch.Generator().manual_seed(self.cfg.seed)
+        val_gen = torch.Generator().manual_seed(self.cfg.seed + 1)
+        self.val_batches = [
+            sample_batch(self.val, VAL_BATCH_SIZE, self.cfg.n_max, self.cfg.m_max, val_gen) for _ in range(VAL_BATCHES)
+        ]
+        self.freeze_steps = int(self.cfg.gate_freeze_fraction * self.cfg.steps)
+
+    def train_step(self) -> dict[str, float]:
+        batch = sample_batch(self.train, self.cfg.batch_size, self.cfg.n_max, self.cfg.m_max, self.generator)
+        for group in self.optimizer.param_groups:
+            group["lr"] = self.cfg.lr * lr_factor(self.step, self.cfg)
+        mean, std, gate = self.model(batch.obs, batch.obs_mask, batch.query)
+        loss, terms = cnep_loss(mean, std, gate, batch.target, batch.target_mask, self.model.config)
+        self.optimizer.zero_grad(set_to_none=False)
+        loss.backward()
+        if self.step < self.freeze_steps:  # Adam moments stay 0, so the gate does not move
+            self.model.gate.weight.grad.zero_()
+            self.model.gate.bias.grad.zero_()
+        torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.cfg.grad_clip)
+        self.optimizer.step()
+        self.step += 1
+        terms["usage"] = gate.detach().mean(0).tolist()
+        return terms
+
+    def validate(self) -> float:
+        self.model.eval()
+        error = float(np.mean([wta_error(self.model, b) for b in self.val_batches]))
+        self.model.train()
+        if error < self.best_error:
+            self.best_error = error
+            self.best_state = copy.deepcopy(self.model.state_dict())
+        return error
+
+    def state_dict(self) -> dict:
+        return {
+            "model": self.model.state_dict(),
+            "optimizer": self.optimizer.state_dict(),
+            "generator": self.generator.get_state(),
+            "step": self.step,
+            "best_error": self.best_error,
+            "best_state": self.best_state,
+            "history": self.history,
+        }
+
+    def load_state_dict(self, state: dict) -> None:
+        self.model.load_state_dict(state["model"])
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.generator.set_state(state["generator"])
+        self.step, self.best_error = state["step"], state["best_error"]
+        self.best_state, self.history = state["best_state"], state["history"]
+
+    def run(self, progress: bool = True, until: int | None = None) -> None:
+        """Train up to step `until` (default: all steps), validating every `val_every` steps."""
+        from tqdm.auto import tqdm
+
+        until = self.cfg.steps if until is None else min(until, self.cfg.steps)
+        bar = tqdm(total=until, initial=self.step, disable=not progress, desc="train", unit="step", leave=False)
+        while self.step < until:
+            terms = self.train_step()
+            bar.update(1)
+            if self.step % self.cfg.val_every == 0 or self.step == self.cfg.steps:
+                terms.update(step=self.step, val_error=self.validate())
+                self.history.append(terms)
+                bar.set_postfix(loss=f"{terms['loss']:.3g}", val=f"{terms['val_error']:.3g}",
+                                usage="/".join(f"{u:.2f}" for u in terms["usage"]))
+                log.debug("step %d %s", self.step, terms)
+                if self.should_stop():
+                    log.info("early stop at step %d: no improvement in %d validations", self.step, self.cfg.patience)
+                    break
+        bar.close()
+
+    def should_stop(self) -> bool:
+        p = self.cfg.patience
+        if p is None or len(self.history) <= p:
+            return False
+        return min(h["val_error"] for h in self.history[-p:]) > self.best_error
+
+
+def fit(
+    trajectories: Sequence[np.ndarray],
+    config: CNEPConfig,
+    train_config: TrainConfig = TrainConfig(),
+    val_trajectories: Sequence[np.ndarray] | None = None,
+    progress: bool = True,
+) -> tuple[CNEP, list[dict]]:
+    """Train a CNEP on `(T_i, width)` trajectories; returns the best model (by validation) and the history.
+
+    Without `val_trajectories`, 20% of the trajectories (by whole trajectory) are held out.
+    """
+    train, val = (trajectories, val_trajectories) if val_trajectories else split_validation(trajectories, 0.2, train_config.seed)
+    for t in list(train) + list(val):
+        if np.ndim(t) != 2 or np.shape(t)[1] != config.layout.width:
+            raise ConfigError(f"Trajectories must be (T, {config.layout.width}) arrays, got shape {np.shape(t)}.")
+    model = build_model(config, train, train_config.seed)
+    trainer = Trainer(model, TrajectoryStack(train, model), TrajectoryStack(val, model), train_config)
+    trainer.run(progress=progress)
+    model.load_state_dict(trainer.best_state)
+    model.eval()
+    return model, trainer.history

@@ -1,0 +1,39 @@
+"""Tiny synthetic inputs for model tests."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from models.config import CNEPConfig, Layout
+
+
+def tiny_config(n_experts: int = 3, obs_dim: int = 2, query_dim: int = 1, out_dim: int = 2) -> CNEPConfig:
+    """A small model whose observed, query and predicted columns all differ."""
+    width = obs_dim + query_dim + out_dim
+    layout = Layout(
+        width=width,
+        observed=((0, obs_dim),),
+        query=((obs_dim, obs_dim + query_dim),) if query_dim else (),
+        predicted=((obs_dim + query_dim, width),),
+    )
+    return CNEPConfig(
+        layout=layout, n_experts=n_experts, encoder_widths=(16, 8), expert_widths=(16, 16), time_frequencies=2
+    )
+
+
+def random_inputs(config: CNEPConfig, B: int = 4, N: int = 5, M: int = 6, seed: int = 0):
+    g = torch.Generator().manual_seed(seed)
+    lay = config.layout
+    obs = torch.rand(B, N, 1 + lay.obs_dim, generator=g)
+    query = torch.rand(B, M, 1 + lay.query_dim, generator=g)
+    return obs, torch.ones(B, N, dtype=torch.bool), query
+
+
+def two_mode_trajectories(n: int = 16, T: int = 50, seed: int = 0) -> tuple[list[np.ndarray], np.ndarray]:
+    """Half rise, half fall from a shared start: (T, 1) trajectories and their modes."""
+    rng = np.random.default_rng(seed)
+    t = np.linspace(0, 1, T)
+    modes = np.arange(n) % 2
+    trajs = [((1 if k else -1) * np.sin(np.pi * t) + 0.02 * rng.standard_normal())[:, None] for k in modes]
+    return [x.astype(np.float32) for x in trajs], modes

@@ -1,0 +1,54 @@
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from models.checkpoint import CONFIG_FILE, WEIGHTS_FILE, load_checkpoint, save_checkpoint
+from models.errors import ConfigError
+from models.train import build_model
+from tests.models.factories import random_inputs, tiny_config
+
+
+@pytest.fixture
+def model():
+    rng = np.random.default_rng(0)
+    trajs = [rng.normal(3.0, 2.0, (20, 5)).astype(np.float32) for _ in range(4)]
+    return build_model(tiny_config(), trajs, seed=0).eval()
+
+
+def test_save_then_load_gives_identical_outputs(model, tmp_path):
+    save_checkpoint(model, tmp_path / "ckpt", extra={"note": "kept"})
+    loaded = load_checkpoint(tmp_path / "ckpt")
+    assert loaded.config == model.config
+    for k, v in model.state_dict().items():
+        torch.testing.assert_close(loaded.state_dict()[k], v, rtol=0, atol=0)  # normaliser included
+    obs, mask, query = random_inputs(model.config)
+    for a, b in zip(model(obs, mask, query), loaded(obs, mask, query)):
+        torch.testing.assert_close(a, b, rtol=0, atol=0)
+    assert json.loads((tmp_path / "ckpt" / CONFIG_FILE).read_text())["note"] == "kept"
+    assert not list((tmp_path / "ckpt").glob("*.tmp"))  # no temporary files left behind
+
+
+def test_missing_or_unknown_checkpoints_are_clear_errors(model, tmp_path):
+    with pytest.raises(ConfigError, match="no checkpoint config"):
+        load_checkpoint(tmp_path / "nothing")
+    save_checkpoint(model, tmp_path / "ckpt")
+    cfg_path = tmp_path / "ckpt" / CONFIG_FILE
+    cfg = json.loads(cfg_path.read_text())
+    cfg_path.write_text(json.dumps({**cfg, "format_version": 99}))
+    with pytest.raises(ConfigError, match="format_version 99"):
+        load_checkpoint(tmp_path / "ckpt")
+
+
+def test_weights_that_do_not_match_the_config_are_refused(model, tmp_path):
+    save_checkpoint(model, tmp_path / "ckpt")
+    cfg_path = tmp_path / "ckpt" / CONFIG_FILE
+    cfg = json.loads(cfg_path.read_text())
+    cfg["model"]["expert_widths"] = [32, 32]
+    cfg_path.write_text(json.dumps(cfg))
+    with pytest.raises(ConfigError, match="do not match"):
+        load_checkpoint(tmp_path / "ckpt")
+    (tmp_path / "ckpt" / WEIGHTS_FILE).write_bytes(b"not safetensors")
+    with pytest.raises(ConfigError, match="cannot read the weights"):
+        load_checkpoint(tmp_path / "ckpt")

@@ -1,0 +1,52 @@
+import numpy as np
+import torch
+
+from models.cnep import CNEP
+from models.sampler import TrajectoryStack, sample_batch
+from tests.models.factories import tiny_config
+
+
+def _stack(lengths=(5, 12, 30)):
+    cfg = tiny_config(n_experts=2)
+    model = CNEP(cfg)
+    width = cfg.layout.width
+    # column 0 of step k holds k, so a sampled value tells which step it came from
+    trajs = [np.column_stack([np.arange(T), np.full((T, width - 1), i)]).astype(np.float32) for i, T in enumerate(lengths)]
+    return TrajectoryStack(trajs, model), lengths
+
+
+def test_batches_have_the_documented_shapes_and_valid_masks():
+    stack, lengths = _stack()
+    g = torch.Generator().manual_seed(0)
+    b = sample_batch(stack, 64, n_max=10, m_max=7, g=g)
+    assert b.obs.shape == (64, 10, 3) and b.obs_mask.shape == (64, 10)
+    assert b.query.shape == (64, 7, 2) and b.target.shape == (64, 7, 2) and b.target_mask.shape == (64, 7)
+    assert b.obs_mask[:, 0].all() and b.target_mask[:, 0].all()  # n, m >= 1
+    assert (b.obs_mask.sum(1) <= 10).all()
+
+
+def test_observations_are_distinct_valid_steps_with_normalised_time():
+    stack, lengths = _stack()  # the model's normaliser is unfitted (identity), so values stay raw
+    b = sample_batch(stack, 200, n_max=10, m_max=10, g=torch.Generator().manual_seed(1))
+    for i in range(200):
+        mask = b.obs_mask[i]
+        t, step, traj = b.obs[i, mask, 0], b.obs[i, mask, 1], b.obs[i, mask, 2]
+        T = lengths[int(traj[0])]
+        assert (traj == traj[0]).all()  # one trajectory per sample
+        assert (step >= 0).all() and (step < T).all()
+        assert len(torch.unique(step)) == len(step)  # without replacement
+        torch.testing.assert_close(t, step / (T - 1))
+
+
+def test_short_trajectories_cap_the_number_of_points():
+    stack, _ = _stack(lengths=(3, 3))
+    b = sample_batch(stack, 50, n_max=10, m_max=10, g=torch.Generator().manual_seed(2))
+    assert (b.obs_mask.sum(1) <= 3).all() and (b.target_mask.sum(1) <= 3).all()
+
+
+def test_same_generator_seed_same_batch():
+    stack, _ = _stack()
+    a = sample_batch(stack, 16, 10, 10, torch.Generator().manual_seed(5))
+    b = sample_batch(stack, 16, 10, 10, torch.Generator().manual_seed(5))
+    torch.testing.assert_close(a.obs, b.obs)
+    torch.testing.assert_close(a.target, b.target)

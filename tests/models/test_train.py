@@ -1,0 +1,71 @@
+import numpy as np
+import pytest
+import torch
+
+from models.config import CNEPConfig, TrainConfig
+from models.errors import ConfigError
+from models.train import Trainer, build_model, fit, lr_factor, split_validation
+from models.sampler import TrajectoryStack
+from tests.models.factories import two_mode_trajectories
+
+SMALL = dict(encoder_widths=(32, 32), expert_widths=(32, 32), time_frequencies=4)
+QUICK = TrainConfig(steps=60, warmup_steps=10, val_every=20, batch_size=8)
+
+
+def test_same_seed_same_model_different_seed_different_model():
+    trajs, _ = two_mode_trajectories()
+    a, _ = fit(trajs, CNEPConfig(**SMALL), QUICK, progress=False)
+    b, _ = fit(trajs, CNEPConfig(**SMALL), QUICK, progress=False)
+    c, _ = fit(trajs, CNEPConfig(**SMALL), TrainConfig(**{**QUICK.to_dict(), "seed": 1}), progress=False)
+    for k, v in a.state_dict().items():
+        torch.testing.assert_close(b.state_dict()[k], v, rtol=0, atol=0)
+    assert any(not torch.equal(c.state_dict()[k], v) for k, v in a.state_dict().items())
+
+
+def test_validation_split_is_by_whole_trajectory_and_disjoint():
+    trajs = [np.full((5, 1), i, dtype=np.float32) for i in range(10)]
+    train, val = split_validation(trajs, 0.2, seed=0)
+    ids = lambda xs: {int(x[0, 0]) for x in xs}  # noqa: E731
+    assert len(val) == 2 and len(train) == 8 and not ids(train) & ids(val)
+    with pytest.raises(ConfigError, match="at least 2"):
+        split_validation(trajs[:1], 0.2, seed=0)
+
+
+def test_gate_stays_uniform_while_frozen_and_moves_after():
+    trajs, _ = two_mode_trajectories()
+    cfg = TrainConfig(steps=200, warmup_steps=10, gate_freeze_fraction=0.5, val_every=100, batch_size=16)
+    model = build_model(CNEPConfig(**SMALL), trajs, seed=0)
+    trainer = Trainer(model, TrajectoryStack(trajs, model), TrajectoryStack(trajs[:4], model), cfg)
+    trainer.run(progress=False, until=100)
+    assert torch.count_nonzero(model.gate.weight) == 0 and torch.count_nonzero(model.gate.bias) == 0
+    trainer.run(progress=False)
+    assert torch.count_nonzero(model.gate.weight) > 0
+
+
+def test_learning_rate_warms_up_then_decays():
+    cfg = TrainConfig(steps=1000, warmup_steps=100)
+    assert lr_factor(0, cfg) == pytest.approx(0.01)
+    assert lr_factor(99, cfg) == pytest.approx(1.0)
+    assert lr_factor(999, cfg) == pytest.approx(0.05, abs=1e-3)
+    assert lr_factor(500, cfg) < lr_factor(200, cfg)
+
+
+def test_trajectories_of_the_wrong_width_are_refused():
+    with pytest.raises(ConfigError, match=r"\(T, 1\)"):
+        fit([np.zeros((10, 2))] * 4, CNEPConfig(**SMALL), QUICK, progress=False)
+
+
+@pytest.mark.slow
+def test_two_modes_end_on_different_experts():
+    trajs, modes = two_mode_trajectories(n=24, T=60)
+    cfg = TrainConfig(steps=1200, warmup_steps=120, val_every=200, batch_size=32)
+    model, history = fit(trajs, CNEPConfig(n_experts=2, **SMALL), cfg, progress=False)
+    t = np.linspace(0, 1, 60)
+    chosen = []
+    for traj in trajs:
+        steps = np.array([0, 15, 45])  # the modes differ away from the shared start
+        chosen.append(model.generate(t[steps], traj[steps], t).expert)
+    chosen = np.array(chosen)
+    assert len(set(chosen[modes == 0])) == 1 and len(set(chosen[modes == 1])) == 1
+    assert chosen[modes == 0][0] != chosen[modes == 1][0]
+    assert history[-1]["val_error"] < 0.05
