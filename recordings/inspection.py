@@ -113,8 +113,10 @@ def format_report(report: FileReport) -> str:
         lines.append(f"  cnep check: {report.check}")
     lines.append(f"  duration {report.duration_s:.3f} s")
     lines.append("  topics:")
+    wt = max((len(t.topic) for t in report.topics), default=0)
+    ws = max((len(t.schema) for t in report.topics), default=0)
     for t in report.topics:
-        lines.append(f"    {t.topic:<16} {t.schema:<26} {t.count:>7} msgs  {t.rate_hz:8.2f} Hz")
+        lines.append(f"    {t.topic:<{wt}}  {t.schema:<{ws}}  {t.count:>7} msgs  {t.rate_hz:8.2f} Hz")
     for name, data in report.metadata.items():
         lines.append(f"  metadata {name}: " + ", ".join(f"{k}={v}" for k, v in data.items()))
     for topic, layout in report.layouts.items():
