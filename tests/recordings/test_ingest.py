@@ -2,11 +2,13 @@ import hashlib
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from pipeline.cli import main
 from pipeline.ingest import IngestConfig, ingest
 from recordings import RecordingError, read_demonstration
-from recordings.adapters import FrameTiming
+from recordings.adapters import FrameTiming, demonstration_from_csv
 from recordings.csv_motion import CsvColumns
 from recordings.mcap_source import McapTopics
 from tests.recordings.sources import baxter_csv, images, jpeg_of, motion, robot_mcap, robot_samples, ros2_robot_mcap, video
@@ -203,3 +205,35 @@ def test_unwritable_output_is_one_clear_error(tmp_path):
     (tmp_path / "file").write_text("not a folder")
     with pytest.raises(RecordingError, match="cannot create the output folder"):
         ingest(IngestConfig(src=path, out=tmp_path / "file" / "out", quiet=True))
+
+
+@settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    rows=st.integers(2, 30),
+    unit=st.sampled_from(["s", "ms", "us", "ns"]),
+    extra_columns=st.integers(0, 3),
+)
+def test_csv_ingest_property(tmp_path, seed, rows, unit, extra_columns):
+    """Any column order, extra columns, time unit and padding: values come back as written."""
+    rng = np.random.default_rng(seed)
+    scale = {"s": 1e9, "ms": 1e6, "us": 1e3, "ns": 1.0}[unit]
+    t_ns = np.cumsum(rng.integers(1_000_000, 50_000_000, size=rows))  # 1-50 ms apart
+    quat = rng.normal(size=(rows, 4))
+    quat /= np.linalg.norm(quat, axis=1, keepdims=True)
+    cols = {"t": t_ns / scale, "px": rng.normal(size=rows), "py": rng.normal(size=rows), "pz": rng.normal(size=rows)}
+    cols.update({f"o{k}": quat[:, i] for i, k in enumerate("xyzw")})
+    cols["grip"] = rng.uniform(0, 100, size=rows)
+    cols.update({f"junk{i}": rng.normal(size=rows) for i in range(extra_columns)})
+    names = list(cols)
+    order = rng.permutation(len(names))
+    header = ",".join(f"__{names[i]}__" if rng.random() < 0.5 else names[i] for i in order)
+    body = [",".join(repr(float(cols[names[i]][r])) for i in order) for r in range(rows)]
+    path = tmp_path / f"prop_{seed}.csv"
+    path.write_text("\n".join([header, *body]) + "\n")
+    mapping = dict(time="t", time_unit=unit, x="px", y="py", z="pz", qx="ox", qy="oy", qz="oz", qw="ow", gripper="grip")
+    demo = demonstration_from_csv(path, "prop", CsvColumns.from_overrides(mapping))
+    np.testing.assert_allclose(demo.timestamps_ns, t_ns, rtol=0, atol=1)  # float round trip of the time unit
+    np.testing.assert_allclose(demo.pose[:, :3], np.stack([cols["px"], cols["py"], cols["pz"]], axis=1), rtol=0, atol=0)
+    np.testing.assert_allclose(demo.pose[:, 3:], quat, atol=1e-15)
+    np.testing.assert_allclose(demo.gripper, cols["grip"], rtol=0, atol=0)

@@ -5,10 +5,15 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
+from pipeline.ingest import IngestConfig, ingest
 from recordings import Event, add_events, write_demonstration, write_trajectory
+from recordings.mcap_source import McapTopics
+from recordings.repair import repair
 from tests.recordings.factories import demonstration_factory, trajectory_factory
+from tests.recordings.sources import baxter_csv, ros2_robot_mcap
 
 RERUN = Path(sys.executable).parent / "rerun"
 
@@ -36,6 +41,16 @@ def test_written_files_pass_rerun_mcap_check(tmp_path, rerun_env):
         write_trajectory(tmp_path / "traj8.mcap", trajectory_factory(steps=10, features=False)),
     ]
     files.append(add_events(files[2], tmp_path / "events.mcap", [Event(1_700_000_000_100_000_000, {"expert": "1"})]))
+    big = write_trajectory(tmp_path / "big.mcap", trajectory_factory(steps=400))
+    big.write_bytes(big.read_bytes()[: big.stat().st_size * 3 // 4])
+    files.append(repair(big, tmp_path / "repaired.mcap").dst)
+    src = tmp_path / "raw"
+    src.mkdir()
+    baxter_csv(src / "baxter.csv", np.arange(20) * 12.0 + 6)
+    ros2_robot_mcap(src / "ros2.mcap")
+    topics = McapTopics(image="/cam/compressed", pose="/ee_pose", gripper="/joint_states", gripper_joint="gripper_joint")
+    files += [d.output for d in ingest(IngestConfig(src=src, out=tmp_path / "ingested", topics=topics, quiet=True))]
+    assert len(files) == 8
     for path in files:
         out = rerun_check(path)
         assert out.returncode == 0, out.stdout + out.stderr
