@@ -41,6 +41,18 @@ class FrameTiming:
     frame_rate: float | None = None
     offset_ms: float = 0.0
 
+    def __post_init__(self) -> None:
+        if self.frame_rate is not None and not (np.isfinite(self.frame_rate) and self.frame_rate > 0):
+            raise RecordingError(f"frame rate (--frame-rate) must be a finite number of Hz > 0, got {self.frame_rate}")
+        if not np.isfinite(self.offset_ms):
+            raise RecordingError(f"frame offset (--frame-offset-ms) must be a finite number of ms, got {self.offset_ms}")
+
+    def times_ns(self, n_frames: int, first_row_ns: int, rate: float) -> tuple[np.ndarray, str]:
+        """Times (n_frames,) int64 ns of frames at `rate` Hz after the first CSV row, and how they were made."""
+        t0 = first_row_ns + round(self.offset_ms * 1e6)
+        times = t0 + np.round(np.arange(n_frames) * (NS_PER_S / rate)).astype(np.int64)  # (F,)
+        return times, f"first CSV time + {self.offset_ms} ms + i / {rate} Hz"
+
 
 def median_rate(timestamps_ns: np.ndarray) -> float:
     """Median step rate in Hz of strictly increasing ns timestamps (>= 2 of them)."""
@@ -126,14 +138,13 @@ def demonstration_from_folder(
         raise RecordingError(f"{d}: a folder with frames needs exactly one CSV of pose and gripper values, found {len(csvs)}")
     table = read_motion_csv(csvs[0], columns)
     videos, images = media_of(d)
-    t0 = int(table.timestamps_ns[0] + round(timing.offset_ms * 1e6))
+    first = int(table.timestamps_ns[0])
     if videos:
         if len(videos) > 1 or images:
             raise RecordingError(f"{d}: give one video or numbered images per folder, found {len(videos)} videos and {len(images)} images")
         frames, video_fps = read_video(videos[0])
-        rate = timing.frame_rate or video_fps
-        extra = {"frame_source": videos[0].name, "frame_times": f"first CSV time + {timing.offset_ms} ms + i / {rate} Hz"}
-        times = t0 + np.round(np.arange(len(frames)) * (NS_PER_S / rate)).astype(np.int64)
+        times, how = timing.times_ns(len(frames), first, timing.frame_rate or video_fps)
+        extra = {"frame_source": videos[0].name, "frame_times": how}
         return demonstration_with_frames(episode_id, table, frames, times, task, extra)
     frames = read_images(images)
     extra = {"frame_source": f"{len(images)} numbered images"}
@@ -144,6 +155,5 @@ def demonstration_from_folder(
             f"{d}: {len(frames)} images for {len(table.timestamps_ns)} CSV rows; give the camera rate with --frame-rate HZ "
             "(or one image per CSV row)"
         )
-    extra["frame_times"] = f"first CSV time + {timing.offset_ms} ms + i / {timing.frame_rate} Hz"
-    times = t0 + np.round(np.arange(len(frames)) * (NS_PER_S / timing.frame_rate)).astype(np.int64)
+    times, extra["frame_times"] = timing.times_ns(len(frames), first, timing.frame_rate)
     return demonstration_with_frames(episode_id, table, frames, times, task, extra)
