@@ -79,8 +79,8 @@ LAYOUT_MOTION: Layout = MappingProxyType(
 LAYOUTS: Mapping[int, Layout] = MappingProxyType({STEP_DIM: LAYOUT_FULL, MOTION_DIM: LAYOUT_MOTION})
 
 # Writing. Chunk compression by file kind: trajectories are float32 vectors that zstd shrinks by
-# only ~10% while lz4 writes ~1.5x and reads ~1.1-1.3x faster (python -m benchmarks.bench_recordings
-# measures both), so they use lz4; demonstrations (protobuf pose/gripper, JPEG frames) use zstd.
+# only ~10%, while lz4 writes them ~1.4x faster and reads them about as fast or faster (python -m
+# benchmarks.bench_recordings measures both), so they use lz4; demonstrations use zstd.
 CHUNK_SIZE_BYTES = 1024 * 1024
 COMPRESSION_BY_KIND: Mapping[str, str] = MappingProxyType({KIND_DEMONSTRATION: "zstd", KIND_TRAJECTORY: "lz4"})
 DEFAULT_COMPRESSION = "zstd"
