@@ -24,3 +24,8 @@ __all__ = [
     "read_checkpoint_config",
     "save_checkpoint",
 ]
+
+from models.online import ConditioningPolicy, ExpertSwitch, OnlineConditioner, OnlineStep  # noqa: E402
+from models.pid import PIDGains, pid_track  # noqa: E402
+
+__all__ += ["ConditioningPolicy", "ExpertSwitch", "OnlineConditioner", "OnlineStep", "PIDGains", "pid_track"]
