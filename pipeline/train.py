@@ -1,0 +1,191 @@
+"""Stage `train`: trajectory MCAP files -> a CNEP checkpoint folder that replay can load.
+
+    train(TrainStageConfig(inputs=(folder,), out=Path("ckpt"))) -> Path("ckpt")
+
+Steps: find and read the trajectory files (one width, one feature extractor, else an error naming
+the files); pick the model's columns by layout preset (pipeline.training_layouts); split whole
+demonstrations into training and validation; fit the normaliser on the training demonstrations;
+train with `models.Trainer` (time normalised per demonstration to [0, 1] by its sampler), saving a
+resumable state every `save_every` steps; keep the weights with the lowest validation error; stop
+early after `patience` validations without improvement. Under torchrun the same call trains with
+DistributedDataParallel (pipeline.training_parallel); only rank 0 writes.
+
+OUT gets `config.json` (model, layout, training settings, extractor identity, files with sha256,
+best step and error), `model.safetensors` and `training_log.jsonl` (one line per validation).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import torch
+from tqdm import tqdm
+
+from models import CNEPConfig, TrainConfig, Trainer, build_model, save_checkpoint
+from models.sampler import TrajectoryStack
+from models.train import split_validation
+from pipeline.errors import PipelineError
+from pipeline.training_data import TrainingSet, find_trajectory_files, load_training_set
+from pipeline.training_constants import (DEFAULT_DEVICE, DEFAULT_PATIENCE, DEFAULT_PRESET, DEFAULT_SAVE_EVERY,
+                                         DEFAULT_VAL_FRACTION, LOG_FILE, STATE_FILE)
+from pipeline.training_layouts import TrainingLayout, resolve_layout
+from pipeline.training_parallel import (PlacedModel, Processes, from_main, gather, rank_seed, start_processes,
+                                        stop_processes)
+from pipeline.training_state import check_same_run, prepare_work_dir, publish, save_state, work_dir, write_log
+
+log = logging.getLogger(__name__)
+
+DEFAULT_TRAINING = TrainConfig(patience=DEFAULT_PATIENCE)  # the models' defaults, with early stopping
+
+
+@dataclass(frozen=True)
+class TrainStageConfig:
+    """inputs: trajectory files or folders (read only); out: checkpoint folder (must not exist unless `force`).
+
+    layout: preset name (wine-glass, motion, all); n_experts, encoder_widths, expert_widths,
+    time_frequencies: the network (models.CNEPConfig); training: steps, batch size (per process), lr,
+    schedule, val_every, patience (validations), seed (models.TrainConfig); val_fraction: share of the
+    demonstrations held out for validation (whole demonstrations, at least one); save_every: steps
+    between resumable saves; device: cpu or cuda; resume: continue the unfinished run writing to
+    `out`; force: replace an existing `out` when the run completes.
+    """
+
+    inputs: tuple[Path, ...]
+    out: Path
+    layout: str = DEFAULT_PRESET
+    n_experts: int = 2
+    encoder_widths: tuple[int, ...] = (128, 128)
+    expert_widths: tuple[int, ...] = (128, 128)
+    time_frequencies: int = 8
+    training: TrainConfig = field(default_factory=lambda: DEFAULT_TRAINING)
+    val_fraction: float = DEFAULT_VAL_FRACTION
+    save_every: int = DEFAULT_SAVE_EVERY
+    device: str = DEFAULT_DEVICE
+    resume: bool = False
+    force: bool = False
+    quiet: bool = False
+
+    def __post_init__(self) -> None:
+        if not 0 < self.val_fraction < 1:
+            raise PipelineError(f"val_fraction must be in (0, 1), got {self.val_fraction}")
+        if self.save_every < 1:
+            raise PipelineError(f"save_every must be >= 1 step, got {self.save_every}")
+
+
+@dataclass
+class StageTrainer(Trainer):
+    """`models.Trainer` that reports every step to `on_step(step, terms)` (the progress bar)."""
+
+    on_step: Callable[[int, dict], None] | None = None
+
+    def train_step(self) -> dict[str, float]:
+        terms = super().train_step()
+        if self.on_step is not None:
+            self.on_step(self.step, terms)
+        return terms
+
+
+def train(config: TrainStageConfig) -> Path:
+    """Train a CNEP on the trajectory files of `config`; returns the checkpoint folder (config.out)."""
+    procs, device = start_processes(config.device)
+    try:
+        return _train(config, procs, device)
+    finally:
+        stop_processes(procs)
+
+
+def _train(config: TrainStageConfig, procs: Processes, device: torch.device) -> Path:
+    data = load_training_set(find_trajectory_files(config.inputs))
+    layout = resolve_layout(config.layout, data.width, data.files[0].path)
+    model_config = CNEPConfig(layout=layout.model, n_experts=config.n_experts, encoder_widths=config.encoder_widths,
+                              expert_widths=config.expert_widths, time_frequencies=config.time_frequencies)
+    train_idx, val_idx = split_validation(list(range(len(data.files))), config.val_fraction, config.training.seed)
+    identity = run_identity(config, data, layout, model_config, train_idx, val_idx, procs)
+    saved = from_main(procs, lambda: prepare_work_dir(config.out, config.resume, config.force))
+    if saved is not None:
+        check_same_run(saved["identity"], identity, work_dir(config.out) / STATE_FILE)
+
+    rows = [layout.select(f.data) for f in data.files]  # (T_i, model width) each
+    train_rows, val_rows = [rows[i] for i in train_idx], [rows[i] for i in val_idx]
+    model = build_model(model_config, train_rows, config.training.seed)  # normaliser fitted on training demos
+    train_stack, val_stack = TrajectoryStack(train_rows, model), TrajectoryStack(val_rows, model)
+    trainer = StageTrainer(PlacedModel(model, device, procs), train_stack, val_stack, config.training)
+    trainer.generator.manual_seed(rank_seed(config.training.seed, procs.rank))
+    elapsed = 0.0
+    if saved is not None:
+        trainer.load_state_dict(saved["trainer"])
+        trainer.generator.set_state(saved["generators"][procs.rank])
+        elapsed = saved["elapsed_s"]
+        log.info("resuming at step %d of %d", trainer.step, config.training.steps)
+    if procs.is_main:
+        log.info("training on %d demonstrations, validating on %d; layout %s (%d columns -> %d predicted), %d process(es)",
+                 len(train_idx), len(val_idx), layout.name, layout.model.width, layout.model.out_dim,
+                 procs.world_size)
+
+    work, cfg = work_dir(config.out), config.training
+    clock = time.perf_counter() - elapsed  # training time (s) counts across resumes, reading the files does not
+    with progress_bar(trainer, disabled=config.quiet or not procs.is_main) as bar:
+        trainer.on_step = lambda step, terms: report_step(bar, trainer, terms, time.perf_counter() - clock)
+        while trainer.step < cfg.steps and not trainer.should_stop():
+            trainer.run(progress=False, until=(trainer.step // config.save_every + 1) * config.save_every)
+            generators = gather(procs, trainer.generator.get_state())
+            if procs.is_main:
+                save_state(work / STATE_FILE, {"identity": identity, "trainer": trainer.state_dict(),
+                                               "generators": generators,
+                                               "elapsed_s": time.perf_counter() - clock})
+                write_log(work / LOG_FILE, trainer.history)
+    elapsed = time.perf_counter() - clock
+
+    if procs.is_main:
+        model.load_state_dict(trainer.best_state)
+        best = min(trainer.history, key=lambda h: h["val_error"])
+        summary = {"best_step": best["step"], "best_val_error": best["val_error"], "steps_run": trainer.step,
+                   "stopped_early": trainer.step < cfg.steps, "elapsed_s": round(elapsed, 3)}
+        extra = {key: value for key, value in identity.items() if key != "model"}  # save_checkpoint writes "model"
+        save_checkpoint(model, work, {**extra, "result": summary, "log": LOG_FILE})
+        publish(work, config.out)
+        log.info("best validation error %.4g at step %d; %d steps in %.1f s -> %s", best["val_error"], best["step"],
+                 trainer.step, elapsed, config.out)
+    return config.out
+
+
+def run_identity(config: TrainStageConfig, data: TrainingSet, layout: TrainingLayout, model_config: CNEPConfig,
+                 train_idx: list[int], val_idx: list[int], procs: Processes) -> dict:
+    """What makes a run: saved in config.json and compared on --resume (JSON-able, as JSON reads it back)."""
+    files = [dict(f.describe(), split="train" if i in train_idx else "validation") for i, f in enumerate(data.files)]
+    identity = {
+        "stage": "train",
+        "layout": layout.to_dict(),
+        "model": model_config.to_dict(),
+        "training": {**asdict(config.training), "val_fraction": config.val_fraction, "world_size": procs.world_size,
+                     "batch_size_total": config.training.batch_size * procs.world_size},
+        "extractor": data.extractor,
+        "files": files,
+    }
+    return json.loads(json.dumps(identity))
+
+
+def progress_bar(trainer: Trainer, disabled: bool) -> tqdm:
+    return tqdm(total=trainer.cfg.steps, initial=trainer.step, desc="train", unit="step", disable=disabled,
+                dynamic_ncols=True)
+
+
+def report_step(bar: tqdm, trainer: Trainer, terms: dict, elapsed: float) -> None:
+    """Progress bar: loss terms of this step, the gate's mean usage of each expert, the best validation error.
+
+    The terms dict is the one the Trainer appends to its history at validation steps, so the
+    elapsed time also lands in the log there.
+    """
+    terms["elapsed_s"] = round(elapsed, 3)
+    bar.update(1)
+    if bar.disable:
+        return
+    bar.set_postfix(loss=f"{terms['loss']:.3g}", rec=f"{terms['rec']:.3g}", H_batch=f"{terms['batch_entropy']:.3g}",
+                    H_ind=f"{terms['ind_entropy']:.3g}", usage="/".join(f"{u:.2f}" for u in terms["usage"]),
+                    best_val=f"{trainer.best_error:.3g}", refresh=False)
+

@@ -1,0 +1,21 @@
+"""Names and defaults of the train stage (stdlib only, so the `cnep train` command can import them at once)."""
+
+from __future__ import annotations
+
+# Layout presets (pipeline.training_layouts maps them onto columns).
+WINE_GLASS = "wine-glass"
+MOTION = "motion"
+ALL = "all"
+PRESET_NAMES = (WINE_GLASS, MOTION, ALL)
+DEFAULT_PRESET = WINE_GLASS
+
+DEVICES = ("cpu", "cuda")
+DEFAULT_DEVICE = "cpu"
+
+DEFAULT_PATIENCE = 10  # validations without improvement before stopping early
+DEFAULT_VAL_FRACTION = 0.2  # share of the demonstrations held out for validation
+DEFAULT_SAVE_EVERY = 500  # steps between resumable saves
+
+# Files in the work folder `.<OUT>.partial/` and in the finished checkpoint folder.
+STATE_FILE = "state.pt"
+LOG_FILE = "training_log.jsonl"

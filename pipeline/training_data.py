@@ -1,0 +1,96 @@
+"""Inputs of the train stage: trajectory files found, hashed, read once and checked to fit together."""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.errors import PipelineError
+from pipeline.extract import SUFFIX, _names, check_identities
+from recordings import Trajectory, read_trajectory
+
+log = logging.getLogger(__name__)
+
+HASH_BLOCK = 1 << 20  # bytes read at a time when hashing a file
+
+
+@dataclass(frozen=True)
+class TrainingFile:
+    """One trajectory file trained on: where, its sha256 (hex), episode id, steps and (T, width) data."""
+
+    path: Path
+    sha256: str
+    episode_id: str
+    n_steps: int
+    data: np.ndarray
+
+    def describe(self) -> dict:
+        """JSON-able entry for config.json (the data itself is left out)."""
+        return {"path": str(self.path), "sha256": self.sha256, "episode_id": self.episode_id, "n_steps": self.n_steps}
+
+
+@dataclass(frozen=True)
+class TrainingSet:
+    """Trajectory files of one width and one feature extractor ({} for motion-only files)."""
+
+    files: tuple[TrainingFile, ...]
+    width: int
+    extractor: dict[str, str]
+
+
+def find_trajectory_files(inputs: Sequence[Path]) -> list[Path]:
+    """Files as given, folders searched recursively for `*.mcap` (sorted); raises PipelineError for missing inputs."""
+    found: list[Path] = []
+    for given in map(Path, inputs):
+        if given.is_dir():
+            inside = sorted(p for p in given.rglob(f"*{SUFFIX}") if p.is_file())
+            if not inside:
+                raise PipelineError(f"{given}: no {SUFFIX} files in this folder; give trajectory files made by "
+                                    f"`cnep extract`")
+            found += inside
+        elif given.is_file():
+            found.append(given)
+        else:
+            raise PipelineError(f"{given}: no such file or folder; give trajectory files made by `cnep extract`")
+    seen: set[Path] = set()
+    unique = [p for p in found if not (p.resolve() in seen or seen.add(p.resolve()))]
+    if len(unique) < 2:
+        raise PipelineError(f"training needs at least 2 trajectory files (one is held out for validation), got "
+                            f"{len(unique)} from {', '.join(map(str, inputs))}")
+    return unique
+
+
+def load_training_set(paths: Sequence[Path]) -> TrainingSet:
+    """Read every file once (the recording layer validates it) and require one width and one extractor."""
+    files, extractors, widths = [], {}, {}
+    for path in paths:
+        trajectory = read_trajectory(path)
+        files.append(_training_file(path, trajectory))
+        extractors[path] = trajectory.extractor or {}
+        widths.setdefault(trajectory.width, []).append(path)
+    if len(widths) > 1:
+        described = "; ".join(f"{len(files_)} file(s) {width} columns wide: {_names(files_)}"
+                              for width, files_ in sorted(widths.items(), key=lambda item: -len(item[1])))
+        raise PipelineError(f"trajectory files have different column layouts and cannot be trained together: "
+                            f"{described}; train on files of one kind (with features, or motion-only)")
+    extractor = check_identities(extractors)
+    return TrainingSet(files=tuple(files), width=next(iter(widths)), extractor=extractor)
+
+
+def file_sha256(path: Path) -> str:
+    """sha256 of the file's bytes (hex)."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        while block := f.read(HASH_BLOCK):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def _training_file(path: Path, trajectory: Trajectory) -> TrainingFile:
+    return TrainingFile(path=Path(path), sha256=file_sha256(path), episode_id=trajectory.episode.episode_id,
+                        n_steps=trajectory.n_steps, data=trajectory.data)

@@ -1,0 +1,208 @@
+import hashlib
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from safetensors.torch import load_file
+
+from models import Trainer, TrainConfig, load_checkpoint, read_checkpoint_config
+from models.sampler import TrajectoryStack
+from pipeline.cli import main
+from pipeline.errors import PipelineError
+from pipeline.train import StageTrainer, TrainStageConfig, train
+from pipeline.training_constants import LOG_FILE, STATE_FILE
+from pipeline.training_layouts import resolve_layout
+from pipeline.training_parallel import rank_seed
+from pipeline.training_state import work_dir
+from recordings import Trajectory, read_trajectory, write_trajectory
+from tests.recordings.factories import trajectory_factory
+
+LENGTHS = (20, 27, 33, 40, 24)  # demonstrations of different lengths
+TINY = {"encoder_widths": (16, 16), "expert_widths": (16, 16), "time_frequencies": 2}
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+def write_set(folder: Path, features: bool = True, extractor: dict | None = None) -> list[Path]:
+    """Trajectory files of LENGTHS steps (seeded random features, pose, gripper) in `folder`."""
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for k, steps in enumerate(LENGTHS):
+        traj = trajectory_factory(steps, features=features, seed=k)
+        if extractor is not None:
+            traj = Trajectory(episode=traj.episode, timestamps_ns=traj.timestamps_ns, data=traj.data, extractor=extractor)
+        paths.append(write_trajectory(folder / f"demo-{k}.mcap", traj))
+    return paths
+
+
+@pytest.fixture
+def full_set(tmp_path) -> list[Path]:
+    return write_set(tmp_path / "full")
+
+
+def stage_config(inputs, out, steps=30, **overrides) -> TrainStageConfig:
+    training = TrainConfig(steps=steps, batch_size=8, warmup_steps=5, val_every=10, patience=None, seed=3)
+    return TrainStageConfig(inputs=tuple(inputs), out=out, training=training, save_every=10, quiet=True,
+                            **{**TINY, **overrides})
+
+
+def test_cli_trains_a_checkpoint_that_loads_and_generates(full_set, tmp_path, capsys):
+    out = tmp_path / "ckpt"
+    code = main(["-q", "train", str(full_set[0].parent), "--out", str(out), "--steps", "30", "--val-every", "10",
+                 "--warmup-steps", "5", "--batch-size", "8", "--encoder-widths", "16,16", "--expert-widths", "16,16",
+                 "--seed", "3"])
+    assert code == 0 and "best validation error" in capsys.readouterr().out
+    assert sorted(p.name for p in out.iterdir()) == sorted(["config.json", LOG_FILE, "model.safetensors"])
+    assert not work_dir(out).exists()
+    config = read_checkpoint_config(out)
+    assert config["layout"]["name"] == "wine-glass" and config["layout"]["columns"] == [[0, 1288]]
+    assert config["extractor"] == read_trajectory(full_set[0]).extractor
+    assert config["training"]["steps"] == 30 and config["training"]["seed"] == 3
+    assert [f["sha256"] for f in config["files"]] == [hashlib.sha256(p.read_bytes()).hexdigest() for p in full_set]
+    assert [f["n_steps"] for f in config["files"]] == list(LENGTHS)
+    assert sorted(f["split"] for f in config["files"]) == ["train"] * 4 + ["validation"]
+    log = [json.loads(line) for line in (out / LOG_FILE).read_text().splitlines()]
+    assert [entry["step"] for entry in log] == [10, 20, 30]
+    assert {"loss", "rec", "batch_entropy", "ind_entropy", "usage", "val_error"} <= set(log[0])
+    best = min(log, key=lambda e: e["val_error"])
+    assert config["result"]["best_step"] == best["step"] and config["result"]["best_val_error"] == best["val_error"]
+
+    model = load_checkpoint(out)
+    traj = read_trajectory(full_set[1])
+    prediction = model.generate(np.array([0.0, 0.5]), traj.data[[0, 13]], np.linspace(0, 1, 5),
+                                traj.features[np.linspace(0, 26, 5).round().astype(int)])
+    assert prediction.mean.shape == (5, 8) and np.isfinite(prediction.mean).all()
+
+
+def test_released_weights_are_the_best_validated(full_set, tmp_path):
+    out = train(stage_config(full_set, tmp_path / "ckpt", steps=40))
+    config = read_checkpoint_config(out)
+    model = load_checkpoint(out)
+    layout = resolve_layout("wine-glass", 1288, full_set[0])
+    rows = {f["path"]: layout.select(read_trajectory(f["path"]).data) for f in config["files"]}
+    split = {s: [rows[f["path"]] for f in config["files"] if f["split"] == s] for s in ("train", "validation")}
+    again = Trainer(model, TrajectoryStack(split["train"], model), TrajectoryStack(split["validation"], model),
+                    TrainConfig(**{k: v for k, v in config["training"].items() if k in TrainConfig.__annotations__}))
+    assert again.validate() == pytest.approx(config["result"]["best_val_error"], rel=1e-6)
+
+
+def test_layout_presets_map_blocks_to_columns(full_set):
+    wine = resolve_layout("wine-glass", 1288, full_set[0])
+    assert (wine.model.observed, wine.model.query, wine.model.predicted) == (((0, 1288),), ((0, 1280),),
+                                                                               ((1280, 1288),))
+    motion_full, motion_only = resolve_layout("motion", 1288, full_set[0]), resolve_layout("motion", 8, full_set[0])
+    assert motion_full.columns == ((1280, 1288),) and motion_only.columns == ((0, 8),)
+    assert motion_full.model == motion_only.model and motion_full.model.width == 8 and motion_full.model.query_dim == 0
+    data = read_trajectory(full_set[0]).data
+    np.testing.assert_array_equal(motion_full.select(data), data[:, 1280:])
+    everything = resolve_layout("all", 1288, full_set[0])
+    assert everything.model.out_dim == 1288 and everything.model.query == ()
+
+
+def test_wine_glass_refuses_motion_only_files(tmp_path):
+    paths = write_set(tmp_path / "motion", features=False)
+    with pytest.raises(PipelineError, match=r"demo-0\.mcap.*--layout motion"):
+        train(stage_config(paths, tmp_path / "ckpt"))
+    assert not (tmp_path / "ckpt").exists() and not work_dir(tmp_path / "ckpt").exists()
+
+
+def test_motion_layout_on_motion_only_files(tmp_path):
+    paths = write_set(tmp_path / "motion", features=False)
+    out = train(stage_config(paths, tmp_path / "ckpt", steps=10, layout="motion"))
+    config = read_checkpoint_config(out)
+    assert config["model"]["layout"]["width"] == 8 and config["extractor"] == {}
+    prediction = load_checkpoint(out).generate(np.array([0.0]), read_trajectory(paths[0]).data[:1], np.array([1.0]))
+    assert prediction.mean.shape == (1, 8)
+
+
+def test_mixed_layouts_are_refused_naming_the_files(full_set, tmp_path):
+    odd = write_set(tmp_path / "motion", features=False)[0]
+    with pytest.raises(PipelineError, match=r"different column layouts.*1 file\(s\) 8 columns wide: \S*motion/demo-0"):
+        train(stage_config([*full_set, odd], tmp_path / "ckpt", layout="motion"))
+
+
+def test_mixed_extractors_are_refused_naming_the_files(full_set, tmp_path):
+    other = {"architecture": "mobilenet_v2", "weights": "random", "weights_sha256": "1" * 64}
+    odd = write_set(tmp_path / "other", extractor=other)[:2]
+    with pytest.raises(PipelineError, match=r"different feature extractors.*2 file\(s\) with weights random "
+                                            r"\(sha256 111111111111\).*other/demo-0\.mcap, \S*other/demo-1\.mcap"):
+        train(stage_config([*full_set, *odd], tmp_path / "ckpt"))
+
+
+def test_existing_output_is_refused_unless_forced(full_set, tmp_path):
+    out = tmp_path / "ckpt"
+    out.mkdir()
+    (out / "keep.txt").write_text("mine")
+    with pytest.raises(PipelineError, match="already exists.*--force"):
+        train(stage_config(full_set, out, steps=10))
+    assert (out / "keep.txt").read_text() == "mine"
+    train(stage_config(full_set, out, steps=10, force=True))
+    assert sorted(p.name for p in out.iterdir()) == sorted(["config.json", LOG_FILE, "model.safetensors"])
+
+
+def interrupt_at(monkeypatch, step: int) -> None:
+    """Make training raise KeyboardInterrupt (as Ctrl-C would) when it reaches `step`."""
+    original = StageTrainer.train_step
+
+    def train_step(self):
+        if self.step == step:
+            raise KeyboardInterrupt
+        return original(self)
+
+    monkeypatch.setattr(StageTrainer, "train_step", train_step)
+
+
+def test_resume_after_interruption_gives_the_same_weights(full_set, tmp_path, monkeypatch):
+    whole = train(stage_config(full_set, tmp_path / "whole", steps=40))
+    out = tmp_path / "resumed"
+    with monkeypatch.context() as patch:
+        interrupt_at(patch, 25)  # the last save was at step 20
+        with pytest.raises(KeyboardInterrupt):
+            train(stage_config(full_set, out, steps=40))
+    assert not out.exists() and (work_dir(out) / STATE_FILE).is_file()
+    assert [json.loads(line)["step"] for line in (work_dir(out) / LOG_FILE).read_text().splitlines()] == [10, 20]
+    with pytest.raises(PipelineError, match="unfinished run.*--resume"):
+        train(stage_config(full_set, out, steps=40))
+    resume = stage_config(full_set, out, steps=40, resume=True)
+    with pytest.raises(PipelineError, match=r"cannot resume.*training: saved .*\"lr\": 0.001"):
+        train(replace(resume, training=replace(resume.training, lr=0.01)))
+
+    train(resume)
+    expected, got = load_file(whole / "model.safetensors"), load_file(out / "model.safetensors")
+    assert expected.keys() == got.keys()
+    for key in expected:
+        assert torch.equal(expected[key], got[key]), key
+    logs = [[{k: v for k, v in json.loads(line).items() if k != "elapsed_s"}
+             for line in (d / LOG_FILE).read_text().splitlines()] for d in (whole, out)]
+    assert logs[0] == logs[1]
+
+
+def test_resume_without_a_run_is_refused(full_set, tmp_path):
+    with pytest.raises(PipelineError, match="nothing to resume"):
+        train(stage_config(full_set, tmp_path / "ckpt", resume=True))
+
+
+def test_early_stopping_ends_the_run(full_set, tmp_path):
+    config = stage_config(full_set, tmp_path / "ckpt", steps=400)
+    out = train(replace(config, training=replace(config.training, patience=1, lr=0.05)))
+    result = read_checkpoint_config(out)["result"]
+    assert result["stopped_early"] and result["steps_run"] < 400
+
+
+def test_rank_seeds_differ_and_rank_zero_keeps_the_seed():
+    assert rank_seed(7, 0) == 7
+    assert len({rank_seed(7, r) for r in range(8)}) == 8
+
+
+def test_unknown_device_is_refused(full_set, tmp_path):
+    with pytest.raises(PipelineError, match="unknown device 'tpu'"):
+        train(stage_config(full_set, tmp_path / "ckpt", device="tpu"))
