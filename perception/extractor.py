@@ -94,6 +94,12 @@ class FeatureExtractor:
             out[i:i + self.batch_size] = runner(np.ascontiguousarray(pixels[i:i + self.batch_size]))
         return out
 
+    def prepare(self) -> None:
+        """Build the backend now rather than at the first batch (ONNX export and tracing take seconds)."""
+        if self._needs_calibration:
+            raise PerceptionError(f"weights {self.weights_name} need calibrate(frames) before the backend is built")
+        self._get_runner()
+
     def save_weights(self, path: Path) -> None:
         """Save the (possibly calibrated) weights, to reuse them later as weights=`path`."""
         save_state_dict(self.net.features.state_dict(), path)

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
+from tqdm.contrib.logging import logging_redirect_tqdm
 
 from perception import FeatureExtractor, PerceptionError, compatibility_key
 from perception.constants import CALIBRATION_FRAMES, DEFAULT_BATCH_SIZE, FEATURE_DIM
@@ -87,7 +88,8 @@ def extract(config: ExtractConfig) -> list[Extracted]:
         log.info("saved the extractor weights to %s (reuse them with --weights %s)", config.save_weights,
                  config.save_weights)
     done = []
-    with tqdm(total=0, unit="frame", desc="extract", disable=config.quiet, dynamic_ncols=True) as bar:
+    with logging_redirect_tqdm(), tqdm(total=0, unit="frame", desc="extract", disable=config.quiet,
+                                       dynamic_ncols=True) as bar:
         for src, dst in pairs:
             steps = None if config.force else up_to_date_steps(src, dst, extractor)
             if steps is not None:
@@ -114,7 +116,10 @@ def extract_file(src: Path, dst: Path, extractor: Callable[[], FeatureExtractor]
         log.info("%s has no frames: writing a motion-only trajectory", src)
         trajectory = Trajectory.from_demonstration(demo)
     else:
+        extractor().prepare()
         if bar is not None:
+            if bar.n == 0:
+                bar.reset(total=bar.total)  # frames/s from here: calibration and backend set-up are done
             bar.total += demo.n_steps
             bar.refresh()
         features = features_of_frames(demo.frames, extractor(), src, bar)  # (T, 1280)

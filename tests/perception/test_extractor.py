@@ -47,6 +47,8 @@ def test_uncalibrated_random_weights_refuse_to_extract(two_scenes):
     assert extractor.needs_calibration
     with pytest.raises(PerceptionError, match="call calibrate"):
         extractor(two_scenes[0])
+    with pytest.raises(PerceptionError, match="need calibrate"):
+        extractor.prepare()
 
 
 def test_uncalibrated_features_are_dead_and_calibration_revives_them(two_scenes):
