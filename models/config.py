@@ -124,7 +124,7 @@ class CNEPConfig:
 class TrainConfig:
     """How `fit` trains. Steps and widths follow the spec's CPU recipe (see docs/training.md)."""
 
-    steps: int = 20_000
+    steps: int = 10_000
     batch_size: int = 32
     n_max: int = 10  # observations per sample: n ~ U{1..n_max}
     m_max: int = 10  # targets per sample: m ~ U{1..m_max}

@@ -1,0 +1,71 @@
+import numpy as np
+import pytest
+
+from models.evaluation import _separable_partners, heldout_queries, paper_queries, score
+from models.synthetic import SETS, make_set
+
+
+@pytest.mark.parametrize("name", sorted(SETS))
+def test_sets_have_disjoint_splits_and_the_documented_sizes(name):
+    ds = make_set(name, seed=0)
+    _, n_modes, (n_train, n_val, n_test) = SETS[name]
+    assert ds.train.shape[0] == n_train and ds.val.shape[0] == n_val and ds.test.shape[0] == n_test
+    assert ds.n_modes == n_modes and ds.train.ndim == 3 and ds.train.shape[2] == 1
+    assert np.isfinite(ds.train).all()
+    for other in (ds.val, ds.test):  # no validation or test demonstration is a training one
+        gaps = np.abs(ds.train[:, None] - other[None]).max(axis=(2, 3))
+        assert gaps.min() > 0
+
+
+def test_same_seed_same_set():
+    a, b = make_set("bimodal", seed=3), make_set("bimodal", seed=3)
+    np.testing.assert_array_equal(a.train, b.train)
+    assert not np.array_equal(a.train, make_set("bimodal", seed=4).train)
+
+
+def test_paper_queries_condition_near_a_crossing_and_at_the_end():
+    ds = make_set("bimodal", seed=0)
+    queries = paper_queries(ds.train, ds.train_modes, n=20, seed=0)
+    for q in queries:
+        assert q.obs_t[1] == 1.0 and 0 < q.obs_t[0] < 1
+        step = round(q.obs_t[0] * (ds.steps - 1))
+        means = [ds.train[ds.train_modes == k, step, 0].mean() for k in range(2)]
+        assert abs(means[0] - means[1]) < 0.3  # the two modes come close there
+        # the ground truth is the training demonstration nearest to the two conditioning points
+        dist = (ds.train[:, step, 0] - q.obs_y[0, 0]) ** 2 + (ds.train[:, -1, 0] - q.obs_y[1, 0]) ** 2
+        np.testing.assert_array_equal(q.truth, ds.train[dist.argmin()])
+
+
+def test_nearest_demo_scores_zero_and_the_wrong_mode_scores_badly():
+    ds = make_set("bimodal", seed=0)
+    queries = paper_queries(ds.train, ds.train_modes, n=10, seed=1)
+
+    def lookup(obs_t, obs_y, query_t):
+        steps = np.round(obs_t * (ds.steps - 1)).astype(int)
+        return ds.train[((ds.train[:, steps] - obs_y) ** 2).sum((1, 2)).argmin()]
+
+    def other_mode(obs_t, obs_y, query_t):
+        truth = lookup(obs_t, obs_y, query_t)
+        mode = ds.train_modes[np.flatnonzero((ds.train == truth).all(axis=(1, 2)))[0]]
+        return ds.train[np.flatnonzero(ds.train_modes != mode)[0]]
+
+    good = score(lookup, queries, ds.train, ds.train_modes)
+    bad = score(other_mode, queries, ds.train, ds.train_modes)
+    assert good["mse"] == 0 and good["mode_accuracy"] == 1
+    assert bad["mse"] > 0.1 and bad["mode_accuracy"] == 0
+
+
+def test_heldout_queries_come_from_unseen_demonstrations():
+    ds = make_set("multimodal", seed=0)
+    queries = heldout_queries(ds.train, ds.train_modes, ds.test, ds.test_modes, n=15, seed=0)
+    for q in queries:
+        i = np.flatnonzero((ds.test == q.truth).all(axis=(1, 2)))
+        assert len(i) == 1 and ds.test_modes[i[0]] == q.mode
+        np.testing.assert_array_equal(q.obs_y[1], q.truth[-1])
+
+
+def test_modes_that_end_at_the_same_place_are_never_paired():
+    ds = make_set("multimodal", seed=0)  # modes 2 and 3 both end near 0; 0 and 1 end elsewhere
+    partners = _separable_partners(ds.train, ds.train_modes)
+    assert 3 not in partners[2] and 2 not in partners[3]
+    assert set(partners[0]) == {1, 2, 3} and set(partners[1]) == {0, 2, 3}
