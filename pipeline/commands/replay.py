@@ -1,0 +1,55 @@
+"""`cnep replay CHECKPOINT RECORDING... [--out FILE.rrd] [--connect URL | --serve]`: gate decisions in Rerun."""
+
+from __future__ import annotations
+
+import argparse
+
+HELP = "replay trajectory files through a trained CNEP: expert probabilities over time, written to a Rerun .rrd"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("checkpoint", help="checkpoint directory written by `cnep train`")
+    parser.add_argument("recordings", nargs="+", metavar="RECORDING", help="trajectory files (read only)")
+    parser.add_argument("--out", default="replay.rrd", help="the .rrd file to write (default: replay.rrd); the "
+                        "decisions go beside it as <name>.experts.json")
+    live = parser.add_mutually_exclusive_group()
+    live.add_argument("--connect", metavar="URL", default=None,
+                      help="stream to the viewer at URL too, if one answers (default: the local viewer, "
+                           "rerun+http://127.0.0.1:9876/proxy)")
+    live.add_argument("--serve", action="store_true",
+                      help="host a gRPC server (port --port) for viewers to connect to; keeps serving until Ctrl-C")
+    live.add_argument("--no-live", action="store_true", help="write the .rrd only, do not look for a viewer")
+    parser.add_argument("--port", type=int, default=9876, help="port of --serve (default 9876)")
+    parser.add_argument("--window", type=int, default=10, help="latest observations in the conditioning set (default 10)")
+    parser.add_argument("--anchors", type=int, default=1,
+                        help="first observations kept in the conditioning set for the whole episode (default 1: the start)")
+    parser.add_argument("--events-out", metavar="DIR", default=None,
+                        help="also write copies of the recordings with the expert decisions on /events into DIR")
+
+
+def run(args: argparse.Namespace) -> int:
+    import time
+
+    from models import ConditioningPolicy
+    from pipeline.replay import DEFAULT_VIEWER_URL, decisions_path, read_decisions, replay, serve
+
+    server = None
+    connect = None if args.no_live else args.connect or DEFAULT_VIEWER_URL
+    if args.serve:
+        server, connect = serve(args.port)
+        print(f"serving on {connect}: connect a viewer with `rerun {connect}`")
+    out = replay(args.checkpoint, args.recordings, args.out, policy=ConditioningPolicy(args.window, args.anchors),
+                 connect=connect, events_dir=args.events_out, quiet=args.quiet)
+    for rec in read_decisions(out)["recordings"]:
+        share = ", ".join(f"{p:.0%}" for p in rec["share"])
+        print(f"{rec['recording']}: expert {rec['majority_expert']} (steps per expert: {share}), "
+              f"{len(rec['switches'])} switch(es)")
+    print(f"wrote {out} and {decisions_path(out)}")
+    if server is not None:
+        print("serving until Ctrl-C")
+        try:
+            while True:
+                time.sleep(1.0)
+        except KeyboardInterrupt:
+            pass
+    return 0

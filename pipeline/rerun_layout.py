@@ -1,0 +1,71 @@
+"""Where the replay puts things in Rerun: timelines, entity paths, expert names and colours, the blueprint.
+
+Import `rerun` lazily (it costs ~0.7 s): only `blueprint()` needs it, and imports it when called.
+"""
+
+from __future__ import annotations
+
+APPLICATION_ID = "cnep_replay"
+
+# Timelines
+TIMELINE_FRAME = "frame"  # sequence: the step index of the recording
+TIMELINE_TIME = "time"  # timestamp: the recording's own step times
+
+# Entities
+CAMERA = "/camera/rgb"  # EncodedImage: the stored JPEG bytes
+EE = "/world/ee"  # Transform3D: end-effector pose per step
+EE_PATH = "/world/ee_path"  # LineStrips3D, static: the whole recorded path
+PREDICTION = "/world/prediction"  # LineStrips3D per step: the active expert's remaining trajectory
+GATES = "/gates"  # Scalars, d per step: the gate probabilities, one named, coloured series per expert
+ACTIVE_EXPERT = "/active_expert"  # StateChange at the first step and at each switch (+ StateConfiguration)
+SWITCH_LOG = "/log/experts"  # TextLog: one line per switch
+WORLD = "/world"
+
+# Expert colours (RGB), cycled when there are more experts than colours.
+PALETTE = (
+    (31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),
+    (140, 86, 75), (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207),
+)
+PATH_COLOR = (200, 200, 200)
+
+
+def expert_name(e: int) -> str:
+    """Display name of expert `e` (also the state value of the active-expert lane)."""
+    return f"expert {e}"
+
+
+def expert_names(n_experts: int) -> list[str]:
+    return [expert_name(e) for e in range(n_experts)]
+
+
+def expert_colors(n_experts: int) -> list[tuple[int, int, int]]:
+    return [PALETTE[e % len(PALETTE)] for e in range(n_experts)]
+
+
+def blueprint(n_experts: int):
+    """The replay layout, a pure function of the number of experts.
+
+    Left: the camera above the 3D view (end-effector pose, recorded path, predicted trajectory).
+    Right: the gate probabilities over time (one named, coloured series per expert, y in [0, 1]),
+    the active expert as a colour lane, and the log of expert switches.
+    """
+    import rerun as rr
+    import rerun.blueprint as rrb
+
+    series = rr.SeriesLines(names=expert_names(n_experts), colors=expert_colors(n_experts))
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Vertical(
+                rrb.Spatial2DView(origin=CAMERA, name="camera"),
+                rrb.Spatial3DView(origin=WORLD, name="end effector and prediction"),
+            ),
+            rrb.Vertical(
+                rrb.TimeSeriesView(origin=GATES, name=f"gate probabilities ({n_experts} experts)", defaults=[series],
+                                   axis_y=rrb.ScalarAxis(range=(0.0, 1.0))),
+                rrb.StateTimelineView(origin=ACTIVE_EXPERT, name="active expert"),
+                rrb.TextLogView(origin=SWITCH_LOG, name="expert switches"),
+                row_shares=[3, 1, 2],
+            ),
+        ),
+        collapse_panels=True,
+    )

@@ -1,0 +1,261 @@
+"""The replay stage: the .rrd read back without a GUI holds what the gate decided, step by step."""
+
+import logging
+import shutil
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from models import CNEPConfig, Layout, build_model, save_checkpoint
+from pipeline import rerun_layout as L
+from pipeline.cli import main
+from pipeline.errors import PipelineError
+from pipeline.replay import decisions_path, read_decisions, replay, serve
+from recordings import Episode, Trajectory, read_events, write_trajectory
+from recordings.constants import LAYOUT_MOTION, MOTION_DIM, STEP_DIM
+
+RERUN = Path(sys.executable).parent / "rerun"
+N_EXPERTS = 3
+
+
+@pytest.fixture(autouse=True)
+def rerun_env(tmp_path, monkeypatch):
+    """The rerun CLI (used by merge and verify) writes analytics under HOME unless CI is set."""
+    home = tmp_path / "home"
+    home.mkdir()
+    monkeypatch.setenv("CI", "1")
+    monkeypatch.setenv("HOME", str(home))
+    torch.set_num_threads(1)
+
+
+def jpeg(value: int) -> bytes:
+    ok, buf = cv2.imencode(".jpg", np.full((12, 16, 3), value % 256, np.uint8), [cv2.IMWRITE_JPEG_QUALITY, 80])
+    assert ok
+    return buf.tobytes()
+
+
+def motion_rows(steps: int, seed: int) -> np.ndarray:
+    """(steps, 8): xyz jumping between two regions every 10 steps (so the gate switches), unit quaternion, gripper."""
+    rng = np.random.default_rng(seed)
+    data = np.zeros((steps, MOTION_DIM), np.float32)
+    region = np.where((np.arange(steps) // 10) % 2 == 0, 1.0, -1.0)
+    data[:, :3] = region[:, None] + 0.05 * rng.standard_normal((steps, 3))
+    data[:, 6] = 1.0
+    data[:, 7] = rng.uniform(0, 1, steps)
+    return data
+
+
+def trajectory(steps: int = 40, seed: int = 0, frames: bool = True, width: int = MOTION_DIM, name: str = "ep") -> Trajectory:
+    data = motion_rows(steps, seed)
+    extractor = None
+    if width == STEP_DIM:
+        data = np.concatenate([np.abs(np.random.default_rng(seed).normal(size=(steps, 1280))).astype(np.float32), data], 1)
+        extractor = {"architecture": "mobilenet_v2", "weights": "random"}
+    return Trajectory(
+        episode=Episode(episode_id=name, fps=10.0),
+        timestamps_ns=1_700_000_000_000_000_000 + np.arange(steps, dtype=np.int64) * 100_000_000,
+        data=data,
+        frames=[jpeg(7 * k + seed) for k in range(steps)] if frames else None,
+        extractor=extractor,
+    )
+
+
+def make_checkpoint(directory: Path, extra: dict | None = None) -> Path:
+    """An untrained (seeded) 8-column model whose gate tells the two xyz regions of `motion_rows` apart."""
+    layout = Layout(width=MOTION_DIM, observed=((0, MOTION_DIM),), predicted=((0, MOTION_DIM),))
+    config = CNEPConfig(layout=layout, n_experts=N_EXPERTS, encoder_widths=(16, 16), expert_widths=(16, 16),
+                        time_frequencies=2)
+    rows = motion_rows(40, 0)
+    model = build_model(config, [rows] + [motion_rows(40, s) for s in range(1, 4)], seed=0)
+    with torch.no_grad():
+        x = model.prepare(torch.linspace(0, 1, 40), torch.from_numpy(rows), model.obs_columns)  # (40, 1 + 8)
+        enc = model.encoder(model.embed_time(x))  # (40, H)
+        high = torch.from_numpy(rows[:, 0] > 0)
+        r_high, r_low = enc[high].mean(0), enc[~high].mean(0)  # (H,) each
+        direction = (r_high - r_low) / (r_high - r_low).norm() ** 2  # unit logit change from one region to the other
+        model.gate.weight.copy_(torch.tensor([[8.0], [-8.0], [0.0]]) * direction)  # (d, H)
+        model.gate.bias.copy_(-model.gate.weight @ (r_high + r_low) / 2)
+    return save_checkpoint(model, directory, extra)
+
+
+@pytest.fixture
+def checkpoint(tmp_path) -> Path:
+    return make_checkpoint(tmp_path / "ckpt")
+
+
+def chunks(path: Path, entity: str, recording: int = 0) -> list:
+    from rerun.chunk import RrdReader
+
+    reader = RrdReader(path)
+    store = reader.recordings()[recording]
+    return [c for c in reader.stream(store=store).to_chunks() if c.entity_path == entity]
+
+
+def column(path: Path, entity: str, name: str, recording: int = 0, static: bool = False) -> tuple[list, list]:
+    """(frame indices, values) of one component over all non-static chunks of `entity`, sorted by frame."""
+    rows = []
+    for c in chunks(path, entity, recording):
+        if c.is_static != static:
+            continue
+        batch = c.to_record_batch()
+        frames = batch.column(L.TIMELINE_FRAME).to_pylist() if not static else [None] * batch.num_rows
+        rows += zip(frames, batch.column(name).to_pylist())
+    rows.sort(key=lambda r: -1 if r[0] is None else r[0])
+    return [r[0] for r in rows], [r[1] for r in rows]
+
+
+def rrd_verify(path: Path) -> subprocess.CompletedProcess:
+    exe = str(RERUN) if RERUN.exists() else shutil.which("rerun")
+    return subprocess.run([exe, "rrd", "verify", str(path)], capture_output=True, text=True, timeout=120)
+
+
+def test_the_rrd_holds_one_gate_row_per_step_and_switches_at_argmax_changes(tmp_path, checkpoint):
+    traj = trajectory(steps=40)
+    rec = write_trajectory(tmp_path / "ep.mcap", traj)
+    out = replay(checkpoint, [rec], tmp_path / "out" / "replay.rrd", connect=None, quiet=True)
+    assert out == tmp_path / "out" / "replay.rrd" and out.exists()
+    assert sorted(p.name for p in out.parent.iterdir()) == ["replay.experts.json", "replay.rrd"]  # no temporaries left
+
+    frames, gates = column(out, L.GATES, "Scalars:scalars")
+    assert frames == list(range(40))
+    gates = np.array(gates)  # (T, d)
+    assert gates.shape == (40, N_EXPERTS)
+    np.testing.assert_allclose(gates.sum(1), 1.0, atol=1e-6)
+    argmax = gates.argmax(1)
+    changes = (np.flatnonzero(argmax[1:] != argmax[:-1]) + 1).tolist()
+    assert len(changes) >= 2, "the test data should make the gate switch"
+
+    log_frames, texts = column(out, L.SWITCH_LOG, "TextLog:text")
+    assert log_frames == changes
+    for k, (text,) in zip(changes, texts):
+        assert text.startswith(f"step {k} ") and f"expert {argmax[k - 1]} -> expert {argmax[k]}" in text
+    state_frames, states = column(out, L.ACTIVE_EXPERT, "StateChange:state")
+    assert state_frames == [0] + changes
+    assert states == [[f"expert {argmax[k]}"] for k in [0] + changes]
+
+    image_frames, blobs = column(out, L.CAMERA, "EncodedImage:blob")
+    assert image_frames == list(range(40))
+    assert [bytes(b[0]) for b in blobs] == traj.frames  # the stored JPEG bytes, not re-encoded
+    ee_frames, translations = column(out, L.EE, "Transform3D:translation")
+    assert ee_frames == list(range(40))
+    np.testing.assert_allclose(np.array(translations).reshape(40, 3), traj.pose[:, :3], atol=1e-6)
+    pred_frames, strips = column(out, L.PREDICTION, "LineStrips3D:strips")
+    assert pred_frames == list(range(40)) and len(strips[0][0]) > 1
+    _, names = column(out, L.GATES, "SeriesLines:names", static=True)
+    assert names == [[f"expert {e}" for e in range(N_EXPERTS)]]
+
+    decisions = read_decisions(out)["recordings"]
+    assert len(decisions) == 1
+    assert decisions[0]["experts"] == argmax.tolist()
+    assert [s["step"] for s in decisions[0]["switches"]] == changes
+    np.testing.assert_allclose(decisions[0]["gates"], gates, atol=1e-5)
+    assert rrd_verify(out).returncode == 0, rrd_verify(out).stderr
+
+
+def test_several_recordings_become_several_rerun_recordings_in_one_file(tmp_path, checkpoint):
+    paths = [write_trajectory(tmp_path / f"ep{i}.mcap", trajectory(steps=20 + 10 * i, seed=i, name=f"ep{i}"))
+             for i in range(2)]
+    out = replay(checkpoint, paths, tmp_path / "both.rrd", connect=None, quiet=True)
+    from rerun.chunk import RrdReader
+
+    assert len(RrdReader(out).recordings()) == 2
+    for i in range(2):
+        frames, _ = column(out, L.GATES, "Scalars:scalars", recording=i)
+        assert len(frames) == 20 + 10 * i
+    record = read_decisions(out)
+    assert [r["n_steps"] for r in record["recordings"]] == [20, 30]
+    assert record["n_experts"] == N_EXPERTS
+    assert rrd_verify(out).returncode == 0
+    assert not list(tmp_path.glob(".both.rrd*"))
+
+
+def test_a_recording_of_another_width_is_refused_before_anything_is_written(tmp_path, checkpoint):
+    rec = write_trajectory(tmp_path / "wide.mcap", trajectory(width=STEP_DIM))
+    with pytest.raises(PipelineError, match=r"wide.mcap: the recording has 1288 columns .* 8-column trajectories"):
+        replay(checkpoint, [rec], tmp_path / "x.rrd", connect=None, quiet=True)
+    assert not (tmp_path / "x.rrd").exists() and not decisions_path(tmp_path / "x.rrd").exists()
+
+
+def test_the_checkpoint_layout_selects_the_recording_columns(tmp_path):
+    """A train-stage checkpoint of an 8-column model fitted on the motion columns of 1288-d files."""
+    layout = {"recording_width": STEP_DIM, "columns": [[1280, 1288]],
+              "blocks": {name: list(span) for name, span in LAYOUT_MOTION.items()}}
+    ckpt = make_checkpoint(tmp_path / "ckpt", extra={"layout": layout})
+    wide = write_trajectory(tmp_path / "wide.mcap", trajectory(width=STEP_DIM))
+    out = replay(ckpt, [wide], tmp_path / "wide.rrd", connect=None, quiet=True)
+    narrow = replay(make_checkpoint(tmp_path / "plain"), [write_trajectory(tmp_path / "n.mcap", trajectory())],
+                    tmp_path / "narrow.rrd", connect=None, quiet=True)
+    assert read_decisions(out)["recordings"][0]["gates"] == read_decisions(narrow)["recordings"][0]["gates"]
+    with pytest.raises(PipelineError, match="1288-column"):
+        replay(ckpt, [tmp_path / "n.mcap"], tmp_path / "y.rrd", connect=None, quiet=True)
+
+
+def test_decisions_go_into_a_copy_of_the_recording_as_events(tmp_path, checkpoint):
+    rec = write_trajectory(tmp_path / "ep.mcap", trajectory(steps=40))
+    before = rec.read_bytes()
+    out = replay(checkpoint, [rec], tmp_path / "r.rrd", connect=None, events_dir=tmp_path / "events", quiet=True)
+    assert rec.read_bytes() == before
+    events = read_events(tmp_path / "events" / "ep.mcap")
+    decisions = read_decisions(out)["recordings"][0]
+    assert len(events) == 1 + len(decisions["switches"])
+    assert [int(e.metadata["step"]) for e in events] == [0] + [s["step"] for s in decisions["switches"]]
+    assert [int(e.metadata["expert"]) for e in events] == [decisions["experts"][int(e.metadata["step"])] for e in events]
+    ts = 1_700_000_000_000_000_000 + np.arange(40) * 100_000_000
+    assert sum(e.duration_ns for e in events) == ts[-1] - ts[0]
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_no_viewer_means_a_warning_and_the_file(tmp_path, checkpoint, caplog):
+    rec = write_trajectory(tmp_path / "ep.mcap", trajectory(steps=10, frames=False))
+    url = f"rerun+http://127.0.0.1:{free_port()}/proxy"
+    with caplog.at_level(logging.WARNING, logger="pipeline.replay"):
+        out = replay(checkpoint, [rec], tmp_path / "r.rrd", connect=url, quiet=True)
+    assert "no Rerun viewer answers" in caplog.text
+    assert column(out, L.CAMERA, "EncodedImage:blob") == ([], [])  # motion-only: no camera entity
+    assert len(column(out, L.GATES, "Scalars:scalars")[0]) == 10
+
+
+def test_a_reachable_viewer_gets_the_stream_and_the_file_is_still_complete(tmp_path, checkpoint, caplog):
+    server, url = serve(free_port())
+    rec = write_trajectory(tmp_path / "ep.mcap", trajectory(steps=15))
+    with caplog.at_level(logging.WARNING, logger="pipeline.replay"):
+        out = replay(checkpoint, [rec], tmp_path / "r.rrd", connect=url, quiet=True)
+    server.disconnect()
+    assert "no Rerun viewer" not in caplog.text
+    assert len(column(out, L.GATES, "Scalars:scalars")[0]) == 15
+    assert rrd_verify(out).returncode == 0
+
+
+def test_cli_replay_prints_the_expert_of_each_recording(tmp_path, checkpoint, capsys):
+    rec = write_trajectory(tmp_path / "ep.mcap", trajectory(steps=20))
+    code = main(["-q", "replay", str(checkpoint), str(rec), "--out", str(tmp_path / "c.rrd"), "--no-live",
+                 "--window", "3", "--anchors", "0"])
+    assert code == 0
+    printed = capsys.readouterr().out
+    majority = read_decisions(tmp_path / "c.rrd")["recordings"][0]["majority_expert"]
+    assert f"ep.mcap: expert {majority} " in printed and "c.experts.json" in printed
+    assert read_decisions(tmp_path / "c.rrd")["policy"] == {"window": 3, "anchors": 0}
+
+
+def test_cli_replay_reports_a_misfit_as_one_line(tmp_path, checkpoint, capsys):
+    rec = write_trajectory(tmp_path / "wide.mcap", trajectory(width=STEP_DIM))
+    assert main(["replay", str(checkpoint), str(rec), "--out", str(tmp_path / "c.rrd"), "--no-live"]) == 2
+    assert "1288 columns" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("d", [1, 2, 5, 12])
+def test_the_blueprint_is_built_from_the_number_of_experts(d):
+    blueprint = L.blueprint(d)
+    assert blueprint is not None
+    assert len(set(L.expert_colors(d))) == min(d, len(L.PALETTE))
