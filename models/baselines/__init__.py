@@ -1,0 +1,20 @@
+"""Baselines of the paper's comparison, behind one interface: `fit(demos)` then `generate(obs_t, obs_y, query_t)`.
+
+- `ProMP`: probabilistic movement primitives from `movement_primitives` (imitate, then condition on
+  each observed point).
+- `GMMGMR`: a Gaussian mixture over whole trajectories from `gmr`, conditioned on the observed time
+  steps (with or without a covariance ridge).
+- `NearestDemo`: the training demonstration closest to the conditioning points (a sanity line: on the
+  paper's protocol it scores almost 0).
+
+Demonstrations are `(N, T, dy)` arrays sampled at times `k / (T - 1)`; `generate` returns `(m, dy)` at
+the query times (linear interpolation between the demonstration's steps). ProMP and GMM-GMR need the
+optional extra: `pip install .[baselines]`; their libraries are imported only when fitting.
+"""
+
+from models.baselines.base import Method
+from models.baselines.gmm import GMMGMR
+from models.baselines.nearest import NearestDemo
+from models.baselines.promp import ProMP
+
+__all__ = ["GMMGMR", "Method", "NearestDemo", "ProMP"]

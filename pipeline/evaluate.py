@@ -1,0 +1,260 @@
+"""Stage `evaluate`: the paper's tables (comparison, loss ablation, number of experts) and figures, measured.
+
+Every table is a grid of rows (methods) by columns (synthetic sets). For each (set, seed) the
+baselines (ProMP, GMM-GMR with and without ridge, nearest demonstration) and every network the table
+needs (CNEP variants, the parameter-matched CNMP) are fitted and scored on the same queries under
+both protocols (see pipeline.evaluate_jobs and docs/evaluation.md). A network that several tables
+use (e.g. the comparison's CNEP is the ablation's CNEP and CNEP-MoE) is trained once.
+
+Each cell is the mean +- std over all queries of all seeds (pooled), MSE and MAE, and the mode
+accuracy as mean +- std over seeds. Outputs, written atomically into `out`:
+    <table>.md, <table>.json      the measured tables, the paper's numbers beside ours, settings, times
+    figures/<table>-<set>.png     demonstrations, conditioning points, generated trajectories
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+from collections.abc import Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass
+from multiprocessing import get_context
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.errors import PipelineError
+from pipeline.evaluate_constants import (
+    CNEP_EXPERTS,
+    DEFAULT_OUT,
+    EXPERT_COUNTS,
+    JOBS,
+    QUERIES,
+    QUICK_QUERIES,
+    QUICK_SEEDS,
+    QUICK_SETS,
+    QUICK_STEPS,
+    SEEDS,
+    STEPS,
+    TABLE_SETS,
+    TABLES,
+)
+from pipeline.evaluate_jobs import PROTOCOLS, Job, ModelSpec, run_job
+
+log = logging.getLogger(__name__)
+
+THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+@dataclass(frozen=True)
+class EvaluateConfig:
+    """tables: names from TABLES; seeds/steps/queries: None takes the full or quick default.
+
+    sets: restrict the tables' columns (None: every set of each table, or QUICK_SETS with `quick`);
+    jobs: worker processes (0 runs everything in this process).
+    """
+
+    tables: tuple[str, ...] = ("comparison",)
+    quick: bool = False
+    seeds: int | None = None
+    steps: int | None = None
+    queries: int | None = None
+    sets: tuple[str, ...] | None = None
+    out: Path = Path(DEFAULT_OUT)
+    jobs: int = JOBS
+    figures: bool = True
+    quiet: bool = False
+
+    def __post_init__(self) -> None:
+        unknown = [t for t in self.tables if t not in TABLES]
+        if unknown or not self.tables:
+            raise PipelineError(f"unknown table(s) {unknown or self.tables}; choose from {', '.join(TABLES)} or all")
+        for name in ("seeds", "steps", "queries"):
+            value = getattr(self, name)
+            if value is not None and value < 1:
+                raise PipelineError(f"--{name} must be >= 1, got {value}")
+        if self.jobs < 0:
+            raise PipelineError(f"--jobs must be >= 0 (0: no worker processes), got {self.jobs}")
+
+    @property
+    def n_seeds(self) -> int:
+        return self.seeds or (QUICK_SEEDS if self.quick else SEEDS)
+
+    @property
+    def n_steps(self) -> int:
+        return self.steps or (QUICK_STEPS if self.quick else STEPS)
+
+    @property
+    def n_queries(self) -> int:
+        return self.queries or (QUICK_QUERIES if self.quick else QUERIES)
+
+    def table_sets(self, table: str) -> tuple[str, ...]:
+        keep = self.sets if self.sets is not None else QUICK_SETS if self.quick else None
+        return tuple(s for s in TABLE_SETS[table] if keep is None or s in keep)
+
+
+@dataclass(frozen=True)
+class Row:
+    """A table row on one set: its label, the network it needs (None: the baselines' job), its result name."""
+
+    label: str
+    spec: ModelSpec | None
+    method: str
+
+
+def table_rows(table: str, set_name: str) -> list[Row]:
+    d = CNEP_EXPERTS[set_name]
+    cnep = ModelSpec(d)
+    nearest = Row("Nearest demo", None, "Nearest demo")
+    if table == "comparison":
+        baselines = [Row(name, None, name) for name in ("ProMP", "GMM-GMR", "GMM-GMR (no ridge)")]
+        return baselines + [Row("CNMP", ModelSpec(1), "cnmp"), Row("CNEP", cnep, cnep.key), nearest]
+    if table == "ablation":
+        variants = {"CNEP-Uni": ModelSpec(d, a_batch=0.0), "CNEP-UnSpec": ModelSpec(d, a_ind=0.0),
+                    "CNEP-Rec": ModelSpec(d, a_batch=0.0, a_ind=0.0)}
+        rows = [Row(label, spec, spec.key) for label, spec in variants.items()]
+        return rows + [Row("CNEP-MoE", cnep, cnep.key + "+moe"), Row("CNEP", cnep, cnep.key), nearest]
+    return [Row(f"CNEP-{k}", ModelSpec(k), ModelSpec(k).key) for k in EXPERT_COUNTS] + [nearest]
+
+
+def plan(config: EvaluateConfig) -> list[Job]:
+    """Every job the tables need, each once, the most expensive first (workers finish together)."""
+    jobs: dict[tuple, Job] = {}
+    for table in config.tables:
+        for set_name in config.table_sets(table):
+            for seed in range(config.n_seeds):
+                for row in table_rows(table, set_name):
+                    key = (set_name, seed, row.spec)
+                    jobs.setdefault(key, Job(set_name, seed, row.spec, config.n_steps, config.n_queries,
+                                             cnmp_matches=CNEP_EXPERTS[set_name]))
+    return sorted(jobs.values(), key=lambda j: -1 if j.spec is None else j.spec.n_experts, reverse=True)
+
+
+def run_jobs(jobs: Sequence[Job], workers: int, quiet: bool) -> dict[Job, dict]:
+    """Run the jobs (in `workers` spawned processes with one thread each, or here when 0)."""
+    from tqdm.auto import tqdm
+
+    bar = tqdm(total=len(jobs), disable=quiet, desc="evaluate", unit="fit")
+    done: dict[Job, dict] = {}
+    if workers == 0:
+        for job in jobs:
+            done[job] = run_job(job)
+            bar.update(1)
+        bar.close()
+        return done
+    saved = {name: os.environ.get(name) for name in THREAD_VARIABLES}
+    os.environ.update({name: "1" for name in THREAD_VARIABLES})  # read by the workers' BLAS at import
+    try:
+        with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
+            futures = {pool.submit(run_job, job): job for job in jobs}
+            for future in as_completed(futures):
+                job = futures[future]
+                done[job] = future.result()
+                log.debug("done %s", job.label)
+                bar.set_postfix_str(job.label)
+                bar.update(1)
+    finally:
+        for name, value in saved.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
+        bar.close()
+    return done
+
+
+def pooled(per_seed: Sequence[dict]) -> dict:
+    """Combine per-seed scores (each over the same number of queries) into mean +- std over all queries."""
+    cell: dict = {}
+    for metric in ("mse", "mae"):
+        means = np.array([r[metric] for r in per_seed])
+        second = np.array([r[f"{metric}_std"] ** 2 + r[metric] ** 2 for r in per_seed])
+        cell[metric] = float(means.mean())
+        cell[f"{metric}_std"] = float(np.sqrt(max(0.0, second.mean() - means.mean() ** 2)))
+    accuracy = np.array([r["mode_accuracy"] for r in per_seed])
+    cell["mode_accuracy"] = float(accuracy.mean())
+    cell["mode_accuracy_std"] = float(accuracy.std())
+    cell["failures"] = int(sum(r["failures"] for r in per_seed))
+    cell["per_seed"] = [{k: v for k, v in r.items()} for r in per_seed]
+    return cell
+
+
+def assemble(table: str, config: EvaluateConfig, done: dict[Job, dict]) -> dict:
+    """The table as a JSON-ready dict: results[protocol][row][set] = pooled cell, training[row][set]."""
+    by_key = {(job.set_name, job.seed, job.spec): result for job, result in done.items()}
+    sets = config.table_sets(table)
+    results = {p: {} for p in PROTOCOLS}
+    training: dict = {}
+    labels: list[str] = []
+    for set_name in sets:
+        for row in table_rows(table, set_name):
+            labels += [row.label] if row.label not in labels else []
+            runs = [by_key[(set_name, seed, row.spec)][row.method] for seed in range(config.n_seeds)]
+            for p in PROTOCOLS:
+                results[p].setdefault(row.label, {})[set_name] = pooled([r[p] for r in runs])
+            training.setdefault(row.label, {})[set_name] = {
+                "fit_seconds": [r["fit_seconds"] for r in runs],
+                **({"best_val_error": [r["best_val_error"] for r in runs], "final_usage": [r["final_usage"] for r in runs],
+                    "parameters": runs[0]["parameters"], "expert_widths": runs[0]["expert_widths"]}
+                   if row.spec is not None else {}),
+            }
+    return {
+        "table": table,
+        "sets": list(sets),
+        "rows": labels,
+        "settings": {"seeds": config.n_seeds, "steps": config.n_steps, "queries": config.n_queries,
+                     "quick": config.quick, "jobs": config.jobs},
+        "results": results,
+        "training": training,
+    }
+
+
+def examples(table: str, config: EvaluateConfig, done: dict[Job, dict], set_name: str) -> dict[str, np.ndarray]:
+    """Row label -> generated trajectories (k, T, dy) on the first paper queries of seed 0."""
+    by_key = {(job.set_name, job.seed, job.spec): result for job, result in done.items()}
+    return {row.label: by_key[(set_name, 0, row.spec)][row.method]["examples"] for row in table_rows(table, set_name)}
+
+
+def evaluate(config: EvaluateConfig) -> dict[str, Path]:
+    """Run the tables; returns {table: path of its Markdown file} (JSON and figures beside it)."""
+    from pipeline.evaluate_tables import PAPER_NOTE, to_markdown, write_text
+
+    start = time.perf_counter()
+    jobs = plan(config)
+    log.info("evaluate: %d fits (%s), %d steps, %d seed(s), %d queries per protocol, %d worker(s)",
+             len(jobs), ", ".join(config.tables), config.n_steps, config.n_seeds, config.n_queries, config.jobs)
+    done = run_jobs(jobs, config.jobs, config.quiet)
+    config.out.mkdir(parents=True, exist_ok=True)
+    wall = time.perf_counter() - start
+    written = {}
+    for table in config.tables:
+        data = assemble(table, config, done)
+        data["wall_seconds_all_tables"] = wall
+        data["paper_note"] = PAPER_NOTE
+        write_text(config.out / f"{table}.json", _json(data))
+        written[table] = config.out / f"{table}.md"
+        write_text(written[table], to_markdown(data))
+        if config.figures:
+            from pipeline.evaluate_figures import plot_set
+
+            for set_name in config.table_sets(table):
+                plot_set(config.out / "figures" / f"{table}-{set_name}.png", set_name, config.n_queries,
+                         examples(table, config, done, set_name), title=f"{table}: {set_name}")
+    return written
+
+
+def _json(data: dict) -> str:
+    import json
+
+    def clean(x):
+        if isinstance(x, dict):
+            return {k: clean(v) for k, v in x.items()}
+        if isinstance(x, (list, tuple)):
+            return [clean(v) for v in x]
+        if isinstance(x, float) and not np.isfinite(x):
+            return None  # JSON has no NaN: a failed cell is null
+        return x
+
+    return json.dumps(clean(data), indent=1)

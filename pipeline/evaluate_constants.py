@@ -1,0 +1,58 @@
+"""Constants of `cnep evaluate`: what each table runs, the baselines' sizes, run budgets, the paper's numbers."""
+
+from __future__ import annotations
+
+TABLES = ("comparison", "ablation", "experts")
+
+# Columns (data sets) of each table; `--quick` keeps only QUICK_SETS of them.
+TABLE_SETS = {
+    "comparison": ("unimodal", "bimodal", "multimodal", "multimodal6"),
+    "ablation": ("unimodal", "bimodal", "multimodal"),
+    "experts": ("bimodal", "multimodal", "multimodal6"),
+}
+QUICK_SETS = ("bimodal", "multimodal")
+SET_TITLES = {"unimodal": "Unimodal", "bimodal": "Bimodal", "multimodal": "4 modes", "multimodal6": "6 modes"}
+
+# Experts of "the" CNEP of a set (comparison and ablation tables; its CNMP is parameter-matched to it).
+# 6 modes take 8 experts so that the comparison's model is also the experts table's CNEP-8.
+CNEP_EXPERTS = {"unimodal": 2, "bimodal": 2, "multimodal": 4, "multimodal6": 8}
+EXPERT_COUNTS = (2, 4, 8)
+
+# The authors' baseline sizes (uni / bi / multi); the 6-mode set has no published value: we use the
+# 4-mode set's ProMP size and two Gaussians per mode.
+PROMP_WEIGHTS = {"unimodal": 10, "bimodal": 30, "multimodal": 8, "multimodal6": 8}
+GMM_COMPONENTS = {"unimodal": 10, "bimodal": 20, "multimodal": 6, "multimodal6": 12}
+
+# Budgets. Full: every set of the table; quick: what CI runs (a few minutes on 2 cores).
+STEPS = 4_000
+SEEDS = 2
+QUERIES = 50
+QUICK_STEPS = 1_500
+QUICK_SEEDS = 1
+QUICK_QUERIES = 20
+JOBS = 2  # worker processes (one thread each)
+
+SAMPLES_IN_FIGURE = 3  # paper queries drawn per data set in the figures (first seed)
+DEFAULT_OUT = "cnep-evaluation"
+
+# The paper's MSE (mean, std) per table, row and set (Tables "MSE over generated trajectories ...").
+PAPER = {
+    "comparison": {
+        "ProMP": {"unimodal": (0.017, 0.010), "bimodal": (0.312, 0.314), "multimodal": (0.199, 0.191)},
+        "GMM-GMR": {"unimodal": (0.017, 0.009), "bimodal": (0.096, 0.120), "multimodal": (0.162, 0.065)},
+        "CNMP": {"unimodal": (0.015, 0.006), "bimodal": (0.043, 0.078), "multimodal": (0.112, 0.074)},
+        "CNEP": {"unimodal": (0.015, 0.005), "bimodal": (0.013, 0.013), "multimodal": (0.027, 0.042)},
+    },
+    "ablation": {
+        "CNEP-Uni": {"unimodal": (0.042, 0.042), "bimodal": (0.185, 0.057), "multimodal": (0.120, 0.079)},
+        "CNEP-UnSpec": {"unimodal": (0.033, 0.031), "bimodal": (0.069, 0.096), "multimodal": (0.050, 0.077)},
+        "CNEP-Rec": {"unimodal": (0.031, 0.028), "bimodal": (0.113, 0.045), "multimodal": (0.064, 0.069)},
+        "CNEP-MoE": {"unimodal": (0.046, 0.049), "bimodal": (0.061, 0.071), "multimodal": (0.040, 0.061)},
+        "CNEP": {"unimodal": (0.046, 0.049), "bimodal": (0.058, 0.071), "multimodal": (0.028, 0.049)},
+    },
+    "experts": {
+        "CNEP-2": {"bimodal": (0.005, 0.087), "multimodal": (0.045, 0.038), "multimodal6": (0.063, 0.167)},
+        "CNEP-4": {"bimodal": (0.005, 0.090), "multimodal": (0.042, 0.038), "multimodal6": (0.033, 0.148)},
+        "CNEP-8": {"bimodal": (0.004, 0.048), "multimodal": (0.042, 0.040), "multimodal6": (0.032, 0.168)},
+    },
+}

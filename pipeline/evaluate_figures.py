@@ -1,0 +1,63 @@
+"""PNG figures of `cnep evaluate` (like the paper's figure of generated trajectories), with matplotlib (`plots` extra).
+
+One figure per (table, set): the training demonstrations coloured by mode with every paper query's
+conditioning points (x: intermediate point, +: end point), then one panel per example query with the
+demonstrations in grey, the ground truth dashed and each method's generated trajectory.
+"""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+import numpy as np
+
+from models.checkpoint import atomic_write
+from pipeline.errors import PipelineError
+from pipeline.evaluate_jobs import queries
+
+
+def _pyplot():
+    try:
+        import matplotlib
+    except ImportError as exc:
+        raise PipelineError("figures need matplotlib: `pip install .[plots]`, or run with --no-figures") from exc
+    matplotlib.use("Agg")  # files only, never a window
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def plot_set(path: Path, set_name: str, n_queries: int, generated: dict[str, np.ndarray], title: str) -> None:
+    """Write the figure of one set (seed 0) to `path`; `generated`: row label -> (k, T, dy) on its first k paper queries."""
+    plt = _pyplot()
+    s, qs = queries(set_name, 0, n_queries)
+    k = min(len(v) for v in generated.values())
+    t = np.arange(s.steps) / (s.steps - 1)
+    fig, axes = plt.subplots(1, k + 1, figsize=(4 * (k + 1), 3.4), sharey=True, squeeze=False)
+    axes = axes[0]
+    colours = plt.get_cmap("tab10")
+    for demo, mode in zip(s.train, s.train_modes):
+        axes[0].plot(t, demo[:, 0], color=colours(mode % 10), lw=0.6, alpha=0.5)
+    for q in qs["paper"]:
+        axes[0].plot(q.obs_t[:-1], q.obs_y[:-1, 0], "x", color="red", ms=5)
+        axes[0].plot(q.obs_t[-1:], q.obs_y[-1:, 0], "+", color="blue", ms=7)
+    axes[0].set_title("demonstrations and conditioning points", fontsize=9)
+    for i, ax in enumerate(axes[1:]):
+        q = qs["paper"][i]
+        for demo in s.train:
+            ax.plot(t, demo[:, 0], color="0.85", lw=0.5)
+        ax.plot(t, q.truth[:, 0], "k--", lw=1.5, label="truth")
+        for j, (label, out) in enumerate(generated.items()):
+            ax.plot(t, out[i, :, 0], color=colours(j % 10), lw=1.2, label=label)
+        ax.plot(q.obs_t, q.obs_y[:, 0], "o", color="black", ms=5)
+        ax.set_title(f"query {i + 1}", fontsize=9)
+    axes[-1].legend(fontsize=7, loc="best")
+    for ax in axes:
+        ax.set_xlabel("t")
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=110)
+    plt.close(fig)
+    atomic_write(path, buffer.getvalue())

@@ -1,0 +1,177 @@
+"""The units of work of `cnep evaluate`: one job fits one method family on one (set, seed) and scores it.
+
+A job is picklable and self-contained, so it runs the same in this process or in a worker process
+(spawned with one BLAS and one torch thread). Every job of a (set, seed) builds the same data and the
+same queries from the seed, so all methods are scored on identical queries:
+
+    data     models.synthetic.make_set(set, seed)
+    paper    paper_queries(train, train_modes, n, seed)                 scored against the training pool
+    heldout  heldout_queries(train, train_modes, test, test_modes, n, seed)
+
+Results: {method name: {"paper": scores, "heldout": scores, "examples": (k, T, dy) generated for the
+first k paper queries, "fit_seconds": float, ...}} where scores is `models.evaluation.score`'s dict plus
+"failures" (queries whose output was not finite).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from pipeline.evaluate_constants import GMM_COMPONENTS, PROMP_WEIGHTS, SAMPLES_IN_FIGURE
+
+PROTOCOLS = ("paper", "heldout")
+
+
+@dataclass(frozen=True)
+class ModelSpec:
+    """One trained network: CNEP with `n_experts` (1 = the parameter-matched CNMP) and its loss weights."""
+
+    n_experts: int
+    a_batch: float | None = None  # None: the authors' rescaled value
+    a_ind: float | None = None
+
+    @property
+    def key(self) -> str:
+        if self.n_experts == 1:
+            return "cnmp"
+        tags = [f"d{self.n_experts}"] + [f"{n}0" for n in ("a_batch", "a_ind") if getattr(self, n) == 0]
+        return "cnep-" + "-".join(tags)
+
+
+@dataclass(frozen=True)
+class Job:
+    """Fit `spec` (a ModelSpec, or None for all baselines) on `set_name` with `seed`, then score it."""
+
+    set_name: str
+    seed: int
+    spec: ModelSpec | None
+    steps: int
+    n_queries: int
+    cnmp_matches: int = 2  # a CNMP gets the parameter count of a CNEP with this many experts
+
+    @property
+    def label(self) -> str:
+        return f"{self.set_name}/seed{self.seed}/{self.spec.key if self.spec else 'baselines'}"
+
+
+def queries(set_name: str, seed: int, n: int):
+    """The data set and both protocols' queries of a (set, seed): (SyntheticSet, {protocol: [Query]})."""
+    from models.evaluation import heldout_queries, paper_queries
+    from models.synthetic import make_set
+
+    s = make_set(set_name, seed)
+    return s, {
+        "paper": paper_queries(s.train, s.train_modes, n, seed),
+        "heldout": heldout_queries(s.train, s.train_modes, s.test, s.test_modes, n, seed),
+    }
+
+
+def _scored(generate, s, qs: dict) -> dict:
+    """Score one method on both protocols, counting queries whose output is not finite."""
+    from models.evaluation import score
+
+    failures = {p: 0 for p in PROTOCOLS}
+
+    def guarded(protocol):
+        def run(obs_t, obs_y, query_t):
+            out = np.asarray(generate(obs_t, obs_y, query_t), dtype=np.float64)
+            failures[protocol] += int(not np.isfinite(out).all())
+            return out
+
+        return run
+
+    result = {}
+    for p in PROTOCOLS:
+        scores = score(guarded(p), qs[p], s.train, s.train_modes)
+        if failures[p]:  # a non-finite output has no nearest demonstration: no mode accuracy either
+            scores["mode_accuracy"] = float("nan")
+        result[p] = {**scores, "failures": failures[p]}
+    T = s.steps
+    times = np.arange(T) / (T - 1)
+    result["examples"] = np.stack([generate(q.obs_t, q.obs_y, times) for q in qs["paper"][:SAMPLES_IN_FIGURE]])
+    return result
+
+
+def baselines(set_name: str, seed: int) -> dict:
+    """name -> unfitted baseline, with the authors' sizes for this set (see pipeline.evaluate_constants)."""
+    from models.baselines import GMMGMR, NearestDemo, ProMP
+
+    return {
+        "ProMP": ProMP(PROMP_WEIGHTS[set_name]),
+        "GMM-GMR": GMMGMR(GMM_COMPONENTS[set_name], seed=seed),
+        "GMM-GMR (no ridge)": GMMGMR(GMM_COMPONENTS[set_name], ridge=0.0, seed=seed),
+        "Nearest demo": NearestDemo(),
+    }
+
+
+def matched_width(n_experts: int, depth: int = 2) -> int:
+    """Width of a CNMP's expert layers giving about the parameter count of a CNEP with `n_experts`.
+
+    The authors widened their CNMP to [158, 158] (d = 2) and [204, 204] (d = 4) for their network; ours
+    feeds Fourier time features to the experts, so the widths that match are solved for here.
+    """
+    from models import CNEP, CNEPConfig
+
+    def count(config) -> int:
+        return sum(p.numel() for p in CNEP(config).parameters())
+
+    target = count(CNEPConfig(n_experts=n_experts))
+    lo, hi = 1, 4096
+    while lo < hi:  # smallest width whose count reaches the target
+        mid = (lo + hi) // 2
+        if count(CNEPConfig(n_experts=1, expert_widths=(mid,) * depth)) < target:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+def model_config(spec: ModelSpec, cnmp_matches: int):
+    from models import CNEPConfig
+
+    if spec.n_experts == 1:
+        return CNEPConfig(n_experts=1, expert_widths=(matched_width(cnmp_matches),) * 2)
+    return CNEPConfig(n_experts=spec.n_experts, a_batch=spec.a_batch, a_ind=spec.a_ind)
+
+
+def run_job(job: Job) -> dict:
+    """Fit and score; returns {method name: results} (see the module docstring)."""
+    import torch
+
+    torch.set_num_threads(1)
+    s, qs = queries(job.set_name, job.seed, job.n_queries)
+    if job.spec is None:
+        out = {}
+        for name, method in baselines(job.set_name, job.seed).items():
+            start = time.perf_counter()
+            method.fit(s.train)
+            fit_seconds = time.perf_counter() - start
+            out[name] = {**_scored(method.generate, s, qs), "fit_seconds": fit_seconds}
+        return out
+    from models import TrainConfig, fit
+
+    config = model_config(job.spec, job.cnmp_matches)
+    start = time.perf_counter()
+    model, history = fit(list(s.train), config, TrainConfig(steps=job.steps, seed=job.seed), list(s.val), progress=False)
+    info = {
+        "fit_seconds": time.perf_counter() - start,
+        "best_val_error": min(h["val_error"] for h in history),
+        "final_usage": history[-1]["usage"],
+        "parameters": sum(p.numel() for p in model.parameters()),
+        "expert_widths": list(config.expert_widths),
+    }
+
+    def wta(obs_t, obs_y, query_t):
+        return model.generate(obs_t, obs_y, query_t).mean
+
+    def moe(obs_t, obs_y, query_t):
+        return model.generate(obs_t, obs_y, query_t, mixture=True).mean
+
+    out = {job.spec.key: {**_scored(wta, s, qs), **info}}
+    if job.spec.n_experts > 1:
+        out[job.spec.key + "+moe"] = {**_scored(moe, s, qs), **info}
+    return out
+

@@ -1,0 +1,94 @@
+"""`cnep evaluate`: the plan, the pooled statistics, and the tables' structure from a tiny run."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+import models.baselines.gmm as gmm_module
+from models import CNEP, CNEPConfig
+from pipeline.cli import main
+from pipeline.evaluate import EvaluateConfig, evaluate, plan, pooled, table_rows
+from pipeline.evaluate_constants import PAPER, TABLES
+from pipeline.evaluate_jobs import ModelSpec, matched_width
+
+
+def test_plan_trains_each_shared_network_once():
+    config = EvaluateConfig(tables=TABLES, quick=True, seeds=2)
+    jobs = plan(config)
+    keys = [(j.set_name, j.seed, j.spec) for j in jobs]
+    assert len(keys) == len(set(keys))
+    # bimodal (d=2 CNEP) per seed: baselines, CNMP, CNEP-d2 (comparison, ablation's CNEP/MoE, experts' CNEP-2),
+    # 3 ablation variants, CNEP-4 and CNEP-8
+    assert sum(j.set_name == "bimodal" for j in jobs) == 2 * 8
+    assert {j.set_name for j in jobs} == {"bimodal", "multimodal"}
+
+
+def test_rows_of_each_table():
+    assert [r.label for r in table_rows("comparison", "bimodal")] == [
+        "ProMP", "GMM-GMR", "GMM-GMR (no ridge)", "CNMP", "CNEP", "Nearest demo"]
+    ablation = {r.label: r for r in table_rows("ablation", "multimodal")}
+    assert ablation["CNEP-Rec"].spec == ModelSpec(4, a_batch=0.0, a_ind=0.0)
+    assert ablation["CNEP-MoE"].spec == ablation["CNEP"].spec and ablation["CNEP-MoE"].method.endswith("+moe")
+    assert [r.spec.n_experts for r in table_rows("experts", "multimodal6") if r.spec] == [2, 4, 8]
+
+
+def test_pooled_equals_statistics_over_all_queries():
+    rng = np.random.default_rng(0)
+    errors = rng.random((3, 7))  # seeds x queries
+    per_seed = [{"mse": e.mean(), "mse_std": e.std(), "mae": e.mean(), "mae_std": e.std(),
+                 "mode_accuracy": a, "failures": 0} for e, a in zip(errors, (0.5, 1.0, 0.75))]
+    cell = pooled(per_seed)
+    assert cell["mse"] == pytest.approx(errors.mean())
+    assert cell["mse_std"] == pytest.approx(errors.std())
+    assert cell["mode_accuracy"] == pytest.approx(0.75)
+    assert cell["mode_accuracy_std"] == pytest.approx(np.std([0.5, 1.0, 0.75]))
+
+
+@pytest.mark.parametrize("d", [2, 4])
+def test_cnmp_width_matches_the_cnep_parameter_count(d):
+    def count(config):
+        return sum(p.numel() for p in CNEP(config).parameters())
+
+    w = matched_width(d)
+    target = count(CNEPConfig(n_experts=d))
+    assert count(CNEPConfig(n_experts=1, expert_widths=(w - 1, w - 1))) < target <= count(
+        CNEPConfig(n_experts=1, expert_widths=(w, w)))
+
+
+@pytest.fixture
+def torch_threads():
+    """run_job pins torch to one thread (it is meant for worker processes): restore the count afterwards."""
+    before = torch.get_num_threads()
+    yield
+    torch.set_num_threads(before)
+
+
+def test_tiny_run_writes_every_table(tmp_path, monkeypatch, torch_threads):
+    monkeypatch.setattr(gmm_module, "EM_ITERATIONS", 3)  # structure only: a few EM steps are enough
+    config = EvaluateConfig(tables=TABLES, seeds=1, steps=20, queries=3, sets=("bimodal",), out=tmp_path, jobs=0,
+                            quiet=True)
+    written = evaluate(config)
+    assert set(written) == set(TABLES)
+    for table in TABLES:
+        data = json.loads((tmp_path / f"{table}.json").read_text())
+        rows = [r.label for r in table_rows(table, "bimodal")]
+        assert data["rows"] == rows and data["sets"] == ["bimodal"]
+        for protocol in ("paper", "heldout"):
+            for row in rows:
+                cell = data["results"][protocol][row]["bimodal"]
+                assert {"mse", "mse_std", "mae", "mae_std", "mode_accuracy", "failures"} <= set(cell)
+                assert len(cell["per_seed"]) == 1
+        nearest = data["results"]["paper"]["Nearest demo"]["bimodal"]
+        assert nearest["mse"] == pytest.approx(0.0, abs=1e-12) and nearest["mode_accuracy"] == 1.0
+        markdown = written[table].read_text()
+        for row, by_set in PAPER[table].items():
+            if "bimodal" in by_set:
+                assert f"(paper {by_set['bimodal'][0]:.3f}" in markdown
+        assert (tmp_path / "figures" / f"{table}-bimodal.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_bad_arguments_are_one_line_errors(capsys):
+    assert main(["evaluate", "--seeds", "0", "--out", "unused"]) == 2
+    assert "--seeds must be >= 1" in capsys.readouterr().err
