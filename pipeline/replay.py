@@ -30,6 +30,7 @@ import os
 import socket
 import subprocess
 import sys
+import uuid
 from dataclasses import dataclass
 from pathlib import Path
 from urllib.parse import urlparse
@@ -180,10 +181,16 @@ def replay(
     mapping = RowMapping.from_checkpoint(checkpoint, model)
     trajectories = [read_trajectory(p) for p in paths]
     rows = [mapping.select(traj, p, checkpoint) for traj, p in zip(trajectories, paths)]  # refuse misfits first
+    for traj, p in zip(trajectories, paths):
+        if traj.n_steps < 2:
+            raise PipelineError(f"{p}: {traj.n_steps} step(s); replay needs at least 2 (time runs from the first to the last)")
     xyz = mapping.predicted_xyz(model)
     live = connect if connect and viewer_reachable(connect) else None
     if connect and live is None:
         log.warning("no Rerun viewer answers at %s; writing %s only (open it with `rerun %s`)", connect, out, out)
+    elif live:
+        log.info("streaming live to %s", live)
+    run_id = uuid.uuid4().hex[:8]  # a new replay is a new recording in a viewer, not more rows in an old one
     out.parent.mkdir(parents=True, exist_ok=True)
     if events_dir is not None:
         Path(events_dir).mkdir(parents=True, exist_ok=True)
@@ -197,7 +204,7 @@ def replay(
             decisions = decide(model, x, traj.timestamps_ns, policy, xyz, prediction_points)
             bar.update(len(x))
             parts.append(out.parent / f".{out.name}.{i}.tmp")
-            write_recording(parts[-1], f"{i:03d}-{traj.episode.episode_id}", path, traj, decisions, live)
+            write_recording(parts[-1], f"{traj.episode.episode_id}-{i}-{run_id}", path, traj, decisions, live)
             if events_dir is not None:
                 add_events(path, Path(events_dir) / path.name, decision_events(traj, decisions))
             summaries.append(summarise(path, traj, decisions))

@@ -5,6 +5,8 @@ import shutil
 import socket
 import subprocess
 import sys
+import time
+import warnings
 from pathlib import Path
 
 import cv2
@@ -16,7 +18,7 @@ from models import CNEPConfig, Layout, build_model, save_checkpoint
 from pipeline import rerun_layout as L
 from pipeline.cli import main
 from pipeline.errors import PipelineError
-from pipeline.replay import decisions_path, read_decisions, replay, serve
+from pipeline.replay import decisions_path, read_decisions, replay, serve, viewer_reachable
 from recordings import Episode, Trajectory, read_events, write_trajectory
 from recordings.constants import LAYOUT_MOTION, MOTION_DIM, STEP_DIM
 
@@ -226,15 +228,57 @@ def test_no_viewer_means_a_warning_and_the_file(tmp_path, checkpoint, caplog):
     assert len(column(out, L.GATES, "Scalars:scalars")[0]) == 10
 
 
-def test_a_reachable_viewer_gets_the_stream_and_the_file_is_still_complete(tmp_path, checkpoint, caplog):
-    server, url = serve(free_port())
-    rec = write_trajectory(tmp_path / "ep.mcap", trajectory(steps=15))
-    with caplog.at_level(logging.WARNING, logger="pipeline.replay"):
-        out = replay(checkpoint, [rec], tmp_path / "r.rrd", connect=url, quiet=True)
-    server.disconnect()
-    assert "no Rerun viewer" not in caplog.text
+def gate_rows_received(path: Path) -> int:
+    """Gate rows in an .rrd that a receiving viewer is still writing (0 until it has a readable recording)."""
+    from rerun.chunk import RrdReader
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # no footer yet: the viewer is still writing
+            chunks = RrdReader(path).stream().to_chunks()
+    except (RuntimeError, ValueError):
+        return 0
+    return sum(c.num_rows for c in chunks if c.entity_path == L.GATES and not c.is_static)
+
+
+def test_a_reachable_viewer_receives_the_live_stream_and_the_file_is_still_complete(tmp_path, checkpoint, caplog):
+    """A headless `rerun` that saves what it receives stands in for the viewer."""
+    import rerun_cli
+
+    port, received = free_port(), tmp_path / "received.rrd"
+    exe = Path(rerun_cli.__file__).parent / "rerun"  # the binary itself (the `rerun` script would fork it)
+    viewer = subprocess.Popen([str(exe), "--port", str(port), "--save", str(received)], stdout=subprocess.DEVNULL,
+                              stderr=subprocess.DEVNULL)
+    try:
+        url = f"rerun+http://127.0.0.1:{port}/proxy"
+        deadline = time.monotonic() + 20
+        while not viewer_reachable(url) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        rec = write_trajectory(tmp_path / "ep.mcap", trajectory(steps=15))
+        with caplog.at_level(logging.INFO, logger="pipeline.replay"):
+            out = replay(checkpoint, [rec], tmp_path / "r.rrd", connect=url, quiet=True)
+        assert f"streaming live to {url}" in caplog.text
+        while gate_rows_received(received) < 15 and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert gate_rows_received(received) == 15
+    finally:
+        viewer.terminate()
+        viewer.wait(timeout=20)
     assert len(column(out, L.GATES, "Scalars:scalars")[0]) == 15
     assert rrd_verify(out).returncode == 0
+
+
+def test_serve_hosts_a_server_that_replay_streams_to(tmp_path, checkpoint, caplog):
+    server, url = serve(free_port())
+    try:
+        assert viewer_reachable(url)
+        rec = write_trajectory(tmp_path / "ep.mcap", trajectory(steps=15))
+        with caplog.at_level(logging.INFO, logger="pipeline.replay"):
+            out = replay(checkpoint, [rec], tmp_path / "r.rrd", connect=url, quiet=True)
+        assert "streaming live" in caplog.text
+    finally:
+        server.disconnect()
+    assert len(column(out, L.GATES, "Scalars:scalars")[0]) == 15
 
 
 def test_cli_replay_prints_the_expert_of_each_recording(tmp_path, checkpoint, capsys):
@@ -259,3 +303,9 @@ def test_the_blueprint_is_built_from_the_number_of_experts(d):
     blueprint = L.blueprint(d)
     assert blueprint is not None
     assert len(set(L.expert_colors(d))) == min(d, len(L.PALETTE))
+
+
+def test_a_one_step_recording_is_refused(tmp_path, checkpoint):
+    rec = write_trajectory(tmp_path / "one.mcap", trajectory(steps=1))
+    with pytest.raises(PipelineError, match="one.mcap: 1 step"):
+        replay(checkpoint, [rec], tmp_path / "x.rrd", connect=None, quiet=True)
