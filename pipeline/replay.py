@@ -223,7 +223,7 @@ def replay(
               "policy": {"window": policy.window, "anchors": policy.anchors}, "recordings": summaries}
     atomic_write(decisions_path(out), json.dumps(record, indent=1).encode())
     for s in summaries:
-        log.info("%s: expert %d on %.0f%% of %d steps, %d switch(es)", s["recording"], s["majority_expert"],
+        log.debug("%s: expert %d on %.0f%% of %d steps, %d switch(es)", s["recording"], s["majority_expert"],
                  100 * max(s["share"]), s["n_steps"], len(s["switches"]))
     return out
 
