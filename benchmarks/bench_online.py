@@ -2,6 +2,11 @@
 
 Run on demand (do not run it next to other heavy work):
     python -m benchmarks.bench_online [--steps 5000] [--experts 2 4] [--window 10] [--core 0]
+    chrt -f 10 python -m benchmarks.bench_online ...   # as a control loop runs: real-time priority (root)
+
+On a shared, loaded machine the wall-clock p99 measures the scheduler (other processes holding the
+core), not the step; the "CPU p99" column (the step's own thread CPU time) and a real-time run tell
+them apart.
 
 For a CNEP with the pipeline's layout (observes all 1288 columns: features, pose, gripper; predicts
 pose + gripper, 8 columns; default widths 128-128) and d experts, times every call of
