@@ -177,6 +177,10 @@ def replay(
         raise PipelineError("replay needs at least one trajectory file")
     if out.suffix != ".rrd":
         raise PipelineError(f"{out}: the replay output must be a .rrd file")
+    names = [p.name for p in paths]
+    if events_dir is not None and len(set(names)) < len(names):
+        raise PipelineError(f"{events_dir}: several recordings are named alike ({', '.join(sorted(names))}) and their "
+                            f"copies with events would overwrite each other; replay them in separate runs")
     model = load_checkpoint(checkpoint)
     mapping = RowMapping.from_checkpoint(checkpoint, model)
     trajectories = [read_trajectory(p) for p in paths]

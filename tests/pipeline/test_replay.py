@@ -309,3 +309,11 @@ def test_a_one_step_recording_is_refused(tmp_path, checkpoint):
     rec = write_trajectory(tmp_path / "one.mcap", trajectory(steps=1))
     with pytest.raises(PipelineError, match="one.mcap: 1 step"):
         replay(checkpoint, [rec], tmp_path / "x.rrd", connect=None, quiet=True)
+
+
+def test_event_copies_that_would_overwrite_each_other_are_refused(tmp_path, checkpoint):
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    paths = [write_trajectory(tmp_path / d / "ep.mcap", trajectory(steps=10)) for d in ("a", "b")]
+    with pytest.raises(PipelineError, match="named alike"):
+        replay(checkpoint, paths, tmp_path / "x.rrd", connect=None, events_dir=tmp_path / "ev", quiet=True)
