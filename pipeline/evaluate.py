@@ -17,7 +17,7 @@ from __future__ import annotations
 import logging
 import os
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from multiprocessing import get_context
@@ -120,30 +120,37 @@ def table_rows(table: str, set_name: str) -> list[Row]:
 
 
 def plan(config: EvaluateConfig) -> list[Job]:
-    """Every job the tables need, each once, the most expensive first (workers finish together)."""
-    jobs: dict[tuple, Job] = {}
-    for table in config.tables:
+    """Every job the tables need, each once: the first table's jobs first (so it is written first), and
+    within a table the most expensive first (workers finish together)."""
+    jobs: dict[tuple, tuple[int, Job]] = {}
+    for rank, table in enumerate(config.tables):
         for set_name in config.table_sets(table):
             for seed in range(config.n_seeds):
                 for row in table_rows(table, set_name):
-                    key = (set_name, seed, row.spec)
-                    jobs.setdefault(key, Job(set_name, seed, row.spec, config.n_steps, config.n_queries,
-                                             cnmp_matches=CNEP_EXPERTS[set_name]))
-    return sorted(jobs.values(), key=lambda j: -1 if j.spec is None else j.spec.n_experts, reverse=True)
+                    job = Job(set_name, seed, row.spec, config.n_steps, config.n_queries,
+                              cnmp_matches=CNEP_EXPERTS[set_name])
+                    jobs.setdefault((set_name, seed, row.spec), (rank, job))
+    cost = {job: (rank, 0 if job.spec is None else -job.spec.n_experts) for rank, job in jobs.values()}
+    return sorted(cost, key=cost.get)
 
 
-def run_jobs(jobs: Sequence[Job], workers: int, quiet: bool) -> dict[Job, dict]:
-    """Run the jobs (in `workers` spawned processes with one thread each, or here when 0)."""
+def needs(table: str, config: EvaluateConfig) -> set[tuple]:
+    """The (set, seed, spec) keys of the jobs a table reads."""
+    return {(s, seed, row.spec) for s in config.table_sets(table) for seed in range(config.n_seeds)
+            for row in table_rows(table, s)}
+
+
+def run_jobs(jobs: Sequence[Job], workers: int, quiet: bool) -> Iterator[tuple[Job, dict]]:
+    """Yield (job, result) as jobs finish, in `workers` spawned processes with one thread each (or here when 0)."""
     from tqdm.auto import tqdm
 
     bar = tqdm(total=len(jobs), disable=quiet, desc="evaluate", unit="fit")
-    done: dict[Job, dict] = {}
     if workers == 0:
         for job in jobs:
-            done[job] = run_job(job)
+            yield job, run_job(job)
             bar.update(1)
         bar.close()
-        return done
+        return
     saved = {name: os.environ.get(name) for name in THREAD_VARIABLES}
     os.environ.update({name: "1" for name in THREAD_VARIABLES})  # read by the workers' BLAS at import
     try:
@@ -151,10 +158,10 @@ def run_jobs(jobs: Sequence[Job], workers: int, quiet: bool) -> dict[Job, dict]:
             futures = {pool.submit(run_job, job): job for job in jobs}
             for future in as_completed(futures):
                 job = futures[future]
-                done[job] = future.result()
                 log.debug("done %s", job.label)
                 bar.set_postfix_str(job.label)
                 bar.update(1)
+                yield job, future.result()
     finally:
         for name, value in saved.items():
             if value is None:
@@ -162,7 +169,6 @@ def run_jobs(jobs: Sequence[Job], workers: int, quiet: bool) -> dict[Job, dict]:
             else:
                 os.environ[name] = value
         bar.close()
-    return done
 
 
 def pooled(per_seed: Sequence[dict]) -> dict:
@@ -218,31 +224,44 @@ def examples(table: str, config: EvaluateConfig, done: dict[Job, dict], set_name
 
 
 def evaluate(config: EvaluateConfig) -> dict[str, Path]:
-    """Run the tables; returns {table: path of its Markdown file} (JSON and figures beside it)."""
-    from pipeline.evaluate_tables import PAPER_NOTE, to_markdown, write_text
+    """Run the tables; returns {table: path of its Markdown file} (JSON and figures beside it).
 
+    Each table is written as soon as all its jobs are done, so a long run yields its first table early.
+    """
     start = time.perf_counter()
     jobs = plan(config)
     log.info("evaluate: %d fits (%s), %d steps, %d seed(s), %d queries per protocol, %d worker(s)",
              len(jobs), ", ".join(config.tables), config.n_steps, config.n_seeds, config.n_queries, config.jobs)
-    done = run_jobs(jobs, config.jobs, config.quiet)
     config.out.mkdir(parents=True, exist_ok=True)
-    wall = time.perf_counter() - start
+    pending = {table: needs(table, config) for table in config.tables}
+    done: dict[Job, dict] = {}
     written = {}
-    for table in config.tables:
-        data = assemble(table, config, done)
-        data["wall_seconds_all_tables"] = wall
-        data["paper_note"] = PAPER_NOTE
-        write_text(config.out / f"{table}.json", _json(data))
-        written[table] = config.out / f"{table}.md"
-        write_text(written[table], to_markdown(data))
-        if config.figures:
-            from pipeline.evaluate_figures import plot_set
+    for job, result in run_jobs(jobs, config.jobs, config.quiet):
+        done[job] = result
+        for table in [t for t, keys in pending.items() if not keys - {(j.set_name, j.seed, j.spec) for j in done}]:
+            del pending[table]
+            written[table] = write_table(table, config, done, time.perf_counter() - start)
+            log.info("%s table written to %s", table, written[table])
+    return {table: written[table] for table in config.tables}
 
-            for set_name in config.table_sets(table):
-                plot_set(config.out / "figures" / f"{table}-{set_name}.png", set_name, config.n_queries,
-                         examples(table, config, done, set_name), title=f"{table}: {set_name}")
-    return written
+
+def write_table(table: str, config: EvaluateConfig, done: dict[Job, dict], wall: float) -> Path:
+    """Write <table>.md, <table>.json and the table's figures; returns the Markdown path."""
+    from pipeline.evaluate_tables import PAPER_NOTE, to_markdown, write_text
+
+    data = assemble(table, config, done)
+    data["wall_seconds"] = wall
+    data["paper_note"] = PAPER_NOTE
+    write_text(config.out / f"{table}.json", _json(data))
+    markdown = config.out / f"{table}.md"
+    write_text(markdown, to_markdown(data))
+    if config.figures:
+        from pipeline.evaluate_figures import plot_set
+
+        for set_name in config.table_sets(table):
+            plot_set(config.out / "figures" / f"{table}-{set_name}.png", set_name, config.n_queries,
+                     examples(table, config, done, set_name), title=f"{table}: {set_name}")
+    return markdown
 
 
 def _json(data: dict) -> str:

@@ -25,7 +25,7 @@ GMM_COMPONENTS = {"unimodal": 10, "bimodal": 20, "multimodal": 6, "multimodal6":
 
 # Budgets. Full: every set of the table; quick: what CI runs (a few minutes on 2 cores).
 STEPS = 4_000
-SEEDS = 2
+SEEDS = 1  # the default `cnep evaluate` (comparison) stays well under 10 minutes; the full run uses --seeds 2+
 QUERIES = 50
 QUICK_STEPS = 1_500
 QUICK_SEEDS = 1

@@ -28,6 +28,15 @@ def _pyplot():
     return plt
 
 
+def _demos(ax, t: np.ndarray, demos: np.ndarray, colours, width: float, alpha: float) -> None:
+    """All demonstrations (N, T, dy), first output column, as one collection (one artist, fast to draw)."""
+    from matplotlib.collections import LineCollection
+
+    segments = np.stack([np.broadcast_to(t, demos.shape[:2]), demos[..., 0]], axis=-1)  # (N, T, 2)
+    ax.add_collection(LineCollection(segments, colors=colours, linewidths=width, alpha=alpha))
+    ax.autoscale_view()
+
+
 def plot_set(path: Path, set_name: str, n_queries: int, generated: dict[str, np.ndarray], title: str) -> None:
     """Write the figure of one set (seed 0) to `path`; `generated`: row label -> (k, T, dy) on its first k paper queries."""
     plt = _pyplot()
@@ -37,16 +46,14 @@ def plot_set(path: Path, set_name: str, n_queries: int, generated: dict[str, np.
     fig, axes = plt.subplots(1, k + 1, figsize=(4 * (k + 1), 3.4), sharey=True, squeeze=False)
     axes = axes[0]
     colours = plt.get_cmap("tab10")
-    for demo, mode in zip(s.train, s.train_modes):
-        axes[0].plot(t, demo[:, 0], color=colours(mode % 10), lw=0.6, alpha=0.5)
+    _demos(axes[0], t, s.train, [colours(m % 10) for m in s.train_modes], width=0.6, alpha=0.5)
     for q in qs["paper"]:
         axes[0].plot(q.obs_t[:-1], q.obs_y[:-1, 0], "x", color="red", ms=5)
         axes[0].plot(q.obs_t[-1:], q.obs_y[-1:, 0], "+", color="blue", ms=7)
     axes[0].set_title("demonstrations and conditioning points", fontsize=9)
     for i, ax in enumerate(axes[1:]):
         q = qs["paper"][i]
-        for demo in s.train:
-            ax.plot(t, demo[:, 0], color="0.85", lw=0.5)
+        _demos(ax, t, s.train, "0.85", width=0.5, alpha=1.0)
         ax.plot(t, q.truth[:, 0], "k--", lw=1.5, label="truth")
         for j, (label, out) in enumerate(generated.items()):
             ax.plot(t, out[i, :, 0], color=colours(j % 10), lw=1.2, label=label)

@@ -83,7 +83,7 @@ def to_markdown(data: dict) -> str:
         f"# {TITLES[data['table']]}",
         "",
         f"{s['seeds']} seed(s) x {s['queries']} queries per protocol and set; {s['steps']} training steps per network"
-        f"{' (--quick)' if s['quick'] else ''}; wall time of the run: {data['wall_seconds_all_tables']:.0f} s "
+        f"{' (--quick)' if s['quick'] else ''}; written {data['wall_seconds']:.0f} s after the run started "
         f"({s['jobs']} worker process(es)).",
         "Cells: MSE and MAE as mean ± std over all queries of all seeds; mode accuracy (the generated trajectory is "
         "nearest to a training demonstration of the truth's mode) as mean ± std over seeds.",

@@ -14,7 +14,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="which table to measure (default: comparison, the CNEP vs CNMP and baselines table)")
     parser.add_argument("--quick", action="store_true",
                         help="a few minutes: fewer training steps, one seed, the bimodal and 4-mode sets, 20 queries")
-    parser.add_argument("--seeds", type=int, default=None, help="seeds per cell (default 2; 1 with --quick)")
+    parser.add_argument("--seeds", type=int, default=None, help="seeds per cell (default 1; the full run of docs/evaluation.md uses 2)")
     parser.add_argument("--steps", type=int, default=None, help="training steps per network (default 4000; 1500 with --quick)")
     parser.add_argument("--queries", type=int, default=None, help="queries per protocol and set (default 50; 20 with --quick)")
     parser.add_argument("--out", default="cnep-evaluation", help="folder for the Markdown, JSON and PNG outputs")
