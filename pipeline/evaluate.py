@@ -129,7 +129,7 @@ def plan(config: EvaluateConfig) -> list[Job]:
                 for row in table_rows(table, set_name):
                     job = Job(set_name, seed, row.spec, config.n_steps, config.n_queries,
                               cnmp_matches=CNEP_EXPERTS[set_name])
-                    jobs.setdefault((set_name, seed, row.spec), (rank, job))
+                    jobs.setdefault(job.key, (rank, job))
     cost = {job: (rank, 0 if job.spec is None else -job.spec.n_experts) for rank, job in jobs.values()}
     return sorted(cost, key=cost.get)
 
@@ -183,13 +183,15 @@ def pooled(per_seed: Sequence[dict]) -> dict:
     cell["mode_accuracy"] = float(accuracy.mean())
     cell["mode_accuracy_std"] = float(accuracy.std())
     cell["failures"] = int(sum(r["failures"] for r in per_seed))
-    cell["per_seed"] = [{k: v for k, v in r.items()} for r in per_seed]
+    cell["per_seed"] = [dict(r) for r in per_seed]
     return cell
 
 
-def assemble(table: str, config: EvaluateConfig, done: dict[Job, dict]) -> dict:
-    """The table as a JSON-ready dict: results[protocol][row][set] = pooled cell, training[row][set]."""
-    by_key = {(job.set_name, job.seed, job.spec): result for job, result in done.items()}
+def assemble(table: str, config: EvaluateConfig, done: dict[tuple, dict]) -> dict:
+    """The table as a JSON-ready dict: results[protocol][row][set] = pooled cell, training[row][set].
+
+    `done` maps Job.key -> that job's results.
+    """
     sets = config.table_sets(table)
     results = {p: {} for p in PROTOCOLS}
     training: dict = {}
@@ -197,7 +199,7 @@ def assemble(table: str, config: EvaluateConfig, done: dict[Job, dict]) -> dict:
     for set_name in sets:
         for row in table_rows(table, set_name):
             labels += [row.label] if row.label not in labels else []
-            runs = [by_key[(set_name, seed, row.spec)][row.method] for seed in range(config.n_seeds)]
+            runs = [done[(set_name, seed, row.spec)][row.method] for seed in range(config.n_seeds)]
             for p in PROTOCOLS:
                 results[p].setdefault(row.label, {})[set_name] = pooled([r[p] for r in runs])
             training.setdefault(row.label, {})[set_name] = {
@@ -217,10 +219,9 @@ def assemble(table: str, config: EvaluateConfig, done: dict[Job, dict]) -> dict:
     }
 
 
-def examples(table: str, config: EvaluateConfig, done: dict[Job, dict], set_name: str) -> dict[str, np.ndarray]:
+def examples(table: str, done: dict[tuple, dict], set_name: str) -> dict[str, np.ndarray]:
     """Row label -> generated trajectories (k, T, dy) on the first paper queries of seed 0."""
-    by_key = {(job.set_name, job.seed, job.spec): result for job, result in done.items()}
-    return {row.label: by_key[(set_name, 0, row.spec)][row.method]["examples"] for row in table_rows(table, set_name)}
+    return {row.label: done[(set_name, 0, row.spec)][row.method]["examples"] for row in table_rows(table, set_name)}
 
 
 def evaluate(config: EvaluateConfig) -> dict[str, Path]:
@@ -234,18 +235,18 @@ def evaluate(config: EvaluateConfig) -> dict[str, Path]:
              len(jobs), ", ".join(config.tables), config.n_steps, config.n_seeds, config.n_queries, config.jobs)
     config.out.mkdir(parents=True, exist_ok=True)
     pending = {table: needs(table, config) for table in config.tables}
-    done: dict[Job, dict] = {}
+    done: dict[tuple, dict] = {}  # Job.key -> results
     written = {}
     for job, result in run_jobs(jobs, config.jobs, config.quiet):
-        done[job] = result
-        for table in [t for t, keys in pending.items() if not keys - {(j.set_name, j.seed, j.spec) for j in done}]:
+        done[job.key] = result
+        for table in [t for t, keys in pending.items() if not keys - done.keys()]:
             del pending[table]
             written[table] = write_table(table, config, done, time.perf_counter() - start)
             log.info("%s table written to %s", table, written[table])
     return {table: written[table] for table in config.tables}
 
 
-def write_table(table: str, config: EvaluateConfig, done: dict[Job, dict], wall: float) -> Path:
+def write_table(table: str, config: EvaluateConfig, done: dict[tuple, dict], wall: float) -> Path:
     """Write <table>.md, <table>.json and the table's figures; returns the Markdown path."""
     from pipeline.evaluate_tables import PAPER_NOTE, to_markdown, write_text
 
@@ -260,7 +261,7 @@ def write_table(table: str, config: EvaluateConfig, done: dict[Job, dict], wall:
 
         for set_name in config.table_sets(table):
             plot_set(config.out / "figures" / f"{table}-{set_name}.png", set_name, config.n_queries,
-                     examples(table, config, done, set_name), title=f"{table}: {set_name}")
+                     examples(table, done, set_name), title=f"{table}: {set_name}")
     return markdown
 
 

@@ -53,6 +53,11 @@ class Job:
     cnmp_matches: int = 2  # a CNMP gets the parameter count of a CNEP with this many experts
 
     @property
+    def key(self) -> tuple:
+        """What identifies the fit: (set, seed, spec); steps and queries are the same for a whole run."""
+        return self.set_name, self.seed, self.spec
+
+    @property
     def label(self) -> str:
         return f"{self.set_name}/seed{self.seed}/{self.spec.key if self.spec else 'baselines'}"
 
