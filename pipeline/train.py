@@ -131,14 +131,15 @@ def _train(config: TrainStageConfig, procs: Processes, device: torch.device) -> 
     clock = time.perf_counter() - elapsed  # training time (s) counts across resumes, reading the files does not
     with progress_bar(trainer, disabled=config.quiet or not procs.is_main) as bar:
         trainer.on_step = lambda step, terms: report_step(bar, trainer, terms, time.perf_counter() - clock)
-        while trainer.step < cfg.steps and not trainer.should_stop():
-            trainer.run(progress=False, until=(trainer.step // config.save_every + 1) * config.save_every)
-            generators = gather(procs, trainer.generator.get_state())
+        try:
+            while trainer.step < cfg.steps and not trainer.should_stop():
+                trainer.run(progress=False, until=(trainer.step // config.save_every + 1) * config.save_every)
+                save_progress(trainer, procs, work, {"identity": identity, "elapsed_s": time.perf_counter() - clock})
+        except KeyboardInterrupt:
             if procs.is_main:
-                save_state(work / STATE_FILE, {"identity": identity, "trainer": trainer.state_dict(),
-                                               "generators": generators,
-                                               "elapsed_s": time.perf_counter() - clock})
-                write_log(work / LOG_FILE, trainer.history)
+                log.warning("interrupted at step %d; the state saved every %d steps is in %s: add --resume to the same "
+                            "command to continue", trainer.step, config.save_every, work)
+            raise
     elapsed = time.perf_counter() - clock
 
     if procs.is_main:
@@ -152,6 +153,14 @@ def _train(config: TrainStageConfig, procs: Processes, device: torch.device) -> 
         log.info("best validation error %.4g at step %d; %d steps in %.1f s -> %s", best["val_error"], best["step"],
                  trainer.step, elapsed, config.out)
     return config.out
+
+
+def save_progress(trainer: Trainer, procs: Processes, work: Path, extra: dict) -> None:
+    """Rank 0 saves the resumable state (with every rank's batch generator) and the log; all ranks must call this."""
+    generators = gather(procs, trainer.generator.get_state())
+    if procs.is_main:
+        save_state(work / STATE_FILE, {**extra, "trainer": trainer.state_dict(), "generators": generators})
+        write_log(work / LOG_FILE, trainer.history)
 
 
 def run_identity(config: TrainStageConfig, data: TrainingSet, layout: TrainingLayout, model_config: CNEPConfig,

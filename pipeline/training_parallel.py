@@ -117,9 +117,9 @@ class PlacedModel:
         self.cnep = model.to(device)
         self.device = device
         self.net: torch.nn.Module = self.cnep
-        if procs.distributed:  # broadcasts rank 0's parameters at construction; buffers are fitted identically
+        if procs.distributed:  # rank 0's parameters and buffers are broadcast at construction
             ids = [device.index] if device.type == "cuda" else None
-            self.net = torch.nn.parallel.DistributedDataParallel(self.cnep, device_ids=ids, broadcast_buffers=False)
+            self.net = torch.nn.parallel.DistributedDataParallel(self.cnep, device_ids=ids)
 
     def __call__(self, obs: torch.Tensor, obs_mask: torch.Tensor, query: torch.Tensor):
         out = self.net(obs.to(self.device), obs_mask.to(self.device), query.to(self.device))

@@ -18,18 +18,11 @@ from pipeline.training_layouts import resolve_layout
 from pipeline.training_parallel import rank_seed
 from pipeline.training_state import work_dir
 from recordings import Trajectory, read_trajectory, write_trajectory
+from tests.models.conftest import one_thread  # noqa: F401 (autouse fixture: tiny models run on one thread)
 from tests.recordings.factories import trajectory_factory
 
 LENGTHS = (20, 27, 33, 40, 24)  # demonstrations of different lengths
 TINY = {"encoder_widths": (16, 16), "expert_widths": (16, 16), "time_frequencies": 2}
-
-
-@pytest.fixture(autouse=True)
-def one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
 
 
 def write_set(folder: Path, features: bool = True, extractor: dict | None = None) -> list[Path]:
