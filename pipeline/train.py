@@ -123,7 +123,8 @@ def _train(config: TrainStageConfig, procs: Processes, device: torch.device) -> 
         elapsed = saved["elapsed_s"]
         log.info("resuming at step %d of %d", trainer.step, config.training.steps)
     if procs.is_main:
-        log.info("training on %d demonstrations, validating on %d; layout %s (%d columns -> %d predicted), %d process(es)",
+        log.info("training on %d demonstrations, validating on %d; layout %s (%d columns -> %d predicted), "
+                 "%d process(es)",
                  len(train_idx), len(val_idx), layout.name, layout.model.width, layout.model.out_dim,
                  procs.world_size)
 

@@ -31,7 +31,8 @@ class TrainingFile:
 
     def describe(self) -> dict:
         """JSON-able entry for config.json (the data itself is left out)."""
-        return {"path": str(self.path.resolve()), "sha256": self.sha256, "episode_id": self.episode_id, "n_steps": self.n_steps}
+        return {"path": str(self.path.resolve()), "sha256": self.sha256, "episode_id": self.episode_id,
+                "n_steps": self.n_steps}
 
 
 @dataclass(frozen=True)

@@ -1,24 +1,43 @@
-"""`cnep train TRAJ... --out CKPT`: trajectory MCAP files -> CNEP checkpoint folder (also under torchrun)."""
+"""`cnep train TRAJ... --out CKPT`: trajectory MCAP files -> CNEP checkpoint folder (also under torchrun).
+
+Settings come from, in this order of precedence: the command line, then a JSON file given with
+`--config` (keys are the option names with underscores, e.g. `{"steps": 5000, "layout": "motion",
+"encoder_widths": [64, 64]}`), then the defaults below (`None`: the default of `models.TrainConfig`).
+"""
 
 from __future__ import annotations
 
 import argparse
+import json
 
 from pipeline.training_constants import (DEFAULT_DEVICE, DEFAULT_PATIENCE, DEFAULT_PRESET, DEFAULT_SAVE_EVERY,
                                          DEFAULT_VAL_FRACTION, DEVICES, PRESET_NAMES)
 
 HELP = "train a CNEP on trajectory files (resumable; multi-process with torchrun)"
 
-# Command-line option -> models.TrainConfig field; None (not given) keeps the stage's default.
+# Options passed straight to models.TrainConfig: name -> (type, help). Not given: TrainConfig's default.
 TRAIN_OPTIONS = {
-    "steps": (int, "training steps (models default 20000)"),
-    "batch_size": (int, "samples per step and process (models default 32)"),
-    "lr": (float, "peak learning rate of Adam (models default 1e-3)"),
-    "warmup_steps": (int, "steps of linear learning-rate warm-up (models default 2000)"),
-    "val_every": (int, "steps between validations (models default 500)"),
-    "n_max": (int, "most observations per sample (models default 10)"),
-    "m_max": (int, "most targets per sample (models default 10)"),
-    "gate_freeze_fraction": (float, "share of the steps with the gate held uniform (models default 0.3)"),
+    "steps": (int, "training steps"),
+    "batch_size": (int, "samples per step and process"),
+    "lr": (float, "peak learning rate of Adam"),
+    "warmup_steps": (int, "steps of linear learning-rate warm-up"),
+    "val_every": (int, "steps between validations"),
+    "n_max": (int, "most observations per sample"),
+    "m_max": (int, "most targets per sample"),
+    "gate_freeze_fraction": (float, "share of the steps with the gate held uniform"),
+}
+
+DEFAULTS = {
+    "layout": DEFAULT_PRESET,
+    "experts": 2,
+    "encoder_widths": (128, 128),
+    "expert_widths": (128, 128),
+    "patience": DEFAULT_PATIENCE,
+    "seed": 0,
+    "val_fraction": DEFAULT_VAL_FRACTION,
+    "save_every": DEFAULT_SAVE_EVERY,
+    "device": DEFAULT_DEVICE,
+    **{name: None for name in TRAIN_OPTIONS},
 }
 
 
@@ -29,32 +48,85 @@ def _widths(text: str) -> tuple[int, ...]:
         raise argparse.ArgumentTypeError(f"expected comma-separated layer widths such as 128,128, got {text!r}")
 
 
+def _default(name: str) -> str:
+    value = DEFAULTS[name]
+    if value is None:
+        return "models.TrainConfig's default"
+    return ",".join(map(str, value)) if isinstance(value, tuple) else str(value)
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    keep = argparse.SUPPRESS  # options not given stay out of args, so --config and DEFAULTS can fill them
     parser.add_argument("inputs", nargs="+", metavar="TRAJ", help="trajectory files or folders of them (read only)")
     parser.add_argument("--out", required=True, help="checkpoint folder to create (written when training completes)")
-    parser.add_argument("--layout", default=DEFAULT_PRESET, choices=PRESET_NAMES,
+    parser.add_argument("--config", metavar="JSON", default=None,
+                        help="JSON file of settings (option names with underscores); the command line wins")
+    parser.add_argument("--layout", default=keep, choices=PRESET_NAMES,
                         help="columns observed/queried/predicted: wine-glass = observe features+pose+gripper, query "
                              "features, predict pose+gripper (1288-d files); motion = pose+gripper only (8-d files or "
                              "the motion columns of 1288-d files); all = observe and predict every column "
-                             f"(default {DEFAULT_PRESET})")
+                             f"(default {_default('layout')})")
     m = parser.add_argument_group("model")
-    m.add_argument("--experts", type=int, default=2, help="number of experts; 1 is a CNMP (default 2)")
-    m.add_argument("--encoder-widths", type=_widths, default=(128, 128), help="encoder layer widths (default 128,128)")
-    m.add_argument("--expert-widths", type=_widths, default=(128, 128), help="expert layer widths (default 128,128)")
+    m.add_argument("--experts", type=int, default=keep,
+                   help=f"number of experts; 1 is a CNMP (default {_default('experts')})")
+    m.add_argument("--encoder-widths", type=_widths, default=keep,
+                   help=f"encoder layer widths (default {_default('encoder_widths')})")
+    m.add_argument("--expert-widths", type=_widths, default=keep,
+                   help=f"expert layer widths (default {_default('expert_widths')})")
     t = parser.add_argument_group("training")
     for name, (kind, text) in TRAIN_OPTIONS.items():
-        t.add_argument(f"--{name.replace('_', '-')}", type=kind, default=None, help=text)
-    t.add_argument("--patience", type=int, default=DEFAULT_PATIENCE,
+        t.add_argument(f"--{name.replace('_', '-')}", type=kind, default=keep,
+                       help=f"{text} (default {_default(name)})")
+    t.add_argument("--patience", type=int, default=keep,
                    help=f"validations without improvement before stopping early; 0 never stops early "
-                        f"(default {DEFAULT_PATIENCE})")
-    t.add_argument("--seed", type=int, default=0, help="seed of the initial weights, split and batches (default 0)")
-    t.add_argument("--val-fraction", type=float, default=DEFAULT_VAL_FRACTION,
-                   help=f"share of the demonstrations held out for validation (default {DEFAULT_VAL_FRACTION})")
-    t.add_argument("--save-every", type=int, default=DEFAULT_SAVE_EVERY,
-                   help=f"steps between resumable saves (default {DEFAULT_SAVE_EVERY})")
-    t.add_argument("--device", default=DEFAULT_DEVICE, choices=DEVICES, help=f"(default {DEFAULT_DEVICE})")
+                        f"(default {_default('patience')})")
+    t.add_argument("--seed", type=int, default=keep,
+                   help=f"seed of the initial weights, split and batches (default {_default('seed')})")
+    t.add_argument("--val-fraction", type=float, default=keep,
+                   help=f"share of the demonstrations held out for validation (default {_default('val_fraction')})")
+    t.add_argument("--save-every", type=int, default=keep,
+                   help=f"steps between resumable saves (default {_default('save_every')})")
+    t.add_argument("--device", default=keep, choices=DEVICES, help=f"(default {_default('device')})")
     t.add_argument("--resume", action="store_true", help="continue the interrupted run writing to --out")
     t.add_argument("--force", action="store_true", help="replace an existing --out folder when training completes")
+
+
+def settings(args: argparse.Namespace) -> dict:
+    """DEFAULTS, overridden by the --config file, overridden by the options given on the command line."""
+    from_file = read_settings(args.config) if args.config else {}
+    given = {name: getattr(args, name) for name in DEFAULTS if hasattr(args, name)}
+    return {**DEFAULTS, **from_file, **given}
+
+
+def read_settings(path: str) -> dict:
+    """The settings of a --config JSON file, checked against DEFAULTS' names and types."""
+    from pipeline.errors import PipelineError  # here, not at module level: it imports torch
+
+    try:
+        with open(path, encoding="utf-8") as f:
+            data = json.load(f)
+    except (OSError, json.JSONDecodeError) as exc:
+        raise PipelineError(f"{path}: cannot read the --config file ({exc})") from None
+    if not isinstance(data, dict):
+        raise PipelineError(f"{path}: a --config file holds one JSON object of settings, got {type(data).__name__}")
+    unknown = sorted(set(data) - set(DEFAULTS))
+    if unknown:
+        raise PipelineError(f"{path}: unknown setting(s) {', '.join(unknown)}; known: {', '.join(sorted(DEFAULTS))}")
+    return {name: _checked(path, name, value) for name, value in data.items()}
+
+
+def _checked(path: str, name: str, value):
+    from pipeline.errors import PipelineError
+
+    kind = TRAIN_OPTIONS[name][0] if name in TRAIN_OPTIONS else type(DEFAULTS[name])
+    if kind is tuple and isinstance(value, list) and all(isinstance(v, int) for v in value):
+        return tuple(value)
+    if kind is float and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    if isinstance(value, kind) and not (isinstance(value, bool) and kind is not bool):
+        return value
+    raise PipelineError(f"{path}: setting {name} must be {'a list of integers' if kind is tuple else kind.__name__}, "
+                        f"got {value!r}")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -64,19 +136,20 @@ def run(args: argparse.Namespace) -> int:
     from models import TrainConfig
     from pipeline.train import TrainStageConfig, train
 
-    given = {name: getattr(args, name) for name in TRAIN_OPTIONS if getattr(args, name) is not None}
-    training = TrainConfig(patience=args.patience or None, seed=args.seed, **given)
+    chosen = settings(args)
+    given = {name: chosen[name] for name in TRAIN_OPTIONS if chosen[name] is not None}
+    training = TrainConfig(patience=chosen["patience"] or None, seed=chosen["seed"], **given)
     config = TrainStageConfig(
         inputs=tuple(Path(p) for p in args.inputs),
         out=Path(args.out),
-        layout=args.layout,
-        n_experts=args.experts,
-        encoder_widths=args.encoder_widths,
-        expert_widths=args.expert_widths,
+        layout=chosen["layout"],
+        n_experts=chosen["experts"],
+        encoder_widths=chosen["encoder_widths"],
+        expert_widths=chosen["expert_widths"],
         training=training,
-        val_fraction=args.val_fraction,
-        save_every=args.save_every,
-        device=args.device,
+        val_fraction=chosen["val_fraction"],
+        save_every=chosen["save_every"],
+        device=chosen["device"],
         resume=args.resume,
         force=args.force,
         quiet=args.quiet,

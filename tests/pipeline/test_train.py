@@ -32,7 +32,8 @@ def write_set(folder: Path, features: bool = True, extractor: dict | None = None
     for k, steps in enumerate(LENGTHS):
         traj = trajectory_factory(steps, features=features, seed=k)
         if extractor is not None:
-            traj = Trajectory(episode=traj.episode, timestamps_ns=traj.timestamps_ns, data=traj.data, extractor=extractor)
+            traj = Trajectory(episode=traj.episode, timestamps_ns=traj.timestamps_ns, data=traj.data,
+                              extractor=extractor)
         paths.append(write_trajectory(folder / f"demo-{k}.mcap", traj))
     return paths
 
@@ -199,3 +200,28 @@ def test_rank_seeds_differ_and_rank_zero_keeps_the_seed():
 def test_unknown_device_is_refused(full_set, tmp_path):
     with pytest.raises(PipelineError, match="unknown device 'tpu'"):
         train(stage_config(full_set, tmp_path / "ckpt", device="tpu"))
+
+
+def test_settings_precedence_is_defaults_then_config_file_then_command_line(full_set, tmp_path):
+    settings = tmp_path / "settings.json"
+    settings.write_text(json.dumps({"steps": 10, "seed": 5, "layout": "motion", "encoder_widths": [8, 8],
+                                    "expert_widths": [8, 8], "lr": 0.002}))
+    out = tmp_path / "ckpt"
+    assert main(["-q", "train", *map(str, full_set), "--out", str(out), "--config", str(settings), "--seed", "7",
+                 "--val-every", "5"]) == 0
+    config = read_checkpoint_config(out)
+    training = config["training"]
+    assert (training["steps"], training["lr"], config["layout"]["name"]) == (10, 0.002, "motion")  # file
+    assert (training["seed"], training["val_every"]) == (7, 5)  # command line over file and defaults
+    assert training["patience"] == 10 and training["batch_size"] == TrainConfig().batch_size  # defaults
+    assert config["model"]["encoder_widths"] == [8, 8] and config["model"]["n_experts"] == 2
+
+
+def test_bad_config_file_is_one_clear_error(full_set, tmp_path, capsys):
+    settings = tmp_path / "settings.json"
+    settings.write_text(json.dumps({"steps": "many", "colour": "red"}))
+    assert main(["train", *map(str, full_set), "--out", str(tmp_path / "ckpt"), "--config", str(settings)]) == 2
+    assert "settings.json: unknown setting(s) colour" in capsys.readouterr().err
+    settings.write_text(json.dumps({"steps": "many"}))
+    assert main(["train", *map(str, full_set), "--out", str(tmp_path / "ckpt"), "--config", str(settings)]) == 2
+    assert "setting steps must be int, got 'many'" in capsys.readouterr().err
