@@ -94,9 +94,12 @@ def train(config: TrainStageConfig) -> Path:
     """Train a CNEP on the trajectory files of `config`; returns the checkpoint folder (config.out)."""
     procs, device = start_processes(config.device)
     try:
-        return _train(config, procs, device)
-    finally:
-        stop_processes(procs)
+        out = _train(config, procs, device)
+    except BaseException:
+        stop_processes(procs, wait=False)  # the other ranks may never reach a barrier
+        raise
+    stop_processes(procs, wait=True)
+    return out
 
 
 def _train(config: TrainStageConfig, procs: Processes, device: torch.device) -> Path:

@@ -60,10 +60,11 @@ def start_processes(device: str) -> tuple[Processes, torch.device]:
     return procs, torch.device(device, procs.local_rank) if device == "cuda" else torch.device("cpu")
 
 
-def stop_processes(procs: Processes) -> None:
-    """Leave the process group (after every rank got there)."""
+def stop_processes(procs: Processes, wait: bool) -> None:
+    """Leave the process group; with `wait`, only once every rank got there (rank 0 has written the checkpoint)."""
     if procs.distributed and dist.is_initialized():
-        dist.barrier()
+        if wait:
+            dist.barrier()
         dist.destroy_process_group()
 
 
