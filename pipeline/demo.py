@@ -1,0 +1,312 @@
+"""`cnep demo`: the whole pipeline on the built-in tabletop demonstrations, from nothing to a Rerun recording.
+
+Stages (each logs its progress; tqdm bars unless quiet), all under OUT:
+
+1. generate   `recorded/{train,heldout,scene_change}/demo_NNN.mcap`: the synthetic robot recorder
+              (pipeline.synthetic_demos), Foxglove-schema MCAP with camera, pose and gripper;
+2. ingest     `demos/...`: the ingest stage reads those robot MCAP files (Foxglove topics) into
+              demonstration files, strictly (CRCs, schemas, time order);
+3. extract    `trajectories/...`: MobileNet-v2 features with **seeded random weights** (ImageNet weights
+              cannot be downloaded here), calibrated on the training demonstrations only and saved to
+              `extractor.pt`, which then extracts the held-out and scene-change demonstrations;
+4. train      `checkpoints/cnep` (4 experts) and `checkpoints/cnmp` (1 expert, parameter-matched
+              widths) on the training trajectories (layout `wine-glass`), seeded;
+5. replay     `demo.rrd` (+ `demo.experts.json`): the held-out and the scene-change recordings through
+              the CNEP, step by step;
+6. summary    `summary.json`: per behaviour the expert that took it and how purely, the error of the
+              generated motion on held-out demonstrations (CNEP vs CNMP), the scene change's switches.
+
+The behaviour labels live in each file's episode metadata and are read only here, for the summary.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from collections import Counter
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from models import TrainConfig, load_checkpoint
+from models.checkpoint import atomic_write
+from pipeline.errors import PipelineError
+from pipeline.extract import ExtractConfig, extract
+from pipeline.ingest import IngestConfig, ingest
+from pipeline.replay import RowMapping, read_decisions, replay
+from pipeline.synthetic_demos import SPLITS, SWITCH_KEY, DemoSetConfig, generate
+from pipeline.train import TrainStageConfig, train
+from recordings import read_demonstration, read_trajectory
+from recordings.constants import BLOCK_GRIPPER
+
+log = logging.getLogger(__name__)
+
+CNEP_EXPERTS = 4  # one per behaviour of the scene
+CNMP_WIDTHS = (204, 204)  # about the parameters of the 4-expert CNEP (the authors' parameter-matched CNMP)
+TRAIN_THREADS = 1  # small batches: measured 53 ms/step on 1 thread vs 216 ms/step on 2 (2 busy cores)
+SUMMARY_FILE = "summary.json"
+RRD_FILE = "demo.rrd"
+PER_FILE_LOGGERS = ("pipeline.ingest", "pipeline.extract")
+
+
+@dataclass(frozen=True)
+class DemoSize:
+    """How much the demo generates and trains: demonstrations per behaviour, steps per episode, training steps."""
+
+    per_behaviour: int
+    heldout_per_behaviour: int
+    steps: int
+    train_steps: int
+    val_every: int
+
+
+FULL = DemoSize(per_behaviour=10, heldout_per_behaviour=3, steps=40, train_steps=1500, val_every=150)
+QUICK = DemoSize(per_behaviour=2, heldout_per_behaviour=1, steps=16, train_steps=60, val_every=20)
+
+
+@dataclass(frozen=True)
+class DemoConfig:
+    """out: folder for everything (created; must be empty or absent); quick: the small CI variant; seed: all draws."""
+
+    out: Path
+    quick: bool = False
+    seed: int = 0
+    quiet: bool = False
+
+    @property
+    def size(self) -> DemoSize:
+        return QUICK if self.quick else FULL
+
+
+@dataclass
+class DemoResult:
+    """What the demo made and measured (also written to OUT/summary.json)."""
+
+    out: Path
+    rrd: Path
+    checkpoints: dict[str, Path]
+    behaviours: dict[str, dict]  # behaviour -> {"n", "expert", "purity", "experts": {expert: count}}
+    heldout: dict[str, dict]  # model -> {"position_rmse_m", "gripper_mae_m", "behaviour_accuracy", "n"}
+    scene_change: list[dict]  # per scene-change recording: label, switch step, expert before/after, switches
+    seconds: dict[str, float] = field(default_factory=dict)  # stage -> wall time (s)
+
+
+def run_demo(config: DemoConfig) -> DemoResult:
+    """Run every stage into `config.out` (see the module docstring); returns what was made and measured."""
+    out, size = Path(config.out), config.size
+    if out.exists() and any(out.iterdir()):
+        raise PipelineError(f"{out}: the demo writes into a new folder and this one is not empty; give another --out "
+                            f"or remove it")
+    seconds: dict[str, float] = {}
+    with _per_file_logs_quiet():
+        result = _run_stages(config, out, size, seconds)
+    atomic_write(out / SUMMARY_FILE, json.dumps(_jsonable(asdict(result)), indent=1).encode())
+    return result
+
+
+@contextmanager
+def _per_file_logs_quiet():
+    """The stages log one line per file; in the demo their progress bars say enough (kept with -v)."""
+    loggers = [logging.getLogger(name) for name in PER_FILE_LOGGERS]
+    levels = [lg.level for lg in loggers]
+    for lg in loggers:
+        if lg.getEffectiveLevel() == logging.INFO:
+            lg.setLevel(logging.WARNING)
+    try:
+        yield
+    finally:
+        for lg, level in zip(loggers, levels):
+            lg.setLevel(level)
+
+
+def _run_stages(config: DemoConfig, out: Path, size: DemoSize, seconds: dict[str, float]) -> DemoResult:
+    def stage(name: str, number: int):
+        log.info("[%d/6] %s", number, name)
+        seconds[name] = time.perf_counter()
+
+    def done(name: str) -> None:
+        seconds[name] = round(time.perf_counter() - seconds[name], 2)
+        log.info("%s done in %.1f s", name, seconds[name])
+
+    stage("generate", 1)
+    made = generate(DemoSetConfig(out / "recorded", size.per_behaviour, size.heldout_per_behaviour, 1, size.steps,
+                                  seed=config.seed, quiet=config.quiet))
+    done("generate")
+
+    stage("ingest", 2)
+    ingest(IngestConfig(src=out / "recorded", out=out / "demos", quiet=config.quiet))
+    done("ingest")
+
+    stage("extract", 3)
+    weights = out / "extractor.pt"
+    common = {"seed": config.seed, "quiet": config.quiet}
+    extract(ExtractConfig(inputs=(out / "demos" / "train",), out=out / "trajectories" / "train", weights="random",
+                          save_weights=weights, **common))
+    for split in SPLITS[1:]:
+        extract(ExtractConfig(inputs=(out / "demos" / split,), out=out / "trajectories" / split, weights=str(weights),
+                              **common))
+    done("extract")
+
+    stage("train", 4)
+    training = TrainConfig(steps=size.train_steps, warmup_steps=size.train_steps // 10, val_every=size.val_every,
+                           seed=config.seed)
+    checkpoints = {"CNEP": out / "checkpoints" / "cnep", "CNMP": out / "checkpoints" / "cnmp"}
+    threads = torch.get_num_threads()
+    torch.set_num_threads(TRAIN_THREADS)
+    try:
+        for name, extra in (("CNEP", {"n_experts": CNEP_EXPERTS}),
+                            ("CNMP", {"n_experts": 1, "encoder_widths": CNMP_WIDTHS, "expert_widths": CNMP_WIDTHS})):
+            log.info("training the %s", name)
+            train(TrainStageConfig(inputs=(out / "trajectories" / "train",), out=checkpoints[name], training=training,
+                                   quiet=config.quiet, **extra))
+    finally:
+        torch.set_num_threads(threads)
+    done("train")
+
+    stage("replay", 5)
+    trajectories = {split: sorted((out / "trajectories" / split).glob("*.mcap")) for split in SPLITS}
+    rrd = replay(checkpoints["CNEP"], trajectories["heldout"] + trajectories["scene_change"], out / RRD_FILE,
+                 connect=None, quiet=config.quiet)
+    done("replay")
+
+    stage("summary", 6)
+    labels = {key(path): label for path, label in made.labels.items()}  # split/name is kept by every stage
+    switch_steps = {key(p): int(read_demonstration(p).episode.extra[SWITCH_KEY]) for p in made.files["scene_change"]}
+    result = DemoResult(
+        out=out, rrd=rrd, checkpoints=checkpoints,
+        behaviours=expert_purity(checkpoints["CNEP"], trajectories["train"] + trajectories["heldout"], labels),
+        heldout={name: heldout_errors(ckpt, trajectories["heldout"], trajectories["train"], labels)
+                 for name, ckpt in checkpoints.items()},
+        scene_change=scene_change_switches(rrd, trajectories["scene_change"], labels, switch_steps),
+        seconds=seconds)
+    done("summary")
+    return result
+
+
+def key(path: Path) -> str:
+    """`split/file name`: how a demonstration is recognised across the stages' folders."""
+    return f"{path.parent.name}/{path.name}"
+
+
+def _model_rows(checkpoint: Path, paths: list[Path]):
+    """The checkpoint's model and each file's (T, model width) rows."""
+    model = load_checkpoint(checkpoint)
+    mapping = RowMapping.from_checkpoint(checkpoint, model)
+    return model, mapping, [mapping.select(read_trajectory(p), p, checkpoint) for p in paths]
+
+
+def gate_of(model, rows: np.ndarray) -> np.ndarray:
+    """The gate (d,) of a model conditioned on every step of a demonstration (T, model width)."""
+    T = len(rows)
+    t = np.arange(T) / (T - 1)
+    obs = rows[:, model.obs_columns.numpy()]
+    query = rows[:1, model.query_columns.numpy()] if model.config.layout.query_dim else None
+    return model.generate(t, obs, t[:1], query).gate
+
+
+def expert_purity(checkpoint: Path, paths: list[Path], labels: dict[str, str]) -> dict[str, dict]:
+    """Per behaviour: the CNEP expert most of its demonstrations go to and the fraction that do (purity).
+
+    A demonstration goes to the expert with the highest gate probability when the model is conditioned
+    on all of its steps.
+    """
+    model, _, rows = _model_rows(checkpoint, paths)
+    chosen: dict[str, list[int]] = {}
+    for path, r in zip(paths, rows):
+        chosen.setdefault(labels[key(path)], []).append(int(gate_of(model, r).argmax()))
+    table = {}
+    for behaviour in sorted(chosen):
+        counts = Counter(chosen[behaviour])
+        expert, n = counts.most_common(1)[0]
+        table[behaviour] = {"n": len(chosen[behaviour]), "expert": expert, "purity": n / len(chosen[behaviour]),
+                            "experts": dict(sorted(counts.items()))}
+    return table
+
+
+def heldout_errors(checkpoint: Path, heldout: list[Path], train_paths: list[Path], labels: dict[str, str]) -> dict:
+    """Generated motion vs held-out demonstrations, conditioned on each one's first step (t = 0).
+
+    The queries carry the demonstration's own features at each step when the layout has query columns.
+    position_rmse_m: root mean squared xyz error (m) over all steps and demonstrations; gripper_mae_m:
+    mean absolute gripper error (m); behaviour_accuracy: the generated xyz path is nearest (mean
+    distance) to a training demonstration of the held-out demonstration's behaviour.
+    """
+    model, mapping, rows = _model_rows(checkpoint, heldout)
+    _, _, train_rows = _model_rows(checkpoint, train_paths)
+    xyz = mapping.predicted_xyz(model)
+    out_cols = model.out_columns.numpy()
+    g0, _ = mapping.blocks[BLOCK_GRIPPER]
+    gripper = list(out_cols).index(g0)
+    train_xyz = [r[:, out_cols][:, xyz] for r in train_rows]
+    train_labels = [labels[key(p)] for p in train_paths]
+    sq, grip, hits = [], [], []
+    for path, r in zip(heldout, rows):
+        T = len(r)
+        t = np.arange(T) / (T - 1)
+        query = r[:, model.query_columns.numpy()] if model.config.layout.query_dim else None
+        mean = model.generate(t[:1], r[:1, model.obs_columns.numpy()], t, query).mean  # (T, dy)
+        truth = r[:, out_cols]  # (T, dy)
+        sq.append(((mean[:, xyz] - truth[:, xyz]) ** 2).sum(-1))  # (T,)
+        grip.append(np.abs(mean[:, gripper] - truth[:, gripper]))
+        same_length = [(np.linalg.norm(d - mean[:, xyz], axis=-1).mean(), lab)
+                       for d, lab in zip(train_xyz, train_labels) if len(d) == T]
+        hits.append(min(same_length)[1] == labels[key(path)])
+    return {"n": len(heldout), "position_rmse_m": float(np.sqrt(np.concatenate(sq).mean())),
+            "gripper_mae_m": float(np.concatenate(grip).mean()), "behaviour_accuracy": float(np.mean(hits))}
+
+
+def scene_change_switches(rrd: Path, paths: list[Path], labels: dict[str, str],
+                          switch_steps: dict[str, int]) -> list[dict]:
+    """For each scene-change recording: the replay's active expert before and after the change, and its switches."""
+    records = {key(Path(r["recording"])): r for r in read_decisions(rrd)["recordings"]}
+    found = []
+    for path in paths:
+        record, switch = records[key(path)], switch_steps[key(path)]
+        experts = np.asarray(record["experts"])
+        before = Counter(experts[:switch].tolist()).most_common(1)[0][0]
+        after = Counter(experts[switch:].tolist()).most_common(1)[0][0]
+        found.append({"recording": path.name, "behaviour": labels[key(path)], "change_step": switch,
+                      "expert_before": before, "expert_after": after,
+                      "switches": [(s["step"], s["from"], s["to"]) for s in record["switches"]]})
+    return found
+
+
+def format_summary(result: DemoResult) -> str:
+    """The printed summary: behaviours -> experts, held-out errors, the scene change, the files, the times."""
+    lines = ["behaviour      demos  expert  purity  (demonstrations per expert)"]
+    for name, row in result.behaviours.items():
+        spread = ", ".join(f"{e}: {n}" for e, n in row["experts"].items())
+        lines.append(f"{name:<14} {row['n']:>5}  {row['expert']:>6}  {row['purity']:>6.2f}  ({spread})")
+    lines.append("")
+    lines.append("held-out demonstrations, conditioned on the first step (t = 0):")
+    lines.append("model  position RMSE (cm)  gripper MAE (mm)  nearest-demo behaviour accuracy")
+    for name, row in result.heldout.items():
+        lines.append(f"{name:<6} {100 * row['position_rmse_m']:>18.2f}  {1000 * row['gripper_mae_m']:>16.2f}  "
+                     f"{row['behaviour_accuracy']:>10.2f} (n = {row['n']})")
+    lines.append("")
+    for change in result.scene_change:
+        moves = ", ".join(f"step {s}: {a} -> {b}" for s, a, b in change["switches"]) or "none"
+        lines.append(f"scene change {change['behaviour']} at step {change['change_step']}: expert "
+                     f"{change['expert_before']} before, {change['expert_after']} after; switches: {moves}")
+    lines.append("")
+    lines.append(f"Rerun recording: {result.rrd}  (open it with `rerun {result.rrd}`)")
+    lines.append(f"checkpoints: {', '.join(str(p) for p in result.checkpoints.values())}")
+    lines.append(f"summary: {result.out / SUMMARY_FILE}")
+    lines.append("stage times (s): " + ", ".join(f"{k} {v:.1f}" for k, v in result.seconds.items()))
+    return "\n".join(lines)
+
+
+def _jsonable(value):
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, Path):
+        return str(value)
+    if isinstance(value, np.generic):
+        return value.item()
+    return value

@@ -1,0 +1,128 @@
+"""`cnep demo --quick` end to end: every stage's files, the summary, and what the .rrd holds."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from models import read_checkpoint_config
+from pipeline import rerun_layout as L
+from pipeline.cli import main
+from pipeline.demo import QUICK, RRD_FILE, SUMMARY_FILE
+from pipeline.errors import PipelineError
+from pipeline.replay import read_decisions
+from pipeline.scene import BEHAVIOURS
+from recordings import read_demonstration, read_trajectory
+from recordings.constants import STEP_DIM
+
+N_TRAIN = QUICK.per_behaviour * len(BEHAVIOURS)
+N_HELDOUT = QUICK.heldout_per_behaviour * len(BEHAVIOURS)
+
+
+@pytest.fixture(scope="module")
+def demo_run(tmp_path_factory):
+    """One quick demo through the CLI (rerun's CLI is used to merge recordings: CI=1, a temporary HOME)."""
+    mp = pytest.MonkeyPatch()
+    home = tmp_path_factory.mktemp("home")
+    mp.setenv("HOME", str(home))
+    mp.setenv("CI", "1")
+    out = tmp_path_factory.mktemp("demo") / "run"
+    try:
+        import torch
+
+        threads = torch.get_num_threads()
+        code = main(["-q", "demo", "--out", str(out), "--quick"])
+        torch.set_num_threads(threads)
+    finally:
+        mp.undo()
+    assert code == 0
+    return out
+
+
+def _rrd_recordings(path: Path) -> list[dict]:
+    """Per Rerun recording in the file: its camera JPEG bytes and gate rows (sorted by frame)."""
+    from rerun.chunk import RrdReader
+
+    reader = RrdReader(path)
+    found = []
+    for store in reader.recordings():
+        rows = {L.CAMERA: [], L.GATES: []}
+        names = None
+        for chunk in reader.stream(store=store).to_chunks():
+            if chunk.entity_path not in rows:
+                continue
+            batch = chunk.to_record_batch()
+            if chunk.is_static:
+                names = batch.column("SeriesLines:names").to_pylist() if chunk.entity_path == L.GATES else names
+                continue
+            column = "EncodedImage:blob" if chunk.entity_path == L.CAMERA else "Scalars:scalars"
+            rows[chunk.entity_path] += zip(batch.column(L.TIMELINE_FRAME).to_pylist(), batch.column(column).to_pylist())
+        found.append({"frames": [bytes(v[0]) for _, v in sorted(rows[L.CAMERA])],
+                      "gates": np.array([v for _, v in sorted(rows[L.GATES])]), "names": names})
+    return found
+
+
+def test_every_stage_leaves_its_files(demo_run):
+    for stage in ("recorded", "demos", "trajectories"):
+        counts = {split: len(list((demo_run / stage / split).glob("*.mcap"))) for split in ("train", "heldout",
+                                                                                           "scene_change")}
+        assert counts == {"train": N_TRAIN, "heldout": N_HELDOUT, "scene_change": 1}, stage
+    recorded = read_demonstration(demo_run / "recorded" / "train" / "demo_000.mcap")
+    ingested = read_demonstration(demo_run / "demos" / "train" / "demo_000.mcap")
+    assert ingested.frames == recorded.frames  # JPEG kept byte for byte by ingest
+    np.testing.assert_allclose(ingested.pose, recorded.pose)
+    traj = read_trajectory(demo_run / "trajectories" / "heldout" / "demo_000.mcap")
+    assert traj.width == STEP_DIM and traj.n_steps == QUICK.steps
+    assert traj.extractor["weights"].startswith("path:extractor.pt")  # held-out files reuse the saved extractor
+    assert (demo_run / "extractor.pt").is_file()
+    assert read_checkpoint_config(demo_run / "checkpoints" / "cnep")["model"]["n_experts"] == 4
+    assert read_checkpoint_config(demo_run / "checkpoints" / "cnmp")["model"]["n_experts"] == 1
+
+
+def test_no_behaviour_label_reaches_training(demo_run):
+    """The label is metadata of the recorder's files only: the ingested files and the checkpoints never carry it."""
+    assert "behaviour" in read_demonstration(demo_run / "recorded" / "train" / "demo_000.mcap").episode.extra
+    assert "behaviour" not in read_demonstration(demo_run / "demos" / "train" / "demo_000.mcap").episode.extra
+    text = (demo_run / "checkpoints" / "cnep" / "config.json").read_text()
+    assert not any(name in text for name in BEHAVIOURS)
+
+
+def test_summary_covers_behaviours_models_and_the_scene_change(demo_run):
+    summary = json.loads((demo_run / SUMMARY_FILE).read_text())
+    assert sorted(summary["behaviours"]) == sorted(BEHAVIOURS)
+    for row in summary["behaviours"].values():
+        assert row["n"] == QUICK.per_behaviour + QUICK.heldout_per_behaviour
+        assert row["purity"] == max(row["experts"].values()) / row["n"]
+        assert 0 <= row["expert"] < 4
+    for model in ("CNEP", "CNMP"):
+        row = summary["heldout"][model]
+        assert row["n"] == N_HELDOUT and 0 < row["position_rmse_m"] < 1.0 and 0 <= row["behaviour_accuracy"] <= 1
+    (change,) = summary["scene_change"]
+    assert "->" in change["behaviour"] and 0 < change["change_step"] < QUICK.steps
+    assert set(summary["seconds"]) == {"generate", "ingest", "extract", "train", "replay", "summary"}
+
+
+def test_the_rrd_holds_each_replayed_recording(demo_run):
+    recordings = _rrd_recordings(demo_run / RRD_FILE)
+    replayed = sorted((demo_run / "trajectories" / "heldout").glob("*.mcap")) + \
+        [demo_run / "trajectories" / "scene_change" / "demo_000.mcap"]
+    assert len(recordings) == len(replayed)
+    decisions = {Path(r["recording"]).parent.name + "/" + Path(r["recording"]).name: r
+                 for r in read_decisions(demo_run / RRD_FILE)["recordings"]}
+    for path in replayed:
+        frames = read_trajectory(path).frames
+        (rec,) = [r for r in recordings if r["frames"] == frames]  # the stored JPEG bytes, one recording each
+        assert rec["gates"].shape == (QUICK.steps, 4)
+        np.testing.assert_allclose(rec["gates"].sum(1), 1.0, atol=1e-5)
+        assert rec["names"] == [[f"expert {e}" for e in range(4)]]
+        experts = decisions[f"{path.parent.name}/{path.name}"]["experts"]
+        assert experts == rec["gates"].argmax(1).tolist()
+
+
+def test_a_used_output_folder_is_refused(tmp_path):
+    (tmp_path / "something").write_text("x")
+    from pipeline.demo import DemoConfig, run_demo
+
+    with pytest.raises(PipelineError, match="not empty"):
+        run_demo(DemoConfig(out=tmp_path, quick=True, quiet=True))
