@@ -100,8 +100,9 @@ class Trainer:
         self.optimizer.zero_grad(set_to_none=False)
         loss.backward()
         if self.step < self.freeze_steps:  # Adam moments stay 0, so the gate does not move
-            self.model.gate.weight.grad.zero_()
-            self.model.gate.bias.grad.zero_()
+            for p in self.model.gate.parameters():
+                if p.grad is not None:
+                    p.grad.zero_()
         torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.cfg.grad_clip)
         self.optimizer.step()
         self.step += 1

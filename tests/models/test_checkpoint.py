@@ -52,3 +52,15 @@ def test_weights_that_do_not_match_the_config_are_refused(model, tmp_path):
     (tmp_path / "ckpt" / WEIGHTS_FILE).write_bytes(b"not safetensors")
     with pytest.raises(ConfigError, match="cannot read the weights"):
         load_checkpoint(tmp_path / "ckpt")
+
+
+def test_checkpoint_files_are_readable_by_others_as_the_umask_allows(model, tmp_path):
+    import os
+    import stat
+
+    save_checkpoint(model, tmp_path / "ckpt")
+    mask = os.umask(0o022)
+    os.umask(mask)
+    for name in (CONFIG_FILE, WEIGHTS_FILE):
+        mode = stat.S_IMODE((tmp_path / "ckpt" / name).stat().st_mode)
+        assert mode == 0o666 & ~mask
