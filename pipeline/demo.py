@@ -281,6 +281,9 @@ def format_summary(result: DemoResult) -> str:
     for name, row in result.behaviours.items():
         spread = ", ".join(f"{e}: {n}" for e, n in row["experts"].items())
         lines.append(f"{name:<14} {row['n']:>5}  {row['expert']:>6}  {row['purity']:>6.2f}  ({spread})")
+    majority = {row["expert"] for row in result.behaviours.values()}
+    lines.append(f"{len(result.behaviours)} behaviours -> {len(majority)} distinct majority expert(s) "
+                 f"(purity alone is 1.0 when every demonstration goes to one expert)")
     lines.append("")
     lines.append("held-out demonstrations, conditioned on the first step (t = 0):")
     lines.append("model  position RMSE (cm)  gripper MAE (mm)  nearest-demo behaviour accuracy")

@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import argparse
 
+DEFAULT_OUT = "cnep-demo"
 HELP = ("run the whole pipeline on built-in synthetic tabletop demonstrations: generate, ingest, extract, train "
         "CNEP and CNMP, replay to Rerun, print which expert took which behaviour")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--out", default="cnep-demo", help="new or empty folder for everything (default: cnep-demo)")
+    parser.add_argument("--out", default=None, help=f"new or empty folder for everything (default: the first of "
+                        f"{DEFAULT_OUT}, {DEFAULT_OUT}-2, ... that is new or empty)")
     parser.add_argument("--quick", action="store_true", help="a small, fast variant (for CI): fewer demonstrations, "
                         "shorter episodes, a few training steps")
     parser.add_argument("--seed", type=int, default=0, help="seed of every random draw (default 0)")
@@ -22,7 +24,17 @@ def run(args: argparse.Namespace) -> int:
     from pipeline.demo import DemoConfig, format_summary, run_demo
 
     start = time.perf_counter()
-    result = run_demo(DemoConfig(out=Path(args.out), quick=args.quick, seed=args.seed, quiet=args.quiet))
+    out = Path(args.out) if args.out is not None else free_folder(Path(DEFAULT_OUT))
+    result = run_demo(DemoConfig(out=out, quick=args.quick, seed=args.seed, quiet=args.quiet))
     print(format_summary(result))
     print(f"cnep demo: done in {time.perf_counter() - start:.1f} s")
     return 0
+
+
+def free_folder(base):
+    """`base`, or `base-2`, `base-3`, ...: the first that does not exist or is empty (a new run never mixes with an old one)."""
+    from itertools import chain, count
+
+    for candidate in chain([base], (base.with_name(f"{base.name}-{k}") for k in count(2))):
+        if not candidate.exists() or not any(candidate.iterdir()):
+            return candidate

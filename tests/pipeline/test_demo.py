@@ -126,3 +126,14 @@ def test_a_used_output_folder_is_refused(tmp_path):
 
     with pytest.raises(PipelineError, match="not empty"):
         run_demo(DemoConfig(out=tmp_path, quick=True, quiet=True))
+
+
+def test_the_default_output_folder_never_mixes_runs(tmp_path):
+    from pipeline.commands.demo import free_folder
+
+    base = tmp_path / "cnep-demo"
+    assert free_folder(base) == base
+    base.mkdir()
+    assert free_folder(base) == base  # empty: usable
+    (base / "summary.json").write_text("{}")
+    assert free_folder(base) == tmp_path / "cnep-demo-2"
