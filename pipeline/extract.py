@@ -75,7 +75,8 @@ def extract(config: ExtractConfig) -> list[Extracted]:
     without frames or outputs already up to date with fixed weights cost no network.
     """
     pairs = plan_outputs(config.inputs, config.out)
-    config.out.mkdir(parents=True, exist_ok=True)
+    for _, dst in pairs:  # nested input folders keep their sub-folders under --out
+        dst.parent.mkdir(parents=True, exist_ok=True)
     built: list[FeatureExtractor] = []
 
     def extractor() -> FeatureExtractor:

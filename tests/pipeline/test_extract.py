@@ -160,3 +160,12 @@ def test_cli_without_imagenet_weights_is_a_one_line_error(demos, tmp_path, monke
     assert main(["-q", "extract", str(demos[0]), "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("cnep extract: error: ImageNet weights for MobileNet-v2 not found") and "\n" not in err
+
+
+def test_nested_input_folders_are_extracted_into_matching_sub_folders(tmp_path):
+    nested = tmp_path / "in" / "day1"
+    nested.mkdir(parents=True)
+    write_demonstration(nested / "a.mcap", demonstration_factory(4, frames=False))
+    done = extract(_config([tmp_path / "in"], tmp_path / "out", weights="imagenet"))  # motion-only: no weights
+    assert done[0].output == tmp_path / "out" / "day1" / "a.mcap"
+    assert read_trajectory(done[0].output).n_steps == 4
