@@ -1,11 +1,6 @@
 import pytest
-import torch
 
 
 @pytest.fixture(autouse=True)
-def one_thread():
-    """The models here are tiny: one thread is faster and leaves the other core to the rest."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
+def _one_thread_for_every_model_test(one_thread):
     yield
-    torch.set_num_threads(before)

@@ -26,14 +26,7 @@ def _around(side: float, start_x: float, n: int = 60) -> np.ndarray:
     return np.stack([x, y], axis=1)
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    import torch
-
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 @pytest.fixture
