@@ -18,8 +18,9 @@ from pipeline.training_layouts import resolve_layout
 from pipeline.training_parallel import rank_seed
 from pipeline.training_state import work_dir
 from recordings import Trajectory, read_trajectory, write_trajectory
-from tests.models.conftest import one_thread  # noqa: F401 (autouse fixture: tiny models run on one thread)
 from tests.recordings.factories import trajectory_factory
+
+pytestmark = pytest.mark.usefixtures("one_thread")  # tiny models run on one thread
 
 LENGTHS = (20, 27, 33, 40, 24)  # demonstrations of different lengths
 TINY = {"encoder_widths": (16, 16), "expert_widths": (16, 16), "time_frequencies": 2}

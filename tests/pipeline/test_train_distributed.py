@@ -11,8 +11,9 @@ from safetensors.torch import load_file
 from models import load_checkpoint, read_checkpoint_config
 from pipeline.cli import main
 from recordings import read_trajectory
-from tests.models.conftest import one_thread  # noqa: F401 (autouse fixture: tiny models run on one thread)
 from tests.pipeline.test_train import write_set
+
+pytestmark = pytest.mark.usefixtures("one_thread")  # tiny models run on one thread
 
 ARGS = ["--steps", "20", "--val-every", "10", "--warmup-steps", "5", "--batch-size", "8", "--encoder-widths", "16,16",
         "--expert-widths", "16,16", "--save-every", "10", "--seed", "3"]
