@@ -82,9 +82,12 @@ class EvaluateConfig:
     def n_seeds(self) -> int:
         return self.seeds or (QUICK_SEEDS if self.quick else SEEDS)
 
-    @property
-    def n_steps(self) -> int:
-        return self.steps or (QUICK_STEPS if self.quick else STEPS)
+    def n_steps(self, set_name: str) -> int:
+        return self.steps or (QUICK_STEPS if self.quick else STEPS[set_name])
+
+    def steps_by_set(self) -> dict[str, int]:
+        sets = dict.fromkeys(s for table in self.tables for s in self.table_sets(table))
+        return {s: self.n_steps(s) for s in sets}
 
     @property
     def n_queries(self) -> int:
@@ -127,7 +130,7 @@ def plan(config: EvaluateConfig) -> list[Job]:
         for set_name in config.table_sets(table):
             for seed in range(config.n_seeds):
                 for row in table_rows(table, set_name):
-                    job = Job(set_name, seed, row.spec, config.n_steps, config.n_queries,
+                    job = Job(set_name, seed, row.spec, config.n_steps(set_name), config.n_queries,
                               cnmp_matches=CNEP_EXPERTS[set_name])
                     jobs.setdefault(job.key, (rank, job))
     cost = {job: (rank, 0 if job.spec is None else -job.spec.n_experts) for rank, job in jobs.values()}
@@ -212,7 +215,7 @@ def assemble(table: str, config: EvaluateConfig, done: dict[tuple, dict]) -> dic
         "table": table,
         "sets": list(sets),
         "rows": labels,
-        "settings": {"seeds": config.n_seeds, "steps": config.n_steps, "queries": config.n_queries,
+        "settings": {"seeds": config.n_seeds, "steps": {s: config.n_steps(s) for s in sets}, "queries": config.n_queries,
                      "quick": config.quick, "jobs": config.jobs},
         "results": results,
         "training": training,
@@ -231,8 +234,8 @@ def evaluate(config: EvaluateConfig) -> dict[str, Path]:
     """
     start = time.perf_counter()
     jobs = plan(config)
-    log.info("evaluate: %d fits (%s), %d steps, %d seed(s), %d queries per protocol, %d worker(s)",
-             len(jobs), ", ".join(config.tables), config.n_steps, config.n_seeds, config.n_queries, config.jobs)
+    log.info("evaluate: %d fits (%s), steps %s, %d seed(s), %d queries per protocol, %d worker(s)",
+             len(jobs), ", ".join(config.tables), config.steps_by_set(), config.n_seeds, config.n_queries, config.jobs)
     config.out.mkdir(parents=True, exist_ok=True)
     pending = {table: needs(table, config) for table in config.tables}
     done: dict[tuple, dict] = {}  # Job.key -> results

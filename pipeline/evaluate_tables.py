@@ -82,7 +82,8 @@ def to_markdown(data: dict) -> str:
     lines = [
         f"# {TITLES[data['table']]}",
         "",
-        f"{s['seeds']} seed(s) x {s['queries']} queries per protocol and set; {s['steps']} training steps per network"
+        f"{s['seeds']} seed(s) x {s['queries']} queries per protocol and set; training steps per network: "
+        f"{', '.join(f'{SET_TITLES[k]} {v}' for k, v in s['steps'].items())}"
         f"{' (--quick)' if s['quick'] else ''}; written {data['wall_seconds']:.0f} s after the run started "
         f"({s['jobs']} worker process(es)).",
         "Cells: MSE and MAE as mean ± std over all queries of all seeds; mode accuracy (the generated trajectory is "

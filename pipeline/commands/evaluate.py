@@ -15,7 +15,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quick", action="store_true",
                         help="a few minutes: fewer training steps, one seed, the bimodal and 4-mode sets, 20 queries")
     parser.add_argument("--seeds", type=int, default=None, help="seeds per cell (default 1; the full run of docs/evaluation.md uses 2)")
-    parser.add_argument("--steps", type=int, default=None, help="training steps per network (default 4000; 1500 with --quick)")
+    parser.add_argument("--steps", type=int, default=None, help="training steps per network on every set (default: 4000 on the unimodal and bimodal sets, 10000 on 4 and 6 modes; 1500 with --quick)")
     parser.add_argument("--queries", type=int, default=None, help="queries per protocol and set (default 50; 20 with --quick)")
     parser.add_argument("--out", default="cnep-evaluation", help="folder for the Markdown, JSON and PNG outputs")
     parser.add_argument("--jobs", type=int, default=2, help="worker processes, one thread each (0: this process only)")

@@ -10,7 +10,7 @@ import models.baselines.gmm as gmm_module
 from models import CNEP, CNEPConfig
 from pipeline.cli import main
 from pipeline.evaluate import EvaluateConfig, evaluate, plan, pooled, table_rows
-from pipeline.evaluate_constants import PAPER, TABLES
+from pipeline.evaluate_constants import PAPER, QUICK_STEPS, TABLES
 from pipeline.evaluate_jobs import ModelSpec, matched_width
 
 
@@ -23,6 +23,13 @@ def test_plan_trains_each_shared_network_once():
     # 3 ablation variants, CNEP-4 and CNEP-8
     assert sum(j.set_name == "bimodal" for j in jobs) == 2 * 8
     assert {j.set_name for j in jobs} == {"bimodal", "multimodal"}
+
+
+def test_steps_per_set_unless_given():
+    by_set = {j.set_name: j.steps for j in plan(EvaluateConfig(tables=("comparison",)))}
+    assert by_set["bimodal"] < by_set["multimodal"] == by_set["multimodal6"]
+    assert {j.steps for j in plan(EvaluateConfig(tables=("comparison",), steps=123))} == {123}
+    assert {j.steps for j in plan(EvaluateConfig(tables=("comparison",), quick=True))} == {QUICK_STEPS}
 
 
 def test_rows_of_each_table():
