@@ -3,8 +3,10 @@
 Each demonstration is one sample of dimension T * dy. With fewer demonstrations per component than
 dimensions the EM covariances are singular; `ridge` adds `ridge * range**2 * I` to every covariance
 after each M-step (EM with a covariance floor, like scikit-learn's `reg_covar`), where `range` is the
-peak-to-peak range of the training data. `ridge=0` is the library's plain EM (what the authors ran);
-it can return non-finite outputs, which the evaluation counts as failures.
+peak-to-peak range of the training data. `ridge=0` is the library's plain EM (what the authors ran).
+Plain EM often leaves empty components (prior ~1e-17, mean 0, covariance 0); when the library's
+conditional puts weight on them, its prediction is 0 at every unobserved step. Such outputs, and
+non-finite ones, are returned as NaN, which the evaluation counts as failures.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from models.baselines.base import check_demos, require, resample
 RIDGE = 1e-3  # default covariance ridge, as a fraction of the squared data range
 EM_ITERATIONS = 100
 EM_TOLERANCE = 1e-6  # stop when the means move less than this (relative to the data range)
+EMPTY = 1e-12  # a component with a smaller prior holds no demonstration (plain EM leaves ~1e-17)
 
 
 class GMMGMR:
@@ -50,6 +53,9 @@ class GMMGMR:
         steps, first = np.unique(steps, return_index=True)  # a step observed twice is conditioned once
         indices = (steps[:, None] * self.dy + np.arange(self.dy)).ravel()  # (n*dy,)
         known = obs_y[first].ravel()  # (n*dy,)
+        empty = self.gmm.priors < EMPTY
+        if empty.any() and (self.gmm.condition(indices, known).priors[empty] > 0).any():
+            return np.full((len(query_t), self.dy), np.nan)  # the conditional picked empty components
         rest = self.gmm.predict(indices, known[None])[0]  # (T*dy - n*dy,)
         full = np.empty(self.T * self.dy)
         full[indices] = known

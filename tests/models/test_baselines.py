@@ -74,3 +74,18 @@ def test_missing_library_names_the_extra(monkeypatch):
 def test_bad_demonstrations_are_refused():
     with pytest.raises(ConfigError, match=r"\(N, T, dy\)"):
         NearestDemo().fit(np.zeros((4, 10)))
+
+
+def test_gmm_without_ridge_flags_conditionals_on_empty_components():
+    """Plain EM can leave components with prior ~1e-17, mean 0 and covariance 0 (13 of 20 on the bimodal
+    set); the library's conditional then weights them and predicts 0 at unobserved steps."""
+    demos, _ = two_modes()
+    method = GMMGMR(n_components=2, ridge=0.0, seed=0).fit(demos)
+    t = np.arange(demos.shape[1]) / (demos.shape[1] - 1)
+    assert np.isfinite(method.generate(t[[10, 39]], demos[0, [10, 39]], t)).all()
+    gmm, D = method.gmm, demos.shape[1]
+    gmm.priors = np.append(gmm.priors, 1.7e-17)
+    gmm.means = np.vstack([gmm.means, np.zeros(D)])
+    gmm.covariances = np.concatenate([gmm.covariances, np.zeros((1, D, D))])
+    gmm.n_components += 1
+    assert np.isnan(method.generate(t[[10, 39]], demos[0, [10, 39]], t)).all()
