@@ -122,7 +122,7 @@ class CNEPConfig:
 
 @dataclass(frozen=True)
 class TrainConfig:
-    """How `fit` trains. Steps and widths follow the spec's CPU recipe (see docs/training.md)."""
+    """How `fit` trains. Steps and widths follow the spec's CPU recipe (see docs/model.md)."""
 
     steps: int = 10_000
     batch_size: int = 32
@@ -131,6 +131,7 @@ class TrainConfig:
     lr: float = 1e-3
     warmup_steps: int = 2_000
     gate_freeze_fraction: float = 0.3  # the gate stays uniform for this fraction of the steps
+    gate_lr_scale: float = 1.0  # the gate's learning rate is this fraction of `lr` (after the freeze)
     grad_clip: float = 10.0
     val_every: int = 500
     patience: int | None = None  # validations without improvement before stopping early
@@ -142,6 +143,8 @@ class TrainConfig:
                 raise ConfigError(f"TrainConfig.{name} must be >= 1, got {getattr(self, name)}.")
         if not 0 <= self.gate_freeze_fraction < 1:
             raise ConfigError(f"gate_freeze_fraction must be in [0, 1), got {self.gate_freeze_fraction}.")
+        if not self.gate_lr_scale > 0:
+            raise ConfigError(f"gate_lr_scale must be > 0 (use gate_freeze_fraction to hold the gate), got {self.gate_lr_scale}.")
         if not self.lr > 0 or self.warmup_steps < 0:
             raise ConfigError(f"lr must be > 0 and warmup_steps >= 0, got {self.lr} and {self.warmup_steps}.")
 

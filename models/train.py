@@ -1,9 +1,9 @@
 """Training CNEP on a list of trajectories: seeded, vectorised batches, best-model keeping.
 
-The optimiser recipe for a CPU budget of minutes (measured, see docs/training.md): Adam, a linear
+The optimiser recipe for a CPU budget of minutes (measured, see docs/model.md): Adam, a linear
 learning-rate warm-up then cosine decay, and the gate held uniform (zero-initialised, not updated) for
 the first `gate_freeze_fraction` of the steps, so that the experts learn to reconstruct before the
-gate starts to commit.
+gate starts to commit, and then learning at `gate_lr_scale` times the learning rate.
 """
 
 from __future__ import annotations
@@ -83,7 +83,10 @@ class Trainer:
     history: list[dict] = field(default_factory=list)
 
     def __post_init__(self) -> None:
-        self.optimizer = torch.optim.Adam(self.model.parameters(), lr=self.cfg.lr, foreach=True)
+        gate = {id(p) for p in self.model.gate.parameters()}
+        groups = [{"params": [p for p in self.model.parameters() if id(p) not in gate], "lr_scale": 1.0},
+                  {"params": list(self.model.gate.parameters()), "lr_scale": self.cfg.gate_lr_scale}]
+        self.optimizer = torch.optim.Adam(groups, lr=self.cfg.lr, foreach=True)
         self.generator = torch.Generator().manual_seed(self.cfg.seed)
         val_gen = torch.Generator().manual_seed(self.cfg.seed + 1)
         self.val_batches = [
@@ -94,7 +97,7 @@ class Trainer:
     def train_step(self) -> dict[str, float]:
         batch = sample_batch(self.train, self.cfg.batch_size, self.cfg.n_max, self.cfg.m_max, self.generator)
         for group in self.optimizer.param_groups:
-            group["lr"] = self.cfg.lr * lr_factor(self.step, self.cfg)
+            group["lr"] = self.cfg.lr * lr_factor(self.step, self.cfg) * group["lr_scale"]
         mean, std, gate = self.model(batch.obs, batch.obs_mask, batch.query)
         loss, terms = cnep_loss(mean, std, gate, batch.target, batch.target_mask, self.model.config)
         self.optimizer.zero_grad(set_to_none=False)

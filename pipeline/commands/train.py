@@ -25,6 +25,7 @@ TRAIN_OPTIONS = {
     "n_max": (int, "most observations per sample"),
     "m_max": (int, "most targets per sample"),
     "gate_freeze_fraction": (float, "share of the steps with the gate held uniform"),
+    "gate_lr_scale": (float, "the gate's learning rate as a fraction of --lr"),
 }
 
 DEFAULTS = {

@@ -42,6 +42,19 @@ def test_gate_stays_uniform_while_frozen_and_moves_after():
     assert torch.count_nonzero(model.gate.weight) > 0
 
 
+@pytest.mark.parametrize("scale", [1.0, 0.25])
+def test_gate_learns_at_its_share_of_the_learning_rate(scale):
+    """Adam's first step moves every parameter with a gradient by about lr: the gate by lr * gate_lr_scale."""
+    trajs, _ = two_mode_trajectories()
+    cfg = TrainConfig(steps=10, warmup_steps=0, gate_freeze_fraction=0.0, gate_lr_scale=scale, lr=1e-3, batch_size=16)
+    model = build_model(CNEPConfig(**SMALL), trajs, seed=0)
+    before = {name: p.detach().clone() for name, p in model.named_parameters()}
+    Trainer(model, TrajectoryStack(trajs, model), TrajectoryStack(trajs[:4], model), cfg).train_step()
+    moved = {name: float((p.detach() - before[name]).abs().max()) for name, p in model.named_parameters()}
+    assert moved["gate.weight"] == pytest.approx(1e-3 * scale, rel=1e-3)
+    assert max(v for name, v in moved.items() if not name.startswith("gate.")) == pytest.approx(1e-3, rel=1e-3)
+
+
 def test_learning_rate_warms_up_then_decays():
     cfg = TrainConfig(steps=1000, warmup_steps=100)
     assert lr_factor(0, cfg) == pytest.approx(0.01)
