@@ -75,6 +75,10 @@ class EvaluateConfig:
             value = getattr(self, name)
             if value is not None and value < 1:
                 raise PipelineError(f"--{name} must be >= 1, got {value}")
+        empty = [t for t in self.tables if not self.table_sets(t)]
+        if empty:
+            raise PipelineError(f"no data set left for the {', '.join(empty)} table(s): it covers "
+                                f"{', '.join(TABLE_SETS[empty[0]])}, the run asked for {', '.join(self.sets or QUICK_SETS)}")
         if self.jobs < 0:
             raise PipelineError(f"--jobs must be >= 0 (0: no worker processes), got {self.jobs}")
 

@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import argparse
 
+from pipeline.evaluate_constants import SET_TITLES
+
 HELP = "reproduce the paper's tables (CNEP vs CNMP, ProMP, GMM-GMR, nearest demo) on its synthetic sets"
 
 TABLE_CHOICES = ("comparison", "ablation", "experts", "all")
+SET_CHOICES = tuple(SET_TITLES)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -16,6 +19,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="a few minutes: fewer training steps, one seed, the bimodal and 4-mode sets, 20 queries")
     parser.add_argument("--seeds", type=int, default=None, help="seeds per cell (default 1; the full run of docs/evaluation.md uses 2)")
     parser.add_argument("--steps", type=int, default=None, help="training steps per network on every set (default: 4000 on the unimodal and bimodal sets, 10000 on 4 and 6 modes; 1500 with --quick)")
+    parser.add_argument("--sets", nargs="+", choices=SET_CHOICES, default=None, metavar="SET",
+                        help=f"only these data sets of each table ({', '.join(SET_CHOICES)}; default: all of the table's)")
     parser.add_argument("--queries", type=int, default=None, help="queries per protocol and set (default 50; 20 with --quick)")
     parser.add_argument("--out", default="cnep-evaluation", help="folder for the Markdown, JSON and PNG outputs")
     parser.add_argument("--jobs", type=int, default=2, help="worker processes, one thread each (0: this process only)")
@@ -34,6 +39,7 @@ def run(args: argparse.Namespace) -> int:
         seeds=args.seeds,
         steps=args.steps,
         queries=args.queries,
+        sets=tuple(args.sets) if args.sets else None,
         out=Path(args.out),
         jobs=args.jobs,
         figures=not args.no_figures,

@@ -99,3 +99,12 @@ def test_tiny_run_writes_every_table(tmp_path, monkeypatch, torch_threads):
 def test_bad_arguments_are_one_line_errors(capsys):
     assert main(["evaluate", "--seeds", "0", "--out", "unused"]) == 2
     assert "--seeds must be >= 1" in capsys.readouterr().err
+    assert main(["evaluate", "--table", "ablation", "--sets", "multimodal6", "--out", "unused"]) == 2
+    assert "no data set left for the ablation table" in capsys.readouterr().err
+    with pytest.raises(SystemExit):  # argparse names the choices
+        main(["evaluate", "--sets", "trimodal"])
+
+
+def test_sets_restrict_every_table():
+    jobs = plan(EvaluateConfig(tables=("comparison", "experts"), sets=("multimodal6",), steps=10))
+    assert {j.set_name for j in jobs} == {"multimodal6"}
