@@ -10,7 +10,8 @@ Stages (each logs its progress; tqdm bars unless quiet), all under OUT:
               cannot be downloaded here), calibrated on the training demonstrations only and saved to
               `extractor.pt`, which then extracts the held-out and scene-change demonstrations;
 4. train      `checkpoints/cnep` (4 experts) and `checkpoints/cnmp` (1 expert, parameter-matched
-              widths) on the training trajectories (layout `wine-glass`), seeded;
+              widths) on the training trajectories (layout `scene`: observe features + pose + gripper,
+              query with time only, predict pose + gripper), seeded;
 5. replay     `demo.rrd` (+ `demo.experts.json`): the held-out and the scene-change recordings through
               the CNEP, step by step;
 6. summary    `summary.json`: per behaviour the expert that took it and how purely, the error of the
@@ -40,13 +41,15 @@ from pipeline.ingest import IngestConfig, ingest
 from pipeline.replay import RowMapping, read_decisions, replay
 from pipeline.synthetic_demos import SPLITS, SWITCH_KEY, DemoSetConfig, generate
 from pipeline.train import TrainStageConfig, train
+from pipeline.training_constants import SCENE
 from recordings import read_demonstration, read_trajectory
 from recordings.constants import BLOCK_GRIPPER
 
 log = logging.getLogger(__name__)
 
 CNEP_EXPERTS = 4  # one per behaviour of the scene
-CNMP_WIDTHS = (204, 204)  # about the parameters of the 4-expert CNEP (the authors' parameter-matched CNMP)
+LAYOUT = SCENE  # queries carry no features: the behaviour reaches the experts through the context and the gate
+CNMP_WIDTHS = (178, 178)  # 334,123 parameters vs the 4-expert CNEP's 333,252 (layout scene, widths 128 x 128)
 TRAIN_THREADS = 1  # small batches: measured 53 ms/step on 1 thread vs 216 ms/step on 2 (2 busy cores)
 SUMMARY_FILE = "summary.json"
 RRD_FILE = "demo.rrd"
@@ -55,17 +58,21 @@ PER_FILE_LOGGERS = ("pipeline.ingest", "pipeline.extract")
 
 @dataclass(frozen=True)
 class DemoSize:
-    """How much the demo generates and trains: demonstrations per behaviour, steps per episode, training steps."""
+    """How much the demo generates and trains: demonstrations per behaviour, steps per episode, training steps.
+
+    warmup_steps: the learning-rate warm-up (the models' default unless a size needs less).
+    """
 
     per_behaviour: int
     heldout_per_behaviour: int
     steps: int
     train_steps: int
     val_every: int
+    warmup_steps: int = TrainConfig.warmup_steps
 
 
-FULL = DemoSize(per_behaviour=10, heldout_per_behaviour=3, steps=40, train_steps=1500, val_every=150)
-QUICK = DemoSize(per_behaviour=2, heldout_per_behaviour=1, steps=16, train_steps=60, val_every=20)
+FULL = DemoSize(per_behaviour=30, heldout_per_behaviour=5, steps=40, train_steps=4000, val_every=250)
+QUICK = DemoSize(per_behaviour=2, heldout_per_behaviour=1, steps=16, train_steps=60, val_every=20, warmup_steps=6)
 
 
 @dataclass(frozen=True)
@@ -152,7 +159,7 @@ def _run_stages(config: DemoConfig, out: Path, size: DemoSize, seconds: dict[str
     done("extract")
 
     stage("train", 4)
-    training = TrainConfig(steps=size.train_steps, warmup_steps=size.train_steps // 10, val_every=size.val_every,
+    training = TrainConfig(steps=size.train_steps, warmup_steps=size.warmup_steps, val_every=size.val_every,
                            seed=config.seed)
     checkpoints = {"CNEP": out / "checkpoints" / "cnep", "CNMP": out / "checkpoints" / "cnmp"}
     threads = torch.get_num_threads()
@@ -161,8 +168,8 @@ def _run_stages(config: DemoConfig, out: Path, size: DemoSize, seconds: dict[str
         for name, extra in (("CNEP", {"n_experts": CNEP_EXPERTS}),
                             ("CNMP", {"n_experts": 1, "encoder_widths": CNMP_WIDTHS, "expert_widths": CNMP_WIDTHS})):
             log.info("training the %s", name)
-            train(TrainStageConfig(inputs=(out / "trajectories" / "train",), out=checkpoints[name], training=training,
-                                   quiet=config.quiet, **extra))
+            train(TrainStageConfig(inputs=(out / "trajectories" / "train",), out=checkpoints[name], layout=LAYOUT,
+                                   training=training, quiet=config.quiet, **extra))
     finally:
         torch.set_num_threads(threads)
     done("train")

@@ -5,8 +5,9 @@ from __future__ import annotations
 # Layout presets (pipeline.training_layouts maps them onto columns).
 WINE_GLASS = "wine-glass"
 MOTION = "motion"
+SCENE = "scene"
 ALL = "all"
-PRESET_NAMES = (WINE_GLASS, MOTION, ALL)
+PRESET_NAMES = (WINE_GLASS, SCENE, MOTION, ALL)
 DEFAULT_PRESET = WINE_GLASS
 
 DEVICES = ("cpu", "cuda")

@@ -7,9 +7,13 @@ those model columns:
 
     preset       files   model width   observed (besides t)          query (besides t)   predicted
     wine-glass   1288    1288          features, pose, gripper        features            pose, gripper
+    scene        1288    1288          features, pose, gripper        -                   pose, gripper
     motion       1288/8  8             pose, gripper                  -                   pose, gripper
     all          1288/8  1288/8        every column                   -                   every column
 
+`scene` is `wine-glass` without the query features: a query is a time only, so what the camera
+showed reaches the prediction through the context (the observed frames) and the gate alone; the
+experts then have to split by what the scene asks for (the demo's behaviours).
 `motion` always trains an 8-column model: on 1288-d files it takes their motion columns [1280, 1288)
 and ignores the features, so its checkpoint fits motion-only and full recordings alike.
 """
@@ -24,7 +28,7 @@ import numpy as np
 
 from models import Layout
 from pipeline.errors import PipelineError
-from pipeline.training_constants import ALL, MOTION, WINE_GLASS
+from pipeline.training_constants import ALL, MOTION, SCENE, WINE_GLASS
 from recordings.constants import BLOCK_FEATURES, BLOCK_GRIPPER, BLOCK_POSE_QUAT, BLOCK_POSE_XYZ, LAYOUTS
 
 MOTION_BLOCKS = (BLOCK_POSE_XYZ, BLOCK_POSE_QUAT, BLOCK_GRIPPER)
@@ -44,6 +48,7 @@ class Preset:
 PRESETS: Mapping[str, Preset] = {
     WINE_GLASS: Preset(observed=(BLOCK_FEATURES, *MOTION_BLOCKS), query=(BLOCK_FEATURES,), predicted=MOTION_BLOCKS,
                        kept=EVERY_BLOCK),
+    SCENE: Preset(observed=(BLOCK_FEATURES, *MOTION_BLOCKS), query=(), predicted=MOTION_BLOCKS, kept=EVERY_BLOCK),
     MOTION: Preset(observed=MOTION_BLOCKS, query=(), predicted=MOTION_BLOCKS, kept=MOTION_BLOCKS),
     ALL: Preset(observed=EVERY_BLOCK, query=(), predicted=EVERY_BLOCK, kept=EVERY_BLOCK),
 }

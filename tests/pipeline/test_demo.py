@@ -6,13 +6,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from models import read_checkpoint_config
+from models import load_checkpoint, read_checkpoint_config
 from pipeline import rerun_layout as L
 from pipeline.cli import main
 from pipeline.demo import QUICK, RRD_FILE, SUMMARY_FILE
 from pipeline.errors import PipelineError
 from pipeline.replay import read_decisions
 from pipeline.scene import BEHAVIOURS
+from pipeline.training_constants import SCENE
 from recordings import read_demonstration, read_trajectory
 from recordings.constants import STEP_DIM
 
@@ -78,6 +79,16 @@ def test_every_stage_leaves_its_files(demo_run):
     assert (demo_run / "extractor.pt").is_file()
     assert read_checkpoint_config(demo_run / "checkpoints" / "cnep")["model"]["n_experts"] == 4
     assert read_checkpoint_config(demo_run / "checkpoints" / "cnmp")["model"]["n_experts"] == 1
+
+
+def test_both_models_train_the_scene_layout_with_about_the_same_parameters(demo_run):
+    """Queries carry time only (the behaviour must come through the context); the CNMP is parameter-matched."""
+    sizes = {}
+    for name in ("cnep", "cnmp"):
+        layout = read_checkpoint_config(demo_run / "checkpoints" / name)["layout"]
+        assert layout["name"] == SCENE and layout["query"] == [] and layout["observed"][0] == "features"
+        sizes[name] = sum(p.numel() for p in load_checkpoint(demo_run / "checkpoints" / name).parameters())
+    assert abs(sizes["cnmp"] - sizes["cnep"]) / sizes["cnep"] < 0.01, sizes
 
 
 def test_no_behaviour_label_reaches_training(demo_run):

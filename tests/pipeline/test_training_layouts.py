@@ -1,0 +1,63 @@
+"""The `scene` layout preset: observe the frames' features with the motion, query with time only."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from models import TrainConfig, load_checkpoint, read_checkpoint_config
+from models.online import ConditioningPolicy
+from pipeline.errors import PipelineError
+from pipeline.replay import RowMapping, decide
+from pipeline.train import TrainStageConfig, train
+from pipeline.training_constants import PRESET_NAMES, SCENE
+from pipeline.training_layouts import resolve_layout
+from recordings import read_trajectory, write_trajectory
+from tests.recordings.factories import trajectory_factory
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+
+EXAMPLE = Path("traj/demo-0.mcap")  # only named in errors
+
+
+def test_scene_observes_everything_queries_nothing_predicts_the_motion():
+    scene = resolve_layout(SCENE, 1288, EXAMPLE)
+    assert SCENE in PRESET_NAMES
+    assert scene.columns == ((0, 1288),) and scene.model.width == 1288
+    assert (scene.model.observed, scene.model.query, scene.model.predicted) == (((0, 1288),), (), ((1280, 1288),))
+    assert scene.model.query_dim == 0 and scene.model.out_dim == 8
+    wine = resolve_layout("wine-glass", 1288, EXAMPLE)
+    assert (wine.model.observed, wine.model.predicted) == (scene.model.observed, scene.model.predicted)
+    assert scene.to_dict()["query"] == [] and scene.to_dict()["observed"][0] == "features"
+
+
+def test_scene_refuses_motion_only_files():
+    with pytest.raises(PipelineError, match=r"demo-0\.mcap.*features.*--layout motion"):
+        resolve_layout(SCENE, 8, EXAMPLE)
+
+
+def test_a_scene_checkpoint_generates_and_replays_online(tmp_path):
+    (tmp_path / "traj").mkdir()
+    paths = [write_trajectory(tmp_path / "traj" / f"demo-{k}.mcap", trajectory_factory(12 + 3 * k, seed=k))
+             for k in range(4)]
+    training = TrainConfig(steps=20, batch_size=8, warmup_steps=2, val_every=10, seed=1)
+    out = train(TrainStageConfig(inputs=tuple(paths), out=tmp_path / "ckpt", layout=SCENE, n_experts=3,
+                                 encoder_widths=(16, 16), expert_widths=(16, 16), time_frequencies=2,
+                                 training=training, quiet=True))
+    assert read_checkpoint_config(out)["layout"]["name"] == SCENE
+    model = load_checkpoint(out)
+    traj = read_trajectory(paths[1])
+    prediction = model.generate(np.array([0.0]), traj.data[:1], np.linspace(0, 1, 5), None)
+    assert prediction.mean.shape == (5, 8) and np.isfinite(prediction.mean).all()
+
+    mapping = RowMapping.from_checkpoint(out, model)
+    rows = mapping.select(traj, paths[1], out)
+    decisions = decide(model, rows, traj.timestamps_ns, ConditioningPolicy(), xyz=mapping.predicted_xyz(model))
+    assert decisions.gates.shape == (traj.n_steps, 3)
+    np.testing.assert_allclose(decisions.gates.sum(1), 1.0, atol=1e-5)
+    assert decisions.predictions.shape[0] == traj.n_steps and np.isfinite(decisions.predictions).all()
+    # at the last step the online set is the first step (anchor) + the latest `window` steps
+    T, policy = traj.n_steps, ConditioningPolicy()
+    kept = [0, *range(T - policy.window, T)]
+    t = np.arange(T) / (T - 1)
+    np.testing.assert_allclose(decisions.gates[-1], model.generate(t[kept], rows[kept], t[:1], None).gate, atol=1e-4)
