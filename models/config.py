@@ -131,7 +131,7 @@ class TrainConfig:
     lr: float = 1e-3
     warmup_steps: int = 2_000
     gate_freeze_fraction: float = 0.3  # the gate stays uniform for this fraction of the steps
-    gate_lr_scale: float = 1.0  # the gate's learning rate is this fraction of `lr` (after the freeze)
+    gate_lr_scale: float = 0.3  # the gate's learning rate is this fraction of `lr` (after the freeze)
     grad_clip: float = 10.0
     val_every: int = 500
     patience: int | None = None  # validations without improvement before stopping early
