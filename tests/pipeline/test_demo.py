@@ -9,7 +9,7 @@ import pytest
 from models import load_checkpoint, read_checkpoint_config
 from pipeline import rerun_layout as L
 from pipeline.cli import main
-from pipeline.demo import QUICK, RRD_FILE, SUMMARY_FILE
+from pipeline.demo import GATE_LR_SCALE, QUICK, RRD_FILE, SUMMARY_FILE
 from pipeline.errors import PipelineError
 from pipeline.replay import read_decisions
 from pipeline.scene import BEHAVIOURS
@@ -85,8 +85,10 @@ def test_both_models_train_the_scene_layout_with_about_the_same_parameters(demo_
     """Queries carry time only (the behaviour must come through the context); the CNMP is parameter-matched."""
     sizes = {}
     for name in ("cnep", "cnmp"):
-        layout = read_checkpoint_config(demo_run / "checkpoints" / name)["layout"]
+        config = read_checkpoint_config(demo_run / "checkpoints" / name)
+        layout = config["layout"]
         assert layout["name"] == SCENE and layout["query"] == [] and layout["observed"][0] == "features"
+        assert config["training"]["gate_lr_scale"] == GATE_LR_SCALE
         sizes[name] = sum(p.numel() for p in load_checkpoint(demo_run / "checkpoints" / name).parameters())
     assert abs(sizes["cnmp"] - sizes["cnep"]) / sizes["cnep"] < 0.01, sizes
 
