@@ -5,7 +5,8 @@ dimensions the EM covariances are singular; `ridge` adds `ridge * range**2 * I` 
 after each M-step (EM with a covariance floor, like scikit-learn's `reg_covar`), where `range` is the
 peak-to-peak range of the training data. `ridge=0` is the library's plain EM (what the authors ran).
 Plain EM often leaves empty components (prior ~1e-17, mean 0, covariance 0); when the library's
-conditional puts weight on them, its prediction is 0 at every unobserved step. Such outputs, and
+conditional puts its weight on them (measured: all of it, where the ridge version gives them < 1e-15),
+its prediction is 0 at every unobserved step. Such outputs, and
 non-finite ones, are returned as NaN, which the evaluation counts as failures.
 """
 
@@ -19,6 +20,7 @@ RIDGE = 1e-3  # default covariance ridge, as a fraction of the squared data rang
 EM_ITERATIONS = 100
 EM_TOLERANCE = 1e-6  # stop when the means move less than this (relative to the data range)
 EMPTY = 1e-12  # a component with a smaller prior holds no demonstration (plain EM leaves ~1e-17)
+EMPTY_WEIGHT = 1e-3  # a conditional giving empty components more weight than this is a failure
 
 
 class GMMGMR:
@@ -54,7 +56,7 @@ class GMMGMR:
         indices = (steps[:, None] * self.dy + np.arange(self.dy)).ravel()  # (n*dy,)
         known = obs_y[first].ravel()  # (n*dy,)
         empty = self.gmm.priors < EMPTY
-        if empty.any() and (self.gmm.condition(indices, known).priors[empty] > 0).any():
+        if empty.any() and self.gmm.condition(indices, known).priors[empty].sum() > EMPTY_WEIGHT:
             return np.full((len(query_t), self.dy), np.nan)  # the conditional picked empty components
         rest = self.gmm.predict(indices, known[None])[0]  # (T*dy - n*dy,)
         full = np.empty(self.T * self.dy)

@@ -6,6 +6,8 @@ import pytest
 from models.baselines import GMMGMR, NearestDemo, ProMP
 from models.baselines import base
 from models.errors import ConfigError
+from models.evaluation import paper_queries
+from models.synthetic import make_set
 
 
 def two_modes(n: int = 12, T: int = 40, seed: int = 0):
@@ -77,15 +79,19 @@ def test_bad_demonstrations_are_refused():
 
 
 def test_gmm_without_ridge_flags_conditionals_on_empty_components():
-    """Plain EM can leave components with prior ~1e-17, mean 0 and covariance 0 (13 of 20 on the bimodal
-    set); the library's conditional then weights them and predicts 0 at unobserved steps."""
-    demos, _ = two_modes()
-    method = GMMGMR(n_components=2, ridge=0.0, seed=0).fit(demos)
+    """Plain EM on 32 bimodal demonstrations with the authors' 20 components leaves empty components
+    (prior ~1e-17, mean 0, covariance 0); the library's conditional puts its weight on them for most
+    paper-protocol queries and would predict 0 at every unobserved step: those outputs must be NaN."""
+    data = make_set("bimodal", seed=0)
+    demos, modes = data.train[:32], data.train_modes[:32]
+    queries = paper_queries(demos, modes, n=4, seed=0)
     t = np.arange(demos.shape[1]) / (demos.shape[1] - 1)
-    assert np.isfinite(method.generate(t[[10, 39]], demos[0, [10, 39]], t)).all()
-    gmm, D = method.gmm, demos.shape[1]
-    gmm.priors = np.append(gmm.priors, 1.7e-17)
-    gmm.means = np.vstack([gmm.means, np.zeros(D)])
-    gmm.covariances = np.concatenate([gmm.covariances, np.zeros((1, D, D))])
-    gmm.n_components += 1
-    assert np.isnan(method.generate(t[[10, 39]], demos[0, [10, 39]], t)).all()
+    plain = GMMGMR(n_components=20, ridge=0.0, seed=0).fit(demos)
+    assert (plain.gmm.priors < 1e-12).any()
+    flagged = [np.isnan(plain.generate(q.obs_t, q.obs_y, t)).all() for q in queries]
+    assert sum(flagged) >= 3
+    for q, bad in zip(queries, flagged):
+        if not bad:
+            assert np.isfinite(plain.generate(q.obs_t, q.obs_y, t)).all()
+    ridge = GMMGMR(n_components=20, seed=0).fit(demos)  # the same data with the default ridge: all finite
+    assert all(np.isfinite(ridge.generate(q.obs_t, q.obs_y, t)).all() for q in queries)
