@@ -47,7 +47,7 @@ DEFAULT_TRAINING = TrainConfig(patience=DEFAULT_PATIENCE)  # the models' default
 class TrainStageConfig:
     """inputs: trajectory files or folders (read only); out: checkpoint folder (must not exist unless `force`).
 
-    layout: preset name (wine-glass, motion, all); n_experts, encoder_widths, expert_widths,
+    layout: preset name (wine-glass, scene, motion, all); n_experts, encoder_widths, expert_widths,
     time_frequencies: the network (models.CNEPConfig); training: steps, batch size (per process), lr,
     schedule, val_every, patience (validations), seed (models.TrainConfig); val_fraction: share of the
     demonstrations held out for validation (whole demonstrations, at least one); save_every: steps

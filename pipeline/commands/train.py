@@ -64,7 +64,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="JSON file of settings (option names with underscores); the command line wins")
     parser.add_argument("--layout", default=keep, choices=PRESET_NAMES,
                         help="columns observed/queried/predicted: wine-glass = observe features+pose+gripper, query "
-                             "features, predict pose+gripper (1288-d files); motion = pose+gripper only (8-d files or "
+                             "features, predict pose+gripper (1288-d files); scene = the same, but queries carry the "
+                             "time only; motion = pose+gripper only (8-d files or "
                              "the motion columns of 1288-d files); all = observe and predict every column "
                              f"(default {_default('layout')})")
     m = parser.add_argument_group("model")
