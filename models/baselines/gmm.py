@@ -6,8 +6,8 @@ after each M-step (EM with a covariance floor, like scikit-learn's `reg_covar`),
 peak-to-peak range of the training data. `ridge=0` is the library's plain EM (what the authors ran).
 Plain EM often leaves empty components (prior ~1e-17, mean 0, covariance 0); when the library's
 conditional puts its weight on them (measured: all of it, where the ridge version gives them < 1e-15),
-its prediction is 0 at every unobserved step. Such outputs, and
-non-finite ones, are returned as NaN, which the evaluation counts as failures.
+its prediction is 0 at every unobserved step. Such outputs and non-finite ones are returned as NaN,
+which the evaluation counts as failures.
 """
 
 from __future__ import annotations
