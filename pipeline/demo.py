@@ -26,12 +26,12 @@ import json
 import logging
 import time
 from collections import Counter
+from concurrent.futures import as_completed
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from models import TrainConfig, load_checkpoint
 from models.checkpoint import atomic_write
@@ -42,6 +42,7 @@ from pipeline.replay import RowMapping, read_decisions, replay
 from pipeline.synthetic_demos import SPLITS, SWITCH_KEY, DemoSetConfig, generate
 from pipeline.train import TrainStageConfig, train
 from pipeline.training_constants import SCENE
+from pipeline.workers import single_thread_processes
 from recordings import read_demonstration, read_trajectory
 from recordings.constants import BLOCK_GRIPPER
 
@@ -53,7 +54,6 @@ CNMP_WIDTHS = (178, 178)  # 334,123 parameters vs the 4-expert CNEP's 333,252 (l
 # The gate learns at the full learning rate here, not at the models' default fraction (0.3): measured with
 # 0.3 (4000 steps, seeds 0 and 1) two behaviours shared an expert (3 distinct of 4), also at 6000 steps (docs/demo.md).
 GATE_LR_SCALE = 1.0
-TRAIN_THREADS = 1  # small batches: measured 53 ms/step on 1 thread vs 216 ms/step on 2 (2 busy cores)
 SUMMARY_FILE = "summary.json"
 RRD_FILE = "demo.rrd"
 PER_FILE_LOGGERS = ("pipeline.ingest", "pipeline.extract")
@@ -165,16 +165,16 @@ def _run_stages(config: DemoConfig, out: Path, size: DemoSize, seconds: dict[str
     training = TrainConfig(steps=size.train_steps, warmup_steps=size.warmup_steps, val_every=size.val_every,
                            gate_lr_scale=GATE_LR_SCALE, seed=config.seed)
     checkpoints = {"CNEP": out / "checkpoints" / "cnep", "CNMP": out / "checkpoints" / "cnmp"}
-    threads = torch.get_num_threads()
-    torch.set_num_threads(TRAIN_THREADS)
-    try:
-        for name, extra in (("CNEP", {"n_experts": CNEP_EXPERTS}),
-                            ("CNMP", {"n_experts": 1, "encoder_widths": CNMP_WIDTHS, "expert_widths": CNMP_WIDTHS})):
-            log.info("training the %s", name)
-            train(TrainStageConfig(inputs=(out / "trajectories" / "train",), out=checkpoints[name], layout=LAYOUT,
-                                   training=training, quiet=config.quiet, **extra))
-    finally:
-        torch.set_num_threads(threads)
+    widths = {"CNEP": {"n_experts": CNEP_EXPERTS},
+              "CNMP": {"n_experts": 1, "encoder_widths": CNMP_WIDTHS, "expert_widths": CNMP_WIDTHS}}
+    log.info("training the CNEP and the CNMP side by side (%d steps each, one process each)", size.train_steps)
+    with single_thread_processes(len(checkpoints)) as pool:  # the workers train quietly; their errors reach us
+        futures = {pool.submit(train, TrainStageConfig(inputs=(out / "trajectories" / "train",), out=path, layout=LAYOUT,
+                                                       training=training, quiet=True, **widths[name])): name
+                   for name, path in checkpoints.items()}
+        for future in as_completed(futures):
+            future.result()
+            log.info("%s trained (%.1f s into the stage)", futures[future], time.perf_counter() - seconds["train"])
     done("train")
 
     stage("replay", 5)

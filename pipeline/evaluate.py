@@ -15,12 +15,10 @@ accuracy as mean +- std over seeds. Outputs, written atomically into `out`:
 from __future__ import annotations
 
 import logging
-import os
 import time
 from collections.abc import Iterator, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import as_completed
 from dataclasses import dataclass
-from multiprocessing import get_context
 from pathlib import Path
 
 import numpy as np
@@ -42,11 +40,9 @@ from pipeline.evaluate_constants import (
     TABLES,
 )
 from pipeline.evaluate_jobs import PROTOCOLS, Job, ModelSpec, run_job
+from pipeline.workers import single_thread_processes
 
 log = logging.getLogger(__name__)
-
-THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
-
 
 @dataclass(frozen=True)
 class EvaluateConfig:
@@ -158,10 +154,8 @@ def run_jobs(jobs: Sequence[Job], workers: int, quiet: bool) -> Iterator[tuple[J
             bar.update(1)
         bar.close()
         return
-    saved = {name: os.environ.get(name) for name in THREAD_VARIABLES}
-    os.environ.update({name: "1" for name in THREAD_VARIABLES})  # read by the workers' BLAS at import
     try:
-        with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
+        with single_thread_processes(workers) as pool:
             futures = {pool.submit(run_job, job): job for job in jobs}
             for future in as_completed(futures):
                 job = futures[future]
@@ -170,11 +164,6 @@ def run_jobs(jobs: Sequence[Job], workers: int, quiet: bool) -> Iterator[tuple[J
                 bar.update(1)
                 yield job, future.result()
     finally:
-        for name, value in saved.items():
-            if value is None:
-                os.environ.pop(name, None)
-            else:
-                os.environ[name] = value
         bar.close()
 
 
