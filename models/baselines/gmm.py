@@ -55,10 +55,10 @@ class GMMGMR:
         steps, first = np.unique(steps, return_index=True)  # a step observed twice is conditioned once
         indices = (steps[:, None] * self.dy + np.arange(self.dy)).ravel()  # (n*dy,)
         known = obs_y[first].ravel()  # (n*dy,)
-        empty = self.gmm.priors < EMPTY
-        if empty.any() and self.gmm.condition(indices, known).priors[empty].sum() > EMPTY_WEIGHT:
+        conditional = self.gmm.condition(indices, known)  # a GMM over the unobserved steps
+        if conditional.priors[self.gmm.priors < EMPTY].sum() > EMPTY_WEIGHT:
             return np.full((len(query_t), self.dy), np.nan)  # the conditional picked empty components
-        rest = self.gmm.predict(indices, known[None])[0]  # (T*dy - n*dy,)
+        rest = conditional.priors @ conditional.means  # (T*dy - n*dy,): the GMR mean
         full = np.empty(self.T * self.dy)
         full[indices] = known
         full[np.setdiff1d(np.arange(self.T * self.dy), indices)] = rest
