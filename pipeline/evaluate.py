@@ -44,6 +44,7 @@ from pipeline.workers import single_thread_processes
 
 log = logging.getLogger(__name__)
 
+
 @dataclass(frozen=True)
 class EvaluateConfig:
     """tables: names from TABLES; seeds/steps/queries: None takes the full or quick default.

@@ -1,7 +1,7 @@
 """Worker processes for CPU-bound jobs: spawned, each with one BLAS and one torch thread.
 
-Small networks train fastest on one thread each (docs/demo.md: 53 ms per step on 1 thread against
-216 ms on 2), so independent fits run side by side in processes rather than sharing threads.
+Small networks train fastest on one thread each (the demo's CNEP, both cores busy: 53 ms per step on
+one thread, 216 ms on two), so independent fits run side by side in processes, not sharing threads.
 """
 
 from __future__ import annotations
