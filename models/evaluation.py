@@ -6,14 +6,20 @@ point (t = 1) of a demonstration of one of those two modes. Only pairs of modes 
 differ (by `SEPARATION` of the data's range) are used: where two modes also end at the same place
 (modes 2 and 3 of the 4-mode set), the two conditioning points cannot tell them apart and the
 "right" mode is a coin flip (measured: 8 of 50 such queries had the nearest demonstrations of both
-modes within a factor 4 in squared distance). The ground truth is the training
-demonstration closest to the two conditioning points (as the paper states), and the score is the true
-MSE over the whole generated trajectory (MAE too). The authors' notebooks instead chose the
+modes within a factor 4 in squared distance). A third mode can still pass through the crossing and
+share the end point of one of the pair (mode 2 at the crossings of modes 1 and 3 of the 4-mode set),
+so every drawn query must also be decisive: the nearest demonstration of any other mode is at least
+`DECISIVE` times farther (squared distance at the two conditioning steps) than the nearest of the
+ground truth's mode; other draws are discarded. The ground truth is the training demonstration
+closest to the two conditioning points (as the paper states), and the score is the true MSE over the
+whole generated trajectory (MAE too). The authors' notebooks instead chose the
 demonstration closest to the *generated* trajectory and reported a mean absolute error; see
 docs/evaluation.md.
 
 Held-out protocol: the same kind of conditioning points taken from demonstrations the model never saw,
-scored against those demonstrations; it measures generalisation rather than mode picking.
+scored against those demonstrations; it measures generalisation rather than mode picking. The same
+rule keeps only decisive queries: the unseen demonstration's points must be `DECISIVE` times nearer
+the pool's demonstrations of its own mode than those of any other.
 
 Mode accuracy: the generated trajectory is nearest (MSE) to a training demonstration of the ground
 truth's mode.
@@ -32,6 +38,8 @@ Generate = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
 NOISE = 0.02  # std of the noise on the intermediate point, as a fraction of the data's range
 CLOSE = 0.05  # steps whose mode gap is within this fraction of the range of the smallest count as "close"
 SEPARATION = 0.1  # two modes are told apart by their end points when these differ by this fraction of the range
+DECISIVE = 4.0  # a query's mode must be this many times nearer (squared distance) than any other mode
+ATTEMPTS = 100  # draws per query before giving up on finding a decisive one
 
 
 @dataclass(frozen=True)
@@ -64,14 +72,33 @@ def _separable_partners(demos: np.ndarray, modes: np.ndarray) -> dict[int, np.nd
     return {a: np.array([b for b in labels if b != a and np.linalg.norm(ends[a] - ends[b]) > limit]) for a in labels}
 
 
+def _decisive(pool: np.ndarray, pool_modes: np.ndarray, steps: np.ndarray, obs_y: np.ndarray, mode: int) -> bool:
+    """Whether points `obs_y` at `steps` are `DECISIVE` times nearer a demonstration of `mode` than any other mode's."""
+    dist = ((pool[:, steps] - obs_y) ** 2).sum((1, 2))  # (N,)
+    others = dist[pool_modes != mode]
+    return others.size == 0 or others.min() >= DECISIVE * dist[pool_modes == mode].min()
+
+
+def _draw(draw: Callable[[], Query | None], n: int, what: str) -> list[Query]:
+    """`n` queries from `draw`, which returns None for a draw that is not decisive."""
+    queries: list[Query] = []
+    for _ in range(n * ATTEMPTS):
+        q = draw()
+        if q is not None:
+            queries.append(q)
+            if len(queries) == n:
+                return queries
+    raise ValueError(f"only {len(queries)} of {n} {what} queries were decisive after {n * ATTEMPTS} draws")
+
+
 def paper_queries(demos: np.ndarray, modes: np.ndarray, n: int = 50, seed: int = 0) -> list[Query]:
     """`n` queries on a demonstration pool `(N, T, dy)` with mode labels `(N,)`."""
     rng = np.random.default_rng(seed)
     T, span = demos.shape[1], np.ptp(demos)
     partners = _separable_partners(demos, modes)
     pairs = [(a, b) for a, bs in partners.items() for b in bs if a < b]
-    queries = []
-    for _ in range(n):
+
+    def draw() -> Query | None:
         if not pairs:  # one mode (or none separable): any interior point
             a = b = modes[0]
             step = int(rng.integers(T // 20, T - T // 20))
@@ -82,10 +109,13 @@ def paper_queries(demos: np.ndarray, modes: np.ndarray, n: int = 50, seed: int =
         middle = middle + NOISE * span * rng.standard_normal(middle.shape)
         end_demo = demos[rng.choice(np.flatnonzero(modes == rng.choice([a, b])))]
         obs_y = np.stack([middle, end_demo[-1]])  # (2, dy)
-        dist = ((demos[:, step] - obs_y[0]) ** 2).sum(-1) + ((demos[:, -1] - obs_y[1]) ** 2).sum(-1)  # (N,)
-        truth = int(dist.argmin())
-        queries.append(Query(np.array([step / (T - 1), 1.0]), obs_y, demos[truth], int(modes[truth])))
-    return queries
+        steps = np.array([step, T - 1])
+        truth = int(((demos[:, steps] - obs_y) ** 2).sum((1, 2)).argmin())
+        if not _decisive(demos, modes, steps, obs_y, modes[truth]):
+            return None
+        return Query(steps / (T - 1), obs_y, demos[truth], int(modes[truth]))
+
+    return _draw(draw, n, "paper")
 
 
 def heldout_queries(
@@ -95,8 +125,8 @@ def heldout_queries(
     rng = np.random.default_rng(seed)
     T = unseen.shape[1]
     partners = _separable_partners(pool, pool_modes)
-    queries = []
-    for _ in range(n):
+
+    def draw() -> Query | None:
         i = int(rng.integers(len(unseen)))
         a = unseen_modes[i]
         if len(partners[a]) == 0:
@@ -104,9 +134,13 @@ def heldout_queries(
         else:
             b = rng.choice(partners[a])
             step = int(rng.choice(_close_steps(pool, pool_modes, a, b)))
-        obs_y = np.stack([unseen[i, step], unseen[i, -1]])
-        queries.append(Query(np.array([step / (T - 1), 1.0]), obs_y, unseen[i], int(a)))
-    return queries
+        steps = np.array([step, T - 1])
+        obs_y = unseen[i, steps]
+        if not _decisive(pool, pool_modes, steps, obs_y, a):
+            return None
+        return Query(steps / (T - 1), obs_y, unseen[i], int(a))
+
+    return _draw(draw, n, "held-out")
 
 
 def score(generate: Generate, queries: list[Query], pool: np.ndarray, pool_modes: np.ndarray) -> dict[str, float]:

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from models.evaluation import _separable_partners, heldout_queries, paper_queries, score
+from models.evaluation import DECISIVE, _decisive, _separable_partners, heldout_queries, paper_queries, score
 from models.synthetic import SETS, make_set
 
 
@@ -69,3 +69,25 @@ def test_modes_that_end_at_the_same_place_are_never_paired():
     partners = _separable_partners(ds.train, ds.train_modes)
     assert 3 not in partners[2] and 2 not in partners[3]
     assert set(partners[0]) == {1, 2, 3} and set(partners[1]) == {0, 2, 3}
+
+
+def test_every_query_names_its_mode_decisively():
+    ds = make_set("multimodal", seed=2)  # seed 2 draws 5 undecided paper queries among its first 55
+    paper = paper_queries(ds.train, ds.train_modes, n=50, seed=2)
+    heldout = heldout_queries(ds.train, ds.train_modes, ds.test, ds.test_modes, n=50, seed=2)
+    assert len(paper) == len(heldout) == 50
+    for q in paper + heldout:
+        steps = np.round(q.obs_t * (ds.steps - 1)).astype(int)
+        dist = ((ds.train[:, steps] - q.obs_y) ** 2).sum((1, 2))
+        own, other = dist[ds.train_modes == q.mode].min(), dist[ds.train_modes != q.mode].min()
+        assert other >= DECISIVE * own
+
+
+def test_points_halfway_between_two_modes_are_not_decisive():
+    ds = make_set("multimodal", seed=0)
+    steps = np.array([54, ds.steps - 1])  # modes 1, 2 and 3 meet near step 54; 2 and 3 end together
+    two, three = ds.train[ds.train_modes == 2][0], ds.train[ds.train_modes == 3][0]
+    between = 0.5 * (two[steps] + three[steps])
+    assert not _decisive(ds.train, ds.train_modes, steps, between, 2)
+    assert not _decisive(ds.train, ds.train_modes, steps, between, 3)
+    assert _decisive(ds.train, ds.train_modes, steps, three[steps], 3)  # on a demonstration of mode 3
