@@ -1,4 +1,4 @@
-"""`cnep evaluate`: the plan, the pooled statistics, and the tables' structure from a tiny run."""
+"""`cnep evaluate`: the plan, the pooled statistics, the tables' structure from a tiny run, and `--quick`."""
 
 import json
 
@@ -10,7 +10,7 @@ import models.baselines.gmm as gmm_module
 from models import CNEP, CNEPConfig
 from pipeline.cli import main
 from pipeline.evaluate import EvaluateConfig, evaluate, plan, pooled, table_rows
-from pipeline.evaluate_constants import PAPER, QUICK_STEPS, TABLES
+from pipeline.evaluate_constants import PAPER, QUICK_QUERIES, QUICK_SETS, QUICK_STEPS, TABLES
 from pipeline.evaluate_jobs import ModelSpec, matched_width
 
 
@@ -108,3 +108,18 @@ def test_bad_arguments_are_one_line_errors(capsys):
 def test_sets_restrict_every_table():
     jobs = plan(EvaluateConfig(tables=("comparison", "experts"), sets=("multimodal6",), steps=10))
     assert {j.set_name for j in jobs} == {"multimodal6"}
+
+
+@pytest.mark.slow  # ~45 s on 2 cores: the issue's CI run, four networks in two worker processes
+def test_quick_command_runs_the_comparison_on_two_sets(tmp_path):
+    assert main(["-q", "evaluate", "--quick", "--out", str(tmp_path)]) == 0
+    data = json.loads((tmp_path / "comparison.json").read_text())
+    settings = data["settings"]
+    assert data["sets"] == list(QUICK_SETS) and settings["quick"]
+    assert settings["steps"] == {s: QUICK_STEPS for s in QUICK_SETS} and settings["queries"] == QUICK_QUERIES
+    for protocol in ("paper", "heldout"):
+        for row in ("CNEP", "CNMP"):  # 1500 steps already tell the two bimodal modes apart
+            assert data["results"][protocol][row]["bimodal"]["mode_accuracy"] == 1.0
+    for set_name in QUICK_SETS:
+        nearest = data["results"]["paper"]["Nearest demo"][set_name]
+        assert nearest["mse"] == pytest.approx(0.0, abs=1e-12) and nearest["mode_accuracy"] == 1.0
