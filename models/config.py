@@ -128,6 +128,7 @@ class TrainConfig:
     batch_size: int = 32
     n_max: int = 10  # observations per sample: n ~ U{1..n_max}
     m_max: int = 10  # targets per sample: m ~ U{1..m_max}
+    obs_noise: float = 0.0  # std of the noise on training contexts' observed values (normalised units)
     lr: float = 1e-3
     warmup_steps: int = 2_000
     gate_freeze_fraction: float = 0.3  # the gate stays uniform for this fraction of the steps
@@ -145,6 +146,8 @@ class TrainConfig:
             raise ConfigError(f"gate_freeze_fraction must be in [0, 1), got {self.gate_freeze_fraction}.")
         if not self.gate_lr_scale > 0:
             raise ConfigError(f"gate_lr_scale must be > 0 (use gate_freeze_fraction to hold the gate), got {self.gate_lr_scale}.")
+        if not self.obs_noise >= 0:
+            raise ConfigError(f"obs_noise must be >= 0 (a standard deviation), got {self.obs_noise}.")
         if not self.lr > 0 or self.warmup_steps < 0:
             raise ConfigError(f"lr must be > 0 and warmup_steps >= 0, got {self.lr} and {self.warmup_steps}.")
 

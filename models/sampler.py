@@ -2,7 +2,8 @@
 
 Each sample: a trajectory i, n ~ U{1..min(n_max, T_i)} observation steps and m ~ U{1..min(m_max, T_i)}
 target steps, each set drawn without replacement (the two sets are independent). Time of step k of a
-trajectory of length T is k / (T - 1), so 0 and 1 are both reachable.
+trajectory of length T is k / (T - 1), so 0 and 1 are both reachable. Training batches may add noise
+to the observed values (`TrainConfig.obs_noise`); the targets always stay clean.
 """
 
 from __future__ import annotations
@@ -61,12 +62,18 @@ def _random_steps(lengths: torch.Tensor, k_max: int, T: int, g: torch.Generator)
     return steps, mask
 
 
-def sample_batch(stack: TrajectoryStack, batch_size: int, n_max: int, m_max: int, g: torch.Generator) -> Batch:
+def sample_batch(
+    stack: TrajectoryStack, batch_size: int, n_max: int, m_max: int, g: torch.Generator, obs_noise: float = 0.0
+) -> Batch:
+    """A batch; `obs_noise` > 0 adds Gaussian noise of that std to the observed values (not the times)."""
     traj = torch.randint(len(stack), (batch_size,), generator=g)  # (B,)
     lengths, T = stack.lengths[traj], stack.observed.shape[1]
     obs_steps, obs_mask = _random_steps(lengths, n_max, T, g)  # (B, n)
     tgt_steps, tgt_mask = _random_steps(lengths, m_max, T, g)  # (B, m)
     rows = traj.unsqueeze(1)  # (B, 1)
-    obs = torch.cat([stack.times(traj, obs_steps).unsqueeze(-1), stack.observed[rows, obs_steps]], -1)
+    values = stack.observed[rows, obs_steps]  # (B, n, obs_dim)
+    if obs_noise:
+        values = values + obs_noise * torch.randn(values.shape, generator=g)
+    obs = torch.cat([stack.times(traj, obs_steps).unsqueeze(-1), values], -1)
     query = torch.cat([stack.times(traj, tgt_steps).unsqueeze(-1), stack.query[rows, tgt_steps]], -1)
     return Batch(obs, obs_mask, query, stack.predicted[rows, tgt_steps], tgt_mask)

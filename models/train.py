@@ -95,7 +95,8 @@ class Trainer:
         self.freeze_steps = int(self.cfg.gate_freeze_fraction * self.cfg.steps)
 
     def train_step(self) -> dict[str, float]:
-        batch = sample_batch(self.train, self.cfg.batch_size, self.cfg.n_max, self.cfg.m_max, self.generator)
+        batch = sample_batch(self.train, self.cfg.batch_size, self.cfg.n_max, self.cfg.m_max, self.generator,
+                             self.cfg.obs_noise)
         for group in self.optimizer.param_groups:
             group["lr"] = self.cfg.lr * lr_factor(self.step, self.cfg) * group["lr_scale"]
         mean, std, gate = self.model(batch.obs, batch.obs_mask, batch.query)

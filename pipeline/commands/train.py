@@ -26,6 +26,7 @@ TRAIN_OPTIONS = {
     "m_max": (int, "most targets per sample"),
     "gate_freeze_fraction": (float, "share of the steps with the gate held uniform"),
     "gate_lr_scale": (float, "the gate's learning rate as a fraction of --lr"),
+    "obs_noise": (float, "std of the noise added to training contexts' observed values (normalised units)"),
 }
 
 DEFAULTS = {

@@ -123,6 +123,8 @@ def test_train_config_rejects_bad_values():
         TrainConfig(gate_freeze_fraction=1.5)
     with pytest.raises(ConfigError, match="steps"):
         TrainConfig(steps=0)
+    with pytest.raises(ConfigError, match="obs_noise must be >= 0"):
+        TrainConfig(obs_noise=-0.1)
 
 
 def test_config_round_trips_through_a_dict():

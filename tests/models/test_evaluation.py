@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from models.evaluation import DECISIVE, _decisive, _separable_partners, heldout_queries, paper_queries, score
+from models.evaluation import DECISIVE, NOISE, _decisive, _separable_partners, heldout_queries, paper_queries, score
 from models.synthetic import SETS, make_set
 
 
@@ -81,6 +81,7 @@ def test_every_query_names_its_mode_decisively():
         dist = ((ds.train[:, steps] - q.obs_y) ** 2).sum((1, 2))
         own, other = dist[ds.train_modes == q.mode].min(), dist[ds.train_modes != q.mode].min()
         assert other >= DECISIVE * own
+        assert (other - own) / (2 * (NOISE * np.ptp(ds.train)) ** 2) >= np.log(DECISIVE)  # log likelihood ratio
 
 
 def test_points_halfway_between_two_modes_are_not_decisive():
@@ -90,4 +91,15 @@ def test_points_halfway_between_two_modes_are_not_decisive():
     between = 0.5 * (two[steps] + three[steps])
     assert not _decisive(ds.train, ds.train_modes, steps, between, 2)
     assert not _decisive(ds.train, ds.train_modes, steps, between, 3)
-    assert _decisive(ds.train, ds.train_modes, steps, three[steps], 3)  # on a demonstration of mode 3
+    away = np.array([140, ds.steps - 1])  # mode 3 is near 0 here, mode 2 near 0.6
+    assert _decisive(ds.train, ds.train_modes, away, three[away], 3)  # on a demonstration of mode 3
+
+
+def test_points_that_two_modes_pass_within_the_noise_are_not_decisive():
+    ds = make_set("multimodal", seed=0)
+    steps = np.array([54, ds.steps - 1])
+    three = ds.train[ds.train_modes == 3][0]
+    dist = ((ds.train[:, steps] - three[steps]) ** 2).sum((1, 2))
+    assert dist[ds.train_modes == 3].min() == 0  # infinitely nearer by the ratio alone
+    assert np.sqrt(dist[ds.train_modes == 2].min()) < NOISE * np.ptp(ds.train)  # but a mode-2 demo passes within the noise
+    assert not _decisive(ds.train, ds.train_modes, steps, three[steps], 3)

@@ -50,3 +50,14 @@ def test_same_generator_seed_same_batch():
     b = sample_batch(stack, 16, 10, 10, torch.Generator().manual_seed(5))
     torch.testing.assert_close(a.obs, b.obs)
     torch.testing.assert_close(a.target, b.target)
+
+
+def test_observation_noise_moves_the_observed_values_only():
+    stack, _ = _stack()
+    clean = sample_batch(stack, 32, 10, 10, torch.Generator().manual_seed(6))
+    noisy = sample_batch(stack, 32, 10, 10, torch.Generator().manual_seed(6), obs_noise=0.5)
+    torch.testing.assert_close(noisy.obs[..., 0], clean.obs[..., 0])  # the times
+    for name in ("obs_mask", "query", "target", "target_mask"):
+        torch.testing.assert_close(getattr(noisy, name), getattr(clean, name))
+    shift = (noisy.obs[..., 1:] - clean.obs[..., 1:])[clean.obs_mask]  # (real points, obs_dim)
+    assert 0.4 < float(shift.std()) < 0.6 and abs(float(shift.mean())) < 0.1
