@@ -76,7 +76,8 @@ def check_same_run(saved: dict, current: dict, path: Path) -> None:
     """Refuse to resume a run whose identity (data, layout, model, training settings, processes) changed."""
     changed = sorted(key for key in saved.keys() | current.keys() if saved.get(key) != current.get(key))
     if changed:
-        details = "; ".join(f"{key}: saved {_short(saved.get(key))}, now {_short(current.get(key))}" for key in changed)
+        details = "; ".join(f"{key}: saved {_short(a)}, now {_short(b)}"
+                            for key in changed for a, b in [_differing(saved.get(key), current.get(key))])
         raise PipelineError(f"{path}: cannot resume, the run was started with other settings ({details}); use the "
                             f"same inputs and options, or delete {path.parent} to start again")
 
@@ -102,6 +103,14 @@ def _jsonable(value):
     if isinstance(value, float) and not math.isfinite(value):
         return None
     return value
+
+
+def _differing(saved, current) -> tuple:
+    """Two settings with the entries they share dropped when both are dicts, so the difference shows."""
+    if isinstance(saved, dict) and isinstance(current, dict):
+        keys = [k for k in sorted(saved.keys() | current.keys()) if saved.get(k) != current.get(k)]
+        return {k: saved[k] for k in keys if k in saved}, {k: current[k] for k in keys if k in current}
+    return saved, current
 
 
 def _short(value, limit: int = 80) -> str:
