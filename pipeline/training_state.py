@@ -74,7 +74,7 @@ def load_state(path: Path) -> dict:
 
 def check_same_run(saved: dict, current: dict, path: Path) -> None:
     """Refuse to resume a run whose identity (data, layout, model, training settings, processes) changed."""
-    changed = sorted(key for key in saved.keys() | current.keys() if saved.get(key) != current.get(key))
+    changed = _changed_keys(saved, current)
     if changed:
         details = "; ".join(f"{key}: saved {_short(a)}, now {_short(b)}"
                             for key in changed for a, b in [_differing(saved.get(key), current.get(key))])
@@ -105,10 +105,14 @@ def _jsonable(value):
     return value
 
 
+def _changed_keys(saved: dict, current: dict) -> list:
+    return sorted(key for key in saved.keys() | current.keys() if saved.get(key) != current.get(key))
+
+
 def _differing(saved, current) -> tuple:
     """Two settings with the entries they share dropped when both are dicts, so the difference shows."""
     if isinstance(saved, dict) and isinstance(current, dict):
-        keys = [k for k in sorted(saved.keys() | current.keys()) if saved.get(k) != current.get(k)]
+        keys = _changed_keys(saved, current)
         return {k: saved[k] for k in keys if k in saved}, {k: current[k] for k in keys if k in current}
     return saved, current
 
