@@ -26,8 +26,8 @@ import numpy as np
 import torch
 
 from models import CNEPConfig, ConditioningPolicy, Layout, build_model, load_checkpoint, save_checkpoint
-from pipeline import rerun_layout as L
-from pipeline.replay import RowMapping, decide, replay, switch_text, write_recording
+import pipeline.replay.layout as L
+from pipeline.replay.stage import RowMapping, decide, replay, switch_text, write_recording
 from recordings import Episode, Trajectory, read_trajectory, write_trajectory
 from recordings.constants import STEP_DIM
 

@@ -1,4 +1,4 @@
-"""The authors' Baxter obstacle-avoidance recordings through CNEP and CNMP (pipeline.baxter).
+"""The authors' Baxter obstacle-avoidance recordings through CNEP and CNMP (pipeline.evaluate.baxter).
 
     python examples/baxter_obstacle.py PATH/TO/data/baxter/first [--goal] [--steps N] [--seed N]
 
@@ -28,7 +28,7 @@ def main(argv: list[str] | None = None) -> int:
 
     import torch
 
-    from pipeline.baxter import BaxterConfig, format_table, run_baxter
+    from pipeline.evaluate.baxter import BaxterConfig, format_table, run_baxter
     from pipeline.errors import USER_ERRORS
 
     torch.set_num_threads(1)  # small networks: one thread is fastest and leaves the other core free

@@ -2,7 +2,7 @@
 
     python examples/gate_ceiling.py [--seeds 3] [--steps 3000] [--set multimodal]
 
-For each seed: the data set and paper queries of `cnep evaluate` (pipeline.evaluate_jobs.queries).
+For each seed: the data set and paper queries of `cnep evaluate` (pipeline.evaluate.jobs.queries).
 Four classifiers learn the demonstrations' mode labels (cross-entropy, Adam, batch 64) from contexts
 shaped like the queries: one random interior step of a training demonstration and its end point.
     mean + linear  CNEP's encoder, masked mean, linear gate: the model's own gate, here supervised
@@ -24,7 +24,7 @@ from torch import nn
 
 from models import CNEP, CNEPConfig
 from models.cnep import mlp
-from pipeline.evaluate_jobs import queries
+from pipeline.evaluate.jobs import queries
 
 BATCH = 64
 HIDDEN = 256

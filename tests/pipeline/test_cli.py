@@ -1,12 +1,12 @@
 import subprocess
 import sys
 
-from pipeline.cli import build_parser, main
+from pipeline.cli.main import build_parser, main
 
 
 def test_help_lists_subcommands_without_heavy_imports():
     code = (
-        "import sys; from pipeline.cli import build_parser; build_parser(); "
+        "import sys; from pipeline.cli.main import build_parser; build_parser(); "
         "heavy = [m for m in ('torch', 'rerun', 'cv2', 'mcap') if m in sys.modules]; "
         "print(','.join(heavy))"
     )

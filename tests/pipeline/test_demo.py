@@ -7,13 +7,13 @@ import numpy as np
 import pytest
 
 from models import load_checkpoint, read_checkpoint_config
-from pipeline import rerun_layout as L
-from pipeline.cli import main
-from pipeline.demo import GATE_LR_SCALE, QUICK, RRD_FILE, SUMMARY_FILE
+import pipeline.replay.layout as L
+from pipeline.cli.main import main
+from pipeline.demo.stage import GATE_LR_SCALE, QUICK, RRD_FILE, SUMMARY_FILE
 from pipeline.errors import PipelineError
-from pipeline.replay import read_decisions
-from pipeline.scene import BEHAVIOURS
-from pipeline.training_constants import SCENE
+from pipeline.replay.stage import read_decisions
+from pipeline.demo.scene import BEHAVIOURS
+from pipeline.train.constants import SCENE
 from recordings import read_demonstration, read_trajectory
 from recordings.constants import STEP_DIM
 
@@ -135,14 +135,14 @@ def test_the_rrd_holds_each_replayed_recording(demo_run):
 
 def test_a_used_output_folder_is_refused(tmp_path):
     (tmp_path / "something").write_text("x")
-    from pipeline.demo import DemoConfig, run_demo
+    from pipeline.demo.stage import DemoConfig, run_demo
 
     with pytest.raises(PipelineError, match="not empty"):
         run_demo(DemoConfig(out=tmp_path, quick=True, quiet=True))
 
 
 def test_the_default_output_folder_never_mixes_runs(tmp_path):
-    from pipeline.commands.demo import free_folder
+    from pipeline.cli.demo import free_folder
 
     base = tmp_path / "cnep-demo"
     assert free_folder(base) == base

@@ -5,7 +5,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.baxter import BOX_X, BOX_Y, BaxterConfig, format_table, in_box, nearest_demo_distance, run_baxter, xy_path
+from pipeline.evaluate.baxter import BOX_X, BOX_Y, BaxterConfig, format_table, in_box, nearest_demo_distance, run_baxter, xy_path
 from pipeline.errors import PipelineError
 from recordings import Demonstration, Episode
 

@@ -8,10 +8,10 @@ import torch
 
 import models.baselines.gmm as gmm_module
 from models import CNEP, CNEPConfig
-from pipeline.cli import main
-from pipeline.evaluate import EvaluateConfig, evaluate, plan, pooled, table_rows
-from pipeline.evaluate_constants import PAPER, QUICK_QUERIES, QUICK_SETS, QUICK_STEPS, TABLES
-from pipeline.evaluate_jobs import ModelSpec, matched_width
+from pipeline.cli.main import main
+from pipeline.evaluate.stage import EvaluateConfig, evaluate, plan, pooled, table_rows
+from pipeline.evaluate.constants import PAPER, QUICK_QUERIES, QUICK_SETS, QUICK_STEPS, TABLES
+from pipeline.evaluate.jobs import ModelSpec, matched_width
 
 
 def test_plan_trains_each_shared_network_once():

@@ -6,9 +6,9 @@ import pytest
 
 from perception import FeatureExtractor, PerceptionError, decode_image
 from perception.constants import WEIGHTS_ENV_VAR
-from pipeline.cli import main
+from pipeline.cli.main import main
 from pipeline.errors import PipelineError
-from pipeline.extract import (ExtractConfig, calibration_frames, check_identities, check_same_extractor, extract,
+from pipeline.extract.stage import (ExtractConfig, calibration_frames, check_identities, check_same_extractor, extract,
                               plan_outputs)
 from recordings import read_trajectory, write_demonstration
 from tests.recordings.factories import demonstration_factory

@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from models import CNEPConfig, Layout, TrainConfig, fit, save_checkpoint
-from pipeline.replay import read_decisions, replay
+from pipeline.replay.stage import read_decisions, replay
 from recordings import Episode, Trajectory, write_trajectory
 from recordings.constants import FEATURE_DIM, STEP_DIM
 

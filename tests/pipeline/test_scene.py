@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from perception import FeatureExtractor, decode_image
-from pipeline.scene import BEHAVIOURS, FRAME_HEIGHT, FRAME_WIDTH, draw_frame, gripper_quaternion, sample_scene, yaw_of
-from pipeline.synthetic_demos import (GRIPPER_OPEN, HOME, LABEL_KEY, SWITCH_KEY, DemoSetConfig, generate)
+from pipeline.demo.scene import BEHAVIOURS, FRAME_HEIGHT, FRAME_WIDTH, draw_frame, gripper_quaternion, sample_scene, yaw_of
+from pipeline.demo.generator import (GRIPPER_OPEN, HOME, LABEL_KEY, SWITCH_KEY, DemoSetConfig, generate)
 from recordings import read_demonstration
 
 STEPS = 24

@@ -10,13 +10,13 @@ from safetensors.torch import load_file
 
 from models import Trainer, TrainConfig, load_checkpoint, read_checkpoint_config
 from models.sampler import TrajectoryStack
-from pipeline.cli import main
+from pipeline.cli.main import main
 from pipeline.errors import PipelineError
-from pipeline.train import StageTrainer, TrainStageConfig, train
-from pipeline.training_constants import LOG_FILE, STATE_FILE
-from pipeline.training_layouts import resolve_layout
-from pipeline.training_parallel import rank_seed
-from pipeline.training_state import work_dir
+from pipeline.train.stage import StageTrainer, TrainStageConfig, train
+from pipeline.train.constants import LOG_FILE, STATE_FILE
+from pipeline.train.layouts import resolve_layout
+from pipeline.train.parallel import rank_seed
+from pipeline.train.state import work_dir
 from recordings import Trajectory, read_trajectory, write_trajectory
 from tests.recordings.factories import trajectory_factory
 

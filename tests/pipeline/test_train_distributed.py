@@ -9,7 +9,7 @@ import torch
 from safetensors.torch import load_file
 
 from models import load_checkpoint, read_checkpoint_config
-from pipeline.cli import main
+from pipeline.cli.main import main
 from recordings import read_trajectory
 from tests.pipeline.test_train import write_set
 

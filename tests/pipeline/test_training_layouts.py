@@ -8,10 +8,10 @@ import pytest
 from models import TrainConfig, load_checkpoint, read_checkpoint_config
 from models.online import ConditioningPolicy
 from pipeline.errors import PipelineError
-from pipeline.replay import RowMapping, decide
-from pipeline.train import TrainStageConfig, train
-from pipeline.training_constants import PRESET_NAMES, SCENE
-from pipeline.training_layouts import resolve_layout
+from pipeline.replay.stage import RowMapping, decide
+from pipeline.train.stage import TrainStageConfig, train
+from pipeline.train.constants import PRESET_NAMES, SCENE
+from pipeline.train.layouts import resolve_layout
 from recordings import read_trajectory, write_trajectory
 from tests.recordings.factories import trajectory_factory
 

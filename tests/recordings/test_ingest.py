@@ -5,8 +5,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from pipeline.cli import main
-from pipeline.ingest import IngestConfig, ingest
+from pipeline.cli.main import main
+from pipeline.ingest.stage import IngestConfig, ingest
 from recordings import RecordingError, read_demonstration
 from recordings.adapters import FrameTiming, demonstration_from_csv
 from recordings.csv_motion import CsvColumns

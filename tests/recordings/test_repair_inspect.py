@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from pipeline.cli import main
+from pipeline.cli.main import main
 from recordings import RecordingError, read_demonstration, read_trajectory, write_demonstration, write_trajectory
 from recordings.inspection import format_report, inspect_file
 from recordings.repair import repair

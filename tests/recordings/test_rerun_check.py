@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.ingest import IngestConfig, ingest
+from pipeline.ingest.stage import IngestConfig, ingest
 from recordings import Event, add_events, write_demonstration, write_trajectory
 from recordings.mcap_source import McapTopics
 from recordings.repair import repair

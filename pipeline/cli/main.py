@@ -1,6 +1,6 @@
 """The `cnep` command: one subcommand per pipeline stage.
 
-Each subcommand lives in `pipeline/commands/<name>.py` and exposes `HELP`, `add_arguments(parser)`
+Each subcommand lives in `pipeline/cli/<name>.py` and exposes `HELP`, `add_arguments(parser)`
 and `run(args) -> int`. Those modules import only argparse at module level, so `cnep --help` stays
 instant; torch, rerun and friends are imported inside `run`.
 """
@@ -12,7 +12,7 @@ import importlib
 import logging
 import sys
 
-# Subcommand name -> module under pipeline.commands (kept in pipeline order).
+# Subcommand name -> module under pipeline.cli (kept in pipeline order).
 COMMANDS = (
     "ingest",
     "inspect",
@@ -29,9 +29,9 @@ def _available_commands() -> list[tuple[str, object]]:
     found = []
     for name in COMMANDS:
         try:
-            module = importlib.import_module(f"pipeline.commands.{name}")
+            module = importlib.import_module(f"pipeline.cli.{name}")
         except ModuleNotFoundError as exc:
-            if exc.name != f"pipeline.commands.{name}":
+            if exc.name != f"pipeline.cli.{name}":
                 raise
             continue  # that stage is not part of this build yet
         found.append((name, module))

@@ -3,12 +3,12 @@
     train(TrainStageConfig(inputs=(folder,), out=Path("ckpt"))) -> Path("ckpt")
 
 Steps: find and read the trajectory files (one width, one feature extractor, else an error naming
-the files); pick the model's columns by layout preset (pipeline.training_layouts); split whole
+the files); pick the model's columns by layout preset (pipeline.train.layouts); split whole
 demonstrations into training and validation; fit the normaliser on the training demonstrations;
 train with `models.Trainer` (time normalised per demonstration to [0, 1] by its sampler), saving a
 resumable state every `save_every` steps; keep the weights with the lowest validation error; stop
 early after `patience` validations without improvement. Under torchrun the same call trains with
-DistributedDataParallel (pipeline.training_parallel); only rank 0 writes.
+DistributedDataParallel (pipeline.train.parallel); only rank 0 writes.
 
 OUT gets `config.json` (model, layout, training settings, extractor identity, files with sha256,
 best step and error), `model.safetensors` and `training_log.jsonl` (one line per validation).
@@ -30,13 +30,13 @@ from models import CNEPConfig, TrainConfig, Trainer, build_model, save_checkpoin
 from models.sampler import TrajectoryStack
 from models.train import split_validation
 from pipeline.errors import PipelineError
-from pipeline.training_data import TrainingSet, find_trajectory_files, load_training_set
-from pipeline.training_constants import (DEFAULT_DEVICE, DEFAULT_PATIENCE, DEFAULT_PRESET, DEFAULT_SAVE_EVERY,
+from pipeline.train.data import TrainingSet, find_trajectory_files, load_training_set
+from pipeline.train.constants import (DEFAULT_DEVICE, DEFAULT_PATIENCE, DEFAULT_PRESET, DEFAULT_SAVE_EVERY,
                                          DEFAULT_VAL_FRACTION, LOG_FILE, STATE_FILE)
-from pipeline.training_layouts import TrainingLayout, resolve_layout
-from pipeline.training_parallel import (PlacedModel, Processes, from_main, gather, rank_seed, start_processes,
+from pipeline.train.layouts import TrainingLayout, resolve_layout
+from pipeline.train.parallel import (PlacedModel, Processes, from_main, gather, rank_seed, start_processes,
                                         stop_processes)
-from pipeline.training_state import check_same_run, prepare_work_dir, publish, save_state, work_dir, write_log
+from pipeline.train.state import check_same_run, prepare_work_dir, publish, save_state, work_dir, write_log
 
 log = logging.getLogger(__name__)
 

@@ -3,7 +3,7 @@
 Stages (each logs its progress; tqdm bars unless quiet), all under OUT:
 
 1. generate   `recorded/{train,heldout,scene_change}/demo_NNN.mcap`: the synthetic robot recorder
-              (pipeline.synthetic_demos), Foxglove-schema MCAP with camera, pose and gripper;
+              (pipeline.demo.generator), Foxglove-schema MCAP with camera, pose and gripper;
 2. ingest     `demos/...`: the ingest stage reads those robot MCAP files (Foxglove topics) into
               demonstration files, strictly (CRCs, schemas, time order);
 3. extract    `trajectories/...`: MobileNet-v2 features with **seeded random weights** (ImageNet weights
@@ -36,12 +36,12 @@ import numpy as np
 from models import TrainConfig, load_checkpoint
 from models.checkpoint import atomic_write
 from pipeline.errors import PipelineError
-from pipeline.extract import ExtractConfig, extract
-from pipeline.ingest import IngestConfig, ingest
-from pipeline.replay import RowMapping, read_decisions, replay
-from pipeline.synthetic_demos import SPLITS, SWITCH_KEY, DemoSetConfig, generate
-from pipeline.train import TrainStageConfig, train
-from pipeline.training_constants import SCENE
+from pipeline.extract.stage import ExtractConfig, extract
+from pipeline.ingest.stage import IngestConfig, ingest
+from pipeline.replay.stage import RowMapping, read_decisions, replay
+from pipeline.demo.generator import SPLITS, SWITCH_KEY, DemoSetConfig, generate
+from pipeline.train.stage import TrainStageConfig, train
+from pipeline.train.constants import SCENE
 from pipeline.workers import single_thread_processes
 from recordings import read_demonstration, read_trajectory
 from recordings.constants import BLOCK_GRIPPER

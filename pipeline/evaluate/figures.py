@@ -14,7 +14,7 @@ import numpy as np
 
 from models.checkpoint import atomic_write
 from pipeline.errors import PipelineError
-from pipeline.evaluate_jobs import queries
+from pipeline.evaluate.jobs import queries
 
 
 def _pyplot():

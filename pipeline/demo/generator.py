@@ -1,8 +1,8 @@
 """The built-in demonstration set: seeded synthetic tabletop demonstrations written as demonstration MCAP files.
 
 Each demonstration is what a robot recorder would store (through `recordings`): the camera frames
-(pipeline.scene), the end-effector pose (xyz in m + quaternion xyzw) and the gripper opening (m) at
-`fps` Hz. The scene decides the behaviour (pipeline.scene.BEHAVIOURS); the motion is a minimum-jerk
+(pipeline.demo.scene), the end-effector pose (xyz in m + quaternion xyzw) and the gripper opening (m) at
+`fps` Hz. The scene decides the behaviour (pipeline.demo.scene.BEHAVIOURS); the motion is a minimum-jerk
 path through waypoints: home -> above the cup -> down -> close -> lift -> above the free slot -> down
 -> open -> lift. All behaviours start at the same home pose, two behaviours share each grasp and each
 place point, and the paths cross in the table plane. Phase durations and waypoints vary per
@@ -25,14 +25,14 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from pipeline.scene import (BEHAVIOURS, Scene, behaviour_parts, draw_frame, encode_jpeg, gripper_quaternion,
+from pipeline.demo.scene import (BEHAVIOURS, Scene, behaviour_parts, draw_frame, encode_jpeg, gripper_quaternion,
                             sample_scene)
 from recordings import Demonstration, Episode, write_demonstration
 
 log = logging.getLogger(__name__)
 
 TASK = "tabletop: put the cup into the free slot"
-SOURCE = "pipeline.synthetic_demos"
+SOURCE = "pipeline.demo.generator"
 LABEL_KEY = "behaviour"  # episode extra metadata: the behaviour name (summary only, never a training input)
 SWITCH_KEY = "switch_step"  # scene-change episodes: the first step showing the changed scene
 

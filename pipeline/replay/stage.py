@@ -5,7 +5,7 @@
 For each recording, an `OnlineConditioner` (models.online) takes the steps in order, as a robot would
 see them, and re-evaluates the gate at every step; the per-step gate probabilities, the active expert,
 the switches and the active expert's predicted remaining trajectory go to Rerun next to the camera
-frames (the stored JPEG bytes) and the end-effector pose (entities: pipeline.rerun_layout).
+frames (the stored JPEG bytes) and the end-effector pose (entities: pipeline.replay.layout).
 
 - Always writes the `.rrd` (atomically: temporary name in the destination folder, then a rename). A
   live viewer gets the same stream only when one answers at `connect` (a TCP probe first; a warning
@@ -39,7 +39,7 @@ import numpy as np
 
 from models import CNEP, ConditioningPolicy, ExpertSwitch, OnlineConditioner, load_checkpoint, read_checkpoint_config
 from models.checkpoint import atomic_write
-from pipeline import rerun_layout as L
+import pipeline.replay.layout as L
 from pipeline.errors import PipelineError
 from recordings import Event, Trajectory, add_events, read_trajectory
 from recordings.constants import BLOCK_POSE_XYZ, LAYOUTS

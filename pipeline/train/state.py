@@ -20,7 +20,7 @@ import torch
 
 from models.checkpoint import atomic_write
 from pipeline.errors import PipelineError
-from pipeline.training_constants import LOG_FILE, STATE_FILE
+from pipeline.train.constants import LOG_FILE, STATE_FILE
 
 log = logging.getLogger(__name__)
 

@@ -28,7 +28,7 @@ import numpy as np
 
 from models import CNEPConfig, Layout, TrainConfig, fit
 from pipeline.errors import PipelineError
-from pipeline.ingest import IngestConfig, ingest
+from pipeline.ingest.stage import IngestConfig, ingest
 from recordings import Demonstration, read_demonstration
 
 log = logging.getLogger(__name__)

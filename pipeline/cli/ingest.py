@@ -41,7 +41,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from pipeline.ingest import IngestConfig, ingest
+    from pipeline.ingest.stage import IngestConfig, ingest
     from recordings.adapters import FrameTiming
     from recordings.csv_motion import CsvColumns
     from recordings.mcap_source import McapTopics

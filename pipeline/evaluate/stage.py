@@ -3,7 +3,7 @@
 Every table is a grid of rows (methods) by columns (synthetic sets). For each (set, seed) the
 baselines (ProMP, GMM-GMR with and without ridge, nearest demonstration) and every network the table
 needs (CNEP variants, the parameter-matched CNMP) are fitted and scored on the same queries under
-both protocols (see pipeline.evaluate_jobs and docs/evaluation.md). A network that several tables
+both protocols (see pipeline.evaluate.jobs and docs/evaluation.md). A network that several tables
 use (e.g. the comparison's CNEP is the ablation's CNEP and CNEP-MoE) is trained once.
 
 Each cell is the mean +- std over all queries of all seeds (pooled), MSE and MAE, and the mode
@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.errors import PipelineError
-from pipeline.evaluate_constants import (
+from pipeline.evaluate.constants import (
     CNEP_EXPERTS,
     DEFAULT_OUT,
     EXPERT_COUNTS,
@@ -39,7 +39,7 @@ from pipeline.evaluate_constants import (
     TABLE_SETS,
     TABLES,
 )
-from pipeline.evaluate_jobs import PROTOCOLS, Job, ModelSpec, run_job
+from pipeline.evaluate.jobs import PROTOCOLS, Job, ModelSpec, run_job
 from pipeline.workers import single_thread_processes
 
 log = logging.getLogger(__name__)
@@ -245,7 +245,7 @@ def evaluate(config: EvaluateConfig) -> dict[str, Path]:
 
 def write_table(table: str, config: EvaluateConfig, done: dict[tuple, dict], wall: float) -> Path:
     """Write <table>.md, <table>.json and the table's figures; returns the Markdown path."""
-    from pipeline.evaluate_tables import PAPER_NOTE, to_markdown, write_text
+    from pipeline.evaluate.tables import PAPER_NOTE, to_markdown, write_text
 
     data = assemble(table, config, done)
     data["wall_seconds"] = wall
@@ -254,7 +254,7 @@ def write_table(table: str, config: EvaluateConfig, done: dict[tuple, dict], wal
     markdown = config.out / f"{table}.md"
     write_text(markdown, to_markdown(data))
     if config.figures:
-        from pipeline.evaluate_figures import plot_set
+        from pipeline.evaluate.figures import plot_set
 
         for set_name in config.table_sets(table):
             plot_set(config.out / "figures" / f"{table}-{set_name}.png", set_name, config.n_queries,

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from models.checkpoint import atomic_write
-from pipeline.evaluate_constants import PAPER, SET_TITLES
+from pipeline.evaluate.constants import PAPER, SET_TITLES
 
 TITLES = {
     "comparison": "Comparison with the baselines: MSE over generated trajectories conditioned from intermediate points",

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.evaluate_constants import GMM_COMPONENTS, PROMP_WEIGHTS, SAMPLES_IN_FIGURE
+from pipeline.evaluate.constants import GMM_COMPONENTS, PROMP_WEIGHTS, SAMPLES_IN_FIGURE
 
 PROTOCOLS = ("paper", "heldout")
 
@@ -101,7 +101,7 @@ def _scored(generate, s, qs: dict) -> dict:
 
 
 def baselines(set_name: str, seed: int) -> dict:
-    """name -> unfitted baseline, with the authors' sizes for this set (see pipeline.evaluate_constants)."""
+    """name -> unfitted baseline, with the authors' sizes for this set (see pipeline.evaluate.constants)."""
     from models.baselines import GMMGMR, NearestDemo, ProMP
 
     return {

@@ -21,7 +21,7 @@ from torch import distributed as dist
 
 from models import CNEP
 from pipeline.errors import USER_ERRORS, PipelineError
-from pipeline.training_constants import DEVICES
+from pipeline.train.constants import DEVICES
 
 log = logging.getLogger(__name__)
 

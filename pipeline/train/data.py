@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.errors import PipelineError
-from pipeline.extract import SUFFIX, _names, check_identities
+from pipeline.extract.stage import SUFFIX, _names, check_identities
 from recordings import Trajectory, read_trajectory
 
 log = logging.getLogger(__name__)

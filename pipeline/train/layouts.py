@@ -28,7 +28,7 @@ import numpy as np
 
 from models import Layout
 from pipeline.errors import PipelineError
-from pipeline.training_constants import ALL, MOTION, SCENE, WINE_GLASS
+from pipeline.train.constants import ALL, MOTION, SCENE, WINE_GLASS
 from recordings.constants import BLOCK_FEATURES, BLOCK_GRIPPER, BLOCK_POSE_QUAT, BLOCK_POSE_XYZ, LAYOUTS
 
 MOTION_BLOCKS = (BLOCK_POSE_XYZ, BLOCK_POSE_QUAT, BLOCK_GRIPPER)

@@ -31,7 +31,7 @@ def run(args: argparse.Namespace) -> int:
     import time
 
     from models import ConditioningPolicy
-    from pipeline.replay import DEFAULT_VIEWER_URL, decisions_path, read_decisions, replay, serve
+    from pipeline.replay.stage import DEFAULT_VIEWER_URL, decisions_path, read_decisions, replay, serve
 
     server = None
     connect = None if args.no_live else args.connect or DEFAULT_VIEWER_URL

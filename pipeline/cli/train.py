@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from pipeline.training_constants import (DEFAULT_DEVICE, DEFAULT_PATIENCE, DEFAULT_PRESET, DEFAULT_SAVE_EVERY,
+from pipeline.train.constants import (DEFAULT_DEVICE, DEFAULT_PATIENCE, DEFAULT_PRESET, DEFAULT_SAVE_EVERY,
                                          DEFAULT_VAL_FRACTION, DEVICES, PRESET_NAMES)
 
 HELP = "train a CNEP on trajectory files (resumable; multi-process with torchrun)"
@@ -137,7 +137,7 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from models import TrainConfig
-    from pipeline.train import TrainStageConfig, train
+    from pipeline.train.stage import TrainStageConfig, train
 
     chosen = settings(args)
     given = {name: chosen[name] for name in TRAIN_OPTIONS if chosen[name] is not None}

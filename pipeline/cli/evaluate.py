@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from pipeline.evaluate_constants import SET_TITLES
+from pipeline.evaluate.constants import SET_TITLES
 
 HELP = "reproduce the paper's tables (CNEP vs CNMP, ProMP, GMM-GMR, nearest demo) on its synthetic sets"
 
@@ -30,8 +30,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from pipeline.evaluate import EvaluateConfig, evaluate
-    from pipeline.evaluate_constants import TABLES
+    from pipeline.evaluate.stage import EvaluateConfig, evaluate
+    from pipeline.evaluate.constants import TABLES
 
     config = EvaluateConfig(
         tables=TABLES if args.table == "all" else (args.table,),

@@ -26,7 +26,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from pipeline.extract import ExtractConfig, extract
+    from pipeline.extract.stage import ExtractConfig, extract
 
     options = {"batch_size": args.batch_size} if args.batch_size is not None else {}
     config = ExtractConfig(

@@ -1,0 +1,11 @@
+"""Stage `extract`: demonstration MCAP files -> trajectory MCAP files of 1288-d steps [features | pose | gripper].
+
+`stage` runs the MobileNet-v2 extractor of `perception` over each file's frames and writes the
+trajectory file beside the extractor's identity, which train and replay check.
+"""
+
+from pipeline._lazy import stage_attribute
+
+
+def __getattr__(name: str) -> object:
+    return stage_attribute(__name__, name)
