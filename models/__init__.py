@@ -7,6 +7,7 @@ from models.checkpoint import load_checkpoint, read_checkpoint_config, save_chec
 from models.cnep import CNEP, Prediction
 from models.config import CNEPConfig, Layout, TrainConfig, authors_coefficients
 from models.errors import ConfigError
+from models.matched import matched_cnmp, parameter_count
 from models.train import Trainer, build_model, fit
 
 __all__ = [
@@ -21,6 +22,8 @@ __all__ = [
     "build_model",
     "fit",
     "load_checkpoint",
+    "matched_cnmp",
+    "parameter_count",
     "read_checkpoint_config",
     "save_checkpoint",
 ]

@@ -27,6 +27,10 @@ log = logging.getLogger(__name__)
 
 VAL_BATCHES = 8  # fixed validation batches, drawn once
 VAL_BATCH_SIZE = 64
+# `fit` without validation trajectories holds VAL_FRACTION of them out, but only from this many on:
+# below it a held-out fifth would take whole behaviours away (two Baxter demonstrations would train on one).
+MIN_TRAJECTORIES_TO_HOLD_OUT = 10
+VAL_FRACTION = 0.2
 
 
 def build_model(config: CNEPConfig, train: Sequence[np.ndarray], seed: int) -> CNEP:
@@ -176,10 +180,13 @@ def fit(
 ) -> tuple[CNEP, list[dict]]:
     """Train a CNEP on `(T_i, width)` trajectories; returns the best model (by validation) and the history.
 
-    Without `val_trajectories`, 20% of the trajectories (by whole trajectory) are held out.
+    Without `val_trajectories`, VAL_FRACTION of the trajectories (whole trajectories, seeded) are held
+    out for validation when there are at least MIN_TRAJECTORIES_TO_HOLD_OUT; with fewer, every
+    trajectory trains and validation uses the training set (logged as a warning). Each history record
+    says which: `n_train`, `n_val` and `validation` ("given", "held out" or "training set").
     """
-    train, val = (trajectories, val_trajectories) if val_trajectories else split_validation(trajectories, 0.2, train_config.seed)
-    for t in list(train) + list(val):
+    train, val, validation = _validation_split(list(trajectories), val_trajectories, train_config.seed)
+    for t in train + val:
         if np.ndim(t) != 2 or np.shape(t)[1] != config.layout.width:
             raise ConfigError(f"Trajectories must be (T, {config.layout.width}) arrays, got shape {np.shape(t)}.")
     model = build_model(config, train, train_config.seed)
@@ -187,4 +194,21 @@ def fit(
     trainer.run(progress=progress)
     model.load_state_dict(trainer.best_state)
     model.eval()
-    return model, trainer.history
+    split = {"n_train": len(train), "n_val": len(val), "validation": validation}
+    return model, [{**record, **split} for record in trainer.history]
+
+
+def _validation_split(trajectories: list[np.ndarray], val_trajectories: Sequence[np.ndarray] | None,
+                      seed: int) -> tuple[list[np.ndarray], list[np.ndarray], str]:
+    """(train, validation, which validation) for `fit`; never drops a trajectory silently."""
+    if val_trajectories:
+        return trajectories, list(val_trajectories), "given"
+    n = len(trajectories)
+    if n >= MIN_TRAJECTORIES_TO_HOLD_OUT:
+        train, val = split_validation(trajectories, VAL_FRACTION, seed)
+        log.info("fit: validating on %d of the %d trajectories, held out of training (pass val_trajectories "
+                 "to train on all of them)", len(val), n)
+        return train, val, "held out"
+    log.warning("fit: only %d trajectories (fewer than %d), so all of them train and validation uses the training "
+                "set; pass val_trajectories to validate on others", n, MIN_TRAJECTORIES_TO_HOLD_OUT)
+    return trajectories, trajectories, "training set"

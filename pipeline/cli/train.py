@@ -76,6 +76,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                    help=f"encoder layer widths (default {_default('encoder_widths')})")
     m.add_argument("--expert-widths", type=_widths, default=keep,
                    help=f"expert layer widths (default {_default('expert_widths')})")
+    m.add_argument("--matched-cnmp", action="store_true",
+                   help="train the one-expert CNMP with the parameter count of the CNEP these options describe "
+                        "(its expert widened; the comparison the paper makes)")
     t = parser.add_argument_group("training")
     for name, (kind, text) in TRAIN_OPTIONS.items():
         t.add_argument(f"--{name.replace('_', '-')}", type=kind, default=keep,
@@ -149,6 +152,7 @@ def run(args: argparse.Namespace) -> int:
         n_experts=chosen["experts"],
         encoder_widths=chosen["encoder_widths"],
         expert_widths=chosen["expert_widths"],
+        matched_cnmp=args.matched_cnmp,
         training=training,
         val_fraction=chosen["val_fraction"],
         save_every=chosen["save_every"],

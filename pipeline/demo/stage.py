@@ -50,7 +50,6 @@ log = logging.getLogger(__name__)
 
 CNEP_EXPERTS = 4  # one per behaviour of the scene
 LAYOUT = SCENE  # queries carry no features: the behaviour reaches the experts through the context and the gate
-CNMP_WIDTHS = (178, 178)  # 334,123 parameters vs the 4-expert CNEP's 333,252 (layout scene, widths 128 x 128)
 # The gate learns at the full learning rate here, not at the models' default fraction (0.3): measured with
 # 0.3 (4000 steps, seeds 0 and 1) two behaviours shared an expert (3 distinct of 4), also at 6000 steps (docs/demo.md).
 GATE_LR_SCALE = 1.0
@@ -165,12 +164,11 @@ def _run_stages(config: DemoConfig, out: Path, size: DemoSize, seconds: dict[str
     training = TrainConfig(steps=size.train_steps, warmup_steps=size.warmup_steps, val_every=size.val_every,
                            gate_lr_scale=GATE_LR_SCALE, seed=config.seed)
     checkpoints = {"CNEP": out / "checkpoints" / "cnep", "CNMP": out / "checkpoints" / "cnmp"}
-    widths = {"CNEP": {"n_experts": CNEP_EXPERTS},
-              "CNMP": {"n_experts": 1, "encoder_widths": CNMP_WIDTHS, "expert_widths": CNMP_WIDTHS}}
+    networks = {"CNEP": {"n_experts": CNEP_EXPERTS}, "CNMP": {"n_experts": CNEP_EXPERTS, "matched_cnmp": True}}
     log.info("training the CNEP and the CNMP side by side (%d steps each, one process each)", size.train_steps)
     with single_thread_processes(len(checkpoints)) as pool:  # the workers train quietly; their errors reach us
         futures = {pool.submit(train, TrainStageConfig(inputs=(out / "trajectories" / "train",), out=path, layout=LAYOUT,
-                                                       training=training, quiet=True, **widths[name])): name
+                                                       training=training, quiet=True, **networks[name])): name
                    for name, path in checkpoints.items()}
         for future in as_completed(futures):
             future.result()

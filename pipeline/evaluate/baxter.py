@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from models import CNEPConfig, Layout, TrainConfig, fit
+from models import CNEPConfig, Layout, TrainConfig, fit, matched_cnmp
 from pipeline.errors import PipelineError
 from pipeline.ingest.stage import IngestConfig, ingest
 from recordings import Demonstration, read_demonstration
@@ -37,7 +37,6 @@ DEMO_FOLDER = "start_end"
 BOX_X = (0.71, 0.95)  # m, the obstacle's extent in the paper's set-up
 BOX_Y = (-0.36, -0.24)
 SAMPLES = 200
-CNMP_WIDTHS = (158, 158)  # the authors' parameter-matched CNMP for d = 2
 LAYOUT_XY = Layout(width=2, observed=((0, 2),), query=(), predicted=((0, 2),))
 
 
@@ -108,9 +107,8 @@ def train_models(demos: np.ndarray, config: BaxterConfig) -> dict:
                         seed=config.seed)
     trajectories = list(demos)
     models = {}
-    for name, cfg in (("CNEP", CNEPConfig(layout=LAYOUT_XY, n_experts=2)),
-                      ("CNMP", CNEPConfig(layout=LAYOUT_XY, n_experts=1, encoder_widths=CNMP_WIDTHS,
-                                          expert_widths=CNMP_WIDTHS))):
+    cnep = CNEPConfig(layout=LAYOUT_XY, n_experts=2)
+    for name, cfg in (("CNEP", cnep), ("CNMP", matched_cnmp(cnep))):
         log.info("training %s on %d demonstrations for %d steps", name, len(demos), config.steps)
         models[name], _ = fit(trajectories, cfg, train, val_trajectories=trajectories, progress=not config.quiet)
     return models

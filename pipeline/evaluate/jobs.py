@@ -112,33 +112,11 @@ def baselines(set_name: str, seed: int) -> dict:
     }
 
 
-def matched_width(n_experts: int, depth: int = 2) -> int:
-    """Width of a CNMP's expert layers giving about the parameter count of a CNEP with `n_experts`.
-
-    The authors widened their CNMP to [158, 158] (d = 2) and [204, 204] (d = 4) for their network; ours
-    feeds Fourier time features to the experts, so the widths that match are solved for here.
-    """
-    from models import CNEP, CNEPConfig
-
-    def count(config) -> int:
-        return sum(p.numel() for p in CNEP(config).parameters())
-
-    target = count(CNEPConfig(n_experts=n_experts))
-    lo, hi = 1, 4096
-    while lo < hi:  # smallest width whose count reaches the target
-        mid = (lo + hi) // 2
-        if count(CNEPConfig(n_experts=1, expert_widths=(mid,) * depth)) < target:
-            lo = mid + 1
-        else:
-            hi = mid
-    return lo
-
-
 def model_config(spec: ModelSpec, cnmp_matches: int):
-    from models import CNEPConfig
+    from models import CNEPConfig, matched_cnmp
 
     if spec.n_experts == 1:
-        return CNEPConfig(n_experts=1, expert_widths=(matched_width(cnmp_matches),) * 2)
+        return matched_cnmp(CNEPConfig(n_experts=cnmp_matches))
     return CNEPConfig(n_experts=spec.n_experts, a_batch=spec.a_batch, a_ind=spec.a_ind)
 
 

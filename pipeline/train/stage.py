@@ -27,6 +27,7 @@ import torch
 from tqdm import tqdm
 
 from models import CNEPConfig, TrainConfig, Trainer, build_model, save_checkpoint
+from models.matched import matched_cnmp
 from models.sampler import TrajectoryStack
 from models.train import split_validation
 from pipeline.errors import PipelineError
@@ -48,7 +49,8 @@ class TrainStageConfig:
     """inputs: trajectory files or folders (read only); out: checkpoint folder (must not exist unless `force`).
 
     layout: preset name (wine-glass, scene, motion, all); n_experts, encoder_widths, expert_widths,
-    time_frequencies: the network (models.CNEPConfig); training: steps, batch size (per process), lr,
+    time_frequencies: the network (models.CNEPConfig); matched_cnmp: train instead the one-expert CNMP
+    with that network's parameter count (models.matched_cnmp); training: steps, batch size (per process), lr,
     schedule, val_every, patience (validations), seed (models.TrainConfig); val_fraction: share of the
     demonstrations held out for validation (whole demonstrations, at least one); save_every: steps
     between resumable saves; device: cpu or cuda; resume: continue the unfinished run writing to
@@ -62,6 +64,7 @@ class TrainStageConfig:
     encoder_widths: tuple[int, ...] = (128, 128)
     expert_widths: tuple[int, ...] = (128, 128)
     time_frequencies: int = 8
+    matched_cnmp: bool = False
     training: TrainConfig = field(default_factory=lambda: DEFAULT_TRAINING)
     val_fraction: float = DEFAULT_VAL_FRACTION
     save_every: int = DEFAULT_SAVE_EVERY
@@ -107,6 +110,8 @@ def _train(config: TrainStageConfig, procs: Processes, device: torch.device) -> 
     layout = resolve_layout(config.layout, data.width, data.files[0].path)
     model_config = CNEPConfig(layout=layout.model, n_experts=config.n_experts, encoder_widths=config.encoder_widths,
                               expert_widths=config.expert_widths, time_frequencies=config.time_frequencies)
+    if config.matched_cnmp:
+        model_config = matched_cnmp(model_config)
     train_idx, val_idx = split_validation(list(range(len(data.files))), config.val_fraction, config.training.seed)
     identity = run_identity(config, data, layout, model_config, train_idx, val_idx, procs)
     saved = from_main(procs, lambda: prepare_work_dir(config.out, config.resume, config.force))

@@ -82,3 +82,22 @@ def test_two_modes_end_on_different_experts():
     assert len(set(chosen[modes == 0])) == 1 and len(set(chosen[modes == 1])) == 1
     assert chosen[modes == 0][0] != chosen[modes == 1][0]
     assert history[-1]["val_error"] < 0.05
+
+
+def test_fit_with_two_trajectories_trains_on_both_and_says_so(caplog):
+    trajs, _ = two_mode_trajectories(n=2)
+    with caplog.at_level("WARNING", logger="models.train"):
+        model, history = fit(trajs, CNEPConfig(**SMALL), QUICK, progress=False)
+    assert history[-1]["n_train"] == 2 and history[-1]["validation"] == "training set"
+    assert "only 2 trajectories" in caplog.text
+    # both demonstrations shaped the normaliser: it is the statistics of the two together
+    both = np.concatenate(trajs)
+    np.testing.assert_allclose(model.normaliser.loc.numpy(), both.mean(axis=0), rtol=1e-5, atol=1e-6)
+
+
+def test_fit_holds_out_a_reported_fifth_from_ten_trajectories_on(caplog):
+    trajs, _ = two_mode_trajectories(n=10)
+    with caplog.at_level("INFO", logger="models.train"):
+        _, history = fit(trajs, CNEPConfig(**SMALL), QUICK, progress=False)
+    assert (history[0]["n_train"], history[0]["n_val"], history[0]["validation"]) == (8, 2, "held out")
+    assert "validating on 2 of the 10 trajectories" in caplog.text

@@ -7,11 +7,11 @@ import pytest
 import torch
 
 import models.baselines.gmm as gmm_module
-from models import CNEP, CNEPConfig
+from models import CNEPConfig
 from pipeline.cli.main import main
 from pipeline.evaluate.stage import EvaluateConfig, evaluate, plan, pooled, table_rows
 from pipeline.evaluate.constants import PAPER, QUICK_QUERIES, QUICK_SETS, QUICK_STEPS, TABLES
-from pipeline.evaluate.jobs import ModelSpec, matched_width
+from pipeline.evaluate.jobs import ModelSpec
 
 
 def test_plan_trains_each_shared_network_once():
@@ -51,17 +51,6 @@ def test_pooled_equals_statistics_over_all_queries():
     assert cell["mse_std"] == pytest.approx(errors.std())
     assert cell["mode_accuracy"] == pytest.approx(0.75)
     assert cell["mode_accuracy_std"] == pytest.approx(np.std([0.5, 1.0, 0.75]))
-
-
-@pytest.mark.parametrize("d", [2, 4])
-def test_cnmp_width_matches_the_cnep_parameter_count(d):
-    def count(config):
-        return sum(p.numel() for p in CNEP(config).parameters())
-
-    w = matched_width(d)
-    target = count(CNEPConfig(n_experts=d))
-    assert count(CNEPConfig(n_experts=1, expert_widths=(w - 1, w - 1))) < target <= count(
-        CNEPConfig(n_experts=1, expert_widths=(w, w)))
 
 
 @pytest.fixture
