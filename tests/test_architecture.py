@@ -1,0 +1,63 @@
+"""The import rules of docs/architecture.md, read from the source (every import, also inside functions)."""
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+LIBRARIES = ("models", "recordings", "perception")
+STAGE_ORDER = ("ingest", "extract", "train", "replay", "evaluate", "demo", "cli")
+
+
+def imports(package: str) -> list[tuple[Path, str]]:
+    """(file, imported module) for every import statement under ROOT/package."""
+    found = []
+    for path in sorted((ROOT / package).rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+            if isinstance(node, ast.Import):
+                found += [(path, alias.name) for alias in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+                found.append((path, node.module))
+    return found
+
+
+def top(module: str) -> str:
+    return module.split(".")[0]
+
+
+def stage_of(path: Path) -> str | None:
+    """The stage folder a pipeline file belongs to; None for the shared modules directly under pipeline/."""
+    parts = path.relative_to(ROOT / "pipeline").parts
+    return parts[0] if len(parts) > 1 else None
+
+
+@pytest.mark.parametrize("package", LIBRARIES)
+def test_libraries_import_neither_pipeline_nor_each_other(package):
+    forbidden = {"pipeline", *LIBRARIES} - {package}
+    bad = [f"{p.relative_to(ROOT)}: {m}" for p, m in imports(package) if top(m) in forbidden]
+    assert not bad, bad
+
+
+def test_recordings_never_imports_torch():
+    bad = [f"{p.relative_to(ROOT)}: {m}" for p, m in imports("recordings") if top(m) == "torch"]
+    assert not bad, bad
+
+
+def test_every_pipeline_folder_is_a_known_stage():
+    folders = {p.name for p in (ROOT / "pipeline").iterdir() if p.is_dir() and p.name != "__pycache__"}
+    assert folders == set(STAGE_ORDER)
+
+
+def test_stages_import_only_earlier_stages_and_shared_modules():
+    bad = []
+    for path, module in imports("pipeline"):
+        parts = module.split(".")
+        if parts[0] != "pipeline" or len(parts) < 2 or parts[1] not in STAGE_ORDER:
+            continue
+        importer, imported = stage_of(path), parts[1]
+        if path.name == "__main__.py" and importer is None and imported == "cli":
+            continue
+        if importer is None or (importer != imported and STAGE_ORDER.index(imported) > STAGE_ORDER.index(importer)):
+            bad.append(f"{path.relative_to(ROOT)}: {module}")
+    assert not bad, bad
