@@ -1,17 +1,36 @@
 """Errors a user can fix: the CLI prints these as one line and exits 2 (no traceback).
 
 Each package keeps its own error class (they never import each other); this module gathers them.
+Importing it costs nothing: the other packages' classes are looked up only when asked for, so
+`cnep inspect` (recordings only) never pulls in torch through here.
 """
 
 from __future__ import annotations
 
-from models.errors import ConfigError
-from perception.errors import PerceptionError
-from recordings.errors import RecordingError
+import importlib
+import sys
+
+# (module, class) of every package's user-error class besides PipelineError.
+_PACKAGE_ERRORS = (("models.errors", "ConfigError"), ("recordings.errors", "RecordingError"),
+                   ("perception.errors", "PerceptionError"))
 
 
 class PipelineError(Exception):
     """A stage was given inputs that do not fit together (naming the files and the fix)."""
 
 
-USER_ERRORS: tuple[type[Exception], ...] = (PipelineError, ConfigError, RecordingError, PerceptionError)
+def loaded_user_errors() -> tuple[type[Exception], ...]:
+    """PipelineError and the error classes of the packages imported so far.
+
+    An error of a package that was never imported cannot have been raised, so catching these is the
+    same as catching USER_ERRORS, without importing torch (models, perception) to do it.
+    """
+    found = [getattr(sys.modules[name], cls) for name, cls in _PACKAGE_ERRORS if name in sys.modules]
+    return (PipelineError, *found)
+
+
+def __getattr__(name: str):
+    if name == "USER_ERRORS":  # every package's class, importing them (and torch) now
+        classes = tuple(getattr(importlib.import_module(module), cls) for module, cls in _PACKAGE_ERRORS)
+        return (PipelineError, *classes)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

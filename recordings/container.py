@@ -11,8 +11,8 @@ from __future__ import annotations
 import contextlib
 import io
 import os
+import secrets
 import struct
-import tempfile
 import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -54,13 +54,15 @@ CORRUPTION_ERRORS: tuple[type[BaseException], ...] = (
 def atomic_output(path: str | os.PathLike) -> Iterator[IO[bytes]]:
     """Open a temporary file next to `path`; rename it to `path` only if the block completes.
 
+    The file gets the usual permissions (0666 less the umask).
     On any exception the temporary file is removed and `path` is left as it was.
     """
     target = Path(path)
     if not target.parent.is_dir():
         raise RecordingError(f"{target}: output folder {target.parent} does not exist; create it first")
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+    tmp = str(target.parent / f".{target.name}.{secrets.token_hex(4)}.tmp")
+    try:  # 0666 less the umask, like any other file the user writes (mkstemp would give 0600)
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
     except OSError as exc:
         raise RecordingError(f"{target}: cannot write in {target.parent} ({exc.strerror})") from None
     try:
@@ -292,7 +294,10 @@ def read_mcap(path: str | os.PathLike, salvage: bool = False) -> McapContents:
         _walk(data, out, salvage)
         out.complete = out.chunks_lost == 0 and out.problem is None
     except _Damage as damage:
-        if damage.truncated:
+        if damage.truncated and not out.messages:
+            why = (f"truncated: {damage} (the recorder did not finish the file) and no chunk is complete, so "
+                   f"nothing can be salvaged; record or export it again")
+        elif damage.truncated:
             why = (
                 f"truncated: {damage} (the recorder did not finish the file); "
                 f"`cnep repair {p} OUT` salvages its {out.chunks_read} complete chunk(s)"

@@ -71,7 +71,7 @@ def numbered_images(folder: str | os.PathLike) -> list[Path]:
 
 
 def read_images(paths: list[Path]) -> list[bytes]:
-    """JPEG bytes of each image (JPEG files as they are, others re-encoded)."""
+    """JPEG bytes of each image (JPEG files as they are, checked to decode; others re-encoded)."""
     import cv2
     import numpy as np
 
@@ -79,6 +79,9 @@ def read_images(paths: list[Path]) -> list[bytes]:
     for p in paths:
         data = p.read_bytes()
         if data[:2] == JPEG_MAGIC:
+            if first_undecodable([data]) is not None:
+                raise RecordingError(f"{p}: not a decodable JPEG (damaged or cut short); replace or remove it and "
+                                     f"ingest again")
             frames.append(data)
             continue
         image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
@@ -91,3 +94,23 @@ def read_images(paths: list[Path]) -> list[bytes]:
 def encode_raw_image(image: object, where: str) -> bytes:
     """JPEG bytes of an HxWx3 BGR (or HxW grey) uint8 array."""
     return _encode_jpeg(image, where)
+
+
+def first_undecodable(frames: list[bytes]) -> int | None:
+    """Index of the first frame whose JPEG does not decode, or None; cheap (an 8x reduced greyscale decode)."""
+    import cv2
+    import numpy as np
+
+    for i, frame in enumerate(frames):
+        buffer = np.frombuffer(frame, np.uint8)
+        if not buffer.size or cv2.imdecode(buffer, cv2.IMREAD_REDUCED_GRAYSCALE_8) is None:
+            return i
+    return None
+
+
+def check_decodable(frames: list[bytes] | None, where: str) -> None:
+    """Raise RecordingError naming the step of the first frame that is not a decodable JPEG (None: no frames)."""
+    bad = first_undecodable(frames) if frames else None
+    if bad is not None:
+        raise RecordingError(f"{where}: frame {bad} ({len(frames[bad])} bytes) is not a decodable JPEG; replace or "
+                             f"remove it at the source and ingest again")

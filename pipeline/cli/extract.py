@@ -20,7 +20,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="inference backend (default: the fastest available)")
     parser.add_argument("--threads", type=int, default=None, help="CPU threads for inference (default: all cores)")
     parser.add_argument("--batch-size", type=int, default=None, help="frames per forward pass")
-    parser.add_argument("--force", action="store_true", help="re-extract outputs that are already up to date")
+    parser.add_argument("--force", action="store_true", help="re-extract outputs that are already up to date, and "
+                        "replace existing outputs made otherwise (other weights, or not trajectory files)")
+    parser.add_argument("--keep-going", action="store_true",
+                        help="skip demonstrations that fail, extract the others, and list the skipped ones at the end "
+                             "(exit 2)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -37,6 +41,7 @@ def run(args: argparse.Namespace) -> int:
         threads=args.threads,
         seed=args.seed,
         force=args.force,
+        keep_going=args.keep_going,
         save_weights=Path(args.save_weights) if args.save_weights else None,
         quiet=args.quiet,
         **options,

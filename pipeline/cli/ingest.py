@@ -19,6 +19,9 @@ def _key_value(text: str) -> tuple[str, str]:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("src", help="a recording folder, a CSV file or an MCAP file (read only)")
     parser.add_argument("--out", required=True, help="folder for the demonstration files (created if missing)")
+    parser.add_argument("--force", action="store_true", help="replace demonstration files that already exist in --out")
+    parser.add_argument("--keep-going", action="store_true",
+                        help="skip recordings that fail, write the others, and list the skipped ones at the end (exit 2)")
     parser.add_argument("--task", default="", help="task label stored in each file's episode metadata")
     g = parser.add_argument_group("CSV (defaults: the Baxter format, Time in ms)")
     g.add_argument(
@@ -53,6 +56,8 @@ def run(args: argparse.Namespace) -> int:
         timing=FrameTiming(frame_rate=args.frame_rate, offset_ms=args.frame_offset_ms),
         topics=McapTopics(image=args.image_topic, pose=args.pose_topic, gripper=args.gripper_topic, gripper_joint=args.gripper_joint),
         task=args.task,
+        force=args.force,
+        keep_going=args.keep_going,
         quiet=args.quiet,
     )
     done = ingest(config)

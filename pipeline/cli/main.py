@@ -44,7 +44,8 @@ def build_parser() -> argparse.ArgumentParser:
         description="Learn multimodal movement primitives (CNEP) from recorded demonstrations.",
     )
     parser.add_argument("-q", "--quiet", action="store_true", help="only warnings and errors, no progress bars")
-    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging, and the traceback of an error")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name, module in _available_commands():
         p = sub.add_parser(name, help=module.HELP, description=module.HELP)
@@ -57,16 +58,19 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     level = logging.WARNING if args.quiet else logging.DEBUG if args.verbose else logging.INFO
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
-    from pipeline.errors import USER_ERRORS
+    from pipeline.contract import run_command
+
+    return run_command(args.command, lambda: args._run(args), verbose=args.verbose)
+
+
+def _version() -> str:
+    """The installed cnep-pipeline version (pyproject.toml)."""
+    from importlib.metadata import PackageNotFoundError, version
 
     try:
-        return int(args._run(args) or 0)
-    except USER_ERRORS as exc:
-        print(f"cnep {args.command}: error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print(f"cnep {args.command}: interrupted", file=sys.stderr)
-        return 130
+        return version("cnep-pipeline")
+    except PackageNotFoundError:
+        return "unknown (not installed)"
 
 
 if __name__ == "__main__":

@@ -25,6 +25,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="first observations kept in the conditioning set for the whole episode (default 1: the start)")
     parser.add_argument("--events-out", metavar="DIR", default=None,
                         help="also write copies of the recordings with the expert decisions on /events into DIR")
+    parser.add_argument("--force", action="store_true",
+                        help="replace existing outputs (the .rrd, its .experts.json, the copies in --events-out)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -39,7 +41,7 @@ def run(args: argparse.Namespace) -> int:
         server, connect = serve(args.port)
         print(f"serving on {connect}: connect a viewer with `rerun {connect}`")
     out = replay(args.checkpoint, args.recordings, args.out, policy=ConditioningPolicy(args.window, args.anchors),
-                 connect=connect, events_dir=args.events_out, quiet=args.quiet)
+                 connect=connect, events_dir=args.events_out, force=args.force, quiet=args.quiet)
     for rec in read_decisions(out)["recordings"]:
         share = ", ".join(f"{p:.0%}" for p in rec["share"])
         print(f"{rec['recording']}: expert {rec['majority_expert']} (steps per expert: {share}), "

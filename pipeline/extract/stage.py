@@ -3,7 +3,8 @@
 Each input is a demonstration file or a folder searched recursively for `*.mcap` (sorted). Outputs go
 to OUT/<name> (folder inputs keep their relative paths), written atomically by the recording layer;
 an input is never overwritten. An output is skipped when it is up to date: newer than its input and
-made by an extractor with the same identity (perception.compatibility_key). Demonstrations without
+made by an extractor with the same identity (perception.compatibility_key); one older than its input
+is redone; any other existing output is refused unless `force` (pipeline.contract). Demonstrations without
 frames become motion-only trajectories (8-d, no feature block).
 
 With `weights="random"` the network is first calibrated on frames sampled evenly over all inputs
@@ -15,6 +16,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -27,6 +29,7 @@ from tqdm.contrib.logging import logging_redirect_tqdm
 from perception import FeatureExtractor, PerceptionError, compatibility_key
 from perception.constants import CALIBRATION_FRAMES, DEFAULT_BATCH_SIZE, FEATURE_DIM
 from perception.frames import decode_image, resize_frames
+from pipeline.contract import output_folder, raise_if_skipped, refuse_existing
 from pipeline.errors import PipelineError
 from recordings import RecordingError, Trajectory, TrajectoryReader, read_demonstration, write_trajectory
 from recordings.constants import TOPIC_IMAGE
@@ -42,8 +45,9 @@ class ExtractConfig:
 
     weights: `imagenet`, `random` (seeded by `seed`, calibrated on the inputs) or a state-dict path.
     backend: `auto` (fastest available), `onnxruntime`, `torchscript` or `eager`; threads: CPU threads
-    (None: library default); batch_size: frames per forward pass; force: re-extract up-to-date outputs;
-    save_weights: where to save the (calibrated) weights, to reuse them as `weights` later.
+    (None: library default); batch_size: frames per forward pass; force: re-extract up-to-date outputs
+    and replace any other existing output; save_weights: where to save the (calibrated) weights, to
+    reuse them as `weights` later; keep_going: skip inputs that fail and report them at the end.
     """
 
     inputs: tuple[Path, ...]
@@ -55,6 +59,7 @@ class ExtractConfig:
     seed: int = 0
     force: bool = False
     save_weights: Path | None = None
+    keep_going: bool = False
     quiet: bool = False
 
 
@@ -75,8 +80,8 @@ def extract(config: ExtractConfig) -> list[Extracted]:
     without frames or outputs already up to date with fixed weights cost no network.
     """
     pairs = plan_outputs(config.inputs, config.out)
-    for _, dst in pairs:  # nested input folders keep their sub-folders under --out
-        dst.parent.mkdir(parents=True, exist_ok=True)
+    if config.save_weights is not None:
+        refuse_existing([config.save_weights], config.force, "weights file")
     built: list[FeatureExtractor] = []
 
     def extractor() -> FeatureExtractor:
@@ -84,21 +89,38 @@ def extract(config: ExtractConfig) -> list[Extracted]:
             built.append(build_extractor(config, [src for src, _ in pairs]))
         return built[0]
 
-    if config.save_weights is not None:
-        extractor().save_weights(config.save_weights)
-        log.info("saved the extractor weights to %s (reuse them with --weights %s)", config.save_weights,
-                 config.save_weights)
-    done = []
-    with logging_redirect_tqdm(), tqdm(total=0, unit="frame", desc="extract", disable=config.quiet,
-                                       dynamic_ncols=True) as bar:
-        for src, dst in pairs:
-            steps = None if config.force else up_to_date_steps(src, dst, extractor)
-            if steps is not None:
-                log.info("%s is up to date, skipped", dst)
-                done.append(Extracted(src, dst, steps, skipped=True))
-                continue
-            done.append(extract_file(src, dst, extractor, bar))
+    done, skipped = [], []
+    with output_folder(config.out):
+        for _, dst in pairs:  # nested input folders keep their sub-folders under --out
+            dst.parent.mkdir(parents=True, exist_ok=True)
+        current = {dst: None if config.force else up_to_date_steps(src, dst, extractor) for src, dst in pairs}
+        refuse_existing([dst for src, dst in pairs if current[dst] is None and _newer_than(dst, src)], config.force,
+                        "trajectory file (made from other weights, or not a trajectory file)")
+        if config.save_weights is not None:
+            extractor().save_weights(config.save_weights)
+            log.info("saved the extractor weights to %s (reuse them with --weights %s)", config.save_weights,
+                     config.save_weights)
+        with logging_redirect_tqdm(), tqdm(total=0, unit="frame", desc="extract", disable=config.quiet,
+                                           dynamic_ncols=True) as bar:
+            for src, dst in pairs:
+                if current[dst] is not None:
+                    log.info("%s is up to date, skipped", dst)
+                    done.append(Extracted(src, dst, current[dst], skipped=True))
+                    continue
+                try:
+                    done.append(extract_file(src, dst, extractor, bar))
+                except (RecordingError, PerceptionError) as exc:
+                    if not config.keep_going:
+                        raise
+                    log.warning("skipped %s: %s", src, exc)
+                    skipped.append(str(exc))
+    raise_if_skipped(skipped, len(pairs), f"were extracted into {config.out}")
     return done
+
+
+def _newer_than(dst: Path, src: Path) -> bool:
+    """True if `dst` exists and is not older than `src` (so it is not a stale output of `src`)."""
+    return os.path.lexists(dst) and (not dst.is_file() or dst.stat().st_mtime >= src.stat().st_mtime)
 
 
 def build_extractor(config: ExtractConfig, sources: Sequence[Path]) -> FeatureExtractor:

@@ -4,7 +4,8 @@ Sources found under SRC (a file or a folder, searched recursively, in sorted ord
 - a folder holding a video (MP4/AVI/MOV/MKV) or numbered images, plus one CSV -> one demonstration;
 - any other CSV -> one motion-only demonstration (the Baxter format works without options);
 - an MCAP file -> one demonstration from its Foxglove image/pose/gripper topics.
-Each is written to OUT/<path relative to SRC>.mcap (atomically); SRC is only read.
+Each is written to OUT/<path relative to SRC>.mcap (atomically); SRC is only read. Every frame is
+checked to decode; existing outputs are refused unless `force` (pipeline.contract).
 """
 
 from __future__ import annotations
@@ -16,19 +17,27 @@ from pathlib import Path
 from tqdm import tqdm
 from tqdm.contrib.logging import logging_redirect_tqdm
 
+from pipeline.contract import output_folder, raise_if_skipped, refuse_existing
+from pipeline.errors import PipelineError
 from recordings import Demonstration, RecordingError, write_demonstration
 from recordings.adapters import FrameTiming, demonstration_from_csv, demonstration_from_folder, media_of
 from recordings.csv_motion import CsvColumns
 from recordings.mcap_source import McapTopics, demonstration_from_mcap
+from recordings.media import check_decodable
 
 log = logging.getLogger(__name__)
+
+SOURCE_ERRORS = (RecordingError, PipelineError)  # what one bad source can raise (skipped by keep_going)
 
 SUFFIX = ".mcap"
 
 
 @dataclass(frozen=True)
 class IngestConfig:
-    """src: file or folder to read; out: folder to write (created if missing, never inside src)."""
+    """src: file or folder to read; out: folder to write (created if missing, never inside src).
+
+    force: replace existing demonstration files; keep_going: skip sources that fail and report them at the end.
+    """
 
     src: Path
     out: Path
@@ -36,6 +45,8 @@ class IngestConfig:
     timing: FrameTiming = field(default_factory=FrameTiming)
     topics: McapTopics = field(default_factory=McapTopics)
     task: str = ""
+    force: bool = False
+    keep_going: bool = False
     quiet: bool = False
 
 
@@ -96,27 +107,40 @@ def load(source: Source, config: IngestConfig) -> Demonstration:
 
 
 def ingest(config: IngestConfig) -> list[Ingested]:
-    """Convert every source under `config.src`; returns what was written, in source order."""
+    """Convert every source under `config.src`; returns what was written, in source order.
+
+    Existing outputs are refused unless `config.force`; a source that fails stops the run (nothing of
+    it is written) unless `config.keep_going`, which skips it and ends with one PipelineError naming
+    every skipped source (pipeline.contract).
+    """
     src, out = Path(config.src), Path(config.out)
     sources = discover(src)
     if src.is_dir() and out.resolve().is_relative_to(src.resolve()):
         raise RecordingError(f"{out}: the output folder is inside the source folder {src}; choose one outside it")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise RecordingError(f"{out}: cannot create the output folder ({exc.strerror})") from None
-    done = []
-    with logging_redirect_tqdm():
-        for source in tqdm(sources, desc="ingest", unit="demo", disable=config.quiet):
-            demo = load(source, config)
-            target = out / f"{source.episode_id}{SUFFIX}"
-            if target.resolve() == source.path.resolve():
-                raise RecordingError(f"{target}: the output would replace its input; choose another --out folder")
+    targets = [out / f"{source.episode_id}{SUFFIX}" for source in sources]
+    for source, target in zip(sources, targets):
+        if target.resolve() == source.path.resolve():
+            raise RecordingError(f"{target}: the output would replace its input; choose another --out folder")
+    refuse_existing(targets, config.force, "demonstration file")
+    done, skipped = [], []
+    with output_folder(out), logging_redirect_tqdm():
+        for source, target in zip(tqdm(sources, desc="ingest", unit="demo", disable=config.quiet), targets):
+            try:
+                demo = load(source, config)
+                if source.kind == "mcap":  # image and video frames are checked (or re-encoded) as they are read
+                    check_decodable(demo.frames, f"{source.path}: {config.topics.image}")
+            except SOURCE_ERRORS as exc:
+                if not config.keep_going:
+                    raise
+                log.warning("skipped %s: %s", source.path, exc)
+                skipped.append(str(exc))
+                continue
             target.parent.mkdir(parents=True, exist_ok=True)  # inside `out`, which we could create
             write_demonstration(target, demo)
             kind = "frames" if demo.has_frames else "motion-only"
             log.info("%s -> %s: %d steps, %s, %.1f Hz", source.path, target, demo.n_steps, kind, demo.episode.fps)
             done.append(Ingested(source, target, demo.n_steps, demo.has_frames, demo.episode.fps))
+    raise_if_skipped(skipped, len(sources), f"were written to {out}")
     return done
 
 

@@ -9,7 +9,7 @@ APPLICATION_ID = "cnep_replay"
 
 # Timelines
 TIMELINE_FRAME = "frame"  # sequence: the step index of the recording
-TIMELINE_TIME = "time"  # timestamp: the recording's own step times
+TIMELINE_TIME = "time"  # duration: time since the recording's first step
 
 # Entities
 CAMERA = "/camera/rgb"  # EncodedImage: the stored JPEG bytes

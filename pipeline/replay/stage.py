@@ -24,6 +24,7 @@ another width is refused.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
@@ -38,11 +39,13 @@ from urllib.parse import urlparse
 import numpy as np
 
 from models import CNEP, ConditioningPolicy, ExpertSwitch, OnlineConditioner, load_checkpoint, read_checkpoint_config
-from models.checkpoint import atomic_write
+from models.checkpoint import CONFIG_FILE, atomic_write
 import pipeline.replay.layout as L
+from pipeline.contract import check_writable_folder, output_folder, refuse_existing
 from pipeline.errors import PipelineError
+from pipeline.extract.stage import check_identities
 from recordings import Event, Trajectory, add_events, read_trajectory
-from recordings.constants import BLOCK_POSE_XYZ, LAYOUTS
+from recordings.constants import BLOCK_FEATURES, BLOCK_POSE_XYZ, LAYOUTS
 
 log = logging.getLogger(__name__)
 
@@ -77,12 +80,29 @@ class RowMapping:
         return mapping
 
     def select(self, traj: Trajectory, path: Path, checkpoint: Path) -> np.ndarray:
-        """(T, recording_width) rows -> (T, model width) float32 rows; refuses another width."""
-        if traj.width != self.recording_width:
-            raise PipelineError(f"{path}: the recording has {traj.width} columns per step but the checkpoint "
-                                f"{checkpoint} was trained on {self.recording_width}-column trajectories; replay "
-                                f"trajectory files made like its training data (check widths with `cnep inspect`)")
-        return np.concatenate([traj.data[:, a:b] for a, b in self.columns], axis=1).astype(np.float32)
+        """(T, recording width) rows -> (T, model width) float32 rows.
+
+        A recording of the training width gives the checkpoint's columns; one of another width gives the
+        model's blocks found by name in its own layout (a `motion` checkpoint takes the pose and gripper
+        of 8- and 1288-column recordings alike); a recording without one of those blocks is refused.
+        """
+        if traj.width == self.recording_width:
+            spans = self.columns
+        else:
+            missing = [name for name in self.blocks if name not in traj.layout]
+            if missing or not self.blocks:
+                raise PipelineError(f"{path}: the recording has {traj.width} columns per step "
+                                    f"({', '.join(traj.layout)}) but the checkpoint {checkpoint} was trained on "
+                                    f"{self.recording_width}-column trajectories and needs "
+                                    f"{', '.join(missing or ['its training layout'])}; replay trajectory files made "
+                                    f"like its training data (check widths with `cnep inspect`)")
+            spans = tuple(traj.layout[name] for name in sorted(self.blocks, key=lambda n: self.blocks[n][0]))
+        return np.concatenate([traj.data[:, a:b] for a, b in spans], axis=1).astype(np.float32)
+
+    @property
+    def uses_features(self) -> bool:
+        """True if the model sees the image features (so they must come from the checkpoint's extractor)."""
+        return BLOCK_FEATURES in self.blocks
 
     def predicted_xyz(self, model: CNEP) -> list[int] | None:
         """Positions of the pose xyz columns among the model's predicted columns (None if not predicted)."""
@@ -161,12 +181,15 @@ def replay(
     connect: str | None = DEFAULT_VIEWER_URL,
     events_dir: str | os.PathLike | None = None,
     prediction_points: int = DEFAULT_PREDICTION_POINTS,
+    force: bool = False,
     quiet: bool = False,
 ) -> Path:
     """Replay trajectory files through the checkpoint's CNEP into `out_rrd`; returns its path.
 
     `connect`: a viewer URL, streamed to only if reachable (None: file only). The decisions are
-    written to `decisions_path(out_rrd)` (see `read_decisions`).
+    written to `decisions_path(out_rrd)` (see `read_decisions`). Existing outputs (the .rrd, the
+    decisions, the event copies) are refused unless `force`; a recording whose features come from
+    another extractor than the checkpoint's training data is refused (`check_extractor`).
     """
     import torch
     from tqdm.auto import tqdm
@@ -181,10 +204,14 @@ def replay(
     if events_dir is not None and len(set(names)) < len(names):
         raise PipelineError(f"{events_dir}: several recordings are named alike ({', '.join(sorted(names))}) and their "
                             f"copies with events would overwrite each other; replay them in separate runs")
+    outputs = [out, decisions_path(out), *(Path(events_dir) / name for name in names if events_dir is not None)]
+    refuse_existing(outputs, force, "replay output")
     model = load_checkpoint(checkpoint)
     mapping = RowMapping.from_checkpoint(checkpoint, model)
     trajectories = [read_trajectory(p) for p in paths]
     rows = [mapping.select(traj, p, checkpoint) for traj, p in zip(trajectories, paths)]  # refuse misfits first
+    if mapping.uses_features:
+        check_extractor(checkpoint, trajectories, paths)
     for traj, p in zip(trajectories, paths):
         if traj.n_steps < 2:
             raise PipelineError(f"{p}: {traj.n_steps} step(s); replay needs at least 2 (time runs from the first to the last)")
@@ -195,14 +222,16 @@ def replay(
     elif live:
         log.info("streaming live to %s", live)
     run_id = uuid.uuid4().hex[:8]  # a new replay is a new recording in a viewer, not more rows in an old one
-    out.parent.mkdir(parents=True, exist_ok=True)
-    if events_dir is not None:
-        Path(events_dir).mkdir(parents=True, exist_ok=True)
     parts: list[Path] = []
     summaries = []
     threads = torch.get_num_threads()
     torch.set_num_threads(1)  # one small step at a time: one thread is fastest
-    try:
+    with contextlib.ExitStack() as made:  # a failure removes the folders made for the outputs, and the parts
+        for folder, option in [(out.parent, "--out"), *([(Path(events_dir), "--events-out")] if events_dir else [])]:
+            made.enter_context(output_folder(folder, option))
+            check_writable_folder(folder)
+        made.callback(torch.set_num_threads, threads)
+        made.callback(lambda: [part.unlink(missing_ok=True) for part in [*parts, out.parent / f".{out.name}.tmp"]])
         bar = tqdm(total=sum(len(r) for r in rows), disable=quiet, desc="replay", unit="step", leave=False)
         for i, (path, traj, x) in enumerate(zip(paths, trajectories, rows)):
             decisions = decide(model, x, traj.timestamps_ns, policy, xyz, prediction_points)
@@ -218,18 +247,26 @@ def replay(
             os.replace(parts[0], tmp)
         else:
             merge_rrd(parts, tmp)
+        record = {"checkpoint": str(checkpoint), "rrd": out.name, "n_experts": model.n_experts,
+                  "policy": {"window": policy.window, "anchors": policy.anchors}, "recordings": summaries}
+        atomic_write(decisions_path(out), json.dumps(record, indent=1).encode())
         os.replace(tmp, out)
-    finally:
-        torch.set_num_threads(threads)
-        for part in [*parts, out.parent / f".{out.name}.tmp"]:
-            part.unlink(missing_ok=True)
-    record = {"checkpoint": str(checkpoint), "rrd": out.name, "n_experts": model.n_experts,
-              "policy": {"window": policy.window, "anchors": policy.anchors}, "recordings": summaries}
-    atomic_write(decisions_path(out), json.dumps(record, indent=1).encode())
     for s in summaries:
         log.debug("%s: expert %d on %.0f%% of %d steps, %d switch(es)", s["recording"], s["majority_expert"],
                  100 * max(s["share"]), s["n_steps"], len(s["switches"]))
     return out
+
+
+def check_extractor(checkpoint: Path, trajectories: list[Trajectory], paths: list[Path]) -> None:
+    """Refuse recordings whose features come from another extractor than the checkpoint's training data.
+
+    The same check as training (pipeline.extract.stage.check_identities, on perception's compatibility
+    key), with the checkpoint's config.json standing for its training files.
+    """
+    config_file = checkpoint / CONFIG_FILE
+    trained = read_checkpoint_config(checkpoint).get("extractor") or {}
+    for traj, path in zip(trajectories, paths):
+        check_identities({config_file: trained, path: traj.extractor or {}})
 
 
 def decisions_path(out_rrd: str | os.PathLike) -> Path:
@@ -293,9 +330,7 @@ def write_recording(path: Path, recording_id: str, source: Path, traj: Trajector
     rec.set_sinks(rr.FileSink(path), *([rr.GrpcSink(live)] if live else []))
     rec.send_recording_name(f"{traj.episode.episode_id} ({source.name})")
     rec.send_blueprint(L.blueprint(d))
-    steps = np.arange(traj.n_steps)
-    index = [rr.TimeColumn(L.TIMELINE_FRAME, sequence=steps),
-             rr.TimeColumn(L.TIMELINE_TIME, timestamp=traj.timestamps_ns.astype("datetime64[ns]"))]
+    index = change_index(traj, list(range(traj.n_steps)))
     log_camera(rec, index, traj)
     log_pose(rec, index, traj)
     log_gates(rec, index, decisions.gates)
@@ -337,10 +372,11 @@ def log_gates(rec, index, gates: np.ndarray) -> None:
 
 
 def change_index(traj: Trajectory, steps: list[int]):
+    """Rerun time columns of `steps`: the step index, and the time since the recording's first step (a duration)."""
     import rerun as rr
 
-    return [rr.TimeColumn(L.TIMELINE_FRAME, sequence=steps),
-            rr.TimeColumn(L.TIMELINE_TIME, timestamp=traj.timestamps_ns[steps].astype("datetime64[ns]"))]
+    since_start = (traj.timestamps_ns[steps] - traj.timestamps_ns[0]).astype("timedelta64[ns]")
+    return [rr.TimeColumn(L.TIMELINE_FRAME, sequence=steps), rr.TimeColumn(L.TIMELINE_TIME, duration=since_start)]
 
 
 def log_active_expert(rec, traj: Trajectory, decisions: Decisions, d: int) -> None:

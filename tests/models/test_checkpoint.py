@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 import torch
 
-from models.checkpoint import CONFIG_FILE, WEIGHTS_FILE, load_checkpoint, save_checkpoint
+from models.checkpoint import (CHECKSUM_KEY, CONFIG_FILE, WEIGHTS_FILE, config_checksum, load_checkpoint,
+                               read_checkpoint_config, save_checkpoint)
 from models.errors import ConfigError
 from models.train import build_model
 from tests.models.factories import random_inputs, tiny_config
@@ -41,14 +42,30 @@ def test_missing_or_unknown_checkpoints_are_clear_errors(model, tmp_path):
         load_checkpoint(tmp_path / "ckpt")
 
 
-def test_weights_that_do_not_match_the_config_are_refused(model, tmp_path):
+def test_an_edited_config_is_refused_by_its_checksum(model, tmp_path):
+    save_checkpoint(model, tmp_path / "ckpt", extra={"extractor": {"weights_sha256": "ab" * 32}})
+    cfg_path = tmp_path / "ckpt" / CONFIG_FILE
+    cfg = json.loads(cfg_path.read_text())
+    cfg_path.write_text(json.dumps({**cfg, "extractor": {"weights_sha256": "0" * 64}}, indent=2))
+    with pytest.raises(ConfigError, match="does not match its checksum"):
+        read_checkpoint_config(tmp_path / "ckpt")
+    cfg_path.write_text(json.dumps({k: v for k, v in cfg.items() if k != CHECKSUM_KEY}))
+    with pytest.raises(ConfigError, match="has no checksum"):
+        read_checkpoint_config(tmp_path / "ckpt")
+    cfg_path.write_text(json.dumps(cfg))  # the same entries, laid out differently: still accepted
+    assert read_checkpoint_config(tmp_path / "ckpt")["extractor"]["weights_sha256"] == "ab" * 32
+
+
+def test_weights_that_do_not_match_the_config_are_refused_in_one_line(model, tmp_path):
     save_checkpoint(model, tmp_path / "ckpt")
     cfg_path = tmp_path / "ckpt" / CONFIG_FILE
     cfg = json.loads(cfg_path.read_text())
     cfg["model"]["expert_widths"] = [32, 32]
+    cfg[CHECKSUM_KEY] = config_checksum(cfg)  # a consistent config that does not describe these weights
     cfg_path.write_text(json.dumps(cfg))
-    with pytest.raises(ConfigError, match="do not match"):
+    with pytest.raises(ConfigError, match="do not match") as refused:
         load_checkpoint(tmp_path / "ckpt")
+    assert "\n" not in str(refused.value) and len(str(refused.value)) < 400
     (tmp_path / "ckpt" / WEIGHTS_FILE).write_bytes(b"not safetensors")
     with pytest.raises(ConfigError, match="cannot read the weights"):
         load_checkpoint(tmp_path / "ckpt")

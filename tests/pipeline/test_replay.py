@@ -20,7 +20,7 @@ from pipeline.cli.main import main
 from pipeline.errors import PipelineError
 from pipeline.replay.stage import decisions_path, read_decisions, replay, serve, viewer_reachable
 from recordings import Episode, Trajectory, read_events, write_trajectory
-from recordings.constants import LAYOUT_MOTION, MOTION_DIM, STEP_DIM
+from recordings.constants import LAYOUT_FULL, LAYOUT_MOTION, MOTION_DIM, STEP_DIM
 
 RERUN = Path(sys.executable).parent / "rerun"
 N_EXPERTS = 3
@@ -53,12 +53,12 @@ def motion_rows(steps: int, seed: int) -> np.ndarray:
     return data
 
 
-def trajectory(steps: int = 40, seed: int = 0, frames: bool = True, width: int = MOTION_DIM, name: str = "ep") -> Trajectory:
+def trajectory(steps: int = 40, seed: int = 0, frames: bool = True, width: int = MOTION_DIM, name: str = "ep",
+               extractor: dict | None = None) -> Trajectory:
     data = motion_rows(steps, seed)
-    extractor = None
     if width == STEP_DIM:
         data = np.concatenate([np.abs(np.random.default_rng(seed).normal(size=(steps, 1280))).astype(np.float32), data], 1)
-        extractor = {"architecture": "mobilenet_v2", "weights": "random"}
+        extractor = extractor or {"architecture": "mobilenet_v2", "weights": "random"}
     return Trajectory(
         episode=Episode(episode_id=name, fps=10.0),
         timestamps_ns=1_700_000_000_000_000_000 + np.arange(steps, dtype=np.int64) * 100_000_000,
@@ -177,25 +177,63 @@ def test_several_recordings_become_several_rerun_recordings_in_one_file(tmp_path
     assert not list(tmp_path.glob(".both.rrd*"))
 
 
-def test_a_recording_of_another_width_is_refused_before_anything_is_written(tmp_path, checkpoint):
-    rec = write_trajectory(tmp_path / "wide.mcap", trajectory(width=STEP_DIM))
-    with pytest.raises(PipelineError, match=r"wide.mcap: the recording has 1288 columns .* 8-column trajectories"):
-        replay(checkpoint, [rec], tmp_path / "x.rrd", connect=None, quiet=True)
+IDENTITY = {"architecture": "mobilenet_v2", "weights": "random", "weights_sha256": "a" * 64}
+
+
+def make_feature_checkpoint(directory: Path, extractor: dict) -> Path:
+    """An untrained 1288-column model (observes features, pose, gripper) trained on features of `extractor`."""
+    layout = Layout(width=STEP_DIM, observed=((0, STEP_DIM),), predicted=((1280, STEP_DIM),))
+    config = CNEPConfig(layout=layout, n_experts=2, encoder_widths=(8,), expert_widths=(8,), time_frequencies=2)
+    model = build_model(config, [trajectory(width=STEP_DIM, seed=s).data for s in range(3)], seed=0)
+    blocks = {name: list(span) for name, span in LAYOUT_FULL.items()}
+    return save_checkpoint(model, directory, {"layout": {"recording_width": STEP_DIM, "columns": [[0, STEP_DIM]],
+                                                         "blocks": blocks}, "extractor": extractor})
+
+
+def test_a_recording_without_the_blocks_the_checkpoint_needs_is_refused_before_anything_is_written(tmp_path):
+    ckpt = make_feature_checkpoint(tmp_path / "ckpt", IDENTITY)
+    rec = write_trajectory(tmp_path / "narrow.mcap", trajectory())
+    with pytest.raises(PipelineError, match=r"narrow.mcap: the recording has 8 columns .* 1288-column trajectories "
+                                            r"and needs features"):
+        replay(ckpt, [rec], tmp_path / "x.rrd", connect=None, quiet=True)
     assert not (tmp_path / "x.rrd").exists() and not decisions_path(tmp_path / "x.rrd").exists()
 
 
-def test_the_checkpoint_layout_selects_the_recording_columns(tmp_path):
-    """A train-stage checkpoint of an 8-column model fitted on the motion columns of 1288-d files."""
+def test_a_recording_from_another_extractor_is_refused_naming_both(tmp_path):
+    """Like training: features of other weights (another sha256) would silently move the gate."""
+    ckpt = make_feature_checkpoint(tmp_path / "ckpt", IDENTITY)
+    same = write_trajectory(tmp_path / "same.mcap", trajectory(width=STEP_DIM, extractor=IDENTITY))
+    assert replay(ckpt, [same], tmp_path / "ok.rrd", connect=None, quiet=True).is_file()
+    other = write_trajectory(tmp_path / "other.mcap", trajectory(width=STEP_DIM,
+                                                                 extractor={**IDENTITY, "weights_sha256": "b" * 64}))
+    with pytest.raises(PipelineError, match=r"different feature extractors.*sha256 aaaaaaaaaaaa.*ckpt/config.json.*"
+                                            r"sha256 bbbbbbbbbbbb.*other.mcap"):
+        replay(ckpt, [same, other], tmp_path / "x.rrd", connect=None, quiet=True)
+    assert not list(tmp_path.glob("x.*")) and not list(tmp_path.glob(".x.*"))
+
+
+def test_a_checkpoint_whose_extractor_was_edited_is_refused(tmp_path, capsys):
+    ckpt = make_feature_checkpoint(tmp_path / "ckpt", IDENTITY)
+    config = ckpt / "config.json"
+    config.write_text(config.read_text().replace("a" * 64, "0" * 64))
+    rec = write_trajectory(tmp_path / "rec.mcap", trajectory(width=STEP_DIM, extractor={**IDENTITY, "weights_sha256": "0" * 64}))
+    assert main(["replay", str(ckpt), str(rec), "--out", str(tmp_path / "x.rrd"), "--no-live"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "config.json: the checkpoint config does not match its checksum" in err
+
+
+def test_a_motion_checkpoint_replays_8_and_1288_column_recordings_alike(tmp_path):
+    """The motion columns are found by the recording's layout, whatever width the checkpoint was trained on."""
     layout = {"recording_width": STEP_DIM, "columns": [[1280, 1288]],
               "blocks": {name: list(span) for name, span in LAYOUT_MOTION.items()}}
-    ckpt = make_checkpoint(tmp_path / "ckpt", extra={"layout": layout})
+    from_wide = make_checkpoint(tmp_path / "ckpt", extra={"layout": layout})
+    from_narrow = make_checkpoint(tmp_path / "plain")  # no layout entry: the model's own 8 columns
     wide = write_trajectory(tmp_path / "wide.mcap", trajectory(width=STEP_DIM))
-    out = replay(ckpt, [wide], tmp_path / "wide.rrd", connect=None, quiet=True)
-    narrow = replay(make_checkpoint(tmp_path / "plain"), [write_trajectory(tmp_path / "n.mcap", trajectory())],
-                    tmp_path / "narrow.rrd", connect=None, quiet=True)
-    assert read_decisions(out)["recordings"][0]["gates"] == read_decisions(narrow)["recordings"][0]["gates"]
-    with pytest.raises(PipelineError, match="1288-column"):
-        replay(ckpt, [tmp_path / "n.mcap"], tmp_path / "y.rrd", connect=None, quiet=True)
+    narrow = write_trajectory(tmp_path / "n.mcap", trajectory())
+    gates = [read_decisions(replay(ckpt, [rec], tmp_path / f"{i}.rrd", connect=None, quiet=True))["recordings"][0]["gates"]
+             for i, (ckpt, rec) in enumerate([(from_wide, wide), (from_wide, narrow), (from_narrow, wide),
+                                              (from_narrow, narrow)])]
+    assert all(g == gates[0] for g in gates[1:])
 
 
 def test_decisions_go_into_a_copy_of_the_recording_as_events(tmp_path, checkpoint):
@@ -292,10 +330,11 @@ def test_cli_replay_prints_the_expert_of_each_recording(tmp_path, checkpoint, ca
     assert read_decisions(tmp_path / "c.rrd")["policy"] == {"window": 3, "anchors": 0}
 
 
-def test_cli_replay_reports_a_misfit_as_one_line(tmp_path, checkpoint, capsys):
-    rec = write_trajectory(tmp_path / "wide.mcap", trajectory(width=STEP_DIM))
-    assert main(["replay", str(checkpoint), str(rec), "--out", str(tmp_path / "c.rrd"), "--no-live"]) == 2
-    assert "1288 columns" in capsys.readouterr().err
+def test_cli_replay_reports_a_misfit_as_one_line(tmp_path, capsys):
+    rec = write_trajectory(tmp_path / "narrow.mcap", trajectory())
+    ckpt = make_feature_checkpoint(tmp_path / "ckpt", IDENTITY)
+    assert main(["replay", str(ckpt), str(rec), "--out", str(tmp_path / "c.rrd"), "--no-live"]) == 2
+    assert "8 columns" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("d", [1, 2, 5, 12])

@@ -1,0 +1,148 @@
+"""The contract every `cnep` subcommand keeps, in one place (docs/cli.md explains it for users).
+
+    exit 0     done
+    exit 2     the user can fix it: a missing, damaged or misfit input, an existing output without
+               --force, a folder that cannot be written, a `--keep-going` run that skipped inputs
+    exit 130   interrupted (Ctrl-C)
+    exit 1     a bug in cnep (anything else); the line says so, `-v` prints the traceback
+
+- Errors are one line on stderr, `cnep <cmd>: error: <path>: <problem>; <fix>` (`error_line`); no
+  traceback for anything a user can cause, unless `-v` asks for it (`run_command`).
+- Outputs are never overwritten without `--force` (`refuse_existing`): ingest, extract, repair,
+  replay, train and demo alike. Inputs are never written.
+- Nothing is left behind on failure: files are written to a temporary name and renamed when complete,
+  and a folder a command created is removed again if it fails or is interrupted before anything
+  landed in it (`output_folder`).
+- ingest and extract take `--keep-going`: a bad input is skipped, the others are written, and the run
+  ends with exit 2 and one line naming what was skipped (`raise_if_skipped`).
+- Files are written with the user's umask (0666 less the umask), like any other tool's.
+- A reader that stops reading (`cnep inspect A B | head -1`) ends the command quietly with exit 0.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import os
+import sys
+import traceback
+from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
+
+from pipeline.errors import PipelineError, loaded_user_errors
+
+EXIT_OK = 0
+EXIT_BUG = 1
+EXIT_USER = 2
+EXIT_INTERRUPTED = 130
+
+# errno -> what the user can do about an OSError on that path.
+_OS_FIXES = {
+    errno.EACCES: "choose a path you can write to, or change its permissions",
+    errno.EPERM: "choose a path you can write to, or change its permissions",
+    errno.EROFS: "the file system is read-only; choose a path on another one",
+    errno.ENOSPC: "free some disk space, or choose a path on another disk",
+    errno.ENOENT: "check the path",
+    errno.EEXIST: "choose another path, or remove it",
+    errno.EISDIR: "give a file path, not a folder",
+    errno.ENOTDIR: "a part of the path is a file, not a folder; check the path",
+}
+
+
+def error_line(command: str, exc: BaseException) -> str:
+    """The one line printed for a user error: `cnep <cmd>: error: <path>: <problem>; <fix>`."""
+    if isinstance(exc, OSError) and not isinstance(exc, BrokenPipeError):
+        where = f"{exc.filename}: " if exc.filename else ""
+        fix = _OS_FIXES.get(exc.errno or 0, "check the path and its permissions")
+        return f"cnep {command}: error: {where}{exc.strerror or exc}; {fix}"
+    return f"cnep {command}: error: {' '.join(str(exc).split())}"
+
+
+def run_command(command: str, run: Callable[[], int | None], verbose: bool = False) -> int:
+    """Run one subcommand under the contract; returns its exit status."""
+    try:
+        return int(run() or EXIT_OK)
+    except BrokenPipeError:
+        _stdout_to_devnull()
+        return EXIT_OK
+    except KeyboardInterrupt:
+        print(f"cnep {command}: interrupted; nothing half-written was kept, run the command again to finish",
+              file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except Exception as exc:  # noqa: BLE001 - the contract: every failure is one line and an exit status
+        user = isinstance(exc, (*loaded_user_errors(), OSError))
+        if verbose:
+            traceback.print_exc()
+        if user:
+            print(error_line(command, exc), file=sys.stderr)
+            return EXIT_USER
+        print(f"cnep {command}: error: internal error ({type(exc).__name__}: {' '.join(str(exc).split())}); this is "
+              f"a bug in cnep: run again with -v for the traceback and report it", file=sys.stderr)
+        return EXIT_BUG
+
+
+def _stdout_to_devnull() -> None:
+    """After a broken pipe: later writes (and the interpreter's final flush) go nowhere instead of failing."""
+    with contextlib.suppress(OSError, ValueError):
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+
+
+def refuse_existing(paths: Sequence[Path], force: bool, what: str = "output") -> None:
+    """Raise PipelineError if any of `paths` exists and `force` is not set (naming the first and the count)."""
+    if force:
+        return
+    existing = [Path(p) for p in paths if os.path.lexists(p)]
+    if existing:
+        more = f" (and {len(existing) - 1} more)" if len(existing) > 1 else ""
+        raise PipelineError(f"{existing[0]}: the {what} already exists{more}; add --force to replace it, or choose "
+                            f"another output")
+
+
+def refuse_file_as_folder(folder: Path, option: str = "--out") -> None:
+    """Raise PipelineError if `folder`, meant to be an output folder, is an existing file."""
+    if folder.exists() and not folder.is_dir():
+        raise PipelineError(f"{folder}: is a file, but {option} names a folder to write into; give a folder path")
+
+
+@contextlib.contextmanager
+def output_folder(folder: Path, option: str = "--out") -> Iterator[Path]:
+    """Create `folder` (and its missing parents) for the block; on failure remove every folder made since, if empty.
+
+    Folders made inside it during the block (nested outputs) count too: a failed or interrupted run
+    leaves no empty folders behind, while files already complete stay (they are never half-written).
+    """
+    folder = Path(folder)
+    refuse_file_as_folder(folder, option)
+    made = [p for p in (folder, *folder.parents) if not p.exists()]  # deepest first
+    before = {Path(root) for root, _, _ in os.walk(folder)} if folder.is_dir() else set()
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise PipelineError(f"{folder}: cannot create the output folder ({exc.strerror}); "
+                            f"{_OS_FIXES.get(exc.errno or 0, 'check the path')}") from None
+    try:
+        yield folder
+    except BaseException:
+        inside = [Path(root) for root, _, _ in os.walk(folder, topdown=False)]
+        for path in [*(p for p in inside if p not in before and p != folder), *made]:
+            with contextlib.suppress(OSError):
+                path.rmdir()  # only empty folders go
+        raise
+
+
+def check_writable_folder(folder: Path) -> None:
+    """Raise PipelineError unless files can be created in `folder` (an existing folder)."""
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise PipelineError(f"{folder}: cannot write in this folder (permission denied); choose an output "
+                            f"folder you can write to")
+
+
+def raise_if_skipped(skipped: Sequence[str], total: int, verb: str) -> None:
+    """End a `--keep-going` run: PipelineError with the skipped inputs' errors (each names its file), if any."""
+    if not skipped:
+        return
+    shown = "; ".join(skipped[:3])
+    more = f"; and {len(skipped) - 3} more (see the warnings above)" if len(skipped) > 3 else ""
+    raise PipelineError(f"{len(skipped)} of {total} input(s) skipped, the other {total - len(skipped)} {verb}: "
+                        f"{shown}{more}; fix or remove the skipped inputs and run again for them")
