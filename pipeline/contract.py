@@ -88,15 +88,18 @@ def _stdout_to_devnull() -> None:
         os.dup2(devnull, sys.stdout.fileno())
 
 
-def refuse_existing(paths: Sequence[Path], force: bool, what: str = "output") -> None:
-    """Raise PipelineError if any of `paths` exists and `force` is not set (naming the first and the count)."""
+def refuse_existing(paths: Sequence[Path], force: bool, what: str = "output", why: str = "") -> None:
+    """Raise PipelineError if any of `paths` exists and `force` is not set (naming the first and the count).
+
+    `why` (e.g. " and was made from other weights") is said after "already exists".
+    """
     if force:
         return
     existing = [Path(p) for p in paths if os.path.lexists(p)]
     if existing:
         more = f" (and {len(existing) - 1} more)" if len(existing) > 1 else ""
-        raise PipelineError(f"{existing[0]}: the {what} already exists{more}; add --force to replace it, or choose "
-                            f"another output")
+        raise PipelineError(f"{existing[0]}: the {what} already exists{why}{more}; add --force to replace it, or "
+                            f"choose another output")
 
 
 def refuse_file_as_folder(folder: Path, option: str = "--out") -> None:

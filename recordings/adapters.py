@@ -143,6 +143,9 @@ def demonstration_from_folder(
         if len(videos) > 1 or images:
             raise RecordingError(f"{d}: give one video or numbered images per folder, found {len(videos)} videos and {len(images)} images")
         frames, video_fps = read_video(videos[0])
+        if len(frames) < 2:
+            raise RecordingError(f"{videos[0]}: the video has {len(frames)} readable frame; a demonstration needs at "
+                                 f"least 2 (give the whole video)")
         times, how = timing.times_ns(len(frames), first, timing.frame_rate or video_fps)
         extra = {"frame_source": videos[0].name, "frame_times": how}
         return demonstration_with_frames(episode_id, table, frames, times, task, extra)

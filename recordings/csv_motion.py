@@ -3,12 +3,14 @@
 Header names are matched after stripping spaces and underscores at both ends, so the Baxter
 recordings' padded `________p_x________` matches `p_x`. The default mapping reads the Baxter format
 (`Time` in ms since the start of the recording, `p_x p_y p_z`, `q_x q_y q_z q_w`,
-`gripper_position`); other columns are ignored.
+`gripper_position`); other columns are ignored. A UTF-8 byte-order mark is skipped, and a file whose
+header is separated by semicolons is read as such, with decimal commas.
 """
 
 from __future__ import annotations
 
 import csv
+import io
 import os
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
@@ -60,6 +62,12 @@ class MotionTable:
     gripper: np.ndarray
 
 
+def sniff_delimiter(text: str) -> str:
+    """`;` if the header line (the first non-blank one) splits on semicolons rather than commas, else `,`."""
+    header = next((line for line in text.splitlines() if line.strip()), "")
+    return ";" if header.count(";") > header.count(",") else ","
+
+
 def _normalise(name: str) -> str:
     return name.strip().strip("_").strip()
 
@@ -68,14 +76,20 @@ def read_motion_csv(path: str | os.PathLike, columns: CsvColumns = CsvColumns())
     """Read a motion CSV; every problem is a RecordingError naming the file, line and column."""
     p = Path(path)
     try:
-        with open(p, newline="") as f:
-            numbered = [(n, row) for n, row in enumerate(csv.reader(f), start=1) if any(c.strip() for c in row)]
+        with open(p, newline="", encoding="utf-8-sig") as f:  # a byte-order mark (Excel's UTF-8 CSV) is skipped
+            text = f.read()
+        delimiter = sniff_delimiter(text)
+        reader = csv.reader(io.StringIO(text, newline=""), delimiter=delimiter)
+        numbered = [(n, row) for n, row in enumerate(reader, start=1) if any(c.strip() for c in row)]
     except (OSError, UnicodeDecodeError, csv.Error) as exc:
         raise RecordingError(f"{p}: cannot read as CSV ({exc})") from None
+    if delimiter == ";":  # the European convention: decimal commas
+        numbered = [(n, [cell.replace(",", ".") for cell in row]) for n, row in numbered]
     lines = [n for n, _ in numbered]  # file line number of each kept row (blank lines skipped)
     rows = [row for _, row in numbered]
     if len(rows) < 3:
-        raise RecordingError(f"{p}: needs a header row and at least 2 data rows, found {len(rows)} rows")
+        found = "no rows" if not rows else f"a header and {len(rows) - 1} data row{'s' if len(rows) != 2 else ''}"
+        raise RecordingError(f"{p}: needs a header row and at least 2 data rows, found {found}")
     header = [_normalise(h) for h in rows[0]]
     wanted = [columns.time, columns.x, columns.y, columns.z, columns.qx, columns.qy, columns.qz, columns.qw]
     if columns.gripper:

@@ -1,8 +1,8 @@
 """`cnep inspect`: what an MCAP file holds and whether it is complete (any MCAP, not only ours).
 
 Damage does not stop the report: a truncated or corrupt file is read as far as `cnep repair` would
-salvage, and the report says what is wrong. For cnep files the strict reader is also run, so the
-report says whether the pipeline will accept the file.
+salvage, and the report says what is wrong. For cnep files the strict reader is also run, and every
+frame is decoded (a cheap reduced decode), so the report says whether the pipeline will accept the file.
 """
 
 from __future__ import annotations
@@ -17,9 +17,11 @@ from recordings.constants import (
     KIND_DEMONSTRATION,
     KIND_TRAJECTORY,
     METADATA_EPISODE,
+    TOPIC_IMAGE,
 )
 from recordings.container import read_mcap
 from recordings.errors import RecordingError
+from recordings.media import first_undecodable
 from recordings.readers import demonstration_from, trajectory_from
 
 NS_PER_S = 1e9
@@ -82,8 +84,10 @@ def inspect_file(path: str | os.PathLike) -> FileReport:
             check = f"refused: {contents.problem}"
         else:
             try:
-                (demonstration_from if kind == KIND_DEMONSTRATION else trajectory_from)(contents)
-                check = "ok"
+                record = (demonstration_from if kind == KIND_DEMONSTRATION else trajectory_from)(contents)
+                bad = first_undecodable(record.frames) if record.frames else None
+                check = "ok" if bad is None else (f"refused: frame {bad} on {TOPIC_IMAGE} is not a decodable JPEG; "
+                                                  f"ingest the recording again from its source")
             except RecordingError as exc:
                 check = f"refused: {exc}"
     return FileReport(

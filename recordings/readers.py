@@ -38,6 +38,12 @@ from recordings.container import CORRUPTION_ERRORS, McapContents, read_mcap
 from recordings.errors import RecordingError
 from recordings.records import RESERVED_EPISODE_KEYS, Demonstration, Episode, Trajectory
 from recordings.schemas import decode_gripper, decode_image, decode_pose, vector_payload
+
+# (kind found, kind expected) -> what to do about it, appended to the error.
+_KIND_FIXES = {
+    (KIND_DEMONSTRATION, KIND_TRAJECTORY): "; run `cnep extract` on the demonstrations first and give its output",
+    (KIND_TRAJECTORY, KIND_DEMONSTRATION): "; it is already extracted: give it to `cnep train` or `cnep replay`",
+}
 from recordings.validation import check_format_version, check_layout
 
 
@@ -66,7 +72,7 @@ def read_episode(contents: McapContents, kind: str) -> Episode:
         )
     check_format_version(meta.get("format_version"), str(path))
     if meta.get("kind") != kind:
-        raise RecordingError(f"{path}: is a {meta.get('kind')!r} file, expected a {kind!r} file")
+        raise RecordingError(f"{path}: is a {meta.get('kind')!r} file, expected a {kind!r} file{_KIND_FIXES.get((meta.get('kind'), kind), '')}")
     if METADATA_STEPS not in contents.metadata:
         raise RecordingError(f"{path}: no '{METADATA_STEPS}' record: the writer never closed it; salvage it with `cnep repair`")
     with in_file(path):

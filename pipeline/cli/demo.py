@@ -15,6 +15,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quick", action="store_true", help="a small, fast variant (for CI): fewer demonstrations, "
                         "shorter episodes, a few training steps")
     parser.add_argument("--seed", type=int, default=0, help="seed of every random draw (default 0)")
+    parser.add_argument("--force", action="store_true", help="use a non-empty --out folder: first delete what an "
+                        "earlier demo wrote there (other files stay)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -25,7 +27,7 @@ def run(args: argparse.Namespace) -> int:
 
     start = time.perf_counter()
     out = Path(args.out) if args.out is not None else free_folder(Path(DEFAULT_OUT))
-    result = run_demo(DemoConfig(out=out, quick=args.quick, seed=args.seed, quiet=args.quiet))
+    result = run_demo(DemoConfig(out=out, quick=args.quick, seed=args.seed, force=args.force, quiet=args.quiet))
     print(format_summary(result))
     print(f"cnep demo: done in {time.perf_counter() - start:.1f} s")
     return 0
@@ -36,5 +38,5 @@ def free_folder(base):
     from itertools import chain, count
 
     for candidate in chain([base], (base.with_name(f"{base.name}-{k}") for k in count(2))):
-        if not candidate.exists() or not any(candidate.iterdir()):
+        if not candidate.exists() or (candidate.is_dir() and not any(candidate.iterdir())):
             return candidate

@@ -13,19 +13,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Exit 0 if every file is complete (and, for cnep files, accepted), 1 if not, 2 if one is unreadable."""
+    """Exit 0 if every file is complete (and, for cnep files, accepted), else 2 (after reporting on every file)."""
+    from pipeline.contract import EXIT_OK, EXIT_USER, error_line
     from recordings.errors import RecordingError
     from recordings.inspection import format_report, inspect_file
 
-    status = 0
+    status = EXIT_OK
     for path in args.files:
         try:
             report = inspect_file(path)
         except RecordingError as exc:
-            print(f"cnep inspect: error: {exc}", file=sys.stderr)
-            status = 2
+            print(error_line("inspect", exc), file=sys.stderr)
+            status = EXIT_USER
             continue
-        print(format_report(report))
+        print(format_report(report), flush=True)
         if not report.complete or (report.check not in (None, "ok")):
-            status = max(status, 1)
+            status = EXIT_USER
     return status

@@ -8,6 +8,7 @@ Settings come from, in this order of precedence: the command line, then a JSON f
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 
 from pipeline.train.constants import (DEFAULT_DEVICE, DEFAULT_PATIENCE, DEFAULT_PRESET, DEFAULT_SAVE_EVERY,
@@ -51,10 +52,31 @@ def _widths(text: str) -> tuple[int, ...]:
 
 
 def _default(name: str) -> str:
-    value = DEFAULTS[name]
+    value = DEFAULTS[name] if DEFAULTS[name] is not None else train_config_defaults().get(name)
     if value is None:
         return "models.TrainConfig's default"
     return ",".join(map(str, value)) if isinstance(value, tuple) else str(value)
+
+
+@functools.cache
+def train_config_defaults() -> dict:
+    """models.TrainConfig's literal field defaults, read from models/config.py without importing it (torch)."""
+    import ast
+    import importlib.util
+    from pathlib import Path
+
+    spec = importlib.util.find_spec("models")
+    source = Path(next(iter(spec.submodule_search_locations))) / "config.py"
+    tree = ast.parse(source.read_text(encoding="utf-8"))
+    body = next(node.body for node in tree.body if isinstance(node, ast.ClassDef) and node.name == "TrainConfig")
+    found = {}
+    for node in body:
+        if isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name) and node.value is not None:
+            try:
+                found[node.target.id] = ast.literal_eval(node.value)
+            except ValueError:  # not a literal (a factory): --help names TrainConfig's default instead
+                pass
+    return found
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -135,6 +157,29 @@ def _checked(path: str, name: str, value):
                         f"got {value!r}")
 
 
+def fit_warmup(training, warmup_given: bool):
+    """A TrainConfig whose warm-up ends before its last step: scaled like the defaults when not given, else a warning.
+
+    With `--steps 1000` and the default 2000 warm-up steps the learning rate would never reach its peak.
+    """
+    import dataclasses
+    import logging
+
+    if training.warmup_steps < training.steps:
+        return training
+    log = logging.getLogger("pipeline.train")
+    if warmup_given:
+        log.warning("--warmup-steps %d >= --steps %d: the learning rate never reaches its peak --lr",
+                    training.warmup_steps, training.steps)
+        return training
+    defaults = train_config_defaults()
+    warmup = training.steps * defaults["warmup_steps"] // defaults["steps"]
+    log.warning("--steps %d is not more than the default warm-up of %d steps: warming up over %d steps instead (the "
+                "defaults' share of the steps); set --warmup-steps to choose", training.steps, training.warmup_steps,
+                warmup)
+    return dataclasses.replace(training, warmup_steps=warmup)
+
+
 def run(args: argparse.Namespace) -> int:
     import os
     from pathlib import Path
@@ -144,7 +189,8 @@ def run(args: argparse.Namespace) -> int:
 
     chosen = settings(args)
     given = {name: chosen[name] for name in TRAIN_OPTIONS if chosen[name] is not None}
-    training = TrainConfig(patience=chosen["patience"] or None, seed=chosen["seed"], **given)
+    training = fit_warmup(TrainConfig(patience=chosen["patience"] or None, seed=chosen["seed"], **given),
+                          warmup_given="warmup_steps" in given)
     config = TrainStageConfig(
         inputs=tuple(Path(p) for p in args.inputs),
         out=Path(args.out),

@@ -24,6 +24,8 @@ from __future__ import annotations
 
 import json
 import logging
+import os
+import shutil
 import time
 from collections import Counter
 from concurrent.futures import as_completed
@@ -35,10 +37,11 @@ import numpy as np
 
 from models import TrainConfig, load_checkpoint
 from models.checkpoint import atomic_write
+from pipeline.contract import check_writable_folder, output_folder, refuse_file_as_folder
 from pipeline.errors import PipelineError
 from pipeline.extract.stage import ExtractConfig, extract
 from pipeline.ingest.stage import IngestConfig, ingest
-from pipeline.replay.stage import RowMapping, read_decisions, replay
+from pipeline.replay.stage import RowMapping, decisions_path, read_decisions, replay
 from pipeline.demo.generator import SPLITS, SWITCH_KEY, DemoSetConfig, generate
 from pipeline.train.stage import TrainStageConfig, train
 from pipeline.train.constants import SCENE
@@ -56,6 +59,10 @@ GATE_LR_SCALE = 1.0
 SUMMARY_FILE = "summary.json"
 RRD_FILE = "demo.rrd"
 PER_FILE_LOGGERS = ("pipeline.ingest", "pipeline.extract")
+EXTRACTOR_FILE = "extractor.pt"
+# Everything a demo writes into its folder (what --force replaces).
+OUTPUTS = ("recorded", "demos", "trajectories", "checkpoints", EXTRACTOR_FILE, RRD_FILE,
+           decisions_path(RRD_FILE).name, SUMMARY_FILE)
 
 
 @dataclass(frozen=True)
@@ -79,11 +86,14 @@ QUICK = DemoSize(per_behaviour=2, heldout_per_behaviour=1, steps=16, train_steps
 
 @dataclass(frozen=True)
 class DemoConfig:
-    """out: folder for everything (created; must be empty or absent); quick: the small CI variant; seed: all draws."""
+    """out: folder for everything (created; must be empty or absent unless `force`, which first deletes what an
+    earlier demo wrote there: OUTPUTS); quick: the small CI variant; seed: all draws. A failed or interrupted
+    demo leaves a new folder empty."""
 
     out: Path
     quick: bool = False
     seed: int = 0
+    force: bool = False
     quiet: bool = False
 
     @property
@@ -107,14 +117,36 @@ class DemoResult:
 def run_demo(config: DemoConfig) -> DemoResult:
     """Run every stage into `config.out` (see the module docstring); returns what was made and measured."""
     out, size = Path(config.out), config.size
-    if out.exists() and any(out.iterdir()):
-        raise PipelineError(f"{out}: the demo writes into a new folder and this one is not empty; give another --out "
-                            f"or remove it")
+    refuse_file_as_folder(out)
+    fresh = not out.exists() or not any(out.iterdir())
+    if not fresh and not config.force:
+        raise PipelineError(f"{out}: the demo writes into a new folder and this one is not empty; give another --out, "
+                            f"remove it, or add --force to replace the demo's files in it")
+    if config.force and not fresh:
+        remove_outputs(out)
     seconds: dict[str, float] = {}
-    with _per_file_logs_quiet():
-        result = _run_stages(config, out, size, seconds)
-    atomic_write(out / SUMMARY_FILE, json.dumps(_jsonable(asdict(result)), indent=1).encode())
+    with output_folder(out):
+        check_writable_folder(out)
+        try:
+            with _per_file_logs_quiet():
+                result = _run_stages(config, out, size, seconds)
+            atomic_write(out / SUMMARY_FILE, json.dumps(_jsonable(asdict(result)), indent=1).encode())
+        except BaseException:
+            if fresh:  # the folder was new or empty: a failed or interrupted demo leaves nothing in it
+                for child in out.iterdir():
+                    shutil.rmtree(child) if child.is_dir() and not child.is_symlink() else child.unlink()
+            raise
     return result
+
+
+def remove_outputs(out: Path) -> None:
+    """Delete what an earlier demo wrote into `out` (OUTPUTS), nothing else."""
+    for name in OUTPUTS:
+        path = out / name
+        if path.is_dir() and not path.is_symlink():
+            shutil.rmtree(path)
+        elif os.path.lexists(path):
+            path.unlink()
 
 
 @contextmanager
@@ -151,7 +183,7 @@ def _run_stages(config: DemoConfig, out: Path, size: DemoSize, seconds: dict[str
     done("ingest")
 
     stage("extract", 3)
-    weights = out / "extractor.pt"
+    weights = out / EXTRACTOR_FILE
     common = {"seed": config.seed, "quiet": config.quiet}
     extract(ExtractConfig(inputs=(out / "demos" / "train",), out=out / "trajectories" / "train", weights="random",
                           save_weights=weights, **common))

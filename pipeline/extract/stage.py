@@ -95,7 +95,7 @@ def extract(config: ExtractConfig) -> list[Extracted]:
             dst.parent.mkdir(parents=True, exist_ok=True)
         current = {dst: None if config.force else up_to_date_steps(src, dst, extractor) for src, dst in pairs}
         refuse_existing([dst for src, dst in pairs if current[dst] is None and _newer_than(dst, src)], config.force,
-                        "trajectory file (made from other weights, or not a trajectory file)")
+                        "output", " and is not this input's trajectory file from these weights")
         if config.save_weights is not None:
             extractor().save_weights(config.save_weights)
             log.info("saved the extractor weights to %s (reuse them with --weights %s)", config.save_weights,

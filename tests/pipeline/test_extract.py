@@ -64,7 +64,12 @@ def test_up_to_date_outputs_are_skipped_and_stale_ones_redone(demos, tmp_path):
     os.utime(demos[1], ns=(later, later))  # the input changed after its output was written
     assert [item.skipped for item in extract(_config(demos, out))] == [True, False]
     assert [item.skipped for item in extract(_config(demos, out, force=True))] == [False, False]
-    assert [item.skipped for item in extract(_config(demos, out, seed=1))] == [False, False]  # other weights
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    with pytest.raises(PipelineError, match="already exists and is not this input's trajectory file from these "
+                                            "weights .and 1 more.; add --force"):
+        extract(_config(demos, out, seed=1))  # other weights: their features are not replaced silently
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    assert [item.skipped for item in extract(_config(demos, out, seed=1, force=True))] == [False, False]
 
 
 def test_corrupt_frame_names_file_and_step_and_leaves_no_output(tmp_path):
@@ -74,7 +79,7 @@ def test_corrupt_frame_names_file_and_step_and_leaves_no_output(tmp_path):
     out = tmp_path / "out"
     with pytest.raises(PerceptionError, match=r"broken\.mcap: step 3 on /camera/rgb: cannot decode image"):
         extract(_config([src], out, weights="random"))
-    assert list(out.iterdir()) == []
+    assert not out.exists()  # the contract: a failed run leaves no empty output folder
 
 
 def test_corrupt_frame_after_calibration_leaves_other_outputs(demos, tmp_path):

@@ -6,6 +6,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from pipeline.cli.main import main
+from pipeline.errors import PipelineError
 from pipeline.ingest.stage import IngestConfig, ingest
 from recordings import RecordingError, read_demonstration
 from recordings.adapters import FrameTiming, demonstration_from_csv
@@ -203,7 +204,7 @@ def test_cli_ingest(tmp_path, capsys):
 def test_unwritable_output_is_one_clear_error(tmp_path):
     path = baxter_csv(tmp_path / "a.csv", baxter_times(5))
     (tmp_path / "file").write_text("not a folder")
-    with pytest.raises(RecordingError, match="cannot create the output folder"):
+    with pytest.raises(PipelineError, match="cannot create the output folder"):
         ingest(IngestConfig(src=path, out=tmp_path / "file" / "out", quiet=True))
 
 

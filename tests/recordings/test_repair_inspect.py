@@ -102,7 +102,7 @@ def test_cli_inspect_and_repair(tmp_path, capsys, long_traj):
     (tmp_path / "empty.mcap").write_bytes(b"")
     assert main(["inspect", str(good)]) == 0
     assert "complete: yes" in capsys.readouterr().out
-    assert main(["inspect", str(good), str(bad)]) == 1
+    assert main(["inspect", str(good), str(bad)]) == 2  # a damaged input: the contract's exit 2
     assert "complete: NO" in capsys.readouterr().out
     assert main(["inspect", str(tmp_path / "empty.mcap")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
