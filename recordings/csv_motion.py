@@ -89,7 +89,8 @@ def read_motion_csv(path: str | os.PathLike, columns: CsvColumns = CsvColumns())
     rows = [row for _, row in numbered]
     if len(rows) < 3:
         found = "no rows" if not rows else f"a header and {len(rows) - 1} data row{'s' if len(rows) != 2 else ''}"
-        raise RecordingError(f"{p}: needs a header row and at least 2 data rows, found {found}")
+        raise RecordingError(f"{p}: needs a header row and at least 2 data rows, found {found}; a demonstration "
+                             f"needs at least 2 time steps")
     header = [_normalise(h) for h in rows[0]]
     wanted = [columns.time, columns.x, columns.y, columns.z, columns.qx, columns.qy, columns.qz, columns.qw]
     if columns.gripper:

@@ -86,7 +86,7 @@ def inspect_file(path: str | os.PathLike) -> FileReport:
             try:
                 record = (demonstration_from if kind == KIND_DEMONSTRATION else trajectory_from)(contents)
                 bad = first_undecodable(record.frames) if record.frames else None
-                check = "ok" if bad is None else (f"refused: frame {bad} on {TOPIC_IMAGE} is not a decodable JPEG; "
+                check = "ok" if bad is None else (f"refused: {contents.path}: frame {bad} on {TOPIC_IMAGE} is not a decodable JPEG; "
                                                   f"ingest the recording again from its source")
             except RecordingError as exc:
                 check = f"refused: {exc}"

@@ -96,13 +96,17 @@ class _McapFile:
         self.path = Path(path)
         self._stack = ExitStack()
         stream = self._stack.enter_context(atomic_output(self.path))
-        self.writer = new_writer(stream, COMPRESSION_BY_KIND[kind])
         self._schema_ids: dict[str, int] = {}
         self.channels: dict[str, int] = {}
-        for name, data in attachments.items():
-            media = mimetypes.guess_type(name)[0] or "application/octet-stream"
-            self.writer.add_attachment(create_time=0, log_time=0, name=name, media_type=media, data=bytes(data))
-        self.writer.add_metadata(METADATA_EPISODE, episode_metadata(episode, kind))
+        try:
+            self.writer = new_writer(stream, COMPRESSION_BY_KIND[kind])
+            for name, data in attachments.items():
+                media = mimetypes.guess_type(name)[0] or "application/octet-stream"
+                self.writer.add_attachment(create_time=0, log_time=0, name=name, media_type=media, data=bytes(data))
+            self.writer.add_metadata(METADATA_EPISODE, episode_metadata(episode, kind))
+        except BaseException as exc:  # the temporary file goes now, not when the garbage collector gets to it
+            self.abort(exc)
+            raise
 
     def channel(self, topic: str, schema_name: str, metadata: Mapping[str, str] | None = None) -> int:
         """Id of the channel of `topic`, registering it (and its schema) on first use."""

@@ -25,6 +25,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default="cnep-evaluation", help="folder for the Markdown, JSON and PNG outputs")
     parser.add_argument("--jobs", type=int, default=2, help="worker processes, one thread each (0: this process only)")
     parser.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    parser.add_argument("--force", action="store_true", help="replace tables already in --out")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -43,6 +44,7 @@ def run(args: argparse.Namespace) -> int:
         out=Path(args.out),
         jobs=args.jobs,
         figures=not args.no_figures,
+        force=args.force,
         quiet=args.quiet,
     )
     written = evaluate(config)

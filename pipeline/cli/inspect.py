@@ -13,7 +13,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Exit 0 if every file is complete (and, for cnep files, accepted), else 2 (after reporting on every file)."""
+    """Exit 0 if every file is complete (and, for cnep files, accepted), else 2 after reporting on every file:
+    the report on stdout, one line per refused file on stderr."""
     from pipeline.contract import EXIT_OK, EXIT_USER, error_line
     from recordings.errors import RecordingError
     from recordings.inspection import format_report, inspect_file
@@ -28,5 +29,7 @@ def run(args: argparse.Namespace) -> int:
             continue
         print(format_report(report), flush=True)
         if not report.complete or (report.check not in (None, "ok")):
+            problem = f"{report.path}: {report.problem}" if not report.complete else report.check.removeprefix("refused: ")
+            print(f"cnep inspect: error: {problem}", file=sys.stderr)
             status = EXIT_USER
     return status

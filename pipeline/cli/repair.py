@@ -9,18 +9,21 @@ HELP = "salvage every complete chunk of a truncated or damaged MCAP file into a 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("src", metavar="IN", help="the damaged MCAP file (read only)")
-    parser.add_argument("dst", metavar="OUT", help="where to write the salvaged file (must differ from IN)")
+    parser.add_argument("dst", metavar="OUT", help="where to write the salvaged file (must differ from IN; its folder "
+                        "is created if missing)")
     parser.add_argument("--force", action="store_true", help="replace OUT if it exists")
 
 
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from pipeline.contract import refuse_existing
+    from pipeline.contract import output_folder, refuse_existing
     from recordings.container import refuse_overwrite_input
     from recordings.repair import repair
 
     refuse_overwrite_input(args.src, args.dst)
     refuse_existing([Path(args.dst)], args.force, "repaired file")
-    print(repair(args.src, args.dst).summary())
+    with output_folder(Path(args.dst).parent, "OUT's folder"):
+        report = repair(args.src, args.dst)
+    print(report.summary())
     return 0

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.contract import check_writable_folder, output_folder, refuse_existing
 from pipeline.errors import PipelineError
 from pipeline.evaluate.constants import (
     CNEP_EXPERTS,
@@ -50,7 +51,7 @@ class EvaluateConfig:
     """tables: names from TABLES; seeds/steps/queries: None takes the full or quick default.
 
     sets: restrict the tables' columns (None: every set of each table, or QUICK_SETS with `quick`);
-    jobs: worker processes (0 runs everything in this process).
+    jobs: worker processes (0 runs everything in this process); force: replace tables already in `out`.
     """
 
     tables: tuple[str, ...] = ("comparison",)
@@ -62,6 +63,7 @@ class EvaluateConfig:
     out: Path = Path(DEFAULT_OUT)
     jobs: int = JOBS
     figures: bool = True
+    force: bool = False
     quiet: bool = False
 
     def __post_init__(self) -> None:
@@ -230,16 +232,19 @@ def evaluate(config: EvaluateConfig) -> dict[str, Path]:
     jobs = plan(config)
     log.info("evaluate: %d fits (%s), steps %s, %d seed(s), %d queries per protocol, %d worker(s)",
              len(jobs), ", ".join(config.tables), config.steps_by_set(), config.n_seeds, config.n_queries, config.jobs)
-    config.out.mkdir(parents=True, exist_ok=True)
+    refuse_existing([config.out / f"{table}{suffix}" for table in config.tables for suffix in (".md", ".json")],
+                    config.force, "table")
     pending = {table: needs(table, config) for table in config.tables}
     done: dict[tuple, dict] = {}  # Job.key -> results
     written = {}
-    for job, result in run_jobs(jobs, config.jobs, config.quiet):
-        done[job.key] = result
-        for table in [t for t, keys in pending.items() if not keys - done.keys()]:
-            del pending[table]
-            written[table] = write_table(table, config, done, time.perf_counter() - start)
-            log.info("%s table written to %s", table, written[table])
+    with output_folder(config.out):
+        check_writable_folder(config.out)
+        for job, result in run_jobs(jobs, config.jobs, config.quiet):
+            done[job.key] = result
+            for table in [t for t, keys in pending.items() if not keys - done.keys()]:
+                del pending[table]
+                written[table] = write_table(table, config, done, time.perf_counter() - start)
+                log.info("%s table written to %s", table, written[table])
     return {table: written[table] for table in config.tables}
 
 

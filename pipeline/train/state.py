@@ -13,6 +13,7 @@ import io
 import json
 import logging
 import math
+import os
 import shutil
 from pathlib import Path
 
@@ -95,8 +96,10 @@ def publish(work: Path, out: Path) -> None:
         out.rename(old)
     work.rename(out)
     (out / STATE_FILE).unlink(missing_ok=True)
-    if old.exists():
+    if old.is_dir() and not old.is_symlink():
         shutil.rmtree(old)
+    elif os.path.lexists(old):  # --force replaced a file
+        old.unlink()
 
 
 def _jsonable(value):

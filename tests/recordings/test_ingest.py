@@ -238,3 +238,54 @@ def test_csv_ingest_property(tmp_path, seed, rows, unit, extra_columns):
     np.testing.assert_allclose(demo.pose[:, :3], np.stack([cols["px"], cols["py"], cols["pz"]], axis=1), rtol=0, atol=0)
     np.testing.assert_allclose(demo.pose[:, 3:], quat, atol=1e-15)
     np.testing.assert_allclose(demo.gripper, cols["grip"], rtol=0, atol=0)
+
+
+def test_a_corrupt_jpeg_in_an_image_folder_is_refused_at_ingest(tmp_path):
+    src = tmp_path / "demo"
+    src.mkdir()
+    baxter_csv(src / "pose.csv", baxter_times(12))
+    frames = images(src, 12, ".jpg")
+    frames[10].write_bytes(b"\xff\xd8" + bytes(60))  # starts like a JPEG, decodes to nothing
+    with pytest.raises(RecordingError, match=r"frame_10.jpg: not a decodable JPEG"):
+        ingest(IngestConfig(src=src, out=tmp_path / "out", quiet=True))
+    assert not (tmp_path / "out").exists()
+
+
+def test_check_decodable_names_the_first_bad_frame():
+    from recordings.media import check_decodable
+
+    good = jpeg_of(np.zeros((8, 8, 3), np.uint8))
+    check_decodable([good, good], "x.mcap")
+    with pytest.raises(RecordingError, match=r"x.mcap: frame 1 \(4 bytes\) is not a decodable JPEG"):
+        check_decodable([good, b"\xff\xd8\xff\xe0", good], "x.mcap")
+
+
+def test_a_one_frame_video_is_blamed_on_the_video(tmp_path):
+    src = tmp_path / "demo"
+    src.mkdir()
+    baxter_csv(src / "pose.csv", baxter_times(20))
+    video(src / "cam.avi", 1, fps=25.0)
+    with pytest.raises(RecordingError, match=r"cam.avi: the video has 1 readable frame; a demonstration needs at least 2"):
+        ingest(IngestConfig(src=src, out=tmp_path / "out", quiet=True))
+
+
+@pytest.mark.parametrize("style", ["excel-bom", "semicolons"])
+def test_csv_saved_by_spreadsheets_is_read(tmp_path, style):
+    t = baxter_times(8)
+    plain = baxter_csv(tmp_path / "plain.csv", t).read_text()
+    if style == "excel-bom":
+        text = "\ufeff" + plain
+    else:  # the European convention: `;` between cells, decimal commas
+        text = "\n".join(";".join(cell.replace(".", ",") for cell in line.split(",")) for line in plain.splitlines())
+    (tmp_path / "sheet.csv").write_text(text, encoding="utf-8")
+    got = demonstration_from_csv(tmp_path / "sheet.csv", "sheet")
+    want = demonstration_from_csv(tmp_path / "plain.csv", "plain")
+    np.testing.assert_array_equal(got.timestamps_ns, want.timestamps_ns)
+    np.testing.assert_allclose(got.pose, want.pose, atol=1e-12)
+
+
+def test_a_header_and_one_row_says_so(tmp_path):
+    lines = baxter_csv(tmp_path / "a.csv", baxter_times(5)).read_text().splitlines()
+    (tmp_path / "a.csv").write_text("\n".join(lines[:2]))
+    with pytest.raises(RecordingError, match="found a header and 1 data row; a demonstration needs at least 2"):
+        demonstration_from_csv(tmp_path / "a.csv", "a")

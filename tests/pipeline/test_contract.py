@@ -1,0 +1,418 @@
+"""The CLI contract (pipeline/contract.py, docs/cli.md), one test per row, driven over every subcommand.
+
+Rows: a missing input, a damaged input, an existing output, a read-only output folder and an
+interruption each give their exit status (2, 2, 2, 2, 130) and one line on stderr, and leave no
+output behind (nor change an existing one). `evaluate` and `demo` take no input files, `inspect`
+writes no output, so those cells are not rows of theirs.
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import os
+import shutil
+import stat
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from models.checkpoint import CHECKSUM_KEY, config_checksum
+from pipeline.cli.main import main
+from recordings import Trajectory, write_demonstration, write_trajectory
+from tests.recordings.factories import demonstration_factory
+from tests.recordings.sources import baxter_csv
+
+ROOT = Path(__file__).resolve().parents[2]
+QUICK_EVALUATE = ["--table", "comparison", "--sets", "bimodal", "--seeds", "1", "--steps", "2", "--queries", "1",
+                  "--jobs", "0", "--no-figures"]
+TINY_TRAINING = ["--layout", "motion", "--steps", "4", "--val-every", "2", "--encoder-widths", "8",
+                 "--expert-widths", "8", "--batch-size", "2", "--experts", "2"]
+
+
+@dataclass(frozen=True)
+class World:
+    """Inputs shared by the tests (never written to): a CSV source, demonstrations, trajectories, a checkpoint."""
+
+    csv: Path
+    demos: Path
+    trajs: Path
+    ckpt: Path
+    truncated_demo: Path  # cut inside its second chunk: `cnep repair` salvages the first
+    truncated_traj: Path
+    empty_chunks: Path  # cut inside its first chunk: nothing to salvage
+    short_csv: Path  # a header and one data row
+
+
+def cut(src: Path, dst: Path, keep: float) -> Path:
+    data = src.read_bytes()
+    dst.write_bytes(data[:int(len(data) * keep)])
+    return dst
+
+
+@pytest.fixture(scope="module")
+def world(tmp_path_factory) -> World:
+    root = tmp_path_factory.mktemp("contract")
+    for name in ("src", "demos", "trajs", "bad"):
+        (root / name).mkdir()
+    csv = baxter_csv(root / "src" / "a.csv", 6.0 + 15.0 * np.arange(6))
+    for i in range(3):
+        demo = demonstration_factory(30, frames=False, seed=i, episode_id=f"d{i}")
+        write_demonstration(root / "demos" / f"d{i}.mcap", demo)
+        write_trajectory(root / "trajs" / f"t{i}.mcap", Trajectory.from_demonstration(demo))
+    big = write_demonstration(root / "bad" / "big.mcap", demonstration_factory(400, frames=True, frame_size=64))
+    assert main(["-q", "train", str(root / "trajs"), "--out", str(root / "ckpt"), *TINY_TRAINING]) == 0
+    short = root / "bad" / "short.csv"
+    short.write_text("\n".join(csv.read_text().splitlines()[:2]) + "\n")
+    return World(csv=csv, demos=root / "demos", trajs=root / "trajs", ckpt=root / "ckpt",
+                 truncated_demo=cut(big, root / "bad" / "truncated-demo.mcap", 0.9),
+                 truncated_traj=cut(root / "trajs" / "t0.mcap", root / "bad" / "truncated-traj.mcap", 0.6),
+                 empty_chunks=cut(big, root / "bad" / "no-chunk.mcap", 0.05), short_csv=short)
+
+
+def run_cli(argv: list, capsys) -> tuple[int, list[str]]:
+    """Exit status and stderr lines of `cnep -q ARGV` run in this process (-q: no progress bars)."""
+    capsys.readouterr()
+    code = main(["-q", *map(str, argv)])
+    return code, capsys.readouterr().err.splitlines()
+
+
+def assert_one_line(lines: list[str], command: str, *words: str) -> str:
+    assert len(lines) == 1, lines
+    assert lines[0].startswith(f"cnep {command}: "), lines[0]
+    for word in words:
+        assert word in lines[0], lines[0]
+    return lines[0]
+
+
+def leftovers(folder: Path) -> list[str]:
+    """Every file and folder under `folder` (relative), or [] if it does not exist."""
+    return sorted(str(p.relative_to(folder)) for p in folder.rglob("*")) if folder.exists() else []
+
+
+# --- missing input: exit 2, one line naming the missing path, no output created -----------------------------------
+
+MISSING_INPUT = {
+    "ingest": lambda w, t: ["ingest", t / "nope.csv", "--out", t / "out"],
+    "inspect": lambda w, t: ["inspect", t / "nope.mcap"],
+    "repair": lambda w, t: ["repair", t / "nope.mcap", t / "out" / "fixed.mcap"],
+    "extract": lambda w, t: ["extract", t / "nope.mcap", "--out", t / "out"],
+    "train": lambda w, t: ["train", w.trajs, t / "nope.mcap", "--out", t / "out"],
+    "replay": lambda w, t: ["replay", w.ckpt, t / "nope.mcap", "--out", t / "out" / "r.rrd", "--no-live"],
+}
+
+
+@pytest.mark.parametrize("command", MISSING_INPUT)
+def test_a_missing_input_is_one_line_and_exit_2(world, tmp_path, capsys, command):
+    code, err = run_cli(MISSING_INPUT[command](world, tmp_path), capsys)
+    assert code == 2
+    assert_one_line(err, command, "error: ", str(tmp_path / "nope"))
+    assert not (tmp_path / "out").exists()
+
+
+# --- damaged input: exit 2, one line naming the damaged file and the problem, no output created --------------------
+
+DAMAGED_INPUT = {
+    "ingest": lambda w, t: (["ingest", w.short_csv, "--out", t / "out"], w.short_csv, "found a header and 1 data row"),
+    "inspect": lambda w, t: (["inspect", w.truncated_demo], w.truncated_demo, "truncated"),
+    "repair": lambda w, t: (["repair", w.empty_chunks, t / "out" / "fixed.mcap"], w.empty_chunks, "nothing to salvage"),
+    "extract": lambda w, t: (["extract", w.truncated_demo, "--out", t / "out"], w.truncated_demo, "cnep repair"),
+    "train": lambda w, t: (["train", w.trajs, w.truncated_traj, "--out", t / "out"], w.truncated_traj, "truncated"),
+    "replay": lambda w, t: (["replay", w.ckpt, w.truncated_traj, "--out", t / "out" / "r.rrd", "--no-live"],
+                            w.truncated_traj, "truncated"),
+}
+
+
+@pytest.mark.parametrize("command", DAMAGED_INPUT)
+def test_a_damaged_input_is_one_line_and_exit_2(world, tmp_path, capsys, command):
+    argv, damaged, problem = DAMAGED_INPUT[command](world, tmp_path)
+    before = damaged.read_bytes()
+    code, err = run_cli(argv, capsys)
+    assert code == 2
+    line = assert_one_line(err, command, "error: ", str(damaged), problem)
+    if command != "inspect":  # inspect reports on stdout and exits 2; the others name the fix in the line
+        assert "; " in line.split(str(damaged), 1)[1]
+    assert not (tmp_path / "out").exists() and damaged.read_bytes() == before
+
+
+# --- existing output: exit 2 and the output unchanged without --force; replaced with --force ----------------------
+
+EXISTING_OUTPUT = {  # argv, the output path to pre-fill, whether --force is quick enough to try here
+    "ingest": lambda w, t: (["ingest", w.csv, "--out", t / "out"], t / "out" / "a.mcap", True),
+    "repair": lambda w, t: (["repair", w.truncated_demo, t / "out" / "fixed.mcap"], t / "out" / "fixed.mcap", True),
+    "extract": lambda w, t: (["extract", w.demos, "--out", t / "out"], t / "out" / "d1.mcap", True),
+    "train": lambda w, t: (["train", w.trajs, "--out", t / "out" / "ckpt", *TINY_TRAINING], t / "out" / "ckpt", True),
+    "replay": lambda w, t: (["replay", w.ckpt, w.trajs / "t0.mcap", "--out", t / "out" / "r.rrd", "--no-live"],
+                            t / "out" / "r.experts.json", True),
+    "evaluate": lambda w, t: (["evaluate", *QUICK_EVALUATE, "--out", t / "out"], t / "out" / "comparison.md", False),
+    "demo": lambda w, t: (["demo", "--quick", "--out", t / "out"], t / "out" / "notes.txt", False),
+}
+
+
+@pytest.mark.parametrize("command", EXISTING_OUTPUT)
+def test_an_existing_output_is_never_overwritten_without_force(world, tmp_path, capsys, command, one_thread):
+    argv, existing, try_force = EXISTING_OUTPUT[command](world, tmp_path)
+    existing.parent.mkdir(parents=True, exist_ok=True)
+    existing.write_bytes(b"precious")
+    before = leftovers(tmp_path / "out")
+    code, err = run_cli(argv, capsys)
+    assert code == 2
+    assert_one_line(err, command, "error: ", str(existing.parent), "--force")
+    assert existing.read_bytes() == b"precious" and leftovers(tmp_path / "out") == before
+    if try_force:
+        code, err = run_cli([*argv, "--force"], capsys)
+        assert code == 0, err
+        assert existing.exists() and (existing.is_dir() or existing.read_bytes() != b"precious")
+
+
+def test_an_output_that_is_a_file_where_a_folder_is_expected_is_one_line(world, tmp_path, capsys):
+    (tmp_path / "file").write_text("keep")
+    for argv in (["extract", world.demos, "--out", tmp_path / "file"], ["demo", "--out", tmp_path / "file"],
+                 ["ingest", world.csv, "--out", tmp_path / "file"]):
+        code, err = run_cli(argv, capsys)
+        assert code == 2 and "is a file" in assert_one_line(err, argv[0], str(tmp_path / "file"))
+    assert (tmp_path / "file").read_text() == "keep"
+
+
+# --- read-only output folder: exit 2, one line, nothing written ----------------------------------------------------
+
+@pytest.fixture
+def read_only(tmp_path):
+    """An existing folder nobody can write in (chattr +i for root, who ignores permission bits)."""
+    folder = tmp_path / "ro"
+    folder.mkdir()
+    if os.geteuid() == 0:
+        if shutil.which("chattr") is None or subprocess.run(["chattr", "+i", str(folder)]).returncode != 0:
+            pytest.skip("running as root without chattr +i: no way to make a folder read-only here")
+        yield folder
+        subprocess.run(["chattr", "-i", str(folder)], check=True)
+    else:
+        folder.chmod(0o555)
+        yield folder
+        folder.chmod(0o755)
+
+
+READ_ONLY_OUTPUT = {
+    "ingest": lambda w, ro: ["ingest", w.csv, "--out", ro / "out"],
+    "repair": lambda w, ro: ["repair", w.truncated_demo, ro / "fixed.mcap"],
+    "extract": lambda w, ro: ["extract", w.demos, "--out", ro],
+    "train": lambda w, ro: ["train", w.trajs, "--out", ro / "ckpt", *TINY_TRAINING],
+    "replay": lambda w, ro: ["replay", w.ckpt, w.trajs / "t0.mcap", "--out", ro / "r.rrd", "--no-live"],
+    "evaluate": lambda w, ro: ["evaluate", *QUICK_EVALUATE, "--out", ro / "tables"],
+    "demo": lambda w, ro: ["demo", "--quick", "--out", ro / "demo"],
+}
+
+
+@pytest.mark.parametrize("command", READ_ONLY_OUTPUT)
+def test_a_read_only_output_folder_is_one_line_and_exit_2(world, read_only, capsys, command, one_thread):
+    code, err = run_cli(READ_ONLY_OUTPUT[command](world, read_only), capsys)
+    assert code == 2
+    assert_one_line(err, command, "error: ", str(read_only))
+    assert leftovers(read_only) == []
+
+
+# --- interrupted: exit 130, one line, nothing half-written and no folder left --------------------------------------
+
+def interrupt(*args, **kwargs):
+    raise KeyboardInterrupt
+
+
+def part_then_interrupt(path, *args, **kwargs):
+    Path(path).write_bytes(b"half")  # a part file, as Rerun's file sink leaves it
+    raise KeyboardInterrupt
+
+
+INTERRUPTED = {  # argv, and the function replaced by one that interrupts (Ctrl-C in the middle of the work)
+    "ingest": lambda w, t: (["ingest", w.csv, "--out", t / "out"], "recordings.writers", "new_writer"),
+    "inspect": lambda w, t: (["inspect", w.demos / "d0.mcap"], "recordings.inspection", "read_mcap"),
+    "repair": lambda w, t: (["repair", w.truncated_demo, t / "out" / "fixed.mcap"], "recordings.container",
+                            "new_writer"),
+    "extract": lambda w, t: (["extract", w.demos, "--out", t / "out"], "recordings.writers", "new_writer"),
+    "train": lambda w, t: (["train", w.trajs, "--out", t / "out" / "ckpt", *TINY_TRAINING], "pipeline.train.stage",
+                           "save_progress"),
+    "replay": lambda w, t: (["replay", w.ckpt, w.trajs / "t0.mcap", "--out", t / "out" / "r.rrd", "--no-live"],
+                            "pipeline.replay.stage", "write_recording"),
+    "evaluate": lambda w, t: (["evaluate", *QUICK_EVALUATE, "--out", t / "out"], "pipeline.evaluate.stage",
+                              "run_jobs"),
+    "demo": lambda w, t: (["demo", "--quick", "--out", t / "out"], "pipeline.demo.stage", "ingest"),
+}
+
+
+@pytest.mark.parametrize("command", INTERRUPTED)
+def test_an_interruption_is_exit_130_and_leaves_nothing_half_written(world, tmp_path, capsys, monkeypatch, command,
+                                                                     one_thread):
+    argv, module, name = INTERRUPTED[command](world, tmp_path)
+    monkeypatch.setattr(importlib.import_module(module), name,
+                        part_then_interrupt if name == "write_recording" else interrupt)
+    code, err = run_cli(argv, capsys)
+    assert code == 130
+    assert_one_line(err, command, "interrupted")
+    if command == "train":  # the state saved so far stays beside the output, by design: --resume continues it
+        assert {p.split("/")[0] for p in leftovers(tmp_path / "out")} <= {".ckpt.partial"}
+    else:
+        assert leftovers(tmp_path / "out") == [] and not (tmp_path / "out").exists()
+
+
+# --- the other rows: --version, no torch for inspect, broken pipes, bugs, umask, --keep-going --------------------
+
+def test_version_is_printed(capsys):
+    with pytest.raises(SystemExit) as done:
+        main(["--version"])
+    assert done.value.code == 0
+    from importlib.metadata import version
+
+    assert capsys.readouterr().out.strip() == f"cnep {version('cnep-pipeline')}"
+
+
+def test_inspect_does_not_import_torch(world):
+    code = ("import sys; from pipeline.cli.main import main; status = main(['inspect', sys.argv[1]]); "
+            "print('torch' in sys.modules, status, file=sys.stderr)")
+    done = subprocess.run([sys.executable, "-c", code, str(world.demos / "d0.mcap")], capture_output=True, text=True,
+                          cwd=ROOT, timeout=120)
+    assert done.stderr.strip().splitlines()[-1] == "False 0", done.stderr
+
+
+def test_a_reader_that_stops_reading_ends_inspect_quietly(world):
+    """`cnep inspect A B | head -1`: no BrokenPipeError traceback, exit 0."""
+    files = [str(world.demos / f"d{i}.mcap") for i in range(3)] * 20
+    proc = subprocess.Popen([sys.executable, "-m", "pipeline", "inspect", *files], cwd=ROOT, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE)
+    proc.stdout.readline()
+    proc.stdout.close()  # what `head -1` does after its line
+    err = proc.stderr.read().decode()
+    assert proc.wait(timeout=120) == 0 and err == "", err
+
+
+def test_a_bug_is_exit_1_with_one_line_and_v_shows_the_traceback(world, tmp_path, capsys, monkeypatch):
+    def broken(*args, **kwargs):
+        raise TypeError("an internal slip")
+
+    monkeypatch.setattr(importlib.import_module("recordings.inspection"), "read_mcap", broken)
+    code, err = run_cli(["inspect", world.demos / "d0.mcap"], capsys)
+    assert code == 1
+    assert_one_line(err, "inspect", "internal error (TypeError: an internal slip)", "this is a bug", "-v")
+    capsys.readouterr()
+    assert main(["-v", "inspect", str(world.demos / "d0.mcap")]) == 1
+    assert "Traceback (most recent call last)" in capsys.readouterr().err
+
+
+def test_a_user_error_shows_its_traceback_only_with_v(world, tmp_path, capsys):
+    argv = ["repair", str(tmp_path / "nope.mcap"), str(tmp_path / "out.mcap")]
+    assert main(argv) == 2 and "Traceback" not in capsys.readouterr().err
+    assert main(["-v", *argv]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" in err and err.strip().splitlines()[-1].startswith("cnep repair: error: ")
+
+
+@pytest.mark.parametrize("umask", [0o022, 0o027])
+def test_files_are_written_with_the_users_umask(world, tmp_path, capsys, umask):
+    old = os.umask(umask)
+    try:
+        assert run_cli(["ingest", world.csv, "--out", tmp_path / "demos"], capsys)[0] == 0
+        assert run_cli(["repair", tmp_path / "demos" / "a.mcap", tmp_path / "fixed.mcap"], capsys)[0] == 0
+        assert run_cli(["replay", world.ckpt, world.trajs / "t0.mcap", "--out", tmp_path / "r.rrd", "--no-live"],
+                       capsys)[0] == 0
+    finally:
+        os.umask(old)
+    for path in (tmp_path / "demos" / "a.mcap", tmp_path / "fixed.mcap", tmp_path / "r.rrd", tmp_path / "r.experts.json"):
+        assert stat.S_IMODE(path.stat().st_mode) == 0o666 & ~umask, path
+
+
+def test_ingest_keep_going_writes_the_good_sources_and_names_the_bad_one(world, tmp_path, capsys):
+    src = tmp_path / "src"
+    src.mkdir()
+    for name in ("a", "b", "d"):
+        shutil.copy(world.csv, src / f"{name}.csv")
+    shutil.copy(world.short_csv, src / "c.csv")
+    code, err = run_cli(["ingest", src, "--out", tmp_path / "strict"], capsys)
+    assert code == 2 and str(src / "c.csv") in assert_one_line(err, "ingest")  # without --keep-going: stops at c
+    assert sorted(p.name for p in (tmp_path / "strict").iterdir()) == ["a.mcap", "b.mcap"]  # complete files only
+    code, err = run_cli(["ingest", src, "--out", tmp_path / "out", "--keep-going"], capsys)
+    assert code == 2
+    assert_one_line(err[-1:], "ingest", "1 of 4 input(s) skipped, the other 3 were written to", str(src / "c.csv"))
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["a.mcap", "b.mcap", "d.mcap"]
+
+
+def test_extract_keep_going_extracts_the_good_files_and_names_the_bad_one(world, tmp_path, capsys):
+    inputs = tmp_path / "in"
+    shutil.copytree(world.demos, inputs)
+    shutil.copy(world.truncated_traj, inputs / "e.mcap")
+    code, err = run_cli(["extract", inputs, "--out", tmp_path / "out", "--keep-going"], capsys)
+    assert code == 2
+    assert_one_line(err[-1:], "extract", "1 of 4 input(s) skipped", str(inputs / "e.mcap"), "truncated")
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["d0.mcap", "d1.mcap", "d2.mcap"]
+
+
+# --- messages that used to mislead --------------------------------------------------------------------------------
+
+def test_a_checkpoint_with_edited_n_experts_is_one_line(world, tmp_path, capsys):
+    ckpt = tmp_path / "ckpt"
+    shutil.copytree(world.ckpt, ckpt)
+    config = json.loads((ckpt / "config.json").read_text())
+    config["model"]["n_experts"] = 3
+    (ckpt / "config.json").write_text(json.dumps(config))
+    argv = ["replay", ckpt, world.trajs / "t0.mcap", "--out", tmp_path / "r.rrd", "--no-live"]
+    code, err = run_cli(argv, capsys)
+    assert code == 2 and "does not match its checksum" in assert_one_line(err, "replay", str(ckpt))
+    config[CHECKSUM_KEY] = config_checksum(config)  # even with a matching checksum: one line, not torch's dump
+    (ckpt / "config.json").write_text(json.dumps(config))
+    code, err = run_cli(argv, capsys)
+    assert code == 2 and "weights do not match config.json" in assert_one_line(err, "replay", str(ckpt))
+
+
+def test_a_checkpoint_file_instead_of_its_folder_is_one_line(world, tmp_path, capsys):
+    code, err = run_cli(["replay", world.ckpt / "config.json", world.trajs / "t0.mcap", "--out", tmp_path / "r.rrd",
+                         "--no-live"], capsys)
+    assert code == 2 and "is a file; pass the checkpoint folder" in assert_one_line(err, "replay")
+
+
+def test_training_on_demonstrations_says_to_extract_first(world, tmp_path, capsys):
+    code, err = run_cli(["train", world.demos, "--out", tmp_path / "ckpt"], capsys)
+    assert code == 2
+    assert_one_line(err, "train", "is a 'demonstration' file, expected a 'trajectory' file", "run `cnep extract`")
+
+
+def test_inspect_names_a_frame_that_does_not_decode(world, tmp_path, capsys):
+    demo = demonstration_factory(12, frames=True)
+    demo.frames[10] = b"\xff\xd8" + bytes(60)  # starts like a JPEG, decodes to nothing
+    path = write_demonstration(tmp_path / "bad-frame.mcap", demo)
+    code, err = run_cli(["inspect", path], capsys)
+    assert code == 2
+    assert_one_line(err, "inspect", str(path), "frame 10 on /camera/rgb is not a decodable JPEG")
+
+
+def test_inspect_does_not_suggest_repair_when_nothing_can_be_salvaged(world, capsys):
+    code, err = run_cli(["inspect", world.empty_chunks], capsys)
+    out = capsys.readouterr().out  # the report was printed before run_cli read stderr; nothing more here
+    assert code == 2 and "nothing can be salvaged" in err[0] and "cnep repair" not in err[0] + out
+
+
+def test_train_fits_the_warm_up_into_few_steps_and_says_so(world, tmp_path, caplog, one_thread):
+    import logging
+
+    with caplog.at_level(logging.WARNING):
+        assert main(["-q", "train", str(world.trajs), "--out", str(tmp_path / "ckpt"), *TINY_TRAINING]) == 0
+    assert "warming up over 0 steps instead" in caplog.text  # 4 steps: 4 * 2000 // 10000
+    assert json.loads((tmp_path / "ckpt" / "config.json").read_text())["training"]["warmup_steps"] == 0
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):
+        assert main(["-q", "train", str(world.trajs), "--out", str(tmp_path / "ckpt2"), *TINY_TRAINING,
+                     "--warmup-steps", "9"]) == 0
+    assert "--warmup-steps 9 >= --steps 4" in caplog.text
+
+
+def test_train_help_shows_the_actual_defaults():
+    import dataclasses
+
+    from models import TrainConfig
+    from pipeline.cli.train import TRAIN_OPTIONS, train_config_defaults
+
+    defaults = {f.name: f.default for f in dataclasses.fields(TrainConfig)}
+    assert {name: train_config_defaults()[name] for name in TRAIN_OPTIONS} == {name: defaults[name] for name in TRAIN_OPTIONS}
+    done = subprocess.run([sys.executable, "-m", "pipeline", "train", "--help"], capture_output=True, text=True,
+                          cwd=ROOT, timeout=60)
+    assert "TrainConfig's default" not in done.stdout and "(default 10000)" in done.stdout
