@@ -101,10 +101,10 @@ def main() -> None:
         rows, xyz = mapping.select(traj, rec_path, ckpt), mapping.predicted_xyz(model)
         decisions = decide(model, rows, traj.timestamps_ns, ConditioningPolicy(), xyz)
 
-        total = best_seconds(lambda: replay(ckpt, [rec_path], tmp / "out.rrd", connect=None, quiet=True), args.repeats)
+        total = best_seconds(lambda: replay(ckpt, [rec_path], tmp / "out.rrd", connect=None, force=True, quiet=True), args.repeats)
         read = best_seconds(lambda: read_trajectory(rec_path), args.repeats)
         cond = best_seconds(lambda: decide(model, rows, traj.timestamps_ns, ConditioningPolicy(), xyz), args.repeats)
-        bulk = best_seconds(lambda: write_recording(tmp / "bulk.rrd", "bulk", rec_path, traj, decisions, None), args.repeats)
+        bulk = best_seconds(lambda: write_recording(tmp / "bulk.rrd", "bulk", "bulk", traj, decisions, None), args.repeats)
         per_row = best_seconds(lambda: write_per_row(tmp / "rows.rrd", traj, decisions), args.repeats)
         mb = (tmp / "out.rrd").stat().st_size / 1e6
         frames_mb = sum(len(f) for f in traj.frames) / 1e6

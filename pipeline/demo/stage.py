@@ -12,8 +12,8 @@ Stages (each logs its progress; tqdm bars unless quiet), all under OUT:
 4. train      `checkpoints/cnep` (4 experts) and `checkpoints/cnmp` (1 expert, parameter-matched
               widths) on the training trajectories (layout `scene`: observe features + pose + gripper,
               query with time only, predict pose + gripper), seeded;
-5. replay     `demo.rrd` (+ `demo.experts.json`): the held-out and the scene-change recordings through
-              the CNEP, step by step;
+5. replay     `demo.rrd` (+ `demo.experts.json`): the scene-change recordings (first, so the viewer opens
+              on one) and the held-out ones through the CNEP, step by step;
 6. summary    `summary.json`: per behaviour the expert that took it and how purely, the error of the
               generated motion on held-out demonstrations (CNEP vs CNMP), the scene change's switches.
 
@@ -209,8 +209,8 @@ def _run_stages(config: DemoConfig, out: Path, size: DemoSize, seconds: dict[str
 
     stage("replay", 5)
     trajectories = {split: sorted((out / "trajectories" / split).glob("*.mcap")) for split in SPLITS}
-    rrd = replay(checkpoints["CNEP"], trajectories["heldout"] + trajectories["scene_change"], out / RRD_FILE,
-                 connect=None, quiet=config.quiet)
+    rrd = replay(checkpoints["CNEP"], trajectories["scene_change"] + trajectories["heldout"], out / RRD_FILE,
+                 connect=None, quiet=config.quiet)  # the scene change first: the viewer opens on it
     done("replay")
 
     stage("summary", 6)

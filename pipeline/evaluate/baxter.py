@@ -84,7 +84,8 @@ def nearest_demo_distance(path: np.ndarray, demos: np.ndarray) -> float:
 
 
 def _ingest_paths(src: Path, out: Path, quiet: bool) -> list[Path]:
-    return [item.output for item in ingest(IngestConfig(src=src, out=out, quiet=quiet))]
+    # the example's own work folder: a second run re-ingests (replaces) what the first one wrote there
+    return [item.output for item in ingest(IngestConfig(src=src, out=out, force=True, quiet=quiet))]
 
 
 def load_recordings(config: BaxterConfig, work: Path) -> tuple[list[Path], list[Path]]:

@@ -15,7 +15,7 @@ TIMELINE_TIME = "time"  # duration: time since the recording's first step
 CAMERA = "/camera/rgb"  # EncodedImage: the stored JPEG bytes
 EE = "/world/ee"  # Transform3D: end-effector pose per step
 EE_PATH = "/world/ee_path"  # LineStrips3D, static: the whole recorded path
-PREDICTION = "/world/prediction"  # LineStrips3D per step: the active expert's remaining trajectory
+PREDICTION = "/world/prediction"  # LineStrips3D per step: the active expert's remaining trajectory, in its colour
 GATES = "/gates"  # Scalars, d per step: the gate probabilities, one named, coloured series per expert
 ACTIVE_EXPERT = "/active_expert"  # StateChange at the first step and at each switch (+ StateConfiguration)
 SWITCH_LOG = "/log/experts"  # TextLog: one line per switch
@@ -27,6 +27,7 @@ PALETTE = (
     (140, 86, 75), (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207),
 )
 PATH_COLOR = (200, 200, 200)
+GATE_AXIS = (-0.05, 1.05)  # the gate plot's y range: probabilities of exactly 0 and 1 stay clear of the border
 
 
 def expert_name(e: int) -> str:
@@ -42,30 +43,39 @@ def expert_colors(n_experts: int) -> list[tuple[int, int, int]]:
     return [PALETTE[e % len(PALETTE)] for e in range(n_experts)]
 
 
-def blueprint(n_experts: int):
-    """The replay layout, a pure function of the number of experts.
+def blueprint(n_experts: int, camera: bool = True):
+    """The replay layout, a pure function of the number of experts and whether there are camera frames.
 
-    Left: the camera above the 3D view (end-effector pose, recorded path, predicted trajectory).
-    Right: the gate probabilities over time (one named, coloured series per expert, y in [0, 1]),
-    the active expert as a colour lane, and the log of expert switches.
+    Left: the camera (only when the recording has frames) above the 3D view (end-effector pose,
+    recorded path, the predicted trajectory in the active expert's colour). Right: the gate
+    probabilities over time (one named, coloured series per expert, y in GATE_AXIS), the active
+    expert as a colour lane, and the log of expert switches (time since the start and the text only).
+    The recordings list (left panel) and the time panel stay open; the selection panel is collapsed.
     """
     import rerun as rr
     import rerun.blueprint as rrb
 
     series = rr.SeriesLines(names=expert_names(n_experts), colors=expert_colors(n_experts))
+    scene = [rrb.Spatial2DView(origin=CAMERA, name="camera")] if camera else []
+    log_columns = rrb.TextLogColumns(
+        timeline_columns=[rrb.components.TimelineColumn(TIMELINE_TIME),
+                          rrb.components.TimelineColumn(TIMELINE_FRAME, visible=False)],
+        text_log_columns=[rrb.components.TextLogColumn("Body"),
+                          rrb.components.TextLogColumn("EntityPath", visible=False),
+                          rrb.components.TextLogColumn("LogLevel", visible=False)])
     return rrb.Blueprint(
         rrb.Horizontal(
-            rrb.Vertical(
-                rrb.Spatial2DView(origin=CAMERA, name="camera"),
-                rrb.Spatial3DView(origin=WORLD, name="end effector and prediction"),
-            ),
+            rrb.Vertical(*scene, rrb.Spatial3DView(origin=WORLD, name="end effector and prediction")),
             rrb.Vertical(
                 rrb.TimeSeriesView(origin=GATES, name=f"gate probabilities ({n_experts} experts)", defaults=[series],
-                                   axis_y=rrb.ScalarAxis(range=(0.0, 1.0))),
+                                   axis_y=rrb.ScalarAxis(range=GATE_AXIS)),
                 rrb.StateTimelineView(origin=ACTIVE_EXPERT, name="active expert"),
-                rrb.TextLogView(origin=SWITCH_LOG, name="expert switches"),
+                rrb.TextLogView(origin=SWITCH_LOG, name="expert switches", columns=log_columns),
                 row_shares=[3, 1, 2],
             ),
+            column_shares=[2, 3],
         ),
-        collapse_panels=True,
+        rrb.BlueprintPanel(state="expanded"),
+        rrb.SelectionPanel(state="collapsed"),
+        rrb.TimePanel(state="expanded", timeline=TIMELINE_TIME),
     )

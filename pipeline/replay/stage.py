@@ -237,7 +237,7 @@ def replay(
             decisions = decide(model, x, traj.timestamps_ns, policy, xyz, prediction_points)
             bar.update(len(x))
             parts.append(out.parent / f".{out.name}.{i}.tmp")
-            write_recording(parts[-1], f"{traj.episode.episode_id}-{i}-{run_id}", path, traj, decisions, live)
+            write_recording(parts[-1], recording_id(i, traj, run_id), recording_name(i, path), traj, decisions, live)
             if events_dir is not None:
                 add_events(path, Path(events_dir) / path.name, decision_events(traj, decisions))
             summaries.append(summarise(path, traj, decisions))
@@ -320,7 +320,18 @@ def switch_text(switch: ExpertSwitch, start_ns: int) -> str:
             f"{L.expert_name(switch.from_expert)} -> {L.expert_name(switch.to_expert)} (p = {gate})")
 
 
-def write_recording(path: Path, recording_id: str, source: Path, traj: Trajectory, decisions: Decisions,
+def recording_id(index: int, traj: Trajectory, run_id: str) -> str:
+    """The Rerun recording id of the `index`-th replayed recording: `rerun rrd merge` orders a file's recordings
+    by id, so the zero-padded index keeps them in the order given (the viewer opens the first)."""
+    return f"{index:05d}-{traj.episode.episode_id}-{run_id}"
+
+
+def recording_name(index: int, source: Path) -> str:
+    """The name the viewer lists: position, then the file's name and folder (`1 demo_000 (scene_change)`)."""
+    return f"{index + 1} {source.stem} ({source.parent.name or '.'})"
+
+
+def write_recording(path: Path, recording_id: str, name: str, traj: Trajectory, decisions: Decisions,
                     live: str | None) -> None:
     """One Rerun recording (file sink, plus the live viewer if any) of one replayed trajectory."""
     import rerun as rr
@@ -328,8 +339,8 @@ def write_recording(path: Path, recording_id: str, source: Path, traj: Trajector
     d = decisions.gates.shape[1]
     rec = rr.RecordingStream(L.APPLICATION_ID, recording_id=recording_id)
     rec.set_sinks(rr.FileSink(path), *([rr.GrpcSink(live)] if live else []))
-    rec.send_recording_name(f"{traj.episode.episode_id} ({source.name})")
-    rec.send_blueprint(L.blueprint(d))
+    rec.send_recording_name(name)
+    rec.send_blueprint(L.blueprint(d, camera=traj.frames is not None))
     index = change_index(traj, list(range(traj.n_steps)))
     log_camera(rec, index, traj)
     log_pose(rec, index, traj)
@@ -337,7 +348,9 @@ def write_recording(path: Path, recording_id: str, source: Path, traj: Trajector
     log_active_expert(rec, traj, decisions, d)
     log_switches(rec, traj, decisions)
     if decisions.predictions is not None:
-        rec.send_columns(L.PREDICTION, indexes=index, columns=rr.LineStrips3D.columns(strips=list(decisions.predictions)))
+        colors = [L.expert_colors(d)[e] for e in decisions.experts]  # the active expert's colour at each step
+        rec.send_columns(L.PREDICTION, indexes=index,
+                         columns=rr.LineStrips3D.columns(strips=list(decisions.predictions), colors=colors))
     rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
     rec.disconnect()
 

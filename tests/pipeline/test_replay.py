@@ -1,5 +1,6 @@
 """The replay stage: the .rrd read back without a GUI holds what the gate decided, step by step."""
 
+import datetime as dt
 import logging
 import shutil
 import socket
@@ -149,6 +150,11 @@ def test_the_rrd_holds_one_gate_row_per_step_and_switches_at_argmax_changes(tmp_
     np.testing.assert_allclose(np.array(translations).reshape(40, 3), traj.pose[:, :3], atol=1e-6)
     pred_frames, strips = column(out, L.PREDICTION, "LineStrips3D:strips")
     assert pred_frames == list(range(40)) and len(strips[0][0]) > 1
+    _, colors = column(out, L.PREDICTION, "LineStrips3D:colors")  # the active expert's colour, packed RGBA
+    packed = [(r << 24) | (g << 16) | (b << 8) | 255 for r, g, b in L.expert_colors(N_EXPERTS)]
+    assert [c[0] for c in colors] == [packed[e] for e in argmax]
+    time_rows = [c.to_record_batch().column(L.TIMELINE_TIME).to_pylist() for c in chunks(out, L.GATES) if not c.is_static]
+    assert sorted(t for rows in time_rows for t in rows)[:2] == [dt.timedelta(0), dt.timedelta(seconds=0.1)]
     _, names = column(out, L.GATES, "SeriesLines:names", static=True)
     assert names == [[f"expert {e}" for e in range(N_EXPERTS)]]
 
