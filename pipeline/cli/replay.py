@@ -10,8 +10,11 @@ HELP = "replay trajectory files through a trained CNEP: expert probabilities ove
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("checkpoint", help="checkpoint directory written by `cnep train`")
     parser.add_argument("recordings", nargs="+", metavar="RECORDING", help="trajectory files (read only)")
-    parser.add_argument("--out", default="replay.rrd", help="the .rrd file to write (default: replay.rrd); the "
-                        "decisions go beside it as <name>.experts.json")
+    parser.add_argument("--out", default="replay.rrd", help="the .rrd file to write (default: replay.rrd); several "
+                        "recordings go to one file each beside it, <name>-01-<folder>-<file>.rrd, ..., which the "
+                        "viewer opens on that recording; the decisions go beside it as <name>.experts.json")
+    parser.add_argument("--merge", action="store_true", help="write every recording into the one --out file instead "
+                        "(the viewer then opens on one of them, which one is not fixed)")
     live = parser.add_mutually_exclusive_group()
     live.add_argument("--connect", metavar="URL", default=None,
                       help="stream to the viewer at URL too, if one answers (default: the local viewer, "
@@ -26,7 +29,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--events-out", metavar="DIR", default=None,
                         help="also write copies of the recordings with the expert decisions on /events into DIR")
     parser.add_argument("--force", action="store_true",
-                        help="replace existing outputs (the .rrd, its .experts.json, the copies in --events-out)")
+                        help="replace existing outputs (the .rrd files, the .experts.json, the copies in --events-out)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -40,13 +43,14 @@ def run(args: argparse.Namespace) -> int:
     if args.serve:
         server, connect = serve(args.port)
         print(f"serving on {connect}: connect a viewer with `rerun {connect}`")
-    out = replay(args.checkpoint, args.recordings, args.out, policy=ConditioningPolicy(args.window, args.anchors),
-                 connect=connect, events_dir=args.events_out, force=args.force, quiet=args.quiet)
-    for rec in read_decisions(out)["recordings"]:
+    files = replay(args.checkpoint, args.recordings, args.out, policy=ConditioningPolicy(args.window, args.anchors),
+                   connect=connect, events_dir=args.events_out, merge=args.merge, force=args.force, quiet=args.quiet)
+    for rec in read_decisions(args.out)["recordings"]:
         share = ", ".join(f"{p:.0%}" for p in rec["share"])
         print(f"{rec['recording']}: expert {rec['majority_expert']} (steps per expert: {share}), "
-              f"{len(rec['switches'])} switch(es)")
-    print(f"wrote {out} and {decisions_path(out)}")
+              f"{len(rec['switches'])} switch(es)" + (f" -> {rec['rrd']}" if len(files) > 1 else ""))
+    print(f"wrote {files[0] if len(files) == 1 else f'{len(files)} .rrd files'} and {decisions_path(args.out)}; "
+          f"open one with `rerun {files[0]}`")
     if server is not None:
         print("serving until Ctrl-C")
         try:

@@ -12,8 +12,8 @@ Stages (each logs its progress; tqdm bars unless quiet), all under OUT:
 4. train      `checkpoints/cnep` (4 experts) and `checkpoints/cnmp` (1 expert, parameter-matched
               widths) on the training trajectories (layout `scene`: observe features + pose + gripper,
               query with time only, predict pose + gripper), seeded;
-5. replay     `demo.rrd` (+ `demo.experts.json`): the scene-change recordings (first, so the viewer opens
-              on one) and the held-out ones through the CNEP, step by step;
+5. replay     `demo-NN-<split>-<name>.rrd`, one per recording (+ `demo.experts.json`): the scene-change
+              recordings (numbered first) and the held-out ones through the CNEP, step by step;
 6. summary    `summary.json`: per behaviour the expert that took it and how purely, the error of the
               generated motion on held-out demonstrations (CNEP vs CNMP), the scene change's switches.
 
@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import json
 import logging
-import os
 import shutil
 import time
 from collections import Counter
@@ -61,8 +60,8 @@ RRD_FILE = "demo.rrd"
 PER_FILE_LOGGERS = ("pipeline.ingest", "pipeline.extract")
 EXTRACTOR_FILE = "extractor.pt"
 # Everything a demo writes into its folder (what --force replaces).
-OUTPUTS = ("recorded", "demos", "trajectories", "checkpoints", EXTRACTOR_FILE, RRD_FILE,
-           decisions_path(RRD_FILE).name, SUMMARY_FILE)
+OUTPUTS = ("recorded", "demos", "trajectories", "checkpoints", EXTRACTOR_FILE, f"{Path(RRD_FILE).stem}-*.rrd",
+           decisions_path(RRD_FILE).name, SUMMARY_FILE)  # names and glob patterns
 
 
 @dataclass(frozen=True)
@@ -106,7 +105,7 @@ class DemoResult:
     """What the demo made and measured (also written to OUT/summary.json)."""
 
     out: Path
-    rrd: Path
+    rrd: list[Path]  # one .rrd per replayed recording, the scene changes first
     checkpoints: dict[str, Path]
     behaviours: dict[str, dict]  # behaviour -> {"n", "expert", "purity", "experts": {expert: count}}
     heldout: dict[str, dict]  # model -> {"position_rmse_m", "gripper_mae_m", "behaviour_accuracy", "n"}
@@ -141,11 +140,10 @@ def run_demo(config: DemoConfig) -> DemoResult:
 
 def remove_outputs(out: Path) -> None:
     """Delete what an earlier demo wrote into `out` (OUTPUTS), nothing else."""
-    for name in OUTPUTS:
-        path = out / name
+    for path in (path for pattern in OUTPUTS for path in out.glob(pattern)):
         if path.is_dir() and not path.is_symlink():
             shutil.rmtree(path)
-        elif os.path.lexists(path):
+        else:
             path.unlink()
 
 
@@ -210,7 +208,7 @@ def _run_stages(config: DemoConfig, out: Path, size: DemoSize, seconds: dict[str
     stage("replay", 5)
     trajectories = {split: sorted((out / "trajectories" / split).glob("*.mcap")) for split in SPLITS}
     rrd = replay(checkpoints["CNEP"], trajectories["scene_change"] + trajectories["heldout"], out / RRD_FILE,
-                 connect=None, quiet=config.quiet)  # the scene change first: the viewer opens on it
+                 connect=None, quiet=config.quiet)  # one file per recording, the scene changes first
     done("replay")
 
     stage("summary", 6)
@@ -221,7 +219,7 @@ def _run_stages(config: DemoConfig, out: Path, size: DemoSize, seconds: dict[str
         behaviours=expert_purity(checkpoints["CNEP"], trajectories["train"] + trajectories["heldout"], labels),
         heldout={name: heldout_errors(ckpt, trajectories["heldout"], trajectories["train"], labels)
                  for name, ckpt in checkpoints.items()},
-        scene_change=scene_change_switches(rrd, trajectories["scene_change"], labels, switch_steps),
+        scene_change=scene_change_switches(out / RRD_FILE, trajectories["scene_change"], labels, switch_steps),
         seconds=seconds)
     done("summary")
     return result
@@ -301,7 +299,8 @@ def heldout_errors(checkpoint: Path, heldout: list[Path], train_paths: list[Path
 
 def scene_change_switches(rrd: Path, paths: list[Path], labels: dict[str, str],
                           switch_steps: dict[str, int]) -> list[dict]:
-    """For each scene-change recording: the replay's active expert before and after the change, and its switches."""
+    """For each scene-change recording: the replay's active expert before and after the change, and its switches
+    (`rrd`: the replay's `out_rrd`, which names its decisions file)."""
     records = {key(Path(r["recording"])): r for r in read_decisions(rrd)["recordings"]}
     found = []
     for path in paths:
@@ -336,7 +335,8 @@ def format_summary(result: DemoResult) -> str:
         lines.append(f"scene change {change['behaviour']} at step {change['change_step']}: expert "
                      f"{change['expert_before']} before, {change['expert_after']} after; switches: {moves}")
     lines.append("")
-    lines.append(f"Rerun recording: {result.rrd}  (open it with `rerun {result.rrd}`)")
+    lines.append(f"Rerun recordings: {len(result.rrd)} files {result.out}/{Path(RRD_FILE).stem}-*.rrd, one per replayed "
+                 f"recording; the scene change: `rerun {result.rrd[0]}`")
     lines.append(f"checkpoints: {', '.join(str(p) for p in result.checkpoints.values())}")
     lines.append(f"summary: {result.out / SUMMARY_FILE}")
     lines.append("stage times (s): " + ", ".join(f"{k} {v:.1f}" for k, v in result.seconds.items()))

@@ -1,6 +1,6 @@
 """The replay stage: trajectory files through a trained CNEP, step by step, into Rerun.
 
-    replay(checkpoint_dir, [recording.mcap, ...], "out.rrd") -> Path of the .rrd
+    replay(checkpoint_dir, [recording.mcap, ...], "out.rrd") -> [the .rrd files written]
 
 For each recording, an `OnlineConditioner` (models.online) takes the steps in order, as a robot would
 see them, and re-evaluates the gate at every step; the per-step gate probabilities, the active expert,
@@ -9,8 +9,9 @@ frames (the stored JPEG bytes) and the end-effector pose (entities: pipeline.rep
 
 - Always writes the `.rrd` (atomically: temporary name in the destination folder, then a rename). A
   live viewer gets the same stream only when one answers at `connect` (a TCP probe first; a warning
-  when none does, never a hang). Several recordings become several Rerun recordings of one
-  application in one file (merged with the `rerun rrd merge` that ships with rerun-sdk).
+  when none does, never a hang). Several recordings become one file each beside `out.rrd`
+  (`out-01-<folder>-<name>.rrd`, ...: a file of one recording opens on it), or with `merge` several
+  Rerun recordings of one application in `out.rrd` (merged with the `rerun rrd merge` of rerun-sdk).
 - The decisions (gate and expert per step, switches, each expert's share of the steps) are returned
   by `decide` and written next to the .rrd as `<name>.experts.json` (`read_decisions`).
 - With `events_dir`, a copy of each recording with the decisions on `/events` (one Event per span of
@@ -181,11 +182,14 @@ def replay(
     connect: str | None = DEFAULT_VIEWER_URL,
     events_dir: str | os.PathLike | None = None,
     prediction_points: int = DEFAULT_PREDICTION_POINTS,
+    merge: bool = False,
     force: bool = False,
     quiet: bool = False,
-) -> Path:
-    """Replay trajectory files through the checkpoint's CNEP into `out_rrd`; returns its path.
+) -> list[Path]:
+    """Replay trajectory files through the checkpoint's CNEP; returns the .rrd files written (`rrd_files`).
 
+    One recording goes to `out_rrd`; several go to one file each beside it (`merge`: all into `out_rrd`,
+    where the viewer opens one of them, which one is not fixed).
     `connect`: a viewer URL, streamed to only if reachable (None: file only). The decisions are
     written to `decisions_path(out_rrd)` (see `read_decisions`). Existing outputs (the .rrd, the
     decisions, the event copies) are refused unless `force`; a recording whose features come from
@@ -204,7 +208,8 @@ def replay(
     if events_dir is not None and len(set(names)) < len(names):
         raise PipelineError(f"{events_dir}: several recordings are named alike ({', '.join(sorted(names))}) and their "
                             f"copies with events would overwrite each other; replay them in separate runs")
-    outputs = [out, decisions_path(out), *(Path(events_dir) / name for name in names if events_dir is not None)]
+    files = rrd_files(out, paths, merge)
+    outputs = [*files, decisions_path(out), *(Path(events_dir) / name for name in names if events_dir is not None)]
     refuse_existing(outputs, force, "replay output")
     model = load_checkpoint(checkpoint)
     mapping = RowMapping.from_checkpoint(checkpoint, model)
@@ -218,7 +223,8 @@ def replay(
     xyz = mapping.predicted_xyz(model)
     live = connect if connect and viewer_reachable(connect) else None
     if connect and live is None:
-        log.warning("no Rerun viewer answers at %s; writing %s only (open it with `rerun %s`)", connect, out, out)
+        log.warning("no Rerun viewer answers at %s; writing %s only (open it with `rerun %s`)", connect, files[0],
+                    files[0])
     elif live:
         log.info("streaming live to %s", live)
     run_id = uuid.uuid4().hex[:8]  # a new replay is a new recording in a viewer, not more rows in an old one
@@ -242,19 +248,30 @@ def replay(
                 add_events(path, Path(events_dir) / path.name, decision_events(traj, decisions))
             summaries.append(summarise(path, traj, decisions))
         bar.close()
-        tmp = out.parent / f".{out.name}.tmp"
-        if len(parts) == 1:
-            os.replace(parts[0], tmp)
-        else:
-            merge_rrd(parts, tmp)
-        record = {"checkpoint": str(checkpoint), "rrd": out.name, "n_experts": model.n_experts,
+        done = parts
+        if len(files) < len(parts):  # one file holding every recording
+            done = [out.parent / f".{out.name}.tmp"]
+            merge_rrd(parts, done[0])
+        for i, summary in enumerate(summaries):
+            summary["rrd"] = files[min(i, len(files) - 1)].name
+        record = {"checkpoint": str(checkpoint), "rrd": [file.name for file in files], "n_experts": model.n_experts,
                   "policy": {"window": policy.window, "anchors": policy.anchors}, "recordings": summaries}
         atomic_write(decisions_path(out), json.dumps(record, indent=1).encode())
-        os.replace(tmp, out)
+        for part, file in zip(done, files):
+            os.replace(part, file)
     for s in summaries:
         log.debug("%s: expert %d on %.0f%% of %d steps, %d switch(es)", s["recording"], s["majority_expert"],
                  100 * max(s["share"]), s["n_steps"], len(s["switches"]))
-    return out
+    return files
+
+
+def rrd_files(out: Path, paths: list[Path], merge: bool) -> list[Path]:
+    """The .rrd files of a replay: `out` for one recording (or all of them, merged), else one per recording beside it,
+    `<out stem>-NN-<folder>-<file stem>.rrd` in the order given (a file holding one recording opens on it)."""
+    if merge or len(paths) == 1:
+        return [out]
+    return [out.with_name(f"{out.stem}-{i + 1:02d}-{path.parent.name}-{path.stem}.rrd".replace(" ", "_"))
+            for i, path in enumerate(paths)]
 
 
 def check_extractor(checkpoint: Path, trajectories: list[Trajectory], paths: list[Path]) -> None:
@@ -265,6 +282,10 @@ def check_extractor(checkpoint: Path, trajectories: list[Trajectory], paths: lis
     """
     config_file = checkpoint / CONFIG_FILE
     trained = read_checkpoint_config(checkpoint).get("extractor") or {}
+    if not trained:
+        raise PipelineError(f"{config_file}: the model sees image features but the checkpoint names no feature "
+                            f"extractor, so the recordings' features cannot be checked against its training data; "
+                            f"train it with `cnep train` (which records the extractor)")
     for traj, path in zip(trajectories, paths):
         check_identities({config_file: trained, path: traj.extractor or {}})
 
@@ -322,7 +343,7 @@ def switch_text(switch: ExpertSwitch, start_ns: int) -> str:
 
 def recording_id(index: int, traj: Trajectory, run_id: str) -> str:
     """The Rerun recording id of the `index`-th replayed recording: `rerun rrd merge` orders a file's recordings
-    by id, so the zero-padded index keeps them in the order given (the viewer opens the first)."""
+    by id, so the zero-padded index keeps them in the order given."""
     return f"{index:05d}-{traj.episode.episode_id}-{run_id}"
 
 

@@ -117,7 +117,10 @@ def test_summary_covers_behaviours_models_and_the_scene_change(demo_run):
 
 
 def test_the_rrd_holds_each_replayed_recording(demo_run):
-    recordings = _rrd_recordings(demo_run / RRD_FILE)
+    files = sorted(demo_run.glob("demo-*.rrd"))
+    assert files[0].name == "demo-01-scene_change-demo_000.rrd"  # the scene change first, one recording per file
+    recordings = [rec for file in files for rec in _rrd_recordings(file)]
+    assert len(recordings) == len(files)
     replayed = sorted((demo_run / "trajectories" / "heldout").glob("*.mcap")) + \
         [demo_run / "trajectories" / "scene_change" / "demo_000.mcap"]
     assert len(recordings) == len(replayed)

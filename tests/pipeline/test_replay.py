@@ -121,7 +121,7 @@ def rrd_verify(path: Path) -> subprocess.CompletedProcess:
 def test_the_rrd_holds_one_gate_row_per_step_and_switches_at_argmax_changes(tmp_path, checkpoint):
     traj = trajectory(steps=40)
     rec = write_trajectory(tmp_path / "ep.mcap", traj)
-    out = replay(checkpoint, [rec], tmp_path / "out" / "replay.rrd", connect=None, quiet=True)
+    (out,) = replay(checkpoint, [rec], tmp_path / "out" / "replay.rrd", connect=None, quiet=True)
     assert out == tmp_path / "out" / "replay.rrd" and out.exists()
     assert sorted(p.name for p in out.parent.iterdir()) == ["replay.experts.json", "replay.rrd"]  # no temporaries left
 
@@ -166,19 +166,35 @@ def test_the_rrd_holds_one_gate_row_per_step_and_switches_at_argmax_changes(tmp_
     assert rrd_verify(out).returncode == 0, rrd_verify(out).stderr
 
 
-def test_several_recordings_become_several_rerun_recordings_in_one_file(tmp_path, checkpoint):
-    paths = [write_trajectory(tmp_path / f"ep{i}.mcap", trajectory(steps=20 + 10 * i, seed=i, name=f"ep{i}"))
-             for i in range(2)]
-    out = replay(checkpoint, paths, tmp_path / "both.rrd", connect=None, quiet=True)
+def test_several_recordings_become_one_file_each_in_the_order_given(tmp_path, checkpoint):
+    """A file of one recording opens on it in the viewer (a merged file opens on one of them, which is not fixed)."""
     from rerun.chunk import RrdReader
 
-    assert len(RrdReader(out).recordings()) == 2
-    for i in range(2):
-        frames, _ = column(out, L.GATES, "Scalars:scalars", recording=i)
-        assert len(frames) == 20 + 10 * i
-    record = read_decisions(out)
-    assert [r["n_steps"] for r in record["recordings"]] == [20, 30]
-    assert record["n_experts"] == N_EXPERTS
+    (tmp_path / "traj").mkdir()
+    paths = [write_trajectory(tmp_path / "traj" / f"ep{i}.mcap", trajectory(steps=20 + 10 * i, seed=i, name=f"ep{i}"))
+             for i in (1, 0)]
+    files = replay(checkpoint, paths, tmp_path / "both.rrd", connect=None, quiet=True)
+    assert files == [tmp_path / "both-01-traj-ep1.rrd", tmp_path / "both-02-traj-ep0.rrd"]
+    assert not (tmp_path / "both.rrd").exists() and not list(tmp_path.glob(".both*"))
+    for file, steps in zip(files, (30, 20)):
+        assert len(RrdReader(file).recordings()) == 1
+        assert len(column(file, L.GATES, "Scalars:scalars")[0]) == steps
+        assert rrd_verify(file).returncode == 0
+    record = read_decisions(tmp_path / "both.rrd")
+    assert [r["n_steps"] for r in record["recordings"]] == [30, 20] and record["n_experts"] == N_EXPERTS
+    assert [r["rrd"] for r in record["recordings"]] == [f.name for f in files] == record["rrd"]
+
+
+def test_merge_puts_every_recording_into_one_file_in_the_order_given(tmp_path, checkpoint):
+    from rerun.chunk import RrdReader
+
+    paths = [write_trajectory(tmp_path / f"ep{i}.mcap", trajectory(steps=20 + 10 * i, seed=i, name=f"ep{i}"))
+             for i in (1, 0)]
+    (out,) = replay(checkpoint, paths, tmp_path / "both.rrd", connect=None, merge=True, quiet=True)
+    assert out == tmp_path / "both.rrd"
+    assert [r.recording_id.split("-")[1] for r in RrdReader(out).recordings()] == ["ep1", "ep0"]
+    for i, steps in enumerate((30, 20)):
+        assert len(column(out, L.GATES, "Scalars:scalars", recording=i)[0]) == steps
     assert rrd_verify(out).returncode == 0
     assert not list(tmp_path.glob(".both.rrd*"))
 
@@ -209,7 +225,7 @@ def test_a_recording_from_another_extractor_is_refused_naming_both(tmp_path):
     """Like training: features of other weights (another sha256) would silently move the gate."""
     ckpt = make_feature_checkpoint(tmp_path / "ckpt", IDENTITY)
     same = write_trajectory(tmp_path / "same.mcap", trajectory(width=STEP_DIM, extractor=IDENTITY))
-    assert replay(ckpt, [same], tmp_path / "ok.rrd", connect=None, quiet=True).is_file()
+    assert replay(ckpt, [same], tmp_path / "ok.rrd", connect=None, quiet=True) == [tmp_path / "ok.rrd"]
     other = write_trajectory(tmp_path / "other.mcap", trajectory(width=STEP_DIM,
                                                                  extractor={**IDENTITY, "weights_sha256": "b" * 64}))
     with pytest.raises(PipelineError, match=r"different feature extractors.*sha256 aaaaaaaaaaaa.*ckpt/config.json.*"
@@ -236,7 +252,7 @@ def test_a_motion_checkpoint_replays_8_and_1288_column_recordings_alike(tmp_path
     from_narrow = make_checkpoint(tmp_path / "plain")  # no layout entry: the model's own 8 columns
     wide = write_trajectory(tmp_path / "wide.mcap", trajectory(width=STEP_DIM))
     narrow = write_trajectory(tmp_path / "n.mcap", trajectory())
-    gates = [read_decisions(replay(ckpt, [rec], tmp_path / f"{i}.rrd", connect=None, quiet=True))["recordings"][0]["gates"]
+    gates = [read_decisions(replay(ckpt, [rec], tmp_path / f"{i}.rrd", connect=None, quiet=True)[0])["recordings"][0]["gates"]
              for i, (ckpt, rec) in enumerate([(from_wide, wide), (from_wide, narrow), (from_narrow, wide),
                                               (from_narrow, narrow)])]
     assert all(g == gates[0] for g in gates[1:])
@@ -245,7 +261,7 @@ def test_a_motion_checkpoint_replays_8_and_1288_column_recordings_alike(tmp_path
 def test_decisions_go_into_a_copy_of_the_recording_as_events(tmp_path, checkpoint):
     rec = write_trajectory(tmp_path / "ep.mcap", trajectory(steps=40))
     before = rec.read_bytes()
-    out = replay(checkpoint, [rec], tmp_path / "r.rrd", connect=None, events_dir=tmp_path / "events", quiet=True)
+    (out,) = replay(checkpoint, [rec], tmp_path / "r.rrd", connect=None, events_dir=tmp_path / "events", quiet=True)
     assert rec.read_bytes() == before
     events = read_events(tmp_path / "events" / "ep.mcap")
     decisions = read_decisions(out)["recordings"][0]
@@ -266,7 +282,7 @@ def test_no_viewer_means_a_warning_and_the_file(tmp_path, checkpoint, caplog):
     rec = write_trajectory(tmp_path / "ep.mcap", trajectory(steps=10, frames=False))
     url = f"rerun+http://127.0.0.1:{free_port()}/proxy"
     with caplog.at_level(logging.WARNING, logger="pipeline.replay.stage"):
-        out = replay(checkpoint, [rec], tmp_path / "r.rrd", connect=url, quiet=True)
+        (out,) = replay(checkpoint, [rec], tmp_path / "r.rrd", connect=url, quiet=True)
     assert "no Rerun viewer answers" in caplog.text
     assert column(out, L.CAMERA, "EncodedImage:blob") == ([], [])  # motion-only: no camera entity
     assert len(column(out, L.GATES, "Scalars:scalars")[0]) == 10
@@ -300,7 +316,7 @@ def test_a_reachable_viewer_receives_the_live_stream_and_the_file_is_still_compl
             time.sleep(0.1)
         rec = write_trajectory(tmp_path / "ep.mcap", trajectory(steps=15))
         with caplog.at_level(logging.INFO, logger="pipeline.replay.stage"):
-            out = replay(checkpoint, [rec], tmp_path / "r.rrd", connect=url, quiet=True)
+            (out,) = replay(checkpoint, [rec], tmp_path / "r.rrd", connect=url, quiet=True)
         assert f"streaming live to {url}" in caplog.text
         while gate_rows_received(received) < 15 and time.monotonic() < deadline:
             time.sleep(0.2)
@@ -318,7 +334,7 @@ def test_serve_hosts_a_server_that_replay_streams_to(tmp_path, checkpoint, caplo
         assert viewer_reachable(url)
         rec = write_trajectory(tmp_path / "ep.mcap", trajectory(steps=15))
         with caplog.at_level(logging.INFO, logger="pipeline.replay.stage"):
-            out = replay(checkpoint, [rec], tmp_path / "r.rrd", connect=url, quiet=True)
+            (out,) = replay(checkpoint, [rec], tmp_path / "r.rrd", connect=url, quiet=True)
         assert "streaming live" in caplog.text
     finally:
         server.disconnect()
@@ -362,3 +378,11 @@ def test_event_copies_that_would_overwrite_each_other_are_refused(tmp_path, chec
     paths = [write_trajectory(tmp_path / d / "ep.mcap", trajectory(steps=10)) for d in ("a", "b")]
     with pytest.raises(PipelineError, match="named alike"):
         replay(checkpoint, paths, tmp_path / "x.rrd", connect=None, events_dir=tmp_path / "ev", quiet=True)
+
+
+def test_a_feature_checkpoint_that_names_no_extractor_is_refused(tmp_path):
+    ckpt = make_feature_checkpoint(tmp_path / "ckpt", {})
+    rec = write_trajectory(tmp_path / "rec.mcap", trajectory(width=STEP_DIM, extractor=IDENTITY))
+    with pytest.raises(PipelineError, match=r"ckpt/config.json: the model sees image features but the checkpoint "
+                                            r"names no feature extractor"):
+        replay(ckpt, [rec], tmp_path / "x.rrd", connect=None, quiet=True)

@@ -49,7 +49,8 @@ def checkpoint(tmp_path_factory):
     config = CNEPConfig(layout=layout, n_experts=2, encoder_widths=(32, 32), expert_widths=(32, 32), time_frequencies=2)
     train = TrainConfig(steps=300, batch_size=32, warmup_steps=100, gate_freeze_fraction=0.3, val_every=100, seed=0)
     model, _ = fit(demos, config, train, progress=False)
-    return save_checkpoint(model, tmp_path_factory.mktemp("scene") / "ckpt")
+    return save_checkpoint(model, tmp_path_factory.mktemp("scene") / "ckpt",  # the features' extractor, as training records
+                           {"extractor": {"architecture": "synthetic", "weights": "none"}})
 
 
 def test_the_gate_moves_to_another_expert_when_the_scene_changes(tmp_path, checkpoint, monkeypatch):
@@ -60,8 +61,8 @@ def test_the_gate_moves_to_another_expert_when_the_scene_changes(tmp_path, check
     switching = np.concatenate([a[: T // 2], b[T // 2:]])
     paths = [write_trajectory(tmp_path / f"{name}.mcap", as_trajectory(data, name))
              for name, data in (("scene0", a), ("scene1", b), ("switch", switching))]
-    out = replay(checkpoint, paths, tmp_path / "scene.rrd", connect=None, quiet=True)
-    pure0, pure1, switch = read_decisions(out)["recordings"]
+    replay(checkpoint, paths, tmp_path / "scene.rrd", connect=None, quiet=True)
+    pure0, pure1, switch = read_decisions(tmp_path / "scene.rrd")["recordings"]
 
     e0, e1 = pure0["majority_expert"], pure1["majority_expert"]
     assert e0 != e1, "the two scenes should be taken by different experts"
