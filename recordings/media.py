@@ -70,22 +70,22 @@ def numbered_images(folder: str | os.PathLike) -> list[Path]:
     return [f for _, f in keyed]
 
 
-def read_images(paths: list[Path]) -> list[bytes]:
-    """JPEG bytes of each image (JPEG files as they are, others re-encoded)."""
+def as_jpeg(data: bytes, where: str) -> bytes:
+    """JPEG bytes of an encoded image (PNG, BMP, ...): JPEG data is kept byte for byte, others re-encoded."""
+    if bytes(data[:2]) == JPEG_MAGIC:
+        return bytes(data)
     import cv2
     import numpy as np
 
-    frames = []
-    for p in paths:
-        data = p.read_bytes()
-        if data[:2] == JPEG_MAGIC:
-            frames.append(data)
-            continue
-        image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
-        if image is None:
-            raise RecordingError(f"{p}: OpenCV cannot decode this image")
-        frames.append(_encode_jpeg(image, str(p)))
-    return frames
+    image = cv2.imdecode(np.frombuffer(bytes(data), np.uint8), cv2.IMREAD_COLOR)
+    if image is None:
+        raise RecordingError(f"{where}: OpenCV cannot decode this image")
+    return _encode_jpeg(image, where)
+
+
+def read_images(paths: list[Path]) -> list[bytes]:
+    """JPEG bytes of each image (JPEG files as they are, others re-encoded)."""
+    return [as_jpeg(p.read_bytes(), str(p)) for p in paths]
 
 
 def encode_raw_image(image: object, where: str) -> bytes:

@@ -3,7 +3,9 @@
 Sources found under SRC (a file or a folder, searched recursively, in sorted order):
 - a folder holding a video (MP4/AVI/MOV/MKV) or numbered images, plus one CSV -> one demonstration;
 - any other CSV -> one motion-only demonstration (the Baxter format works without options);
-- an MCAP file -> one demonstration from its Foxglove image/pose/gripper topics.
+- an MCAP file -> one demonstration from its Foxglove image/pose/gripper topics;
+- a LeRobot dataset folder (`meta/info.json`, codebase v2.1 or v3.0) -> one demonstration per episode,
+  all episodes read and checked before the first file is written.
 Each is written to OUT/<path relative to SRC>.mcap (atomically); SRC is only read.
 """
 
@@ -19,11 +21,13 @@ from tqdm.contrib.logging import logging_redirect_tqdm
 from recordings import Demonstration, RecordingError, write_demonstration
 from recordings.adapters import FrameTiming, demonstration_from_csv, demonstration_from_folder, media_of
 from recordings.csv_motion import CsvColumns
+from recordings.lerobot import LerobotMapping, demonstration_from_lerobot, is_lerobot_dataset, plan_lerobot
 from recordings.mcap_source import McapTopics, demonstration_from_mcap
 
 log = logging.getLogger(__name__)
 
 SUFFIX = ".mcap"
+FORMATS = ("auto", "lerobot")  # auto: a LeRobot dataset if SRC has meta/info.json, else files as found
 
 
 @dataclass(frozen=True)
@@ -37,13 +41,16 @@ class IngestConfig:
     topics: McapTopics = field(default_factory=McapTopics)
     task: str = ""
     quiet: bool = False
+    format: str = "auto"  # one of FORMATS
+    lerobot: LerobotMapping = field(default_factory=LerobotMapping)
 
 
 @dataclass(frozen=True)
 class Source:
-    kind: str  # "folder", "csv" or "mcap"
+    kind: str  # "folder", "csv", "mcap" or "lerobot"
     path: Path
     episode_id: str  # path relative to src, without suffix ("/"-separated)
+    plan: object = None  # "lerobot": the episode, read and checked (recordings.lerobot.LerobotEpisode)
 
 
 @dataclass(frozen=True)
@@ -62,10 +69,14 @@ def _episode_id(src: Path, path: Path, strip_suffix: bool) -> str:
     return rel.as_posix() if rel.parts else src.resolve().name
 
 
-def discover(src: Path) -> list[Source]:
-    """Every demonstration source under `src` (see the module docstring)."""
+def discover(src: Path, fmt: str = "auto", lerobot: LerobotMapping = LerobotMapping()) -> list[Source]:
+    """Every demonstration source under `src` (see the module docstring); `fmt` one of FORMATS."""
+    if fmt not in FORMATS:
+        raise RecordingError(f"format {fmt!r} is not one of {list(FORMATS)}")
     if not src.exists():
         raise RecordingError(f"{src}: no such file or folder")
+    if fmt == "lerobot" or (fmt == "auto" and src.is_dir() and is_lerobot_dataset(src)):
+        return [Source("lerobot", src, episode.episode_id, episode) for episode in plan_lerobot(src, lerobot)]
     if src.is_file():
         kind = {".csv": "csv", SUFFIX: "mcap"}.get(src.suffix.lower())
         if kind is None:
@@ -92,13 +103,15 @@ def load(source: Source, config: IngestConfig) -> Demonstration:
         return demonstration_from_folder(source.path, source.episode_id, config.columns, config.timing, config.task)
     if source.kind == "csv":
         return demonstration_from_csv(source.path, source.episode_id, config.columns, config.task)
+    if source.kind == "lerobot":
+        return demonstration_from_lerobot(source.plan, config.task)
     return demonstration_from_mcap(source.path, source.episode_id, config.topics, config.task)
 
 
 def ingest(config: IngestConfig) -> list[Ingested]:
     """Convert every source under `config.src`; returns what was written, in source order."""
     src, out = Path(config.src), Path(config.out)
-    sources = discover(src)
+    sources = discover(src, config.format, config.lerobot)
     if src.is_dir() and out.resolve().is_relative_to(src.resolve()):
         raise RecordingError(f"{out}: the output folder is inside the source folder {src}; choose one outside it")
     try:
