@@ -11,7 +11,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("inputs", nargs="+", metavar="IN", help="demonstration files or folders of them (read only)")
     parser.add_argument("--out", required=True, help="folder for the trajectory files (created if missing)")
     parser.add_argument("--weights", default="imagenet",
-                        help="`imagenet` (torch hub cache or $CNEP_MOBILENET_WEIGHTS), `random` (seeded, calibrated "
+                        help="`imagenet` (torch hub cache, downloaded there if missing, or $CNEP_MOBILENET_WEIGHTS), `random` (seeded, calibrated "
                              "on the inputs' frames) or the path of a MobileNet-v2 state dict (default: imagenet)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the random weights (default 0)")
     parser.add_argument("--save-weights", metavar="PATH", default=None,
@@ -21,6 +21,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--threads", type=int, default=None, help="CPU threads for inference (default: all cores)")
     parser.add_argument("--batch-size", type=int, default=None, help="frames per forward pass")
     parser.add_argument("--force", action="store_true", help="re-extract outputs that are already up to date")
+    parser.add_argument("--offline", action="store_true",
+                        help="never download the ImageNet weights (also: environment variable CNEP_OFFLINE=1)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -39,6 +41,7 @@ def run(args: argparse.Namespace) -> int:
         force=args.force,
         save_weights=Path(args.save_weights) if args.save_weights else None,
         quiet=args.quiet,
+        offline=args.offline,
         **options,
     )
     done = extract(config)

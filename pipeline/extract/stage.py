@@ -27,6 +27,7 @@ from tqdm.contrib.logging import logging_redirect_tqdm
 from perception import FeatureExtractor, PerceptionError, compatibility_key
 from perception.constants import CALIBRATION_FRAMES, DEFAULT_BATCH_SIZE, FEATURE_DIM
 from perception.frames import decode_image, resize_frames
+from perception.weights import find_imagenet_weights
 from pipeline.errors import PipelineError
 from recordings import RecordingError, Trajectory, TrajectoryReader, read_demonstration, write_trajectory
 from recordings.constants import TOPIC_IMAGE
@@ -56,6 +57,7 @@ class ExtractConfig:
     force: bool = False
     save_weights: Path | None = None
     quiet: bool = False
+    offline: bool = False  # never download ImageNet weights (perception.weights.find_imagenet_weights)
 
 
 @dataclass(frozen=True)
@@ -103,6 +105,8 @@ def extract(config: ExtractConfig) -> list[Extracted]:
 
 def build_extractor(config: ExtractConfig, sources: Sequence[Path]) -> FeatureExtractor:
     """The configured extractor; random weights are calibrated on frames sampled from `sources`."""
+    if config.offline and config.weights == "imagenet":
+        find_imagenet_weights(download=False)  # refuses here, naming the cache and the alternatives
     extractor = FeatureExtractor(config.weights, backend=config.backend, threads=config.threads,
                                  batch_size=config.batch_size, seed=config.seed)
     if extractor.needs_calibration:
