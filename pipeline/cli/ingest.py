@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-HELP = ("convert recordings (video/images + CSV, motion-only CSV, a robot's MCAP, a LeRobot dataset) into "
+HELP = ("convert recordings (video/images + CSV, motion-only CSV, a robot's MCAP or ROS bag, a LeRobot dataset) into "
         "demonstration MCAP files")
 
 COLUMN_KEYS = "time time_unit x y z qx qy qz qw gripper"
@@ -32,11 +32,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     g.add_argument("--frame-rate", type=float, default=None, metavar="HZ", help="camera rate when frames are not one per CSV row")
     g.add_argument("--frame-offset-ms", type=float, default=0.0, metavar="MS", help="time of the first frame after the first CSV row")
-    m = parser.add_argument_group("MCAP input (Foxglove schemas)")
+    m = parser.add_argument_group("MCAP input (Foxglove or ROS 2 schemas) and ROS bags (ROS 1 .bag, ROS 2 bag folders)")
     m.add_argument("--image-topic", default="/camera/rgb", help='image topic ("" for motion-only)')
     m.add_argument("--pose-topic", default="/ee/pose", help="end-effector pose topic")
     m.add_argument("--gripper-topic", default="/gripper", help='gripper JointStates topic ("" for none)')
     m.add_argument("--gripper-joint", default="gripper", help="joint name of the gripper in that topic")
+    m.add_argument("--pose-frame", default="", metavar="FRAME",
+                   help="ROS bags with a tf pose topic (e.g. --pose-topic /tf): the child frame to use")
     r = parser.add_argument_group("LeRobot dataset (v2.1 or v3.0; needs the `lerobot` extra)")
     r.add_argument("--format", choices=("auto", "lerobot"), default="auto",
                    help="auto: a LeRobot dataset if SRC holds meta/info.json, else the files found (default: auto)")
@@ -65,7 +67,8 @@ def run(args: argparse.Namespace) -> int:
         out=Path(args.out),
         columns=CsvColumns.from_overrides(dict(args.column)),
         timing=FrameTiming(frame_rate=args.frame_rate, offset_ms=args.frame_offset_ms),
-        topics=McapTopics(image=args.image_topic, pose=args.pose_topic, gripper=args.gripper_topic, gripper_joint=args.gripper_joint),
+        topics=McapTopics(image=args.image_topic, pose=args.pose_topic, gripper=args.gripper_topic, gripper_joint=args.gripper_joint,
+                          pose_frame=args.pose_frame),
         task=args.task,
         quiet=args.quiet,
         format=args.format,

@@ -4,6 +4,7 @@ Sources found under SRC (a file or a folder, searched recursively, in sorted ord
 - a folder holding a video (MP4/AVI/MOV/MKV) or numbered images, plus one CSV -> one demonstration;
 - any other CSV -> one motion-only demonstration (the Baxter format works without options);
 - an MCAP file -> one demonstration from its Foxglove image/pose/gripper topics;
+- a ROS 1 `.bag` file or a ROS 2 bag folder (`metadata.yaml`) -> one demonstration (same topics as MCAP);
 - a LeRobot dataset folder (`meta/info.json`, codebase v2.1 or v3.0) -> one demonstration per episode,
   all episodes read and checked before the first file is written.
 Each is written to OUT/<path relative to SRC>.mcap (atomically); SRC is only read.
@@ -23,10 +24,12 @@ from recordings.adapters import FrameTiming, demonstration_from_csv, demonstrati
 from recordings.csv_motion import CsvColumns
 from recordings.lerobot import LerobotMapping, demonstration_from_lerobot, is_lerobot_dataset, plan_lerobot
 from recordings.mcap_source import McapTopics, demonstration_from_mcap
+from recordings.rosbag import demonstration_from_rosbag, is_ros2_bag
 
 log = logging.getLogger(__name__)
 
 SUFFIX = ".mcap"
+FILE_KINDS = {".csv": "csv", SUFFIX: "mcap", ".bag": "rosbag"}
 FORMATS = ("auto", "lerobot")  # auto: a LeRobot dataset if SRC has meta/info.json, else files as found
 
 
@@ -47,7 +50,7 @@ class IngestConfig:
 
 @dataclass(frozen=True)
 class Source:
-    kind: str  # "folder", "csv", "mcap" or "lerobot"
+    kind: str  # "folder", "csv", "mcap", "rosbag" or "lerobot"
     path: Path
     episode_id: str  # path relative to src, without suffix ("/"-separated)
     plan: object = None  # "lerobot": the episode, read and checked (recordings.lerobot.LerobotEpisode)
@@ -78,22 +81,31 @@ def discover(src: Path, fmt: str = "auto", lerobot: LerobotMapping = LerobotMapp
     if fmt == "lerobot" or (fmt == "auto" and src.is_dir() and is_lerobot_dataset(src)):
         return [Source("lerobot", src, episode.episode_id, episode) for episode in plan_lerobot(src, lerobot)]
     if src.is_file():
-        kind = {".csv": "csv", SUFFIX: "mcap"}.get(src.suffix.lower())
+        kind = FILE_KINDS.get(src.suffix.lower())
         if kind is None:
-            raise RecordingError(f"{src}: cannot ingest a {src.suffix or 'suffix-less'} file; give a CSV, an MCAP or a folder")
+            raise RecordingError(f"{src}: cannot ingest a {src.suffix or 'suffix-less'} file; give a CSV, an MCAP, a ROS "
+                                 f".bag or a folder")
         return [Source(kind, src, src.stem)]
     found: list[Source] = []
+    bags: list[Path] = []  # ROS 2 bag folders: their storage files are not sources of their own
     for folder in sorted([src, *(d for d in src.rglob("*") if d.is_dir())]):
+        if any(folder.is_relative_to(bag) for bag in bags):
+            continue
+        if is_ros2_bag(folder):
+            bags.append(folder)
+            found.append(Source("rosbag", folder, _episode_id(src, folder, strip_suffix=False)))
+            continue
         videos, images = media_of(folder)
         if videos or images:
             found.append(Source("folder", folder, _episode_id(src, folder, strip_suffix=False)))
             continue
         for f in sorted(folder.iterdir()):
-            kind = {".csv": "csv", SUFFIX: "mcap"}.get(f.suffix.lower()) if f.is_file() else None
+            kind = FILE_KINDS.get(f.suffix.lower()) if f.is_file() else None
             if kind:
                 found.append(Source(kind, f, _episode_id(src, f, strip_suffix=True)))
     if not found:
-        raise RecordingError(f"{src}: no recordings found (looked for CSV and MCAP files, and folders with a video or images)")
+        raise RecordingError(f"{src}: no recordings found (looked for CSV, MCAP and ROS bag files, ROS 2 bag folders, and "
+                             f"folders with a video or images)")
     return found
 
 
@@ -103,6 +115,8 @@ def load(source: Source, config: IngestConfig) -> Demonstration:
         return demonstration_from_folder(source.path, source.episode_id, config.columns, config.timing, config.task)
     if source.kind == "csv":
         return demonstration_from_csv(source.path, source.episode_id, config.columns, config.task)
+    if source.kind == "rosbag":
+        return demonstration_from_rosbag(source.path, source.episode_id, config.topics, config.task)
     if source.kind == "lerobot":
         return demonstration_from_lerobot(source.plan, config.task)
     return demonstration_from_mcap(source.path, source.episode_id, config.topics, config.task)

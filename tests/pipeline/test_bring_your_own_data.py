@@ -53,3 +53,28 @@ def test_lerobot_dataset_end_to_end(tmp_path, version):
         expected = np.array([state_of(e, i) for i in range(6)], dtype=np.float32)
         np.testing.assert_allclose(traj.pose, expected[:, :7], atol=1e-6)
         np.testing.assert_allclose(traj.gripper, expected[:, 7])
+
+
+@pytest.mark.parametrize("kind", ["ros1", "ros2"])
+def test_ros_bags_end_to_end(tmp_path, kind):
+    pytest.importorskip("rosbags")
+    from tests.recordings.rosbag_sources import FRAME_TIMES_S, T0_NS, write_ros1_bag, write_ros2_bag
+    from tests.recordings.sources import motion
+
+    (tmp_path / "bags").mkdir()
+    for k in range(2):  # two demonstrations: two bag files, or two bag folders
+        if kind == "ros1":
+            write_ros1_bag(tmp_path / "bags" / f"run{k}.bag", compressed=k == 1)
+        else:
+            write_ros2_bag(tmp_path / "bags" / f"run{k}", storage=("sqlite3", "mcap")[k])
+    trajectories = run_pipeline(tmp_path / "bags", tmp_path / "work", "--image-topic", "/camera/rgb",
+                                "--pose-topic", "/ee/pose", "--gripper-topic", "/gripper", "--gripper-joint", "gripper")
+    assert [t.name for t in trajectories] == ["run0.mcap", "run1.mcap"]
+    kept = FRAME_TIMES_S[:-1]
+    pose, gripper = motion(kept)
+    for path in trajectories:
+        traj = read_trajectory(path)
+        assert traj.has_features
+        np.testing.assert_array_equal(traj.timestamps_ns, T0_NS + np.round(kept * 1e9).astype(np.int64))
+        np.testing.assert_allclose(traj.pose, pose, atol=1e-6)
+        np.testing.assert_allclose(traj.gripper, gripper, atol=1e-5)
