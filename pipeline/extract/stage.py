@@ -29,6 +29,7 @@ from perception.constants import CALIBRATION_FRAMES, DEFAULT_BATCH_SIZE, FEATURE
 from perception.frames import decode_image, resize_frames
 from perception.weights import find_imagenet_weights
 from pipeline.errors import PipelineError
+from pipeline.progress import progress_bar
 from recordings import RecordingError, Trajectory, TrajectoryReader, read_demonstration, write_trajectory
 from recordings.constants import TOPIC_IMAGE
 
@@ -91,8 +92,7 @@ def extract(config: ExtractConfig) -> list[Extracted]:
         log.info("saved the extractor weights to %s (reuse them with --weights %s)", config.save_weights,
                  config.save_weights)
     done = []
-    with logging_redirect_tqdm(), tqdm(total=0, unit="frame", desc="extract", disable=config.quiet,
-                                       dynamic_ncols=True) as bar:
+    with logging_redirect_tqdm(), progress_bar(total=0, unit="frame", desc="extract", quiet=config.quiet) as bar:
         for src, dst in pairs:
             steps = None if config.force else up_to_date_steps(src, dst, extractor)
             if steps is not None:

@@ -16,9 +16,9 @@ import logging
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from tqdm import tqdm
 from tqdm.contrib.logging import logging_redirect_tqdm
 
+from pipeline.progress import progress_bar
 from recordings import Demonstration, RecordingError, write_demonstration
 from recordings.adapters import FrameTiming, demonstration_from_csv, demonstration_from_folder, media_of
 from recordings.csv_motion import CsvColumns
@@ -134,7 +134,7 @@ def ingest(config: IngestConfig) -> list[Ingested]:
         raise RecordingError(f"{out}: cannot create the output folder ({exc.strerror})") from None
     done = []
     with logging_redirect_tqdm():
-        for source in tqdm(sources, desc="ingest", unit="demo", disable=config.quiet):
+        for source in progress_bar(sources, desc="ingest", unit="demo", quiet=config.quiet):
             demo = load(source, config)
             target = out / f"{source.episode_id}{SUFFIX}"
             if target.resolve() == source.path.resolve():
@@ -142,7 +142,8 @@ def ingest(config: IngestConfig) -> list[Ingested]:
             target.parent.mkdir(parents=True, exist_ok=True)  # inside `out`, which we could create
             write_demonstration(target, demo)
             kind = "frames" if demo.has_frames else "motion-only"
-            log.info("%s -> %s: %d steps, %s, %.1f Hz", source.path, target, demo.n_steps, kind, demo.episode.fps)
+            origin = source.path if source.plan is None else f"{source.path} ({source.episode_id})"
+            log.info("%s -> %s: %d steps, %s, %.1f Hz", origin, target, demo.n_steps, kind, demo.episode.fps)
             done.append(Ingested(source, target, demo.n_steps, demo.has_frames, demo.episode.fps))
     return done
 
