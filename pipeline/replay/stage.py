@@ -169,7 +169,8 @@ def replay(
     written to `decisions_path(out_rrd)` (see `read_decisions`).
     """
     import torch
-    from tqdm.auto import tqdm
+
+    from pipeline.progress import progress_bar
 
     checkpoint, out = Path(checkpoint_dir), Path(out_rrd)
     paths = [Path(p) for p in recording_paths]
@@ -203,7 +204,7 @@ def replay(
     threads = torch.get_num_threads()
     torch.set_num_threads(1)  # one small step at a time: one thread is fastest
     try:
-        bar = tqdm(total=sum(len(r) for r in rows), disable=quiet, desc="replay", unit="step", leave=False)
+        bar = progress_bar(total=sum(len(r) for r in rows), quiet=quiet, desc="replay", unit="step", leave=False)
         for i, (path, traj, x) in enumerate(zip(paths, trajectories, rows)):
             decisions = decide(model, x, traj.timestamps_ns, policy, xyz, prediction_points)
             bar.update(len(x))
