@@ -5,8 +5,8 @@ Sources found under SRC (a file or a folder, searched recursively, in sorted ord
 - any other CSV -> one motion-only demonstration (the Baxter format works without options);
 - an MCAP file -> one demonstration from its Foxglove image/pose/gripper topics;
 - a ROS 1 `.bag` file or a ROS 2 bag folder (`metadata.yaml`) -> one demonstration (same topics as MCAP);
-- a LeRobot dataset folder (`meta/info.json`, codebase v2.1 or v3.0) -> one demonstration per episode,
-  all episodes read and checked before the first file is written.
+- a LeRobot dataset folder (`meta/info.json`, codebase v2.1 or v3.0; SRC itself or a sub-folder) -> one
+  demonstration per episode, all episodes read and checked before the first file is written.
 Each is written to OUT/<path relative to SRC>.mcap (atomically); SRC is only read.
 """
 
@@ -87,13 +87,18 @@ def discover(src: Path, fmt: str = "auto", lerobot: LerobotMapping = LerobotMapp
                                  f".bag or a folder")
         return [Source(kind, src, src.stem)]
     found: list[Source] = []
-    bags: list[Path] = []  # ROS 2 bag folders: their storage files are not sources of their own
+    whole: list[Path] = []  # ROS 2 bags and LeRobot datasets: the files inside are not sources of their own
     for folder in sorted([src, *(d for d in src.rglob("*") if d.is_dir())]):
-        if any(folder.is_relative_to(bag) for bag in bags):
+        if any(folder.is_relative_to(done) for done in whole):
             continue
         if is_ros2_bag(folder):
-            bags.append(folder)
+            whole.append(folder)
             found.append(Source("rosbag", folder, _episode_id(src, folder, strip_suffix=False)))
+            continue
+        if fmt == "auto" and is_lerobot_dataset(folder):  # a dataset in a sub-folder: OUT/<sub-folder>/episode_...
+            whole.append(folder)
+            prefix = _episode_id(src, folder, strip_suffix=False)
+            found += [Source("lerobot", folder, f"{prefix}/{e.episode_id}", e) for e in plan_lerobot(folder, lerobot)]
             continue
         videos, images = media_of(folder)
         if videos or images:

@@ -12,7 +12,8 @@ pytest.importorskip("av")
 from pipeline.cli.main import main  # noqa: E402
 from pipeline.ingest.stage import IngestConfig, ingest  # noqa: E402
 from recordings import RecordingError, read_demonstration  # noqa: E402
-from recordings.lerobot import LerobotMapping, plan_lerobot, quaternion_from_rpy  # noqa: E402
+from recordings.lerobot import LerobotMapping, plan_lerobot  # noqa: E402
+from recordings.lerobot_columns import quaternion_from_rpy  # noqa: E402
 from tests.recordings.lerobot_sources import TASKS, build_lerobot, level_of, state_of  # noqa: E402
 
 STEPS, FPS = 6, 10
@@ -120,3 +121,13 @@ def test_video_that_disagrees_with_the_timestamps_is_refused(tmp_path):
     write_video(video, [grey_frame(50, 32)] * 4, fps=5)  # frames at 0, 0.2, 0.4 s: no frame at 0.1 s
     with pytest.raises(RecordingError, match="no video frame within 0.1 ms of 0.1000 s"):
         ingest(IngestConfig(src=src, out=tmp_path / "out", quiet=True))
+
+
+def test_a_dataset_in_a_sub_folder_is_found_beside_other_recordings(tmp_path):
+    from tests.recordings.sources import baxter_csv
+
+    build_lerobot(tmp_path / "in" / "lab_a", "v3.0", episodes=2, steps=3)
+    baxter_csv(tmp_path / "in" / "arm.csv", np.arange(5) * 10.0)
+    done = ingest(IngestConfig(src=tmp_path / "in", out=tmp_path / "out", quiet=True))
+    assert sorted(d.output.relative_to(tmp_path / "out").as_posix() for d in done) == [
+        "arm.mcap", "lab_a/episode_000000.mcap", "lab_a/episode_000001.mcap"]
