@@ -12,7 +12,7 @@ pytest.importorskip("av")
 from pipeline.cli.main import main  # noqa: E402
 from pipeline.ingest.stage import IngestConfig, ingest  # noqa: E402
 from recordings import RecordingError, read_demonstration  # noqa: E402
-from recordings.lerobot import LerobotMapping, plan_lerobot  # noqa: E402
+from recordings.lerobot import LerobotMapping, demonstration_from_lerobot, plan_lerobot  # noqa: E402
 from recordings.lerobot_columns import quaternion_from_rpy  # noqa: E402
 from tests.recordings.lerobot_sources import TASKS, build_lerobot, level_of, state_of  # noqa: E402
 
@@ -39,6 +39,18 @@ def test_each_episode_becomes_a_demonstration_with_frames_at_the_parquet_times(t
         np.testing.assert_allclose(demo.gripper, expected[:, 7])
         # each frame is the one of its own step (levels 25 apart; H.264 moves them by <= 2)
         np.testing.assert_allclose(grey_levels(demo.frames), [level_of(e, i) for i in range(STEPS)], atol=3)
+
+
+def test_av1_video_as_lerobot_records_by_default(tmp_path):
+    av = pytest.importorskip("av")
+    try:
+        av.codec.Codec("libsvtav1", "w")
+    except av.codec.codec.UnknownCodecError:
+        pytest.skip("this PyAV build has no AV1 encoder")
+    src = build_lerobot(tmp_path / "ds", "v3.0", episodes=2, steps=STEPS, size=64, codec="libsvtav1")
+    for episode in plan_lerobot(src):
+        demo = demonstration_from_lerobot(episode)
+        np.testing.assert_allclose(grey_levels(demo.frames), [level_of(episode.index, i) for i in range(STEPS)], atol=3)
 
 
 def test_roll_pitch_yaw_and_indices_map_to_the_same_pose(tmp_path):
