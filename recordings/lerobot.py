@@ -183,6 +183,25 @@ def _task(entry: dict) -> str:
     return " | ".join(str(t) for t in tasks) if isinstance(tasks, list) else str(tasks)
 
 
+def _episode_files(root: Path, info: dict, version: str, entry: dict, video_key: str,
+                   chunks_size: int) -> tuple[Path, Path | None, float]:
+    """(data file, video file or None, episode start inside the video in s) of one episode."""
+    index = int(entry["episode_index"])
+    if version == "v2.1":  # one file per episode, grouped in chunks of chunks_size episodes
+        chunk = index // chunks_size
+        data = root / info["data_path"].format(episode_chunk=chunk, episode_index=index)
+        if not video_key:
+            return data, None, 0.0
+        return data, root / info["video_path"].format(episode_chunk=chunk, video_key=video_key, episode_index=index), 0.0
+    data = root / info["data_path"].format(chunk_index=entry["data/chunk_index"], file_index=entry["data/file_index"])
+    if not video_key:
+        return data, None, 0.0
+    prefix = f"videos/{video_key}/"
+    video = root / info["video_path"].format(video_key=video_key, chunk_index=entry[prefix + "chunk_index"],
+                                             file_index=entry[prefix + "file_index"])
+    return data, video, float(entry[prefix + "from_timestamp"])
+
+
 def plan_lerobot(root: str | os.PathLike, mapping: LerobotMapping = LerobotMapping()) -> list[LerobotEpisode]:
     """Read and check every episode of the dataset at `root` (all but the frames), in episode order."""
     root = Path(root)
@@ -201,24 +220,11 @@ def plan_lerobot(root: str | os.PathLike, mapping: LerobotMapping = LerobotMappi
     planned = []
     for entry in entries:
         index = int(entry["episode_index"])
-        if version == "v2.1":
-            chunk = index // chunks_size
-            data = root / info["data_path"].format(episode_chunk=chunk, episode_index=index)
-            video = root / info["video_path"].format(episode_chunk=chunk, video_key=camera, episode_index=index) \
-                if is_video else None
-            offset = 0.0
-        else:
-            data = root / info["data_path"].format(chunk_index=entry["data/chunk_index"],
-                                                   file_index=entry["data/file_index"])
-            if is_video:
-                prefix = f"videos/{camera}/"
-                if prefix + "from_timestamp" not in entry:
-                    raise RecordingError(f"{root}: meta/episodes has no '{prefix}from_timestamp' for episode {index}")
-                video = root / info["video_path"].format(video_key=camera, chunk_index=entry[prefix + "chunk_index"],
-                                                         file_index=entry[prefix + "file_index"])
-                offset = float(entry[prefix + "from_timestamp"])
-            else:
-                video, offset = None, 0.0
+        try:
+            data, video, offset = _episode_files(root, info, version, entry, camera if is_video else "", chunks_size)
+        except KeyError as exc:
+            raise RecordingError(f"{root}: episode {index} has no {exc.args[0]!r} (meta/episodes or the path templates "
+                                 f"of meta/info.json); is the dataset complete?") from None
         if data not in cached:  # consecutive episodes share a v3.0 data file: read it once
             cached.clear()
             cached[data] = _motion_table(data, mapping.state)

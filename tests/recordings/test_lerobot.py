@@ -143,3 +143,13 @@ def test_a_dataset_in_a_sub_folder_is_found_beside_other_recordings(tmp_path):
     done = ingest(IngestConfig(src=tmp_path / "in", out=tmp_path / "out", quiet=True))
     assert sorted(d.output.relative_to(tmp_path / "out").as_posix() for d in done) == [
         "arm.mcap", "lab_a/episode_000000.mcap", "lab_a/episode_000001.mcap"]
+
+
+def test_v30_episode_metadata_without_the_video_offset_is_refused(tmp_path):
+    import pyarrow.parquet as pq
+
+    src = build_lerobot(tmp_path / "ds", "v3.0", episodes=2, steps=3)
+    path = src / "meta" / "episodes" / "chunk-000" / "file-000.parquet"
+    pq.write_table(pq.read_table(path).drop_columns(["videos/observation.images.cam/from_timestamp"]), path)
+    with pytest.raises(RecordingError, match="episode 0 has no 'videos/observation.images.cam/from_timestamp'"):
+        plan_lerobot(src)
