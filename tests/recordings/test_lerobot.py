@@ -33,7 +33,8 @@ def test_each_episode_becomes_a_demonstration_with_frames_at_the_parquet_times(t
         demo = read_demonstration(item.output)
         assert demo.episode.task == TASKS[e] and demo.episode.fps == FPS
         assert demo.episode.extra["format"] == f"lerobot {version}"
-        np.testing.assert_array_equal(demo.timestamps_ns, np.round(np.float32(np.arange(STEPS) / FPS).astype(np.float64) * 1e9))
+        seconds = np.float32(np.arange(STEPS) / FPS).astype(np.float64)  # LeRobot stores float32 seconds
+        np.testing.assert_array_equal(demo.timestamps_ns, np.round(seconds * 1e9))
         expected = np.array([state_of(e, i) for i in range(STEPS)], dtype=np.float32).astype(np.float64)
         np.testing.assert_allclose(demo.pose, expected[:, :7], atol=1e-6)
         np.testing.assert_allclose(demo.gripper, expected[:, 7])
