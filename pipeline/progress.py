@@ -15,6 +15,9 @@ from typing import Any, TextIO
 from tqdm import tqdm
 
 LINE_INTERVAL_S = 10.0  # seconds between progress lines when stderr is not a terminal
+# For a total that grows while the stage runs (extract learns each file's frame count when it opens it):
+# the count and the rate, no percentage or time left that would be wrong.
+OPEN_ENDED_FORMAT = "{desc}: {n_fmt} {unit} [{elapsed}, {rate_fmt}{postfix}]"
 
 
 class _Lines:
@@ -45,9 +48,15 @@ class _Lines:
 
 
 def progress_bar(iterable: Iterable | None = None, *, total: float | None = None, desc: str, unit: str,
-                 quiet: bool = False, stream: TextIO | None = None, **options: Any) -> tqdm:
-    """A tqdm bar for one stage (see the module docstring); `stream` defaults to sys.stderr."""
+                 quiet: bool = False, open_ended: bool = False, stream: TextIO | None = None,
+                 **options: Any) -> tqdm:
+    """A tqdm bar for one stage (see the module docstring); `stream` defaults to sys.stderr.
+
+    open_ended: the total grows while the stage runs, so show the count and rate only.
+    """
     stream = sys.stderr if stream is None else stream
+    if open_ended:
+        options["bar_format"] = OPEN_ENDED_FORMAT
     if quiet:
         return tqdm(iterable, total=total, disable=True)
     if stream.isatty():

@@ -92,7 +92,8 @@ def extract(config: ExtractConfig) -> list[Extracted]:
         log.info("saved the extractor weights to %s (reuse them with --weights %s)", config.save_weights,
                  config.save_weights)
     done = []
-    with logging_redirect_tqdm(), progress_bar(total=0, unit="frame", desc="extract", quiet=config.quiet) as bar:
+    with logging_redirect_tqdm(), progress_bar(total=0, unit="frame", desc="extract", quiet=config.quiet,
+                                                  open_ended=True) as bar:
         for src, dst in pairs:
             steps = None if config.force else up_to_date_steps(src, dst, extractor)
             if steps is not None:

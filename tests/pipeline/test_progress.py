@@ -29,6 +29,14 @@ def test_a_log_file_gets_one_line_at_the_end_and_no_carriage_returns():
     assert "\r" not in text and text.count("\n") == 1 and text.startswith("extract: 100%") and "300/300" in text
 
 
+def test_an_open_ended_bar_shows_no_percentage():
+    stream = io.StringIO()
+    with progress.progress_bar(total=0, desc="extract", unit="frame", open_ended=True, stream=stream) as bar:
+        bar.total += 10
+        bar.update(4)
+    assert stream.getvalue().startswith("extract: 4 frame [") and "%" not in stream.getvalue()
+
+
 def test_a_log_file_gets_a_line_per_interval(monkeypatch):
     monkeypatch.setattr(progress, "LINE_INTERVAL_S", 0.0)
     stream = io.StringIO()
@@ -76,4 +84,4 @@ def test_cnep_extract_in_a_log(tmp_path, capfd, quiet):
     assert main(["-q", *args] if quiet else args) == 0
     err = capfd.readouterr().err
     assert "\r" not in err
-    assert ("extract: 100%" in err) != quiet
+    assert ("extract: 5 frame [" in err) != quiet
