@@ -21,6 +21,10 @@ IMAGENET_WEIGHT_FILES = {
     "mobilenet_v2-b0353104.pth": "https://download.pytorch.org/models/mobilenet_v2-b0353104.pth",
     "mobilenet_v2-7ebf99e0.pth": "https://download.pytorch.org/models/mobilenet_v2-7ebf99e0.pth",
 }
+# When none is there, the first is downloaded into the hub cache (as torchvision does) unless this
+# environment variable is set to anything but "", "0", "false" or "no" (or `cnep extract --offline` is given).
+OFFLINE_ENV_VAR = "CNEP_OFFLINE"
+DOWNLOAD_TIMEOUT_S = 30.0  # seconds without data before a download gives up
 
 # Batch-norm re-estimation for seeded random weights (see docs/perception.md).
 CALIBRATION_FRAMES = 256  # frames used to re-estimate the statistics (spread over the inputs)

@@ -1,5 +1,8 @@
 """Weights of the feature network, chosen explicitly: `imagenet`, a path to a state dict, or `random`.
 
+`imagenet` is looked up like torchvision does (the torch hub cache) and downloaded there when missing,
+unless downloads are off (`CNEP_OFFLINE`, `cnep extract --offline`).
+
 A `Weights` holds the state dict of MobileNet-v2's `features` block (keys like `0.0.weight`) and the
 name written into the extractor identity.
 """
@@ -7,17 +10,27 @@ name written into the extractor identity.
 from __future__ import annotations
 
 import hashlib
+import logging
 import os
+import re
+import sys
+import tempfile
+import urllib.error
+import urllib.request
 from dataclasses import dataclass
 from pathlib import Path
 
 import torch
+from tqdm import tqdm
 
-from perception.constants import IMAGENET_WEIGHT_FILES, WEIGHTS_ENV_VAR
+from perception.constants import DOWNLOAD_TIMEOUT_S, IMAGENET_WEIGHT_FILES, OFFLINE_ENV_VAR, WEIGHTS_ENV_VAR
 from perception.errors import PerceptionError
 from perception.network import mobilenet_v2_features
 
 _FEATURES_PREFIX = "features."  # keys of a full torchvision mobilenet_v2 state dict
+HASH_PREFIX = re.compile(r"-([a-f0-9]*)\.")  # torchvision file names end in -<first hex digits of the sha256>.pth
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -50,12 +63,25 @@ def resolve_weights(spec: str | Path, seed: int = 0) -> Weights:
 def imagenet_search_paths() -> list[Path]:
     """Where ImageNet weights are looked for, in order: the environment variable, then the torch hub cache."""
     paths = [Path(os.environ[WEIGHTS_ENV_VAR]).expanduser()] if os.environ.get(WEIGHTS_ENV_VAR) else []
-    checkpoints = Path(torch.hub.get_dir()) / "checkpoints"
-    return paths + [checkpoints / name for name in IMAGENET_WEIGHT_FILES]
+    return paths + [hub_checkpoints() / name for name in IMAGENET_WEIGHT_FILES]
 
 
-def find_imagenet_weights() -> Path:
-    """The first existing ImageNet weight file, or a PerceptionError saying where to put one and where to get it."""
+def hub_checkpoints() -> Path:
+    """torchvision's weight cache: `torch.hub.get_dir()/checkpoints` (i.e. `$TORCH_HOME/hub/checkpoints`)."""
+    return Path(torch.hub.get_dir()) / "checkpoints"
+
+
+def offline() -> bool:
+    """True when the environment forbids downloads (OFFLINE_ENV_VAR set to anything but "", 0, false, no)."""
+    return os.environ.get(OFFLINE_ENV_VAR, "").strip().lower() not in ("", "0", "false", "no")
+
+
+def find_imagenet_weights(download: bool | None = None) -> Path:
+    """The first existing ImageNet weight file; if there is none, download the first of IMAGENET_WEIGHT_FILES into
+    the hub cache (as torchvision does) unless `download` is False (None: unless `offline()`).
+
+    A PerceptionError says where to put the file, where to get it and what else to do.
+    """
     candidates = imagenet_search_paths()
     for path in candidates:
         if path.is_file():
@@ -63,12 +89,59 @@ def find_imagenet_weights() -> Path:
     if os.environ.get(WEIGHTS_ENV_VAR):
         raise PerceptionError(f"{WEIGHTS_ENV_VAR}={os.environ[WEIGHTS_ENV_VAR]} is not a file; point it at a "
                               f"MobileNet-v2 ImageNet state dict")
-    checkpoints = candidates[0].parent
+    if download is None:
+        download = not offline()
+    if download:
+        name, url = next(iter(IMAGENET_WEIGHT_FILES.items()))
+        return download_weights(url, hub_checkpoints() / name)
     names = " or ".join(IMAGENET_WEIGHT_FILES)
     urls = " or ".join(IMAGENET_WEIGHT_FILES.values())
-    raise PerceptionError(f"ImageNet weights for MobileNet-v2 not found: put {names} in {checkpoints} (or set "
-                          f"{WEIGHTS_ENV_VAR} to the file); download it from {urls} on a machine with internet "
-                          f"access, or choose weights `random` (seeded) explicitly")
+    raise PerceptionError(f"ImageNet weights for MobileNet-v2 not found and downloading is off ({OFFLINE_ENV_VAR} or "
+                          f"--offline): put {names} in {hub_checkpoints()} (or set {WEIGHTS_ENV_VAR} to the file); "
+                          f"download it from {urls} on a machine with internet access, or choose weights `random` "
+                          f"(seeded) explicitly")
+
+
+def download_weights(url: str, dst: Path, timeout_s: float = DOWNLOAD_TIMEOUT_S) -> Path:
+    """Download `url` to `dst` as torchvision does: a progress bar, the sha256 prefix in the file name checked,
+    written to a temporary name in the same folder and renamed when complete. Returns `dst`.
+
+    The bar shows on a terminal only, and not when INFO logging is off (`cnep -q`); elsewhere one log line
+    before and one after.
+    """
+    match = HASH_PREFIX.search(dst.name)
+    alternatives = (f"put the file there yourself (from a machine with internet access), set {WEIGHTS_ENV_VAR} to "
+                    f"a copy of it, or choose weights `random` (seeded) explicitly")
+    try:
+        dst.parent.mkdir(parents=True, exist_ok=True)
+        tmp = tempfile.NamedTemporaryFile(dir=dst.parent, prefix=f".{dst.name}.", suffix=".partial", delete=False)
+    except OSError as exc:
+        raise PerceptionError(f"cannot write ImageNet weights into {dst.parent} ({exc.strerror}); {alternatives}") from None
+    digest = hashlib.sha256()
+    try:
+        with tmp, urllib.request.urlopen(url, timeout=timeout_s) as response:
+            size = int(response.headers.get("Content-Length") or 0) or None
+            log.info("downloading ImageNet weights %s (%s) into %s", url,
+                     f"{size / 1e6:.1f} MB" if size else "size unknown", dst)
+            show = sys.stderr.isatty() and log.isEnabledFor(logging.INFO)
+            with tqdm(total=size, unit="B", unit_scale=True, unit_divisor=1024, desc="download", disable=not show) as bar:
+                while chunk := response.read(1 << 16):
+                    tmp.write(chunk)
+                    digest.update(chunk)
+                    bar.update(len(chunk))
+        if match and not digest.hexdigest().startswith(match.group(1)):
+            raise PerceptionError(f"the download from {url} is corrupt: its sha256 {digest.hexdigest()[:16]}... does "
+                                  f"not start with {match.group(1)!r} as its name says; nothing was saved to {dst}; "
+                                  f"try again, or {alternatives}")
+        os.replace(tmp.name, dst)
+    except (urllib.error.URLError, OSError) as exc:
+        reason = getattr(exc, "reason", None) or exc.strerror or exc
+        raise PerceptionError(f"cannot download ImageNet weights from {url} into {dst} ({reason}); {alternatives}") \
+            from None
+    finally:
+        Path(tmp.name).unlink(missing_ok=True)
+    log.info("saved %s (sha256 %s...)", dst, digest.hexdigest()[:12])
+    return dst
 
 
 def random_state_dict(seed: int) -> dict[str, torch.Tensor]:

@@ -5,7 +5,7 @@ Supported schemas:
 | role | Foxglove (protobuf) | ROS 2 (cdr, needs `mcap-ros2-support`) |
 |---|---|---|
 | image | `foxglove.CompressedImage`, `foxglove.RawImage` | `sensor_msgs/msg/CompressedImage`, `sensor_msgs/msg/Image` |
-| pose | `foxglove.PoseInFrame` | `geometry_msgs/msg/PoseStamped` |
+| pose | `foxglove.PoseInFrame` | `geometry_msgs/msg/PoseStamped`, `geometry_msgs/msg/TransformStamped` |
 | gripper | `foxglove.JointStates` | `sensor_msgs/msg/JointState` |
 
 JPEG images are kept as they are; other compressed formats and raw images (rgb8, bgr8, mono8) are
@@ -30,10 +30,9 @@ from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
 from recordings.adapters import median_rate, motion_at
 from recordings.container import McapContents, read_mcap
 from recordings.errors import RecordingError
-from recordings.media import encode_raw_image
+from recordings.media import as_jpeg, encode_raw_image
 from recordings.readers import in_file
 from recordings.records import Demonstration, Episode
-from recordings.validation import JPEG_MAGIC
 
 log = logging.getLogger(__name__)
 
@@ -43,12 +42,16 @@ PROTOBUF_CLASSES = {c.DESCRIPTOR.full_name: c for c in (CompressedImage, RawImag
 
 @dataclass(frozen=True)
 class McapTopics:
-    """Topic names to read; `image=""` for a motion-only recording, `gripper=""` for none (0.0)."""
+    """Topic names to read; `image=""` for a motion-only recording, `gripper=""` for none (0.0).
+
+    Also used for ROS bags (recordings.rosbag), where the pose topic may be tf with `pose_frame` named.
+    """
 
     image: str = "/camera/rgb"
     pose: str = "/ee/pose"
     gripper: str = "/gripper"
     gripper_joint: str = "gripper"
+    pose_frame: str = ""  # ROS bags: the child frame to take from a tf2_msgs/TFMessage pose topic
 
 
 # --- timestamps and images shared by both schema families -----------------------------------------
@@ -59,20 +62,13 @@ def _foxglove_stamp(msg: Any, log_time: int) -> int:
     return ns if ns > 0 else log_time
 
 
-def _ros_stamp(msg: Any, log_time: int) -> int:
+def ros_stamp(msg: Any, log_time: int) -> int:
     ns = msg.header.stamp.sec * NS_PER_S + msg.header.stamp.nanosec
     return ns if ns > 0 else log_time
 
 
 def _jpeg_of_compressed(data: bytes, fmt: str, where: str) -> bytes:
-    if bytes(data[:2]) == JPEG_MAGIC:
-        return bytes(data)
-    import cv2
-
-    image = cv2.imdecode(np.frombuffer(bytes(data), np.uint8), cv2.IMREAD_COLOR)
-    if image is None:
-        raise RecordingError(f"{where}: cannot decode a {fmt!r} image")
-    return encode_raw_image(image, where)
+    return as_jpeg(data, f"{where} ({fmt!r} image)")
 
 
 _RAW_CHANNELS = {"rgb8": 3, "bgr8": 3, "mono8": 1}
@@ -95,6 +91,11 @@ def _pose_of(pose: Any) -> list[float]:
     return [p.x, p.y, p.z, o.x, o.y, o.z, o.w]
 
 
+def transform_pose(transform: Any) -> list[float]:
+    p, o = transform.translation, transform.rotation
+    return [p.x, p.y, p.z, o.x, o.y, o.z, o.w]
+
+
 def _joint_position(names: list[str], positions: list[float], joint: str, where: str) -> float:
     if joint not in names:
         raise RecordingError(f"{where}: a message has no joint {joint!r} (joints: {list(names)}); set --gripper-joint")
@@ -106,19 +107,20 @@ Extractor = Callable[[Any, int, str, McapTopics], tuple[int, Any]]
 IMAGE_EXTRACTORS: dict[str, Extractor] = {
     "foxglove.CompressedImage": lambda m, t, w, o: (_foxglove_stamp(m, t), _jpeg_of_compressed(m.data, m.format, w)),
     "foxglove.RawImage": lambda m, t, w, o: (_foxglove_stamp(m, t), _jpeg_of_raw(m.width, m.height, m.encoding, m.step, m.data, w)),
-    "sensor_msgs/msg/CompressedImage": lambda m, t, w, o: (_ros_stamp(m, t), _jpeg_of_compressed(m.data, m.format, w)),
-    "sensor_msgs/msg/Image": lambda m, t, w, o: (_ros_stamp(m, t), _jpeg_of_raw(m.width, m.height, m.encoding, m.step, m.data, w)),
+    "sensor_msgs/msg/CompressedImage": lambda m, t, w, o: (ros_stamp(m, t), _jpeg_of_compressed(m.data, m.format, w)),
+    "sensor_msgs/msg/Image": lambda m, t, w, o: (ros_stamp(m, t), _jpeg_of_raw(m.width, m.height, m.encoding, m.step, m.data, w)),
 }
 POSE_EXTRACTORS: dict[str, Extractor] = {
     "foxglove.PoseInFrame": lambda m, t, w, o: (_foxglove_stamp(m, t), _pose_of(m.pose)),
-    "geometry_msgs/msg/PoseStamped": lambda m, t, w, o: (_ros_stamp(m, t), _pose_of(m.pose)),
+    "geometry_msgs/msg/PoseStamped": lambda m, t, w, o: (ros_stamp(m, t), _pose_of(m.pose)),
+    "geometry_msgs/msg/TransformStamped": lambda m, t, w, o: (ros_stamp(m, t), transform_pose(m.transform)),
 }
 GRIPPER_EXTRACTORS: dict[str, Extractor] = {
     "foxglove.JointStates": lambda m, t, w, o: (
         _foxglove_stamp(m, t),
         _joint_position([j.name for j in m.joints], [j.position for j in m.joints], o.gripper_joint, w),
     ),
-    "sensor_msgs/msg/JointState": lambda m, t, w, o: (_ros_stamp(m, t), _joint_position(m.name, m.position, o.gripper_joint, w)),
+    "sensor_msgs/msg/JointState": lambda m, t, w, o: (ros_stamp(m, t), _joint_position(m.name, m.position, o.gripper_joint, w)),
 }
 
 
@@ -140,14 +142,9 @@ def _decoder(contents: McapContents, topic: str) -> Callable[[bytes], Any]:
     raise RecordingError(f"{contents.path}: cannot decode {topic!r} ({ch.message_encoding}, {name})")
 
 
-def _series(contents: McapContents, topic: str, extractors: dict[str, Extractor], flag: str, topics: McapTopics) -> tuple[np.ndarray, list]:
-    """(times (N,) int64 sorted, values) of `topic`; duplicate times keep their first message."""
-    contents.require_channel(topic, hint=f"; choose one with {flag}")
-    schema = contents.schema_name(topic)
-    if schema not in extractors:
-        raise RecordingError(f"{contents.path}: topic {topic!r} has schema {schema!r}; supported: {sorted(extractors)}")
-    decode, extract, where = _decoder(contents, topic), extractors[schema], f"{contents.path} {topic}"
-    decoded = sorted((extract(decode(m.data), m.log_time, where, topics) for m in contents.topic_messages(topic)), key=lambda tv: tv[0])
+def sorted_series(decoded: list[tuple[int, Any]], where: str) -> tuple[np.ndarray, list]:
+    """(times (N,) int64 ascending, values) of (time, value) pairs; a repeated time keeps its first message."""
+    decoded = sorted(decoded, key=lambda tv: tv[0])
     times = np.array([t for t, _ in decoded], dtype=np.int64)
     first = np.concatenate([[True], np.diff(times) > 0])
     if not first.all():
@@ -157,38 +154,64 @@ def _series(contents: McapContents, topic: str, extractors: dict[str, Extractor]
     return times[first], [v for (_, v), k in zip(decoded, first) if k]
 
 
+def _series(contents: McapContents, topic: str, extractors: dict[str, Extractor], flag: str, topics: McapTopics) -> tuple[np.ndarray, list]:
+    """(times (N,) int64 sorted, values) of `topic`; duplicate times keep their first message."""
+    contents.require_channel(topic, hint=f"; choose one with {flag}")
+    schema = contents.schema_name(topic)
+    if schema not in extractors:
+        raise RecordingError(f"{contents.path}: topic {topic!r} has schema {schema!r}; supported: {sorted(extractors)}")
+    decode, extract, where = _decoder(contents, topic), extractors[schema], f"{contents.path} {topic}"
+    return sorted_series([extract(decode(m.data), m.log_time, where, topics) for m in contents.topic_messages(topic)], where)
+
+
+Series = tuple[np.ndarray, list]  # (times (N,) int64 ascending, values)
+
+
+def demonstration_from_series(source: str, episode_id: str, topics: McapTopics, task: str, pose_series: Series,
+                              gripper_series: Series | None, image_series: Series | None) -> Demonstration:
+    """A demonstration from time series of poses (xyz + quaternion xyzw), gripper values and JPEG frames.
+
+    With frames, the steps are the frames and pose/gripper are interpolated at their times (xyz and
+    gripper linearly, the quaternion by slerp); without, the steps are the poses. `source` names the
+    recording in errors.
+    """
+    pose_t, pose_v = pose_series
+    pose = np.asarray(pose_v, dtype=np.float64)  # (N, 7)
+    norms = np.linalg.norm(pose[:, 3:], axis=1)
+    if (norms < 1e-6).any():
+        raise RecordingError(f"{source}: a pose on {topics.pose!r} has a zero quaternion")
+    pose[:, 3:] /= norms[:, None]
+    if gripper_series is not None:
+        grip_t, gripper = gripper_series[0], np.asarray(gripper_series[1], dtype=np.float64)
+    else:
+        grip_t, gripper = pose_t, np.zeros(len(pose_t))
+    extra = {"image_topic": topics.image, "pose_topic": topics.pose, "gripper_topic": topics.gripper}
+    if image_series is not None:
+        times, frames = image_series
+        extra["interpolation"] = "pose xyz and gripper linear, quaternion slerp, at frame times"
+    else:
+        times, frames = pose_t, None
+        extra["interpolation"] = "gripper linear at pose times"
+    keep, pose_q, grip_q = motion_at(times, pose_t, pose, grip_t, gripper)
+    if keep.sum() < 2:
+        raise RecordingError(f"{source}: fewer than 2 steps fall inside the time span of both pose and gripper")
+    if (~keep).any():
+        log.info("%s: %d steps outside the pose/gripper time span are dropped", source, int((~keep).sum()))
+    times = times[keep]
+    return Demonstration(
+        episode=Episode(episode_id, fps=median_rate(times), task=task, source=source, extra=extra),
+        timestamps_ns=times,
+        pose=pose_q,
+        gripper=grip_q,
+        frames=None if frames is None else [f for f, k in zip(frames, keep) if k],
+    )
+
+
 def demonstration_from_mcap(path: str | os.PathLike, episode_id: str, topics: McapTopics = McapTopics(), task: str = "") -> Demonstration:
     """Read a robot's MCAP recording (strict: a damaged file is refused; `cnep repair` it first)."""
     contents = read_mcap(path)
     with in_file(contents.path):
-        pose_t, pose_v = _series(contents, topics.pose, POSE_EXTRACTORS, "--pose-topic", topics)
-        pose = np.asarray(pose_v, dtype=np.float64)  # (N, 7)
-        norms = np.linalg.norm(pose[:, 3:], axis=1)
-        if (norms < 1e-6).any():
-            raise RecordingError(f"{contents.path}: a pose on {topics.pose!r} has a zero quaternion")
-        pose[:, 3:] /= norms[:, None]
-        if topics.gripper:
-            grip_t, grip_v = _series(contents, topics.gripper, GRIPPER_EXTRACTORS, "--gripper-topic", topics)
-            gripper = np.asarray(grip_v, dtype=np.float64)
-        else:
-            grip_t, gripper = pose_t, np.zeros(len(pose_t))
-        extra = {"image_topic": topics.image, "pose_topic": topics.pose, "gripper_topic": topics.gripper}
-        if topics.image:
-            times, frames = _series(contents, topics.image, IMAGE_EXTRACTORS, "--image-topic", topics)
-            extra["interpolation"] = "pose xyz and gripper linear, quaternion slerp, at frame times"
-        else:
-            times, frames = pose_t, None
-            extra["interpolation"] = "gripper linear at pose times"
-        keep, pose_q, grip_q = motion_at(times, pose_t, pose, grip_t, gripper)
-        if keep.sum() < 2:
-            raise RecordingError(f"{contents.path}: fewer than 2 steps fall inside the time span of both pose and gripper")
-        if (~keep).any():
-            log.info("%s: %d steps outside the pose/gripper time span are dropped", contents.path, int((~keep).sum()))
-        times = times[keep]
-        return Demonstration(
-            episode=Episode(episode_id, fps=median_rate(times), task=task, source=str(contents.path), extra=extra),
-            timestamps_ns=times,
-            pose=pose_q,
-            gripper=grip_q,
-            frames=None if frames is None else [f for f, k in zip(frames, keep) if k],
-        )
+        pose = _series(contents, topics.pose, POSE_EXTRACTORS, "--pose-topic", topics)
+        gripper = _series(contents, topics.gripper, GRIPPER_EXTRACTORS, "--gripper-topic", topics) if topics.gripper else None
+        image = _series(contents, topics.image, IMAGE_EXTRACTORS, "--image-topic", topics) if topics.image else None
+        return demonstration_from_series(str(contents.path), episode_id, topics, task, pose, gripper, image)

@@ -10,6 +10,8 @@ import os
 import re
 from pathlib import Path
 
+import numpy as np
+
 from recordings.constants import JPEG_QUALITY
 from recordings.errors import RecordingError
 from recordings.validation import JPEG_MAGIC
@@ -70,24 +72,25 @@ def numbered_images(folder: str | os.PathLike) -> list[Path]:
     return [f for _, f in keyed]
 
 
+def as_jpeg(data: bytes, where: str) -> bytes:
+    """JPEG bytes of an encoded image (PNG, BMP, ...): JPEG data is kept byte for byte, others re-encoded."""
+    if bytes(data[:2]) == JPEG_MAGIC:
+        return bytes(data)
+    import cv2
+
+    image = cv2.imdecode(np.frombuffer(bytes(data), np.uint8), cv2.IMREAD_COLOR)
+    if image is None:
+        raise RecordingError(f"{where}: OpenCV cannot decode this image")
+    return _encode_jpeg(image, where)
+
+
 def read_images(paths: list[Path]) -> list[bytes]:
     """JPEG bytes of each image (JPEG files as they are, checked to decode; others re-encoded)."""
-    import cv2
-    import numpy as np
-
-    frames = []
-    for p in paths:
-        data = p.read_bytes()
-        if data[:2] == JPEG_MAGIC:
-            if first_undecodable([data]) is not None:
-                raise RecordingError(f"{p}: not a decodable JPEG (damaged or cut short); replace or remove it and "
-                                     f"ingest again")
-            frames.append(data)
-            continue
-        image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
-        if image is None:
-            raise RecordingError(f"{p}: OpenCV cannot decode this image")
-        frames.append(_encode_jpeg(image, str(p)))
+    frames = [as_jpeg(p.read_bytes(), str(p)) for p in paths]
+    bad = first_undecodable(frames)
+    if bad is not None:
+        raise RecordingError(f"{paths[bad]}: not a decodable JPEG (damaged or cut short); replace or remove it and "
+                             f"ingest again")
     return frames
 
 
@@ -114,3 +117,38 @@ def check_decodable(frames: list[bytes] | None, where: str) -> None:
     if bad is not None:
         raise RecordingError(f"{where}: frame {bad} ({len(frames[bad])} bytes) is not a decodable JPEG; replace or "
                              f"remove it at the source and ingest again")
+
+
+def video_frames_at(path: Path, times_s: np.ndarray, tolerance_s: float) -> list[bytes]:
+    """JPEG frames of the video at `path` whose time is within `tolerance_s` of each of `times_s` (T,), in s, ascending.
+
+    Decoded with PyAV (imported lazily), starting at the keyframe before the first wanted time; a wanted
+    time with no frame near it is an error.
+    """
+    try:
+        import av
+    except ImportError:
+        raise RecordingError(f"{path}: decoding this video needs PyAV: pip install 'cnep-pipeline[lerobot]'") from None
+    frames: list[bytes] = []
+    try:
+        with av.open(str(path)) as container:
+            stream = container.streams.video[0]
+            if times_s[0] > 0:  # the keyframe at or before the first wanted frame
+                container.seek(int(max(times_s[0] - 1.0, 0.0) / stream.time_base), stream=stream, backward=True)
+            for frame in container.decode(stream):
+                if frame.time is None:  # no presentation time: cannot be matched to a timestamp
+                    continue
+                t = float(frame.time)
+                if t < times_s[len(frames)] - tolerance_s:
+                    continue
+                if abs(t - times_s[len(frames)]) > tolerance_s:
+                    break  # the wanted time fell between two frames
+                frames.append(encode_raw_image(frame.to_ndarray(format="bgr24"), f"{path} at {t:.4f} s"))
+                if len(frames) == len(times_s):
+                    break
+    except av.error.FFmpegError as exc:
+        raise RecordingError(f"{path}: cannot decode the video ({exc})") from None
+    if len(frames) < len(times_s):
+        raise RecordingError(f"{path}: no video frame within {tolerance_s * 1e3:g} ms of {times_s[len(frames)]:.4f} s "
+                             f"(frame {len(frames)} of {len(times_s)}); the video and the Parquet timestamps disagree")
+    return frames

@@ -11,8 +11,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("inputs", nargs="+", metavar="IN", help="demonstration files or folders of them (read only)")
     parser.add_argument("--out", required=True, help="folder for the trajectory files (created if missing)")
     parser.add_argument("--weights", default="imagenet",
-                        help="`imagenet` (torch hub cache or $CNEP_MOBILENET_WEIGHTS), `random` (seeded, calibrated "
-                             "on the inputs' frames) or the path of a MobileNet-v2 state dict (default: imagenet)")
+                        help="`imagenet` (torch hub cache, downloaded there if missing, or $CNEP_MOBILENET_WEIGHTS), "
+                             "`random` (seeded, calibrated on the inputs' frames) or the path of a MobileNet-v2 state "
+                             "dict (default: imagenet)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the random weights (default 0)")
     parser.add_argument("--save-weights", metavar="PATH", default=None,
                         help="save the weights used (after calibration) to reuse them later with --weights PATH")
@@ -25,6 +26,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--keep-going", action="store_true",
                         help="skip demonstrations that fail, extract the others, and list the skipped ones at the end "
                              "(exit 2)")
+    parser.add_argument("--offline", action="store_true",
+                        help="never download the ImageNet weights (also: environment variable CNEP_OFFLINE=1)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -44,6 +47,7 @@ def run(args: argparse.Namespace) -> int:
         keep_going=args.keep_going,
         save_weights=Path(args.save_weights) if args.save_weights else None,
         quiet=args.quiet,
+        offline=args.offline,
         **options,
     )
     done = extract(config)

@@ -23,10 +23,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from pipeline.demo.scene import (BEHAVIOURS, Scene, behaviour_parts, draw_frame, encode_jpeg, gripper_quaternion,
                             sample_scene)
+from pipeline.progress import progress_bar
 from recordings import Demonstration, Episode, write_demonstration
 
 log = logging.getLogger(__name__)
@@ -183,7 +183,7 @@ def generate(config: DemoSetConfig) -> DemoSet:
     split_seeds = dict(zip(SPLITS, root.spawn(len(SPLITS))))
     files: dict[str, list[Path]] = {split: [] for split in SPLITS}
     labels: dict[Path, str] = {}
-    with tqdm(total=sum(counts.values()), desc="generate", unit="demo", disable=config.quiet) as bar:
+    with progress_bar(total=sum(counts.values()), desc="generate", unit="demo", quiet=config.quiet) as bar:
         for split in SPLITS:
             n = counts[split]
             order = np.random.default_rng(split_seeds[split].spawn(1)[0]).permutation(n) % K

@@ -148,9 +148,9 @@ def needs(table: str, config: EvaluateConfig) -> set[tuple]:
 
 def run_jobs(jobs: Sequence[Job], workers: int, quiet: bool) -> Iterator[tuple[Job, dict]]:
     """Yield (job, result) as jobs finish, in `workers` spawned processes with one thread each (or here when 0)."""
-    from tqdm.auto import tqdm
+    from pipeline.progress import progress_bar
 
-    bar = tqdm(total=len(jobs), disable=quiet, desc="evaluate", unit="fit")
+    bar = progress_bar(total=len(jobs), quiet=quiet, desc="evaluate", unit="fit")
     if workers == 0:
         for job in jobs:
             yield job, run_job(job)

@@ -29,8 +29,10 @@ from tqdm.contrib.logging import logging_redirect_tqdm
 from perception import FeatureExtractor, PerceptionError, compatibility_key
 from perception.constants import CALIBRATION_FRAMES, DEFAULT_BATCH_SIZE, FEATURE_DIM
 from perception.frames import decode_image, resize_frames
+from perception.weights import find_imagenet_weights
 from pipeline.contract import output_folder, raise_if_skipped, refuse_existing
 from pipeline.errors import PipelineError
+from pipeline.progress import progress_bar
 from recordings import RecordingError, Trajectory, TrajectoryReader, read_demonstration, write_trajectory
 from recordings.constants import TOPIC_IMAGE
 
@@ -61,6 +63,7 @@ class ExtractConfig:
     save_weights: Path | None = None
     keep_going: bool = False
     quiet: bool = False
+    offline: bool = False  # never download ImageNet weights (perception.weights.find_imagenet_weights)
 
 
 @dataclass(frozen=True)
@@ -100,8 +103,8 @@ def extract(config: ExtractConfig) -> list[Extracted]:
             extractor().save_weights(config.save_weights)
             log.info("saved the extractor weights to %s (reuse them with --weights %s)", config.save_weights,
                      config.save_weights)
-        with logging_redirect_tqdm(), tqdm(total=0, unit="frame", desc="extract", disable=config.quiet,
-                                           dynamic_ncols=True) as bar:
+        with logging_redirect_tqdm(), progress_bar(total=0, unit="frame", desc="extract", quiet=config.quiet,
+                                                   open_ended=True) as bar:
             for src, dst in pairs:
                 if current[dst] is not None:
                     log.info("%s is up to date, skipped", dst)
@@ -125,6 +128,8 @@ def _newer_than(dst: Path, src: Path) -> bool:
 
 def build_extractor(config: ExtractConfig, sources: Sequence[Path]) -> FeatureExtractor:
     """The configured extractor; random weights are calibrated on frames sampled from `sources`."""
+    if config.offline and config.weights == "imagenet":
+        find_imagenet_weights(download=False)  # refuses here, naming the cache and the alternatives
     extractor = FeatureExtractor(config.weights, backend=config.backend, threads=config.threads,
                                  batch_size=config.batch_size, seed=config.seed)
     if extractor.needs_calibration:

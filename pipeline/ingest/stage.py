@@ -3,7 +3,10 @@
 Sources found under SRC (a file or a folder, searched recursively, in sorted order):
 - a folder holding a video (MP4/AVI/MOV/MKV) or numbered images, plus one CSV -> one demonstration;
 - any other CSV -> one motion-only demonstration (the Baxter format works without options);
-- an MCAP file -> one demonstration from its Foxglove image/pose/gripper topics.
+- an MCAP file -> one demonstration from its Foxglove image/pose/gripper topics;
+- a ROS 1 `.bag` file or a ROS 2 bag folder (`metadata.yaml`) -> one demonstration (same topics as MCAP);
+- a LeRobot dataset folder (`meta/info.json`, codebase v2.1 or v3.0; SRC itself or a sub-folder) -> one
+  demonstration per episode, all episodes read and checked before the first file is written.
 Each is written to OUT/<path relative to SRC>.mcap (atomically); SRC is only read. Every frame is
 checked to decode; existing outputs are refused unless `force` (pipeline.contract).
 """
@@ -14,22 +17,26 @@ import logging
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from tqdm import tqdm
 from tqdm.contrib.logging import logging_redirect_tqdm
 
 from pipeline.contract import output_folder, raise_if_skipped, refuse_existing
 from pipeline.errors import PipelineError
+from pipeline.progress import progress_bar
 from recordings import Demonstration, RecordingError, write_demonstration
 from recordings.adapters import FrameTiming, demonstration_from_csv, demonstration_from_folder, media_of
 from recordings.csv_motion import CsvColumns
+from recordings.lerobot import LerobotMapping, demonstration_from_lerobot, is_lerobot_dataset, plan_lerobot
 from recordings.mcap_source import McapTopics, demonstration_from_mcap
 from recordings.media import check_decodable
+from recordings.rosbag import demonstration_from_rosbag, is_ros2_bag
 
 log = logging.getLogger(__name__)
 
 SOURCE_ERRORS = (RecordingError, PipelineError)  # what one bad source can raise (skipped by keep_going)
 
 SUFFIX = ".mcap"
+FILE_KINDS = {".csv": "csv", SUFFIX: "mcap", ".bag": "rosbag"}
+FORMATS = ("auto", "lerobot")  # auto: a LeRobot dataset if SRC has meta/info.json, else files as found
 
 
 @dataclass(frozen=True)
@@ -48,13 +55,16 @@ class IngestConfig:
     force: bool = False
     keep_going: bool = False
     quiet: bool = False
+    format: str = "auto"  # one of FORMATS
+    lerobot: LerobotMapping = field(default_factory=LerobotMapping)
 
 
 @dataclass(frozen=True)
 class Source:
-    kind: str  # "folder", "csv" or "mcap"
+    kind: str  # "folder", "csv", "mcap", "rosbag" or "lerobot"
     path: Path
     episode_id: str  # path relative to src, without suffix ("/"-separated)
+    plan: object = None  # "lerobot": the episode, read and checked (recordings.lerobot.LerobotEpisode)
 
 
 @dataclass(frozen=True)
@@ -73,27 +83,45 @@ def _episode_id(src: Path, path: Path, strip_suffix: bool) -> str:
     return rel.as_posix() if rel.parts else src.resolve().name
 
 
-def discover(src: Path) -> list[Source]:
-    """Every demonstration source under `src` (see the module docstring)."""
+def discover(src: Path, fmt: str = "auto", lerobot: LerobotMapping = LerobotMapping()) -> list[Source]:
+    """Every demonstration source under `src` (see the module docstring); `fmt` one of FORMATS."""
+    if fmt not in FORMATS:
+        raise RecordingError(f"format {fmt!r} is not one of {list(FORMATS)}")
     if not src.exists():
         raise RecordingError(f"{src}: no such file or folder")
+    if fmt == "lerobot" or (fmt == "auto" and src.is_dir() and is_lerobot_dataset(src)):
+        return [Source("lerobot", src, episode.episode_id, episode) for episode in plan_lerobot(src, lerobot)]
     if src.is_file():
-        kind = {".csv": "csv", SUFFIX: "mcap"}.get(src.suffix.lower())
+        kind = FILE_KINDS.get(src.suffix.lower())
         if kind is None:
-            raise RecordingError(f"{src}: cannot ingest a {src.suffix or 'suffix-less'} file; give a CSV, an MCAP or a folder")
+            raise RecordingError(f"{src}: cannot ingest a {src.suffix or 'suffix-less'} file; give a CSV, an MCAP, a ROS "
+                                 f".bag or a folder")
         return [Source(kind, src, src.stem)]
     found: list[Source] = []
+    whole: list[Path] = []  # ROS 2 bags and LeRobot datasets: the files inside are not sources of their own
     for folder in sorted([src, *(d for d in src.rglob("*") if d.is_dir())]):
+        if any(folder.is_relative_to(done) for done in whole):
+            continue
+        if is_ros2_bag(folder):
+            whole.append(folder)
+            found.append(Source("rosbag", folder, _episode_id(src, folder, strip_suffix=False)))
+            continue
+        if fmt == "auto" and is_lerobot_dataset(folder):  # a dataset in a sub-folder: OUT/<sub-folder>/episode_...
+            whole.append(folder)
+            prefix = _episode_id(src, folder, strip_suffix=False)
+            found += [Source("lerobot", folder, f"{prefix}/{e.episode_id}", e) for e in plan_lerobot(folder, lerobot)]
+            continue
         videos, images = media_of(folder)
         if videos or images:
             found.append(Source("folder", folder, _episode_id(src, folder, strip_suffix=False)))
             continue
         for f in sorted(folder.iterdir()):
-            kind = {".csv": "csv", SUFFIX: "mcap"}.get(f.suffix.lower()) if f.is_file() else None
+            kind = FILE_KINDS.get(f.suffix.lower()) if f.is_file() else None
             if kind:
                 found.append(Source(kind, f, _episode_id(src, f, strip_suffix=True)))
     if not found:
-        raise RecordingError(f"{src}: no recordings found (looked for CSV and MCAP files, and folders with a video or images)")
+        raise RecordingError(f"{src}: no recordings found (looked for CSV, MCAP and ROS bag files, ROS 2 bag folders, and "
+                             f"folders with a video or images)")
     return found
 
 
@@ -103,6 +131,10 @@ def load(source: Source, config: IngestConfig) -> Demonstration:
         return demonstration_from_folder(source.path, source.episode_id, config.columns, config.timing, config.task)
     if source.kind == "csv":
         return demonstration_from_csv(source.path, source.episode_id, config.columns, config.task)
+    if source.kind == "rosbag":
+        return demonstration_from_rosbag(source.path, source.episode_id, config.topics, config.task)
+    if source.kind == "lerobot":
+        return demonstration_from_lerobot(source.plan, config.task)
     return demonstration_from_mcap(source.path, source.episode_id, config.topics, config.task)
 
 
@@ -114,7 +146,7 @@ def ingest(config: IngestConfig) -> list[Ingested]:
     every skipped source (pipeline.contract).
     """
     src, out = Path(config.src), Path(config.out)
-    sources = discover(src)
+    sources = discover(src, config.format, config.lerobot)
     if src.is_dir() and out.resolve().is_relative_to(src.resolve()):
         raise RecordingError(f"{out}: the output folder is inside the source folder {src}; choose one outside it")
     targets = [out / f"{source.episode_id}{SUFFIX}" for source in sources]
@@ -124,11 +156,11 @@ def ingest(config: IngestConfig) -> list[Ingested]:
     refuse_existing(targets, config.force, "demonstration file")
     done, skipped = [], []
     with output_folder(out), logging_redirect_tqdm():
-        for source, target in zip(tqdm(sources, desc="ingest", unit="demo", disable=config.quiet), targets):
+        for source, target in zip(progress_bar(sources, desc="ingest", unit="demo", quiet=config.quiet), targets):
             try:
                 demo = load(source, config)
-                if source.kind == "mcap":  # image and video frames are checked (or re-encoded) as they are read
-                    check_decodable(demo.frames, f"{source.path}: {config.topics.image}")
+                if source.kind != "folder":  # a folder's images are checked (or re-encoded) as they are read
+                    check_decodable(demo.frames, str(source.path))
             except SOURCE_ERRORS as exc:
                 if not config.keep_going:
                     raise
@@ -138,7 +170,8 @@ def ingest(config: IngestConfig) -> list[Ingested]:
             target.parent.mkdir(parents=True, exist_ok=True)  # inside `out`, which we could create
             write_demonstration(target, demo)
             kind = "frames" if demo.has_frames else "motion-only"
-            log.info("%s -> %s: %d steps, %s, %.1f Hz", source.path, target, demo.n_steps, kind, demo.episode.fps)
+            origin = source.path if source.plan is None else f"{source.path} ({source.episode_id})"
+            log.info("%s -> %s: %d steps, %s, %.1f Hz", origin, target, demo.n_steps, kind, demo.episode.fps)
             done.append(Ingested(source, target, demo.n_steps, demo.has_frames, demo.episode.fps))
     raise_if_skipped(skipped, len(sources), f"were written to {out}")
     return done

@@ -196,7 +196,8 @@ def replay(
     another extractor than the checkpoint's training data is refused (`check_extractor`).
     """
     import torch
-    from tqdm.auto import tqdm
+
+    from pipeline.progress import progress_bar
 
     checkpoint, out = Path(checkpoint_dir), Path(out_rrd)
     paths = [Path(p) for p in recording_paths]
@@ -238,7 +239,7 @@ def replay(
             check_writable_folder(folder)
         made.callback(torch.set_num_threads, threads)
         made.callback(lambda: [part.unlink(missing_ok=True) for part in [*parts, out.parent / f".{out.name}.tmp"]])
-        bar = tqdm(total=sum(len(r) for r in rows), disable=quiet, desc="replay", unit="step", leave=False)
+        bar = progress_bar(total=sum(len(r) for r in rows), quiet=quiet, desc="replay", unit="step", leave=False)
         for i, (path, traj, x) in enumerate(zip(paths, trajectories, rows)):
             decisions = decide(model, x, traj.timestamps_ns, policy, xyz, prediction_points)
             bar.update(len(x))

@@ -29,6 +29,7 @@ from tqdm import tqdm
 from models import CNEPConfig, TrainConfig, Trainer, build_model, save_checkpoint
 from models.matched import matched_cnmp
 from models.sampler import TrajectoryStack
+from pipeline import progress
 from models.train import split_validation
 from pipeline.errors import PipelineError
 from pipeline.train.data import TrainingSet, find_trajectory_files, load_training_set
@@ -189,8 +190,7 @@ def run_identity(config: TrainStageConfig, data: TrainingSet, layout: TrainingLa
 
 
 def progress_bar(trainer: Trainer, disabled: bool) -> tqdm:
-    return tqdm(total=trainer.cfg.steps, initial=trainer.step, desc="train", unit="step", disable=disabled,
-                dynamic_ncols=True)
+    return progress.progress_bar(total=trainer.cfg.steps, initial=trainer.step, desc="train", unit="step", quiet=disabled)
 
 
 def report_step(bar: tqdm, trainer: Trainer, terms: dict, elapsed: float) -> None:

@@ -1,0 +1,87 @@
+"""Progress output: a bar on a terminal, whole lines now and then elsewhere, nothing when quiet."""
+
+import io
+import logging
+
+import pytest
+from tqdm.contrib.logging import logging_redirect_tqdm
+
+import pipeline.progress as progress
+from pipeline.cli.main import main
+from recordings import write_demonstration
+from tests.recordings.factories import demonstration_factory
+
+
+class Terminal(io.StringIO):
+    def isatty(self):
+        return True
+
+
+def test_a_log_file_gets_one_line_at_the_end_and_no_carriage_returns():
+    stream = io.StringIO()
+    with progress.progress_bar(total=0, desc="extract", unit="frame", stream=stream) as bar:
+        for _ in range(3):
+            bar.total += 100
+            bar.refresh()
+            for _ in range(100):
+                bar.update(1)
+    text = stream.getvalue()
+    assert "\r" not in text and text.count("\n") == 1 and text.startswith("extract: 100%") and "300/300" in text
+
+
+def test_an_open_ended_bar_shows_no_percentage():
+    stream = io.StringIO()
+    with progress.progress_bar(total=0, desc="extract", unit="frame", open_ended=True, stream=stream) as bar:
+        bar.total += 10
+        bar.update(4)
+    assert stream.getvalue().startswith("extract: 4 frame [") and "%" not in stream.getvalue()
+
+
+def test_a_log_file_gets_a_line_per_interval(monkeypatch):
+    monkeypatch.setattr(progress, "LINE_INTERVAL_S", 0.0)
+    stream = io.StringIO()
+    for _ in progress.progress_bar(range(3), desc="ingest", unit="demo", stream=stream):
+        pass
+    lines = stream.getvalue().splitlines()
+    assert "\r" not in stream.getvalue() and len(lines) >= 2 and lines[-1].startswith("ingest: 100%")
+    assert len(set(lines)) == len(lines)  # an unchanged bar is not repeated
+
+
+def test_a_terminal_gets_a_bar_redrawn_in_place():
+    stream = Terminal()
+    for _ in progress.progress_bar(range(3), desc="ingest", unit="demo", stream=stream, mininterval=0):
+        pass
+    assert "\r" in stream.getvalue()
+
+
+def test_quiet_prints_nothing():
+    stream = Terminal()
+    assert list(progress.progress_bar(range(3), desc="ingest", unit="demo", quiet=True, stream=stream)) == [0, 1, 2]
+    assert stream.getvalue() == ""
+
+
+def test_log_messages_stay_whole_lines_beside_the_bar():
+    stream = io.StringIO()
+    logger = logging.getLogger("test_progress")
+    handler = logging.StreamHandler(stream)
+    logger.addHandler(handler)
+    try:
+        with logging_redirect_tqdm(loggers=[logger]), progress.progress_bar(total=2, desc="x", unit="f",
+                                                                              stream=stream) as bar:
+            for k in range(2):
+                logger.warning("file %d done", k)
+                bar.update(1)
+    finally:
+        logger.removeHandler(handler)
+    assert stream.getvalue().splitlines()[:2] == ["file 0 done", "file 1 done"] and "\r" not in stream.getvalue()
+
+
+@pytest.mark.parametrize("quiet", [True, False])
+def test_cnep_extract_in_a_log(tmp_path, capfd, quiet):
+    demo = write_demonstration(tmp_path / "d.mcap", demonstration_factory(5))
+    args = ["extract", str(demo), "--out", str(tmp_path / "out"), "--weights", "random", "--backend", "eager",
+            "--threads", "1"]
+    assert main(["-q", *args] if quiet else args) == 0
+    err = capfd.readouterr().err
+    assert "\r" not in err
+    assert ("extract: 5 frame [" in err) != quiet
