@@ -34,7 +34,8 @@ def run_pipeline(src: Path, work: Path, *ingest_args: str) -> list[Path]:
     assert main(["-q", "replay", str(work / "ckpt"), *map(str, trajectories), "--out", str(work / "replay.rrd"),
                  "--no-live"]) == 0
     decisions = read_decisions(work / "replay.rrd")
-    assert len(decisions["recordings"]) == len(trajectories) and (work / "replay.rrd").stat().st_size > 0
+    rrds = sorted(work.glob("replay-*.rrd"))  # one .rrd per recording (pipeline.replay.stage.rrd_files)
+    assert len(decisions["recordings"]) == len(trajectories) == len(rrds) and all(p.stat().st_size > 0 for p in rrds)
     return trajectories
 
 
