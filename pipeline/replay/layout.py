@@ -49,7 +49,7 @@ def blueprint(n_experts: int, camera: bool = True):
     Left: the camera (only when the recording has frames) above the 3D view (end-effector pose,
     recorded path, the predicted trajectory in the active expert's colour). Right: the gate
     probabilities over time (one named, coloured series per expert, y in GATE_AXIS), the active
-    expert as a colour lane, and the log of expert switches (time since the start and the text only).
+    expert as a colour lane, and the log of expert switches (its text only: `step 18 (1.80 s): ...`).
     The recordings list (left panel) and the time panel stay open; the selection panel is collapsed.
     """
     import rerun as rr
@@ -57,8 +57,8 @@ def blueprint(n_experts: int, camera: bool = True):
 
     series = rr.SeriesLines(names=expert_names(n_experts), colors=expert_colors(n_experts))
     scene = [rrb.Spatial2DView(origin=CAMERA, name="camera")] if camera else []
-    log_columns = rrb.TextLogColumns(
-        timeline_columns=[rrb.components.TimelineColumn(TIMELINE_TIME),
+    log_columns = rrb.TextLogColumns(  # the text says the step and the time itself: no narrow, cut time column
+        timeline_columns=[rrb.components.TimelineColumn(TIMELINE_TIME, visible=False),
                           rrb.components.TimelineColumn(TIMELINE_FRAME, visible=False)],
         text_log_columns=[rrb.components.TextLogColumn("Body"),
                           rrb.components.TextLogColumn("EntityPath", visible=False),

@@ -349,8 +349,8 @@ def recording_id(index: int, traj: Trajectory, run_id: str) -> str:
 
 
 def recording_name(index: int, source: Path) -> str:
-    """The name the viewer lists: position, then the file's name and folder (`1 demo_000 (scene_change)`)."""
-    return f"{index + 1} {source.stem} ({source.parent.name or '.'})"
+    """The name the viewer lists (narrow: what tells recordings apart comes first): `demo_000 (scene_change) #1`."""
+    return f"{source.stem} ({source.parent.name or '.'}) #{index + 1}"
 
 
 def write_recording(path: Path, recording_id: str, name: str, traj: Trajectory, decisions: Decisions,
