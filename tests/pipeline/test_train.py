@@ -209,13 +209,14 @@ def test_settings_precedence_is_defaults_then_config_file_then_command_line(full
                                     "expert_widths": [8, 8], "lr": 0.002}))
     out = tmp_path / "ckpt"
     assert main(["-q", "train", *map(str, full_set), "--out", str(out), "--config", str(settings), "--seed", "7",
-                 "--val-every", "5"]) == 0
+                 "--val-every", "5", "--assignment", "mixture"]) == 0
     config = read_checkpoint_config(out)
     training = config["training"]
     assert (training["steps"], training["lr"], config["layout"]["name"]) == (10, 0.002, "motion")  # file
     assert (training["seed"], training["val_every"]) == (7, 5)  # command line over file and defaults
     assert training["patience"] == 10 and training["batch_size"] == TrainConfig().batch_size  # defaults
     assert config["model"]["encoder_widths"] == [8, 8] and config["model"]["n_experts"] == 2
+    assert config["model"]["assignment"] == "mixture"  # the loss's assignment travels with the checkpoint
 
 
 def test_bad_config_file_is_one_clear_error(full_set, tmp_path, capsys):
