@@ -167,3 +167,16 @@ def test_commitment_of_a_method_counts_valid_queries_and_failures():
     assert result["band"] == pytest.approx(within_mode_band(demos, modes))
     nan = commitment(lambda t, y, qt: np.full((len(qt), 1), np.nan), q, demos, modes)
     assert nan["valid"] == 0.0 and nan["failures"] == 1
+
+
+@pytest.mark.parametrize("name", ["bimodal", "multimodal", "multimodal6"])
+def test_commitment_band_accepts_every_shared_mode_and_rejects_their_average(name):
+    ds = make_set(name, seed=0)
+    queries = shared_queries(ds.train, ds.train_modes)
+    means = np.stack([ds.train[ds.train_modes == k].mean(0) for k in range(ds.n_modes)])  # (K, T, 1)
+    for q in queries:
+        assert len(q.modes) >= 2
+        committed = commitment_scores(means[list(q.modes)], [q] * len(q.modes), ds.train, ds.train_modes)
+        assert committed["valid"].all() and committed["mode"].tolist() == list(q.modes)
+        average = commitment_scores(means[list(q.modes)].mean(0)[None], [q], ds.train, ds.train_modes)
+        assert not average["valid"].any()
