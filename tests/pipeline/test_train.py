@@ -59,7 +59,7 @@ def test_cli_trains_a_checkpoint_that_loads_and_generates(full_set, tmp_path, ca
     assert sorted(p.name for p in out.iterdir()) == sorted(["config.json", LOG_FILE, "model.safetensors"])
     assert not work_dir(out).exists()
     config = read_checkpoint_config(out)
-    assert config["layout"]["name"] == "wine-glass" and config["layout"]["columns"] == [[0, 1288]]
+    assert config["layout"]["name"] == "scene" and config["layout"]["columns"] == [[0, 1288]]  # the default
     assert config["extractor"] == read_trajectory(full_set[0]).extractor
     assert config["training"]["steps"] == 30 and config["training"]["seed"] == 3
     assert [f["sha256"] for f in config["files"]] == [hashlib.sha256(p.read_bytes()).hexdigest() for p in full_set]
