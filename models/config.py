@@ -66,6 +66,11 @@ def authors_coefficients(n_experts: int) -> tuple[float, float, float]:
     return 16.81 * n_experts / 2, 10.672 / math.log2(n_experts), 7.553 / math.log2(n_experts)
 
 
+# The reconstruction terms of the loss (models.loss.reconstruction): "paper" = mean_i (1/d) sum_e p_ie L_ie,
+# "mixture" = mean_i (1/(d n_i)) (-log sum_e p_ie exp(-S_ie)).
+ASSIGNMENTS = ("paper", "mixture")
+
+
 @dataclass(frozen=True)
 class CNEPConfig:
     """The network and its loss. `n_experts=1` is a CNMP.
@@ -73,6 +78,8 @@ class CNEPConfig:
     The loss is `a_rec * L_rec - a_batch * L_batch + a_ind * L_ind` (the paper prints `+ a_batch`; the
     authors' code subtracts it, which matches the stated intent of maximising batch entropy).
     Coefficients left as None take the authors' values rescaled with the number of experts.
+    `assignment` chooses L_rec (models.loss): "paper", the gate-weighted expert NLL of the paper, or
+    "mixture", the mixture likelihood whose responsibilities come from the targets (docs/model.md).
     """
 
     layout: Layout = field(default_factory=Layout)
@@ -84,8 +91,11 @@ class CNEPConfig:
     a_rec: float | None = None
     a_batch: float | None = None
     a_ind: float | None = None
+    assignment: str = "paper"  # one of ASSIGNMENTS: how L_rec assigns a sample's targets to the experts
 
     def __post_init__(self) -> None:
+        if self.assignment not in ASSIGNMENTS:
+            raise ConfigError(f"assignment must be one of {', '.join(ASSIGNMENTS)}, got {self.assignment!r}.")
         if isinstance(self.layout, dict):
             object.__setattr__(self, "layout", Layout(**self.layout))
         object.__setattr__(self, "encoder_widths", tuple(int(w) for w in self.encoder_widths))
@@ -117,7 +127,8 @@ class CNEPConfig:
 
     @classmethod
     def from_dict(cls, data: dict) -> "CNEPConfig":
-        return cls(**_known(cls, data))
+        """The config of `to_dict`; one written before `assignment` existed trained with the paper's term."""
+        return cls(**{"assignment": "paper", **_known(cls, data)})
 
 
 @dataclass(frozen=True)

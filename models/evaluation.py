@@ -26,6 +26,15 @@ pool's demonstrations.
 
 Mode accuracy: the generated trajectory is nearest (MSE) to a training demonstration of the ground
 truth's mode.
+
+Commitment protocol: each query conditions on one point that two or more modes share and nothing
+else: a crossing of two modes' mean trajectories, or a start (or end) where modes start (end)
+together. The context cannot tell those modes apart, so the right answer is any one of them, and the
+wrong answer is their average. Each generated trajectory is scored against the nearest training
+demonstration of any mode: its MSE, its maximum deviation over the horizon (both minimised over the
+demonstrations), and whether it is *valid*: within the set's band (`BAND_SIGMAS` within-mode standard
+deviations, see `within_mode_band`) of one demonstration at every step, that demonstration itself
+passing within the band of the conditioning point.
 """
 
 from __future__ import annotations
@@ -43,6 +52,7 @@ CLOSE = 0.05  # steps whose mode gap is within this fraction of the range of the
 SEPARATION = 0.1  # two modes are told apart by their end points when these differ by this fraction of the range
 DECISIVE = 4.0  # a query's mode must be this many times nearer (squared distance) than any other mode
 ATTEMPTS = 100  # draws per query before giving up on finding a decisive one
+BAND_SIGMAS = 3.0  # commitment: a valid trajectory stays within this many within-mode stds of one demonstration
 
 
 @dataclass(frozen=True)
@@ -168,4 +178,99 @@ def score(generate: Generate, queries: list[Query], pool: np.ndarray, pool_modes
         "mae": float(np.mean(mae)),
         "mae_std": float(np.std(mae)),
         "mode_accuracy": float(np.mean(hits)),
+    }
+
+
+@dataclass(frozen=True)
+class SharedQuery:
+    """A commitment query: one point that the listed modes' mean trajectories share."""
+
+    obs_t: np.ndarray  # (1,) time of the point
+    obs_y: np.ndarray  # (1, dy)
+    modes: tuple[int, ...]  # the modes whose mean passes within the band of the point (at least 2)
+
+
+def within_mode_band(demos: np.ndarray, modes: np.ndarray) -> float:
+    """`BAND_SIGMAS` x the within-mode standard deviation of a pool `(N, T, dy)`: the root of the mean, over
+    modes, steps and output dims, of the variance across the mode's demonstrations."""
+    variances = [demos[modes == k].var(0).mean() for k in np.unique(modes)]
+    return float(BAND_SIGMAS * np.sqrt(np.mean(variances)))
+
+
+def shared_queries(demos: np.ndarray, modes: np.ndarray) -> list[SharedQuery]:
+    """Every point where two or more modes meet, once, in time order, on a pool `(N, T, dy)` with labels `(N,)`.
+
+    For each pair of modes, each run of steps where their mean trajectories stay within the band of each
+    other (a crossing, a stretch they share, a shared start or end) gives one point: the midpoint of
+    the two means at the run's closest step. Points within two steps and one band of an earlier point
+    are the same point.
+    """
+    T, band = demos.shape[1], within_mode_band(demos, modes)
+    labels = np.unique(modes)
+    means = np.stack([demos[modes == k].mean(0) for k in labels])  # (K, T, dy)
+    found: list[tuple[int, np.ndarray]] = []
+    for i, a in enumerate(labels):
+        for b in range(i + 1, len(labels)):
+            gap = np.linalg.norm(means[i] - means[b], axis=-1)  # (T,)
+            close = np.concatenate([[False], gap <= band, [False]]).astype(int)
+            starts, stops = np.flatnonzero(np.diff(close) == 1), np.flatnonzero(np.diff(close) == -1)
+            for start, stop in zip(starts, stops):  # each run of steps where the two means stay within the band
+                k = start + int(gap[start:stop].argmin())
+                found.append((k, 0.5 * (means[i, k] + means[b, k])))
+    queries: list[tuple[int, np.ndarray]] = []
+    for step, y in sorted(found, key=lambda f: f[0]):
+        if not any(abs(step - s) <= 2 and np.linalg.norm(y - z) <= band for s, z in queries):
+            queries.append((step, y))
+    out = []
+    for step, y in queries:
+        near = tuple(int(k) for k, m in zip(labels, means) if np.linalg.norm(m[step] - y) <= band)
+        out.append(SharedQuery(np.array([step / (T - 1)]), y[None].copy(), near))
+    return out
+
+
+def commitment_scores(generated: np.ndarray, queries: list[SharedQuery], pool: np.ndarray,
+                      pool_modes: np.ndarray) -> dict[str, np.ndarray]:
+    """Per query: generated `(Q, T, dy)` against the pool `(N, T, dy)`.
+
+    Returns "mse" and "max_deviation" (each minimised over the demonstrations), "valid" (bool) and
+    "mode" (the mode of the demonstration nearest in max deviation; -1 for a non-finite trajectory).
+    """
+    band = within_mode_band(pool, pool_modes)
+    T = pool.shape[1]
+    deviation = np.linalg.norm(generated[:, None] - pool[None], axis=-1)  # (Q, N, T)
+    deviation = np.where(np.isfinite(deviation), deviation, np.inf)
+    steps = np.array([int(round(q.obs_t[0] * (T - 1))) for q in queries])  # (Q,)
+    at_point = np.linalg.norm(pool[:, steps].transpose(1, 0, 2) - np.stack([q.obs_y[0] for q in queries])[:, None],
+                              axis=-1)  # (Q, N): each demonstration's distance from the query's point
+    worst = deviation.max(-1)  # (Q, N)
+    nearest = worst.argmin(-1)  # (Q,)
+    consistent = np.where(at_point <= band, worst, np.inf)  # only demonstrations through the point count
+    return {
+        "mse": (deviation**2).mean(-1).min(-1) / generated.shape[-1],
+        "max_deviation": worst.min(-1),
+        "valid": consistent.min(-1) <= band,
+        "mode": np.where(np.isfinite(worst.min(-1)), pool_modes[nearest], -1),
+    }
+
+
+def commitment(generate: Generate, queries: list[SharedQuery], pool: np.ndarray,
+               pool_modes: np.ndarray) -> dict[str, float]:
+    """One method on the commitment queries: mean MSE and max deviation (std over the queries with a finite
+    output), valid share (of all queries), the band, and the number of non-finite outputs."""
+    T = pool.shape[1]
+    generated = np.stack([np.asarray(generate(q.obs_t, q.obs_y, _times(T)), dtype=np.float64).reshape(T, -1)
+                          for q in queries])  # (Q, T, dy)
+    s = commitment_scores(generated, queries, pool, pool_modes)
+    finite = np.isfinite(s["max_deviation"])  # a non-finite trajectory is invalid and counted as a failure
+    mse, worst = s["mse"][finite], s["max_deviation"][finite]
+    nan = float("nan")
+    return {
+        "mse": float(mse.mean()) if finite.any() else nan,
+        "mse_std": float(mse.std()) if finite.any() else nan,
+        "max_deviation": float(worst.mean()) if finite.any() else nan,
+        "max_deviation_std": float(worst.std()) if finite.any() else nan,
+        "valid": float(s["valid"].mean()),
+        "queries": len(queries),
+        "band": within_mode_band(pool, pool_modes),
+        "failures": int((~finite).sum()),
     }

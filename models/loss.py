@@ -1,10 +1,21 @@
-"""The CNEP loss: gate-weighted expert NLL, batch entropy (maximised), individual entropy (minimised).
+"""The CNEP loss: a reconstruction term, batch entropy (maximised), individual entropy (minimised).
 
     L_e     = mean over targets and output dims of -log N(y | mu_e, sigma_e)        (B, d)
-    L_rec   = mean_i (1/d) sum_e p_ie L_ie
+    L_rec   = mean_i (1/d) sum_e p_ie L_ie                                   (assignment "paper")
+            = mean_i (1/(d n_i)) (-log sum_e p_ie exp(-S_ie))                (assignment "mixture")
     L_batch = H(mean_i p_i)            entropy of the batch-mean gate distribution
     L_ind   = mean_i H(p_i)            mean entropy of each sample's gate distribution
     L_total = a_rec L_rec - a_batch L_batch + a_ind L_ind
+
+with n_i the number of target values of sample i (targets x output dims) and S_ie = n_i L_ie the
+summed NLL of its targets under expert e. The paper's term trains every expert the gate has not ruled
+out on every target of the context (a context that several behaviours share teaches each expert their
+average); the mixture likelihood weighs expert e's NLL by its posterior responsibility
+r_ie = p_ie exp(-S_ie) / sum_k p_ik exp(-S_ik), so the targets decide which expert learns them, and the
+gate (the prior) is pulled towards r_i. Dividing by n_i keeps the experts' gradients on the paper's
+per-value scale (the gate's gradient, (p_ie - r_ie) / (d n_i), shrinks with n_i); dividing by d keeps
+`a_rec`'s rescaling with d meaning the same. With one expert both terms are mean_i L_i; they are also
+equal whenever all experts predict the same. The entropy terms are the same for both assignments.
 
 The paper prints `+ a_batch L_batch`; the text asks for batch entropy to be maximised and the authors'
 code subtracts it, so we subtract it. Entropies are computed per row with clamped logs: a probability
@@ -40,6 +51,18 @@ def expert_nll(mean: torch.Tensor, std: torch.Tensor, target: torch.Tensor, targ
     return (nll * w).sum((2, 3)) / count.clamp_min(1.0)  # (B, d)
 
 
+def reconstruction(nll: torch.Tensor, gate: torch.Tensor, values: torch.Tensor, assignment: str) -> torch.Tensor:
+    """L_rec of `assignment`: nll (B, d) mean NLL per value, gate (B, d), values (B,) target values per sample."""
+    d = gate.shape[-1]
+    if assignment == "paper":
+        return (gate * nll).sum(-1).mean() / d
+    if assignment == "mixture":
+        n = values.clamp_min(1.0).unsqueeze(-1)  # (B, 1)
+        log_joint = gate.clamp_min(_TINY).log() - n * nll  # (B, d): log p_ie - S_ie
+        return (-torch.logsumexp(log_joint, dim=-1) / n[:, 0]).mean() / d
+    raise ValueError(f"unknown assignment {assignment!r}")
+
+
 def cnep_loss(
     mean: torch.Tensor,
     std: torch.Tensor,
@@ -49,9 +72,9 @@ def cnep_loss(
     config: CNEPConfig,
 ) -> tuple[torch.Tensor, dict[str, float]]:
     """Total loss and its terms as floats (for logs). Shapes as in `expert_nll`; gate (B, d)."""
-    d = gate.shape[-1]
     nll = expert_nll(mean, std, target, target_mask)  # (B, d)
-    rec = (gate * nll).sum(-1).mean() / d
+    values = target_mask.to(nll.dtype).sum(-1) * mean.shape[-1]  # (B,) target values per sample
+    rec = reconstruction(nll, gate, values, config.assignment)
     batch = entropy(gate.mean(0))
     ind = entropy(gate).mean()
     total = config.a_rec * rec - config.a_batch * batch + config.a_ind * ind

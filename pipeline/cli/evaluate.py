@@ -1,4 +1,4 @@
-"""`cnep evaluate [--table comparison|ablation|experts|all] [--quick]`: the paper's tables, measured."""
+"""`cnep evaluate [--table comparison|ablation|experts|commitment|all] [--quick]`: the paper's tables, measured."""
 
 from __future__ import annotations
 
@@ -8,13 +8,15 @@ from pipeline.evaluate.constants import SET_TITLES
 
 HELP = "reproduce the paper's tables (CNEP vs CNMP, ProMP, GMM-GMR, nearest demo) on its synthetic sets"
 
-TABLE_CHOICES = ("comparison", "ablation", "experts", "all")
+TABLE_CHOICES = ("comparison", "ablation", "experts", "commitment", "all")
 SET_CHOICES = tuple(SET_TITLES)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--table", choices=TABLE_CHOICES, default="comparison",
-                        help="which table to measure (default: comparison, the CNEP vs CNMP and baselines table)")
+                        help="which table to measure (default: comparison, the CNEP vs CNMP and baselines table; "
+                             "commitment: conditioned only on points several modes share, does a model return one "
+                             "demonstrated mode or their average)")
     parser.add_argument("--quick", action="store_true",
                         help="a few minutes: fewer training steps, one seed, the bimodal and 4-mode sets, 20 queries")
     parser.add_argument("--seeds", type=int, default=None, help="seeds per cell (default 1; the full run of docs/evaluation.md uses 2)")

@@ -33,6 +33,7 @@ TRAIN_OPTIONS = {
 DEFAULTS = {
     "layout": DEFAULT_PRESET,
     "experts": 2,
+    "assignment": "paper",
     "encoder_widths": (128, 128),
     "expert_widths": (128, 128),
     "patience": DEFAULT_PATIENCE,
@@ -94,6 +95,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     m = parser.add_argument_group("model")
     m.add_argument("--experts", type=int, default=keep,
                    help=f"number of experts; 1 is a CNMP (default {_default('experts')})")
+    m.add_argument("--assignment", default=keep, choices=("paper", "mixture"),
+                   help="how the loss assigns a context's targets to the experts: paper = the paper's gate-weighted "
+                        "NLL (every expert the gate has not ruled out learns every target), mixture = the mixture "
+                        "likelihood (the expert that explains the targets learns them; commits where the context "
+                        f"cannot tell behaviours apart; docs/model.md) (default {_default('assignment')})")
     m.add_argument("--encoder-widths", type=_widths, default=keep,
                    help=f"encoder layer widths (default {_default('encoder_widths')})")
     m.add_argument("--expert-widths", type=_widths, default=keep,
@@ -196,6 +202,7 @@ def run(args: argparse.Namespace) -> int:
         out=Path(args.out),
         layout=chosen["layout"],
         n_experts=chosen["experts"],
+        assignment=chosen["assignment"],
         encoder_widths=chosen["encoder_widths"],
         expert_widths=chosen["expert_widths"],
         matched_cnmp=args.matched_cnmp,

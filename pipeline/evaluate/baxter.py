@@ -8,13 +8,20 @@ Data (read in place, never copied): a folder like the paper's `data/baxter/first
    work folder);
 2. take the end-effector's (p_x, p_y) (m), resample each demonstration to `samples` steps evenly in
    time (t = k / (samples - 1)); the model's normaliser standardises the columns;
-3. train a 2-expert CNEP and a CNMP (1 expert, widened to about the same number of parameters) with
-   `models.fit`, seeded; with only two demonstrations both serve for training and validation;
+3. train a 2-expert CNEP per assignment of the loss (`models.CNEPConfig.assignment`: the paper's
+   gate-weighted NLL and the mixture likelihood) and a CNMP (1 expert, widened to about the same number
+   of parameters) with `models.fit`, seeded; with only two demonstrations both serve for training and
+   validation;
 4. condition each model on each test recording's first sample at t = 0 (and, with `goal=True`, also
-   on its last sample at t = 1) and generate the path at the `samples` times (winner-take-all);
-5. per start point and model: the distance to the nearest demonstration (mean over time of the
-   distance between generated and demonstrated points at equal t, minimum over the demonstrations)
-   and whether the path enters the box.
+   on its last sample at t = 1) and generate the path at the `samples` times: each CNEP winner-take-all
+   (the paper's inference) and as the gate-weighted mixture of its experts (CNEP-MoE);
+5. execute each generated path with the paper's PID controller (`models.pid_track`) from the real start:
+   the reference is the generated path bent through the conditioning points, so the executed path
+   passes through them (the paper's use of the controller);
+6. per start point and model: the distance to the nearest demonstration (mean over time of the
+   distance between generated and demonstrated points at equal t, minimum over the demonstrations),
+   whether the generated path and whether the executed path enter the box, and how far the executed
+   path passes from the conditioning points.
 """
 
 from __future__ import annotations
@@ -26,7 +33,8 @@ from pathlib import Path
 
 import numpy as np
 
-from models import CNEPConfig, Layout, TrainConfig, fit, matched_cnmp
+from models import CNEPConfig, Layout, TrainConfig, fit, matched_cnmp, pid_track
+from models.config import ASSIGNMENTS
 from pipeline.errors import PipelineError
 from pipeline.ingest.stage import IngestConfig, ingest
 from recordings import Demonstration, read_demonstration
@@ -56,14 +64,26 @@ class BaxterConfig:
 
 @dataclass(frozen=True)
 class StartResult:
-    """One test start point: where it is, and per model (`CNEP`, `CNMP`) the generated path's scores."""
+    """One test start point: where it is, and per model (`MODELS`) the generated and the executed path's scores."""
 
     name: str
     start: np.ndarray  # (2,) m
-    distance: dict[str, float]  # model -> mean distance to the nearest demonstration (m)
+    distance: dict[str, float]  # model -> mean distance of the generated path to the nearest demonstration (m)
     enters_box: dict[str, bool]  # model -> any generated point inside the box
-    chosen_expert: int  # the CNEP's winner-take-all expert
-    paths: dict[str, np.ndarray]  # model -> (samples, 2)
+    chosen_expert: dict[str, int]  # CNEP model -> its winner-take-all expert
+    paths: dict[str, np.ndarray]  # model -> generated (samples, 2)
+    executed: dict[str, np.ndarray]  # model -> executed by the PID controller from the start (samples, 2)
+    executed_enters_box: dict[str, bool]  # model -> any executed point inside the box
+    executed_miss: dict[str, float]  # model -> largest distance of the executed path from a conditioning point (m)
+
+
+def cnep_name(assignment: str, mixture: bool = False) -> str:
+    """The result name of the CNEP trained with `assignment`, winner-take-all or as a mixture of experts."""
+    return f"CNEP{'-MoE' if mixture else ''} ({assignment})"
+
+
+# Every model of a result, in table order: the CNMP, then per assignment the CNEP and its mixture of experts.
+MODELS = ("CNMP", *(cnep_name(a, moe) for a in ASSIGNMENTS for moe in (False, True)))
 
 
 def xy_path(demo: Demonstration, samples: int) -> np.ndarray:
@@ -103,16 +123,56 @@ def load_recordings(config: BaxterConfig, work: Path) -> tuple[list[Path], list[
 
 
 def train_models(demos: np.ndarray, config: BaxterConfig) -> dict:
-    """A 2-expert CNEP and a parameter-matched CNMP on (N, T, 2) paths; both seeded."""
+    """A 2-expert CNEP per assignment ("CNEP (paper)", "CNEP (mixture)") and a parameter-matched "CNMP" on
+    (N, T, 2) paths; all seeded."""
     train = TrainConfig(steps=config.steps, warmup_steps=config.steps // 10, val_every=max(1, config.steps // 20),
                         seed=config.seed)
     trajectories = list(demos)
     models = {}
     cnep = CNEPConfig(layout=LAYOUT_XY, n_experts=2)
-    for name, cfg in (("CNEP", cnep), ("CNMP", matched_cnmp(cnep))):
+    configs = {"CNMP": matched_cnmp(cnep)}
+    configs.update({cnep_name(a): CNEPConfig(layout=LAYOUT_XY, n_experts=2, assignment=a) for a in ASSIGNMENTS})
+    for name, cfg in configs.items():
         log.info("training %s on %d demonstrations for %d steps", name, len(demos), config.steps)
         models[name], _ = fit(trajectories, cfg, train, val_trajectories=trajectories, progress=not config.quiet)
     return models
+
+
+def load_paths(config: BaxterConfig) -> tuple[np.ndarray, list[tuple[str, Demonstration]]]:
+    """The demonstrations' (N, samples, 2) paths and the test recordings (name, demonstration), in file order."""
+    with tempfile.TemporaryDirectory(prefix="cnep-baxter-") as tmp:
+        work = Path(config.work) if config.work is not None else Path(tmp)
+        demo_files, test_files = load_recordings(config, work)
+        demos = np.stack([xy_path(read_demonstration(p), config.samples) for p in demo_files])  # (N, T, 2)
+        return demos, [(p.stem, read_demonstration(p)) for p in test_files]
+
+
+def score_starts(models: dict, demos: np.ndarray, tests: list[tuple[str, Demonstration]], goal: bool) -> list[StartResult]:
+    """Condition `models` (from `train_models`) on each test's start (and goal), generate, execute, score."""
+    samples = demos.shape[1]
+    grid = np.linspace(0.0, 1.0, samples)
+    results = []
+    for name, demo in tests:
+        start, end = demo.pose[0, :2], demo.pose[-1, :2]
+        obs_t, obs_y = (np.array([0.0, 1.0]), np.stack([start, end])) if goal else (np.zeros(1), start[None])
+        steps = np.rint(obs_t * (samples - 1)).astype(int)
+        paths, experts = {}, {}
+        for model_name, model in models.items():
+            p = model.generate(obs_t, obs_y, grid)
+            paths[model_name] = p.mean
+            if model.n_experts > 1:
+                experts[model_name] = p.expert
+                paths[model_name.replace("CNEP", "CNEP-MoE")] = model.generate(obs_t, obs_y, grid, mixture=True).mean
+        paths = {m: paths[m] for m in MODELS if m in paths}
+        executed = {m: pid_track(p, steps, obs_y, start=start) for m, p in paths.items()}
+        results.append(StartResult(
+            name=name, start=start,
+            distance={m: nearest_demo_distance(p, demos) for m, p in paths.items()},
+            enters_box={m: bool(in_box(p).any()) for m, p in paths.items()},
+            chosen_expert=experts, paths=paths, executed=executed,
+            executed_enters_box={m: bool(in_box(x).any()) for m, x in executed.items()},
+            executed_miss={m: float(np.linalg.norm(x[steps] - obs_y, axis=-1).max()) for m, x in executed.items()}))
+    return results
 
 
 def run_baxter(config: BaxterConfig) -> list[StartResult]:
@@ -120,34 +180,28 @@ def run_baxter(config: BaxterConfig) -> list[StartResult]:
     import torch
 
     torch.manual_seed(config.seed)
-    with tempfile.TemporaryDirectory(prefix="cnep-baxter-") as tmp:
-        work = Path(config.work) if config.work is not None else Path(tmp)
-        demo_files, test_files = load_recordings(config, work)
-        demos = np.stack([xy_path(read_demonstration(p), config.samples) for p in demo_files])  # (N, T, 2)
-        tests = [(p, read_demonstration(p)) for p in test_files]
-    models = train_models(demos, config)
-    grid = np.linspace(0.0, 1.0, config.samples)
-    results = []
-    for path, demo in tests:
-        start, goal = demo.pose[0, :2], demo.pose[-1, :2]
-        obs_t, obs_y = (np.array([0.0, 1.0]), np.stack([start, goal])) if config.goal else (np.zeros(1), start[None])
-        predictions = {name: model.generate(obs_t, obs_y, grid) for name, model in models.items()}
-        paths = {name: p.mean for name, p in predictions.items()}
-        results.append(StartResult(
-            name=path.stem, start=start,
-            distance={name: nearest_demo_distance(p, demos) for name, p in paths.items()},
-            enters_box={name: bool(in_box(p).any()) for name, p in paths.items()},
-            chosen_expert=predictions["CNEP"].expert, paths=paths))
-    return results
+    demos, tests = load_paths(config)
+    return score_starts(train_models(demos, config), demos, tests, config.goal)
+
+
+def _yes(flag: bool) -> str:
+    return "yes" if flag else "no"
 
 
 def format_table(results: list[StartResult]) -> str:
-    """A markdown table: per start point, nearest-demonstration distance (cm) and box entry of CNEP and CNMP."""
-    lines = ["| start | (x, y) m | CNEP expert | CNEP dist. to nearest demo (cm) | CNEP enters box | "
-             "CNMP dist. to nearest demo (cm) | CNMP enters box |",
-             "|---|---|---|---|---|---|---|"]
+    """A markdown table: per start point and model, the generated path's distance to the nearest demonstration
+    (cm), whether the generated / the PID-executed path enters the box, and the CNEPs' chosen experts; then
+    the box entries per model."""
+    models = [m for m in MODELS if m in results[0].paths]
+    lines = ["| start | (x, y) m | " + " | ".join(models) + " |", "|---" * (len(models) + 2) + "|"]
     for r in results:
-        lines.append(f"| {r.name} | ({r.start[0]:.3f}, {r.start[1]:.3f}) | {r.chosen_expert} | "
-                     f"{100 * r.distance['CNEP']:.1f} | {'yes' if r.enters_box['CNEP'] else 'no'} | "
-                     f"{100 * r.distance['CNMP']:.1f} | {'yes' if r.enters_box['CNMP'] else 'no'} |")
+        cells = []
+        for m in models:
+            expert = f"expert {r.chosen_expert[m]}, " if m in r.chosen_expert else ""
+            cells.append(f"{expert}{100 * r.distance[m]:.1f} cm, {_yes(r.enters_box[m])} / {_yes(r.executed_enters_box[m])}")
+        lines.append(f"| {r.name} | ({r.start[0]:.3f}, {r.start[1]:.3f}) | " + " | ".join(cells) + " |")
+    n = len(results)
+    lines.append("| box entries, generated / PID | | " + " | ".join(
+        f"{sum(r.enters_box[m] for r in results)}/{n} / {sum(r.executed_enters_box[m] for r in results)}/{n}"
+        for m in models) + " |")
     return "\n".join(lines)

@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
-TABLES = ("comparison", "ablation", "experts")
+TABLES = ("comparison", "ablation", "experts", "commitment")
 
 # Columns (data sets) of each table; `--quick` keeps only QUICK_SETS of them.
 TABLE_SETS = {
     "comparison": ("unimodal", "bimodal", "multimodal", "multimodal6"),
     "ablation": ("unimodal", "bimodal", "multimodal"),
     "experts": ("bimodal", "multimodal", "multimodal6"),
+    "commitment": ("bimodal", "multimodal", "multimodal6"),
 }
 QUICK_SETS = ("bimodal", "multimodal")
 SET_TITLES = {"unimodal": "Unimodal", "bimodal": "Bimodal", "multimodal": "4 modes", "multimodal6": "6 modes"}

@@ -37,8 +37,10 @@ def _demos(ax, t: np.ndarray, demos: np.ndarray, colours, width: float, alpha: f
     ax.autoscale_view()
 
 
-def plot_set(path: Path, set_name: str, n_queries: int, generated: dict[str, np.ndarray], title: str) -> None:
-    """Write the figure of one set (seed 0) to `path`; `generated`: row label -> (k, T, dy) on its first k paper queries."""
+def plot_set(path: Path, set_name: str, n_queries: int, generated: dict[str, np.ndarray], title: str,
+             protocol: str = "paper") -> None:
+    """Write the figure of one set (seed 0) to `path`; `generated`: row label -> (k, T, dy) on the first k
+    queries of `protocol` ("paper", or "commitment": one shared point, no ground truth)."""
     plt = _pyplot()
     s, qs = queries(set_name, 0, n_queries)
     k = min(len(v) for v in generated.values())
@@ -47,14 +49,18 @@ def plot_set(path: Path, set_name: str, n_queries: int, generated: dict[str, np.
     axes = axes[0]
     colours = plt.get_cmap("tab10")
     _demos(axes[0], t, s.train, [colours(m % 10) for m in s.train_modes], width=0.6, alpha=0.5)
-    for q in qs["paper"]:
+    for q in qs[protocol]:
+        if protocol == "commitment":
+            axes[0].plot(q.obs_t, q.obs_y[:, 0], "o", color="red", ms=4)
+            continue
         axes[0].plot(q.obs_t[:-1], q.obs_y[:-1, 0], "x", color="red", ms=5)
         axes[0].plot(q.obs_t[-1:], q.obs_y[-1:, 0], "+", color="blue", ms=7)
     axes[0].set_title("demonstrations and conditioning points", fontsize=9)
     for i, ax in enumerate(axes[1:]):
-        q = qs["paper"][i]
+        q = qs[protocol][i]
         _demos(ax, t, s.train, "0.85", width=0.5, alpha=1.0)
-        ax.plot(t, q.truth[:, 0], "k--", lw=1.5, label="truth")
+        if protocol == "paper":
+            ax.plot(t, q.truth[:, 0], "k--", lw=1.5, label="truth")
         for j, (label, out) in enumerate(generated.items()):
             ax.plot(t, out[i, :, 0], color=colours(j % 10), lw=1.2, label=label)
         ax.plot(q.obs_t, q.obs_y[:, 0], "o", color="black", ms=5)

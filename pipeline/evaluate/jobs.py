@@ -4,13 +4,15 @@ A job is picklable and self-contained, so it runs the same in this process or in
 (spawned with one BLAS and one torch thread). Every job of a (set, seed) builds the same data and the
 same queries from the seed, so all methods are scored on identical queries:
 
-    data     models.synthetic.make_set(set, seed)
-    paper    paper_queries(train, train_modes, n, seed)                 scored against the training pool
-    heldout  heldout_queries(train, train_modes, test, test_modes, n, seed)
+    data        models.synthetic.make_set(set, seed)
+    paper       paper_queries(train, train_modes, n, seed)                 scored against the training pool
+    heldout     heldout_queries(train, train_modes, test, test_modes, n, seed)
+    commitment  shared_queries(train, train_modes): every point two or more modes share (no draws)
 
-Results: {method name: {"paper": scores, "heldout": scores, "examples": (k, T, dy) generated for the
-first k paper queries, "fit_seconds": float, ...}} where scores is `models.evaluation.score`'s dict plus
-"failures" (queries whose output was not finite).
+Results: {method name: {"paper": scores, "heldout": scores, "commitment": `models.evaluation.commitment`'s
+dict, "examples" / "commitment_examples": (k, T, dy) generated for the first k paper / commitment queries,
+"fit_seconds": float, ...}} where scores is `models.evaluation.score`'s dict plus "failures" (queries
+whose output was not finite).
 """
 
 from __future__ import annotations
@@ -32,12 +34,14 @@ class ModelSpec:
     n_experts: int
     a_batch: float | None = None  # None: the authors' rescaled value
     a_ind: float | None = None
+    assignment: str = "paper"  # models.CNEPConfig.assignment (a CNMP's loss is the same under both)
 
     @property
     def key(self) -> str:
         if self.n_experts == 1:
             return "cnmp"
         tags = [f"d{self.n_experts}"] + [f"{n}0" for n in ("a_batch", "a_ind") if getattr(self, n) == 0]
+        tags += [] if self.assignment == "paper" else [self.assignment]
         return "cnep-" + "-".join(tags)
 
 
@@ -63,20 +67,21 @@ class Job:
 
 
 def queries(set_name: str, seed: int, n: int):
-    """The data set and both protocols' queries of a (set, seed): (SyntheticSet, {protocol: [Query]})."""
-    from models.evaluation import heldout_queries, paper_queries
+    """The data set and every protocol's queries of a (set, seed): (SyntheticSet, {protocol: [query]})."""
+    from models.evaluation import heldout_queries, paper_queries, shared_queries
     from models.synthetic import make_set
 
     s = make_set(set_name, seed)
     return s, {
         "paper": paper_queries(s.train, s.train_modes, n, seed),
         "heldout": heldout_queries(s.train, s.train_modes, s.test, s.test_modes, n, seed),
+        "commitment": shared_queries(s.train, s.train_modes),
     }
 
 
 def _scored(generate, s, qs: dict) -> dict:
-    """Score one method on both protocols, counting queries whose output is not finite."""
-    from models.evaluation import score
+    """Score one method on every protocol, counting queries whose output is not finite."""
+    from models.evaluation import commitment, score
 
     failures = {p: 0 for p in PROTOCOLS}
 
@@ -97,6 +102,9 @@ def _scored(generate, s, qs: dict) -> dict:
     T = s.steps
     times = np.arange(T) / (T - 1)
     result["examples"] = np.stack([generate(q.obs_t, q.obs_y, times) for q in qs["paper"][:SAMPLES_IN_FIGURE]])
+    result["commitment"] = commitment(generate, qs["commitment"], s.train, s.train_modes)
+    result["commitment_examples"] = np.stack([generate(q.obs_t, q.obs_y, times)
+                                              for q in qs["commitment"][:SAMPLES_IN_FIGURE]])
     return result
 
 
@@ -117,7 +125,7 @@ def model_config(spec: ModelSpec, cnmp_matches: int):
 
     if spec.n_experts == 1:
         return matched_cnmp(CNEPConfig(n_experts=cnmp_matches))
-    return CNEPConfig(n_experts=spec.n_experts, a_batch=spec.a_batch, a_ind=spec.a_ind)
+    return CNEPConfig(n_experts=spec.n_experts, a_batch=spec.a_batch, a_ind=spec.a_ind, assignment=spec.assignment)
 
 
 def run_job(job: Job) -> dict:

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from models.config import ASSIGNMENTS
 from pipeline.contract import check_writable_folder, output_folder, refuse_existing
 from pipeline.errors import PipelineError
 from pipeline.evaluate.constants import (
@@ -122,6 +123,12 @@ def table_rows(table: str, set_name: str) -> list[Row]:
                     "CNEP-Rec": ModelSpec(d, a_batch=0.0, a_ind=0.0)}
         rows = [Row(label, spec, spec.key) for label, spec in variants.items()]
         return rows + [Row("CNEP-MoE", cnep, cnep.key + "+moe"), Row("CNEP", cnep, cnep.key), nearest]
+    if table == "commitment":
+        rows = [Row(name, None, name) for name in ("ProMP", "GMM-GMR")] + [Row("CNMP", ModelSpec(1), "cnmp")]
+        for assignment in ASSIGNMENTS:
+            spec = ModelSpec(d, assignment=assignment)
+            rows += [Row(f"CNEP ({assignment})", spec, spec.key), Row(f"CNEP-MoE ({assignment})", spec, spec.key + "+moe")]
+        return rows + [nearest]
     return [Row(f"CNEP-{k}", ModelSpec(k), ModelSpec(k).key) for k in EXPERT_COUNTS] + [nearest]
 
 
@@ -186,6 +193,24 @@ def pooled(per_seed: Sequence[dict]) -> dict:
     return cell
 
 
+def pooled_commitment(per_seed: Sequence[dict]) -> dict:
+    """Combine per-seed commitment scores (models.evaluation.commitment): the valid share over all queries
+    (and per seed), MSE and max deviation as mean +- std over all finite queries (each seed weighted by them)."""
+    queries = np.array([r["queries"] for r in per_seed])
+    finite = queries - np.array([r["failures"] for r in per_seed])
+    cell: dict = {"valid": float(np.sum([r["valid"] * n for r, n in zip(per_seed, queries)]) / queries.sum()),
+                  "valid_per_seed": [r["valid"] for r in per_seed], "queries": queries.tolist(),
+                  "band": [r["band"] for r in per_seed], "failures": int(queries.sum() - finite.sum())}
+    for metric in ("mse", "max_deviation"):
+        keep = finite > 0
+        means = np.array([r[metric] for r in per_seed])[keep]
+        second = np.array([r[f"{metric}_std"] ** 2 + r[metric] ** 2 for r in per_seed])[keep]
+        w = finite[keep] / finite[keep].sum() if keep.any() else np.zeros(0)
+        cell[metric] = float(w @ means) if keep.any() else float("nan")
+        cell[f"{metric}_std"] = float(np.sqrt(max(0.0, w @ second - cell[metric] ** 2))) if keep.any() else float("nan")
+    return cell
+
+
 def assemble(table: str, config: EvaluateConfig, done: dict[tuple, dict]) -> dict:
     """The table as a JSON-ready dict: results[protocol][row][set] = pooled cell, training[row][set].
 
@@ -201,6 +226,9 @@ def assemble(table: str, config: EvaluateConfig, done: dict[tuple, dict]) -> dic
             runs = [done[(set_name, seed, row.spec)][row.method] for seed in range(config.n_seeds)]
             for p in PROTOCOLS:
                 results[p].setdefault(row.label, {})[set_name] = pooled([r[p] for r in runs])
+            if table == "commitment":
+                results.setdefault("commitment", {}).setdefault(row.label, {})[set_name] = pooled_commitment(
+                    [r["commitment"] for r in runs])
             training.setdefault(row.label, {})[set_name] = {
                 "fit_seconds": [r["fit_seconds"] for r in runs],
                 **({"best_val_error": [r["best_val_error"] for r in runs], "final_usage": [r["final_usage"] for r in runs],
@@ -219,8 +247,9 @@ def assemble(table: str, config: EvaluateConfig, done: dict[tuple, dict]) -> dic
 
 
 def examples(table: str, done: dict[tuple, dict], set_name: str) -> dict[str, np.ndarray]:
-    """Row label -> generated trajectories (k, T, dy) on the first paper queries of seed 0."""
-    return {row.label: done[(set_name, 0, row.spec)][row.method]["examples"] for row in table_rows(table, set_name)}
+    """Row label -> generated trajectories (k, T, dy) on the first paper (commitment) queries of seed 0."""
+    key = "commitment_examples" if table == "commitment" else "examples"
+    return {row.label: done[(set_name, 0, row.spec)][row.method][key] for row in table_rows(table, set_name)}
 
 
 def evaluate(config: EvaluateConfig) -> dict[str, Path]:
@@ -263,7 +292,8 @@ def write_table(table: str, config: EvaluateConfig, done: dict[tuple, dict], wal
 
         for set_name in config.table_sets(table):
             plot_set(config.out / "figures" / f"{table}-{set_name}.png", set_name, config.n_queries,
-                     examples(table, done, set_name), title=f"{table}: {set_name}")
+                     examples(table, done, set_name), title=f"{table}: {set_name}",
+                     protocol="commitment" if table == "commitment" else "paper")
     return markdown
 
 

@@ -13,7 +13,15 @@ TITLES = {
     "comparison": "Comparison with the baselines: MSE over generated trajectories conditioned from intermediate points",
     "ablation": "Influence of the loss components (and winner-take-all vs mixture at inference)",
     "experts": "Influence of the number of experts",
+    "commitment": "Commitment: conditioned only on a point that several modes share, one demonstrated mode or their average?",
 }
+COMMITMENT_NOTE = (
+    "Each query conditions on one point that two or more modes share (a crossing of their mean trajectories, a "
+    "shared start or end; models.evaluation.shared_queries) and nothing else. Valid: the generated trajectory stays "
+    "within the band (3 within-mode standard deviations of the set) of one training demonstration at every step, "
+    "that demonstration passing within the band of the point. MSE and max deviation: to the nearest training "
+    "demonstration of any mode."
+)
 PROTOCOL_TITLES = {
     "paper": "Paper protocol (conditioning points between two modes; truth: the training demonstration nearest to them)",
     "heldout": "Held-out protocol (conditioning points of unseen test demonstrations; truth: that demonstration)",
@@ -48,7 +56,7 @@ def _cell(cell: dict, metric: str, paper: tuple[float, float] | None = None) -> 
 
 def _grid(data: dict, protocol: str, metric: str, with_paper: bool) -> list[str]:
     sets = data["sets"]
-    paper = PAPER[data["table"]]
+    paper = PAPER.get(data["table"], {})
     lines = ["| Method | " + " | ".join(SET_TITLES[s] for s in sets) + " |", "|---" * (len(sets) + 1) + "|"]
     for row in data["rows"]:
         cells = data["results"][protocol].get(row, {})
@@ -56,6 +64,25 @@ def _grid(data: dict, protocol: str, metric: str, with_paper: bool) -> list[str]
                  for s in sets]
         lines.append(f"| {row} | " + " | ".join(texts) + " |")
     return lines
+
+
+def _commitment_grid(data: dict, metric: str) -> list[str]:
+    sets = data["sets"]
+    lines = ["| Method | " + " | ".join(SET_TITLES[s] for s in sets) + " |", "|---" * (len(sets) + 1) + "|"]
+    for row in data["rows"]:
+        texts = []
+        for s in sets:
+            cell = data["results"]["commitment"][row][s]
+            if metric == "valid":
+                per_seed = ", ".join(f"{round(v * n)}/{n}" for v, n in zip(cell["valid_per_seed"], cell["queries"]))
+                text = f"{100 * cell['valid']:.0f}% ({per_seed})"
+            else:
+                text = _pm(cell[metric], cell[f"{metric}_std"], 4 if metric == "mse" else 3)
+            texts.append(text + (f" ({cell['failures']} non-finite)" if cell["failures"] and metric == "valid" else ""))
+        lines.append(f"| {row} | " + " | ".join(texts) + " |")
+    bands = " | ".join(", ".join(f"{b:.3f}" for b in data["results"]["commitment"][data["rows"][0]][s]["band"])
+                       for s in sets)
+    return lines + [f"| band (per seed) | {bands} |"] if metric == "valid" else lines
 
 
 def _training(data: dict) -> list[str]:
@@ -90,6 +117,12 @@ def to_markdown(data: dict) -> str:
         "nearest to a training demonstration of the truth's mode) as mean ± std over seeds.",
         "",
     ]
+    if data["table"] == "commitment":
+        lines += ["## Commitment protocol", "", COMMITMENT_NOTE, "", "### Valid (share of all queries; per seed)", ""]
+        lines += _commitment_grid(data, "valid")
+        lines += ["", "### MSE to the nearest demonstration", ""] + _commitment_grid(data, "mse")
+        lines += ["", "### Max deviation from the nearest demonstration", ""]
+        lines += _commitment_grid(data, "max_deviation") + [""]
     for protocol, title in PROTOCOL_TITLES.items():
         lines += [f"## {title}", "", "### MSE" + (" (the paper's number beside ours)" if protocol == "paper" else ""), ""]
         lines += _grid(data, protocol, "mse", with_paper=protocol == "paper")

@@ -8,7 +8,7 @@ MOTION = "motion"
 SCENE = "scene"
 ALL = "all"
 PRESET_NAMES = (WINE_GLASS, SCENE, MOTION, ALL)
-DEFAULT_PRESET = WINE_GLASS
+DEFAULT_PRESET = SCENE  # the gate must decide the behaviour (wine-glass: the query frame gives it away)
 
 DEVICES = ("cpu", "cuda")
 DEFAULT_DEVICE = "cpu"

@@ -49,8 +49,8 @@ DEFAULT_TRAINING = TrainConfig(patience=DEFAULT_PATIENCE)  # the models' default
 class TrainStageConfig:
     """inputs: trajectory files or folders (read only); out: checkpoint folder (must not exist unless `force`).
 
-    layout: preset name (wine-glass, scene, motion, all); n_experts, encoder_widths, expert_widths,
-    time_frequencies: the network (models.CNEPConfig); matched_cnmp: train instead the one-expert CNMP
+    layout: preset name (wine-glass, scene, motion, all); n_experts, assignment, encoder_widths, expert_widths,
+    time_frequencies: the network and its loss (models.CNEPConfig); matched_cnmp: train instead the one-expert CNMP
     with that network's parameter count (models.matched_cnmp); training: steps, batch size (per process), lr,
     schedule, val_every, patience (validations), seed (models.TrainConfig); val_fraction: share of the
     demonstrations held out for validation (whole demonstrations, at least one); save_every: steps
@@ -62,6 +62,7 @@ class TrainStageConfig:
     out: Path
     layout: str = DEFAULT_PRESET
     n_experts: int = 2
+    assignment: str = "paper"
     encoder_widths: tuple[int, ...] = (128, 128)
     expert_widths: tuple[int, ...] = (128, 128)
     time_frequencies: int = 8
@@ -109,7 +110,8 @@ def train(config: TrainStageConfig) -> Path:
 def _train(config: TrainStageConfig, procs: Processes, device: torch.device) -> Path:
     data = load_training_set(find_trajectory_files(config.inputs))
     layout = resolve_layout(config.layout, data.width, data.files[0].path)
-    model_config = CNEPConfig(layout=layout.model, n_experts=config.n_experts, encoder_widths=config.encoder_widths,
+    model_config = CNEPConfig(layout=layout.model, n_experts=config.n_experts, assignment=config.assignment,
+                              encoder_widths=config.encoder_widths,
                               expert_widths=config.expert_widths, time_frequencies=config.time_frequencies)
     if config.matched_cnmp:
         model_config = matched_cnmp(model_config)

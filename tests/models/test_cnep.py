@@ -132,3 +132,13 @@ def test_config_round_trips_through_a_dict():
     assert CNEPConfig.from_dict(cfg.to_dict()) == cfg
     with pytest.raises(ConfigError, match="Unknown CNEPConfig field"):
         CNEPConfig.from_dict({**cfg.to_dict(), "n_heads": 3})
+
+
+def test_assignment_is_checked_and_old_configs_load_with_the_papers_term():
+    assert CNEPConfig().assignment in ("paper", "mixture")
+    mixture = CNEPConfig(assignment="mixture")
+    assert CNEPConfig.from_dict(mixture.to_dict()) == mixture
+    old = {k: v for k, v in CNEPConfig(assignment="mixture").to_dict().items() if k != "assignment"}
+    assert CNEPConfig.from_dict(old).assignment == "paper"  # written before the field existed
+    with pytest.raises(ConfigError, match="assignment must be one of paper, mixture"):
+        CNEPConfig(assignment="em")

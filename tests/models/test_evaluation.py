@@ -1,7 +1,8 @@
 import numpy as np
 import pytest
 
-from models.evaluation import DECISIVE, NOISE, _decisive, _separable_partners, heldout_queries, paper_queries, score
+from models.evaluation import (DECISIVE, NOISE, _decisive, _separable_partners, commitment, commitment_scores,
+                               heldout_queries, paper_queries, score, shared_queries, within_mode_band)
 from models.synthetic import SETS, make_set
 
 
@@ -103,3 +104,79 @@ def test_points_that_two_modes_pass_within_the_noise_are_not_decisive():
     assert dist[ds.train_modes == 3].min() == 0  # infinitely nearer by the ratio alone
     assert np.sqrt(dist[ds.train_modes == 2].min()) < NOISE * np.ptp(ds.train)  # but a mode-2 demo passes within the noise
     assert not _decisive(ds.train, ds.train_modes, steps, three[steps], 3)
+
+
+def crossing_pool(T: int = 21) -> tuple[np.ndarray, np.ndarray]:
+    """Three modes of 4 demonstrations each: y = t and y = 1 - t cross at t = 0.5; y = 2 never meets them."""
+    t = np.linspace(0, 1, T)
+    offsets = np.array([-0.02, -0.01, 0.01, 0.02])
+    shapes = [t, 1 - t, np.full(T, 2.0)]
+    demos = np.stack([shape + o for shape in shapes for o in offsets])[..., None]  # (12, T, 1)
+    return demos, np.repeat(np.arange(3), 4)
+
+
+def test_within_mode_band_is_three_within_mode_stds():
+    demos, modes = crossing_pool()
+    assert within_mode_band(demos, modes) == pytest.approx(3 * np.std([-0.02, -0.01, 0.01, 0.02]))
+
+
+def test_shared_queries_find_the_crossing_and_name_the_modes_that_share_it():
+    demos, modes = crossing_pool()
+    queries = shared_queries(demos, modes)
+    assert len(queries) == 1  # the third mode meets neither, and the first two meet once
+    q = queries[0]
+    assert q.obs_t.tolist() == [0.5] and q.obs_y.shape == (1, 1) and q.obs_y[0, 0] == pytest.approx(0.5)
+    assert q.modes == (0, 1)
+
+
+def test_shared_queries_find_a_shared_start_and_a_shared_stretch_once():
+    T = 41
+    t = np.linspace(0, 1, T)
+    # modes 0 and 1 start together at 0 and part; modes 0 and 2 share the stretch t in [0.4, 0.6] (gap 0)
+    shapes = [np.sin(np.pi * t), -np.sin(np.pi * t), np.where(np.abs(t - 0.5) <= 0.1, np.sin(np.pi * t), 3.0)]
+    demos = np.stack([s + o for s in shapes for o in (-0.01, 0.01)])[..., None]
+    modes = np.repeat(np.arange(3), 2)
+    steps = {(round(q.obs_t[0] * (T - 1)), q.modes) for q in shared_queries(demos, modes)}
+    assert (0, (0, 1)) in steps and (T - 1, (0, 1)) in steps  # shared start and end
+    assert sum(1 for s, m in steps if m == (0, 2)) == 1  # one query for the whole shared stretch
+
+
+def test_commitment_scores_a_demonstration_valid_and_the_average_invalid():
+    demos, modes = crossing_pool()
+    q = shared_queries(demos, modes)
+    T = demos.shape[1]
+    average = 0.5 * (demos[modes == 0].mean(0) + demos[modes == 1].mean(0))  # what a blending model makes
+    far_mode = demos[8]  # a real demonstration, but of a mode that never passes the point
+    generated = np.stack([demos[1], demos[3] + 0.03, average, far_mode, np.full((T, 1), np.nan)])
+    s = commitment_scores(generated, q * 5, demos, modes)
+    assert s["valid"].tolist() == [True, True, False, False, False]
+    np.testing.assert_allclose(s["mse"][:2], [0.0, 0.0009])  # nearest demonstration: itself, then 0.03 off
+    np.testing.assert_allclose(s["max_deviation"][:2], [0.0, 0.03])
+    assert s["max_deviation"][2] > 0.4 and s["max_deviation"][3] == 0.0
+    assert s["mode"].tolist() == [0, 0, 0, 2, -1]
+    # judged against the nearest demonstration: 0.06 above the lowest one is 0.02 from the highest (band 0.047)
+    assert commitment_scores(np.stack([demos[0] + 0.06]), q, demos, modes)["valid"].tolist() == [True]
+    assert commitment_scores(np.stack([demos[3] + 0.06]), q, demos, modes)["valid"].tolist() == [False]
+
+
+def test_commitment_of_a_method_counts_valid_queries_and_failures():
+    demos, modes = crossing_pool()
+    q = shared_queries(demos, modes)
+    result = commitment(lambda t, y, qt: np.interp(qt, np.linspace(0, 1, 21), demos[5, :, 0])[:, None], q, demos, modes)
+    assert result["valid"] == 1.0 and result["queries"] == 1 and result["failures"] == 0
+    assert result["band"] == pytest.approx(within_mode_band(demos, modes))
+    nan = commitment(lambda t, y, qt: np.full((len(qt), 1), np.nan), q, demos, modes)
+    assert nan["valid"] == 0.0 and nan["failures"] == 1
+
+
+@pytest.mark.parametrize("name", ["bimodal", "multimodal", "multimodal6"])
+def test_commitment_band_accepts_every_shared_mode_and_rejects_their_average(name):
+    ds = make_set(name, seed=0)
+    queries = shared_queries(ds.train, ds.train_modes)
+    means = np.stack([ds.train[ds.train_modes == k].mean(0) for k in range(ds.n_modes)])  # (K, T, 1)
+    for q in queries:
+        assert len(q.modes) >= 2
+        committed = commitment_scores(means[list(q.modes)], [q] * len(q.modes), ds.train, ds.train_modes)
+        assert committed["valid"].all() and committed["mode"].tolist() == list(q.modes)
+        average = commitment_scores(means[list(q.modes)].mean(0)[None], [q], ds.train, ds.train_modes)
+        assert not average["valid"].any()

@@ -60,3 +60,93 @@ def test_batch_entropy_is_rewarded_and_individual_entropy_penalised():
             [("collapsed", collapsed), ("spread", spread), ("unsure", unsure)]}
     assert loss["spread"] < loss["collapsed"]
     assert loss["spread"] < loss["unsure"]
+
+
+def _nll(y: float, mu: float, s: float) -> float:
+    return 0.5 * ((y - mu) / s) ** 2 + math.log(s) + 0.5 * math.log(2 * math.pi)
+
+
+def test_mixture_term_against_a_hand_computation():
+    # sample 0: two targets (one masked out of three), dy = 1; sample 1: one target
+    cfg = CNEPConfig(n_experts=2, a_rec=1.0, a_batch=0.0, a_ind=0.0, assignment="mixture")
+    mean = torch.tensor([[[[0.0], [1.0], [9.0]], [[2.0], [2.0], [9.0]]],
+                         [[[0.5], [0.0], [0.0]], [[-1.0], [0.0], [0.0]]]])  # (B=2, d=2, M=3, dy=1)
+    std = torch.tensor([[[[1.0], [2.0], [1.0]], [[0.5], [0.5], [1.0]]],
+                        [[[1.0], [1.0], [1.0]], [[2.0], [1.0], [1.0]]]])
+    target = torch.tensor([[[0.0], [3.0], [5.0]], [[1.0], [0.0], [0.0]]])  # (2, 3, 1)
+    mask = torch.tensor([[True, True, False], [True, False, False]])
+    gate = torch.tensor([[0.8, 0.2], [0.4, 0.6]])
+    _, terms = cnep_loss(mean, std, gate, target, mask, cfg)
+
+    S0 = [_nll(0, 0, 1) + _nll(3, 1, 2), _nll(0, 2, 0.5) + _nll(3, 2, 0.5)]  # summed NLL per expert
+    S1 = [_nll(1, 0.5, 1), _nll(1, -1, 2)]
+    rec0 = -math.log(0.8 * math.exp(-S0[0]) + 0.2 * math.exp(-S0[1])) / 2  # n_0 = 2 target values
+    rec1 = -math.log(0.4 * math.exp(-S1[0]) + 0.6 * math.exp(-S1[1])) / 1
+    assert math.isclose(terms["rec"], (rec0 + rec1) / 2 / 2, rel_tol=1e-6)  # mean over samples, then / d
+
+
+def test_mixture_term_is_stable_when_every_expert_is_far_off():
+    # exp(-S) underflows for every expert (S ~ 5e5): logsumexp keeps the term finite and exact
+    cfg = CNEPConfig(n_experts=2, a_batch=0.0, a_ind=0.0, assignment="mixture")
+    mean = torch.tensor([[[[0.0]], [[0.0]]]], requires_grad=True)  # (1, 2, 1, 1)
+    std = torch.full((1, 2, 1, 1), 1e-3)
+    gate = torch.tensor([[0.5, 0.5]], requires_grad=True)
+    total, terms = cnep_loss(mean, std, gate, torch.ones(1, 1, 1), torch.ones(1, 1, dtype=torch.bool), cfg)
+    assert math.isclose(terms["rec"], _nll(1, 0, 1e-3) / 2, rel_tol=1e-5)  # both experts equal: log 1 = 0
+    total.backward()
+    assert torch.isfinite(mean.grad).all() and torch.isfinite(gate.grad).all()
+
+
+def test_mixture_sends_the_targets_to_the_expert_that_explains_them():
+    # expert 0 fits the targets, expert 1 does not: the mixture trains (almost) only expert 0's mean,
+    # where the paper's term trains each expert in proportion to the gate (0.5 / 0.5)
+    mean = torch.tensor([[[[0.9], [1.1]], [[-1.0], [-1.0]]]], requires_grad=True)  # (1, 2, 2, 1)
+    std, target = torch.full((1, 2, 2, 1), 0.2), torch.ones(1, 2, 1)
+    gate, mask = torch.tensor([[0.5, 0.5]]), torch.ones(1, 2, dtype=torch.bool)
+    grads = {}
+    for assignment in ("paper", "mixture"):
+        cfg = CNEPConfig(n_experts=2, a_rec=1.0, a_batch=0.0, a_ind=0.0, assignment=assignment)
+        mean.grad = None
+        cnep_loss(mean, std, gate, target, mask, cfg)[0].backward()
+        grads[assignment] = mean.grad.abs().sum((0, 2, 3))  # (d,)
+    assert grads["mixture"][1] < 1e-6 * grads["mixture"][0]
+    torch.testing.assert_close(grads["paper"][1] / grads["paper"][0], torch.tensor(4.0 / 0.2), rtol=1e-5, atol=0)  # sum |y - mu|
+
+
+def test_mixture_equals_the_paper_term_with_one_expert_in_value_and_gradient():
+    # d = 1: -log(1 * exp(-S_i)) / n_i = S_i / n_i = L_i, and the paper's (1/1) sum_e p_ie L_ie = L_i.
+    # The equality needs the mixture's sum over a sample's target values divided by their number n_i
+    # (samples with different n_i: 3 and 1 targets, dy = 2) and the (1/d) of both terms (1 here).
+    g = torch.Generator().manual_seed(0)
+    mean = torch.randn(2, 1, 3, 2, generator=g, requires_grad=True)
+    std = (0.5 + torch.rand(2, 1, 3, 2, generator=g)).requires_grad_()
+    target = torch.randn(2, 3, 2, generator=g)
+    mask = torch.tensor([[True, True, True], [True, False, False]])
+    gate = torch.ones(2, 1)
+    out = {}
+    for assignment in ("paper", "mixture"):
+        cfg = CNEPConfig(n_experts=1, assignment=assignment)
+        mean.grad = std.grad = None
+        total, terms = cnep_loss(mean, std, gate, target, mask, cfg)
+        total.backward()
+        out[assignment] = (total.detach(), mean.grad.clone(), std.grad.clone(), terms)
+    for a, b in zip(out["paper"][:3], out["mixture"][:3]):
+        torch.testing.assert_close(a, b)
+    assert out["paper"][3] == out["mixture"][3]  # rec, both entropies (0 with one expert), total
+
+
+def test_mixture_equals_the_paper_term_when_the_experts_agree():
+    # with d > 1 the terms differ in general, but not when every expert predicts the same:
+    # -log sum_e p_ie exp(-S_i) = S_i whatever the gate, and sum_e p_ie L_i = L_i
+    mean = torch.randn(3, 1, 4, 1, generator=torch.Generator().manual_seed(1)).expand(3, 3, 4, 1)
+    std, target = torch.ones(3, 3, 4, 1), torch.zeros(3, 4, 1)
+    gate = torch.softmax(torch.randn(3, 3, generator=torch.Generator().manual_seed(2)), -1)
+    mask = torch.ones(3, 4, dtype=torch.bool)
+    recs = [cnep_loss(mean, std, gate, target, mask, CNEPConfig(n_experts=3, assignment=a))[1]["rec"]
+            for a in ("paper", "mixture")]
+    assert math.isclose(recs[0], recs[1], rel_tol=1e-6)
+    # and they differ as soon as the experts disagree
+    apart = mean + torch.arange(3.0)[None, :, None, None]
+    recs = [cnep_loss(apart, std, gate, target, mask, CNEPConfig(n_experts=3, assignment=a))[1]["rec"]
+            for a in ("paper", "mixture")]
+    assert not math.isclose(recs[0], recs[1], rel_tol=1e-3)

@@ -5,7 +5,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.evaluate.baxter import BOX_X, BOX_Y, BaxterConfig, format_table, in_box, nearest_demo_distance, run_baxter, xy_path
+from pipeline.evaluate.baxter import (BOX_X, BOX_Y, MODELS, BaxterConfig, format_table, in_box, load_paths,
+                                      nearest_demo_distance, run_baxter, score_starts, train_models, xy_path)
 from pipeline.errors import PipelineError
 from recordings import Demonstration, Episode
 
@@ -53,20 +54,32 @@ def test_geometry_helpers():
 
 def test_example_reports_every_start_point(data, tmp_path):
     config = BaxterConfig(data=data, work=tmp_path / "work", steps=120, samples=50, quiet=True)
-    results = run_baxter(config)
-    assert [r.name for r in results] == ["0", "1"]
+    demos, tests = load_paths(config)
     assert (tmp_path / "work" / "demos" / "demo_a.mcap").is_file()  # went through the ingest stage
-    for r, x0 in zip(results, (0.78, 0.93)):
-        np.testing.assert_allclose(r.start, [x0, -0.48])
-        for name in ("CNEP", "CNMP"):
-            path = r.paths[name]
-            assert path.shape == (50, 2) and np.isfinite(path).all()
-            assert r.enters_box[name] == bool(in_box(path).any())
-            assert 0 <= r.distance[name] < 0.3
-    table = format_table(results)
-    assert table.count("\n") == 3 and "| 0 | (0.780, -0.480) |" in table
-    again = run_baxter(config)  # seeded: the same paths
-    np.testing.assert_array_equal(again[0].paths["CNEP"], results[0].paths["CNEP"])
+    models = train_models(demos, config)
+    assert MODELS == ("CNMP", "CNEP (paper)", "CNEP-MoE (paper)", "CNEP (mixture)", "CNEP-MoE (mixture)")
+    for goal in (False, True):
+        results = score_starts(models, demos, tests, goal)
+        assert [r.name for r in results] == ["0", "1"]
+        for r, x0 in zip(results, (0.78, 0.93)):
+            np.testing.assert_allclose(r.start, [x0, -0.48])
+            assert list(r.paths) == list(MODELS) and set(r.chosen_expert) == {"CNEP (paper)", "CNEP (mixture)"}
+            for name in MODELS:
+                path, executed = r.paths[name], r.executed[name]
+                assert path.shape == executed.shape == (50, 2) and np.isfinite(path).all()
+                assert r.enters_box[name] == bool(in_box(path).any())
+                assert r.executed_enters_box[name] == bool(in_box(executed).any())
+                assert 0 <= r.distance[name] < 0.3
+                # the PID executes from the real start and passes through every conditioning point
+                np.testing.assert_allclose(executed[0], r.start, atol=1e-9)
+                assert r.executed_miss[name] < (1e-3 if goal else 1e-9)
+        table = format_table(results)
+        assert table.count("\n") == 4 and "| 0 | (0.780, -0.480) |" in table
+        assert "| box entries, generated / PID |" in table
+    again = run_baxter(config)  # the whole example, seeded: the same paths
+    first = score_starts(models, demos, tests, goal=False)
+    for name in MODELS:
+        np.testing.assert_array_equal(again[0].paths[name], first[0].paths[name])
 
 
 def test_missing_demonstrations_folder_is_a_clear_error(tmp_path):

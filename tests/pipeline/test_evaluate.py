@@ -20,8 +20,8 @@ def test_plan_trains_each_shared_network_once():
     keys = [(j.set_name, j.seed, j.spec) for j in jobs]
     assert len(keys) == len(set(keys))
     # bimodal (d=2 CNEP) per seed: baselines, CNMP, CNEP-d2 (comparison, ablation's CNEP/MoE, experts' CNEP-2),
-    # 3 ablation variants, CNEP-4 and CNEP-8
-    assert sum(j.set_name == "bimodal" for j in jobs) == 2 * 8
+    # 3 ablation variants, CNEP-4 and CNEP-8, and the commitment table's CNEP-d2 with the mixture assignment
+    assert sum(j.set_name == "bimodal" for j in jobs) == 2 * 9
     assert {j.set_name for j in jobs} == {"bimodal", "multimodal"}
 
 
@@ -39,6 +39,11 @@ def test_rows_of_each_table():
     assert ablation["CNEP-Rec"].spec == ModelSpec(4, a_batch=0.0, a_ind=0.0)
     assert ablation["CNEP-MoE"].spec == ablation["CNEP"].spec and ablation["CNEP-MoE"].method.endswith("+moe")
     assert [r.spec.n_experts for r in table_rows("experts", "multimodal6") if r.spec] == [2, 4, 8]
+    commitment = {r.label: r for r in table_rows("commitment", "multimodal6")}
+    assert list(commitment) == ["ProMP", "GMM-GMR", "CNMP", "CNEP (paper)", "CNEP-MoE (paper)", "CNEP (mixture)",
+                                "CNEP-MoE (mixture)", "Nearest demo"]
+    assert commitment["CNEP (mixture)"].spec == ModelSpec(8, assignment="mixture")
+    assert commitment["CNEP-MoE (paper)"].spec == commitment["CNEP (paper)"].spec == ModelSpec(8)
 
 
 def test_pooled_equals_statistics_over_all_queries():
@@ -79,10 +84,15 @@ def test_tiny_run_writes_every_table(tmp_path, monkeypatch, torch_threads):
         nearest = data["results"]["paper"]["Nearest demo"]["bimodal"]
         assert nearest["mse"] == pytest.approx(0.0, abs=1e-12) and nearest["mode_accuracy"] == 1.0
         markdown = written[table].read_text()
-        for row, by_set in PAPER[table].items():
+        for row, by_set in PAPER.get(table, {}).items():
             if "bimodal" in by_set:
                 assert f"(paper {by_set['bimodal'][0]:.3f}" in markdown
         assert (tmp_path / "figures" / f"{table}-bimodal.png").read_bytes()[:4] == b"\x89PNG"
+    commitment = json.loads((tmp_path / "commitment.json").read_text())["results"]["commitment"]
+    nearest = commitment["Nearest demo"]["bimodal"]  # returns a demonstration through the point: always valid
+    assert nearest["valid"] == 1.0 and nearest["queries"] == [5] and nearest["max_deviation"] == 0.0
+    assert set(commitment) == {r.label for r in table_rows("commitment", "bimodal")}
+    assert "### Valid (share of all queries; per seed)" in written["commitment"].read_text()
 
 
 def test_bad_arguments_are_one_line_errors(capsys):

@@ -59,7 +59,7 @@ def test_cli_trains_a_checkpoint_that_loads_and_generates(full_set, tmp_path, ca
     assert sorted(p.name for p in out.iterdir()) == sorted(["config.json", LOG_FILE, "model.safetensors"])
     assert not work_dir(out).exists()
     config = read_checkpoint_config(out)
-    assert config["layout"]["name"] == "wine-glass" and config["layout"]["columns"] == [[0, 1288]]
+    assert config["layout"]["name"] == "scene" and config["layout"]["columns"] == [[0, 1288]]  # the default
     assert config["extractor"] == read_trajectory(full_set[0]).extractor
     assert config["training"]["steps"] == 30 and config["training"]["seed"] == 3
     assert [f["sha256"] for f in config["files"]] == [hashlib.sha256(p.read_bytes()).hexdigest() for p in full_set]
@@ -209,13 +209,14 @@ def test_settings_precedence_is_defaults_then_config_file_then_command_line(full
                                     "expert_widths": [8, 8], "lr": 0.002}))
     out = tmp_path / "ckpt"
     assert main(["-q", "train", *map(str, full_set), "--out", str(out), "--config", str(settings), "--seed", "7",
-                 "--val-every", "5"]) == 0
+                 "--val-every", "5", "--assignment", "mixture"]) == 0
     config = read_checkpoint_config(out)
     training = config["training"]
     assert (training["steps"], training["lr"], config["layout"]["name"]) == (10, 0.002, "motion")  # file
     assert (training["seed"], training["val_every"]) == (7, 5)  # command line over file and defaults
     assert training["patience"] == 10 and training["batch_size"] == TrainConfig().batch_size  # defaults
     assert config["model"]["encoder_widths"] == [8, 8] and config["model"]["n_experts"] == 2
+    assert config["model"]["assignment"] == "mixture"  # the loss's assignment travels with the checkpoint
 
 
 def test_bad_config_file_is_one_clear_error(full_set, tmp_path, capsys):
