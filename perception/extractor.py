@@ -104,9 +104,13 @@ class FeatureExtractor:
         """Save the (possibly calibrated) weights, to reuse them later as weights=`path`."""
         save_state_dict(self.net.features.state_dict(), path)
 
+    def __getstate__(self) -> dict:
+        """Pickled without its backend (a compiled session does not pickle): the receiver builds its own."""
+        return {**self.__dict__, "_runner": None}
+
     def _get_runner(self) -> Runner:
         if self._runner is None:
-            self._runner = build_runner(self._resolved_backend(), self.net, self.threads)
+            self._runner = build_runner(self._resolved_backend(), self.net, self.threads, cache_key=self._sha256)
         return self._runner
 
     def _resolved_backend(self) -> str:

@@ -18,7 +18,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="save the weights used (after calibration) to reuse them later with --weights PATH")
     parser.add_argument("--backend", default="auto", choices=("auto", "onnxruntime", "torchscript", "eager"),
                         help="inference backend (default: the fastest available)")
-    parser.add_argument("--threads", type=int, default=None, help="CPU threads for inference (default: all cores)")
+    parser.add_argument("--threads", type=int, default=None,
+                        help="CPU threads per process for inference (default: the cores shared among the workers)")
+    parser.add_argument("--workers", type=int, default=1,
+                        help="processes extracting files side by side on this machine (default 1); under torchrun "
+                             "each rank extracts its share of the files")
     parser.add_argument("--batch-size", type=int, default=None, help="frames per forward pass")
     parser.add_argument("--force", action="store_true", help="re-extract outputs that are already up to date")
 
@@ -39,6 +43,7 @@ def run(args: argparse.Namespace) -> int:
         force=args.force,
         save_weights=Path(args.save_weights) if args.save_weights else None,
         quiet=args.quiet,
+        workers=args.workers,
         **options,
     )
     done = extract(config)

@@ -169,3 +169,30 @@ def test_nested_input_folders_are_extracted_into_matching_sub_folders(tmp_path):
     done = extract(_config([tmp_path / "in"], tmp_path / "out", weights="imagenet"))  # motion-only: no weights
     assert done[0].output == tmp_path / "out" / "day1" / "a.mcap"
     assert read_trajectory(done[0].output).n_steps == 4
+
+
+def test_two_worker_processes_give_the_same_files_as_one(demos, tmp_path):
+    one = extract(_config(demos, tmp_path / "one"))
+    two = extract(_config(demos, tmp_path / "two", workers=2))
+    assert [item.output.name for item in two] == ["demo-0.mcap", "demo-1.mcap"]
+    assert [(item.n_steps, item.skipped) for item in two] == [(6, False), (6, False)]
+    for a, b in zip(one, two):
+        first, second = read_trajectory(a.output), read_trajectory(b.output)
+        assert second.extractor == first.extractor
+        np.testing.assert_array_equal(second.features, first.features)
+
+
+def test_torchrun_ranks_extract_disjoint_shares_with_one_identity(demos, tmp_path, monkeypatch):
+    monkeypatch.setenv("WORLD_SIZE", "2")
+    outputs = {}
+    for rank in (0, 1):
+        monkeypatch.setenv("RANK", str(rank))
+        outputs[rank] = extract(_config(demos, tmp_path / "out"))
+    assert [item.source for item in outputs[0]] == [demos[0]]
+    assert [item.source for item in outputs[1]] == [demos[1]]
+    assert check_same_extractor(sorted((tmp_path / "out").glob("*.mcap")))  # both ranks calibrated alike
+
+
+def test_workers_must_be_positive(demos, tmp_path):
+    with pytest.raises(PipelineError, match="--workers must be >= 1, got 0"):
+        _config(demos, tmp_path / "out", workers=0)
