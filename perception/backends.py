@@ -48,7 +48,7 @@ def build_runner(backend: str, net: nn.Module, threads: int | None = None, cache
         torch.set_num_threads(threads)  # process-wide: torch has no per-module thread pool
     net = net.eval()
     if backend == "onnxruntime":
-        return _onnxruntime(onnx_model(net, cache_key), threads)
+        return onnxruntime_runner(onnx_model(net, cache_key), threads)
     builders = {"eager": _eager, "torchscript": _torchscript}
     return builders[backend](net, threads)
 
@@ -105,7 +105,7 @@ def onnx_model(net: nn.Module, cache_key: str | None = None) -> bytes:
                           output_names=["features"], dynamic_axes={"pixels": {0: "n"}, "features": {0: "n"}},
                           opset_version=ONNX_OPSET)
     if path is not None:
-        _write_atomic(path, buffer.getvalue())
+        write_cache_file(path, buffer.getvalue())
     return buffer.getvalue()
 
 
@@ -117,8 +117,8 @@ def onnx_cache_dir() -> Path:
     return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "cnep" / "onnx"
 
 
-def _write_atomic(path: Path, data: bytes) -> None:
-    """Write `data` to a temporary file beside `path`, then rename it (concurrent writers never see half a file)."""
+def write_cache_file(path: Path, data: bytes) -> None:
+    """Cache `data` at `path`: written beside it under a temporary name, then renamed (readers never see half a file)."""
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
@@ -140,7 +140,8 @@ def session_options(threads: int | None):
     return options
 
 
-def _onnxruntime(model: bytes, threads: int | None) -> Runner:
+def onnxruntime_runner(model: bytes, threads: int | None) -> Runner:
+    """A runner over ONNX graph `model` (input `pixels`, output `features`): fp32 or its int8 quantisation."""
     import onnxruntime as ort
 
     session = ort.InferenceSession(model, session_options(threads), providers=onnx_providers())
@@ -151,9 +152,12 @@ def _onnxruntime(model: bytes, threads: int | None) -> Runner:
     return run
 
 
-def onnx_providers() -> list[str]:
-    """ONNX Runtime's CUDA provider first when this onnxruntime build has it and a GPU is visible, then the CPU."""
+def onnx_providers() -> list:
+    """ONNX Runtime's CUDA provider (on GPU LOCAL_RANK, as torchrun sets it) first when this onnxruntime build has
+    it and a GPU is visible, then the CPU."""
     import onnxruntime as ort
 
-    cuda = "CUDAExecutionProvider" in ort.get_available_providers() and torch.cuda.is_available()
-    return ["CUDAExecutionProvider", "CPUExecutionProvider"] if cuda else ["CPUExecutionProvider"]
+    if "CUDAExecutionProvider" in ort.get_available_providers() and torch.cuda.is_available():
+        device = int(os.environ.get("LOCAL_RANK", "0")) % torch.cuda.device_count()
+        return [("CUDAExecutionProvider", {"device_id": device}), "CPUExecutionProvider"]
+    return ["CPUExecutionProvider"]

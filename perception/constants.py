@@ -35,3 +35,4 @@ COMPATIBILITY_FIELDS = ("architecture", "feature_dim", "weights_sha256", "prepro
 
 ONNX_OPSET = 17  # opset of the exported FeatureNet graph (part of the export cache's key)
 CACHE_ENV_VAR = "CNEP_CACHE_DIR"  # where exported ONNX graphs are cached (default: ~/.cache/cnep)
+PRECISIONS = ("fp32", "int8")  # feature extraction precision; int8: perception.quantisation (ONNX Runtime)

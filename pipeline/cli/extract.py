@@ -20,6 +20,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="inference backend (default: the fastest available)")
     parser.add_argument("--threads", type=int, default=None,
                         help="CPU threads per process for inference (default: the cores shared among the workers)")
+    parser.add_argument("--precision", choices=("fp32", "int8"), default="fp32",
+                        help="fp32 (default) or int8: ONNX Runtime static quantisation calibrated on the inputs' frames "
+                             "(~1%% feature error, faster; never mixed with fp32 features)")
     parser.add_argument("--workers", type=int, default=1,
                         help="processes extracting files side by side on this machine (default 1); under torchrun "
                              "each rank extracts its share of the files")
@@ -44,6 +47,7 @@ def run(args: argparse.Namespace) -> int:
         save_weights=Path(args.save_weights) if args.save_weights else None,
         quiet=args.quiet,
         workers=args.workers,
+        precision=args.precision,
         **options,
     )
     done = extract(config)

@@ -53,7 +53,9 @@ class ExtractConfig:
     backend: `auto` (fastest available), `onnxruntime`, `torchscript` or `eager`; threads: CPU threads
     per process (None: the process's share of the cores, pipeline.workers); batch_size: frames per
     forward pass; force: re-extract up-to-date outputs; save_weights: where to save the (calibrated)
-    weights, to reuse them as `weights` later; workers: processes extracting files side by side.
+    weights, to reuse them as `weights` later; workers: processes extracting files side by side;
+    precision: `fp32` or `int8` (quantised on frames sampled evenly over all inputs, like the
+    random weights' calibration; perception.quantisation).
     """
 
     inputs: tuple[Path, ...]
@@ -67,6 +69,7 @@ class ExtractConfig:
     save_weights: Path | None = None
     quiet: bool = False
     workers: int = 1
+    precision: str = "fp32"
 
     def __post_init__(self) -> None:
         if self.workers < 1:
@@ -169,11 +172,15 @@ def _extract_in_worker(src: Path, dst: Path) -> Extracted:
 
 
 def build_extractor(config: ExtractConfig, sources: Sequence[Path]) -> FeatureExtractor:
-    """The configured extractor; random weights are calibrated on frames sampled from `sources`."""
+    """The configured extractor; random weights are calibrated, and int8 quantised, on frames sampled from `sources`."""
     extractor = FeatureExtractor(config.weights, backend=config.backend, threads=inference_threads(config.threads),
-                                 batch_size=config.batch_size, seed=config.seed)
+                                 batch_size=config.batch_size, seed=config.seed, precision=config.precision)
+    frames = None
     if extractor.needs_calibration:
-        extractor.calibrate(calibration_frames(sources, CALIBRATION_FRAMES))
+        frames = calibration_frames(sources, CALIBRATION_FRAMES)
+        extractor.calibrate(frames)
+    if extractor.needs_quantisation:
+        extractor.quantise(calibration_frames(sources, CALIBRATION_FRAMES) if frames is None else frames)
     return extractor
 
 
