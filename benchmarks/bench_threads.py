@@ -8,7 +8,8 @@ trainers do beside an extractor). It is paused (SIGSTOP) for the "idle" and resu
 "loaded" measurement, round after round, so every ratio comes from one run under one background load.
 Measured:
 - training: `models.Trainer` steps/s (default CNEP, 4 experts) on 1 torch thread (the policy) and on 2;
-- extraction, frames/s of 640x480 frames: the naive per-frame eager loop, the old default (ONNX
+- extraction, frames/s of 640x480 frames: the naive per-frame eager loop (torch's default threads,
+  and one thread), the old default (ONNX
   Runtime, one thread per core, spinning threads), the new default (pipeline.workers.inference_threads
   threads, no spinning), one thread without spinning, and int8 (perception.quantisation) with the
   new default's threads; and the int8 features' error against fp32 (cosine, relative L2).
@@ -111,6 +112,7 @@ def main() -> None:
         "train, 1 thread (policy)": (threaded(lambda: [step() for _ in range(args.steps)], 1), args.steps),
         "train, 2 threads": (threaded(lambda: [step() for _ in range(args.steps)], 2), args.steps),
         "extract, naive eager loop": (threaded(naive_loop(frames), torch.get_num_threads()), args.frames),
+        "extract, naive eager loop, 1 thread": (threaded(naive_loop(frames), 1), args.frames),
         "extract, old default (ORT all cores, spinning)": (onnx_session_path(frames, 0, True), args.frames),
         f"extract, new default (ORT {policy} threads, no spin)": (onnx_session_path(frames, policy, False), args.frames),
         "extract, ORT 1 thread, no spin": (onnx_session_path(frames, 1, False), args.frames),
@@ -144,7 +146,7 @@ def main() -> None:
     for condition in ("idle", "loaded"):
         train = median[("train, 1 thread (policy)", condition)] / median[("train, 2 threads", condition)]
         names = list(variants)
-        naive, old, new, _, int8_rate = (median[(names[i], condition)] for i in (2, 3, 4, 5, 6))
+        naive, old, new, int8_rate = (median[(names[i], condition)] for i in (2, 4, 5, 7))
         print(f"{condition}: training 1 thread / 2 threads {train:.2f}x; extraction new default / old default "
               f"{new / old:.2f}x, new default / naive loop {new / naive:.2f}x, int8 / new default fp32 "
               f"{int8_rate / new:.2f}x, int8 / naive loop {int8_rate / naive:.2f}x")

@@ -29,6 +29,7 @@ from pipeline.evaluate.constants import (
     DEFAULT_OUT,
     EXPERT_COUNTS,
     JOBS,
+    MODELS_PER_TASK,
     QUERIES,
     QUICK_QUERIES,
     QUICK_SEEDS,
@@ -146,9 +147,7 @@ def needs(table: str, config: EvaluateConfig) -> set[tuple]:
 
 def groups(jobs: Sequence[Job]) -> list[tuple[Job, ...]]:
     """Jobs in units of work, in plan order: networks of one shape and schedule on one set (seeds, loss
-    ablations) together, up to models.batched.MAX_MODELS, trained as one batched computation; baselines alone."""
-    from models.batched import MAX_MODELS
-
+    ablations) together, up to MODELS_PER_TASK, trained as one batched computation; baselines alone."""
     units: list[list[Job]] = []
     open_units: dict[tuple, list[Job]] = {}
     for job in jobs:
@@ -157,7 +156,7 @@ def groups(jobs: Sequence[Job]) -> list[tuple[Job, ...]]:
             continue
         shape = (job.set_name, job.steps, job.spec.n_experts, job.cnmp_matches if job.spec.n_experts == 1 else None)
         unit = open_units.get(shape)
-        if unit is None or len(unit) == MAX_MODELS:
+        if unit is None or len(unit) == MODELS_PER_TASK:
             unit = open_units[shape] = []
             units.append(unit)
         unit.append(job)

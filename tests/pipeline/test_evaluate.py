@@ -115,7 +115,7 @@ def test_quick_command_runs_the_comparison_on_two_sets(tmp_path):
 
 
 def test_networks_of_one_shape_are_grouped_across_seeds_and_ablations():
-    from models.batched import MAX_MODELS
+    from pipeline.evaluate.constants import MODELS_PER_TASK
     from pipeline.evaluate.stage import groups
 
     config = EvaluateConfig(tables=("comparison", "ablation"), seeds=3, sets=("bimodal",))
@@ -124,7 +124,7 @@ def test_networks_of_one_shape_are_grouped_across_seeds_and_ablations():
     assert sorted(map(repr, (j.key for unit in units for j in unit))) == sorted(map(repr, (j.key for j in jobs)))
     assert all(len(unit) == 1 for unit in units if unit[0].spec is None)
     for unit in units:
-        assert len(unit) <= MAX_MODELS
+        assert len(unit) <= MODELS_PER_TASK
         assert len({(j.set_name, j.steps, j.spec and j.spec.n_experts) for j in unit}) == 1
     d2 = [unit for unit in units if unit[0].spec and unit[0].spec.n_experts == 2]
     assert sum(len(u) for u in d2) == 3 * 4  # CNEP, CNEP-Uni, -UnSpec, -Rec for 3 seeds
