@@ -137,6 +137,7 @@ def session_options(threads: int | None):
     options.intra_op_num_threads = threads or 0  # 0: one thread per physical core
     options.inter_op_num_threads = 1
     options.add_session_config_entry("session.intra_op.allow_spinning", "0")  # idle threads sleep, never spin
+    options.log_severity_level = 3  # errors only: loading an int8 graph warns about every folded constant
     return options
 
 
