@@ -4,7 +4,7 @@ import pytest
 import torch
 
 from models.batched import BatchedTrainer, FitRun, fit_many
-from models.config import CNEPConfig, TrainConfig
+from models.config import TrainConfig
 from models.errors import ConfigError
 from models.train import fit, prepare_fit
 from tests.models.factories import tiny_config, two_mode_trajectories
