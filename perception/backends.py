@@ -1,21 +1,27 @@
 """Inference backends for a FeatureNet: eager channels-last torch, traced+frozen torch, ONNX Runtime.
 
 Each backend is built from the same module and returns a runner: uint8 (N, 224, 224, 3) -> float32 (N, 1280).
+The ONNX export (seconds) is cached on disk by content (the weights' sha256, opset and torch version),
+see `onnx_model`. ONNX Runtime sessions never spin idle threads: a spinning session on a shared
+machine burns the cores its neighbours need (measured: benchmarks/bench_threads.py).
 """
 
 from __future__ import annotations
 
 import copy
+import hashlib
 import importlib.util
 import io
+import os
 import warnings
 from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 import torch
 from torch import nn
 
-from perception.constants import BACKENDS, IMAGE_SIZE
+from perception.constants import BACKENDS, CACHE_ENV_VAR, IMAGE_SIZE, ONNX_OPSET
 from perception.errors import PerceptionError
 
 Runner = Callable[[np.ndarray], np.ndarray]
@@ -27,8 +33,12 @@ def available_backends() -> list[str]:
     return [name for name in BACKENDS if name != "onnxruntime" or have_onnx]
 
 
-def build_runner(backend: str, net: nn.Module, threads: int | None = None) -> Runner:
-    """A runner for `backend` (one of BACKENDS, or `auto` for the fastest available) from eval-mode `net`."""
+def build_runner(backend: str, net: nn.Module, threads: int | None = None, cache_key: str | None = None) -> Runner:
+    """A runner for `backend` (one of BACKENDS, or `auto` for the fastest available) from eval-mode `net`.
+
+    threads: intra-op threads (None: the library's default); cache_key: what identifies `net`'s weights
+    (their sha256), so that ONNX Runtime reuses a cached export; None exports afresh.
+    """
     if backend == "auto":
         backend = available_backends()[0]
     if backend not in available_backends():
@@ -37,7 +47,9 @@ def build_runner(backend: str, net: nn.Module, threads: int | None = None) -> Ru
     if threads is not None:
         torch.set_num_threads(threads)  # process-wide: torch has no per-module thread pool
     net = net.eval()
-    builders = {"eager": _eager, "torchscript": _torchscript, "onnxruntime": _onnxruntime}
+    if backend == "onnxruntime":
+        return onnxruntime_runner(onnx_model(net, cache_key), threads)
+    builders = {"eager": _eager, "torchscript": _torchscript}
     return builders[backend](net, threads)
 
 
@@ -72,9 +84,18 @@ def _torchscript(net: nn.Module, threads: int | None) -> Runner:
     return run
 
 
-def _onnxruntime(net: nn.Module, threads: int | None) -> Runner:
-    import onnxruntime as ort
+def onnx_model(net: nn.Module, cache_key: str | None = None) -> bytes:
+    """The ONNX graph of `net` (uint8 pixels -> features), from the disk cache when `cache_key` was exported before.
 
+    The cache file is named by the sha256 of (cache_key, opset, torch version), so changed weights or a
+    new exporter never reuse a stale graph; it is written under a temporary name and renamed when complete.
+    """
+    path = None
+    if cache_key is not None:
+        digest = hashlib.sha256(f"{cache_key}|opset={ONNX_OPSET}|torch={torch.__version__}".encode()).hexdigest()
+        path = onnx_cache_dir() / f"featurenet-{digest[:32]}.onnx"
+        if path.is_file():
+            return path.read_bytes()
     buffer = io.BytesIO()
     with warnings.catch_warnings():
         # The dynamo exporter needs onnxscript; the TorchScript exporter handles this plain CNN exactly.
@@ -82,14 +103,62 @@ def _onnxruntime(net: nn.Module, threads: int | None) -> Runner:
         warnings.filterwarnings("ignore", message=".*(legacy|deprecated|removed).*")
         torch.onnx.export(net, (_example_input(),), buffer, dynamo=False, input_names=["pixels"],
                           output_names=["features"], dynamic_axes={"pixels": {0: "n"}, "features": {0: "n"}},
-                          opset_version=17)
+                          opset_version=ONNX_OPSET)
+    if path is not None:
+        write_cache_file(path, buffer.getvalue())
+    return buffer.getvalue()
+
+
+def onnx_cache_dir() -> Path:
+    """Where exported graphs are kept: $CNEP_CACHE_DIR/onnx, else $XDG_CACHE_HOME (or ~/.cache)/cnep/onnx."""
+    root = os.environ.get(CACHE_ENV_VAR)
+    if root:
+        return Path(root) / "onnx"
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "cnep" / "onnx"
+
+
+def write_cache_file(path: Path, data: bytes) -> None:
+    """Cache `data` at `path`: written beside it under a temporary name, then renamed (readers never see half a file)."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        tmp.write_bytes(data)
+        os.replace(tmp, path)
+    except OSError:  # a read-only cache only costs the export next time
+        pass
+
+
+def session_options(threads: int | None):
+    """ONNX Runtime options: full graph optimisation, `threads` intra-op threads (None: one per core), no spinning."""
+    import onnxruntime as ort
+
     options = ort.SessionOptions()
     options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
     options.intra_op_num_threads = threads or 0  # 0: one thread per physical core
     options.inter_op_num_threads = 1
-    session = ort.InferenceSession(buffer.getvalue(), options, providers=["CPUExecutionProvider"])
+    options.add_session_config_entry("session.intra_op.allow_spinning", "0")  # idle threads sleep, never spin
+    options.log_severity_level = 3  # errors only: loading an int8 graph warns about every folded constant
+    return options
+
+
+def onnxruntime_runner(model: bytes, threads: int | None) -> Runner:
+    """A runner over ONNX graph `model` (input `pixels`, output `features`): fp32 or its int8 quantisation."""
+    import onnxruntime as ort
+
+    session = ort.InferenceSession(model, session_options(threads), providers=onnx_providers())
 
     def run(pixels: np.ndarray) -> np.ndarray:
         return session.run(None, {"pixels": pixels})[0]  # (N, 1280) float32
 
     return run
+
+
+def onnx_providers() -> list:
+    """ONNX Runtime's CUDA provider (on GPU LOCAL_RANK, as torchrun sets it) first when this onnxruntime build has
+    it and a GPU is visible, then the CPU."""
+    import onnxruntime as ort
+
+    if "CUDAExecutionProvider" in ort.get_available_providers() and torch.cuda.is_available():
+        device = int(os.environ.get("LOCAL_RANK", "0")) % torch.cuda.device_count()
+        return [("CUDAExecutionProvider", {"device_id": device}), "CPUExecutionProvider"]
+    return ["CPUExecutionProvider"]

@@ -36,3 +36,7 @@ BACKENDS = ("onnxruntime", "torchscript", "eager")
 
 # Identity fields that must agree for features from two files to be mixed (the backend may differ).
 COMPATIBILITY_FIELDS = ("architecture", "feature_dim", "weights_sha256", "preprocessing")
+
+ONNX_OPSET = 17  # opset of the exported FeatureNet graph (part of the export cache's key)
+CACHE_ENV_VAR = "CNEP_CACHE_DIR"  # where exported ONNX graphs are cached (default: ~/.cache/cnep)
+PRECISIONS = ("fp32", "int8")  # feature extraction precision; int8: perception.quantisation (ONNX Runtime)

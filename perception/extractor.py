@@ -7,13 +7,14 @@ from pathlib import Path
 
 import numpy as np
 
-from perception.backends import Runner, available_backends, build_runner
+from perception.backends import Runner, available_backends, build_runner, onnx_model, onnxruntime_runner
 from perception.calibration import ACTIVATION_BIAS, calibrate_random_network
 from perception.constants import (ARCHITECTURE, CALIBRATION_BATCH, COMPATIBILITY_FIELDS, DEFAULT_BATCH_SIZE,
-                                  FEATURE_DIM, PREPROCESSING)
+                                  FEATURE_DIM, PRECISIONS, PREPROCESSING)
 from perception.errors import PerceptionError
 from perception.frames import resize_frames
 from perception.network import FeatureNet, mobilenet_v2_features
+from perception.quantisation import QUANTISATION, pixels_sha256, quantise_int8
 from perception.weights import resolve_weights, save_state_dict, state_dict_sha256
 
 log = logging.getLogger(__name__)
@@ -25,10 +26,17 @@ class FeatureExtractor:
     weights: `imagenet`, a state-dict path, or `random` (seeded by `seed`; call `calibrate` on frames of
     the recordings before extracting, see perception.calibration). backend: `auto` (fastest available),
     `onnxruntime`, `torchscript` or `eager`. threads: CPU threads for inference (None: library default).
+    precision: `fp32` (default) or `int8` (ONNX Runtime only; call `quantise` on frames of the
+    recordings before extracting, see perception.quantisation).
     """
 
     def __init__(self, weights: str | Path = "imagenet", backend: str = "auto", threads: int | None = None,
-                 batch_size: int = DEFAULT_BATCH_SIZE, seed: int = 0) -> None:
+                 batch_size: int = DEFAULT_BATCH_SIZE, seed: int = 0, precision: str = "fp32") -> None:
+        if precision not in PRECISIONS:
+            raise PerceptionError(f"precision must be one of {PRECISIONS}, got {precision!r}")
+        if precision == "int8" and (backend not in ("auto", "onnxruntime") or "onnxruntime" not in available_backends()):
+            raise PerceptionError(f"precision int8 runs on ONNX Runtime only (backend `auto` or `onnxruntime`, "
+                                  f"pip install 'cnep-pipeline[onnx]'), got backend {backend!r}")
         if batch_size < 1:
             raise PerceptionError(f"batch_size must be >= 1, got {batch_size}")
         if threads is not None and threads < 1:
@@ -46,6 +54,9 @@ class FeatureExtractor:
         self._runner: Runner | None = None
         self._sha256 = state_dict_sha256(self.net.features.state_dict())
         self._needs_calibration = resolved.is_random
+        self.precision = precision
+        self._int8_model: bytes | None = None  # the quantised graph, once `quantise` ran
+        self._quantised_on = ""  # "frames=N,sha256=..." of the quantisation's calibration pixels
 
     @property
     def needs_calibration(self) -> bool:
@@ -61,8 +72,29 @@ class FeatureExtractor:
         self.calibrated_on = calibrate_random_network(self.net, batches)
         self._sha256 = state_dict_sha256(self.net.features.state_dict())
         self._needs_calibration = False
+        self._int8_model = None  # quantised from the old weights: quantise again
         self._runner = None  # compiled backends hold a frozen copy of the old statistics
         log.info("calibrated random weights on %d frames (weights sha256 %s)", self.calibrated_on, self._sha256[:12])
+
+    @property
+    def needs_quantisation(self) -> bool:
+        """True for precision int8 before `quantise` (or after `calibrate` changed the weights)."""
+        return self.precision == "int8" and self._int8_model is None
+
+    def quantise(self, frames: np.ndarray) -> None:
+        """int8 only: quantise the network, activation ranges calibrated on (N, H, W, 3) uint8 frames of the recordings."""
+        if self.precision != "int8":
+            raise PerceptionError("quantise() is for precision int8; this extractor runs fp32")
+        if self._needs_calibration:
+            raise PerceptionError(f"weights {self.weights_name} need calibrate(frames) before they are quantised")
+        pixels = resize_frames(frames)  # (N, 224, 224, 3)
+        batches = [pixels[i:i + CALIBRATION_BATCH] for i in range(0, len(pixels), CALIBRATION_BATCH)]
+        calibration = pixels_sha256(batches)
+        self._int8_model = quantise_int8(onnx_model(self.net, self._sha256), batches,
+                                         cache_key=f"{self._sha256}|{calibration}")
+        self._quantised_on = f"frames={len(pixels)},sha256={calibration[:16]}"
+        self._runner = None
+        log.info("quantised to int8 on %d frames (%s)", len(pixels), self._quantised_on)
 
     @property
     def identity(self) -> dict[str, str]:
@@ -77,6 +109,8 @@ class FeatureExtractor:
             "weights_sha256": self._sha256,
             "preprocessing": PREPROCESSING,
             "backend": self._resolved_backend(),
+            **({"precision": "int8", "quantisation": f"{QUANTISATION},{self._quantised_on}"}
+               if self.precision == "int8" else {}),
         }
 
     def __call__(self, frames: np.ndarray) -> np.ndarray:
@@ -88,6 +122,8 @@ class FeatureExtractor:
         if self._needs_calibration:
             raise PerceptionError(f"weights {self.weights_name} are freshly initialised: their features are ~1e-9 "
                                   f"and carry no signal; call calibrate(frames) with frames of the recordings first")
+        if self.needs_quantisation:
+            raise PerceptionError("precision int8 needs quantise(frames) with frames of the recordings first")
         runner = self._get_runner()
         out = np.empty((len(pixels), FEATURE_DIM), dtype=np.float32)  # (N, 1280)
         for i in range(0, len(pixels), self.batch_size):
@@ -98,18 +134,28 @@ class FeatureExtractor:
         """Build the backend now rather than at the first batch (ONNX export and tracing take seconds)."""
         if self._needs_calibration:
             raise PerceptionError(f"weights {self.weights_name} need calibrate(frames) before the backend is built")
+        if self.needs_quantisation:
+            raise PerceptionError("precision int8 needs quantise(frames) before the backend is built")
         self._get_runner()
 
     def save_weights(self, path: Path) -> None:
         """Save the (possibly calibrated) weights, to reuse them later as weights=`path`."""
         save_state_dict(self.net.features.state_dict(), path)
 
+    def __getstate__(self) -> dict:
+        """Pickled without its backend (a compiled session does not pickle): the receiver builds its own."""
+        return {**self.__dict__, "_runner": None}
+
     def _get_runner(self) -> Runner:
-        if self._runner is None:
-            self._runner = build_runner(self._resolved_backend(), self.net, self.threads)
+        if self._runner is None and self._int8_model is not None:
+            self._runner = onnxruntime_runner(self._int8_model, self.threads)
+        elif self._runner is None:
+            self._runner = build_runner(self._resolved_backend(), self.net, self.threads, cache_key=self._sha256)
         return self._runner
 
     def _resolved_backend(self) -> str:
+        if self.precision == "int8":
+            return "onnxruntime"
         return available_backends()[0] if self.backend == "auto" else self.backend
 
 
@@ -118,6 +164,10 @@ def compatibility_key(identity: dict[str, str]) -> tuple[str, ...]:
 
     The backend and the weights' name are left out: backends run the same graph and agree to cosine
     similarity >= 0.9999 (tests/perception/test_backends.py), and equal weights have equal sha256 whatever
-    their file is called.
+    their file is called. The precision is in (files without one are fp32), and for int8 the
+    quantisation with its calibration frames' hash: int8 features differ from fp32 ones by ~1%.
     """
-    return tuple(f"{field}={identity.get(field, '(missing)')}" for field in COMPATIBILITY_FIELDS)
+    fields = tuple(f"{field}={identity.get(field, '(missing)')}" for field in COMPATIBILITY_FIELDS)
+    precision = identity.get("precision", "fp32")
+    return fields + (f"precision={precision}",) + ((f"quantisation={identity.get('quantisation')}",)
+                                                    if precision != "fp32" else ())

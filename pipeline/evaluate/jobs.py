@@ -1,7 +1,9 @@
 """The units of work of `cnep evaluate`: one job fits one method family on one (set, seed) and scores it.
 
 A job is picklable and self-contained, so it runs the same in this process or in a worker process
-(spawned with one BLAS and one torch thread). Every job of a (set, seed) builds the same data and the
+(spawned with one BLAS and one torch thread). Networks of one shape (seeds, loss ablations) run as
+one group (`run_group`): their fits are one batched computation (models.batched.fit_many), each
+model bit-identical to fitting it alone. Every job of a (set, seed) builds the same data and the
 same queries from the seed, so all methods are scored on identical queries:
 
     data        models.synthetic.make_set(set, seed)
@@ -18,11 +20,13 @@ whose output was not finite).
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from pipeline.evaluate.constants import GMM_COMPONENTS, PROMP_WEIGHTS, SAMPLES_IN_FIGURE
+from pipeline.workers import SMALL_MODEL_THREADS
 
 PROTOCOLS = ("paper", "heldout")
 
@@ -130,25 +134,52 @@ def model_config(spec: ModelSpec, cnmp_matches: int):
 
 def run_job(job: Job) -> dict:
     """Fit and score; returns {method name: results} (see the module docstring)."""
+    if job.spec is not None:
+        return run_group((job,))[0]
     import torch
 
-    torch.set_num_threads(1)
+    torch.set_num_threads(SMALL_MODEL_THREADS)
     s, qs = queries(job.set_name, job.seed, job.n_queries)
-    if job.spec is None:
-        out = {}
-        for name, method in baselines(job.set_name, job.seed).items():
-            start = time.perf_counter()
-            method.fit(s.train)
-            fit_seconds = time.perf_counter() - start
-            out[name] = {**_scored(method.generate, s, qs), "fit_seconds": fit_seconds}
-        return out
-    from models import TrainConfig, fit
+    out = {}
+    for name, method in baselines(job.set_name, job.seed).items():
+        start = time.perf_counter()
+        method.fit(s.train)
+        fit_seconds = time.perf_counter() - start
+        out[name] = {**_scored(method.generate, s, qs), "fit_seconds": fit_seconds}
+    return out
 
-    config = model_config(job.spec, job.cnmp_matches)
+
+def run_unit(jobs: Sequence[Job]) -> list[dict]:
+    """`run_job`'s result for each of `jobs`: one baselines job, or networks fitted together (`run_group`)."""
+    return [run_job(jobs[0])] if jobs[0].spec is None else run_group(jobs)
+
+
+def run_group(jobs: Sequence[Job]) -> list[dict]:
+    """Fit the networks of `jobs` together (models.batched.fit_many) and score each: `run_job`'s result per job.
+
+    `fit_seconds` of each is the group's training time divided by the number of networks in it.
+    """
+    import torch
+
+    from models import TrainConfig
+    from models.batched import FitRun, fit_many
+
+    torch.set_num_threads(SMALL_MODEL_THREADS)
+    data = [queries(job.set_name, job.seed, job.n_queries) for job in jobs]
+    configs = [model_config(job.spec, job.cnmp_matches) for job in jobs]
+    runs = [FitRun(list(s.train), config, TrainConfig(steps=job.steps, seed=job.seed), list(s.val))
+            for job, (s, _), config in zip(jobs, data, configs)]
     start = time.perf_counter()
-    model, history = fit(list(s.train), config, TrainConfig(steps=job.steps, seed=job.seed), list(s.val), progress=False)
+    fitted = fit_many(runs)
+    seconds = (time.perf_counter() - start) / len(jobs)
+    return [_scored_network(job, s, qs, config, model, history, seconds)
+            for job, (s, qs), config, (model, history) in zip(jobs, data, configs, fitted)]
+
+
+def _scored_network(job: Job, s, qs: dict, config, model, history: list[dict], fit_seconds: float) -> dict:
+    """A fitted network's results: winner-take-all (and for CNEPs the mixture) on both protocols, with training info."""
     info = {
-        "fit_seconds": time.perf_counter() - start,
+        "fit_seconds": fit_seconds,
         "best_val_error": min(h["val_error"] for h in history),
         "final_usage": history[-1]["usage"],
         "parameters": sum(p.numel() for p in model.parameters()),

@@ -31,6 +31,7 @@ from pipeline.evaluate.constants import (
     DEFAULT_OUT,
     EXPERT_COUNTS,
     JOBS,
+    MODELS_PER_TASK,
     QUERIES,
     QUICK_QUERIES,
     QUICK_SEEDS,
@@ -41,7 +42,7 @@ from pipeline.evaluate.constants import (
     TABLE_SETS,
     TABLES,
 )
-from pipeline.evaluate.jobs import PROTOCOLS, Job, ModelSpec, run_job
+from pipeline.evaluate.jobs import PROTOCOLS, Job, ModelSpec, run_unit
 from pipeline.workers import single_thread_processes
 
 log = logging.getLogger(__name__)
@@ -153,26 +154,47 @@ def needs(table: str, config: EvaluateConfig) -> set[tuple]:
             for row in table_rows(table, s)}
 
 
+def groups(jobs: Sequence[Job]) -> list[tuple[Job, ...]]:
+    """Jobs in units of work, in plan order: networks of one shape and schedule on one set (seeds, loss
+    ablations) together, up to MODELS_PER_TASK, trained as one batched computation; baselines alone."""
+    units: list[list[Job]] = []
+    open_units: dict[tuple, list[Job]] = {}
+    for job in jobs:
+        if job.spec is None:
+            units.append([job])
+            continue
+        shape = (job.set_name, job.steps, job.spec.n_experts, job.cnmp_matches if job.spec.n_experts == 1 else None)
+        unit = open_units.get(shape)
+        if unit is None or len(unit) == MODELS_PER_TASK:
+            unit = open_units[shape] = []
+            units.append(unit)
+        unit.append(job)
+    return [tuple(unit) for unit in units]
+
+
 def run_jobs(jobs: Sequence[Job], workers: int, quiet: bool) -> Iterator[tuple[Job, dict]]:
-    """Yield (job, result) as jobs finish, in `workers` spawned processes with one thread each (or here when 0)."""
+    """Yield (job, result) as units of jobs (`groups`) finish, in `workers` spawned processes with one thread
+    each (or here when 0)."""
     from pipeline.progress import progress_bar
 
     bar = progress_bar(total=len(jobs), quiet=quiet, desc="evaluate", unit="fit")
+    units = groups(jobs)
     if workers == 0:
-        for job in jobs:
-            yield job, run_job(job)
-            bar.update(1)
+        for unit in units:
+            for job, result in zip(unit, run_unit(unit)):
+                yield job, result
+                bar.update(1)
         bar.close()
         return
     try:
         with single_thread_processes(workers) as pool:
-            futures = {pool.submit(run_job, job): job for job in jobs}
+            futures = {pool.submit(run_unit, unit): unit for unit in units}
             for future in as_completed(futures):
-                job = futures[future]
-                log.debug("done %s", job.label)
-                bar.set_postfix_str(job.label)
-                bar.update(1)
-                yield job, future.result()
+                for job, result in zip(futures[future], future.result()):
+                    log.debug("done %s", job.label)
+                    bar.set_postfix_str(job.label)
+                    bar.update(1)
+                    yield job, result
     finally:
         bar.close()
 

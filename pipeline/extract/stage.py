@@ -10,6 +10,12 @@ frames become motion-only trajectories (8-d, no feature block).
 With `weights="random"` the network is first calibrated on frames sampled evenly over all inputs
 (perception.calibration), so every file of one run shares one extractor; save it with
 `save_weights` to extract more files later with identical features.
+
+Scale-out: `workers` > 1 extracts the files in that many spawned processes on this machine, each
+with its share of the cores (pipeline.workers.inference_threads) and the parent's extractor. Under
+`torchrun` (environment RANK, WORLD_SIZE) rank r extracts every WORLD_SIZE-th file from the r-th on
+(its share; each rank calibrates random weights on the same frames, so all ranks share one weights
+hash); outputs are per file, so nothing is gathered (docs/perception.md).
 """
 
 from __future__ import annotations
@@ -18,8 +24,9 @@ import logging
 import math
 import os
 from collections.abc import Callable, Mapping, Sequence
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor, as_completed
 from dataclasses import dataclass
+from multiprocessing import get_context
 from pathlib import Path
 
 import numpy as np
@@ -33,6 +40,7 @@ from perception.weights import find_imagenet_weights
 from pipeline.contract import output_folder, raise_if_skipped, refuse_existing
 from pipeline.errors import PipelineError
 from pipeline.progress import progress_bar
+from pipeline.workers import inference_threads, thread_environment
 from recordings import RecordingError, Trajectory, TrajectoryReader, read_demonstration, write_trajectory
 from recordings.constants import TOPIC_IMAGE
 
@@ -47,9 +55,12 @@ class ExtractConfig:
 
     weights: `imagenet`, `random` (seeded by `seed`, calibrated on the inputs) or a state-dict path.
     backend: `auto` (fastest available), `onnxruntime`, `torchscript` or `eager`; threads: CPU threads
-    (None: library default); batch_size: frames per forward pass; force: re-extract up-to-date outputs
-    and replace any other existing output; save_weights: where to save the (calibrated) weights, to
-    reuse them as `weights` later; keep_going: skip inputs that fail and report them at the end.
+    per process (None: the process's share of the cores, pipeline.workers); batch_size: frames per
+    forward pass; force: re-extract up-to-date outputs and replace any other existing output;
+    save_weights: where to save the (calibrated) weights, to reuse them as `weights` later; keep_going:
+    skip inputs that fail and report them at the end; workers: processes extracting files side by side;
+    precision: `fp32` or `int8` (quantised on frames sampled evenly over all inputs, like the random
+    weights' calibration; perception.quantisation); offline: never download the ImageNet weights.
     """
 
     inputs: tuple[Path, ...]
@@ -64,6 +75,12 @@ class ExtractConfig:
     keep_going: bool = False
     quiet: bool = False
     offline: bool = False  # never download ImageNet weights (perception.weights.find_imagenet_weights)
+    workers: int = 1
+    precision: str = "fp32"
+
+    def __post_init__(self) -> None:
+        if self.workers < 1:
+            raise PipelineError(f"--workers must be >= 1, got {self.workers}")
 
 
 @dataclass(frozen=True)
@@ -77,48 +94,61 @@ class Extracted:
 
 
 def extract(config: ExtractConfig) -> list[Extracted]:
-    """Run the stage; returns one Extracted per input demonstration, in input order.
+    """Run the stage; returns one Extracted per input demonstration of this rank's share, in input order.
 
     The extractor is built (and for random weights calibrated) only once a file needs it, so inputs
     without frames or outputs already up to date with fixed weights cost no network.
     """
-    pairs = plan_outputs(config.inputs, config.out)
+    all_pairs = plan_outputs(config.inputs, config.out)
+    rank, world_size = torchrun_rank()
+    pairs = all_pairs[rank::world_size]  # this rank's share; every rank calibrates on all inputs alike
     if config.save_weights is not None:
         refuse_existing([config.save_weights], config.force, "weights file")
     built: list[FeatureExtractor] = []
 
     def extractor() -> FeatureExtractor:
         if not built:
-            built.append(build_extractor(config, [src for src, _ in pairs]))
+            built.append(build_extractor(config, [src for src, _ in all_pairs]))
         return built[0]
 
-    done, skipped = [], []
+    done: dict[int, Extracted] = {}
+    skipped: list[str] = []
+
+    def failed(src: Path, exc: Exception) -> None:
+        if not config.keep_going:
+            raise exc
+        log.warning("skipped %s: %s", src, exc)
+        skipped.append(str(exc))
+
     with output_folder(config.out):
         for _, dst in pairs:  # nested input folders keep their sub-folders under --out
             dst.parent.mkdir(parents=True, exist_ok=True)
         current = {dst: None if config.force else up_to_date_steps(src, dst, extractor) for src, dst in pairs}
         refuse_existing([dst for src, dst in pairs if current[dst] is None and _newer_than(dst, src)], config.force,
                         "output", " and is not this input's trajectory file from these weights")
-        if config.save_weights is not None:
+        if config.save_weights is not None and rank == 0:
             extractor().save_weights(config.save_weights)
             log.info("saved the extractor weights to %s (reuse them with --weights %s)", config.save_weights,
                      config.save_weights)
+        todo = []
+        for i, (src, dst) in enumerate(pairs):
+            if current[dst] is None:
+                todo.append(i)
+            else:
+                log.info("%s is up to date, skipped", dst)
+                done[i] = Extracted(src, dst, current[dst], skipped=True)
         with logging_redirect_tqdm(), progress_bar(total=0, unit="frame", desc="extract", quiet=config.quiet,
                                                    open_ended=True) as bar:
-            for src, dst in pairs:
-                if current[dst] is not None:
-                    log.info("%s is up to date, skipped", dst)
-                    done.append(Extracted(src, dst, current[dst], skipped=True))
-                    continue
-                try:
-                    done.append(extract_file(src, dst, extractor, bar))
-                except (RecordingError, PerceptionError) as exc:
-                    if not config.keep_going:
-                        raise
-                    log.warning("skipped %s: %s", src, exc)
-                    skipped.append(str(exc))
+            if config.workers > 1 and len(todo) > 1:
+                done.update(extract_in_processes([pairs[i] for i in todo], todo, extractor, config, bar, failed))
+            else:
+                for i in todo:
+                    try:
+                        done[i] = extract_file(*pairs[i], extractor, bar)
+                    except (RecordingError, PerceptionError) as exc:
+                        failed(pairs[i][0], exc)
     raise_if_skipped(skipped, len(pairs), f"were extracted into {config.out}")
-    return done
+    return [done[i] for i in sorted(done)]
 
 
 def _newer_than(dst: Path, src: Path) -> bool:
@@ -126,14 +156,68 @@ def _newer_than(dst: Path, src: Path) -> bool:
     return os.path.lexists(dst) and (not dst.is_file() or dst.stat().st_mtime >= src.stat().st_mtime)
 
 
+def torchrun_rank() -> tuple[int, int]:
+    """(rank, world size) when torchrun started this process (environment RANK and WORLD_SIZE), else (0, 1)."""
+    world_size = int(os.environ.get("WORLD_SIZE", "1"))
+    return (int(os.environ.get("RANK", "0")), world_size) if world_size > 1 else (0, 1)
+
+
+def extract_in_processes(pairs: Sequence[tuple[Path, Path]], keys: Sequence[int],
+                         extractor: Callable[[], FeatureExtractor], config: ExtractConfig,
+                         bar: tqdm, failed: Callable[[Path, Exception], None]) -> dict[int, Extracted]:
+    """Extract `pairs` in `config.workers` spawned processes sharing the cores; returns {key: Extracted}.
+
+    Every worker receives this process's extractor (calibrated once, here), so all files share one
+    identity, and builds its own backend with `inference_threads(config.threads, workers)` threads.
+    A file that fails goes to `failed(source, error)`, which raises or records it (keep_going).
+    """
+    workers = min(config.workers, len(pairs))
+    threads = inference_threads(config.threads, workers)
+    with_frames = any(read_demonstration(src).frames is not None for src, _ in pairs)
+    shared = extractor() if with_frames else None  # motion-only inputs need no network
+    done = {}
+    with thread_environment(threads), ProcessPoolExecutor(workers, mp_context=get_context("spawn"),
+                                                          initializer=_set_worker_extractor,
+                                                          initargs=(shared, threads)) as pool:
+        futures = {pool.submit(_extract_in_worker, src, dst): (key, src) for key, (src, dst) in zip(keys, pairs)}
+        for future in as_completed(futures):
+            key, src = futures[future]
+            try:
+                item = future.result()  # a worker's error (a corrupt frame) is raised here, naming its file
+            except (RecordingError, PerceptionError) as exc:
+                failed(src, exc)
+                continue
+            done[key] = item
+            bar.total += item.n_steps
+            bar.update(item.n_steps)
+    return done
+
+
+_WORKER_EXTRACTOR: list[FeatureExtractor | None] = []  # the extractor a worker process was given
+
+
+def _set_worker_extractor(extractor: FeatureExtractor | None, threads: int) -> None:
+    if extractor is not None:
+        extractor.threads = threads  # this worker's share of the cores
+    _WORKER_EXTRACTOR.append(extractor)
+
+
+def _extract_in_worker(src: Path, dst: Path) -> Extracted:
+    return extract_file(src, dst, lambda: _WORKER_EXTRACTOR[0])
+
+
 def build_extractor(config: ExtractConfig, sources: Sequence[Path]) -> FeatureExtractor:
-    """The configured extractor; random weights are calibrated on frames sampled from `sources`."""
+    """The configured extractor; random weights are calibrated, and int8 quantised, on frames sampled from `sources`."""
     if config.offline and config.weights == "imagenet":
         find_imagenet_weights(download=False)  # refuses here, naming the cache and the alternatives
-    extractor = FeatureExtractor(config.weights, backend=config.backend, threads=config.threads,
-                                 batch_size=config.batch_size, seed=config.seed)
+    extractor = FeatureExtractor(config.weights, backend=config.backend, threads=inference_threads(config.threads),
+                                 batch_size=config.batch_size, seed=config.seed, precision=config.precision)
+    frames = None
     if extractor.needs_calibration:
-        extractor.calibrate(calibration_frames(sources, CALIBRATION_FRAMES))
+        frames = calibration_frames(sources, CALIBRATION_FRAMES)
+        extractor.calibrate(frames)
+    if extractor.needs_quantisation:
+        extractor.quantise(calibration_frames(sources, CALIBRATION_FRAMES) if frames is None else frames)
     return extractor
 
 

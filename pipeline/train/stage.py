@@ -39,6 +39,7 @@ from pipeline.train.layouts import TrainingLayout, resolve_layout
 from pipeline.train.parallel import (PlacedModel, Processes, from_main, gather, rank_seed, start_processes,
                                         stop_processes)
 from pipeline.train.state import check_same_run, prepare_work_dir, publish, save_state, work_dir, write_log
+from pipeline.workers import SMALL_MODEL_THREADS, torch_threads
 
 log = logging.getLogger(__name__)
 
@@ -96,10 +97,15 @@ class StageTrainer(Trainer):
 
 
 def train(config: TrainStageConfig) -> Path:
-    """Train a CNEP on the trajectory files of `config`; returns the checkpoint folder (config.out)."""
+    """Train a CNEP on the trajectory files of `config`; returns the checkpoint folder (config.out).
+
+    Runs on one torch thread per process (pipeline.workers: a small network on two threads of a busy
+    machine runs many times slower); more cores are used by more processes under torchrun.
+    """
     procs, device = start_processes(config.device)
     try:
-        out = _train(config, procs, device)
+        with torch_threads(SMALL_MODEL_THREADS):
+            out = _train(config, procs, device)
     except BaseException:
         stop_processes(procs, wait=False)  # the other ranks may never reach a barrier
         raise

@@ -29,3 +29,27 @@ def test_all_backends_agree_on_the_same_frames():
 @pytest.mark.skipif("onnxruntime" not in available_backends(), reason="needs the onnx extra")
 def test_onnxruntime_is_the_default_when_installed():
     assert available_backends()[0] == "onnxruntime"
+
+
+@pytest.mark.skipif("onnxruntime" not in available_backends(), reason="needs the onnx extra")
+def test_onnx_export_is_cached_by_weights_hash(monkeypatch, tmp_path):
+    from perception import backends
+
+    monkeypatch.setenv("CNEP_CACHE_DIR", str(tmp_path))
+    net = FeatureExtractor("random", threads=1).net
+    first = backends.onnx_model(net, cache_key="abc")
+    cached = list((tmp_path / "onnx").iterdir())
+    assert len(cached) == 1 and cached[0].read_bytes() == first
+    monkeypatch.setattr(backends.torch.onnx, "export", lambda *a, **k: pytest.fail("exported again"))
+    assert backends.onnx_model(net, cache_key="abc") == first  # read from the cache
+    with pytest.raises(pytest.fail.Exception):
+        backends.onnx_model(net, cache_key="other weights")
+
+
+@pytest.mark.skipif("onnxruntime" not in available_backends(), reason="needs the onnx extra")
+def test_onnxruntime_sessions_do_not_spin():
+    from perception.backends import session_options
+
+    options = session_options(1)
+    assert options.get_session_config_entry("session.intra_op.allow_spinning") == "0"
+    assert options.intra_op_num_threads == 1

@@ -122,3 +122,30 @@ def test_quick_command_runs_the_comparison_on_two_sets(tmp_path):
     for set_name in QUICK_SETS:
         nearest = data["results"]["paper"]["Nearest demo"][set_name]
         assert nearest["mse"] == pytest.approx(0.0, abs=1e-12) and nearest["mode_accuracy"] == 1.0
+
+
+def test_networks_of_one_shape_are_grouped_across_seeds_and_ablations():
+    from pipeline.evaluate.constants import MODELS_PER_TASK
+    from pipeline.evaluate.stage import groups
+
+    config = EvaluateConfig(tables=("comparison", "ablation"), seeds=3, sets=("bimodal",))
+    jobs = plan(config)
+    units = groups(jobs)
+    assert sorted(map(repr, (j.key for unit in units for j in unit))) == sorted(map(repr, (j.key for j in jobs)))
+    assert all(len(unit) == 1 for unit in units if unit[0].spec is None)
+    for unit in units:
+        assert len(unit) <= MODELS_PER_TASK
+        assert len({(j.set_name, j.steps, j.spec and j.spec.n_experts) for j in unit}) == 1
+    d2 = [unit for unit in units if unit[0].spec and unit[0].spec.n_experts == 2]
+    assert sum(len(u) for u in d2) == 3 * 4  # CNEP, CNEP-Uni, -UnSpec, -Rec for 3 seeds
+
+
+def test_a_network_fitted_in_a_group_scores_as_fitted_alone(torch_threads):
+    from pipeline.evaluate.jobs import Job, run_group, run_job
+
+    jobs = [Job("bimodal", seed, ModelSpec(2), steps=30, n_queries=3) for seed in (0, 1)]
+    grouped = run_group(jobs)
+    alone = run_job(jobs[1])
+    for protocol in ("paper", "heldout"):
+        assert grouped[1]["cnep-d2"][protocol] == alone["cnep-d2"][protocol]
+    assert grouped[1]["cnep-d2"]["best_val_error"] == alone["cnep-d2"]["best_val_error"]

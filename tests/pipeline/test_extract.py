@@ -174,3 +174,49 @@ def test_nested_input_folders_are_extracted_into_matching_sub_folders(tmp_path):
     done = extract(_config([tmp_path / "in"], tmp_path / "out", weights="imagenet"))  # motion-only: no weights
     assert done[0].output == tmp_path / "out" / "day1" / "a.mcap"
     assert read_trajectory(done[0].output).n_steps == 4
+
+
+@pytest.mark.slow  # two spawned processes import torch: ~15 s on 2 idle cores
+def test_two_worker_processes_give_the_same_files_as_one(demos, tmp_path):
+    one = extract(_config(demos, tmp_path / "one"))
+    two = extract(_config(demos, tmp_path / "two", workers=2))
+    assert [item.output.name for item in two] == ["demo-0.mcap", "demo-1.mcap"]
+    assert [(item.n_steps, item.skipped) for item in two] == [(6, False), (6, False)]
+    for a, b in zip(one, two):
+        first, second = read_trajectory(a.output), read_trajectory(b.output)
+        assert second.extractor == first.extractor
+        np.testing.assert_array_equal(second.features, first.features)
+
+
+def test_torchrun_ranks_extract_disjoint_shares_with_one_identity(demos, tmp_path, monkeypatch):
+    monkeypatch.setenv("WORLD_SIZE", "2")
+    outputs = {}
+    for rank in (0, 1):
+        monkeypatch.setenv("RANK", str(rank))
+        outputs[rank] = extract(_config(demos, tmp_path / "out"))
+    assert [item.source for item in outputs[0]] == [demos[0]]
+    assert [item.source for item in outputs[1]] == [demos[1]]
+    assert check_same_extractor(sorted((tmp_path / "out").glob("*.mcap")))  # both ranks calibrated alike
+
+
+def test_workers_must_be_positive(demos, tmp_path):
+    with pytest.raises(PipelineError, match="--workers must be >= 1, got 0"):
+        _config(demos, tmp_path / "out", workers=0)
+
+
+@pytest.mark.slow  # quantising MobileNet-v2 takes ~10 s (cached afterwards)
+@pytest.mark.skipif("onnxruntime" not in __import__("perception").available_backends(), reason="needs the onnx extra")
+def test_int8_features_are_close_to_fp32_and_never_mixed_with_them(demos, tmp_path):
+    fp32 = extract(_config(demos, tmp_path / "fp32", backend="onnxruntime"))
+    int8 = extract(_config(demos, tmp_path / "int8", backend="onnxruntime", precision="int8"))
+    a, b = read_trajectory(fp32[0].output), read_trajectory(int8[0].output)
+    assert b.extractor["precision"] == "int8" and "sha256=" in b.extractor["quantisation"]
+    assert "precision" not in a.extractor  # fp32 files keep the identity they always had
+    cosine = (a.features * b.features).sum(1) / np.linalg.norm(a.features, axis=1) / np.linalg.norm(b.features, axis=1)
+    assert cosine.min() > 0.99, cosine.min()
+    assert not np.array_equal(a.features, b.features)
+    with pytest.raises(PipelineError, match="different feature extractors"):
+        check_same_extractor([fp32[0].output, int8[1].output])
+    again = extract(_config(demos, tmp_path / "int8", backend="onnxruntime", precision="int8"))
+    assert all(item.skipped for item in again)  # same frames, same quantisation: up to date
+    assert not any(item.skipped for item in extract(_config(demos, tmp_path / "int8", backend="onnxruntime")))

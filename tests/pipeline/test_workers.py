@@ -18,3 +18,24 @@ def test_workers_start_with_one_thread_and_the_environment_is_restored(monkeypat
     assert torch_threads == 1
     assert os.environ["OMP_NUM_THREADS"] == "7"
     assert "MKL_NUM_THREADS" not in os.environ
+
+
+def test_inference_threads_share_the_cores_unless_given(monkeypatch):
+    from pipeline import workers
+
+    monkeypatch.setattr(workers, "cpu_cores", lambda: 8)
+    assert workers.inference_threads() == 8
+    assert workers.inference_threads(workers=3) == 2
+    assert workers.inference_threads(workers=16) == 1
+    assert workers.inference_threads(5, workers=4) == 5  # --threads wins
+
+
+def test_torch_threads_is_restored():
+    import torch
+
+    from pipeline.workers import torch_threads
+
+    before = torch.get_num_threads()
+    with torch_threads(3):
+        assert torch.get_num_threads() == 3
+    assert torch.get_num_threads() == before

@@ -1,0 +1,156 @@
+"""Thread policy, idle and loaded: training and feature extraction with a second busy process paused or running.
+
+Run on demand (say the machine's load when you quote it):
+    python -m benchmarks.bench_threads [--frames 32] [--steps 40] [--rounds 2]
+
+A second process trains a CNEP on one thread without pause (what `cnep evaluate` or the demo's
+trainers do beside an extractor). It is paused (SIGSTOP) for the "idle" and resumed (SIGCONT) for the
+"loaded" measurement, round after round, so every ratio comes from one run under one background load.
+Measured:
+- training: `models.Trainer` steps/s (default CNEP, 4 experts) on 1 torch thread (the policy) and on 2;
+- extraction, frames/s of 640x480 frames: the naive per-frame eager loop (torch's default threads,
+  and one thread), the old default (ONNX
+  Runtime, one thread per core, spinning threads), the new default (pipeline.workers.inference_threads
+  threads, no spinning), one thread without spinning, and int8 (perception.quantisation) with the
+  new default's threads; and the int8 features' error against fp32 (cosine, relative L2).
+"""
+
+from __future__ import annotations
+
+import argparse
+import multiprocessing
+import os
+import signal
+import statistics
+import time
+from collections.abc import Callable
+
+import numpy as np
+import torch
+
+from benchmarks.bench_perception import naive_loop, synthetic_frames
+from models import CNEPConfig, TrainConfig
+from models.synthetic import make_set
+from models.train import prepare_fit
+from perception import FeatureExtractor
+from perception.backends import onnx_model, session_options
+from pipeline.workers import inference_threads
+
+
+def busy_training(parent: int) -> None:
+    """The background load: one-thread CNEP training steps until killed or its parent is gone."""
+    torch.set_num_threads(1)
+    trainer = training_step_fn(seed=1)
+    while os.getppid() == parent:
+        trainer()
+
+
+def training_step_fn(seed: int = 0) -> Callable[[], object]:
+    data = make_set("multimodal", seed)
+    trainer, _ = prepare_fit(list(data.train), CNEPConfig(n_experts=4), TrainConfig(seed=seed), list(data.val))
+    return trainer.train_step
+
+
+def threaded(fn: Callable[[], object], threads: int) -> Callable[[], object]:
+    """`fn` run with `threads` torch threads (restored after)."""
+    def run() -> object:
+        before = torch.get_num_threads()
+        torch.set_num_threads(threads)
+        try:
+            return fn()
+        finally:
+            torch.set_num_threads(before)
+    return run
+
+
+def onnx_session_path(frames: np.ndarray, threads: int, spinning: bool) -> Callable[[], object]:
+    """FeatureExtractor's ONNX Runtime path with an explicit session: `threads` (0: one per core), spinning on/off."""
+    import onnxruntime as ort
+
+    ort.set_default_logger_severity(3)  # the spinning entry is set twice on purpose: no warning
+    extractor = FeatureExtractor("random", backend="onnxruntime", threads=1)
+    extractor.calibrate(frames[:8])
+    options = session_options(threads or None)
+    options.add_session_config_entry("session.intra_op.allow_spinning", "1" if spinning else "0")
+    session = ort.InferenceSession(onnx_model(extractor.net, extractor.identity["weights_sha256"]), options,
+                                   providers=["CPUExecutionProvider"])
+    extractor._runner = lambda pixels: session.run(None, {"pixels": pixels})[0]  # the benchmark's own session
+    return lambda: extractor(frames)
+
+
+def int8_path(frames: np.ndarray, threads: int) -> tuple[Callable[[], object], dict[str, float]]:
+    """The int8 extractor (quantised on `frames`) and its feature error against fp32 with the same calibrated weights."""
+    fp32 = FeatureExtractor("random", backend="onnxruntime", threads=threads)
+    int8 = FeatureExtractor("random", backend="onnxruntime", threads=threads, precision="int8")
+    for extractor in (fp32, int8):
+        extractor.calibrate(frames[:8])
+    int8.quantise(frames)
+    a, b = fp32(frames), int8(frames)  # (N, 1280) each
+    cosine = (a * b).sum(1) / np.linalg.norm(a, axis=1) / np.linalg.norm(b, axis=1)
+    relative = np.linalg.norm(a - b, axis=1) / np.linalg.norm(a, axis=1)
+    error = {"cosine_min": float(cosine.min()), "cosine_median": float(np.median(cosine)),
+             "relative_l2_median": float(np.median(relative)), "relative_l2_max": float(relative.max())}
+    return lambda: int8(frames), error
+
+
+def rate(fn: Callable[[], object], units: int) -> float:
+    start = time.perf_counter()
+    fn()
+    return units / (time.perf_counter() - start)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=32)
+    parser.add_argument("--steps", type=int, default=40)
+    parser.add_argument("--rounds", type=int, default=2)
+    args = parser.parse_args()
+    frames = synthetic_frames(args.frames)
+    step = training_step_fn()
+    policy = inference_threads()
+    variants: dict[str, tuple[Callable[[], object], int]] = {
+        "train, 1 thread (policy)": (threaded(lambda: [step() for _ in range(args.steps)], 1), args.steps),
+        "train, 2 threads": (threaded(lambda: [step() for _ in range(args.steps)], 2), args.steps),
+        "extract, naive eager loop": (threaded(naive_loop(frames), torch.get_num_threads()), args.frames),
+        "extract, naive eager loop, 1 thread": (threaded(naive_loop(frames), 1), args.frames),
+        "extract, old default (ORT all cores, spinning)": (onnx_session_path(frames, 0, True), args.frames),
+        f"extract, new default (ORT {policy} threads, no spin)": (onnx_session_path(frames, policy, False), args.frames),
+        "extract, ORT 1 thread, no spin": (onnx_session_path(frames, 1, False), args.frames),
+    }
+    int8, error = int8_path(frames, policy)
+    variants[f"extract, int8 (ORT {policy} threads, no spin)"] = (int8, args.frames)
+    print("int8 vs fp32 features: " + ", ".join(f"{k} {v:.5f}" for k, v in error.items()))
+    for fn, _ in variants.values():
+        fn()  # warm-up
+    load = multiprocessing.get_context("spawn").Process(target=busy_training, args=(os.getpid(),), daemon=True)
+    load.start()
+    time.sleep(15)  # let it import and start training
+    print(f"load before: {' '.join(f'{x:.2f}' for x in os.getloadavg())}; {os.cpu_count()} CPUs")
+    rates: dict[tuple[str, str], list[float]] = {}
+    try:
+        for _ in range(args.rounds):
+            for condition in ("idle", "loaded"):
+                os.kill(load.pid, signal.SIGSTOP if condition == "idle" else signal.SIGCONT)
+                time.sleep(0.5)
+                for name, (fn, units) in variants.items():
+                    rates.setdefault((name, condition), []).append(rate(fn, units))
+    finally:
+        os.kill(load.pid, signal.SIGCONT)
+        load.kill()
+    print(f"load after: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
+    median = {key: statistics.median(values) for key, values in rates.items()}
+    print(f"{'variant':<52} {'idle':>8} {'loaded':>8}  loaded/idle  (steps/s or frames/s, median of {args.rounds})")
+    for name in variants:
+        idle, loaded = median[(name, "idle")], median[(name, "loaded")]
+        print(f"{name:<52} {idle:8.1f} {loaded:8.1f}  {loaded / idle:6.2f}")
+    for condition in ("idle", "loaded"):
+        train = median[("train, 1 thread (policy)", condition)] / median[("train, 2 threads", condition)]
+        names = list(variants)
+        naive, old, new, int8_rate = (median[(names[i], condition)] for i in (2, 4, 5, 7))
+        print(f"{condition}: training 1 thread / 2 threads {train:.2f}x; extraction new default / old default "
+              f"{new / old:.2f}x, new default / naive loop {new / naive:.2f}x, int8 / new default fp32 "
+              f"{int8_rate / new:.2f}x, int8 / naive loop {int8_rate / naive:.2f}x")
+
+
+if __name__ == "__main__":
+    main()
