@@ -219,4 +219,7 @@ def test_int8_features_are_close_to_fp32_and_never_mixed_with_them(demos, tmp_pa
         check_same_extractor([fp32[0].output, int8[1].output])
     again = extract(_config(demos, tmp_path / "int8", backend="onnxruntime", precision="int8"))
     assert all(item.skipped for item in again)  # same frames, same quantisation: up to date
-    assert not any(item.skipped for item in extract(_config(demos, tmp_path / "int8", backend="onnxruntime")))
+    with pytest.raises(PipelineError, match="not this input's trajectory file from these weights"):
+        extract(_config(demos, tmp_path / "int8", backend="onnxruntime"))  # fp32 over int8 outputs: the contract
+    fp32_over = extract(_config(demos, tmp_path / "int8", backend="onnxruntime", force=True))
+    assert not any(item.skipped for item in fp32_over)
