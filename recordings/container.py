@@ -64,7 +64,8 @@ def atomic_output(path: str | os.PathLike) -> Iterator[IO[bytes]]:
     try:  # 0666 less the umask, like any other file the user writes (mkstemp would give 0600)
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
     except OSError as exc:
-        raise RecordingError(f"{target}: cannot write in {target.parent} ({exc.strerror})") from None
+        raise RecordingError(f"{target}: cannot write in {target.parent} ({exc.strerror}); choose an output folder "
+                             f"you can write to") from None
     try:
         with os.fdopen(fd, "wb") as stream:
             yield stream

@@ -301,8 +301,8 @@ def up_to_date_steps(src: Path, dst: Path, extractor: Callable[[], FeatureExtrac
                 return reader.n_steps
             same = compatibility_key(reader.extractor) == compatibility_key(extractor().identity)
             return reader.n_steps if same else None
-    except RecordingError as exc:
-        log.warning("%s will be rewritten: %s", dst, exc)
+    except RecordingError as exc:  # not a readable trajectory: refused unless --force, or redone if stale
+        log.debug("%s is not an up-to-date trajectory file: %s", dst, exc)
         return None
 
 
