@@ -73,8 +73,7 @@ def test_cli_trains_a_checkpoint_that_loads_and_generates(full_set, tmp_path, ca
 
     model = load_checkpoint(out)
     traj = read_trajectory(full_set[1])
-    prediction = model.generate(np.array([0.0, 0.5]), traj.data[[0, 13]], np.linspace(0, 1, 5),
-                                traj.features[np.linspace(0, 26, 5).round().astype(int)])
+    prediction = model.generate(np.array([0.0, 0.5]), traj.data[[0, 13]], np.linspace(0, 1, 5))  # scene: t only
     assert prediction.mean.shape == (5, 8) and np.isfinite(prediction.mean).all()
 
 
