@@ -73,7 +73,7 @@ def test_cli_trains_a_checkpoint_that_loads_and_generates(full_set, tmp_path, ca
 
     model = load_checkpoint(out)
     traj = read_trajectory(full_set[1])
-    prediction = model.generate(np.array([0.0, 0.5]), traj.data[[0, 13]], np.linspace(0, 1, 5))  # scene: time queries
+    prediction = model.generate(np.array([0.0, 0.5]), traj.data[[0, 13]], np.linspace(0, 1, 5))  # scene: t only
     assert prediction.mean.shape == (5, 8) and np.isfinite(prediction.mean).all()
 
 
@@ -226,17 +226,3 @@ def test_bad_config_file_is_one_clear_error(full_set, tmp_path, capsys):
     settings.write_text(json.dumps({"steps": "many"}))
     assert main(["train", *map(str, full_set), "--out", str(tmp_path / "ckpt"), "--config", str(settings)]) == 2
     assert "setting steps must be int, got 'many'" in capsys.readouterr().err
-
-
-def test_training_runs_on_one_torch_thread_and_restores_the_count(full_set, tmp_path, monkeypatch):
-    seen = []
-    original = Trainer.train_step
-    monkeypatch.setattr(Trainer, "train_step", lambda self: seen.append(torch.get_num_threads()) or original(self))
-    before = torch.get_num_threads()
-    torch.set_num_threads(2)
-    try:
-        train(stage_config(full_set, tmp_path / "ckpt", steps=5))
-        assert seen and set(seen) == {1}  # the thread policy (pipeline.workers.SMALL_MODEL_THREADS)
-        assert torch.get_num_threads() == 2
-    finally:
-        torch.set_num_threads(before)
