@@ -49,7 +49,9 @@ class TrainStageConfig:
     """inputs: trajectory files or folders (read only); out: checkpoint folder (must not exist unless `force`).
 
     layout: preset name (wine-glass, scene, motion, all); n_experts, encoder_widths, expert_widths,
-    time_frequencies: the network (models.CNEPConfig); matched_cnmp: train instead the one-expert CNMP
+    time_frequencies: the network (models.CNEPConfig); assignment: the reconstruction term ("paper": the
+    paper's gate-weighted NLL; "mixture": the mixture likelihood; models.CNEPConfig.assignment, handed to
+    it only when not "paper", the models' default); matched_cnmp: train instead the one-expert CNMP
     with that network's parameter count (models.matched_cnmp); training: steps, batch size (per process), lr,
     schedule, val_every, patience (validations), seed (models.TrainConfig); val_fraction: share of the
     demonstrations held out for validation (whole demonstrations, at least one); save_every: steps
@@ -64,6 +66,7 @@ class TrainStageConfig:
     encoder_widths: tuple[int, ...] = (128, 128)
     expert_widths: tuple[int, ...] = (128, 128)
     time_frequencies: int = 8
+    assignment: str = "paper"
     matched_cnmp: bool = False
     training: TrainConfig = field(default_factory=lambda: DEFAULT_TRAINING)
     val_fraction: float = DEFAULT_VAL_FRACTION
@@ -108,8 +111,10 @@ def train(config: TrainStageConfig) -> Path:
 def _train(config: TrainStageConfig, procs: Processes, device: torch.device) -> Path:
     data = load_training_set(find_trajectory_files(config.inputs))
     layout = resolve_layout(config.layout, data.width, data.files[0].path)
+    assignment = {} if config.assignment == "paper" else {"assignment": config.assignment}
     model_config = CNEPConfig(layout=layout.model, n_experts=config.n_experts, encoder_widths=config.encoder_widths,
-                              expert_widths=config.expert_widths, time_frequencies=config.time_frequencies)
+                              expert_widths=config.expert_widths, time_frequencies=config.time_frequencies,
+                              **assignment)
     if config.matched_cnmp:
         model_config = matched_cnmp(model_config)
     train_idx, val_idx = split_validation(list(range(len(data.files))), config.val_fraction, config.training.seed)
