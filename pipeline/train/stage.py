@@ -63,10 +63,10 @@ class TrainStageConfig:
     out: Path
     layout: str = DEFAULT_PRESET
     n_experts: int = 2
+    assignment: str = "paper"
     encoder_widths: tuple[int, ...] = (128, 128)
     expert_widths: tuple[int, ...] = (128, 128)
     time_frequencies: int = 8
-    assignment: str = "paper"
     matched_cnmp: bool = False
     training: TrainConfig = field(default_factory=lambda: DEFAULT_TRAINING)
     val_fraction: float = DEFAULT_VAL_FRACTION
