@@ -122,6 +122,7 @@ def test_summary_covers_behaviours_models_and_the_scene_change(demo_run):
     for model in ("CNEP", "CNMP"):
         row = summary["heldout"][model]
         assert row["n"] == N_HELDOUT and 0 < row["position_rmse_m"] < 1.0 and 0 <= row["behaviour_accuracy"] <= 1
+        assert 0 < row["position_rmse_median_m"] <= row["position_rmse_m"] * np.sqrt(N_HELDOUT)
     (change,) = summary["scene_change"]
     assert "->" in change["behaviour"] and 0 < change["change_step"] < QUICK.steps
     for model in ("CNEP", "CNMP"):
