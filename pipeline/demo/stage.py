@@ -349,8 +349,8 @@ def format_summary(result: DemoResult) -> str:
                  f"ends (within {100 * PLACE_TOLERANCE:.0f} cm of a slot centre, or between):")
     lines.append("model  in a slot  near  far  between  mean distance to a slot (cm)")
     for name, row in result.free_choice.items():
-        lines.append(f"{name:<6} {row['valid']:>9.2f}  {row['near']:>4.2f}  {row['far']:>3.2f}  {row['between']:>7.2f}  "
-                     f"{100 * row['distance_m']:>10.1f} (n = {row['n']})")
+        lines.append(f"{name:<6} {row['valid']:>9.2f}  {row['near']:>4.2f}  {row['far']:>3.2f}  "
+                     f"{row['between']:>7.2f}  {100 * row['distance_m']:>10.1f} (n = {row['n']})")
     for episode in result.free_choice_replay:
         (e0, p0), (e1, p1) = episode["start"]
         commits = (f"holds expert {episode['expert']} at p >= {COMMIT_GATE} from step {episode['step']}"

@@ -68,8 +68,8 @@ def _rrd_recordings(path: Path) -> list[dict]:
 
 def test_every_stage_leaves_its_files(demo_run):
     for stage in ("recorded", "demos", "trajectories"):
-        counts = {split: len(list((demo_run / stage / split).glob("*.mcap"))) for split in ("train", "heldout",
-                                                                                           "scene_change", "free_choice")}
+        counts = {split: len(list((demo_run / stage / split).glob("*.mcap")))
+                  for split in ("train", "heldout", "scene_change", "free_choice")}
         assert counts == {"train": N_TRAIN, "heldout": N_HELDOUT, "scene_change": 1, "free_choice": N_FREE}, stage
     recorded = read_demonstration(demo_run / "recorded" / "train" / "demo_000.mcap")
     ingested = read_demonstration(demo_run / "demos" / "train" / "demo_000.mcap")
