@@ -17,17 +17,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="seed of every random draw (default 0)")
     parser.add_argument("--force", action="store_true", help="use a non-empty --out folder: first delete what an "
                         "earlier demo wrote there (other files stay)")
+    parser.add_argument("--assignment", choices=("paper", "mixture"), default=None,
+                        help="the CNEP's reconstruction term: the paper's gate-weighted NLL or the mixture likelihood "
+                             "(default: the demo's, pipeline.demo.stage.ASSIGNMENT)")
 
 
 def run(args: argparse.Namespace) -> int:
     import time
     from pathlib import Path
 
-    from pipeline.demo.stage import DemoConfig, format_summary, run_demo
+    from pipeline.demo.stage import ASSIGNMENT, DemoConfig, format_summary, run_demo
 
     start = time.perf_counter()
     out = Path(args.out) if args.out is not None else free_folder(Path(DEFAULT_OUT))
-    result = run_demo(DemoConfig(out=out, quick=args.quick, seed=args.seed, force=args.force, quiet=args.quiet))
+    result = run_demo(DemoConfig(out=out, quick=args.quick, seed=args.seed, force=args.force, quiet=args.quiet,
+                                 assignment=args.assignment or ASSIGNMENT))
     print(format_summary(result))
     print(f"cnep demo: done in {time.perf_counter() - start:.1f} s")
     return 0

@@ -13,6 +13,12 @@ only: file names do not reveal it and training reads trajectories, never this ke
 
 A scene-change episode starts as one behaviour; when the cup has been lifted, the block is moved to
 the other slot, the scene now calls for the other behaviour and the demonstrator places the cup there.
+
+A free-choice episode shows a tray with both slots free (pipeline.demo.scene.FREE_CHOICE): both places
+are right and the demonstrator picks one at random (from the episode's seeded generator). Its label is
+the scene (`left-either`, `right-either`) and, in `choice`, the slot picked; like the behaviour label,
+both are for the summary only. Training sets mix them among the scene-decided demonstrations; the
+`free_choice` split holds held-out free-choice scenes.
 """
 
 from __future__ import annotations
@@ -24,8 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.demo.scene import (BEHAVIOURS, Scene, behaviour_parts, draw_frame, encode_jpeg, gripper_quaternion,
-                            sample_scene)
+from pipeline.demo.scene import (BEHAVIOURS, FREE_CHOICE, SIDES, Scene, behaviour_parts, draw_frame, encode_jpeg,
+                                 gripper_quaternion, sample_scene)
 from pipeline.progress import progress_bar
 from recordings import Demonstration, Episode, write_demonstration
 
@@ -35,6 +41,8 @@ TASK = "tabletop: put the cup into the free slot"
 SOURCE = "pipeline.demo.generator"
 LABEL_KEY = "behaviour"  # episode extra metadata: the behaviour name (summary only, never a training input)
 SWITCH_KEY = "switch_step"  # scene-change episodes: the first step showing the changed scene
+CHOICE_KEY = "choice"  # free-choice episodes: the slot the demonstrator picked (summary only)
+CHOICE_STEP_KEY = "choice_step"  # free-choice episodes: the first step of the carry (the paths part there)
 
 HOME = (0.0, 0.36, 0.30)  # m
 HOVER_Z = 0.16  # height above the cup / slot before going down (m)
@@ -50,7 +58,8 @@ PHASES = (("reach", 0.18), ("descend", 0.08), ("close", 0.07), ("lift", 0.09),
           ("carry", 0.22), ("lower", 0.08), ("open", 0.07), ("retreat", 0.11))
 TIMING_JITTER = 0.15  # relative std of each phase's duration
 WAYPOINT_NOISE = 0.006  # std of each waypoint's xyz offset (m): demonstrator variability
-SPLITS = ("train", "heldout", "scene_change")
+SPLITS = ("train", "heldout", "scene_change", "free_choice")
+SLOTS = ("near", "far")
 
 
 @dataclass(frozen=True)
@@ -145,10 +154,23 @@ def make_scene_change(behaviour: int, steps: int, fps: float, rng: np.random.Gen
     return render([before, after], switch, plan, fps, rng, episode)
 
 
+def make_free_choice(side: str, steps: int, fps: float, rng: np.random.Generator,
+                     episode_id: str) -> Demonstration:
+    """One demonstration in a scene with both slots free: the cup on `side`, the slot picked at random by `rng`."""
+    slot = SLOTS[int(rng.integers(len(SLOTS)))]
+    scene = sample_scene(BEHAVIOURS.index(f"{side}-{slot}"), rng, both_free=True)
+    bounds = phase_steps(steps, rng)
+    plan = plan_motion(scene, slot, bounds, rng)
+    extra = {LABEL_KEY: FREE_CHOICE[SIDES.index(side)], CHOICE_KEY: slot, CHOICE_STEP_KEY: str(int(bounds[4]))}
+    return render([scene], steps, plan, fps, rng, Episode(episode_id, fps, TASK, SOURCE, extra))
+
+
 @dataclass(frozen=True)
 class DemoSetConfig:
     """What to generate: `per_behaviour` training and `heldout_per_behaviour` held-out demonstrations of each
-    behaviour, plus `scene_changes` scene-change episodes, each `steps` steps at `fps` Hz, all from `seed`."""
+    behaviour, plus `scene_changes` scene-change episodes, `free_choice_per_side` training and
+    `heldout_free_choice_per_side` held-out free-choice episodes per cup side, each `steps` steps at `fps` Hz,
+    all from `seed`."""
 
     out: Path
     per_behaviour: int = 12
@@ -158,11 +180,14 @@ class DemoSetConfig:
     fps: float = 10.0
     seed: int = 0
     quiet: bool = False
+    free_choice_per_side: int = 0
+    heldout_free_choice_per_side: int = 0
 
 
 @dataclass(frozen=True)
 class DemoSet:
-    """Files written, per split (`train`, `heldout`, `scene_change`), and each file's behaviour name."""
+    """Files written, per split (`train`, `heldout`, `scene_change`, `free_choice`), and each file's label
+    (a behaviour name, `a->b` for a scene change, `<side>-either` for a free choice)."""
 
     files: dict[str, list[Path]]
     labels: dict[Path, str]
@@ -172,26 +197,35 @@ def generate(config: DemoSetConfig) -> DemoSet:
     """Write the demonstration set under `config.out/<split>/demo_NNN.mcap`; returns the files and labels.
 
     Every episode has its own generator spawned from `config.seed`, so a set is reproducible file by
-    file. Behaviours are shuffled over the file numbers so names carry no label.
+    file. Episode kinds (behaviours, free-choice sides) are shuffled over the file numbers so names carry
+    no label.
     """
     if config.steps < 2 * len(PHASES):
         raise ValueError(f"steps must be >= {2 * len(PHASES)} (two per motion phase), got {config.steps}")
     K = len(BEHAVIOURS)
-    counts = {"train": config.per_behaviour * K, "heldout": config.heldout_per_behaviour * K,
-              "scene_change": config.scene_changes}
+    kinds = {  # per split, the kind of each episode before shuffling: 0..K-1 a behaviour, K + s free choice on side s
+        "train": [*np.arange(config.per_behaviour * K) % K,
+                  *(K + np.arange(config.free_choice_per_side * len(SIDES)) % len(SIDES))],
+        "heldout": [*np.arange(config.heldout_per_behaviour * K) % K],
+        "scene_change": [*np.arange(config.scene_changes) % K],
+        "free_choice": [*(K + np.arange(config.heldout_free_choice_per_side * len(SIDES)) % len(SIDES))]}
     root = np.random.SeedSequence(config.seed)
     split_seeds = dict(zip(SPLITS, root.spawn(len(SPLITS))))
     files: dict[str, list[Path]] = {split: [] for split in SPLITS}
     labels: dict[Path, str] = {}
-    with progress_bar(total=sum(counts.values()), desc="generate", unit="demo", quiet=config.quiet) as bar:
+    with progress_bar(total=sum(map(len, kinds.values())), desc="generate", unit="demo", quiet=config.quiet) as bar:
         for split in SPLITS:
-            n = counts[split]
-            order = np.random.default_rng(split_seeds[split].spawn(1)[0]).permutation(n) % K
-            for i, (behaviour, seq) in enumerate(zip(order, split_seeds[split].spawn(n))):
+            n = len(kinds[split])
+            shuffle = np.random.default_rng(split_seeds[split].spawn(1)[0]).permutation(n)
+            order = np.asarray(kinds[split], dtype=int)[shuffle]
+            for i, (kind, seq) in enumerate(zip(order, split_seeds[split].spawn(n))):
                 rng = np.random.default_rng(seq)
                 episode_id = f"{split}/demo_{i:03d}"
-                make = make_scene_change if split == "scene_change" else make_demonstration
-                demo = make(int(behaviour), config.steps, config.fps, rng, episode_id)
+                if kind >= K:
+                    demo = make_free_choice(SIDES[kind - K], config.steps, config.fps, rng, episode_id)
+                else:
+                    make = make_scene_change if split == "scene_change" else make_demonstration
+                    demo = make(int(kind), config.steps, config.fps, rng, episode_id)
                 path = Path(config.out) / f"{episode_id}.mcap"
                 path.parent.mkdir(parents=True, exist_ok=True)
                 write_demonstration(path, demo)

@@ -11,6 +11,10 @@ task (where the glass stands x where it goes):
     behaviour 2 right-near  cup on the right, near slot free
     behaviour 3 right-far   cup on the right, far slot free
 
+A free-choice scene (`FREE_CHOICE`) has no block: both slots are free, both places are right, and the
+demonstrator picks one at random; `Scene.behaviour` is then the behaviour performed, which the scene
+does not decide (the frames show it only once the cup is carried towards the chosen slot).
+
 Frames also show clutter (small random shapes), lighting changes (gain, a brightness gradient, sensor
 noise) and position noise of every object, and the gripper seen from above (its fingers open and close).
 The mat stays where the cup stood and the block stays in its slot, so the behaviour stays visible in
@@ -43,6 +47,8 @@ TABLE_NEAR = 0.30
 TABLE_FAR = 0.90
 
 BEHAVIOURS = ("left-near", "left-far", "right-near", "right-far")
+SIDES = ("left", "right")
+FREE_CHOICE = tuple(f"{side}-either" for side in SIDES)  # scenes with both slots free
 CUP_XY = {"left": (-0.22, 0.62), "right": (0.22, 0.62)}  # nominal cup positions (m)
 SLOT_XY = {"near": (0.10, 0.47), "far": (-0.10, 0.80)}  # nominal slot centres (m); tray = both slots
 POSITION_NOISE = 0.015  # std of the cup's and clutter's offset from its nominal position (m)
@@ -81,7 +87,11 @@ def behaviour_parts(behaviour: int) -> tuple[str, str]:
 
 @dataclass(frozen=True)
 class Scene:
-    """One table set-up (positions in m) and its lighting; the behaviour it calls for follows from it."""
+    """One table set-up (positions in m) and its lighting.
+
+    behaviour: what the demonstrator does here; the scene decides it (the block takes the other slot)
+    unless `both_free` (no block: the demonstrator chose it).
+    """
 
     behaviour: int
     cup_xy: np.ndarray  # (2,)
@@ -89,18 +99,23 @@ class Scene:
     clutter: tuple[tuple[float, float, float, int], ...]  # (x, y, radius, colour index)
     gain: float
     gradient: np.ndarray  # (2,) grey levels per frame width along u and v
+    both_free: bool = False
 
     @property
     def free_slot(self) -> str:
+        """The slot the cup goes into (with both slots free: the one the demonstrator chose)."""
         return behaviour_parts(self.behaviour)[1]
 
     @property
-    def taken_slot(self) -> str:
+    def taken_slot(self) -> str | None:
+        """The slot the block takes; None when both are free."""
+        if self.both_free:
+            return None
         return "far" if self.free_slot == "near" else "near"
 
 
-def sample_scene(behaviour: int, rng: np.random.Generator) -> Scene:
-    """A random table set-up for `behaviour` (position noise, clutter, lighting)."""
+def sample_scene(behaviour: int, rng: np.random.Generator, both_free: bool = False) -> Scene:
+    """A random table set-up for `behaviour` (position noise, clutter, lighting); `both_free`: no block."""
     side, _ = behaviour_parts(behaviour)
     cup = np.asarray(CUP_XY[side]) + rng.normal(0.0, POSITION_NOISE, 2)
     tray_offset = rng.normal(0.0, TRAY_NOISE, 2)  # the tray moves as one piece
@@ -111,7 +126,7 @@ def sample_scene(behaviour: int, rng: np.random.Generator) -> Scene:
         y = rng.uniform(TABLE_NEAR, TABLE_FAR)
         clutter.append((x, y, rng.uniform(*CLUTTER_RADIUS), int(rng.integers(len(CLUTTER_RGB)))))
     return Scene(behaviour, cup, slots, tuple(clutter), float(rng.uniform(*GAIN_RANGE)),
-                 rng.uniform(-GRADIENT_MAX, GRADIENT_MAX, 2))
+                 rng.uniform(-GRADIENT_MAX, GRADIENT_MAX, 2), both_free)
 
 
 def to_pixels(xy: np.ndarray) -> tuple[int, int]:
@@ -184,7 +199,8 @@ def draw_frame(scene: Scene, pose: np.ndarray, opening: float, cup_xy: np.ndarra
     cv2.rectangle(img, (u0, v0), (u1, v1), TRAY_RGB, -1, cv2.LINE_AA)
     for xy in scene.slot_xy.values():
         _square(img, xy, SLOT_HALF, SLOT_RGB)
-    _square(img, scene.slot_xy[scene.taken_slot], BLOCK_HALF, BLOCK_RGB)
+    if scene.taken_slot is not None:
+        _square(img, scene.slot_xy[scene.taken_slot], BLOCK_HALF, BLOCK_RGB)
     _square(img, scene.cup_xy, MAT_HALF, MAT_RGB)
     for x, y, radius, colour in scene.clutter:
         cv2.circle(img, to_pixels(np.array([x, y])), metres_to_pixels(radius), CLUTTER_RGB[colour], -1, cv2.LINE_AA)

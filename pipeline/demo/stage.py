@@ -2,8 +2,10 @@
 
 Stages (each logs its progress; tqdm bars unless quiet), all under OUT:
 
-1. generate   `recorded/{train,heldout,scene_change}/demo_NNN.mcap`: the synthetic robot recorder
-              (pipeline.demo.generator), Foxglove-schema MCAP with camera, pose and gripper;
+1. generate   `recorded/{train,heldout,scene_change,free_choice}/demo_NNN.mcap`: the synthetic robot
+              recorder (pipeline.demo.generator), Foxglove-schema MCAP with camera, pose and gripper;
+              the training set mixes scene-decided and free-choice demonstrations (both slots free, the
+              demonstrator picks one at random); `free_choice` holds held-out free-choice scenes;
 2. ingest     `demos/...`: the ingest stage reads those robot MCAP files (Foxglove topics) into
               demonstration files, strictly (CRCs, schemas, time order);
 3. extract    `trajectories/...`: MobileNet-v2 features with **seeded random weights** (ImageNet weights
@@ -13,9 +15,12 @@ Stages (each logs its progress; tqdm bars unless quiet), all under OUT:
               widths) on the training trajectories (layout `scene`: observe features + pose + gripper,
               query with time only, predict pose + gripper), seeded;
 5. replay     `demo-NN-<split>-<name>.rrd`, one per recording (+ `demo.experts.json`): the scene-change
-              recordings (numbered first) and the held-out ones through the CNEP, step by step;
-6. summary    `summary.json`: per behaviour the expert that took it and how purely, the error of the
-              generated motion on held-out demonstrations (CNEP vs CNMP), the scene change's switches.
+              recordings (numbered first), the held-out ones and one held-out free-choice recording through
+              the CNEP, step by step;
+6. summary    `summary.json`: per scene-decided behaviour the expert that took it and how purely, the
+              error of the generated motion on held-out demonstrations (CNEP vs CNMP), the scene
+              change's switches, where motions generated for held-out free-choice scenes end (in a slot
+              or between; CNEP vs CNMP) and when the replayed free-choice episode's gate commits.
 
 The behaviour labels live in each file's episode metadata and are read only here, for the summary.
 """
@@ -41,7 +46,9 @@ from pipeline.errors import PipelineError
 from pipeline.extract.stage import ExtractConfig, extract
 from pipeline.ingest.stage import IngestConfig, ingest
 from pipeline.replay.stage import RowMapping, decisions_path, read_decisions, replay
-from pipeline.demo.generator import SPLITS, SWITCH_KEY, DemoSetConfig, generate
+from pipeline.demo.free_choice import COMMIT_GATE, PLACE_TOLERANCE, commitment, generated_ends, place_outcomes
+from pipeline.demo.generator import CHOICE_KEY, CHOICE_STEP_KEY, SPLITS, SWITCH_KEY, DemoSetConfig, generate
+from pipeline.demo.scene import BEHAVIOURS
 from pipeline.train.stage import TrainStageConfig, train
 from pipeline.train.constants import SCENE
 from pipeline.workers import single_thread_processes
@@ -55,6 +62,8 @@ LAYOUT = SCENE  # queries carry no features: the behaviour reaches the experts t
 # The gate learns at the full learning rate here, not at the models' default fraction (0.3): measured with
 # 0.3 (4000 steps, seeds 0 and 1) two behaviours shared an expert (3 distinct of 4), also at 6000 steps (docs/demo.md).
 GATE_LR_SCALE = 1.0
+# The CNEP's reconstruction term (pipeline.train.stage.TrainStageConfig.assignment): "paper" or "mixture".
+ASSIGNMENT = "paper"
 SUMMARY_FILE = "summary.json"
 RRD_FILE = "demo.rrd"
 PER_FILE_LOGGERS = ("pipeline.ingest", "pipeline.extract")
@@ -68,25 +77,31 @@ OUTPUTS = ("recorded", "demos", "trajectories", "checkpoints", EXTRACTOR_FILE, f
 class DemoSize:
     """How much the demo generates and trains: demonstrations per behaviour, steps per episode, training steps.
 
-    warmup_steps: the learning-rate warm-up (the models' default unless a size needs less).
+    free_choice_per_side / heldout_free_choice_per_side: training / held-out free-choice demonstrations
+    per cup side; warmup_steps: the learning-rate warm-up (the models' default unless a size needs less).
     """
 
     per_behaviour: int
     heldout_per_behaviour: int
+    free_choice_per_side: int
+    heldout_free_choice_per_side: int
     steps: int
     train_steps: int
     val_every: int
     warmup_steps: int = TrainConfig.warmup_steps
 
 
-FULL = DemoSize(per_behaviour=30, heldout_per_behaviour=5, steps=40, train_steps=4000, val_every=250)
-QUICK = DemoSize(per_behaviour=2, heldout_per_behaviour=1, steps=16, train_steps=60, val_every=20, warmup_steps=6)
+FULL = DemoSize(per_behaviour=30, heldout_per_behaviour=5, free_choice_per_side=20, heldout_free_choice_per_side=10,
+                steps=40, train_steps=4000, val_every=250)
+QUICK = DemoSize(per_behaviour=2, heldout_per_behaviour=1, free_choice_per_side=2, heldout_free_choice_per_side=1,
+                 steps=16, train_steps=60, val_every=20, warmup_steps=6)
 
 
 @dataclass(frozen=True)
 class DemoConfig:
     """out: folder for everything (created; must be empty or absent unless `force`, which first deletes what an
-    earlier demo wrote there: OUTPUTS); quick: the small CI variant; seed: all draws. A failed or interrupted
+    earlier demo wrote there: OUTPUTS); quick: the small CI variant; seed: all draws; assignment: the CNEP's
+    reconstruction term (ASSIGNMENT; the CNMP has one expert, where both terms agree). A failed or interrupted
     demo leaves a new folder empty."""
 
     out: Path
@@ -94,6 +109,7 @@ class DemoConfig:
     seed: int = 0
     force: bool = False
     quiet: bool = False
+    assignment: str = ASSIGNMENT
 
     @property
     def size(self) -> DemoSize:
@@ -107,9 +123,11 @@ class DemoResult:
     out: Path
     rrd: list[Path]  # one .rrd per replayed recording, the scene changes first
     checkpoints: dict[str, Path]
-    behaviours: dict[str, dict]  # behaviour -> {"n", "expert", "purity", "experts": {expert: count}}
+    behaviours: dict[str, dict]  # scene-decided behaviour -> {"n", "expert", "purity", "experts": {expert: count}}
     heldout: dict[str, dict]  # model -> {"position_rmse_m", "gripper_mae_m", "behaviour_accuracy", "n"}
     scene_change: list[dict]  # per scene-change recording: label, switch step, expert before/after, switches
+    free_choice: dict[str, dict]  # model -> place_outcomes on the held-out free-choice scenes
+    free_choice_replay: list[dict]  # per replayed free-choice recording: label, choice, its step, commitment
     seconds: dict[str, float] = field(default_factory=dict)  # stage -> wall time (s)
 
 
@@ -173,7 +191,8 @@ def _run_stages(config: DemoConfig, out: Path, size: DemoSize, seconds: dict[str
 
     stage("generate", 1)
     made = generate(DemoSetConfig(out / "recorded", size.per_behaviour, size.heldout_per_behaviour, 1, size.steps,
-                                  seed=config.seed, quiet=config.quiet))
+                                  seed=config.seed, quiet=config.quiet, free_choice_per_side=size.free_choice_per_side,
+                                  heldout_free_choice_per_side=size.heldout_free_choice_per_side))
     done("generate")
 
     stage("ingest", 2)
@@ -194,7 +213,8 @@ def _run_stages(config: DemoConfig, out: Path, size: DemoSize, seconds: dict[str
     training = TrainConfig(steps=size.train_steps, warmup_steps=size.warmup_steps, val_every=size.val_every,
                            gate_lr_scale=GATE_LR_SCALE, seed=config.seed)
     checkpoints = {"CNEP": out / "checkpoints" / "cnep", "CNMP": out / "checkpoints" / "cnmp"}
-    networks = {"CNEP": {"n_experts": CNEP_EXPERTS}, "CNMP": {"n_experts": CNEP_EXPERTS, "matched_cnmp": True}}
+    networks = {"CNEP": {"n_experts": CNEP_EXPERTS, "assignment": config.assignment},
+                "CNMP": {"n_experts": CNEP_EXPERTS, "matched_cnmp": True}}
     log.info("training the CNEP and the CNMP side by side (%d steps each, one process each)", size.train_steps)
     with single_thread_processes(len(checkpoints)) as pool:  # the workers train quietly; their errors reach us
         futures = {pool.submit(train, TrainStageConfig(inputs=(out / "trajectories" / "train",), out=path, layout=LAYOUT,
@@ -207,19 +227,24 @@ def _run_stages(config: DemoConfig, out: Path, size: DemoSize, seconds: dict[str
 
     stage("replay", 5)
     trajectories = {split: sorted((out / "trajectories" / split).glob("*.mcap")) for split in SPLITS}
-    rrd = replay(checkpoints["CNEP"], trajectories["scene_change"] + trajectories["heldout"], out / RRD_FILE,
-                 connect=None, quiet=config.quiet)  # one file per recording, the scene changes first
+    replayed_choice = trajectories["free_choice"][:1]  # one free-choice episode: the gate starts split, then commits
+    rrd = replay(checkpoints["CNEP"], trajectories["scene_change"] + trajectories["heldout"] + replayed_choice,
+                 out / RRD_FILE, connect=None, quiet=config.quiet)  # one file per recording, the scene changes first
     done("replay")
 
     stage("summary", 6)
     labels = {key(path): label for path, label in made.labels.items()}  # split/name is kept by every stage
     switch_steps = {key(p): int(read_demonstration(p).episode.extra[SWITCH_KEY]) for p in made.files["scene_change"]}
+    decided = [p for p in trajectories["train"] if labels[key(p)] in BEHAVIOURS]  # free choices have no purity
     result = DemoResult(
         out=out, rrd=rrd, checkpoints=checkpoints,
-        behaviours=expert_purity(checkpoints["CNEP"], trajectories["train"] + trajectories["heldout"], labels),
-        heldout={name: heldout_errors(ckpt, trajectories["heldout"], trajectories["train"], labels)
+        behaviours=expert_purity(checkpoints["CNEP"], decided + trajectories["heldout"], labels),
+        heldout={name: heldout_errors(ckpt, trajectories["heldout"], decided, labels)
                  for name, ckpt in checkpoints.items()},
         scene_change=scene_change_switches(out / RRD_FILE, trajectories["scene_change"], labels, switch_steps),
+        free_choice={name: place_outcomes(generated_ends(*_model_rows(ckpt, trajectories["free_choice"])))
+                     for name, ckpt in checkpoints.items()},
+        free_choice_replay=free_choice_commitment(out / RRD_FILE, replayed_choice, made.files["free_choice"], labels),
         seconds=seconds)
     done("summary")
     return result
@@ -269,7 +294,9 @@ def heldout_errors(checkpoint: Path, heldout: list[Path], train_paths: list[Path
     """Generated motion vs held-out demonstrations, conditioned on each one's first step (t = 0).
 
     The queries carry the demonstration's own features at each step when the layout has query columns.
-    position_rmse_m: root mean squared xyz error (m) over all steps and demonstrations; gripper_mae_m:
+    position_rmse_m: root mean squared xyz error (m) over all steps and demonstrations;
+    position_rmse_median_m: the median over demonstrations of each one's RMSE (m), which one misread
+    frame does not move (a wrong expert costs ~20 cm on its demonstration, docs/demo.md); gripper_mae_m:
     mean absolute gripper error (m); behaviour_accuracy: the generated xyz path is nearest (mean
     distance) to a training demonstration of the held-out demonstration's behaviour.
     """
@@ -294,6 +321,7 @@ def heldout_errors(checkpoint: Path, heldout: list[Path], train_paths: list[Path
                        for d, lab in zip(train_xyz, train_labels) if len(d) == T]
         hits.append(min(same_length)[1] == labels[key(path)])
     return {"n": len(heldout), "position_rmse_m": float(np.sqrt(np.concatenate(sq).mean())),
+            "position_rmse_median_m": float(np.median([np.sqrt(e.mean()) for e in sq])),
             "gripper_mae_m": float(np.concatenate(grip).mean()), "behaviour_accuracy": float(np.mean(hits))}
 
 
@@ -314,6 +342,20 @@ def scene_change_switches(rrd: Path, paths: list[Path], labels: dict[str, str],
     return found
 
 
+def free_choice_commitment(rrd: Path, paths: list[Path], recorded: list[Path], labels: dict[str, str]) -> list[dict]:
+    """For each replayed free-choice recording: its scene, the slot picked, the step its carry starts (the
+    paths part there), and the replay gate's `commitment`; `recorded`: the recorder's files (the metadata)."""
+    records = {key(Path(r["recording"])): r for r in read_decisions(rrd)["recordings"]}
+    sources = {key(p): p for p in recorded}
+    found = []
+    for path in paths:
+        extra = read_demonstration(sources[key(path)]).episode.extra
+        found.append({"recording": path.name, "scene": labels[key(path)], "choice": extra[CHOICE_KEY],
+                      "carry_step": int(extra[CHOICE_STEP_KEY]),
+                      **commitment(np.asarray(records[key(path)]["gates"]))})
+    return found
+
+
 def format_summary(result: DemoResult) -> str:
     """The printed summary: behaviours -> experts, held-out errors, the scene change, the files, the times."""
     lines = ["behaviour      demos  expert  purity  (demonstrations per expert)"]
@@ -325,15 +367,28 @@ def format_summary(result: DemoResult) -> str:
                  f"(purity alone is 1.0 when every demonstration goes to one expert)")
     lines.append("")
     lines.append("held-out demonstrations, conditioned on the first step (t = 0):")
-    lines.append("model  position RMSE (cm)  gripper MAE (mm)  nearest-demo behaviour accuracy")
+    lines.append("model  position RMSE (cm)  median per demo (cm)  gripper MAE (mm)  nearest-demo behaviour accuracy")
     for name, row in result.heldout.items():
-        lines.append(f"{name:<6} {100 * row['position_rmse_m']:>18.2f}  {1000 * row['gripper_mae_m']:>16.2f}  "
-                     f"{row['behaviour_accuracy']:>10.2f} (n = {row['n']})")
+        lines.append(f"{name:<6} {100 * row['position_rmse_m']:>18.2f}  {100 * row['position_rmse_median_m']:>20.2f}  "
+                     f"{1000 * row['gripper_mae_m']:>16.2f}  {row['behaviour_accuracy']:>10.2f} (n = {row['n']})")
     lines.append("")
     for change in result.scene_change:
         moves = ", ".join(f"step {s}: {a} -> {b}" for s, a, b in change["switches"]) or "none"
         lines.append(f"scene change {change['behaviour']} at step {change['change_step']}: expert "
                      f"{change['expert_before']} before, {change['expert_after']} after; switches: {moves}")
+    lines.append("")
+    lines.append(f"held-out free-choice scenes (both slots free), conditioned on the first step: where the motion "
+                 f"ends (within {100 * PLACE_TOLERANCE:.0f} cm of a slot centre, or between):")
+    lines.append("model  in a slot  near  far  between  mean distance to a slot (cm)")
+    for name, row in result.free_choice.items():
+        lines.append(f"{name:<6} {row['valid']:>9.2f}  {row['near']:>4.2f}  {row['far']:>3.2f}  "
+                     f"{row['between']:>7.2f}  {100 * row['distance_m']:>10.1f} (n = {row['n']})")
+    for episode in result.free_choice_replay:
+        (e0, p0), (e1, p1) = episode["start"]
+        commits = (f"holds expert {episode['expert']} at p >= {COMMIT_GATE} from step {episode['step']}"
+                   if episode["step"] is not None else f"ends on expert {episode['expert']} below p = {COMMIT_GATE}")
+        lines.append(f"replayed free choice {episode['scene']} (picked {episode['choice']}, carry from step "
+                     f"{episode['carry_step']}): gate at step 0 expert {e0} {p0:.2f}, expert {e1} {p1:.2f}; {commits}")
     lines.append("")
     lines.append(f"Rerun recordings: {len(result.rrd)} files {result.out}/{Path(RRD_FILE).stem}-*.rrd, one per replayed "
                  f"recording; the scene change: `rerun {result.rrd[0]}`")

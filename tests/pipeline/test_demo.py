@@ -12,13 +12,15 @@ from pipeline.cli.main import main
 from pipeline.demo.stage import GATE_LR_SCALE, QUICK, RRD_FILE, SUMMARY_FILE
 from pipeline.errors import PipelineError
 from pipeline.replay.stage import read_decisions
-from pipeline.demo.scene import BEHAVIOURS
+from pipeline.demo.generator import CHOICE_KEY, LABEL_KEY
+from pipeline.demo.scene import BEHAVIOURS, FREE_CHOICE, SIDES
 from pipeline.train.constants import SCENE
 from recordings import read_demonstration, read_trajectory
 from recordings.constants import STEP_DIM
 
-N_TRAIN = QUICK.per_behaviour * len(BEHAVIOURS)
+N_TRAIN = QUICK.per_behaviour * len(BEHAVIOURS) + QUICK.free_choice_per_side * len(SIDES)
 N_HELDOUT = QUICK.heldout_per_behaviour * len(BEHAVIOURS)
+N_FREE = QUICK.heldout_free_choice_per_side * len(SIDES)
 
 
 @pytest.fixture(scope="module")
@@ -66,9 +68,9 @@ def _rrd_recordings(path: Path) -> list[dict]:
 
 def test_every_stage_leaves_its_files(demo_run):
     for stage in ("recorded", "demos", "trajectories"):
-        counts = {split: len(list((demo_run / stage / split).glob("*.mcap"))) for split in ("train", "heldout",
-                                                                                           "scene_change")}
-        assert counts == {"train": N_TRAIN, "heldout": N_HELDOUT, "scene_change": 1}, stage
+        counts = {split: len(list((demo_run / stage / split).glob("*.mcap")))
+                  for split in ("train", "heldout", "scene_change", "free_choice")}
+        assert counts == {"train": N_TRAIN, "heldout": N_HELDOUT, "scene_change": 1, "free_choice": N_FREE}, stage
     recorded = read_demonstration(demo_run / "recorded" / "train" / "demo_000.mcap")
     ingested = read_demonstration(demo_run / "demos" / "train" / "demo_000.mcap")
     assert ingested.frames == recorded.frames  # JPEG kept byte for byte by ingest
@@ -94,11 +96,20 @@ def test_both_models_train_the_scene_layout_with_about_the_same_parameters(demo_
 
 
 def test_no_behaviour_label_reaches_training(demo_run):
-    """The label is metadata of the recorder's files only: the ingested files and the checkpoints never carry it."""
-    assert "behaviour" in read_demonstration(demo_run / "recorded" / "train" / "demo_000.mcap").episode.extra
-    assert "behaviour" not in read_demonstration(demo_run / "demos" / "train" / "demo_000.mcap").episode.extra
-    text = (demo_run / "checkpoints" / "cnep" / "config.json").read_text()
-    assert not any(name in text for name in BEHAVIOURS)
+    """The labels (behaviour, free-choice scene and pick) are metadata of the recorder's files only: the ingested
+    files, the trajectory files and the checkpoints never carry them."""
+    recorded = sorted((demo_run / "recorded" / "train").glob("*.mcap"))
+    extras = {p.name: read_demonstration(p).episode.extra for p in recorded}
+    assert {e[LABEL_KEY] for e in extras.values()} == set(BEHAVIOURS + FREE_CHOICE)  # both kinds are trained on
+    assert {e[CHOICE_KEY] for e in extras.values() if CHOICE_KEY in e} <= {"near", "far"}
+    for name in extras:
+        for stage in ("demos", "trajectories"):
+            path = demo_run / stage / "train" / name
+            extra = (read_demonstration(path) if stage == "demos" else read_trajectory(path)).episode.extra
+            assert LABEL_KEY not in extra and CHOICE_KEY not in extra, (stage, name)
+    for model in ("cnep", "cnmp"):
+        text = (demo_run / "checkpoints" / model / "config.json").read_text()
+        assert not any(name in text for name in BEHAVIOURS + FREE_CHOICE)
 
 
 def test_summary_covers_behaviours_models_and_the_scene_change(demo_run):
@@ -111,8 +122,16 @@ def test_summary_covers_behaviours_models_and_the_scene_change(demo_run):
     for model in ("CNEP", "CNMP"):
         row = summary["heldout"][model]
         assert row["n"] == N_HELDOUT and 0 < row["position_rmse_m"] < 1.0 and 0 <= row["behaviour_accuracy"] <= 1
+        assert 0 < row["position_rmse_median_m"] <= row["position_rmse_m"] * np.sqrt(N_HELDOUT)
     (change,) = summary["scene_change"]
     assert "->" in change["behaviour"] and 0 < change["change_step"] < QUICK.steps
+    for model in ("CNEP", "CNMP"):
+        row = summary["free_choice"][model]
+        assert row["n"] == N_FREE and row["valid"] == pytest.approx(row["near"] + row["far"])
+        assert row["valid"] + row["between"] == pytest.approx(1.0) and row["distance_m"] >= 0
+    (episode,) = summary["free_choice_replay"]
+    assert episode["scene"] in FREE_CHOICE and episode["choice"] in ("near", "far")
+    assert len(episode["start"]) == 2 and 0 <= episode["expert"] < 4
     assert set(summary["seconds"]) == {"generate", "ingest", "extract", "train", "replay", "summary"}
 
 
@@ -122,7 +141,7 @@ def test_the_rrd_holds_each_replayed_recording(demo_run):
     recordings = [rec for file in files for rec in _rrd_recordings(file)]
     assert len(recordings) == len(files)
     replayed = sorted((demo_run / "trajectories" / "heldout").glob("*.mcap")) + \
-        [demo_run / "trajectories" / "scene_change" / "demo_000.mcap"]
+        [demo_run / "trajectories" / split / "demo_000.mcap" for split in ("scene_change", "free_choice")]
     assert len(recordings) == len(replayed)
     decisions = {Path(r["recording"]).parent.name + "/" + Path(r["recording"]).name: r
                  for r in read_decisions(demo_run / RRD_FILE)["recordings"]}

@@ -6,8 +6,11 @@ import numpy as np
 import pytest
 
 from perception import FeatureExtractor, decode_image
-from pipeline.demo.scene import BEHAVIOURS, FRAME_HEIGHT, FRAME_WIDTH, draw_frame, gripper_quaternion, sample_scene, yaw_of
-from pipeline.demo.generator import (GRIPPER_OPEN, HOME, LABEL_KEY, SWITCH_KEY, DemoSetConfig, generate)
+from pipeline.demo.free_choice import place_outcomes
+from pipeline.demo.scene import (BEHAVIOURS, BLOCK_RGB, FRAME_HEIGHT, FRAME_WIDTH, FREE_CHOICE, draw_frame,
+                                 gripper_quaternion, sample_scene, yaw_of)
+from pipeline.demo.generator import (CHOICE_KEY, CHOICE_STEP_KEY, GRIPPER_OPEN, HOME, LABEL_KEY, SWITCH_KEY,
+                                     DemoSetConfig, generate)
 from recordings import read_demonstration
 
 STEPS = 24
@@ -19,13 +22,15 @@ POSES = 4  # gripper poses per scene, in the read-out check
 def demo_set(tmp_path_factory):
     out = tmp_path_factory.mktemp("tabletop")
     return generate(DemoSetConfig(out, per_behaviour=2, heldout_per_behaviour=1, scene_changes=2, steps=STEPS,
-                                  seed=3, quiet=True))
+                                  seed=3, quiet=True, free_choice_per_side=3, heldout_free_choice_per_side=2))
 
 
 def test_files_per_split_and_labels_only_in_metadata(demo_set):
-    assert {k: len(v) for k, v in demo_set.files.items()} == {"train": 8, "heldout": 4, "scene_change": 2}
+    assert {k: len(v) for k, v in demo_set.files.items()} == {"train": 14, "heldout": 4, "scene_change": 2,
+                                                              "free_choice": 4}
     train_labels = sorted(demo_set.labels[p] for p in demo_set.files["train"])
-    assert train_labels == sorted(BEHAVIOURS * 2)
+    assert train_labels == sorted(BEHAVIOURS * 2 + FREE_CHOICE * 3)
+    assert sorted(demo_set.labels[p] for p in demo_set.files["free_choice"]) == sorted(FREE_CHOICE * 2)
     for path in demo_set.files["train"]:
         demo = read_demonstration(path)
         assert demo.episode.extra[LABEL_KEY] == demo_set.labels[path]
@@ -35,7 +40,7 @@ def test_files_per_split_and_labels_only_in_metadata(demo_set):
 
 
 def test_motion_shares_the_start_closes_and_opens_the_gripper(demo_set):
-    demos = [read_demonstration(p) for p in demo_set.files["train"]]
+    demos = [read_demonstration(p) for p in demo_set.files["train"] if demo_set.labels[p] in BEHAVIOURS]
     for demo in demos:
         np.testing.assert_allclose(demo.pose[0, :3], HOME)
         assert demo.gripper[0] == demo.gripper[-1] == pytest.approx(GRIPPER_OPEN)
@@ -52,7 +57,7 @@ def test_motion_shares_the_start_closes_and_opens_the_gripper(demo_set):
 
 def test_same_seed_same_recordings(demo_set, tmp_path):
     again = generate(DemoSetConfig(tmp_path, per_behaviour=2, heldout_per_behaviour=1, scene_changes=2, steps=STEPS,
-                                   seed=3, quiet=True))
+                                   seed=3, quiet=True, free_choice_per_side=3, heldout_free_choice_per_side=2))
     for a, b in zip(demo_set.files["train"], again.files["train"]):
         da, db = read_demonstration(a), read_demonstration(b)
         np.testing.assert_array_equal(da.pose, db.pose)
@@ -73,6 +78,54 @@ def test_scene_change_moves_the_block_and_the_place_point(demo_set):
         frames = np.stack([decode_image(f).astype(float) for f in demo.frames])
         jump = np.abs(np.diff(frames, axis=0)).mean(axis=(1, 2, 3))  # (T-1,)
         assert jump[switch - 1] > np.median(jump)  # the block moved between these two frames
+
+
+def _blue_pixels(frame: np.ndarray) -> int:
+    return int((np.abs(frame.astype(int) - BLOCK_RGB).sum(-1) < 90).sum())
+
+
+def test_a_free_choice_scene_shows_no_block():
+    """Both slots free: the tray is drawn without the blue block; the scene-decided one shows it."""
+    rng = np.random.default_rng(0)
+    pose = np.array([*HOME, *gripper_quaternion(0.0)])
+    decided = sample_scene(0, rng)
+    free = sample_scene(0, rng, both_free=True)
+    assert decided.taken_slot == "far" and free.taken_slot is None
+    assert _blue_pixels(draw_frame(decided, pose, 1.0, decided.cup_xy, rng)) > 50
+    assert _blue_pixels(draw_frame(free, pose, 1.0, free.cup_xy, rng)) == 0
+
+
+def _free_choices(demo_set) -> list:
+    return [read_demonstration(p) for split in ("train", "free_choice") for p in demo_set.files[split]
+            if demo_set.labels[p] in FREE_CHOICE]
+
+
+def test_free_choice_demonstrations_pick_either_slot_and_end_in_it(demo_set):
+    demos = _free_choices(demo_set)
+    choices = [demo.episode.extra[CHOICE_KEY] for demo in demos]
+    assert set(choices) == {"near", "far"}  # the demonstrator picks both (10 episodes, seed 3)
+    ends = np.stack([demo.pose[-1, :2] for demo in demos])
+    found = place_outcomes(ends)
+    assert found["valid"] == 1.0  # a demonstrated place counts as valid ...
+    assert found["near"] == pytest.approx(choices.count("near") / len(choices))  # ... in the slot picked
+    for demo in demos:  # the two choices share the path up to the carry (same scene, same grasp)
+        assert 0 < int(demo.episode.extra[CHOICE_STEP_KEY]) < STEPS - 1
+        np.testing.assert_allclose(demo.pose[0, :3], HOME)
+
+
+def test_the_demonstrators_choice_is_seeded(demo_set, tmp_path):
+    again = generate(DemoSetConfig(tmp_path / "again", per_behaviour=0, heldout_per_behaviour=0, scene_changes=0,
+                                   steps=STEPS, seed=3, quiet=True, free_choice_per_side=0,
+                                   heldout_free_choice_per_side=2))
+    other = generate(DemoSetConfig(tmp_path / "other", per_behaviour=0, heldout_per_behaviour=0, scene_changes=0,
+                                   steps=STEPS, seed=5, quiet=True, free_choice_per_side=0,
+                                   heldout_free_choice_per_side=6))
+
+    def picks(made):
+        return [read_demonstration(p).episode.extra[CHOICE_KEY] for p in made.files["free_choice"]]
+
+    assert picks(again) == picks(demo_set)  # same seed, same picks (whatever else the set holds)
+    assert set(picks(other)) == {"near", "far"}
 
 
 def test_gripper_quaternion_round_trip():
