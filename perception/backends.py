@@ -90,12 +90,10 @@ def onnx_model(net: nn.Module, cache_key: str | None = None) -> bytes:
     The cache file is named by the sha256 of (cache_key, opset, torch version), so changed weights or a
     new exporter never reuse a stale graph; it is written under a temporary name and renamed when complete.
     """
-    path = None
-    if cache_key is not None:
-        digest = hashlib.sha256(f"{cache_key}|opset={ONNX_OPSET}|torch={torch.__version__}".encode()).hexdigest()
-        path = onnx_cache_dir() / f"featurenet-{digest[:32]}.onnx"
-        if path.is_file():
-            return path.read_bytes()
+    identity = f"{cache_key}|opset={ONNX_OPSET}|torch={torch.__version__}"
+    path = None if cache_key is None else cache_path("featurenet", identity)
+    if path is not None and path.is_file():
+        return path.read_bytes()
     buffer = io.BytesIO()
     with warnings.catch_warnings():
         # The dynamo exporter needs onnxscript; the TorchScript exporter handles this plain CNN exactly.
@@ -115,6 +113,11 @@ def onnx_cache_dir() -> Path:
     if root:
         return Path(root) / "onnx"
     return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "cnep" / "onnx"
+
+
+def cache_path(name: str, identity: str) -> Path:
+    """The cache file for `name` made from `identity` (all it depends on): its sha256 is in the file name."""
+    return onnx_cache_dir() / f"{name}-{hashlib.sha256(identity.encode()).hexdigest()[:32]}.onnx"
 
 
 def write_cache_file(path: Path, data: bytes) -> None:

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from perception.backends import onnx_cache_dir, write_cache_file
+from perception.backends import cache_path, write_cache_file
 
 QUANTISATION = "onnxruntime static QDQ, weights int8 per channel, activations uint8 per tensor, min-max"
 
@@ -42,12 +42,10 @@ def quantise_int8(model: bytes, batches: Sequence[np.ndarray], cache_key: str | 
     import onnxruntime as ort
     from onnxruntime.quantization import CalibrationDataReader, QuantFormat, QuantType, quantize_static
 
-    path = None
-    if cache_key is not None:
-        digest = hashlib.sha256(f"{cache_key}|{QUANTISATION}|onnxruntime={ort.__version__}".encode()).hexdigest()
-        path = onnx_cache_dir() / f"featurenet-int8-{digest[:32]}.onnx"
-        if path.is_file():
-            return path.read_bytes()
+    identity = f"{cache_key}|{QUANTISATION}|onnxruntime={ort.__version__}"
+    path = None if cache_key is None else cache_path("featurenet-int8", identity)
+    if path is not None and path.is_file():
+        return path.read_bytes()
 
     class Frames(CalibrationDataReader):
         def __init__(self) -> None:
