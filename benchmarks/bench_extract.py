@@ -1,13 +1,16 @@
-"""`cnep extract` across processes: wall time of the stage with --workers 2 against --workers 1 (and --precision int8).
+"""`cnep extract` across processes: wall time of the stage with --workers 2 against --workers 1, per job size.
 
 Run on demand (say the machine's load when you quote it):
-    python -m benchmarks.bench_extract [--files 4] [--frames 48] [--rounds 2]
+    python -m benchmarks.bench_extract [--jobs 2x24 4x100 4x250] [--precisions fp32 int8] [--rounds 2]
 
-Writes `files` demonstration files of `frames` 640x480 JPEG frames (smooth random scenes) into a
-temporary folder, calibrates random weights once (saved, so every timed run uses fixed weights and
-builds no calibration), then times `pipeline.extract.extract` with force=True for each variant,
-round after round (interleaved, so the ratios share the load). Reports frames/s (median over rounds)
-and os.getloadavg() before and after.
+For each job FILESxFRAMES, writes that many demonstration files of 640x480 JPEG frames (smooth random
+scenes) into a temporary folder; random weights are calibrated once on the largest job (saved, so
+every timed run uses fixed weights and builds no calibration). Then times `pipeline.extract.extract`
+with force=True for each precision (int8 on `auto`'s backend) and 1 and 2 workers, round after
+round (interleaved, so the ratios share the load), and reports frames/s (median over rounds), the
+ratio 2 workers / 1 per job, and the fixed cost of the second worker: the time t = c + frames / r
+fitted over the jobs for each variant gives c (start-up) and r (steady frames/s), so 2 workers pay
+from frames > (c2 - c1) / (1 / r1 - 1 / r2) on. os.getloadavg() before and after.
 """
 
 from __future__ import annotations
@@ -22,12 +25,14 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.bench_perception import jpeg_frames, synthetic_frames
+from perception import FeatureExtractor
 from pipeline.extract.stage import ExtractConfig, extract
 from recordings import Demonstration, Episode, write_demonstration
 
 
 def write_demos(folder: Path, files: int, frames: int) -> list[Path]:
     """`files` demonstrations of `frames` JPEG frames each, with a plausible pose and gripper."""
+    folder.mkdir(parents=True)
     paths = []
     for k in range(files):
         pose = np.zeros((frames, 7))
@@ -40,41 +45,70 @@ def write_demos(folder: Path, files: int, frames: int) -> list[Path]:
     return paths
 
 
+def parse_job(text: str) -> tuple[int, int]:
+    """`FILESxFRAMES` -> (files, frames per file)."""
+    files, frames = (int(part) for part in text.lower().split("x"))
+    return files, frames
+
+
+def fit_line(frames: list[int], seconds: list[float]) -> tuple[float, float]:
+    """Least-squares t = c + frames / r over the jobs: (c in s, r in frames/s)."""
+    slope, intercept = np.polyfit(np.asarray(frames, dtype=float), np.asarray(seconds), 1)
+    return float(intercept), float(1 / slope)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--files", type=int, default=4)
-    parser.add_argument("--frames", type=int, default=48)
+    parser.add_argument("--jobs", nargs="+", default=["2x24", "4x100", "4x250"], help="FILESxFRAMES per job")
+    parser.add_argument("--precisions", nargs="+", default=["fp32", "int8"], choices=("fp32", "int8"))
     parser.add_argument("--rounds", type=int, default=2)
     args = parser.parse_args()
+    jobs = [parse_job(job) for job in args.jobs]
     with tempfile.TemporaryDirectory(prefix="cnep-bench-extract-") as tmp:
         root = Path(tmp)
-        (root / "demos").mkdir()
-        demos = write_demos(root / "demos", args.files, args.frames)
+        demos = {job: write_demos(root / f"demos-{job[0]}x{job[1]}", *job) for job in jobs}
         weights = root / "weights.pt"
-        extract(ExtractConfig(inputs=tuple(demos), out=root / "calibrate", weights="random", save_weights=weights,
-                              quiet=True))
-        variants = {"fp32, 1 worker": {"workers": 1}, "fp32, 2 workers": {"workers": 2},
-                    "int8, 1 worker": {"workers": 1, "precision": "int8"},
-                    "int8, 2 workers": {"workers": 2, "precision": "int8"}}
-        for name, options in variants.items():  # warm-up: ONNX export and int8 quantisation land in the cache
-            extract(ExtractConfig(inputs=tuple(demos), out=root / "warm", weights=str(weights), force=True, quiet=True,
-                                  **options))
-        print(f"load before: {' '.join(f'{x:.2f}' for x in os.getloadavg())}; {os.cpu_count()} CPUs; "
-              f"{args.files} files x {args.frames} frames of 640x480")
-        rates: dict[str, list[float]] = {name: [] for name in variants}
-        for _ in range(args.rounds):
-            for name, options in variants.items():
-                start = time.perf_counter()
-                extract(ExtractConfig(inputs=tuple(demos), out=root / "out", weights=str(weights), force=True,
+        largest = max(jobs, key=lambda job: job[0] * job[1])
+        extract(ExtractConfig(inputs=tuple(demos[largest]), out=root / "calibrate", weights="random",
+                              save_weights=weights, quiet=True))
+        variants = {(precision, workers): {"precision": precision, "workers": workers}
+                    for precision in args.precisions for workers in (1, 2)}
+        backends = {precision: FeatureExtractor(str(weights), precision=precision).identity["backend"]
+                    for precision in args.precisions}
+        for job in jobs:  # warm-up: ONNX export and int8 quantisation (one per job's frames) land in the cache
+            for options in variants.values():
+                extract(ExtractConfig(inputs=tuple(demos[job]), out=root / "warm", weights=str(weights), force=True,
                                       quiet=True, **options))
-                rates[name].append(args.files * args.frames / (time.perf_counter() - start))
+        print(f"load before: {' '.join(f'{x:.2f}' for x in os.getloadavg())}; {os.cpu_count()} CPUs; jobs "
+              f"{', '.join(args.jobs)} (files x frames of 640x480); backends {backends}")
+        seconds: dict[tuple, list[float]] = {}
+        for _ in range(args.rounds):
+            for job in jobs:
+                for key, options in variants.items():
+                    start = time.perf_counter()
+                    extract(ExtractConfig(inputs=tuple(demos[job]), out=root / "out", weights=str(weights),
+                                          force=True, quiet=True, **options))
+                    seconds.setdefault((job, *key), []).append(time.perf_counter() - start)
         print(f"load after: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
-        median = {name: statistics.median(r) for name, r in rates.items()}
-        for name, value in median.items():
-            print(f"{name:<18} {value:7.1f} frames/s (whole stage: read, decode, infer, write)")
-        print(f"2 workers / 1: fp32 {median['fp32, 2 workers'] / median['fp32, 1 worker']:.2f}x, "
-              f"int8 {median['int8, 2 workers'] / median['int8, 1 worker']:.2f}x; "
-              f"int8 / fp32 (1 worker) {median['int8, 1 worker'] / median['fp32, 1 worker']:.2f}x")
+        median = {key: statistics.median(values) for key, values in seconds.items()}
+        print(f"{'job':>9} {'frames':>6}  " + "  ".join(f"{p} {w}w fr/s" for p, w in variants)
+              + "  " + "  ".join(f"{p} 2w/1w" for p in args.precisions))
+        for job in jobs:
+            n = job[0] * job[1]
+            rates = [n / median[(job, *key)] for key in variants]
+            ratios = [median[(job, p, 1)] / median[(job, p, 2)] for p in args.precisions]
+            print(f"{job[0]:>4}x{job[1]:<4} {n:>6}  " + "  ".join(f"{r:13.1f}" for r in rates) + "  "
+                  + "  ".join(f"{r:10.2f}x" for r in ratios))
+        if len(jobs) >= 2:
+            frames = [job[0] * job[1] for job in jobs]
+            for precision in args.precisions:
+                (c1, r1), (c2, r2) = (fit_line(frames, [median[(job, precision, w)] for job in jobs]) for w in (1, 2))
+                even = (c2 - c1) / (1 / r1 - 1 / r2) if r2 > r1 else float("inf")
+                print(f"{precision}: 1 worker {c1:.1f} s + frames / {r1:.1f}; 2 workers {c2:.1f} s + frames / {r2:.1f}; "
+                      f"2 workers pay from ~{even:.0f} frames")
+        print(f"int8 / fp32 with 1 worker, largest job: "
+              + (f"{median[(largest, 'fp32', 1)] / median[(largest, 'int8', 1)]:.2f}x"
+                 if set(args.precisions) == {"fp32", "int8"} else "(give both precisions)"))
 
 
 if __name__ == "__main__":

@@ -11,8 +11,9 @@ Measured:
 - extraction, frames/s of 640x480 frames: the naive per-frame eager loop (torch's default threads,
   and one thread), the old default (ONNX
   Runtime, one thread per core, spinning threads), the new default (pipeline.workers.inference_threads
-  threads, no spinning), one thread without spinning, and int8 (perception.quantisation) with the
-  new default's threads; and the int8 features' error against fp32 (cosine, relative L2).
+  threads, no spinning), one thread without spinning, int8 (perception.quantisation) on ONNX Runtime
+  with the new default's threads, and, when the `openvino` extra is installed, OpenVINO fp32 and int8
+  (the same graphs) with those threads; and the int8 features' error against fp32 (cosine, relative L2).
 """
 
 from __future__ import annotations
@@ -28,11 +29,12 @@ from collections.abc import Callable
 import numpy as np
 import torch
 
-from benchmarks.bench_perception import naive_loop, synthetic_frames
+from benchmarks.bench_perception import extractor_path, naive_loop, synthetic_frames
 from models import CNEPConfig, TrainConfig
 from models.synthetic import make_set
 from models.train import prepare_fit
-from perception import FeatureExtractor
+from perception import FeatureExtractor, available_backends
+from perception.constants import DEFAULT_BATCH_SIZE
 from perception.backends import onnx_model, session_options
 from pipeline.workers import inference_threads
 
@@ -78,10 +80,11 @@ def onnx_session_path(frames: np.ndarray, threads: int, spinning: bool) -> Calla
     return lambda: extractor(frames)
 
 
-def int8_path(frames: np.ndarray, threads: int) -> tuple[Callable[[], object], dict[str, float]]:
-    """The int8 extractor (quantised on `frames`) and its feature error against fp32 with the same calibrated weights."""
+def int8_path(frames: np.ndarray, threads: int, backend: str) -> tuple[Callable[[], object], dict[str, float]]:
+    """The int8 extractor on `backend` (quantised on `frames`) and its feature error against fp32 (ONNX Runtime)
+    with the same calibrated weights."""
     fp32 = FeatureExtractor("random", backend="onnxruntime", threads=threads)
-    int8 = FeatureExtractor("random", backend="onnxruntime", threads=threads, precision="int8")
+    int8 = FeatureExtractor("random", backend=backend, threads=threads, precision="int8")
     for extractor in (fp32, int8):
         extractor.calibrate(frames[:8])
     int8.quantise(frames)
@@ -117,9 +120,15 @@ def main() -> None:
         f"extract, new default (ORT {policy} threads, no spin)": (onnx_session_path(frames, policy, False), args.frames),
         "extract, ORT 1 thread, no spin": (onnx_session_path(frames, 1, False), args.frames),
     }
-    int8, error = int8_path(frames, policy)
-    variants[f"extract, int8 (ORT {policy} threads, no spin)"] = (int8, args.frames)
-    print("int8 vs fp32 features: " + ", ".join(f"{k} {v:.5f}" for k, v in error.items()))
+    int8_backends = ["onnxruntime"]
+    if "openvino" in available_backends():
+        variants[f"extract, OpenVINO fp32 ({policy} threads)"] = (
+            extractor_path(frames, "openvino", policy, DEFAULT_BATCH_SIZE), args.frames)
+        int8_backends.append("openvino")
+    for backend in int8_backends:
+        int8, error = int8_path(frames, policy, backend)
+        variants[f"extract, int8 {backend} ({policy} threads)"] = (int8, args.frames)
+        print(f"int8 on {backend} vs fp32 features: " + ", ".join(f"{k} {v:.5f}" for k, v in error.items()))
     for fn, _ in variants.values():
         fn()  # warm-up
     load = multiprocessing.get_context("spawn").Process(target=busy_training, args=(os.getpid(),), daemon=True)
@@ -143,13 +152,15 @@ def main() -> None:
     for name in variants:
         idle, loaded = median[(name, "idle")], median[(name, "loaded")]
         print(f"{name:<52} {idle:8.1f} {loaded:8.1f}  {loaded / idle:6.2f}")
+    names = list(variants)
     for condition in ("idle", "loaded"):
         train = median[("train, 1 thread (policy)", condition)] / median[("train, 2 threads", condition)]
-        names = list(variants)
-        naive, old, new, int8_rate = (median[(names[i], condition)] for i in (2, 4, 5, 7))
+        naive, old, new = (median[(names[i], condition)] for i in (2, 4, 5))
         print(f"{condition}: training 1 thread / 2 threads {train:.2f}x; extraction new default / old default "
-              f"{new / old:.2f}x, new default / naive loop {new / naive:.2f}x, int8 / new default fp32 "
-              f"{int8_rate / new:.2f}x, int8 / naive loop {int8_rate / naive:.2f}x")
+              f"{new / old:.2f}x, new default / naive loop {new / naive:.2f}x")
+        for name in names[7:]:
+            print(f"{condition}:   {name[len('extract, '):]} / new default fp32 {median[(name, condition)] / new:.2f}x, "
+                  f"/ naive loop {median[(name, condition)] / naive:.2f}x")
 
 
 if __name__ == "__main__":

@@ -1,9 +1,10 @@
-"""Inference backends for a FeatureNet: eager channels-last torch, traced+frozen torch, ONNX Runtime.
+"""Inference backends for a FeatureNet: eager channels-last torch, traced+frozen torch, ONNX Runtime, OpenVINO.
 
 Each backend is built from the same module and returns a runner: uint8 (N, 224, 224, 3) -> float32 (N, 1280).
 The ONNX export (seconds) is cached on disk by content (the weights' sha256, opset and torch version),
-see `onnx_model`. ONNX Runtime sessions never spin idle threads: a spinning session on a shared
-machine burns the cores its neighbours need (measured: benchmarks/bench_threads.py).
+see `onnx_model`; ONNX Runtime and OpenVINO both run that graph (or its int8 quantisation). ONNX Runtime
+sessions never spin idle threads: a spinning session on a shared machine burns the cores its neighbours
+need (measured: benchmarks/bench_threads.py); OpenVINO's idle threads sleep (measured: docs/perception.md).
 """
 
 from __future__ import annotations
@@ -21,16 +22,17 @@ import numpy as np
 import torch
 from torch import nn
 
-from perception.constants import BACKENDS, CACHE_ENV_VAR, IMAGE_SIZE, ONNX_OPSET
+from perception.constants import BACKEND_MODULES, BACKENDS, CACHE_ENV_VAR, IMAGE_SIZE, ONNX_OPSET
 from perception.errors import PerceptionError
 
 Runner = Callable[[np.ndarray], np.ndarray]
+INSTALL_HINT = "onnxruntime needs: pip install 'cnep-pipeline[onnx]'; openvino: pip install 'cnep-pipeline[openvino]'"
 
 
 def available_backends() -> list[str]:
-    """Backends usable in this environment, fastest first (ONNX Runtime needs the `onnx` extra)."""
-    have_onnx = all(importlib.util.find_spec(m) is not None for m in ("onnx", "onnxruntime"))
-    return [name for name in BACKENDS if name != "onnxruntime" or have_onnx]
+    """Backends usable in this environment, fastest first (ONNX Runtime needs the `onnx` extra, OpenVINO `openvino`)."""
+    return [name for name in BACKENDS
+            if all(importlib.util.find_spec(module) is not None for module in BACKEND_MODULES.get(name, ()))]
 
 
 def build_runner(backend: str, net: nn.Module, threads: int | None = None, cache_key: str | None = None) -> Runner:
@@ -43,12 +45,14 @@ def build_runner(backend: str, net: nn.Module, threads: int | None = None, cache
         backend = available_backends()[0]
     if backend not in available_backends():
         raise PerceptionError(f"backend {backend!r} is not available; choose one of {available_backends()} or "
-                              f"`auto` (onnxruntime needs: pip install 'cnep-pipeline[onnx]')")
+                              f"`auto` ({INSTALL_HINT})")
     if threads is not None:
         torch.set_num_threads(threads)  # process-wide: torch has no per-module thread pool
     net = net.eval()
     if backend == "onnxruntime":
         return onnxruntime_runner(onnx_model(net, cache_key), threads)
+    if backend == "openvino":
+        return openvino_runner(onnx_model(net, cache_key), threads)
     builders = {"eager": _eager, "torchscript": _torchscript}
     return builders[backend](net, threads)
 
@@ -165,3 +169,28 @@ def onnx_providers() -> list:
         device = int(os.environ.get("LOCAL_RANK", "0")) % torch.cuda.device_count()
         return [("CUDAExecutionProvider", {"device_id": device}), "CPUExecutionProvider"]
     return ["CPUExecutionProvider"]
+
+
+def openvino_config(threads: int | None) -> dict[str, object]:
+    """OpenVINO CPU settings: `threads` inference threads (None: one per core) in one stream, unpinned, fp32.
+
+    One stream with the latency hint runs each batch on all `threads`, as the ONNX Runtime session does;
+    threads are not pinned to cores, so on a shared machine they move to a free core rather than wait for
+    a busy one; fp32 inference precision, so CPUs with bf16 units do not silently lower it. OpenVINO's
+    idle threads sleep (it has no spinning option to turn off; docs/perception.md measures them).
+    """
+    return {"INFERENCE_NUM_THREADS": threads or 0, "NUM_STREAMS": 1, "PERFORMANCE_HINT": "LATENCY",
+            "ENABLE_CPU_PINNING": False, "INFERENCE_PRECISION_HINT": "f32"}
+
+
+def openvino_runner(model: bytes, threads: int | None) -> Runner:
+    """A runner over ONNX graph `model` (input `pixels`, output `features`) on OpenVINO's CPU plugin: fp32 or int8 QDQ."""
+    import openvino as ov
+
+    core = ov.Core()
+    request = core.compile_model(core.read_model(model), "CPU", openvino_config(threads)).create_infer_request()
+
+    def run(pixels: np.ndarray) -> np.ndarray:
+        return request.infer({"pixels": pixels})["features"]  # (N, 1280) float32, a copy
+
+    return run

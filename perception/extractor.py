@@ -7,10 +7,11 @@ from pathlib import Path
 
 import numpy as np
 
-from perception.backends import Runner, available_backends, build_runner, onnx_model, onnxruntime_runner
+from perception.backends import (INSTALL_HINT, Runner, available_backends, build_runner, onnx_model,
+                                  onnxruntime_runner, openvino_runner)
 from perception.calibration import ACTIVATION_BIAS, calibrate_random_network
 from perception.constants import (ARCHITECTURE, CALIBRATION_BATCH, COMPATIBILITY_FIELDS, DEFAULT_BATCH_SIZE,
-                                  FEATURE_DIM, PRECISIONS, PREPROCESSING)
+                                  FEATURE_DIM, INT8_BACKENDS, PRECISIONS, PREPROCESSING)
 from perception.errors import PerceptionError
 from perception.frames import resize_frames
 from perception.network import FeatureNet, mobilenet_v2_features
@@ -24,26 +25,28 @@ class FeatureExtractor:
     """MobileNet-v2 features + global average pool, batched, eval + inference mode.
 
     weights: `imagenet`, a state-dict path, or `random` (seeded by `seed`; call `calibrate` on frames of
-    the recordings before extracting, see perception.calibration). backend: `auto` (fastest available),
-    `onnxruntime`, `torchscript` or `eager`. threads: CPU threads for inference (None: library default).
-    precision: `fp32` (default) or `int8` (ONNX Runtime only; call `quantise` on frames of the
-    recordings before extracting, see perception.quantisation).
+    the recordings before extracting, see perception.calibration). backend: `auto` (fastest available
+    for the precision), `onnxruntime`, `openvino`, `torchscript` or `eager`. threads: CPU threads for
+    inference (None: library default). precision: `fp32` (default) or `int8` (quantised by ONNX Runtime,
+    run by OpenVINO or ONNX Runtime; call `quantise` on frames of the recordings before extracting, see
+    perception.quantisation).
     """
 
     def __init__(self, weights: str | Path = "imagenet", backend: str = "auto", threads: int | None = None,
                  batch_size: int = DEFAULT_BATCH_SIZE, seed: int = 0, precision: str = "fp32") -> None:
         if precision not in PRECISIONS:
             raise PerceptionError(f"precision must be one of {PRECISIONS}, got {precision!r}")
-        if precision == "int8" and (backend not in ("auto", "onnxruntime") or "onnxruntime" not in available_backends()):
-            raise PerceptionError(f"precision int8 runs on ONNX Runtime only (backend `auto` or `onnxruntime`, "
-                                  f"pip install 'cnep-pipeline[onnx]'), got backend {backend!r}")
+        if precision == "int8" and (backend not in ("auto", *INT8_BACKENDS) or "onnxruntime" not in available_backends()):
+            raise PerceptionError(f"precision int8 is quantised by ONNX Runtime and runs on backend `auto`, "
+                                  f"{' or '.join(f'`{b}`' for b in INT8_BACKENDS)} (pip install "
+                                  f"'cnep-pipeline[onnx]'), got backend {backend!r}")
         if batch_size < 1:
             raise PerceptionError(f"batch_size must be >= 1, got {batch_size}")
         if threads is not None and threads < 1:
             raise PerceptionError(f"threads must be >= 1 (or None for the default), got {threads}")
         if backend != "auto" and backend not in available_backends():
             raise PerceptionError(f"backend {backend!r} is not available; choose `auto` or one of "
-                                  f"{available_backends()} (onnxruntime needs: pip install 'cnep-pipeline[onnx]')")
+                                  f"{available_backends()} ({INSTALL_HINT})")
         resolved = resolve_weights(weights, seed)
         features = mobilenet_v2_features()
         features.load_state_dict(resolved.state_dict)
@@ -148,15 +151,18 @@ class FeatureExtractor:
 
     def _get_runner(self) -> Runner:
         if self._runner is None and self._int8_model is not None:
-            self._runner = onnxruntime_runner(self._int8_model, self.threads)
+            run_on = openvino_runner if self._resolved_backend() == "openvino" else onnxruntime_runner
+            self._runner = run_on(self._int8_model, self.threads)
         elif self._runner is None:
             self._runner = build_runner(self._resolved_backend(), self.net, self.threads, cache_key=self._sha256)
         return self._runner
 
     def _resolved_backend(self) -> str:
+        if self.backend != "auto":
+            return self.backend
         if self.precision == "int8":
-            return "onnxruntime"
-        return available_backends()[0] if self.backend == "auto" else self.backend
+            return next(backend for backend in INT8_BACKENDS if backend in available_backends())
+        return available_backends()[0]
 
 
 def compatibility_key(identity: dict[str, str]) -> tuple[str, ...]:

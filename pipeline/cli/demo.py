@@ -20,6 +20,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--assignment", choices=("paper", "mixture"), default=None,
                         help="the CNEP's reconstruction term: the paper's gate-weighted NLL or the mixture likelihood "
                              "(default: the demo's, pipeline.demo.stage.ASSIGNMENT)")
+    parser.add_argument("--precision", choices=("fp32", "int8"), default="fp32",
+                        help="feature extraction precision (default fp32; int8 as `cnep extract --precision int8`)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -31,7 +33,7 @@ def run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     out = Path(args.out) if args.out is not None else free_folder(Path(DEFAULT_OUT))
     result = run_demo(DemoConfig(out=out, quick=args.quick, seed=args.seed, force=args.force, quiet=args.quiet,
-                                 assignment=args.assignment or ASSIGNMENT))
+                                 assignment=args.assignment or ASSIGNMENT, precision=args.precision))
     print(format_summary(result))
     print(f"cnep demo: done in {time.perf_counter() - start:.1f} s")
     return 0

@@ -17,16 +17,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="seed of the random weights (default 0)")
     parser.add_argument("--save-weights", metavar="PATH", default=None,
                         help="save the weights used (after calibration) to reuse them later with --weights PATH")
-    parser.add_argument("--backend", default="auto", choices=("auto", "onnxruntime", "torchscript", "eager"),
-                        help="inference backend (default: the fastest available)")
+    parser.add_argument("--backend", default="auto", choices=("auto", "onnxruntime", "openvino", "torchscript", "eager"),
+                        help="inference backend (default: the fastest available for the precision; openvino needs "
+                             "pip install 'cnep-pipeline[openvino]')")
     parser.add_argument("--threads", type=int, default=None,
                         help="CPU threads per process for inference (default: the cores shared among the workers)")
     parser.add_argument("--precision", choices=("fp32", "int8"), default="fp32",
                         help="fp32 (default) or int8: ONNX Runtime static quantisation calibrated on the inputs' frames "
                              "(~1%% feature error, faster; never mixed with fp32 features)")
-    parser.add_argument("--workers", type=int, default=1,
-                        help="processes extracting files side by side on this machine (default 1); under torchrun "
-                             "each rank extracts its share of the files")
+    parser.add_argument("--workers", type=_workers, default=1,
+                        help="processes extracting files side by side on this machine (default 1), or `auto`: one per "
+                             "core, but only as many as the job pays for (a worker takes seconds to start); under "
+                             "torchrun each rank extracts its share of the files")
+    parser.add_argument("--calibrate-on", nargs="+", metavar="DEMO", default=(),
+                        help="demonstration files or folders whose frames calibrate random weights and quantise int8, "
+                             "instead of the inputs: extract later files with the first run's int8 identity")
     parser.add_argument("--batch-size", type=int, default=None, help="frames per forward pass")
     parser.add_argument("--force", action="store_true", help="re-extract outputs that are already up to date, and "
                         "replace existing outputs made otherwise (other weights, or not trajectory files)")
@@ -57,6 +62,7 @@ def run(args: argparse.Namespace) -> int:
         offline=args.offline,
         workers=args.workers,
         precision=args.precision,
+        calibrate_on=tuple(Path(p) for p in args.calibrate_on),
         **options,
     )
     done = extract(config)
@@ -64,3 +70,13 @@ def run(args: argparse.Namespace) -> int:
     print(f"extracted {len(done) - skipped} trajectory file(s) into {config.out} ({skipped} up to date, "
           f"{sum(item.n_steps for item in done)} steps)")
     return 0
+
+
+def _workers(text: str) -> int | str:
+    """`--workers`: a whole number or `auto`."""
+    if text == "auto":
+        return text
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number or `auto`, got {text!r}") from None

@@ -10,7 +10,8 @@ Stages (each logs its progress; tqdm bars unless quiet), all under OUT:
               demonstration files, strictly (CRCs, schemas, time order);
 3. extract    `trajectories/...`: MobileNet-v2 features with **seeded random weights** (ImageNet weights
               cannot be downloaded here), calibrated on the training demonstrations only and saved to
-              `extractor.pt`, which then extracts the held-out and scene-change demonstrations;
+              `extractor.pt`, which then extracts the held-out and scene-change demonstrations (at
+              `precision` int8, quantised on the training demonstrations' frames for every split);
 4. train      `checkpoints/cnep` (4 experts) and `checkpoints/cnmp` (1 expert, parameter-matched
               widths) on the training trajectories (layout `scene`: observe features + pose + gripper,
               query with time only, predict pose + gripper), seeded;
@@ -101,8 +102,9 @@ QUICK = DemoSize(per_behaviour=2, heldout_per_behaviour=1, free_choice_per_side=
 class DemoConfig:
     """out: folder for everything (created; must be empty or absent unless `force`, which first deletes what an
     earlier demo wrote there: OUTPUTS); quick: the small CI variant; seed: all draws; assignment: the CNEP's
-    reconstruction term (ASSIGNMENT; the CNMP has one expert, where both terms agree). A failed or interrupted
-    demo leaves a new folder empty."""
+    reconstruction term (ASSIGNMENT; the CNMP has one expert, where both terms agree); precision: the feature
+    extraction's, `fp32` or `int8` (pipeline.extract.stage.ExtractConfig). A failed or interrupted demo leaves
+    a new folder empty."""
 
     out: Path
     quick: bool = False
@@ -110,6 +112,7 @@ class DemoConfig:
     force: bool = False
     quiet: bool = False
     assignment: str = ASSIGNMENT
+    precision: str = "fp32"
 
     @property
     def size(self) -> DemoSize:
@@ -201,7 +204,8 @@ def _run_stages(config: DemoConfig, out: Path, size: DemoSize, seconds: dict[str
 
     stage("extract", 3)
     weights = out / EXTRACTOR_FILE
-    common = {"seed": config.seed, "quiet": config.quiet}
+    common = {"seed": config.seed, "quiet": config.quiet, "precision": config.precision,
+              "calibrate_on": (out / "demos" / "train",)}  # int8: every split quantised on the training frames
     extract(ExtractConfig(inputs=(out / "demos" / "train",), out=out / "trajectories" / "train", weights="random",
                           save_weights=weights, **common))
     for split in SPLITS[1:]:

@@ -12,7 +12,9 @@ With `weights="random"` the network is first calibrated on frames sampled evenly
 `save_weights` to extract more files later with identical features.
 
 Scale-out: `workers` > 1 extracts the files in that many spawned processes on this machine, each
-with its share of the cores (pipeline.workers.inference_threads) and the parent's extractor. Under
+with its share of the cores (pipeline.workers.inference_threads) and the parent's extractor;
+`workers="auto"` takes one per core but only as many as the job pays for (`auto_workers`: a spawned
+worker costs seconds to start, measured by benchmarks/bench_extract.py). Under
 `torchrun` (environment RANK, WORLD_SIZE) rank r extracts every WORLD_SIZE-th file from the r-th on
 (its share; each rank calibrates random weights on the same frames, so all ranks share one weights
 hash); outputs are per file, so nothing is gathered (docs/perception.md).
@@ -40,13 +42,15 @@ from perception.weights import find_imagenet_weights
 from pipeline.contract import output_folder, raise_if_skipped, refuse_existing
 from pipeline.errors import PipelineError
 from pipeline.progress import progress_bar
-from pipeline.workers import inference_threads, thread_environment
-from recordings import RecordingError, Trajectory, TrajectoryReader, read_demonstration, write_trajectory
+from pipeline.workers import cpu_cores, inference_threads, thread_environment
+from recordings import (DemonstrationReader, RecordingError, Trajectory, TrajectoryReader, read_demonstration,
+                        write_trajectory)
 from recordings.constants import TOPIC_IMAGE
 
 log = logging.getLogger(__name__)
 
 SUFFIX = ".mcap"
+WORKER_MIN_FRAMES = 800  # `workers="auto"`: frames per extra worker process before it pays (measured: docs/perception.md)
 
 
 @dataclass(frozen=True)
@@ -58,9 +62,12 @@ class ExtractConfig:
     per process (None: the process's share of the cores, pipeline.workers); batch_size: frames per
     forward pass; force: re-extract up-to-date outputs and replace any other existing output;
     save_weights: where to save the (calibrated) weights, to reuse them as `weights` later; keep_going:
-    skip inputs that fail and report them at the end; workers: processes extracting files side by side;
-    precision: `fp32` or `int8` (quantised on frames sampled evenly over all inputs, like the random
-    weights' calibration; perception.quantisation); offline: never download the ImageNet weights.
+    skip inputs that fail and report them at the end; workers: processes extracting files side by side,
+    or `auto` (`auto_workers`); precision: `fp32` or `int8` (quantised on frames sampled evenly over all
+    inputs, like the random weights' calibration; perception.quantisation); offline: never download the
+    ImageNet weights; calibrate_on: demonstration files or folders whose frames calibrate random weights
+    and quantise int8, instead of the inputs (so that later runs over other files share the first run's
+    int8 identity).
     """
 
     inputs: tuple[Path, ...]
@@ -75,12 +82,13 @@ class ExtractConfig:
     keep_going: bool = False
     quiet: bool = False
     offline: bool = False  # never download ImageNet weights (perception.weights.find_imagenet_weights)
-    workers: int = 1
+    workers: int | str = 1
     precision: str = "fp32"
+    calibrate_on: tuple[Path, ...] = ()
 
     def __post_init__(self) -> None:
-        if self.workers < 1:
-            raise PipelineError(f"--workers must be >= 1, got {self.workers}")
+        if self.workers != "auto" and (not isinstance(self.workers, int) or self.workers < 1):
+            raise PipelineError(f"--workers must be >= 1, got {self.workers} (or `auto`: as many as the job pays for)")
 
 
 @dataclass(frozen=True)
@@ -108,7 +116,9 @@ def extract(config: ExtractConfig) -> list[Extracted]:
 
     def extractor() -> FeatureExtractor:
         if not built:
-            built.append(build_extractor(config, [src for src, _ in all_pairs]))
+            sources = ([src for given in config.calibrate_on for src in demonstration_files(given)]
+                       if config.calibrate_on else [src for src, _ in all_pairs])
+            built.append(build_extractor(config, sources))
         return built[0]
 
     done: dict[int, Extracted] = {}
@@ -139,8 +149,10 @@ def extract(config: ExtractConfig) -> list[Extracted]:
                 done[i] = Extracted(src, dst, current[dst], skipped=True)
         with logging_redirect_tqdm(), progress_bar(total=0, unit="frame", desc="extract", quiet=config.quiet,
                                                    open_ended=True) as bar:
-            if config.workers > 1 and len(todo) > 1:
-                done.update(extract_in_processes([pairs[i] for i in todo], todo, extractor, config, bar, failed))
+            workers = auto_workers([pairs[i][0] for i in todo]) if config.workers == "auto" else config.workers
+            if workers > 1 and len(todo) > 1:
+                done.update(extract_in_processes([pairs[i] for i in todo], todo, extractor, config, workers, bar,
+                                                 failed))
             else:
                 for i in todo:
                     try:
@@ -162,16 +174,29 @@ def torchrun_rank() -> tuple[int, int]:
     return (int(os.environ.get("RANK", "0")), world_size) if world_size > 1 else (0, 1)
 
 
+def auto_workers(sources: Sequence[Path]) -> int:
+    """Worker processes for `workers="auto"`: one per core, at most one per file and one per WORKER_MIN_FRAMES
+    frames to extract (at least 1), so that a small job never pays for starting processes."""
+    frames = 0
+    for src in sources:
+        with DemonstrationReader(src) as reader:
+            frames += reader.n_steps if reader.has_frames else 0
+    workers = max(1, min(cpu_cores(), len(sources), frames // WORKER_MIN_FRAMES))
+    log.info("--workers auto: %d worker(s) for %d file(s), %d frames on %d cores", workers, len(sources), frames,
+             cpu_cores())
+    return workers
+
+
 def extract_in_processes(pairs: Sequence[tuple[Path, Path]], keys: Sequence[int],
-                         extractor: Callable[[], FeatureExtractor], config: ExtractConfig,
+                         extractor: Callable[[], FeatureExtractor], config: ExtractConfig, workers: int,
                          bar: tqdm, failed: Callable[[Path, Exception], None]) -> dict[int, Extracted]:
-    """Extract `pairs` in `config.workers` spawned processes sharing the cores; returns {key: Extracted}.
+    """Extract `pairs` in `workers` spawned processes sharing the cores; returns {key: Extracted}.
 
     Every worker receives this process's extractor (calibrated once, here), so all files share one
     identity, and builds its own backend with `inference_threads(config.threads, workers)` threads.
     A file that fails goes to `failed(source, error)`, which raises or records it (keep_going).
     """
-    workers = min(config.workers, len(pairs))
+    workers = min(workers, len(pairs))
     threads = inference_threads(config.threads, workers)
     with_frames = any(read_demonstration(src).frames is not None for src, _ in pairs)
     shared = extractor() if with_frames else None  # motion-only inputs need no network
@@ -310,16 +335,7 @@ def plan_outputs(inputs: Sequence[Path], out: Path) -> list[tuple[Path, Path]]:
     """(demonstration file, trajectory file) pairs; raises PipelineError for missing inputs and clashing outputs."""
     pairs: list[tuple[Path, Path]] = []
     for given in inputs:
-        if given.is_dir():
-            found = sorted(p for p in given.rglob(f"*{SUFFIX}") if p.is_file())
-            if not found:
-                raise PipelineError(f"{given}: no {SUFFIX} files in this folder; give demonstration files made by "
-                                    f"`cnep ingest`")
-            pairs += [(p, out / p.relative_to(given)) for p in found]
-        elif given.is_file():
-            pairs.append((given, out / given.name))
-        else:
-            raise PipelineError(f"{given}: no such file or folder; give demonstration files made by `cnep ingest`")
+        pairs += [(p, out / (p.relative_to(given) if given.is_dir() else p.name)) for p in demonstration_files(given)]
     sources: dict[Path, Path] = {}
     for src, dst in pairs:
         if dst.resolve() == src.resolve():
@@ -334,6 +350,19 @@ def plan_outputs(inputs: Sequence[Path], out: Path) -> list[tuple[Path, Path]]:
             raise PipelineError(f"{dst} is an input and would be overwritten by another input's output; choose "
                                 f"another --out folder")
     return pairs
+
+
+def demonstration_files(given: Path) -> list[Path]:
+    """`given` if it is a file, else the `*.mcap` files under folder `given` (recursively, sorted); PipelineError if none."""
+    if given.is_dir():
+        found = sorted(p for p in given.rglob(f"*{SUFFIX}") if p.is_file())
+        if not found:
+            raise PipelineError(f"{given}: no {SUFFIX} files in this folder; give demonstration files made by "
+                                f"`cnep ingest`")
+        return found
+    if given.is_file():
+        return [given]
+    raise PipelineError(f"{given}: no such file or folder; give demonstration files made by `cnep ingest`")
 
 
 def check_same_extractor(paths: Sequence[Path]) -> dict[str, str]:

@@ -53,3 +53,58 @@ def test_onnxruntime_sessions_do_not_spin():
     options = session_options(1)
     assert options.get_session_config_entry("session.intra_op.allow_spinning") == "0"
     assert options.intra_op_num_threads == 1
+
+
+def _relative_l2(values: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    return np.linalg.norm(values - reference, axis=1) / np.linalg.norm(reference, axis=1)  # (N,)
+
+
+needs_openvino = pytest.mark.skipif(not {"onnxruntime", "openvino"} <= set(available_backends()),
+                                    reason="needs the onnx and openvino extras")
+
+
+@needs_openvino
+@pytest.mark.parametrize("precision", ["fp32", "int8"])
+def test_openvino_features_equal_onnxruntime_ones(precision):
+    # Seeded random weights (calibrated on two synthetic scenes), the same ONNX graph on both runtimes.
+    # Measured: fp32 relative L2 error <= 3.3e-7; int8 (the same QDQ graph, each runtime's own int8
+    # kernels) <= 6.1e-3, a third of int8's error against fp32 (1.9e-2). Tolerances: 1e-5 and 2e-2.
+    frames = np.concatenate([scene_frames(k, n=3, seed=k) for k in range(2)])  # (6, 60, 80, 3)
+    features = {}
+    for backend in ("onnxruntime", "openvino"):
+        extractor = FeatureExtractor("random", backend=backend, threads=1, precision=precision)
+        extractor.calibrate(frames)
+        if precision == "int8":
+            extractor.quantise(frames)
+        features[backend] = extractor(frames)  # (6, 1280)
+        assert extractor.identity["backend"] == backend
+    error = _relative_l2(features["openvino"], features["onnxruntime"])
+    assert error.max() <= (1e-5 if precision == "fp32" else 2e-2), error
+
+
+@needs_openvino
+def test_auto_runs_int8_on_openvino_and_fp32_on_onnxruntime():
+    frames = scene_frames(0, n=4)
+    fp32 = FeatureExtractor("random", threads=1)
+    int8 = FeatureExtractor("random", threads=1, precision="int8")
+    for extractor in (fp32, int8):
+        extractor.calibrate(frames)
+    int8.quantise(frames)
+    assert (fp32.identity["backend"], int8.identity["backend"]) == ("onnxruntime", "openvino")
+    error = _relative_l2(int8(frames), fp32(frames))
+    assert 1e-3 < error.max() < 5e-2  # int8 kernels ran (not the fp32 graph), at int8's ~2% error
+
+
+@needs_openvino
+def test_openvino_runs_the_requested_threads_unpinned():
+    import openvino as ov
+
+    from perception.backends import onnx_model, openvino_config
+
+    extractor = FeatureExtractor("random", threads=1)
+    core = ov.Core()
+    graph = core.read_model(onnx_model(extractor.net, cache_key=extractor.identity["weights_sha256"]))
+    compiled = core.compile_model(graph, "CPU", openvino_config(1))
+    assert compiled.get_property("INFERENCE_NUM_THREADS") == 1
+    assert compiled.get_property("NUM_STREAMS") == 1
+    assert compiled.get_property("ENABLE_CPU_PINNING") is False

@@ -204,6 +204,40 @@ def test_workers_must_be_positive(demos, tmp_path):
         _config(demos, tmp_path / "out", workers=0)
 
 
+def test_auto_workers_start_processes_only_for_jobs_that_pay(demos, tmp_path, monkeypatch):
+    from pipeline.extract import stage
+
+    monkeypatch.setattr(stage, "cpu_cores", lambda: 2)
+    assert stage.auto_workers(demos) == 1  # 12 frames: far below WORKER_MIN_FRAMES, no process is started
+    monkeypatch.setattr(stage, "WORKER_MIN_FRAMES", 6)
+    assert stage.auto_workers(demos) == 2  # 12 frames, 2 files, 2 cores
+    assert stage.auto_workers(demos[:1]) == 1  # one file: one process
+    monkeypatch.setattr(stage, "cpu_cores", lambda: 1)
+    assert stage.auto_workers(demos) == 1
+
+
+def test_cli_workers_auto_extracts_a_small_job_in_this_process(demos, tmp_path, capsys, monkeypatch):
+    from pipeline.extract import stage
+
+    monkeypatch.setattr(stage, "extract_in_processes", lambda *a: pytest.fail("started worker processes"))
+    assert main(["-q", "extract", *map(str, demos), "--out", str(tmp_path / "out"), "--weights", "random",
+                 "--backend", "eager", "--threads", "1", "--workers", "auto"]) == 0
+    assert "extracted 2 trajectory file(s)" in capsys.readouterr().out
+    with pytest.raises(SystemExit):
+        main(["extract", str(demos[0]), "--out", str(tmp_path / "x"), "--workers", "two"])
+    assert "expected a whole number or `auto`, got 'two'" in capsys.readouterr().err
+
+
+def test_calibrate_on_gives_later_runs_the_first_runs_identity(demos, tmp_path):
+    both = extract(_config(demos, tmp_path / "both"))
+    later = extract(_config(demos[1:], tmp_path / "later", calibrate_on=(demos[0].parent,)))
+    alone = extract(_config(demos[1:], tmp_path / "alone"))
+    reference = read_trajectory(both[1].output)
+    assert read_trajectory(later[0].output).extractor == reference.extractor  # calibrated on both files' frames
+    np.testing.assert_array_equal(read_trajectory(later[0].output).features, reference.features)
+    assert read_trajectory(alone[0].output).extractor["weights_sha256"] != reference.extractor["weights_sha256"]
+
+
 @pytest.mark.slow  # quantising MobileNet-v2 takes ~10 s (cached afterwards)
 @pytest.mark.skipif("onnxruntime" not in __import__("perception").available_backends(), reason="needs the onnx extra")
 def test_int8_features_are_close_to_fp32_and_never_mixed_with_them(demos, tmp_path):
