@@ -13,7 +13,9 @@ Measured:
   Runtime, one thread per core, spinning threads), the new default (pipeline.workers.inference_threads
   threads, no spinning), one thread without spinning, int8 (perception.quantisation) on ONNX Runtime
   with the new default's threads, and, when the `openvino` extra is installed, OpenVINO fp32 and int8
-  (the same graphs) with those threads; and the int8 features' error against fp32 (cosine, relative L2).
+  (the same graphs) with those threads; and the int8 features' error against fp32 (cosine, relative L2);
+- idle spinning: the CPU time each runtime's session burns while the process sleeps between batches
+  (ONNX Runtime with spinning on and off, OpenVINO), with the policy's threads.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from __future__ import annotations
 import argparse
 import multiprocessing
 import os
+import resource
 import signal
 import statistics
 import time
@@ -33,7 +36,7 @@ from benchmarks.bench_perception import extractor_path, naive_loop, synthetic_fr
 from models import CNEPConfig, TrainConfig
 from models.synthetic import make_set
 from models.train import prepare_fit
-from perception import FeatureExtractor, available_backends
+from perception import FeatureExtractor, available_backends, resize_frames
 from perception.constants import DEFAULT_BATCH_SIZE
 from perception.backends import onnx_model, session_options
 from pipeline.workers import inference_threads
@@ -96,6 +99,43 @@ def int8_path(frames: np.ndarray, threads: int, backend: str) -> tuple[Callable[
     return lambda: int8(frames), error
 
 
+def idle_cpu_seconds(run: Callable[[np.ndarray], object], pixels: np.ndarray, pauses: int = 5,
+                     pause_s: float = 0.3) -> float:
+    """CPU seconds this process burns during `pauses` sleeps of `pause_s` s, each right after `run(pixels)`.
+
+    Threads that sleep when idle burn ~0; threads that spin burn up to threads x pause_s per pause.
+    """
+    run(pixels)
+    idle = 0.0
+    for _ in range(pauses):
+        run(pixels)
+        before = resource.getrusage(resource.RUSAGE_SELF)
+        time.sleep(pause_s)
+        after = resource.getrusage(resource.RUSAGE_SELF)
+        idle += (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)
+    return idle
+
+
+def spinning_report(frames: np.ndarray, threads: int) -> str:
+    """CPU seconds burnt while idle by each runtime's session with `threads` threads (see idle_cpu_seconds)."""
+    import onnxruntime as ort
+
+    from perception.backends import onnxruntime_runner, openvino_runner
+
+    extractor = FeatureExtractor("random", threads=threads)
+    extractor.calibrate(frames[:8])
+    graph = onnx_model(extractor.net, extractor.identity["weights_sha256"])
+    pixels = resize_frames(frames[:4])  # (4, 224, 224, 3)
+    runners = {"ONNX Runtime, no spinning (policy)": onnxruntime_runner(graph, threads)}
+    options = session_options(threads)
+    options.add_session_config_entry("session.intra_op.allow_spinning", "1")
+    spinning = ort.InferenceSession(graph, options, providers=["CPUExecutionProvider"])
+    runners["ONNX Runtime, spinning"] = lambda x: spinning.run(None, {"pixels": x})
+    if "openvino" in available_backends():
+        runners["OpenVINO"] = openvino_runner(graph, threads)
+    return "; ".join(f"{name} {idle_cpu_seconds(run, pixels):.3f} s" for name, run in runners.items())
+
+
 def rate(fn: Callable[[], object], units: int) -> float:
     start = time.perf_counter()
     fn()
@@ -129,6 +169,8 @@ def main() -> None:
         int8, error = int8_path(frames, policy, backend)
         variants[f"extract, int8 {backend} ({policy} threads)"] = (int8, args.frames)
         print(f"int8 on {backend} vs fp32 features: " + ", ".join(f"{k} {v:.5f}" for k, v in error.items()))
+    print(f"CPU time burnt during 5 x 0.3 s idle pauses between batches, {policy} threads: "
+          f"{spinning_report(frames, policy)}")
     for fn, _ in variants.values():
         fn()  # warm-up
     load = multiprocessing.get_context("spawn").Process(target=busy_training, args=(os.getpid(),), daemon=True)
