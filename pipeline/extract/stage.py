@@ -50,7 +50,9 @@ from recordings.constants import TOPIC_IMAGE
 log = logging.getLogger(__name__)
 
 SUFFIX = ".mcap"
-WORKER_MIN_FRAMES = 800  # `workers="auto"`: frames per extra worker process before it pays (measured: docs/perception.md)
+# `workers="auto"`: frames per worker process. Measured (benchmarks/bench_extract.py, load 6-7 on 2 cores): a second
+# worker cost 15-18 s to start and paid from ~3700 frames at fp32, never at int8 (docs/perception.md).
+WORKER_MIN_FRAMES = 4000
 
 
 @dataclass(frozen=True)
