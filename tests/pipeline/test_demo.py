@@ -172,3 +172,18 @@ def test_the_default_output_folder_never_mixes_runs(tmp_path):
     assert free_folder(base) == base  # empty: usable
     (base / "summary.json").write_text("{}")
     assert free_folder(base) == tmp_path / "cnep-demo-2"
+
+
+def test_precision_reaches_every_extraction_quantised_on_the_training_frames(tmp_path, monkeypatch):
+    from pipeline.demo import stage
+
+    def stop(workers):  # at training: only the extract calls matter here
+        raise PipelineError("stopped before training")
+
+    configs = []
+    monkeypatch.setattr(stage, "extract", lambda config: configs.append(config) or [])
+    monkeypatch.setattr(stage, "single_thread_processes", stop)
+    assert main(["-q", "demo", "--out", str(tmp_path / "run"), "--quick", "--precision", "int8"]) == 2
+    train = tmp_path / "run" / "demos" / "train"
+    assert [c.inputs[0].name for c in configs] == ["train", "heldout", "scene_change", "free_choice"]
+    assert {(c.precision, c.calibrate_on) for c in configs} == {("int8", (train,))}
