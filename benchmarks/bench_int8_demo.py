@@ -1,34 +1,49 @@
 """int8 features' effect on the demo: purity, held-out error and free-choice outcomes with int8 against fp32.
 
 Run on demand (each demo takes minutes; one at a time):
-    python -m benchmarks.bench_int8_demo --out DIR [--seeds 0 1 2]
+    python -m benchmarks.bench_int8_demo --out DIR [--seeds 0 1 2] [--control]
 
 Runs `cnep demo --seed S --precision P` into DIR/demo-P-sS for each seed and precision (a folder
 that already holds a finished demo's summary.json is reused, not run again), then prints per seed
 the CNEP's purity per behaviour and distinct majority experts, the held-out errors of the CNEP and
 the CNMP, the free-choice outcomes, and the int8 features' error against the fp32 ones on every
 trajectory file (same seed: same recordings, same calibrated weights; only the precision differs).
+
+--control adds, per seed, the fp32 demo with its features extracted by OpenVINO instead of ONNX
+Runtime (DIR/demo-fp32-openvino-sS): the same graph, features within ~3e-7 relative error, so any
+difference it makes to the results measures how far training moves under a negligible change of
+its inputs, the yardstick for int8's ~2 % change.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 from pathlib import Path
+from unittest import mock
 
 import numpy as np
 
+from pipeline.demo import stage
 from pipeline.demo.stage import SUMMARY_FILE, DemoConfig, run_demo
 from recordings import read_trajectory
 
 PRECISIONS = ("fp32", "int8")
 
 
-def demo_folder(out: Path, precision: str, seed: int) -> Path:
-    """The demo of `precision` and `seed` under `out`, run now unless a finished one is there."""
-    folder = out / f"demo-{precision}-s{seed}"
+def demo_folder(out: Path, precision: str, seed: int, backend: str = "auto") -> Path:
+    """The demo of `precision` and `seed` under `out` (features on `backend`), run now unless a finished one is there."""
+    folder = out / (f"demo-{precision}-s{seed}" if backend == "auto" else f"demo-{precision}-{backend}-s{seed}")
     if not (folder / SUMMARY_FILE).is_file():
-        run_demo(DemoConfig(out=folder, seed=seed, precision=precision, quiet=True, force=folder.exists()))
+        config = DemoConfig(out=folder, seed=seed, precision=precision, quiet=True, force=folder.exists())
+        made = stage.ExtractConfig
+
+        def with_backend(**options) -> stage.ExtractConfig:  # the demo has no backend option: set it here
+            return dataclasses.replace(made(**options), backend=backend)
+
+        with mock.patch.object(stage, "ExtractConfig", with_backend):
+            run_demo(config)
     return folder
 
 
@@ -46,7 +61,7 @@ def feature_error(fp32: Path, int8: Path) -> dict[str, float]:
 
 
 def describe(summary: dict) -> str:
-    """One block of lines: purity, held-out errors, free choice, extraction time."""
+    """One block of lines: purity, held-out errors, free choice, the scene change, extraction time."""
     behaviours = summary["behaviours"]
     purity = " ".join(f"{name} {row['purity']:.2f}->{row['expert']}" for name, row in behaviours.items())
     lines = [f"  purity: {purity}; {len({row['expert'] for row in behaviours.values()})} distinct experts"]
@@ -55,6 +70,9 @@ def describe(summary: dict) -> str:
                      f"{100 * row['position_rmse_median_m']:.2f}), gripper MAE {1000 * row['gripper_mae_m']:.2f} mm, "
                      f"behaviour accuracy {row['behaviour_accuracy']:.2f}; free choice in a slot "
                      f"{summary['free_choice'][model]['valid']:.2f}")
+    for change in summary["scene_change"]:
+        lines.append(f"  scene change at step {change['change_step']}: expert {change['expert_before']} -> "
+                     f"{change['expert_after']}, switches {change['switches']}")
     lines.append(f"  extract stage {summary['seconds']['extract']:.1f} s")
     return "\n".join(lines)
 
@@ -63,16 +81,22 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, required=True, help="folder for the demos (kept, reused)")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0])
+    parser.add_argument("--control", action="store_true", help="also the fp32 demo with OpenVINO features")
     args = parser.parse_args()
     for seed in args.seeds:
         folders = {precision: demo_folder(args.out, precision, seed) for precision in PRECISIONS}
+        if args.control:
+            folders["fp32 on OpenVINO (control)"] = demo_folder(args.out, "fp32", seed, backend="openvino")
         for precision, folder in folders.items():
             print(f"seed {seed}, {precision}:")
             print(describe(json.loads((folder / SUMMARY_FILE).read_text())))
-        error = feature_error(folders["fp32"], folders["int8"])
-        print(f"seed {seed}: int8 vs fp32 features over {error['steps']} steps: cosine min {error['cosine_min']:.5f} "
-              f"median {error['cosine_median']:.5f}, relative L2 median {error['relative_l2_median']:.4f} "
-              f"max {error['relative_l2_max']:.4f}")
+        for name, folder in folders.items():
+            if name == "fp32":
+                continue
+            error = feature_error(folders["fp32"], folder)
+            print(f"seed {seed}: {name} vs fp32 features over {error['steps']} steps: cosine min "
+                  f"{error['cosine_min']:.6f} median {error['cosine_median']:.6f}, relative L2 median "
+                  f"{error['relative_l2_median']:.2e} max {error['relative_l2_max']:.2e}")
 
 
 if __name__ == "__main__":
