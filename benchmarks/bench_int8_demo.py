@@ -7,7 +7,9 @@ Runs `cnep demo --seed S --precision P` into DIR/demo-P-sS for each seed and pre
 that already holds a finished demo's summary.json is reused, not run again), then prints per seed
 the CNEP's purity per behaviour and distinct majority experts, the held-out errors of the CNEP and
 the CNMP, the free-choice outcomes, and the int8 features' error against the fp32 ones on every
-trajectory file (same seed: same recordings, same calibrated weights; only the precision differs).
+trajectory file (same seed: same recordings, same calibrated weights; only the precision differs),
+set against the signal the models read: how far apart the first-step features (what the held-out
+evaluation conditions on) of two training scenes lie, for the same and for different behaviours.
 
 --control adds, per seed, the fp32 demo with its features extracted by OpenVINO instead of ONNX
 Runtime (DIR/demo-fp32-openvino-sS): the same graph, features within ~3e-7 relative error, so any
@@ -26,8 +28,10 @@ from unittest import mock
 import numpy as np
 
 from pipeline.demo import stage
+from pipeline.demo.generator import LABEL_KEY
+from pipeline.demo.scene import BEHAVIOURS
 from pipeline.demo.stage import SUMMARY_FILE, DemoConfig, run_demo
-from recordings import read_trajectory
+from recordings import read_demonstration, read_trajectory
 
 PRECISIONS = ("fp32", "int8")
 
@@ -58,6 +62,23 @@ def feature_error(fp32: Path, int8: Path) -> dict[str, float]:
     cos, rel = np.concatenate(cosines), np.concatenate(relative)
     return {"steps": len(cos), "cosine_min": float(cos.min()), "cosine_median": float(np.median(cos)),
             "relative_l2_median": float(np.median(rel)), "relative_l2_max": float(rel.max())}
+
+
+def first_step_spread(demo: Path) -> dict[str, float]:
+    """Relative L2 distances between the first-step features of the demo's scene-decided training files
+    (divided by the median feature norm): medians over pairs of the same and of different behaviours."""
+    features, labels = [], []
+    for path in sorted((demo / "trajectories" / "train").glob("*.mcap")):
+        label = read_demonstration(demo / "recorded" / "train" / path.name).episode.extra[LABEL_KEY]
+        if label in BEHAVIOURS:  # free-choice scenes have no behaviour of their own
+            features.append(read_trajectory(path).features[0])  # (1280,)
+            labels.append(label)
+    x, y = np.stack(features), np.asarray(labels)  # (n, 1280), (n,)
+    distance = np.linalg.norm(x[:, None] - x[None], axis=-1) / np.median(np.linalg.norm(x, axis=1))  # (n, n)
+    same = (y[:, None] == y[None]) & ~np.eye(len(y), dtype=bool)
+    different = y[:, None] != y[None]
+    return {"same": float(np.median(distance[same])), "different": float(np.median(distance[different])),
+            "different_min": float(distance[different].min())}
 
 
 def describe(summary: dict) -> str:
@@ -97,6 +118,10 @@ def main() -> None:
             print(f"seed {seed}: {name} vs fp32 features over {error['steps']} steps: cosine min "
                   f"{error['cosine_min']:.6f} median {error['cosine_median']:.6f}, relative L2 median "
                   f"{error['relative_l2_median']:.2e} max {error['relative_l2_max']:.2e}")
+        spread = first_step_spread(folders["fp32"])
+        print(f"seed {seed}: fp32 first-step features of two training scenes lie {spread['same']:.4f} apart (relative "
+              f"L2, median) for the same behaviour, {spread['different']:.4f} for different ones (closest pair "
+              f"{spread['different_min']:.4f})")
 
 
 if __name__ == "__main__":
