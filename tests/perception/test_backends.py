@@ -27,8 +27,24 @@ def test_all_backends_agree_on_the_same_frames():
 
 
 @pytest.mark.skipif("onnxruntime" not in available_backends(), reason="needs the onnx extra")
-def test_onnxruntime_is_the_default_when_installed():
-    assert available_backends()[0] == "onnxruntime"
+def test_onnxruntime_is_the_default_on_a_cpu_when_installed():
+    assert [b for b in available_backends() if b != "cuda"][0] == "onnxruntime"
+
+
+def test_cuda_is_offered_first_exactly_when_torch_sees_a_gpu(monkeypatch):
+    import torch
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    assert "cuda" not in available_backends()
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    assert available_backends()[0] == "cuda"
+
+
+@pytest.mark.skipif(not __import__("torch").cuda.is_available(), reason="needs a CUDA GPU")
+def test_cuda_is_the_default_on_a_gpu_with_gpu_sized_batches():
+    extractor = FeatureExtractor("random")
+    assert extractor.identity["backend"] == "cuda" and extractor.batch_size == 64
+    assert FeatureExtractor("random", backend="eager").batch_size == 4
 
 
 @pytest.mark.skipif("onnxruntime" not in available_backends(), reason="needs the onnx extra")
