@@ -8,20 +8,24 @@ to the observed values (`TrainConfig.obs_noise`); the targets always stay clean.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
 import torch
 
 
-@dataclass
+@dataclasses.dataclass
 class Batch:
     obs: torch.Tensor  # (B, n_max, 1 + obs_dim)
     obs_mask: torch.Tensor  # (B, n_max) bool
     query: torch.Tensor  # (B, m_max, 1 + query_dim)
     target: torch.Tensor  # (B, m_max, dy)
     target_mask: torch.Tensor  # (B, m_max) bool
+
+    def to(self, device: torch.device) -> "Batch":
+        """This batch on `device` (itself, not a copy, where it is there already)."""
+        return Batch(*(getattr(self, f.name).to(device) for f in dataclasses.fields(self)))
 
 
 class TrajectoryStack:

@@ -114,10 +114,15 @@ class Trainer:
         ]
         self.freeze_steps = int(self.cfg.gate_freeze_fraction * self.cfg.steps)
 
+    @property
+    def device(self) -> torch.device:
+        """Where the model's parameters are: batches are drawn on the CPU (seeded) and moved there."""
+        return next(self.model.parameters()).device
+
     def next_batch(self) -> Batch:
-        """The next training batch from this run's generator."""
+        """The next training batch from this run's generator, on the model's device."""
         return sample_batch(self.train, self.cfg.batch_size, self.cfg.n_max, self.cfg.m_max, self.generator,
-                            self.cfg.obs_noise)
+                            self.cfg.obs_noise).to(self.device)
 
     def train_step(self) -> dict[str, float]:
         batch = self.next_batch()
@@ -138,7 +143,7 @@ class Trainer:
 
     def validate(self) -> float:
         self.model.eval()
-        error = float(np.mean([wta_error(self.model, b) for b in self.val_batches]))
+        error = float(np.mean([wta_error(self.model, b.to(self.device)) for b in self.val_batches]))
         self.model.train()
         if error < self.best_error:
             self.best_error = error

@@ -31,9 +31,12 @@ CALIBRATION_FRAMES = 256  # frames used to re-estimate the statistics (spread ov
 CALIBRATION_BATCH = 32  # frames per forward pass while re-estimating
 
 DEFAULT_BATCH_SIZE = 4  # frames per forward pass: small batches stay in cache (measured fastest, see docs)
-# Fastest first, as measured by `python -m benchmarks.bench_perception` on the 2-core machines. OpenVINO (the
-# `openvino` extra) ties ONNX Runtime on fp32 (0.98-1.07x, benchmarks/bench_threads.py), so `auto` keeps ONNX Runtime.
-BACKENDS = ("onnxruntime", "openvino", "torchscript", "eager")
+# Frames per forward pass on a GPU: one H100 ran 0.9k frames/s at batch 4, 7.2k at 64, 8.3k at 256 (docs/perception.md).
+CUDA_BATCH_SIZE = 64
+# Fastest first: a CUDA device when torch sees one, then as measured by `python -m benchmarks.bench_perception`
+# on the 2-core machines. OpenVINO (the `openvino` extra) ties ONNX Runtime on fp32 (0.87-1.07x,
+# benchmarks/bench_threads.py), so `auto` keeps ONNX Runtime.
+BACKENDS = ("cuda", "onnxruntime", "openvino", "torchscript", "eager")
 # Backends that run the int8 graph, fastest first: OpenVINO ran it 2x ONNX Runtime (docs/perception.md).
 INT8_BACKENDS = ("openvino", "onnxruntime")
 # The Python modules each optional backend needs (the ONNX export, then the runtime).

@@ -10,8 +10,8 @@ import numpy as np
 from perception.backends import (INSTALL_HINT, Runner, available_backends, build_runner, onnx_model,
                                   onnxruntime_runner, openvino_runner)
 from perception.calibration import ACTIVATION_BIAS, calibrate_random_network
-from perception.constants import (ARCHITECTURE, CALIBRATION_BATCH, COMPATIBILITY_FIELDS, DEFAULT_BATCH_SIZE,
-                                  FEATURE_DIM, INT8_BACKENDS, PRECISIONS, PREPROCESSING)
+from perception.constants import (ARCHITECTURE, CALIBRATION_BATCH, COMPATIBILITY_FIELDS, CUDA_BATCH_SIZE,
+                                  DEFAULT_BATCH_SIZE, FEATURE_DIM, INT8_BACKENDS, PRECISIONS, PREPROCESSING)
 from perception.errors import PerceptionError
 from perception.frames import resize_frames
 from perception.network import FeatureNet, mobilenet_v2_features
@@ -26,21 +26,22 @@ class FeatureExtractor:
 
     weights: `imagenet`, a state-dict path, or `random` (seeded by `seed`; call `calibrate` on frames of
     the recordings before extracting, see perception.calibration). backend: `auto` (fastest available
-    for the precision), `onnxruntime`, `openvino`, `torchscript` or `eager`. threads: CPU threads for
-    inference (None: library default). precision: `fp32` (default) or `int8` (quantised by ONNX Runtime,
-    run by OpenVINO or ONNX Runtime; call `quantise` on frames of the recordings before extracting, see
-    perception.quantisation).
+    for the precision), `cuda`, `onnxruntime`, `openvino`, `torchscript` or `eager`. threads: CPU threads
+    for inference (None: library default). batch_size: frames per forward pass (None: CUDA_BATCH_SIZE on a
+    GPU, else DEFAULT_BATCH_SIZE). precision: `fp32` (default) or `int8` (quantised by ONNX Runtime, run
+    by OpenVINO or ONNX Runtime on the CPU; call `quantise` on frames of the recordings before extracting,
+    see perception.quantisation).
     """
 
     def __init__(self, weights: str | Path = "imagenet", backend: str = "auto", threads: int | None = None,
-                 batch_size: int = DEFAULT_BATCH_SIZE, seed: int = 0, precision: str = "fp32") -> None:
+                 batch_size: int | None = None, seed: int = 0, precision: str = "fp32") -> None:
         if precision not in PRECISIONS:
             raise PerceptionError(f"precision must be one of {PRECISIONS}, got {precision!r}")
         if precision == "int8" and (backend not in ("auto", *INT8_BACKENDS) or "onnxruntime" not in available_backends()):
             raise PerceptionError(f"precision int8 is quantised by ONNX Runtime and runs on backend `auto`, "
                                   f"{' or '.join(f'`{b}`' for b in INT8_BACKENDS)} (pip install "
                                   f"'cnep-pipeline[onnx]'), got backend {backend!r}")
-        if batch_size < 1:
+        if batch_size is not None and batch_size < 1:
             raise PerceptionError(f"batch_size must be >= 1, got {batch_size}")
         if threads is not None and threads < 1:
             raise PerceptionError(f"threads must be >= 1 (or None for the default), got {threads}")
@@ -53,11 +54,11 @@ class FeatureExtractor:
         self.net = FeatureNet(features).eval()
         self.weights_name = resolved.name
         self.calibrated_on = 0  # frames used to re-estimate batch-norm statistics (0: as loaded)
-        self.backend, self.threads, self.batch_size = backend, threads, batch_size
+        self.backend, self.threads, self.precision = backend, threads, precision
+        self.batch_size = batch_size or (CUDA_BATCH_SIZE if self._resolved_backend() == "cuda" else DEFAULT_BATCH_SIZE)
         self._runner: Runner | None = None
         self._sha256 = state_dict_sha256(self.net.features.state_dict())
         self._needs_calibration = resolved.is_random
-        self.precision = precision
         self._int8_model: bytes | None = None  # the quantised graph, once `quantise` ran
         self._quantised_on = ""  # "frames=N,sha256=..." of the quantisation's calibration pixels
 

@@ -17,9 +17,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="seed of the random weights (default 0)")
     parser.add_argument("--save-weights", metavar="PATH", default=None,
                         help="save the weights used (after calibration) to reuse them later with --weights PATH")
-    parser.add_argument("--backend", default="auto", choices=("auto", "onnxruntime", "openvino", "torchscript", "eager"),
-                        help="inference backend (default: the fastest available for the precision; openvino needs "
-                             "pip install 'cnep-pipeline[openvino]')")
+    parser.add_argument("--backend", default="auto",
+                        choices=("auto", "cuda", "onnxruntime", "openvino", "torchscript", "eager"),
+                        help="inference backend (default: the fastest available for the precision, cuda where torch "
+                             "sees a GPU; openvino needs pip install 'cnep-pipeline[openvino]')")
     parser.add_argument("--threads", type=int, default=None,
                         help="CPU threads per process for inference (default: the cores shared among the workers)")
     parser.add_argument("--precision", choices=("fp32", "int8"), default="fp32",
@@ -32,7 +33,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--calibrate-on", nargs="+", metavar="DEMO", default=(),
                         help="demonstration files or folders whose frames calibrate random weights and quantise int8, "
                              "instead of the inputs: extract later files with the first run's int8 identity")
-    parser.add_argument("--batch-size", type=int, default=None, help="frames per forward pass")
+    parser.add_argument("--batch-size", type=int, default=None, help="frames per forward pass (default 4 on a CPU, 64 on a GPU)")
     parser.add_argument("--force", action="store_true", help="re-extract outputs that are already up to date, and "
                         "replace existing outputs made otherwise (other weights, or not trajectory files)")
     parser.add_argument("--keep-going", action="store_true",

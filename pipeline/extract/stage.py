@@ -36,7 +36,7 @@ from tqdm import tqdm
 from tqdm.contrib.logging import logging_redirect_tqdm
 
 from perception import FeatureExtractor, PerceptionError, compatibility_key
-from perception.constants import CALIBRATION_FRAMES, DEFAULT_BATCH_SIZE, FEATURE_DIM
+from perception.constants import CALIBRATION_FRAMES, FEATURE_DIM
 from perception.frames import decode_image, resize_frames
 from perception.weights import find_imagenet_weights
 from pipeline.contract import output_folder, raise_if_skipped, refuse_existing
@@ -60,9 +60,10 @@ class ExtractConfig:
     """inputs: demonstration files or folders (read only); out: folder for the trajectory files (created).
 
     weights: `imagenet`, `random` (seeded by `seed`, calibrated on the inputs) or a state-dict path.
-    backend: `auto` (fastest available), `onnxruntime`, `torchscript` or `eager`; threads: CPU threads
-    per process (None: the process's share of the cores, pipeline.workers); batch_size: frames per
-    forward pass; force: re-extract up-to-date outputs and replace any other existing output;
+    backend: `auto` (fastest available for the precision: `cuda` where torch sees a GPU), `cuda`, `onnxruntime`,
+    `openvino`, `torchscript` or `eager`; threads: CPU threads per process (None: the process's share of the cores, pipeline.workers);
+    batch_size: frames per forward pass (None: the backend's default, perception.FeatureExtractor); force:
+    re-extract up-to-date outputs and replace any other existing output;
     save_weights: where to save the (calibrated) weights, to reuse them as `weights` later; keep_going:
     skip inputs that fail and report them at the end; workers: processes extracting files side by side,
     or `auto` (`auto_workers`); precision: `fp32` or `int8` (quantised on frames sampled evenly over all
@@ -77,7 +78,7 @@ class ExtractConfig:
     weights: str = "imagenet"
     backend: str = "auto"
     threads: int | None = None
-    batch_size: int = DEFAULT_BATCH_SIZE
+    batch_size: int | None = None
     seed: int = 0
     force: bool = False
     save_weights: Path | None = None

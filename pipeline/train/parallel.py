@@ -108,23 +108,20 @@ def gather(procs: Processes, value: Any) -> list[Any]:
 class PlacedModel:
     """The CNEP as `models.Trainer` drives it: run on `device`, through DistributedDataParallel under torchrun.
 
-    Batches are drawn on the CPU by the Trainer's sampler: the forward pass moves them to the device
-    and brings mean, std (B, d, M, dy) and gate (B, d) back, so the loss sees tensors where its
-    targets are. Everything else (parameters, state_dict, gate, config) is the CNEP's own, so
+    The Trainer draws batches on the CPU (seeded) and moves them to the parameters' device, where the
+    forward pass and the loss run. Everything else (parameters, state_dict, gate, config) is the CNEP's own, so
     checkpoints and the Trainer's best state carry no DDP prefix.
     """
 
     def __init__(self, model: CNEP, device: torch.device, procs: Processes) -> None:
         self.cnep = model.to(device)
-        self.device = device
         self.net: torch.nn.Module = self.cnep
         if procs.distributed:  # rank 0's parameters and buffers are broadcast at construction
             ids = [device.index] if device.type == "cuda" else None
             self.net = torch.nn.parallel.DistributedDataParallel(self.cnep, device_ids=ids)
 
     def __call__(self, obs: torch.Tensor, obs_mask: torch.Tensor, query: torch.Tensor):
-        out = self.net(obs.to(self.device), obs_mask.to(self.device), query.to(self.device))
-        return tuple(x.to(obs.device) for x in out)
+        return self.net(obs, obs_mask, query)
 
     def train(self, mode: bool = True) -> "PlacedModel":
         self.net.train(mode)

@@ -27,8 +27,24 @@ def test_all_backends_agree_on_the_same_frames():
 
 
 @pytest.mark.skipif("onnxruntime" not in available_backends(), reason="needs the onnx extra")
-def test_onnxruntime_is_the_default_when_installed():
-    assert available_backends()[0] == "onnxruntime"
+def test_onnxruntime_is_the_default_on_a_cpu_when_installed():
+    assert [b for b in available_backends() if b != "cuda"][0] == "onnxruntime"
+
+
+def test_cuda_is_offered_first_exactly_when_torch_sees_a_gpu(monkeypatch):
+    import torch
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    assert "cuda" not in available_backends()
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    assert available_backends()[0] == "cuda"
+
+
+@pytest.mark.skipif(not __import__("torch").cuda.is_available(), reason="needs a CUDA GPU")
+def test_cuda_is_the_default_on_a_gpu_with_gpu_sized_batches():
+    extractor = FeatureExtractor("random")
+    assert extractor.identity["backend"] == "cuda" and extractor.batch_size == 64
+    assert FeatureExtractor("random", backend="eager").batch_size == 4
 
 
 @pytest.mark.skipif("onnxruntime" not in available_backends(), reason="needs the onnx extra")
@@ -90,7 +106,8 @@ def test_auto_runs_int8_on_openvino_and_fp32_on_onnxruntime():
     for extractor in (fp32, int8):
         extractor.calibrate(frames)
     int8.quantise(frames)
-    assert (fp32.identity["backend"], int8.identity["backend"]) == ("onnxruntime", "openvino")
+    cpu_default = "cuda" if __import__("torch").cuda.is_available() else "onnxruntime"
+    assert (fp32.identity["backend"], int8.identity["backend"]) == (cpu_default, "openvino")
     error = _relative_l2(int8(frames), fp32(frames))
     assert 1e-3 < error.max() < 5e-2  # int8 kernels ran (not the fp32 graph), at int8's ~2% error
 

@@ -226,3 +226,16 @@ def test_bad_config_file_is_one_clear_error(full_set, tmp_path, capsys):
     settings.write_text(json.dumps({"steps": "many"}))
     assert main(["train", *map(str, full_set), "--out", str(tmp_path / "ckpt"), "--config", str(settings)]) == 2
     assert "setting steps must be int, got 'many'" in capsys.readouterr().err
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
+def test_cuda_training_is_seeded_and_its_checkpoint_runs_on_the_cpu(full_set, tmp_path):
+    args = ["-q", "train", str(full_set[0].parent), "--steps", "30", "--val-every", "10", "--warmup-steps", "5",
+            "--batch-size", "8", "--encoder-widths", "16,16", "--expert-widths", "16,16", "--seed", "3",
+            "--device", "cuda"]
+    assert main(args + ["--out", str(tmp_path / "a")]) == 0 and main(args + ["--out", str(tmp_path / "b")]) == 0
+    first, second = load_file(tmp_path / "a" / "model.safetensors"), load_file(tmp_path / "b" / "model.safetensors")
+    assert all(torch.equal(first[key], second[key]) for key in first)  # same seed, same model, on the GPU too
+    model = load_checkpoint(tmp_path / "a")  # weights saved from the GPU load on the CPU
+    traj = read_trajectory(full_set[1])
+    assert np.isfinite(model.generate(np.array([0.0, 0.5]), traj.data[[0, 13]], np.linspace(0, 1, 5)).mean).all()
