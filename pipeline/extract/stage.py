@@ -60,10 +60,11 @@ class ExtractConfig:
     """inputs: demonstration files or folders (read only); out: folder for the trajectory files (created).
 
     weights: `imagenet`, `random` (seeded by `seed`, calibrated on the inputs) or a state-dict path.
-    backend: `auto` (fastest available for the precision: `cuda` where torch sees a GPU), `cuda`, `onnxruntime`,
-    `openvino`, `torchscript` or `eager`; threads: CPU threads per process (None: the process's share of the cores, pipeline.workers);
-    batch_size: frames per forward pass (None: the backend's default, perception.FeatureExtractor); force:
-    re-extract up-to-date outputs and replace any other existing output;
+    backend: `auto` (fastest available for the precision: `cuda` where torch sees a GPU), `cuda`,
+    `onnxruntime`, `openvino`, `torchscript` or `eager`; threads: CPU threads per process (None: the
+    process's share of the cores, pipeline.workers); batch_size: frames per forward pass (None: the
+    backend's default, perception.FeatureExtractor); force: re-extract up-to-date outputs and replace
+    any other existing output;
     save_weights: where to save the (calibrated) weights, to reuse them as `weights` later; keep_going:
     skip inputs that fail and report them at the end; workers: processes extracting files side by side,
     or `auto` (`auto_workers`); precision: `fp32` or `int8` (quantised on frames sampled evenly over all
