@@ -37,7 +37,7 @@ CUDA_BATCH_SIZE = 64
 # on the 2-core machines. OpenVINO (the `openvino` extra) ties ONNX Runtime on fp32 (0.87-1.07x,
 # benchmarks/bench_threads.py), so `auto` keeps ONNX Runtime.
 BACKENDS = ("cuda", "onnxruntime", "openvino", "torchscript", "eager")
-# Backends that run the int8 graph, fastest first: OpenVINO ran it 2x ONNX Runtime (docs/perception.md).
+# Backends that run the int8 graph, fastest first: OpenVINO ran it 1.2-2.1x ONNX Runtime (docs/perception.md).
 INT8_BACKENDS = ("openvino", "onnxruntime")
 # The Python modules each optional backend needs (the ONNX export, then the runtime).
 BACKEND_MODULES = {"onnxruntime": ("onnx", "onnxruntime"), "openvino": ("onnx", "openvino")}
