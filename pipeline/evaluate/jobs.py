@@ -106,9 +106,10 @@ def _scored(generate, s, qs: dict) -> dict:
     T = s.steps
     times = np.arange(T) / (T - 1)
     result["examples"] = np.stack([generate(q.obs_t, q.obs_y, times) for q in qs["paper"][:SAMPLES_IN_FIGURE]])
-    result["commitment"] = commitment(generate, qs["commitment"], s.train, s.train_modes)
-    result["commitment_examples"] = np.stack([generate(q.obs_t, q.obs_y, times)
-                                              for q in qs["commitment"][:SAMPLES_IN_FIGURE]])
+    if qs["commitment"]:  # a set whose modes share no point (unimodal) has no commitment queries
+        result["commitment"] = commitment(generate, qs["commitment"], s.train, s.train_modes)
+        result["commitment_examples"] = np.stack([generate(q.obs_t, q.obs_y, times)
+                                                  for q in qs["commitment"][:SAMPLES_IN_FIGURE]])
     return result
 
 
