@@ -34,9 +34,9 @@ QUICK_STEPS = 1_500
 QUICK_SEEDS = 1
 QUICK_QUERIES = 20
 JOBS = 2  # worker processes (one thread each)
-# Networks of one shape trained together in one worker task (models.batched): 4 measured 1.2-1.3x the
-# model-steps/s of one after another (benchmarks/bench_training.py); larger units would leave workers idle.
-MODELS_PER_TASK = 4
+# A network job reports its progress every this many training steps (0.5-2 s of one core idle; the bar
+# moves at least every ~20 s even when the machine is 10x oversubscribed).
+REPORT_STEPS = 100
 
 SAMPLES_IN_FIGURE = 3  # paper queries drawn per data set in the figures (first seed)
 DEFAULT_OUT = "cnep-evaluation"

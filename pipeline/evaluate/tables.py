@@ -98,7 +98,8 @@ def _training(data: dict) -> list[str]:
             text = f"fit {np.mean(info['fit_seconds']):.1f} s"
             if "parameters" in info:
                 usage = "/".join(f"{u:.2f}" for u in info["final_usage"][0])
-                text += f", {info['parameters']} params, val {np.mean(info['best_val_error']):.4f}, usage {usage}"
+                text += (f", {info['parameters']} params, {np.mean(info['steps']):.0f} steps, "
+                         f"val {np.mean(info['best_val_error']):.4f}, usage {usage}")
             texts.append(text)
         lines.append(f"| {row} | " + " | ".join(texts) + " |")
     return lines
