@@ -34,6 +34,7 @@ from pipeline.evaluate.constants import (
     DEFAULT_OUT,
     EXPERT_COUNTS,
     JOBS,
+    PATIENCE,
     QUERIES,
     QUICK_QUERIES,
     QUICK_SEEDS,
@@ -55,7 +56,8 @@ class EvaluateConfig:
     """tables: names from TABLES; seeds/steps/queries: None takes the full or quick default.
 
     sets: restrict the tables' columns (None: every set of each table, or QUICK_SETS with `quick`);
-    jobs: worker processes (0 runs everything in this process); force: replace tables already in `out`.
+    patience: validations without improvement before a network stops early (None: every network trains all
+    its steps); jobs: worker processes (0 runs everything in this process); force: replace tables already in `out`.
     """
 
     tables: tuple[str, ...] = ("comparison",)
@@ -64,6 +66,7 @@ class EvaluateConfig:
     steps: int | None = None
     queries: int | None = None
     sets: tuple[str, ...] | None = None
+    patience: int | None = PATIENCE
     out: Path = Path(DEFAULT_OUT)
     jobs: int = JOBS
     figures: bool = True
@@ -74,7 +77,7 @@ class EvaluateConfig:
         unknown = [t for t in self.tables if t not in TABLES]
         if unknown or not self.tables:
             raise PipelineError(f"unknown table(s) {unknown or self.tables}; choose from {', '.join(TABLES)} or all")
-        for name in ("seeds", "steps", "queries"):
+        for name in ("seeds", "steps", "queries", "patience"):
             value = getattr(self, name)
             if value is not None and value < 1:
                 raise PipelineError(f"--{name} must be >= 1, got {value}")
@@ -144,7 +147,7 @@ def plan(config: EvaluateConfig) -> list[Job]:
             for seed in range(config.n_seeds):
                 for row in table_rows(table, set_name):
                     job = Job(set_name, seed, row.spec, config.n_steps(set_name), config.n_queries,
-                              cnmp_matches=CNEP_EXPERTS[set_name])
+                              cnmp_matches=CNEP_EXPERTS[set_name], patience=config.patience)
                     jobs.setdefault(job.key, (rank, job))
     cost = {job: (rank, 0 if job.spec is None else -job.spec.n_experts) for rank, job in jobs.values()}
     return sorted(cost, key=cost.get)
@@ -280,7 +283,7 @@ def assemble(table: str, config: EvaluateConfig, done: dict[tuple, dict]) -> dic
         "sets": list(sets),
         "rows": labels,
         "settings": {"seeds": config.n_seeds, "steps": {s: config.n_steps(s) for s in sets}, "queries": config.n_queries,
-                     "quick": config.quick, "jobs": config.jobs},
+                     "patience": config.patience, "quick": config.quick, "jobs": config.jobs},
         "results": results,
         "training": training,
     }

@@ -107,12 +107,13 @@ def _training(data: dict) -> list[str]:
 
 def to_markdown(data: dict) -> str:
     s = data["settings"]
+    stop = f", early stop after {s['patience']} validations without improvement" if s.get("patience") else ""
     lines = [
         f"# {TITLES[data['table']]}",
         "",
         f"{s['seeds']} seed(s) x {s['queries']} queries per protocol and set; training steps per network: "
         f"{', '.join(f'{SET_TITLES[k]} {v}' for k, v in s['steps'].items())}"
-        f"{' (--quick)' if s['quick'] else ''}; written {data['wall_seconds']:.0f} s after the run started "
+        f"{' (--quick)' if s['quick'] else ''}{stop}; written {data['wall_seconds']:.0f} s after the run started "
         f"({s['jobs']} worker process(es)).",
         "Cells: MSE and MAE as mean ± std over all queries of all seeds; mode accuracy (the generated trajectory is "
         "nearest to a training demonstration of the truth's mode) as mean ± std over seeds.",

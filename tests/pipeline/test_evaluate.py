@@ -32,6 +32,13 @@ def test_steps_per_set_unless_given():
     assert {j.steps for j in plan(EvaluateConfig(tables=("comparison",), quick=True))} == {QUICK_STEPS}
 
 
+def test_patience_reaches_every_network_unless_turned_off():
+    from pipeline.evaluate.constants import PATIENCE
+
+    assert {j.patience for j in plan(EvaluateConfig(tables=("comparison",)))} == {PATIENCE}
+    assert {j.patience for j in plan(EvaluateConfig(tables=("comparison",), patience=None))} == {None}
+
+
 def test_rows_of_each_table():
     assert [r.label for r in table_rows("comparison", "bimodal")] == [
         "ProMP", "GMM-GMR", "GMM-GMR (no ridge)", "CNMP", "CNEP", "Nearest demo"]
