@@ -21,8 +21,8 @@ from collections.abc import Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, wait
 from dataclasses import dataclass
 from multiprocessing import get_context
-from queue import Empty
 from pathlib import Path
+from queue import Empty
 
 import numpy as np
 

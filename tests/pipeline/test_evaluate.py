@@ -7,7 +7,6 @@ import pytest
 import torch
 
 import models.baselines.gmm as gmm_module
-from models import CNEPConfig
 from pipeline.cli.main import main
 from pipeline.evaluate.stage import EvaluateConfig, evaluate, plan, pooled, table_rows
 from pipeline.evaluate.constants import PAPER, QUICK_QUERIES, QUICK_SETS, QUICK_STEPS, TABLES
