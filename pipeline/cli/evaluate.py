@@ -21,6 +21,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="a few minutes: fewer training steps, one seed, the bimodal and 4-mode sets, 20 queries")
     parser.add_argument("--seeds", type=int, default=None, help="seeds per cell (default 1; the full run of docs/evaluation.md uses 2)")
     parser.add_argument("--steps", type=int, default=None, help="training steps per network on every set (default: 4000 on the unimodal and bimodal sets, 10000 on 4 and 6 modes; 1500 with --quick)")
+    parser.add_argument("--patience", type=int, default=None,
+                        help="stop a network after N validations (every 500 steps) without improvement, keeping its best "
+                             "(default 4; 0: train every network for all its steps)")
     parser.add_argument("--sets", nargs="+", choices=SET_CHOICES, default=None, metavar="SET",
                         help=f"only these data sets of each table ({', '.join(SET_CHOICES)}; default: all of the table's)")
     parser.add_argument("--queries", type=int, default=None, help="queries per protocol and set (default 50; 20 with --quick)")
@@ -34,7 +37,7 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from pipeline.evaluate.stage import EvaluateConfig, evaluate
-    from pipeline.evaluate.constants import TABLES
+    from pipeline.evaluate.constants import PATIENCE, TABLES
 
     config = EvaluateConfig(
         tables=TABLES if args.table == "all" else (args.table,),
@@ -43,6 +46,7 @@ def run(args: argparse.Namespace) -> int:
         steps=args.steps,
         queries=args.queries,
         sets=tuple(args.sets) if args.sets else None,
+        patience=PATIENCE if args.patience is None else args.patience or None,  # 0: off
         out=Path(args.out),
         jobs=args.jobs,
         figures=not args.no_figures,

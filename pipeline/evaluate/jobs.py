@@ -1,15 +1,18 @@
 """The units of work of `cnep evaluate`: one job fits one method family on one (set, seed) and scores it.
 
 A job is picklable and self-contained, so it runs the same in this process or in a worker process
-(spawned with one BLAS and one torch thread). Networks of one shape (seeds, loss ablations) run as
-one group (`run_group`): their fits are one batched computation (models.batched.fit_many), each
-model bit-identical to fitting it alone. Every job of a (set, seed) builds the same data and the
+(spawned with one BLAS and one torch thread). A network job trains one network (models.fit's steps,
+driven in chunks of REPORT_STEPS so that the caller's progress moves while it trains; the same
+model as one `fit` call). Networks are not batched here (models.batched): on this CPU k batched
+networks ran 0.95x the model-steps/s of one after another (docs/evaluation.md), and one network per
+job keeps the workers evenly loaded. Every job of a (set, seed) builds the same data and the
 same queries from the seed, so all methods are scored on identical queries:
 
     data        models.synthetic.make_set(set, seed)
     paper       paper_queries(train, train_modes, n, seed)                 scored against the training pool
     heldout     heldout_queries(train, train_modes, test, test_modes, n, seed)
-    commitment  shared_queries(train, train_modes): every point two or more modes share (no draws)
+    commitment  shared_queries(train, train_modes): every point two or more modes share (no draws; none on
+                the unimodal set)
 
 Results: {method name: {"paper": scores, "heldout": scores, "commitment": `models.evaluation.commitment`'s
 dict, "examples" / "commitment_examples": (k, T, dy) generated for the first k paper / commitment queries,
@@ -20,15 +23,21 @@ whose output was not finite).
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
-from pipeline.evaluate.constants import GMM_COMPONENTS, PROMP_WEIGHTS, SAMPLES_IN_FIGURE
+from pipeline.evaluate.constants import GMM_COMPONENTS, PROMP_WEIGHTS, REPORT_STEPS, SAMPLES_IN_FIGURE
 from pipeline.workers import SMALL_MODEL_THREADS
 
 PROTOCOLS = ("paper", "heldout")
+
+
+class Progress(Protocol):
+    """Where a network job reports its training steps as it goes (a worker's queue, or the bar's feed here)."""
+
+    def put(self, steps: int) -> None: ...
 
 
 @dataclass(frozen=True)
@@ -59,6 +68,7 @@ class Job:
     steps: int
     n_queries: int
     cnmp_matches: int = 2  # a CNMP gets the parameter count of a CNEP with this many experts
+    patience: int | None = None  # models.TrainConfig.patience: validations without improvement before stopping
 
     @property
     def key(self) -> tuple:
@@ -106,9 +116,10 @@ def _scored(generate, s, qs: dict) -> dict:
     T = s.steps
     times = np.arange(T) / (T - 1)
     result["examples"] = np.stack([generate(q.obs_t, q.obs_y, times) for q in qs["paper"][:SAMPLES_IN_FIGURE]])
-    result["commitment"] = commitment(generate, qs["commitment"], s.train, s.train_modes)
-    result["commitment_examples"] = np.stack([generate(q.obs_t, q.obs_y, times)
-                                              for q in qs["commitment"][:SAMPLES_IN_FIGURE]])
+    if qs["commitment"]:  # a set whose modes share no point (unimodal) has no commitment queries
+        result["commitment"] = commitment(generate, qs["commitment"], s.train, s.train_modes)
+        result["commitment_examples"] = np.stack([generate(q.obs_t, q.obs_y, times)
+                                                  for q in qs["commitment"][:SAMPLES_IN_FIGURE]])
     return result
 
 
@@ -132,14 +143,18 @@ def model_config(spec: ModelSpec, cnmp_matches: int):
     return CNEPConfig(n_experts=spec.n_experts, a_batch=spec.a_batch, a_ind=spec.a_ind, assignment=spec.assignment)
 
 
-def run_job(job: Job) -> dict:
-    """Fit and score; returns {method name: results} (see the module docstring)."""
-    if job.spec is not None:
-        return run_group((job,))[0]
+def run_job(job: Job, progress: Progress | None = None) -> dict:
+    """Fit and score; returns {method name: results} (see the module docstring).
+
+    A network job puts the number of steps it has trained on `progress` every REPORT_STEPS steps, and
+    at the end the steps an early stop left out, so that its reports add up to `job.steps`.
+    """
     import torch
 
     torch.set_num_threads(SMALL_MODEL_THREADS)
     s, qs = queries(job.set_name, job.seed, job.n_queries)
+    if job.spec is not None:
+        return _fit_network(job, s, qs, progress)
     out = {}
     for name, method in baselines(job.set_name, job.seed).items():
         start = time.perf_counter()
@@ -149,37 +164,34 @@ def run_job(job: Job) -> dict:
     return out
 
 
-def run_unit(jobs: Sequence[Job]) -> list[dict]:
-    """`run_job`'s result for each of `jobs`: one baselines job, or networks fitted together (`run_group`)."""
-    return [run_job(jobs[0])] if jobs[0].spec is None else run_group(jobs)
-
-
-def run_group(jobs: Sequence[Job]) -> list[dict]:
-    """Fit the networks of `jobs` together (models.batched.fit_many) and score each: `run_job`'s result per job.
-
-    `fit_seconds` of each is the group's training time divided by the number of networks in it.
-    """
-    import torch
-
+def _fit_network(job: Job, s, qs: dict, progress: Progress | None) -> dict:
+    """Train the job's network as `models.fit` does (validated on the set's validation split), reporting steps, and score it."""
     from models import TrainConfig
-    from models.batched import FitRun, fit_many
+    from models.train import finish_fit, prepare_fit
 
-    torch.set_num_threads(SMALL_MODEL_THREADS)
-    data = [queries(job.set_name, job.seed, job.n_queries) for job in jobs]
-    configs = [model_config(job.spec, job.cnmp_matches) for job in jobs]
-    runs = [FitRun(list(s.train), config, TrainConfig(steps=job.steps, seed=job.seed), list(s.val))
-            for job, (s, _), config in zip(jobs, data, configs)]
+    config = model_config(job.spec, job.cnmp_matches)
     start = time.perf_counter()
-    fitted = fit_many(runs)
-    seconds = (time.perf_counter() - start) / len(jobs)
-    return [_scored_network(job, s, qs, config, model, history, seconds)
-            for job, (s, qs), config, (model, history) in zip(jobs, data, configs, fitted)]
+    trainer, split = prepare_fit(list(s.train), config, TrainConfig(steps=job.steps, patience=job.patience,
+                                                                    seed=job.seed), list(s.val))
+    while trainer.step < job.steps and not (trainer.history and trainer.should_stop()):
+        before = trainer.step
+        trainer.run(progress=False, until=before + REPORT_STEPS)
+        if progress is not None:
+            progress.put(trainer.step - before)
+    if progress is not None and trainer.step < job.steps:
+        progress.put(job.steps - trainer.step)
+    model, history = finish_fit(trainer, split)
+    return _scored_network(job, s, qs, config, model, history, time.perf_counter() - start, trainer.step)
 
 
-def _scored_network(job: Job, s, qs: dict, config, model, history: list[dict], fit_seconds: float) -> dict:
-    """A fitted network's results: winner-take-all (and for CNEPs the mixture) on both protocols, with training info."""
+def _scored_network(job: Job, s, qs: dict, config, model, history: list[dict], fit_seconds: float,
+                    steps: int) -> dict:
+    """A fitted network's results: winner-take-all (and for CNEPs the mixture) on both protocols, with training info
+    (`steps`: the steps it trained, fewer than job.steps after an early stop; `val_curve`: (step, validation error))."""
     info = {
         "fit_seconds": fit_seconds,
+        "steps": steps,
+        "val_curve": [(h["step"], h["val_error"]) for h in history],
         "best_val_error": min(h["val_error"] for h in history),
         "final_usage": history[-1]["usage"],
         "parameters": sum(p.numel() for p in model.parameters()),

@@ -18,9 +18,11 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Iterator, Sequence
-from concurrent.futures import as_completed
+from concurrent.futures import FIRST_COMPLETED, wait
 from dataclasses import dataclass
+from multiprocessing import get_context
 from pathlib import Path
+from queue import Empty
 
 import numpy as np
 
@@ -32,7 +34,7 @@ from pipeline.evaluate.constants import (
     DEFAULT_OUT,
     EXPERT_COUNTS,
     JOBS,
-    MODELS_PER_TASK,
+    PATIENCE,
     QUERIES,
     QUICK_QUERIES,
     QUICK_SEEDS,
@@ -43,7 +45,7 @@ from pipeline.evaluate.constants import (
     TABLE_SETS,
     TABLES,
 )
-from pipeline.evaluate.jobs import PROTOCOLS, Job, ModelSpec, run_unit
+from pipeline.evaluate.jobs import PROTOCOLS, Job, ModelSpec, run_job
 from pipeline.workers import single_thread_processes
 
 log = logging.getLogger(__name__)
@@ -54,7 +56,8 @@ class EvaluateConfig:
     """tables: names from TABLES; seeds/steps/queries: None takes the full or quick default.
 
     sets: restrict the tables' columns (None: every set of each table, or QUICK_SETS with `quick`);
-    jobs: worker processes (0 runs everything in this process); force: replace tables already in `out`.
+    patience: validations without improvement before a network stops early (None: every network trains all
+    its steps); jobs: worker processes (0 runs everything in this process); force: replace tables already in `out`.
     """
 
     tables: tuple[str, ...] = ("comparison",)
@@ -63,6 +66,7 @@ class EvaluateConfig:
     steps: int | None = None
     queries: int | None = None
     sets: tuple[str, ...] | None = None
+    patience: int | None = PATIENCE
     out: Path = Path(DEFAULT_OUT)
     jobs: int = JOBS
     figures: bool = True
@@ -73,7 +77,7 @@ class EvaluateConfig:
         unknown = [t for t in self.tables if t not in TABLES]
         if unknown or not self.tables:
             raise PipelineError(f"unknown table(s) {unknown or self.tables}; choose from {', '.join(TABLES)} or all")
-        for name in ("seeds", "steps", "queries"):
+        for name in ("seeds", "steps", "queries", "patience"):
             value = getattr(self, name)
             if value is not None and value < 1:
                 raise PipelineError(f"--{name} must be >= 1, got {value}")
@@ -143,7 +147,7 @@ def plan(config: EvaluateConfig) -> list[Job]:
             for seed in range(config.n_seeds):
                 for row in table_rows(table, set_name):
                     job = Job(set_name, seed, row.spec, config.n_steps(set_name), config.n_queries,
-                              cnmp_matches=CNEP_EXPERTS[set_name])
+                              cnmp_matches=CNEP_EXPERTS[set_name], patience=config.patience)
                     jobs.setdefault(job.key, (rank, job))
     cost = {job: (rank, 0 if job.spec is None else -job.spec.n_experts) for rank, job in jobs.values()}
     return sorted(cost, key=cost.get)
@@ -155,49 +159,64 @@ def needs(table: str, config: EvaluateConfig) -> set[tuple]:
             for row in table_rows(table, s)}
 
 
-def groups(jobs: Sequence[Job]) -> list[tuple[Job, ...]]:
-    """Jobs in units of work, in plan order: networks of one shape and schedule on one set (seeds, loss
-    ablations) together, up to MODELS_PER_TASK, trained as one batched computation; baselines alone."""
-    units: list[list[Job]] = []
-    open_units: dict[tuple, list[Job]] = {}
-    for job in jobs:
-        if job.spec is None:
-            units.append([job])
-            continue
-        shape = (job.set_name, job.steps, job.spec.n_experts, job.cnmp_matches if job.spec.n_experts == 1 else None)
-        unit = open_units.get(shape)
-        if unit is None or len(unit) == MODELS_PER_TASK:
-            unit = open_units[shape] = []
-            units.append(unit)
-        unit.append(job)
-    return [tuple(unit) for unit in units]
+PROGRESS_POLL_S = 1.0  # how often the parent reads the workers' step reports
+
+
+class _BarFeed:
+    """run_job's progress when it runs in this process: each report advances the bar at once."""
+
+    def __init__(self, bar) -> None:
+        self.put = bar.update
 
 
 def run_jobs(jobs: Sequence[Job], workers: int, quiet: bool) -> Iterator[tuple[Job, dict]]:
-    """Yield (job, result) as units of jobs (`groups`) finish, in `workers` spawned processes with one thread
-    each (or here when 0)."""
+    """Yield (job, result) as jobs finish, in `workers` spawned processes with one thread each (or here when 0).
+
+    The bar counts training steps (every network's planned steps; an early stop credits the rest), so it
+    moves while networks train and its time left is an estimate from the steps' rate; the fits done and
+    the last one finished follow it.
+    """
     from pipeline.progress import progress_bar
 
-    bar = progress_bar(total=len(jobs), quiet=quiet, desc="evaluate", unit="fit")
-    units = groups(jobs)
-    if workers == 0:
-        for unit in units:
-            for job, result in zip(unit, run_unit(unit)):
-                yield job, result
-                bar.update(1)
-        bar.close()
-        return
+    total = sum(job.steps for job in jobs if job.spec is not None)
+    bar = progress_bar(total=total, quiet=quiet, desc="evaluate", unit="step")
+    finished = 0
+
+    def done(job: Job) -> None:
+        nonlocal finished
+        finished += 1
+        log.debug("done %s", job.label)
+        bar.set_postfix_str(f"{finished}/{len(jobs)} fits, last {job.label}")
+
     try:
-        with single_thread_processes(workers) as pool:
-            futures = {pool.submit(run_unit, unit): unit for unit in units}
-            for future in as_completed(futures):
-                for job, result in zip(futures[future], future.result()):
-                    log.debug("done %s", job.label)
-                    bar.set_postfix_str(job.label)
-                    bar.update(1)
+        if workers == 0:
+            for job in jobs:
+                result = run_job(job, _BarFeed(bar))
+                done(job)
+                yield job, result
+            return
+        with get_context("spawn").Manager() as manager, single_thread_processes(workers) as pool:
+            reports = manager.Queue()
+            pending = {pool.submit(run_job, job, reports): job for job in jobs}
+            while pending:
+                finished_now, _ = wait(pending, timeout=PROGRESS_POLL_S, return_when=FIRST_COMPLETED)
+                _drain(reports, bar)
+                for future in finished_now:
+                    job = pending.pop(future)
+                    result = future.result()
+                    done(job)
                     yield job, result
     finally:
         bar.close()
+
+
+def _drain(reports, bar) -> None:
+    """Advance the bar by every step count the workers have reported so far."""
+    while True:
+        try:
+            bar.update(reports.get_nowait())
+        except Empty:
+            return
 
 
 def pooled(per_seed: Sequence[dict]) -> dict:
@@ -255,6 +274,7 @@ def assemble(table: str, config: EvaluateConfig, done: dict[tuple, dict]) -> dic
             training.setdefault(row.label, {})[set_name] = {
                 "fit_seconds": [r["fit_seconds"] for r in runs],
                 **({"best_val_error": [r["best_val_error"] for r in runs], "final_usage": [r["final_usage"] for r in runs],
+                    "steps": [r["steps"] for r in runs], "val_curve": [r["val_curve"] for r in runs],
                     "parameters": runs[0]["parameters"], "expert_widths": runs[0]["expert_widths"]}
                    if row.spec is not None else {}),
             }
@@ -263,7 +283,7 @@ def assemble(table: str, config: EvaluateConfig, done: dict[tuple, dict]) -> dic
         "sets": list(sets),
         "rows": labels,
         "settings": {"seeds": config.n_seeds, "steps": {s: config.n_steps(s) for s in sets}, "queries": config.n_queries,
-                     "quick": config.quick, "jobs": config.jobs},
+                     "patience": config.patience, "quick": config.quick, "jobs": config.jobs},
         "results": results,
         "training": training,
     }

@@ -98,7 +98,8 @@ def _training(data: dict) -> list[str]:
             text = f"fit {np.mean(info['fit_seconds']):.1f} s"
             if "parameters" in info:
                 usage = "/".join(f"{u:.2f}" for u in info["final_usage"][0])
-                text += f", {info['parameters']} params, val {np.mean(info['best_val_error']):.4f}, usage {usage}"
+                text += (f", {info['parameters']} params, {np.mean(info['steps']):.0f} steps, "
+                         f"val {np.mean(info['best_val_error']):.4f}, usage {usage}")
             texts.append(text)
         lines.append(f"| {row} | " + " | ".join(texts) + " |")
     return lines
@@ -106,12 +107,13 @@ def _training(data: dict) -> list[str]:
 
 def to_markdown(data: dict) -> str:
     s = data["settings"]
+    stop = f", early stop after {s['patience']} validations without improvement" if s.get("patience") else ""
     lines = [
         f"# {TITLES[data['table']]}",
         "",
         f"{s['seeds']} seed(s) x {s['queries']} queries per protocol and set; training steps per network: "
         f"{', '.join(f'{SET_TITLES[k]} {v}' for k, v in s['steps'].items())}"
-        f"{' (--quick)' if s['quick'] else ''}; written {data['wall_seconds']:.0f} s after the run started "
+        f"{' (--quick)' if s['quick'] else ''}{stop}; written {data['wall_seconds']:.0f} s after the run started "
         f"({s['jobs']} worker process(es)).",
         "Cells: MSE and MAE as mean ± std over all queries of all seeds; mode accuracy (the generated trajectory is "
         "nearest to a training demonstration of the truth's mode) as mean ± std over seeds.",

@@ -7,7 +7,6 @@ import pytest
 import torch
 
 import models.baselines.gmm as gmm_module
-from models import CNEPConfig
 from pipeline.cli.main import main
 from pipeline.evaluate.stage import EvaluateConfig, evaluate, plan, pooled, table_rows
 from pipeline.evaluate.constants import PAPER, QUICK_QUERIES, QUICK_SETS, QUICK_STEPS, TABLES
@@ -30,6 +29,13 @@ def test_steps_per_set_unless_given():
     assert by_set["bimodal"] < by_set["multimodal"] == by_set["multimodal6"]
     assert {j.steps for j in plan(EvaluateConfig(tables=("comparison",), steps=123))} == {123}
     assert {j.steps for j in plan(EvaluateConfig(tables=("comparison",), quick=True))} == {QUICK_STEPS}
+
+
+def test_patience_reaches_every_network_unless_turned_off():
+    from pipeline.evaluate.constants import PATIENCE
+
+    assert {j.patience for j in plan(EvaluateConfig(tables=("comparison",)))} == {PATIENCE}
+    assert {j.patience for j in plan(EvaluateConfig(tables=("comparison",), patience=None))} == {None}
 
 
 def test_rows_of_each_table():
@@ -124,28 +130,61 @@ def test_quick_command_runs_the_comparison_on_two_sets(tmp_path):
         assert nearest["mse"] == pytest.approx(0.0, abs=1e-12) and nearest["mode_accuracy"] == 1.0
 
 
-def test_networks_of_one_shape_are_grouped_across_seeds_and_ablations():
-    from pipeline.evaluate.constants import MODELS_PER_TASK
-    from pipeline.evaluate.stage import groups
+class _Reports:
+    """Collects a job's progress reports."""
 
-    config = EvaluateConfig(tables=("comparison", "ablation"), seeds=3, sets=("bimodal",))
-    jobs = plan(config)
-    units = groups(jobs)
-    assert sorted(map(repr, (j.key for unit in units for j in unit))) == sorted(map(repr, (j.key for j in jobs)))
-    assert all(len(unit) == 1 for unit in units if unit[0].spec is None)
-    for unit in units:
-        assert len(unit) <= MODELS_PER_TASK
-        assert len({(j.set_name, j.steps, j.spec and j.spec.n_experts) for j in unit}) == 1
-    d2 = [unit for unit in units if unit[0].spec and unit[0].spec.n_experts == 2]
-    assert sum(len(u) for u in d2) == 3 * 4  # CNEP, CNEP-Uni, -UnSpec, -Rec for 3 seeds
+    def __init__(self):
+        self.steps = []
+
+    def put(self, steps):
+        self.steps.append(steps)
 
 
-def test_a_network_fitted_in_a_group_scores_as_fitted_alone(torch_threads):
-    from pipeline.evaluate.jobs import Job, run_group, run_job
+def test_a_network_job_reports_its_steps_and_trains_as_fit(torch_threads):
+    from models import TrainConfig, fit
+    from models.synthetic import make_set
+    from pipeline.evaluate.constants import REPORT_STEPS
+    from pipeline.evaluate.jobs import Job, model_config, run_job
 
-    jobs = [Job("bimodal", seed, ModelSpec(2), steps=30, n_queries=3) for seed in (0, 1)]
-    grouped = run_group(jobs)
-    alone = run_job(jobs[1])
-    for protocol in ("paper", "heldout"):
-        assert grouped[1]["cnep-d2"][protocol] == alone["cnep-d2"][protocol]
-    assert grouped[1]["cnep-d2"]["best_val_error"] == alone["cnep-d2"]["best_val_error"]
+    job = Job("bimodal", 1, ModelSpec(2), steps=REPORT_STEPS + 30, n_queries=3)
+    reports = _Reports()
+    result = run_job(job, reports)["cnep-d2"]
+    assert reports.steps == [REPORT_STEPS, 30] and result["steps"] == job.steps
+    s = make_set("bimodal", 1)  # the same network trained by one models.fit call: the same validation curve
+    _, history = fit(list(s.train), model_config(job.spec, job.cnmp_matches), TrainConfig(steps=job.steps, seed=1),
+                     list(s.val), progress=False)
+    assert result["val_curve"] == [(h["step"], h["val_error"]) for h in history]
+    assert result["best_val_error"] == min(h["val_error"] for h in history)
+
+
+def test_an_early_stop_credits_the_steps_it_skipped(monkeypatch, torch_threads):
+    from models.train import Trainer
+    from pipeline.evaluate.jobs import Job, run_job
+
+    validate = Trainer.validate
+    monkeypatch.setattr(Trainer, "validation_due", lambda self: True)  # validate after every step
+    # the recorded error grows after the first validation (the best model stays the real one): patience 2 stops at step 3
+    monkeypatch.setattr(Trainer, "validate", lambda self: validate(self) + self.step)
+    reports = _Reports()
+    result = run_job(Job("bimodal", 0, ModelSpec(1), steps=150, n_queries=3, patience=2), reports)["cnmp"]
+    assert result["steps"] == 3 and [step for step, _ in result["val_curve"]] == [1, 2, 3]
+    assert sum(reports.steps) == 150 and reports.steps[-1] == 147
+
+
+def test_progress_counts_training_steps_in_whole_lines(capsys, torch_threads):
+    from pipeline.evaluate.jobs import Job
+    from pipeline.evaluate.stage import run_jobs
+
+    jobs = [Job("bimodal", 0, ModelSpec(2), steps=40, n_queries=3), Job("bimodal", 0, ModelSpec(1), steps=40, n_queries=3)]
+    assert [job for job, _ in run_jobs(jobs, workers=1, quiet=False)] != []
+    lines = capsys.readouterr().err.splitlines()
+    assert "\r" not in "".join(lines) and "80/80" in lines[-1] and "2/2 fits" in lines[-1]
+
+
+def test_unimodal_has_no_commitment_queries_and_still_scores(tmp_path, monkeypatch, torch_threads):
+    monkeypatch.setattr(gmm_module, "EM_ITERATIONS", 3)
+    config = EvaluateConfig(tables=("comparison",), seeds=1, steps=20, queries=3, sets=("unimodal",), out=tmp_path,
+                            jobs=0, quiet=True, figures=False)
+    evaluate(config)
+    data = json.loads((tmp_path / "comparison.json").read_text())
+    assert data["results"]["paper"]["CNEP"]["unimodal"]["failures"] == 0
