@@ -3,6 +3,7 @@
     L_e     = mean over targets and output dims of -log N(y | mu_e, sigma_e)        (B, d)
     L_rec   = mean_i (1/d) sum_e p_ie L_ie                                   (assignment "paper")
             = mean_i (1/(d n_i)) (-log sum_e p_ie exp(-S_ie))                (assignment "mixture")
+            = mean_i (1/d) sum_e r_ie (L_ie - log p_ie),  r_i detached         (assignment "annealed")
     L_batch = H(mean_i p_i)            entropy of the batch-mean gate distribution
     L_ind   = mean_i H(p_i)            mean entropy of each sample's gate distribution
     L_total = a_rec L_rec - a_batch L_batch + a_ind L_ind
@@ -15,7 +16,17 @@ r_ie = p_ie exp(-S_ie) / sum_k p_ik exp(-S_ik), so the targets decide which expe
 gate (the prior) is pulled towards r_i. Dividing by n_i keeps the experts' gradients on the paper's
 per-value scale (the gate's gradient, (p_ie - r_ie) / (d n_i), shrinks with n_i); dividing by d keeps
 `a_rec`'s rescaling with d meaning the same. With one expert both terms are mean_i L_i; they are also
-equal whenever all experts predict the same. The entropy terms are the same for both assignments.
+equal whenever all experts predict the same. The entropy terms are the same for every assignment.
+
+"annealed" is expectation-maximisation on a tempered posterior, r_ie = softmax_e(log p_ie - k_i L_ie)
+(detached): the experts learn their r-weighted NLL (the mixture's expert gradient) and the gate learns
+the cross-entropy to r at full strength (gradient (p_ie - r_ie)/d, n_i times the mixture's). The
+sharpness k_i rises geometrically from 1 (the posterior of one target value's mean NLL: soft while the
+experts are alike) at the start of training to n_i (the mixture's posterior) at ANNEAL_FRACTION of the
+steps, and stays there (`annealed_sharpness`). Measured (docs/model.md): with k_i = n_i from the first
+step, the posterior is winner-take-all while the gate is still frozen, experts that lose every sample
+early are never trained again, and on 6 modes pairs of modes end up sharing an expert, which averages
+them where they cross; starting soft keeps the experts in play until they have told the modes apart.
 
 The paper prints `+ a_batch L_batch`; the text asks for batch entropy to be maximised and the authors'
 code subtracts it, so we subtract it. Entropies are computed per row with clamped logs: a probability
@@ -32,6 +43,7 @@ from models.config import CNEPConfig
 
 _TINY = 1e-12
 _HALF_LOG_2PI = 0.5 * math.log(2 * math.pi)
+ANNEAL_FRACTION = 0.6  # "annealed": the posterior reaches the mixture's sharpness at this fraction of training
 
 
 def entropy(p: torch.Tensor) -> torch.Tensor:
@@ -51,8 +63,18 @@ def expert_nll(mean: torch.Tensor, std: torch.Tensor, target: torch.Tensor, targ
     return (nll * w).sum((2, 3)) / count.clamp_min(1.0)  # (B, d)
 
 
-def reconstruction(nll: torch.Tensor, gate: torch.Tensor, values: torch.Tensor, assignment: str) -> torch.Tensor:
-    """L_rec of `assignment`: nll (B, d) mean NLL per value, gate (B, d), values (B,) target values per sample."""
+def annealed_sharpness(values: torch.Tensor, progress: float) -> torch.Tensor:
+    """k_i of the "annealed" posterior: n_i ** min(1, progress / ANNEAL_FRACTION); values (B,) -> (B,).
+
+    progress: the fraction of training done (step / steps), in [0, 1].
+    """
+    return values.clamp_min(1.0) ** min(1.0, max(0.0, progress) / ANNEAL_FRACTION)
+
+
+def reconstruction(nll: torch.Tensor, gate: torch.Tensor, values: torch.Tensor, assignment: str,
+                   progress: float = 1.0) -> torch.Tensor:
+    """L_rec of `assignment`: nll (B, d) mean NLL per value, gate (B, d), values (B,) target values per sample;
+    progress: the fraction of training done (only "annealed" depends on it)."""
     d = gate.shape[-1]
     if assignment == "paper":
         return (gate * nll).sum(-1).mean() / d
@@ -60,6 +82,11 @@ def reconstruction(nll: torch.Tensor, gate: torch.Tensor, values: torch.Tensor, 
         n = values.clamp_min(1.0).unsqueeze(-1)  # (B, 1)
         log_joint = gate.clamp_min(_TINY).log() - n * nll  # (B, d): log p_ie - S_ie
         return (-torch.logsumexp(log_joint, dim=-1) / n[:, 0]).mean() / d
+    if assignment == "annealed":
+        log_p = gate.clamp_min(_TINY).log()  # (B, d)
+        k = annealed_sharpness(values, progress).unsqueeze(-1)  # (B, 1)
+        r = torch.softmax(log_p - k * nll, dim=-1).detach()  # (B, d) the tempered posterior
+        return ((r * nll).sum(-1) - (r * log_p).sum(-1)).mean() / d
     raise ValueError(f"unknown assignment {assignment!r}")
 
 
@@ -70,11 +97,13 @@ def cnep_loss(
     target: torch.Tensor,
     target_mask: torch.Tensor,
     config: CNEPConfig,
+    progress: float = 1.0,
 ) -> tuple[torch.Tensor, dict[str, float]]:
-    """Total loss and its terms as floats (for logs). Shapes as in `expert_nll`; gate (B, d)."""
+    """Total loss and its terms as floats (for logs). Shapes as in `expert_nll`; gate (B, d); progress: the
+    fraction of training done (step / steps; the "annealed" assignment's schedule)."""
     nll = expert_nll(mean, std, target, target_mask)  # (B, d)
     values = target_mask.to(nll.dtype).sum(-1) * mean.shape[-1]  # (B,) target values per sample
-    rec = reconstruction(nll, gate, values, config.assignment)
+    rec = reconstruction(nll, gate, values, config.assignment, progress)
     batch = entropy(gate.mean(0))
     ind = entropy(gate).mean()
     total = config.a_rec * rec - config.a_batch * batch + config.a_ind * ind
