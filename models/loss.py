@@ -3,7 +3,7 @@
     L_e     = mean over targets and output dims of -log N(y | mu_e, sigma_e)        (B, d)
     L_rec   = mean_i (1/d) sum_e p_ie L_ie                                   (assignment "paper")
             = mean_i (1/(d n_i)) (-log sum_e p_ie exp(-S_ie))                (assignment "mixture")
-            = mean_i (1/d) sum_e r_ie (L_ie - log p_ie),  r_i detached         (assignment "annealed")
+            = mean_i (1/d) sum_e r_ie (L_ie - log p_ie),  r detached           (assignment "annealed")
     L_batch = H(mean_i p_i)            entropy of the batch-mean gate distribution
     L_ind   = mean_i H(p_i)            mean entropy of each sample's gate distribution
     L_total = a_rec L_rec - a_batch L_batch + a_ind L_ind
@@ -18,15 +18,20 @@ per-value scale (the gate's gradient, (p_ie - r_ie) / (d n_i), shrinks with n_i)
 `a_rec`'s rescaling with d meaning the same. With one expert both terms are mean_i L_i; they are also
 equal whenever all experts predict the same. The entropy terms are the same for every assignment.
 
-"annealed" is expectation-maximisation on a tempered posterior, r_ie = softmax_e(log p_ie - k_i L_ie)
-(detached): the experts learn their r-weighted NLL (the mixture's expert gradient) and the gate learns
-the cross-entropy to r at full strength (gradient (p_ie - r_ie)/d, n_i times the mixture's). The
-sharpness k_i rises geometrically from 1 (the posterior of one target value's mean NLL: soft while the
-experts are alike) at the start of training to n_i (the mixture's posterior) at ANNEAL_FRACTION of the
-steps, and stays there (`annealed_sharpness`). Measured (docs/model.md): with k_i = n_i from the first
-step, the posterior is winner-take-all while the gate is still frozen, experts that lose every sample
-early are never trained again, and on 6 modes pairs of modes end up sharing an expert, which averages
-them where they cross; starting soft keeps the experts in play until they have told the modes apart.
+"annealed" is expectation-maximisation on a tempered, balanced posterior: r_ie = softmax_e(log p_ie - k_i L_ie)
+(detached). The experts learn their r-weighted NLL (the mixture's expert gradient once k_i = n_i) and
+the gate learns the cross-entropy to r at full strength (gradient (p_ie - r_ie)/d, n_i times the
+mixture's). Two things happen while training is young (progress < ANNEAL_FRACTION of the steps):
+- the sharpness k_i rises geometrically from 1 (the posterior of one target value's mean NLL) to n_i
+  (the mixture's posterior), then stays there (`annealed_sharpness`);
+- the posterior is balanced over the batch (`balanced`: SINKHORN_ITERATIONS Sinkhorn steps giving
+  every expert B/d of the batch's mass), so that every expert keeps learning something.
+Measured (docs/model.md, "Commitment"): with the mixture's posterior from the first step, the experts
+that lose every sample while the gate is still frozen are never trained again (6 modes: pairs of modes
+share an expert and are averaged where they cross); annealing alone keeps more experts in play but
+still lets one expert take every behaviour that the context already tells apart (the demo: all four
+behaviours on one expert); balancing while annealing keeps every expert in use, and once the experts
+differ the free posterior keeps them pure and lets the targets decide where the context cannot.
 
 The paper prints `+ a_batch L_batch`; the text asks for batch entropy to be maximised and the authors'
 code subtracts it, so we subtract it. Entropies are computed per row with clamped logs: a probability
@@ -44,6 +49,7 @@ from models.config import CNEPConfig
 _TINY = 1e-12
 _HALF_LOG_2PI = 0.5 * math.log(2 * math.pi)
 ANNEAL_FRACTION = 0.6  # "annealed": the posterior reaches the mixture's sharpness at this fraction of training
+SINKHORN_ITERATIONS = 3  # "annealed": balancing steps of the posterior over the batch while it anneals
 
 
 def entropy(p: torch.Tensor) -> torch.Tensor:
@@ -71,6 +77,26 @@ def annealed_sharpness(values: torch.Tensor, progress: float) -> torch.Tensor:
     return values.clamp_min(1.0) ** min(1.0, max(0.0, progress) / ANNEAL_FRACTION)
 
 
+def balanced(log_r: torch.Tensor, iterations: int = SINKHORN_ITERATIONS) -> torch.Tensor:
+    """Sinkhorn balancing of log responsibilities (B, d) over the batch: alternately scale each expert's
+    column to B/d of the mass and each sample's row to 1 (the last step), in log space -> (B, d)."""
+    B, d = log_r.shape
+    for _ in range(iterations):
+        log_r = log_r - torch.logsumexp(log_r, 0, keepdim=True) + math.log(B / d)
+        log_r = log_r - torch.logsumexp(log_r, -1, keepdim=True)
+    return log_r
+
+
+def annealed_posterior(log_p: torch.Tensor, nll: torch.Tensor, values: torch.Tensor, progress: float) -> torch.Tensor:
+    """The "annealed" responsibilities r (B, d), detached: softmax_e(log p_ie - k_i L_ie), balanced over the
+    batch (`balanced`) while progress < ANNEAL_FRACTION. log_p, nll (B, d); values (B,)."""
+    k = annealed_sharpness(values, progress).unsqueeze(-1)  # (B, 1)
+    log_r = (log_p - k * nll).detach()
+    if progress < ANNEAL_FRACTION:
+        log_r = balanced(log_r)
+    return torch.softmax(log_r, dim=-1)
+
+
 def reconstruction(nll: torch.Tensor, gate: torch.Tensor, values: torch.Tensor, assignment: str,
                    progress: float = 1.0) -> torch.Tensor:
     """L_rec of `assignment`: nll (B, d) mean NLL per value, gate (B, d), values (B,) target values per sample;
@@ -84,8 +110,7 @@ def reconstruction(nll: torch.Tensor, gate: torch.Tensor, values: torch.Tensor, 
         return (-torch.logsumexp(log_joint, dim=-1) / n[:, 0]).mean() / d
     if assignment == "annealed":
         log_p = gate.clamp_min(_TINY).log()  # (B, d)
-        k = annealed_sharpness(values, progress).unsqueeze(-1)  # (B, 1)
-        r = torch.softmax(log_p - k * nll, dim=-1).detach()  # (B, d) the tempered posterior
+        r = annealed_posterior(log_p, nll, values, progress)  # (B, d), detached
         return ((r * nll).sum(-1) - (r * log_p).sum(-1)).mean() / d
     raise ValueError(f"unknown assignment {assignment!r}")
 

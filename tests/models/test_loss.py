@@ -1,9 +1,11 @@
+import dataclasses
 import math
 
 import torch
 
 from models.config import CNEPConfig
-from models.loss import ANNEAL_FRACTION, annealed_sharpness, cnep_loss, entropy, expert_nll
+from models.loss import (ANNEAL_FRACTION, SINKHORN_ITERATIONS, annealed_posterior, annealed_sharpness, balanced,
+                         cnep_loss, entropy, expert_nll)
 
 
 def test_expert_nll_against_a_hand_computation():
@@ -174,41 +176,60 @@ def _annealed_example():
     return mean, std, target, mask, gate, (L0, 2), (L1, 1)
 
 
-def _hand_annealed(L, n, p, progress):
-    k = n ** min(1.0, progress / ANNEAL_FRACTION)
-    w = [pe * math.exp(-k * le) for pe, le in zip(p, L)]
-    r = [x / sum(w) for x in w]
-    return r, sum(re * (le - math.log(pe)) for re, le, pe in zip(r, L, p))
+def _hand_posterior(Ls, ns, ps, progress):
+    """The "annealed" responsibilities by hand: per sample p_e exp(-k L_e) with k = n ** min(1, progress / 0.6),
+    then while annealing 3 rounds of scaling each expert's column to B/d and each row to 1, else rows to 1."""
+    w = [[p * math.exp(-n ** min(1.0, progress / ANNEAL_FRACTION) * le) for p, le in zip(pi, Li)]
+         for Li, n, pi in zip(Ls, ns, ps)]
+    B, d = len(w), len(w[0])
+    for _ in range(SINKHORN_ITERATIONS if progress < ANNEAL_FRACTION else 0):
+        column = [sum(w[i][e] for i in range(B)) for e in range(d)]
+        w = [[w[i][e] * (B / d) / column[e] for e in range(d)] for i in range(B)]
+        w = [[x / sum(row) for x in row] for row in w]
+    return [[x / sum(row) for x in row] for row in w]
 
 
 def test_annealed_term_against_a_hand_computation():
     cfg = CNEPConfig(n_experts=2, a_rec=1.0, a_batch=0.0, a_ind=0.0, assignment="annealed")
     mean, std, target, mask, gate, (L0, n0), (L1, n1) = _annealed_example()
-    for progress in (0.0, 0.3, 1.0):
+    p = gate.tolist()
+    for progress in (0.0, 0.3, 1.0):  # balanced and soft, balanced and sharper, free and as sharp as the mixture
         _, terms = cnep_loss(mean, std, gate, target, mask, cfg, progress)
-        _, rec0 = _hand_annealed(L0, n0, gate[0].tolist(), progress)
-        _, rec1 = _hand_annealed(L1, n1, gate[1].tolist(), progress)
-        assert math.isclose(terms["rec"], (rec0 + rec1) / 2 / 2, rel_tol=1e-6)  # mean over samples, then / d
+        r = _hand_posterior([L0, L1], [n0, n1], p, progress)
+        rec = [sum(re * (le - math.log(pe)) for re, le, pe in zip(ri, Li, pi)) for ri, Li, pi in zip(r, [L0, L1], p)]
+        assert math.isclose(terms["rec"], (rec[0] + rec[1]) / 2 / 2, rel_tol=1e-6)  # mean over samples, then / d
 
 
 def test_annealed_gate_learns_the_posterior_at_full_strength_and_experts_learn_it_as_in_the_mixture():
     mean, std, target, mask, gate, (L0, n0), (L1, n1) = _annealed_example()
+    cfg = CNEPConfig(n_experts=2, a_rec=1.0, a_batch=0.0, a_ind=0.0, assignment="annealed")
     for progress in (0.0, 1.0):
         logits = gate.log().clone().requires_grad_()
-        m = mean.clone().requires_grad_()
-        cfg = CNEPConfig(n_experts=2, a_rec=1.0, a_batch=0.0, a_ind=0.0, assignment="annealed")
-        cnep_loss(m, std, torch.softmax(logits, -1), target, mask, cfg, progress)[0].backward()
-        r = torch.tensor([_hand_annealed(L0, n0, gate[0].tolist(), progress)[0],
-                          _hand_annealed(L1, n1, gate[1].tolist(), progress)[0]])
+        cnep_loss(mean, std, torch.softmax(logits, -1), target, mask, cfg, progress)[0].backward()
+        r = torch.tensor(_hand_posterior([L0, L1], [n0, n1], gate.tolist(), progress))
         torch.testing.assert_close(logits.grad, (gate - r) / 2 / 2)  # (p - r) / d, mean over B = 2 samples
-    # at full sharpness the experts' gradient is the mixture likelihood's (whose gate gradient is n_i times weaker)
+    # once annealed the experts' gradient is the mixture likelihood's (whose gate gradient is n_i times weaker)
     grads = {}
     for assignment in ("mixture", "annealed"):
         m = mean.clone().requires_grad_()
-        cfg = CNEPConfig(n_experts=2, a_rec=1.0, a_batch=0.0, a_ind=0.0, assignment=assignment)
-        cnep_loss(m, std, gate, target, mask, cfg, 1.0)[0].backward()
+        cnep_loss(m, std, gate, target, mask, dataclasses.replace(cfg, assignment=assignment), 1.0)[0].backward()
         grads[assignment] = m.grad
     torch.testing.assert_close(grads["annealed"], grads["mixture"])
+
+
+def test_balancing_spreads_the_batch_over_the_experts_while_the_posterior_anneals():
+    # every sample is explained best by expert 0: unbalanced, expert 0 takes nearly all of the batch;
+    # balanced, every expert takes close to B/d of it, and each row stays a distribution
+    nll = torch.tensor([[0.0, 2.0, 3.0], [0.1, 1.0, 4.0], [0.0, 3.0, 1.0], [0.2, 2.0, 2.0]])
+    log_p = torch.full((4, 3), -math.log(3.0))
+    values = torch.full((4,), 4.0)
+    free = annealed_posterior(log_p, nll, values, 1.0)
+    held = annealed_posterior(log_p, nll, values, 0.0)
+    assert free[:, 0].sum() > 3.9
+    torch.testing.assert_close(held.sum(-1), torch.ones(4))
+    torch.testing.assert_close(held.sum(0), torch.full((3,), 4 / 3), atol=0.05, rtol=0)
+    torch.testing.assert_close(balanced(held.log(), 50).exp().sum(0), torch.full((3,), 4 / 3))  # Sinkhorn converges
+    assert int(held.argmax(-1)[2]) == 2 and int(held.argmax(-1)[1]) == 1  # the next best expert takes the mass
 
 
 def test_annealed_equals_the_paper_term_with_one_expert_in_value_and_gradient():
