@@ -9,9 +9,9 @@ Data (read in place, never copied): a folder like the paper's `data/baxter/first
 2. take the end-effector's (p_x, p_y) (m), resample each demonstration to `samples` steps evenly in
    time (t = k / (samples - 1)); the model's normaliser standardises the columns;
 3. train a 2-expert CNEP per assignment of the loss (`models.CNEPConfig.assignment`: the paper's
-   gate-weighted NLL, the mixture likelihood and the annealed posterior assignment) and a CNMP (1 expert, widened to about the same number
-   of parameters) with `models.fit`, seeded; with only two demonstrations both serve for training and
-   validation;
+   gate-weighted NLL, the mixture likelihood, the annealed posterior) and a CNMP (1 expert, widened to
+   about the same number of parameters) with `models.fit`, seeded; with only two demonstrations both
+   serve for training and validation;
 4. condition each model on each test recording's first sample at t = 0 (and, with `goal=True`, also
    on its last sample at t = 1) and generate the path at the `samples` times: each CNEP winner-take-all
    (the paper's inference) and as the gate-weighted mixture of its experts (CNEP-MoE);

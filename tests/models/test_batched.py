@@ -20,7 +20,8 @@ def _runs() -> list[FitRun]:
     schedule follows the step), one layout with queries."""
     config = dataclasses.replace(tiny_config(n_experts=3), encoder_widths=(16, 16))
     runs = []
-    for seed, loss in [(0, {}), (1, {"assignment": "annealed"}), (2, {"a_batch": 0.0}), (3, {"a_batch": 0.0, "a_ind": 0.0})]:
+    losses = [{}, {"assignment": "annealed"}, {"a_batch": 0.0}, {"a_batch": 0.0, "a_ind": 0.0}]
+    for seed, loss in enumerate(losses):
         trajs, _ = two_mode_trajectories(n=12, T=30, seed=seed)
         wide = [torch.randn(30, 5, generator=torch.Generator().manual_seed(seed)).numpy() + t for t in trajs]
         runs.append(FitRun(wide[:10], dataclasses.replace(config, **loss), dataclasses.replace(SCHEDULE, seed=seed),

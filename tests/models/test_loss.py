@@ -241,8 +241,8 @@ def test_annealed_equals_the_paper_term_with_one_expert_in_value_and_gradient():
     out = {}
     for assignment in ("paper", "annealed"):
         mean.grad = std.grad = None
-        total, terms = cnep_loss(mean, std, torch.ones(2, 1), target, mask, CNEPConfig(n_experts=1, assignment=assignment),
-                                 0.2)
+        cfg = CNEPConfig(n_experts=1, assignment=assignment)
+        total, terms = cnep_loss(mean, std, torch.ones(2, 1), target, mask, cfg, 0.2)  # 0.2: balanced while annealing
         total.backward()
         out[assignment] = (total.detach(), mean.grad.clone(), std.grad.clone(), terms)
     for a, b in zip(out["paper"][:3], out["annealed"][:3]):
