@@ -99,9 +99,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                    help="how the loss assigns a context's targets to the experts: paper = the paper's gate-weighted "
                         "NLL (every expert the gate has not ruled out learns every target), mixture = the mixture "
                         "likelihood (the expert that explains the targets learns them; commits where the context "
-                        "cannot tell behaviours apart), annealed = the same posterior assignment, soft at the start "
-                        "of training and as sharp as the mixture's from 60%% of the steps on, with the gate trained "
-                        f"towards it at full strength; docs/model.md (default {_default('assignment')})")
+                        "cannot tell behaviours apart), annealed = the same posterior assignment, soft and balanced "
+                        "over the experts early in training, as sharp as the mixture's from 60%% of the steps on, "
+                        f"the gate trained towards it at full strength; docs/model.md (default {_default('assignment')})")
     m.add_argument("--encoder-widths", type=_widths, default=keep,
                    help=f"encoder layer widths (default {_default('encoder_widths')})")
     m.add_argument("--expert-widths", type=_widths, default=keep,
