@@ -157,7 +157,8 @@ class BatchedTrainer:
         mean, std, gate = self.net(stacked["obs"], stacked["obs_mask"], stacked["query"])  # (k, B, d, M, dy), (k, B, d)
         losses, terms = [], []
         for i, (batch, trainer) in enumerate(zip(batches, self.trainers)):
-            loss, term = cnep_loss(mean[i], std[i], gate[i], batch.target, batch.target_mask, trainer.model.config)
+            loss, term = cnep_loss(mean[i], std[i], gate[i], batch.target, batch.target_mask, trainer.model.config,
+                                   self.step / self.cfg.steps)
             term["usage"] = gate[i].detach().mean(0).tolist()
             losses.append(loss)
             terms.append(term)

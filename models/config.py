@@ -67,8 +67,9 @@ def authors_coefficients(n_experts: int) -> tuple[float, float, float]:
 
 
 # The reconstruction terms of the loss (models.loss.reconstruction): "paper" = mean_i (1/d) sum_e p_ie L_ie,
-# "mixture" = mean_i (1/(d n_i)) (-log sum_e p_ie exp(-S_ie)).
-ASSIGNMENTS = ("paper", "mixture")
+# "mixture" = mean_i (1/(d n_i)) (-log sum_e p_ie exp(-S_ie)), "annealed" = EM on the posterior annealed
+# from soft to the mixture's.
+ASSIGNMENTS = ("paper", "mixture", "annealed")
 
 
 @dataclass(frozen=True)
@@ -78,8 +79,10 @@ class CNEPConfig:
     The loss is `a_rec * L_rec - a_batch * L_batch + a_ind * L_ind` (the paper prints `+ a_batch`; the
     authors' code subtracts it, which matches the stated intent of maximising batch entropy).
     Coefficients left as None take the authors' values rescaled with the number of experts.
-    `assignment` chooses L_rec (models.loss): "paper", the gate-weighted expert NLL of the paper, or
-    "mixture", the mixture likelihood whose responsibilities come from the targets (docs/model.md).
+    `assignment` chooses L_rec (models.loss): "paper", the gate-weighted expert NLL of the paper,
+    "mixture", the mixture likelihood whose responsibilities come from the targets, or "annealed", the
+    experts on the posterior responsibilities and the gate towards them, the posterior annealed from soft
+    to the mixture's over training (docs/model.md).
     """
 
     layout: Layout = field(default_factory=Layout)

@@ -3,6 +3,7 @@
     L_e     = mean over targets and output dims of -log N(y | mu_e, sigma_e)        (B, d)
     L_rec   = mean_i (1/d) sum_e p_ie L_ie                                   (assignment "paper")
             = mean_i (1/(d n_i)) (-log sum_e p_ie exp(-S_ie))                (assignment "mixture")
+            = mean_i (1/d) sum_e r_ie (L_ie - log p_ie),  r detached           (assignment "annealed")
     L_batch = H(mean_i p_i)            entropy of the batch-mean gate distribution
     L_ind   = mean_i H(p_i)            mean entropy of each sample's gate distribution
     L_total = a_rec L_rec - a_batch L_batch + a_ind L_ind
@@ -15,7 +16,22 @@ r_ie = p_ie exp(-S_ie) / sum_k p_ik exp(-S_ik), so the targets decide which expe
 gate (the prior) is pulled towards r_i. Dividing by n_i keeps the experts' gradients on the paper's
 per-value scale (the gate's gradient, (p_ie - r_ie) / (d n_i), shrinks with n_i); dividing by d keeps
 `a_rec`'s rescaling with d meaning the same. With one expert both terms are mean_i L_i; they are also
-equal whenever all experts predict the same. The entropy terms are the same for both assignments.
+equal whenever all experts predict the same. The entropy terms are the same for every assignment.
+
+"annealed" is expectation-maximisation on a tempered, balanced posterior: r_ie = softmax_e(log p_ie - k_i L_ie)
+(detached). The experts learn their r-weighted NLL (the mixture's expert gradient once k_i = n_i) and
+the gate learns the cross-entropy to r at full strength (gradient (p_ie - r_ie)/d, n_i times the
+mixture's). Two things happen while training is young (progress < ANNEAL_FRACTION of the steps):
+- the sharpness k_i rises geometrically from 1 (the posterior of one target value's mean NLL) to n_i
+  (the mixture's posterior), then stays there (`annealed_sharpness`);
+- the posterior is balanced over the batch (`balanced`: SINKHORN_ITERATIONS Sinkhorn steps giving
+  every expert B/d of the batch's mass), so that every expert keeps learning something.
+Measured (docs/model.md, "Commitment"): with the mixture's posterior from the first step, the experts
+that lose every sample while the gate is still frozen are never trained again (6 modes: pairs of modes
+share an expert and are averaged where they cross); annealing alone keeps more experts in play but
+still lets one expert take every behaviour that the context already tells apart (the demo: all four
+behaviours on one expert); balancing while annealing keeps every expert in use, and once the experts
+differ the free posterior keeps them pure and lets the targets decide where the context cannot.
 
 The paper prints `+ a_batch L_batch`; the text asks for batch entropy to be maximised and the authors'
 code subtracts it, so we subtract it. Entropies are computed per row with clamped logs: a probability
@@ -32,6 +48,8 @@ from models.config import CNEPConfig
 
 _TINY = 1e-12
 _HALF_LOG_2PI = 0.5 * math.log(2 * math.pi)
+ANNEAL_FRACTION = 0.6  # "annealed": the posterior reaches the mixture's sharpness at this fraction of training
+SINKHORN_ITERATIONS = 3  # "annealed": balancing steps of the posterior over the batch while it anneals
 
 
 def entropy(p: torch.Tensor) -> torch.Tensor:
@@ -51,8 +69,38 @@ def expert_nll(mean: torch.Tensor, std: torch.Tensor, target: torch.Tensor, targ
     return (nll * w).sum((2, 3)) / count.clamp_min(1.0)  # (B, d)
 
 
-def reconstruction(nll: torch.Tensor, gate: torch.Tensor, values: torch.Tensor, assignment: str) -> torch.Tensor:
-    """L_rec of `assignment`: nll (B, d) mean NLL per value, gate (B, d), values (B,) target values per sample."""
+def annealed_sharpness(values: torch.Tensor, progress: float) -> torch.Tensor:
+    """k_i of the "annealed" posterior: n_i ** min(1, progress / ANNEAL_FRACTION); values (B,) -> (B,).
+
+    progress: the fraction of training done (step / steps), in [0, 1].
+    """
+    return values.clamp_min(1.0) ** min(1.0, max(0.0, progress) / ANNEAL_FRACTION)
+
+
+def balanced(log_r: torch.Tensor, iterations: int = SINKHORN_ITERATIONS) -> torch.Tensor:
+    """Sinkhorn balancing of log responsibilities (B, d) over the batch: alternately scale each expert's
+    column to B/d of the mass and each sample's row to 1 (the last step), in log space -> (B, d)."""
+    B, d = log_r.shape
+    for _ in range(iterations):
+        log_r = log_r - torch.logsumexp(log_r, 0, keepdim=True) + math.log(B / d)
+        log_r = log_r - torch.logsumexp(log_r, -1, keepdim=True)
+    return log_r
+
+
+def annealed_posterior(log_p: torch.Tensor, nll: torch.Tensor, values: torch.Tensor, progress: float) -> torch.Tensor:
+    """The "annealed" responsibilities r (B, d), detached: softmax_e(log p_ie - k_i L_ie), balanced over the
+    batch (`balanced`) while progress < ANNEAL_FRACTION. log_p, nll (B, d); values (B,)."""
+    k = annealed_sharpness(values, progress).unsqueeze(-1)  # (B, 1)
+    log_r = (log_p - k * nll).detach()
+    if progress < ANNEAL_FRACTION:
+        log_r = balanced(log_r)
+    return torch.softmax(log_r, dim=-1)
+
+
+def reconstruction(nll: torch.Tensor, gate: torch.Tensor, values: torch.Tensor, assignment: str,
+                   progress: float = 1.0) -> torch.Tensor:
+    """L_rec of `assignment`: nll (B, d) mean NLL per value, gate (B, d), values (B,) target values per sample;
+    progress: the fraction of training done (only "annealed" depends on it)."""
     d = gate.shape[-1]
     if assignment == "paper":
         return (gate * nll).sum(-1).mean() / d
@@ -60,6 +108,10 @@ def reconstruction(nll: torch.Tensor, gate: torch.Tensor, values: torch.Tensor, 
         n = values.clamp_min(1.0).unsqueeze(-1)  # (B, 1)
         log_joint = gate.clamp_min(_TINY).log() - n * nll  # (B, d): log p_ie - S_ie
         return (-torch.logsumexp(log_joint, dim=-1) / n[:, 0]).mean() / d
+    if assignment == "annealed":
+        log_p = gate.clamp_min(_TINY).log()  # (B, d)
+        r = annealed_posterior(log_p, nll, values, progress)  # (B, d), detached
+        return ((r * nll).sum(-1) - (r * log_p).sum(-1)).mean() / d
     raise ValueError(f"unknown assignment {assignment!r}")
 
 
@@ -70,11 +122,13 @@ def cnep_loss(
     target: torch.Tensor,
     target_mask: torch.Tensor,
     config: CNEPConfig,
+    progress: float = 1.0,
 ) -> tuple[torch.Tensor, dict[str, float]]:
-    """Total loss and its terms as floats (for logs). Shapes as in `expert_nll`; gate (B, d)."""
+    """Total loss and its terms as floats (for logs). Shapes as in `expert_nll`; gate (B, d); progress: the
+    fraction of training done (step / steps; the "annealed" assignment's schedule)."""
     nll = expert_nll(mean, std, target, target_mask)  # (B, d)
     values = target_mask.to(nll.dtype).sum(-1) * mean.shape[-1]  # (B,) target values per sample
-    rec = reconstruction(nll, gate, values, config.assignment)
+    rec = reconstruction(nll, gate, values, config.assignment, progress)
     batch = entropy(gate.mean(0))
     ind = entropy(gate).mean()
     total = config.a_rec * rec - config.a_batch * batch + config.a_ind * ind

@@ -128,7 +128,8 @@ class Trainer:
         batch = self.next_batch()
         set_learning_rate(self.optimizer, self.step, self.cfg)
         mean, std, gate = self.model(batch.obs, batch.obs_mask, batch.query)
-        loss, terms = cnep_loss(mean, std, gate, batch.target, batch.target_mask, self.model.config)
+        loss, terms = cnep_loss(mean, std, gate, batch.target, batch.target_mask, self.model.config,
+                                self.step / self.cfg.steps)
         self.optimizer.zero_grad(set_to_none=False)
         loss.backward()
         if self.step < self.freeze_steps:  # Adam moments stay 0, so the gate does not move

@@ -63,7 +63,7 @@ LAYOUT = SCENE  # queries carry no features: the behaviour reaches the experts t
 # The gate learns at the full learning rate here, not at the models' default fraction (0.3): measured with
 # 0.3 (4000 steps, seeds 0 and 1) two behaviours shared an expert (3 distinct of 4), also at 6000 steps (docs/demo.md).
 GATE_LR_SCALE = 1.0
-# The CNEP's reconstruction term (pipeline.train.stage.TrainStageConfig.assignment): "paper" or "mixture".
+# The CNEP's reconstruction term (pipeline.train.stage.TrainStageConfig.assignment): "paper", "mixture" or "annealed".
 ASSIGNMENT = "paper"
 SUMMARY_FILE = "summary.json"
 RRD_FILE = "demo.rrd"

@@ -1,9 +1,11 @@
+import dataclasses
 import math
 
 import torch
 
 from models.config import CNEPConfig
-from models.loss import cnep_loss, entropy, expert_nll
+from models.loss import (ANNEAL_FRACTION, SINKHORN_ITERATIONS, annealed_posterior, annealed_sharpness, balanced,
+                         cnep_loss, entropy, expert_nll)
 
 
 def test_expert_nll_against_a_hand_computation():
@@ -150,3 +152,126 @@ def test_mixture_equals_the_paper_term_when_the_experts_agree():
     recs = [cnep_loss(apart, std, gate, target, mask, CNEPConfig(n_experts=3, assignment=a))[1]["rec"]
             for a in ("paper", "mixture")]
     assert not math.isclose(recs[0], recs[1], rel_tol=1e-3)
+
+
+def test_annealed_sharpness_rises_geometrically_from_one_to_the_number_of_values():
+    values = torch.tensor([1.0, 16.0, 0.0])  # a sample without targets counts as one value
+    torch.testing.assert_close(annealed_sharpness(values, 0.0), torch.tensor([1.0, 1.0, 1.0]))
+    torch.testing.assert_close(annealed_sharpness(values, ANNEAL_FRACTION / 2), torch.tensor([1.0, 4.0, 1.0]))
+    for progress in (ANNEAL_FRACTION, 1.0, 2.0):
+        torch.testing.assert_close(annealed_sharpness(values, progress), torch.tensor([1.0, 16.0, 1.0]))
+
+
+def _annealed_example():
+    # sample 0: two targets (one masked out of three), dy = 1; sample 1: one target (as the mixture's hand test)
+    mean = torch.tensor([[[[0.0], [1.0], [9.0]], [[2.0], [2.0], [9.0]]],
+                         [[[0.5], [0.0], [0.0]], [[-1.0], [0.0], [0.0]]]])  # (B=2, d=2, M=3, dy=1)
+    std = torch.tensor([[[[1.0], [2.0], [1.0]], [[0.5], [0.5], [1.0]]],
+                        [[[1.0], [1.0], [1.0]], [[2.0], [1.0], [1.0]]]])
+    target = torch.tensor([[[0.0], [3.0], [5.0]], [[1.0], [0.0], [0.0]]])  # (2, 3, 1)
+    mask = torch.tensor([[True, True, False], [True, False, False]])
+    gate = torch.tensor([[0.8, 0.2], [0.4, 0.6]])
+    L0 = [(_nll(0, 0, 1) + _nll(3, 1, 2)) / 2, (_nll(0, 2, 0.5) + _nll(3, 2, 0.5)) / 2]  # mean NLL per expert
+    L1 = [_nll(1, 0.5, 1), _nll(1, -1, 2)]
+    return mean, std, target, mask, gate, (L0, 2), (L1, 1)
+
+
+def _hand_posterior(Ls, ns, ps, progress):
+    """The "annealed" responsibilities by hand: per sample p_e exp(-k L_e) with k = n ** min(1, progress / 0.6),
+    then while annealing 3 rounds of scaling each expert's column to B/d and each row to 1, else rows to 1."""
+    w = [[p * math.exp(-n ** min(1.0, progress / ANNEAL_FRACTION) * le) for p, le in zip(pi, Li)]
+         for Li, n, pi in zip(Ls, ns, ps)]
+    B, d = len(w), len(w[0])
+    for _ in range(SINKHORN_ITERATIONS if progress < ANNEAL_FRACTION else 0):
+        column = [sum(w[i][e] for i in range(B)) for e in range(d)]
+        w = [[w[i][e] * (B / d) / column[e] for e in range(d)] for i in range(B)]
+        w = [[x / sum(row) for x in row] for row in w]
+    return [[x / sum(row) for x in row] for row in w]
+
+
+def test_annealed_term_against_a_hand_computation():
+    cfg = CNEPConfig(n_experts=2, a_rec=1.0, a_batch=0.0, a_ind=0.0, assignment="annealed")
+    mean, std, target, mask, gate, (L0, n0), (L1, n1) = _annealed_example()
+    p = gate.tolist()
+    for progress in (0.0, 0.3, 1.0):  # balanced and soft, balanced and sharper, free and as sharp as the mixture
+        _, terms = cnep_loss(mean, std, gate, target, mask, cfg, progress)
+        r = _hand_posterior([L0, L1], [n0, n1], p, progress)
+        rec = [sum(re * (le - math.log(pe)) for re, le, pe in zip(ri, Li, pi)) for ri, Li, pi in zip(r, [L0, L1], p)]
+        assert math.isclose(terms["rec"], (rec[0] + rec[1]) / 2 / 2, rel_tol=1e-6)  # mean over samples, then / d
+
+
+def test_annealed_gate_learns_the_posterior_at_full_strength_and_experts_learn_it_as_in_the_mixture():
+    mean, std, target, mask, gate, (L0, n0), (L1, n1) = _annealed_example()
+    cfg = CNEPConfig(n_experts=2, a_rec=1.0, a_batch=0.0, a_ind=0.0, assignment="annealed")
+    for progress in (0.0, 1.0):
+        logits = gate.log().clone().requires_grad_()
+        cnep_loss(mean, std, torch.softmax(logits, -1), target, mask, cfg, progress)[0].backward()
+        r = torch.tensor(_hand_posterior([L0, L1], [n0, n1], gate.tolist(), progress))
+        torch.testing.assert_close(logits.grad, (gate - r) / 2 / 2)  # (p - r) / d, mean over B = 2 samples
+    # once annealed the experts' gradient is the mixture likelihood's (whose gate gradient is n_i times weaker)
+    grads = {}
+    for assignment in ("mixture", "annealed"):
+        m = mean.clone().requires_grad_()
+        cnep_loss(m, std, gate, target, mask, dataclasses.replace(cfg, assignment=assignment), 1.0)[0].backward()
+        grads[assignment] = m.grad
+    torch.testing.assert_close(grads["annealed"], grads["mixture"])
+
+
+def test_balancing_spreads_the_batch_over_the_experts_while_the_posterior_anneals():
+    # every sample is explained best by expert 0: unbalanced, expert 0 takes nearly all of the batch;
+    # balanced, every expert takes close to B/d of it, and each row stays a distribution
+    nll = torch.tensor([[0.0, 2.0, 3.0], [0.1, 1.0, 4.0], [0.0, 3.0, 1.0], [0.2, 2.0, 2.0]])
+    log_p = torch.full((4, 3), -math.log(3.0))
+    values = torch.full((4,), 4.0)
+    free = annealed_posterior(log_p, nll, values, 1.0)
+    held = annealed_posterior(log_p, nll, values, 0.0)
+    assert free[:, 0].sum() > 3.9
+    torch.testing.assert_close(held.sum(-1), torch.ones(4))
+    torch.testing.assert_close(held.sum(0), torch.full((3,), 4 / 3), atol=0.05, rtol=0)
+    torch.testing.assert_close(balanced(held.log(), 50).exp().sum(0), torch.full((3,), 4 / 3))  # Sinkhorn converges
+    assert int(held.argmax(-1)[2]) == 2 and int(held.argmax(-1)[1]) == 1  # the next best expert takes the mass
+
+
+def test_annealed_equals_the_paper_term_with_one_expert_in_value_and_gradient():
+    g = torch.Generator().manual_seed(0)
+    mean = torch.randn(2, 1, 3, 2, generator=g, requires_grad=True)
+    std = (0.5 + torch.rand(2, 1, 3, 2, generator=g)).requires_grad_()
+    target = torch.randn(2, 3, 2, generator=g)
+    mask = torch.tensor([[True, True, True], [True, False, False]])
+    out = {}
+    for assignment in ("paper", "annealed"):
+        mean.grad = std.grad = None
+        cfg = CNEPConfig(n_experts=1, assignment=assignment)
+        total, terms = cnep_loss(mean, std, torch.ones(2, 1), target, mask, cfg, 0.2)  # 0.2: balanced while annealing
+        total.backward()
+        out[assignment] = (total.detach(), mean.grad.clone(), std.grad.clone(), terms)
+    for a, b in zip(out["paper"][:3], out["annealed"][:3]):
+        torch.testing.assert_close(a, b)
+    assert out["paper"][3] == out["annealed"][3]
+
+
+def test_the_papers_and_the_mixtures_terms_do_not_depend_on_the_training_progress():
+    mean, std, target, mask, gate, _, _ = _annealed_example()
+    for assignment in ("paper", "mixture"):
+        cfg = CNEPConfig(n_experts=2, assignment=assignment)
+        at = [cnep_loss(mean, std, gate, target, mask, cfg, progress)[1] for progress in (0.0, 0.5, 1.0)]
+        assert at[0] == at[1] == at[2] == cnep_loss(mean, std, gate, target, mask, cfg)[1]
+
+
+def test_the_trainer_gives_the_loss_the_fraction_of_training_done(monkeypatch):
+    import models.train
+    from models.config import TrainConfig
+    from models.train import fit
+    from tests.models.factories import two_mode_trajectories
+
+    seen = []
+
+    def spy(*args):
+        seen.append(args[-1])
+        return cnep_loss(*args)
+
+    monkeypatch.setattr(models.train, "cnep_loss", spy)
+    trajs, _ = two_mode_trajectories(n=4, T=10, seed=0)
+    fit(trajs, CNEPConfig(n_experts=2, encoder_widths=(8,), expert_widths=(8,), assignment="annealed"),
+        TrainConfig(steps=4, warmup_steps=1, val_every=2), progress=False)
+    assert seen == [0.0, 0.25, 0.5, 0.75]
