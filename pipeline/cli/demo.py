@@ -19,7 +19,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "earlier demo wrote there (other files stay)")
     parser.add_argument("--assignment", choices=("paper", "mixture", "annealed"), default=None,
                         help="the CNEP's reconstruction term: the paper's gate-weighted NLL, the mixture likelihood or "
-                             "the annealed posterior assignment (default: the demo's, pipeline.demo.stage.ASSIGNMENT)")
+                             "the annealed posterior assignment (default annealed: docs/demo.md)")
     parser.add_argument("--precision", choices=("fp32", "int8"), default="fp32",
                         help="feature extraction precision (default fp32; int8 as `cnep extract --precision int8`)")
 
