@@ -1,6 +1,7 @@
 import dataclasses
 import math
 
+import pytest
 import torch
 
 from models.config import CNEPConfig
@@ -71,13 +72,7 @@ def _nll(y: float, mu: float, s: float) -> float:
 def test_mixture_term_against_a_hand_computation():
     # sample 0: two targets (one masked out of three), dy = 1; sample 1: one target
     cfg = CNEPConfig(n_experts=2, a_rec=1.0, a_batch=0.0, a_ind=0.0, assignment="mixture")
-    mean = torch.tensor([[[[0.0], [1.0], [9.0]], [[2.0], [2.0], [9.0]]],
-                         [[[0.5], [0.0], [0.0]], [[-1.0], [0.0], [0.0]]]])  # (B=2, d=2, M=3, dy=1)
-    std = torch.tensor([[[[1.0], [2.0], [1.0]], [[0.5], [0.5], [1.0]]],
-                        [[[1.0], [1.0], [1.0]], [[2.0], [1.0], [1.0]]]])
-    target = torch.tensor([[[0.0], [3.0], [5.0]], [[1.0], [0.0], [0.0]]])  # (2, 3, 1)
-    mask = torch.tensor([[True, True, False], [True, False, False]])
-    gate = torch.tensor([[0.8, 0.2], [0.4, 0.6]])
+    mean, std, target, mask, gate, _, _ = _two_sample_example()
     _, terms = cnep_loss(mean, std, gate, target, mask, cfg)
 
     S0 = [_nll(0, 0, 1) + _nll(3, 1, 2), _nll(0, 2, 0.5) + _nll(3, 2, 0.5)]  # summed NLL per expert
@@ -115,10 +110,12 @@ def test_mixture_sends_the_targets_to_the_expert_that_explains_them():
     torch.testing.assert_close(grads["paper"][1] / grads["paper"][0], torch.tensor(4.0 / 0.2), rtol=1e-5, atol=0)  # sum |y - mu|
 
 
-def test_mixture_equals_the_paper_term_with_one_expert_in_value_and_gradient():
+@pytest.mark.parametrize("assignment, progress", [("mixture", 1.0), ("annealed", 0.2), ("annealed", 1.0)])
+def test_each_assignment_equals_the_paper_term_with_one_expert_in_value_and_gradient(assignment, progress):
     # d = 1: -log(1 * exp(-S_i)) / n_i = S_i / n_i = L_i, and the paper's (1/1) sum_e p_ie L_ie = L_i.
     # The equality needs the mixture's sum over a sample's target values divided by their number n_i
-    # (samples with different n_i: 3 and 1 targets, dy = 2) and the (1/d) of both terms (1 here).
+    # (samples with different n_i: 3 and 1 targets, dy = 2) and the (1/d) of both terms (1 here);
+    # "annealed" at progress 0.2 is still balancing its posterior, which one expert leaves at 1.
     g = torch.Generator().manual_seed(0)
     mean = torch.randn(2, 1, 3, 2, generator=g, requires_grad=True)
     std = (0.5 + torch.rand(2, 1, 3, 2, generator=g)).requires_grad_()
@@ -126,15 +123,15 @@ def test_mixture_equals_the_paper_term_with_one_expert_in_value_and_gradient():
     mask = torch.tensor([[True, True, True], [True, False, False]])
     gate = torch.ones(2, 1)
     out = {}
-    for assignment in ("paper", "mixture"):
-        cfg = CNEPConfig(n_experts=1, assignment=assignment)
+    for name in ("paper", assignment):
+        cfg = CNEPConfig(n_experts=1, assignment=name)
         mean.grad = std.grad = None
-        total, terms = cnep_loss(mean, std, gate, target, mask, cfg)
+        total, terms = cnep_loss(mean, std, gate, target, mask, cfg, progress)
         total.backward()
-        out[assignment] = (total.detach(), mean.grad.clone(), std.grad.clone(), terms)
-    for a, b in zip(out["paper"][:3], out["mixture"][:3]):
+        out[name] = (total.detach(), mean.grad.clone(), std.grad.clone(), terms)
+    for a, b in zip(out["paper"][:3], out[assignment][:3]):
         torch.testing.assert_close(a, b)
-    assert out["paper"][3] == out["mixture"][3]  # rec, both entropies (0 with one expert), total
+    assert out["paper"][3] == out[assignment][3]  # rec, both entropies (0 with one expert), total
 
 
 def test_mixture_equals_the_paper_term_when_the_experts_agree():
@@ -162,8 +159,8 @@ def test_annealed_sharpness_rises_geometrically_from_one_to_the_number_of_values
         torch.testing.assert_close(annealed_sharpness(values, progress), torch.tensor([1.0, 16.0, 1.0]))
 
 
-def _annealed_example():
-    # sample 0: two targets (one masked out of three), dy = 1; sample 1: one target (as the mixture's hand test)
+def _two_sample_example():
+    # sample 0: two targets (one masked out of three), dy = 1; sample 1: one target
     mean = torch.tensor([[[[0.0], [1.0], [9.0]], [[2.0], [2.0], [9.0]]],
                          [[[0.5], [0.0], [0.0]], [[-1.0], [0.0], [0.0]]]])  # (B=2, d=2, M=3, dy=1)
     std = torch.tensor([[[[1.0], [2.0], [1.0]], [[0.5], [0.5], [1.0]]],
@@ -191,7 +188,7 @@ def _hand_posterior(Ls, ns, ps, progress):
 
 def test_annealed_term_against_a_hand_computation():
     cfg = CNEPConfig(n_experts=2, a_rec=1.0, a_batch=0.0, a_ind=0.0, assignment="annealed")
-    mean, std, target, mask, gate, (L0, n0), (L1, n1) = _annealed_example()
+    mean, std, target, mask, gate, (L0, n0), (L1, n1) = _two_sample_example()
     p = gate.tolist()
     for progress in (0.0, 0.3, 1.0):  # balanced and soft, balanced and sharper, free and as sharp as the mixture
         _, terms = cnep_loss(mean, std, gate, target, mask, cfg, progress)
@@ -201,7 +198,7 @@ def test_annealed_term_against_a_hand_computation():
 
 
 def test_annealed_gate_learns_the_posterior_at_full_strength_and_experts_learn_it_as_in_the_mixture():
-    mean, std, target, mask, gate, (L0, n0), (L1, n1) = _annealed_example()
+    mean, std, target, mask, gate, (L0, n0), (L1, n1) = _two_sample_example()
     cfg = CNEPConfig(n_experts=2, a_rec=1.0, a_batch=0.0, a_ind=0.0, assignment="annealed")
     for progress in (0.0, 1.0):
         logits = gate.log().clone().requires_grad_()
@@ -232,26 +229,8 @@ def test_balancing_spreads_the_batch_over_the_experts_while_the_posterior_anneal
     assert int(held.argmax(-1)[2]) == 2 and int(held.argmax(-1)[1]) == 1  # the next best expert takes the mass
 
 
-def test_annealed_equals_the_paper_term_with_one_expert_in_value_and_gradient():
-    g = torch.Generator().manual_seed(0)
-    mean = torch.randn(2, 1, 3, 2, generator=g, requires_grad=True)
-    std = (0.5 + torch.rand(2, 1, 3, 2, generator=g)).requires_grad_()
-    target = torch.randn(2, 3, 2, generator=g)
-    mask = torch.tensor([[True, True, True], [True, False, False]])
-    out = {}
-    for assignment in ("paper", "annealed"):
-        mean.grad = std.grad = None
-        cfg = CNEPConfig(n_experts=1, assignment=assignment)
-        total, terms = cnep_loss(mean, std, torch.ones(2, 1), target, mask, cfg, 0.2)  # 0.2: balanced while annealing
-        total.backward()
-        out[assignment] = (total.detach(), mean.grad.clone(), std.grad.clone(), terms)
-    for a, b in zip(out["paper"][:3], out["annealed"][:3]):
-        torch.testing.assert_close(a, b)
-    assert out["paper"][3] == out["annealed"][3]
-
-
 def test_the_papers_and_the_mixtures_terms_do_not_depend_on_the_training_progress():
-    mean, std, target, mask, gate, _, _ = _annealed_example()
+    mean, std, target, mask, gate, _, _ = _two_sample_example()
     for assignment in ("paper", "mixture"):
         cfg = CNEPConfig(n_experts=2, assignment=assignment)
         at = [cnep_loss(mean, std, gate, target, mask, cfg, progress)[1] for progress in (0.0, 0.5, 1.0)]
