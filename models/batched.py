@@ -3,14 +3,16 @@
 The evaluation trains dozens of small networks (seeds, loss ablations); one of them leaves the CPU
 mostly waiting on per-kernel overhead (a step is ~150 small kernels). Here the parameters of k
 models are stacked along a new first dimension, and every layer of all k models runs as one batched
-matrix product (`torch.baddbmm`), so the overhead is paid once per step for all of them.
+matrix product (`torch.baddbmm`); the loss (`models.loss.loss_terms`, the function `models.Trainer`'s
+loss calls), the gradient clipping and one fused Adam also run once per step for all of them, so the
+overhead is paid once per step.
 
 Each model keeps everything that makes it itself: its own data, batch generator (seeded), loss
-weights (`cnep_loss` is called per model, the very function `models.Trainer` calls), gradient clipping
-(its own norm), validation and best-model keeping (its own `Trainer`). With one torch thread, a model
-trained here ends bit-identical to the same run of `models.fit` (tests/models/test_batched.py): the
-stacked products compute each model's slice with the same kernels and in the same order as the
-single model's layers do. One condition: every per-model product must have contraction x rows x
+weights and assignment, gradient clipping (its own norm), Adam state, validation, early stop and
+best-model keeping (its own `Trainer`). With one torch thread, a model trained here ends bit-identical
+to the same run of `models.fit` (tests/models/test_batched.py): the stacked products, reductions and
+element-wise updates compute each model's slice with the same kernels and in the same order as the
+single model's do. One condition: every per-model product must have contraction x rows x
 columns >= 400 (true for any real CNEP: batch 32, widths 128); below that torch's batched product
 switches to its own small-matrix loop, whose sums differ from BLAS's in the last bits.
 
@@ -32,7 +34,7 @@ from torch import nn
 from models.cnep import CNEP
 from models.config import CNEPConfig, TrainConfig
 from models.errors import ConfigError
-from models.loss import cnep_loss
+from models.loss import loss_terms
 from models.train import Trainer, finish_fit, make_optimizer, prepare_fit, set_learning_rate
 
 # What must agree for two networks to stack (the loss weights a_rec, a_batch, a_ind may differ).
@@ -129,8 +131,13 @@ class StackedCNEP:
 class BatchedTrainer:
     """k fresh `models.Trainer`s of one `batch_key`, stepped together; each keeps its data, seed, loss and history.
 
-    `run()` leaves each Trainer as its own `run()` would: history, best state, final weights in its model.
-    Not resumable (no state_dict): the evaluation and the demo train start to end.
+    One step is one computation for all models still training: the stacked forward pass, the loss
+    (`models.loss.loss_terms` over the stack, by assignment), one backward pass, each model's gradient
+    clipped by its own norm, and one fused Adam over every model's parameter slices (views of the stacks,
+    so Adam treats each slice as the lone model's tensor: same elements, same vectorised loop). A model
+    that stops early leaves the stack at that validation. `run()` leaves each Trainer as its own `run()`
+    would: history, best state, final weights in its model. Not resumable (no state_dict): the evaluation
+    and the demo train start to end.
     """
 
     def __init__(self, trainers: Sequence[Trainer]) -> None:
@@ -140,58 +147,104 @@ class BatchedTrainer:
                               f"(models.batched.batch_key); got {len(keys)} different key(s) over {len(trainers)} trainers.")
         self.trainers = list(trainers)
         self.cfg = trainers[0].cfg
-        self.net = StackedCNEP([t.model for t in trainers])
-        # Per model: its slice of every stacked parameter (a view: updating it updates the stack) and its own
-        # Adam over them, built like the Trainer's. One Adam over the stacks would process a model's elements
-        # at other offsets of its vectorised loop than alone, where the last bits can differ.
-        self.views = [[self.net.params[n][i].detach() for n in self.net.names] for i in range(len(trainers))]
-        gate = [n.startswith("gate.") for n in self.net.names]
-        self.optimizers = [make_optimizer([v for v, g in zip(views, gate) if not g], [v for v, g in zip(views, gate) if g],
-                                          self.cfg) for views in self.views]
         self.step = 0
+        self.active: list[int] = []  # the trainers still training, in stack order
+        self._stack(list(range(len(trainers))))
+
+    def _stack(self, active: list[int]) -> None:
+        """Stack the parameters of trainers `active` (from their models) with one Adam over their slices; Adam's
+        state (moments, step) carries over for models that were already in the stack."""
+        old = {(i, name): view for i, views in zip(self.active, getattr(self, "views", [])) for name, view in views.items()}
+        old_state = self.optimizer.state if old else {}
+        self.active = active
+        configs = [self.trainers[i].model.config for i in active]
+        self.assignments = [c.assignment for c in configs]
+        self.weights = torch.tensor([[c.a_rec, c.a_batch, c.a_ind] for c in configs], device=self.trainers[0].device)
+        self.net = StackedCNEP([self.trainers[i].model for i in active])
+        # Each model's slice of every stacked parameter: a view, so updating it updates the stack.
+        self.views = [{name: p[j].detach() for name, p in self.net.params.items()} for j in range(len(active))]
+        network = [v for views in self.views for name, v in views.items() if not name.startswith("gate.")]
+        gate = [v for views in self.views for name, v in views.items() if name.startswith("gate.")]
+        self.optimizer = make_optimizer(network, gate, self.cfg)
+        for i, views in zip(active, self.views):
+            for name, view in views.items():
+                if (i, name) in old:
+                    self.optimizer.state[view] = old_state[old[i, name]]
 
     def train_step(self) -> list[dict[str, float]]:
-        """One optimiser step of every model; returns each model's loss terms (as `Trainer.train_step`)."""
-        batches = [t.next_batch() for t in self.trainers]  # each from its own generator
-        stacked = {f: torch.stack([getattr(b, f) for b in batches]) for f in ("obs", "obs_mask", "query")}
+        """One optimiser step of every active model; returns each one's loss terms (as `Trainer.train_step`)."""
+        batches = [self.trainers[i].next_batch() for i in self.active]  # each from its own generator
+        stacked = {f: torch.stack([getattr(b, f) for b in batches]) for f in ("obs", "obs_mask", "query", "target",
+                                                                              "target_mask")}
         mean, std, gate = self.net(stacked["obs"], stacked["obs_mask"], stacked["query"])  # (k, B, d, M, dy), (k, B, d)
-        losses, terms = [], []
-        for i, (batch, trainer) in enumerate(zip(batches, self.trainers)):
-            loss, term = cnep_loss(mean[i], std[i], gate[i], batch.target, batch.target_mask, trainer.model.config,
-                                   self.step / self.cfg.steps)
-            term["usage"] = gate[i].detach().mean(0).tolist()
-            losses.append(loss)
-            terms.append(term)
+        terms = stacked_loss_terms(mean, std, gate, stacked["target"], stacked["target_mask"], self.assignments,
+                                   self.step / self.cfg.steps)  # name -> (k,)
+        a = self.weights
+        total = a[:, 0] * terms["rec"] - a[:, 1] * terms["batch_entropy"] + a[:, 2] * terms["ind_entropy"]  # (k,)
         params = self.net.params
         for p in params.values():
             if p.grad is not None:
                 p.grad.zero_()
-        torch.stack(losses).sum().backward()  # d(sum)/d(loss_i) = 1: each model gets exactly its own gradient
+        total.sum().backward()  # d(sum)/d(loss_i) = 1: each model gets exactly its own gradient
         if self.step < self.trainers[0].freeze_steps:  # Adam moments stay 0, so the gates do not move
             for name in ("gate.weight", "gate.bias"):
                 params[name].grad.zero_()
-        for i, (views, optimizer) in enumerate(zip(self.views, self.optimizers)):
-            for name, view in zip(self.net.names, views):
-                view.grad = params[name].grad[i]
-            torch.nn.utils.clip_grad_norm_(views, self.cfg.grad_clip)  # each model by its own norm
-            set_learning_rate(optimizer, self.step, self.cfg)
-            optimizer.step()
+        clip_each(list(params.values()), self.cfg.grad_clip)
+        for j, views in enumerate(self.views):
+            for name, view in views.items():
+                view.grad = params[name].grad[j]
+        set_learning_rate(self.optimizer, self.step, self.cfg)
+        self.optimizer.step()
         self.step += 1
-        return terms
+        values = torch.stack([total, terms["rec"], terms["batch_entropy"], terms["ind_entropy"]], 1).tolist()
+        usage = gate.detach().mean(-2).tolist()  # (k, d)
+        return [{"loss": v[0], "rec": v[1], "batch_entropy": v[2], "ind_entropy": v[3], "usage": u}
+                for v, u in zip(values, usage)]
 
     def run(self) -> None:
         """Train every model to the end of the schedule, validating and stopping each as its own Trainer would."""
-        active = list(range(len(self.trainers)))
-        while self.step < self.cfg.steps and active:
+        while self.step < self.cfg.steps and self.active:
             terms = self.train_step()
-            for i in active:
+            for i in self.active:
                 self.trainers[i].step = self.step
-            if self.trainers[active[0]].validation_due():
-                for i in active:
-                    self.net.copy_to(i, self.trainers[i].model)
-            active = [i for i in active if not self.trainers[i].after_step(terms[i])]
-        for i in active:  # stopped models already hold the weights of their last validation
-            self.net.copy_to(i, self.trainers[i].model)
+            if not self.trainers[self.active[0]].validation_due():
+                continue
+            for j, i in enumerate(self.active):
+                self.net.copy_to(j, self.trainers[i].model)
+            stopped = {i for i, t in zip(self.active, terms) if self.trainers[i].after_step(t)}
+            going_on = [i for i in self.active if i not in stopped]
+            if not going_on:
+                return
+            if stopped:  # their models hold the weights of this validation; the rest go on without them
+                self._stack(going_on)
+        for j, i in enumerate(self.active):
+            self.net.copy_to(j, self.trainers[i].model)
+
+
+def stacked_loss_terms(mean: torch.Tensor, std: torch.Tensor, gate: torch.Tensor, target: torch.Tensor,
+                       target_mask: torch.Tensor, assignments: Sequence[str], progress: float) -> dict[str, torch.Tensor]:
+    """`models.loss.loss_terms` of k stacked models (leading dimension k), model j with `assignments[j]` -> name -> (k,)."""
+    groups = {a: [j for j, x in enumerate(assignments) if x == a] for a in dict.fromkeys(assignments)}
+    if len(groups) == 1:
+        return loss_terms(mean, std, gate, target, target_mask, assignments[0], progress)
+    parts = [loss_terms(mean[idx], std[idx], gate[idx], target[idx], target_mask[idx], a, progress)
+             for a, idx in groups.items()]
+    order = torch.tensor([j for idx in groups.values() for j in idx]).argsort().to(gate.device)
+    return {name: torch.cat([part[name] for part in parts])[order] for name in parts[0]}
+
+
+@torch.no_grad()
+def clip_each(params: Sequence[torch.Tensor], max_norm: float) -> None:
+    """`torch.nn.utils.clip_grad_norm_` for each of k stacked models (leading dimension k), by its own norm.
+
+    The same operations per model: each tensor's norm, the norm of those norms, the coefficient clamped to 1,
+    every gradient multiplied by it.
+    """
+    grads = [p.grad for p in params]
+    norms = torch.stack([torch.linalg.vector_norm(g.flatten(1), dim=1) for g in grads], 1)  # (k, tensors)
+    coef = (max_norm / (torch.linalg.vector_norm(norms, dim=1) + 1e-6)).clamp(max=1.0)  # (k,)
+    for g in grads:
+        g.mul_(coef.view(-1, *[1] * (g.dim() - 1)))
 
 
 @dataclass(frozen=True)

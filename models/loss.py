@@ -60,13 +60,14 @@ def entropy(p: torch.Tensor) -> torch.Tensor:
 def expert_nll(mean: torch.Tensor, std: torch.Tensor, target: torch.Tensor, target_mask: torch.Tensor) -> torch.Tensor:
     """Mean Gaussian NLL per sample and expert over the real targets and output dims.
 
-    mean, std (B, d, M, dy); target (B, M, dy); target_mask (B, M) bool -> (B, d).
+    mean, std (..., B, d, M, dy); target (..., B, M, dy); target_mask (..., B, M) bool -> (..., B, d).
+    Leading dimensions (k stacked models, models.batched) are computed slice by slice as without them.
     """
-    z = (target.unsqueeze(1) - mean) / std  # (B, d, M, dy)
+    z = (target.unsqueeze(-3) - mean) / std  # (B, d, M, dy)
     nll = 0.5 * z**2 + std.log() + _HALF_LOG_2PI  # (B, d, M, dy)
-    w = target_mask.to(nll.dtype)[:, None, :, None]  # (B, 1, M, 1)
-    count = w.sum((2, 3)) * mean.shape[-1]  # (B, 1)
-    return (nll * w).sum((2, 3)) / count.clamp_min(1.0)  # (B, d)
+    w = target_mask.to(nll.dtype)[..., None, :, None]  # (B, 1, M, 1)
+    count = w.sum((-2, -1)) * mean.shape[-1]  # (B, 1)
+    return (nll * w).sum((-2, -1)) / count.clamp_min(1.0)  # (B, d)
 
 
 def annealed_sharpness(values: torch.Tensor, progress: float) -> torch.Tensor:
@@ -78,11 +79,11 @@ def annealed_sharpness(values: torch.Tensor, progress: float) -> torch.Tensor:
 
 
 def balanced(log_r: torch.Tensor, iterations: int = SINKHORN_ITERATIONS) -> torch.Tensor:
-    """Sinkhorn balancing of log responsibilities (B, d) over the batch: alternately scale each expert's
-    column to B/d of the mass and each sample's row to 1 (the last step), in log space -> (B, d)."""
-    B, d = log_r.shape
+    """Sinkhorn balancing of log responsibilities (..., B, d) over the batch: alternately scale each expert's
+    column to B/d of the mass and each sample's row to 1 (the last step), in log space -> (..., B, d)."""
+    B, d = log_r.shape[-2:]
     for _ in range(iterations):
-        log_r = log_r - torch.logsumexp(log_r, 0, keepdim=True) + math.log(B / d)
+        log_r = log_r - torch.logsumexp(log_r, -2, keepdim=True) + math.log(B / d)
         log_r = log_r - torch.logsumexp(log_r, -1, keepdim=True)
     return log_r
 
@@ -99,20 +100,37 @@ def annealed_posterior(log_p: torch.Tensor, nll: torch.Tensor, values: torch.Ten
 
 def reconstruction(nll: torch.Tensor, gate: torch.Tensor, values: torch.Tensor, assignment: str,
                    progress: float = 1.0) -> torch.Tensor:
-    """L_rec of `assignment`: nll (B, d) mean NLL per value, gate (B, d), values (B,) target values per sample;
-    progress: the fraction of training done (only "annealed" depends on it)."""
+    """L_rec of `assignment`: nll (..., B, d) mean NLL per value, gate (..., B, d), values (..., B) target values
+    per sample -> (...); progress: the fraction of training done (only "annealed" depends on it)."""
     d = gate.shape[-1]
     if assignment == "paper":
-        return (gate * nll).sum(-1).mean() / d
+        return (gate * nll).sum(-1).mean(-1) / d
     if assignment == "mixture":
         n = values.clamp_min(1.0).unsqueeze(-1)  # (B, 1)
         log_joint = gate.clamp_min(_TINY).log() - n * nll  # (B, d): log p_ie - S_ie
-        return (-torch.logsumexp(log_joint, dim=-1) / n[:, 0]).mean() / d
+        return (-torch.logsumexp(log_joint, dim=-1) / n[..., 0]).mean(-1) / d
     if assignment == "annealed":
         log_p = gate.clamp_min(_TINY).log()  # (B, d)
         r = annealed_posterior(log_p, nll, values, progress)  # (B, d), detached
-        return ((r * nll).sum(-1) - (r * log_p).sum(-1)).mean() / d
+        return ((r * nll).sum(-1) - (r * log_p).sum(-1)).mean(-1) / d
     raise ValueError(f"unknown assignment {assignment!r}")
+
+
+def loss_terms(
+    mean: torch.Tensor,
+    std: torch.Tensor,
+    gate: torch.Tensor,
+    target: torch.Tensor,
+    target_mask: torch.Tensor,
+    assignment: str,
+    progress: float = 1.0,
+) -> dict[str, torch.Tensor]:
+    """L_rec, L_batch and L_ind as tensors (...): shapes as in `expert_nll`, gate (..., B, d). Leading dimensions
+    are k stacked models (models.batched), each computed exactly as alone."""
+    nll = expert_nll(mean, std, target, target_mask)  # (B, d)
+    values = target_mask.to(nll.dtype).sum(-1) * mean.shape[-1]  # (B,) target values per sample
+    return {"rec": reconstruction(nll, gate, values, assignment, progress),
+            "batch_entropy": entropy(gate.mean(-2)), "ind_entropy": entropy(gate).mean(-1)}
 
 
 def cnep_loss(
@@ -126,11 +144,6 @@ def cnep_loss(
 ) -> tuple[torch.Tensor, dict[str, float]]:
     """Total loss and its terms as floats (for logs). Shapes as in `expert_nll`; gate (B, d); progress: the
     fraction of training done (step / steps; the "annealed" assignment's schedule)."""
-    nll = expert_nll(mean, std, target, target_mask)  # (B, d)
-    values = target_mask.to(nll.dtype).sum(-1) * mean.shape[-1]  # (B,) target values per sample
-    rec = reconstruction(nll, gate, values, config.assignment, progress)
-    batch = entropy(gate.mean(0))
-    ind = entropy(gate).mean()
-    total = config.a_rec * rec - config.a_batch * batch + config.a_ind * ind
-    terms = {"loss": total.item(), "rec": rec.item(), "batch_entropy": batch.item(), "ind_entropy": ind.item()}
-    return total, terms
+    terms = loss_terms(mean, std, gate, target, target_mask, config.assignment, progress)
+    total = config.a_rec * terms["rec"] - config.a_batch * terms["batch_entropy"] + config.a_ind * terms["ind_entropy"]
+    return total, {"loss": total.item(), **{name: term.item() for name, term in terms.items()}}
