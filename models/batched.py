@@ -201,9 +201,11 @@ class BatchedTrainer:
         return [{"loss": v[0], "rec": v[1], "batch_entropy": v[2], "ind_entropy": v[3], "usage": u}
                 for v, u in zip(values, usage)]
 
-    def run(self) -> None:
-        """Train every model to the end of the schedule, validating and stopping each as its own Trainer would."""
-        while self.step < self.cfg.steps and self.active:
+    def run(self, until: int | None = None) -> None:
+        """Train up to step `until` (default: the end of the schedule), validating and stopping each model as its
+        own Trainer would; each Trainer's model holds its current weights when this returns."""
+        until = self.cfg.steps if until is None else min(until, self.cfg.steps)
+        while self.step < until and self.active:
             terms = self.train_step()
             for i in self.active:
                 self.trainers[i].step = self.step
@@ -214,8 +216,8 @@ class BatchedTrainer:
             stopped = {i for i, t in zip(self.active, terms) if self.trainers[i].after_step(t)}
             going_on = [i for i in self.active if i not in stopped]
             if not going_on:
-                return
-            if stopped:  # their models hold the weights of this validation; the rest go on without them
+                self.active = []
+            elif stopped:  # their models hold the weights of this validation; the rest go on without them
                 self._stack(going_on)
         for j, i in enumerate(self.active):
             self.net.copy_to(j, self.trainers[i].model)

@@ -39,6 +39,10 @@ QUICK_STEPS = 1_500
 QUICK_SEEDS = 1
 QUICK_QUERIES = 20
 JOBS = 2  # worker processes (one thread each)
+# Networks of one shape and schedule on one set trained as one batched computation (pipeline.evaluate.jobs): on
+# this CPU 3-4 give most of what batching gives (docs/evaluation.md, "Speed"), and units stay short enough to keep
+# the workers evenly loaded.
+UNIT_NETWORKS = 3
 # A network job reports its progress every this many training steps (0.5-2 s of one core idle; the bar
 # moves at least every ~20 s even when the machine is 10x oversubscribed).
 REPORT_STEPS = 100

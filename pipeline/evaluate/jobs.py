@@ -3,9 +3,11 @@
 A job is picklable and self-contained, so it runs the same in this process or in a worker process
 (spawned with one BLAS and one torch thread). A network job trains one network (models.fit's steps,
 driven in chunks of REPORT_STEPS so that the caller's progress moves while it trains; the same
-model as one `fit` call). Networks are not batched here (models.batched): on this CPU k batched
-networks ran 0.95x the model-steps/s of one after another (docs/evaluation.md), and one network per
-job keeps the workers evenly loaded. Every job of a (set, seed) builds the same data and the
+model as one `fit` call). Network jobs of one shape and schedule on one set (`unit_key`: the seeds,
+loss ablations and assignments of one network) run as a unit of up to UNIT_NETWORKS, trained as one
+batched computation (models.batched.BatchedTrainer; each network bit-identical to training it alone,
+docs/evaluation.md "Speed" for what it saves). Every job of a (set, seed) builds the same data and the
+Every job of a (set, seed) builds the same data and the
 same queries from the seed, so all methods are scored on identical queries:
 
     data        models.synthetic.make_set(set, seed)
@@ -23,6 +25,7 @@ whose output was not finite).
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -143,45 +146,67 @@ def model_config(spec: ModelSpec, cnmp_matches: int):
     return CNEPConfig(n_experts=spec.n_experts, a_batch=spec.a_batch, a_ind=spec.a_ind, assignment=spec.assignment)
 
 
-def run_job(job: Job, progress: Progress | None = None) -> dict:
-    """Fit and score; returns {method name: results} (see the module docstring).
+def unit_key(job: Job) -> tuple | None:
+    """Network jobs with equal keys train together (one network shape and schedule on one set); None: a baselines job."""
+    if job.spec is None:
+        return None
+    return job.set_name, job.steps, job.patience, job.spec.n_experts, job.cnmp_matches if job.spec.n_experts == 1 else None
 
-    A network job puts the number of steps it has trained on `progress` every REPORT_STEPS steps, and
-    at the end the steps an early stop left out, so that its reports add up to `job.steps`.
+
+def run_job(job: Job, progress: Progress | None = None) -> dict:
+    """Fit and score one job; returns {method name: results} (see the module docstring and `run_unit`)."""
+    return run_unit((job,), progress)[0]
+
+
+def run_unit(unit: Sequence[Job], progress: Progress | None = None) -> list[dict]:
+    """Fit and score every job of `unit` (one baselines job, or network jobs of one `unit_key`); returns each
+    job's {method name: results}, in order.
+
+    Networks put the number of steps they have trained (summed over the unit) on `progress` every
+    REPORT_STEPS steps, and at the end the steps early stops left out, so that the reports add up to the
+    jobs' steps.
     """
     import torch
 
     torch.set_num_threads(SMALL_MODEL_THREADS)
-    s, qs = queries(job.set_name, job.seed, job.n_queries)
-    if job.spec is not None:
-        return _fit_network(job, s, qs, progress)
+    if len({unit_key(job) for job in unit}) != 1 or (unit_key(unit[0]) is None and len(unit) > 1):
+        raise ValueError(f"not one unit of work: {[job.label for job in unit]}")
+    data = [queries(job.set_name, job.seed, job.n_queries) for job in unit]
+    if unit[0].spec is not None:
+        return _fit_networks(unit, data, progress)
+    (s, qs), = data
     out = {}
-    for name, method in baselines(job.set_name, job.seed).items():
+    for name, method in baselines(unit[0].set_name, unit[0].seed).items():
         start = time.perf_counter()
         method.fit(s.train)
         fit_seconds = time.perf_counter() - start
         out[name] = {**_scored(method.generate, s, qs), "fit_seconds": fit_seconds}
-    return out
+    return [out]
 
 
-def _fit_network(job: Job, s, qs: dict, progress: Progress | None) -> dict:
-    """Train the job's network as `models.fit` does (validated on the set's validation split), reporting steps, and score it."""
+def _fit_networks(unit: Sequence[Job], data: list, progress: Progress | None) -> list[dict]:
+    """Train the unit's networks as `models.fit` does (each validated on its set's validation split), together,
+    reporting steps, and score each. fit_seconds: the unit's training time over its number of networks."""
     from models import TrainConfig
+    from models.batched import BatchedTrainer
     from models.train import finish_fit, prepare_fit
 
-    config = model_config(job.spec, job.cnmp_matches)
     start = time.perf_counter()
-    trainer, split = prepare_fit(list(s.train), config, TrainConfig(steps=job.steps, patience=job.patience,
-                                                                    seed=job.seed), list(s.val))
-    while trainer.step < job.steps and not (trainer.history and trainer.should_stop()):
-        before = trainer.step
-        trainer.run(progress=False, until=before + REPORT_STEPS)
+    configs = [model_config(job.spec, job.cnmp_matches) for job in unit]
+    prepared = [prepare_fit(list(s.train), config, TrainConfig(steps=job.steps, patience=job.patience, seed=job.seed),
+                            list(s.val)) for job, (s, _), config in zip(unit, data, configs)]
+    trainer = BatchedTrainer([t for t, _ in prepared])
+    planned, trained = sum(job.steps for job in unit), lambda: sum(t.step for t, _ in prepared)
+    while trainer.active and trainer.step < unit[0].steps:
+        before = trained()
+        trainer.run(until=trainer.step + REPORT_STEPS)
         if progress is not None:
-            progress.put(trainer.step - before)
-    if progress is not None and trainer.step < job.steps:
-        progress.put(job.steps - trainer.step)
-    model, history = finish_fit(trainer, split)
-    return _scored_network(job, s, qs, config, model, history, time.perf_counter() - start, trainer.step)
+            progress.put(trained() - before)
+    if progress is not None and trained() < planned:
+        progress.put(planned - trained())
+    fit_seconds = (time.perf_counter() - start) / len(unit)
+    return [_scored_network(job, s, qs, config, *finish_fit(t, split), fit_seconds, t.step)
+            for job, (s, qs), config, (t, split) in zip(unit, data, configs, prepared)]
 
 
 def _scored_network(job: Job, s, qs: dict, config, model, history: list[dict], fit_seconds: float,

@@ -44,8 +44,9 @@ from pipeline.evaluate.constants import (
     STEPS,
     TABLE_SETS,
     TABLES,
+    UNIT_NETWORKS,
 )
-from pipeline.evaluate.jobs import PROTOCOLS, Job, ModelSpec, run_job
+from pipeline.evaluate.jobs import PROTOCOLS, Job, ModelSpec, run_unit, unit_key
 from pipeline.workers import single_thread_processes
 
 log = logging.getLogger(__name__)
@@ -162,15 +163,33 @@ def needs(table: str, config: EvaluateConfig) -> set[tuple]:
 PROGRESS_POLL_S = 1.0  # how often the parent reads the workers' step reports
 
 
+def units(jobs: Sequence[Job]) -> list[tuple[Job, ...]]:
+    """Jobs in units of work, in plan order: network jobs of one `unit_key` (seeds, loss ablations, assignments of
+    one network on one set) together, up to UNIT_NETWORKS, each unit placed where its first job was; baselines alone."""
+    out: list[list[Job]] = []
+    open_units: dict[tuple, list[Job]] = {}
+    for job in jobs:
+        key = unit_key(job)
+        unit = open_units.get(key) if key is not None else None
+        if unit is None or len(unit) == UNIT_NETWORKS:
+            unit = []
+            out.append(unit)
+            if key is not None:
+                open_units[key] = unit
+        unit.append(job)
+    return [tuple(unit) for unit in out]
+
+
 class _BarFeed:
-    """run_job's progress when it runs in this process: each report advances the bar at once."""
+    """run_unit's progress when it runs in this process: each report advances the bar at once."""
 
     def __init__(self, bar) -> None:
         self.put = bar.update
 
 
 def run_jobs(jobs: Sequence[Job], workers: int, quiet: bool) -> Iterator[tuple[Job, dict]]:
-    """Yield (job, result) as jobs finish, in `workers` spawned processes with one thread each (or here when 0).
+    """Yield (job, result) as jobs finish, in `units` of work run by `workers` spawned processes with one thread each
+    (or here when 0).
 
     The bar counts training steps (every network's planned steps; an early stop credits the rest), so it
     moves while networks train and its time left is an estimate from the steps' rate; the fits done and
@@ -190,22 +209,22 @@ def run_jobs(jobs: Sequence[Job], workers: int, quiet: bool) -> Iterator[tuple[J
 
     try:
         if workers == 0:
-            for job in jobs:
-                result = run_job(job, _BarFeed(bar))
-                done(job)
-                yield job, result
+            for unit in units(jobs):
+                for job, result in zip(unit, run_unit(unit, _BarFeed(bar))):
+                    done(job)
+                    yield job, result
             return
         with get_context("spawn").Manager() as manager, single_thread_processes(workers) as pool:
             reports = manager.Queue()
-            pending = {pool.submit(run_job, job, reports): job for job in jobs}
+            pending = {pool.submit(run_unit, unit, reports): unit for unit in units(jobs)}
             while pending:
                 finished_now, _ = wait(pending, timeout=PROGRESS_POLL_S, return_when=FIRST_COMPLETED)
                 _drain(reports, bar)
                 for future in finished_now:
-                    job = pending.pop(future)
-                    result = future.result()
-                    done(job)
-                    yield job, result
+                    unit = pending.pop(future)
+                    for job, result in zip(unit, future.result()):
+                        done(job)
+                        yield job, result
     finally:
         bar.close()
 

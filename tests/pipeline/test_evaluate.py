@@ -158,6 +158,35 @@ def test_a_network_job_reports_its_steps_and_trains_as_fit(torch_threads):
     assert result["best_val_error"] == min(h["val_error"] for h in history)
 
 
+def test_units_group_one_network_shape_on_one_set():
+    from pipeline.evaluate.constants import UNIT_NETWORKS
+    from pipeline.evaluate.jobs import Job
+    from pipeline.evaluate.stage import units
+
+    jobs = [Job("bimodal", seed, ModelSpec(2, a_ind=a_ind), 40, 3) for seed in range(3) for a_ind in (None, 0.0)]
+    jobs += [Job("bimodal", 0, None, 40, 3), Job("bimodal", 1, None, 40, 3), Job("bimodal", 0, ModelSpec(1), 40, 3),
+             Job("multimodal", 0, ModelSpec(2), 40, 3), Job("bimodal", 0, ModelSpec(4), 40, 3)]
+    got = units(jobs)
+    assert sorted(len(u) for u in got) == [1] * 5 + [UNIT_NETWORKS] * (6 // UNIT_NETWORKS)
+    assert sorted(map(repr, (job for unit in got for job in unit))) == sorted(map(repr, jobs))  # each job once
+    for unit in got:
+        assert len({(j.set_name, j.spec and j.spec.n_experts) for j in unit}) == 1
+        assert len(unit) == 1 or unit[0].spec is not None  # baselines alone
+
+
+def test_a_unit_trains_each_network_as_alone(torch_threads):
+    from pipeline.evaluate.jobs import Job, run_job, run_unit
+
+    unit = (Job("bimodal", 0, ModelSpec(2), 60, 3), Job("bimodal", 1, ModelSpec(2, assignment="annealed"), 60, 3))
+    reports = _Reports()
+    together = run_unit(unit, reports)
+    assert sum(reports.steps) == 120
+    for job, result in zip(unit, together):
+        alone = run_job(job)
+        for method, row in alone.items():
+            assert row["val_curve"] == result[method]["val_curve"] and row["paper"] == result[method]["paper"]
+
+
 def test_an_early_stop_credits_the_steps_it_skipped(monkeypatch, torch_threads):
     from models.train import Trainer
     from pipeline.evaluate.jobs import Job, run_job
