@@ -22,6 +22,14 @@ from multiprocessing import get_context
 
 THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 SMALL_MODEL_THREADS = 1  # intra-op threads of a process that trains or runs a CNEP
+# glibc's malloc settings for small-model worker processes (read at their start; other allocators ignore
+# them). By default glibc gives blocks above its mmap threshold back to the kernel when they are freed, so
+# a batched training step (models.batched: k models' activations, megabytes a step) faults fresh pages in
+# every step. `python -m benchmarks.bench_allocator`, k = 4, load 2.7-3.4: d = 4, 1,666-3,688 minor faults a
+# step, 8-96 with these, and 4 batched 1.06x / 1.11x the model-steps per CPU-second of 4 one after another,
+# 1.34x / 1.37x with these; d = 2, 593-813 faults against 6-24, ratios within the noise (1.04-1.34x
+# against 1.13-1.42x over 3 rounds). One model alone faults a few pages a step either way.
+SMALL_MODEL_MALLOC = {"MALLOC_MMAP_THRESHOLD_": str(256 << 20), "MALLOC_TRIM_THRESHOLD_": str(512 << 20)}
 
 
 def cpu_cores() -> int:
@@ -51,17 +59,23 @@ def torch_threads(threads: int = SMALL_MODEL_THREADS) -> Iterator[None]:
 
 @contextmanager
 def single_thread_processes(workers: int) -> Iterator[ProcessPoolExecutor]:
-    """A pool of `workers` spawned processes whose BLAS and torch start with one thread each."""
-    with thread_environment(1):
+    """A pool of `workers` spawned processes whose BLAS and torch start with one thread each, with
+    SMALL_MODEL_MALLOC's allocator settings."""
+    with environment({**{name: "1" for name in THREAD_VARIABLES}, **SMALL_MODEL_MALLOC}):
         with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
             yield pool
 
 
-@contextmanager
-def thread_environment(threads: int) -> Iterator[None]:
+def thread_environment(threads: int):
     """Set the BLAS/OpenMP thread variables (read by spawned processes' libraries at import), then restore them."""
-    saved = {name: os.environ.get(name) for name in THREAD_VARIABLES}
-    os.environ.update({name: str(threads) for name in THREAD_VARIABLES})
+    return environment({name: str(threads) for name in THREAD_VARIABLES})
+
+
+@contextmanager
+def environment(values: dict[str, str]) -> Iterator[None]:
+    """Set environment variables for the block (spawned processes inherit them), then restore them."""
+    saved = {name: os.environ.get(name) for name in values}
+    os.environ.update(values)
     try:
         yield
     finally:

@@ -1,23 +1,25 @@
 import os
 
-from pipeline.workers import THREAD_VARIABLES, single_thread_processes
+from pipeline.workers import SMALL_MODEL_MALLOC, THREAD_VARIABLES, single_thread_processes
 
 
 def threads_seen() -> tuple[dict, int]:
     import torch
 
-    return {name: os.environ.get(name) for name in THREAD_VARIABLES}, torch.get_num_threads()
+    return {name: os.environ.get(name) for name in (*THREAD_VARIABLES, *SMALL_MODEL_MALLOC)}, torch.get_num_threads()
 
 
 def test_workers_start_with_one_thread_and_the_environment_is_restored(monkeypatch):
     monkeypatch.setenv("OMP_NUM_THREADS", "7")
     monkeypatch.delenv("MKL_NUM_THREADS", raising=False)
+    for name in SMALL_MODEL_MALLOC:
+        monkeypatch.delenv(name, raising=False)
     with single_thread_processes(1) as pool:
         env, torch_threads = pool.submit(threads_seen).result()
-    assert env == {name: "1" for name in THREAD_VARIABLES}
+    assert env == {**{name: "1" for name in THREAD_VARIABLES}, **SMALL_MODEL_MALLOC}
     assert torch_threads == 1
     assert os.environ["OMP_NUM_THREADS"] == "7"
-    assert "MKL_NUM_THREADS" not in os.environ
+    assert not {"MKL_NUM_THREADS", *SMALL_MODEL_MALLOC} & set(os.environ)
 
 
 def test_inference_threads_share_the_cores_unless_given(monkeypatch):
