@@ -137,7 +137,7 @@ class BatchedTrainer:
     so Adam treats each slice as the lone model's tensor: same elements, same vectorised loop). A model
     that stops early leaves the stack at that validation. `run()` leaves each Trainer as its own `run()`
     would: history, best state, final weights in its model. Not resumable (no state_dict): the evaluation
-    and the demo train start to end.
+    trains start to end.
     """
 
     def __init__(self, trainers: Sequence[Trainer]) -> None:
@@ -149,19 +149,20 @@ class BatchedTrainer:
         self.cfg = trainers[0].cfg
         self.step = 0
         self.active: list[int] = []  # the trainers still training, in stack order
+        self.views: list[dict[str, torch.Tensor]] = []  # per active model: its slice (a view) of every stacked parameter
+        self.optimizer: torch.optim.Adam | None = None
         self._stack(list(range(len(trainers))))
 
     def _stack(self, active: list[int]) -> None:
         """Stack the parameters of trainers `active` (from their models) with one Adam over their slices; Adam's
         state (moments, step) carries over for models that were already in the stack."""
-        old = {(i, name): view for i, views in zip(self.active, getattr(self, "views", [])) for name, view in views.items()}
-        old_state = self.optimizer.state if old else {}
+        old = {(i, name): view for i, views in zip(self.active, self.views) for name, view in views.items()}
+        old_state = self.optimizer.state if self.optimizer is not None else {}
         self.active = active
         configs = [self.trainers[i].model.config for i in active]
         self.assignments = [c.assignment for c in configs]
         self.weights = torch.tensor([[c.a_rec, c.a_batch, c.a_ind] for c in configs], device=self.trainers[0].device)
         self.net = StackedCNEP([self.trainers[i].model for i in active])
-        # Each model's slice of every stacked parameter: a view, so updating it updates the stack.
         self.views = [{name: p[j].detach() for name, p in self.net.params.items()} for j in range(len(active))]
         network = [v for views in self.views for name, v in views.items() if not name.startswith("gate.")]
         gate = [v for views in self.views for name, v in views.items() if name.startswith("gate.")]
