@@ -50,15 +50,31 @@ def build_runner(backend: str, net: nn.Module, threads: int | None = None, cache
     if backend not in available_backends():
         raise PerceptionError(f"backend {backend!r} is not available; choose one of {available_backends()} or "
                               f"`auto` ({INSTALL_HINT})")
-    if threads is not None:
-        torch.set_num_threads(threads)  # process-wide: torch has no per-module thread pool
     net = net.eval()
     if backend == "onnxruntime":
         return onnxruntime_runner(onnx_model(net, cache_key), threads)
     if backend == "openvino":
         return openvino_runner(onnx_model(net, cache_key), threads)
     builders = {"cuda": _cuda, "eager": _eager, "torchscript": _torchscript}
-    return builders[backend](net, threads)
+    return _with_torch_threads(builders[backend](net, threads), threads)
+
+
+def _with_torch_threads(run: Runner, threads: int | None) -> Runner:
+    """`run` with torch's intra-op threads at `threads` during each call (None: as they are), restored after it:
+    the count is process-wide, and the small models that run after extraction in the same process (the
+    demo's training, replay and summary) are fastest on one thread."""
+    if threads is None:
+        return run
+
+    def threaded(pixels: np.ndarray) -> np.ndarray:
+        before = torch.get_num_threads()
+        torch.set_num_threads(threads)
+        try:
+            return run(pixels)
+        finally:
+            torch.set_num_threads(before)
+
+    return threaded
 
 
 def _example_input() -> torch.Tensor:

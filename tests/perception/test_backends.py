@@ -125,3 +125,24 @@ def test_openvino_runs_the_requested_threads_unpinned():
     assert compiled.get_property("INFERENCE_NUM_THREADS") == 1
     assert compiled.get_property("NUM_STREAMS") == 1
     assert compiled.get_property("ENABLE_CPU_PINNING") is False
+
+
+def test_a_torch_runner_leaves_the_process_thread_count_as_it_was():
+    """torch's thread count is process-wide: the extractor uses its threads during a call, not after it."""
+    import torch
+
+    from perception.backends import build_runner
+
+    before = torch.get_num_threads()
+    seen = []
+    net = FeatureExtractor("random", backend="eager", threads=1).net
+
+    class Spy(torch.nn.Module):
+        def forward(self, pixels):
+            seen.append(torch.get_num_threads())
+            return net(pixels)
+
+    run = build_runner("eager", Spy(), threads=before + 1)
+    assert torch.get_num_threads() == before
+    run(np.zeros((1, 224, 224, 3), dtype=np.uint8))
+    assert seen == [before + 1] and torch.get_num_threads() == before
