@@ -56,7 +56,7 @@ from pipeline.demo.generator import CHOICE_KEY, CHOICE_STEP_KEY, SPLITS, SWITCH_
 from pipeline.demo.scene import BEHAVIOURS
 from pipeline.train.stage import TrainStageConfig, train
 from pipeline.train.constants import SCENE
-from pipeline.workers import single_thread_processes
+from pipeline.workers import single_thread_processes, torch_threads
 from recordings import read_demonstration, read_trajectory
 from recordings.constants import BLOCK_GRIPPER
 
@@ -276,13 +276,16 @@ def _model_rows(checkpoint: Path, paths: list[Path]):
 
 
 def online_gates(checkpoint: Path, paths: list[Path]) -> list[np.ndarray]:
-    """Each recording's (T, d) gate rows as the replay computes them (online conditioning with POLICY)."""
+    """Each recording's (T, d) gate rows as the replay computes them (online conditioning with POLICY, one
+    torch thread like the replay: pipeline.workers)."""
     model = load_checkpoint(checkpoint)
     mapping = RowMapping.from_checkpoint(checkpoint, model)
     traces = []
-    for path in paths:
-        trajectory = read_trajectory(path)
-        traces.append(decide(model, mapping.select(trajectory, path, checkpoint), trajectory.timestamps_ns, POLICY).gates)
+    with torch_threads():
+        for path in paths:
+            trajectory = read_trajectory(path)
+            rows = mapping.select(trajectory, path, checkpoint)
+            traces.append(decide(model, rows, trajectory.timestamps_ns, POLICY).gates)
     return traces
 
 
