@@ -245,20 +245,21 @@ def _run_stages(config: DemoConfig, out: Path, size: DemoSize, seconds: dict[str
     done("replay")
 
     stage("summary", 6)
-    labels = {key(path): label for path, label in made.labels.items()}  # split/name is kept by every stage
-    switch_steps = {key(p): int(read_demonstration(p).episode.extra[SWITCH_KEY]) for p in made.files["scene_change"]}
-    decided = [p for p in trajectories["train"] if labels[key(p)] in BEHAVIOURS]  # free choices have no purity
-    behaviours = expert_purity(checkpoints["CNEP"], decided + trajectories["heldout"], labels)
-    result = DemoResult(
-        out=out, rrd=rrd, checkpoints=checkpoints, behaviours=behaviours,
-        heldout={name: heldout_errors(ckpt, trajectories["heldout"], decided, labels)
-                 for name, ckpt in checkpoints.items()},
-        scene_change=scene_change_switches(out / RRD_FILE, trajectories["scene_change"], labels, switch_steps),
-        free_choice={name: place_outcomes(generated_ends(*_model_rows(ckpt, trajectories["free_choice"])))
+    with torch_threads():  # small-model forwards: one thread (the extract stage may have left torch on more)
+        labels = {key(path): label for path, label in made.labels.items()}  # split/name is kept by every stage
+        switch_steps = {key(p): int(read_demonstration(p).episode.extra[SWITCH_KEY]) for p in made.files["scene_change"]}
+        decided = [p for p in trajectories["train"] if labels[key(p)] in BEHAVIOURS]  # free choices have no purity
+        behaviours = expert_purity(checkpoints["CNEP"], decided + trajectories["heldout"], labels)
+        result = DemoResult(
+            out=out, rrd=rrd, checkpoints=checkpoints, behaviours=behaviours,
+            heldout={name: heldout_errors(ckpt, trajectories["heldout"], decided, labels)
                      for name, ckpt in checkpoints.items()},
-        free_choice_replay=free_choice_commitment(out / RRD_FILE, replayed_choice, made.files["free_choice"], labels,
-                                                  behaviours, gate_census(traces)),
-        seconds=seconds)
+            scene_change=scene_change_switches(out / RRD_FILE, trajectories["scene_change"], labels, switch_steps),
+            free_choice={name: place_outcomes(generated_ends(*_model_rows(ckpt, trajectories["free_choice"])))
+                         for name, ckpt in checkpoints.items()},
+            free_choice_replay=free_choice_commitment(out / RRD_FILE, replayed_choice, made.files["free_choice"], labels,
+                                                      behaviours, gate_census(traces)),
+            seconds=seconds)
     done("summary")
     return result
 
