@@ -9,7 +9,10 @@ slot the demonstrator picked; a generated motion is *valid* when it ends in a sl
 - `generated_ends(model, mapping, rows)`: where a model's motion, conditioned on each recording's first
   step, ends (xy at the last step, m);
 - `commitment(gates)`: for one replayed recording's (T, d) gate rows, how split the gate starts and the
-  step from which one expert holds it.
+  step from which one expert holds it;
+- `replay_pick(traces)`: which held-out free-choice episode the demo replays, from every episode's online
+  gate rows (the rule: the least certain first step among those that start split and commit), and
+  `gate_census(traces)`: how many start split and how many of those commit.
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ from pipeline.demo.scene import SLOT_XY
 # point by 0.6 cm (std) around the slot centre.
 PLACE_TOLERANCE = 0.05
 COMMIT_GATE = 0.9  # the gate has committed once one expert holds at least this probability until the end
+SPLIT_GATE = 0.7  # the gate starts split when no expert holds this probability at step 0
 
 
 def place_outcomes(ends_xy: np.ndarray, tolerance: float = PLACE_TOLERANCE) -> dict:
@@ -76,3 +80,30 @@ def commitment(gates: np.ndarray, threshold: float = COMMIT_GATE) -> dict:
         misses = np.flatnonzero(~holds)
         step = int(misses[-1] + 1) if len(misses) else 0
     return {"start": [(int(e), float(gates[0, e])) for e in top], "expert": final, "step": step}
+
+
+def starts_split(gates: np.ndarray, split: float = SPLIT_GATE) -> bool:
+    """True when no expert holds `split` or more of the gate (T, d) at step 0."""
+    return bool(np.max(np.asarray(gates)[0]) < split)
+
+
+def replay_pick(traces: list[np.ndarray], split: float = SPLIT_GATE, threshold: float = COMMIT_GATE) -> int:
+    """Index of the free-choice episode to replay, from each episode's online gate rows (T_i, d).
+
+    Among the episodes whose gate starts split (`starts_split`) and commits (`commitment`: one expert holds
+    `threshold` until the end), the one whose step-0 gate is least certain (lowest largest probability);
+    when none does both, the least certain step 0 of all. Ties go to the lower index. Uses the gates only
+    (no label, no pick), so the same model gives the same episode.
+    """
+    if not traces:
+        raise ValueError("replay_pick needs at least one gate trace")
+    first = [float(np.max(np.asarray(g)[0])) for g in traces]
+    story = [i for i, g in enumerate(traces) if starts_split(g, split) and commitment(g, threshold)["step"] is not None]
+    return min(story or range(len(traces)), key=lambda i: (first[i], i))
+
+
+def gate_census(traces: list[np.ndarray], split: float = SPLIT_GATE, threshold: float = COMMIT_GATE) -> dict:
+    """{"n": episodes, "split": whose gate starts split, "split_commit": of those, whose gate then commits}."""
+    split_starts = [g for g in traces if starts_split(g, split)]
+    return {"n": len(traces), "split": len(split_starts),
+            "split_commit": sum(commitment(g, threshold)["step"] is not None for g in split_starts)}

@@ -17,11 +17,14 @@ Stages (each logs its progress; tqdm bars unless quiet), all under OUT:
               query with time only, predict pose + gripper), seeded;
 5. replay     `demo-NN-<split>-<name>.rrd`, one per recording (+ `demo.experts.json`): the scene-change
               recordings (numbered first), the held-out ones and one held-out free-choice recording through
-              the CNEP, step by step;
+              the CNEP, step by step; the free-choice one is picked from every held-out free-choice
+              episode's online gate by `pipeline.demo.free_choice.replay_pick` (one whose gate starts split
+              and commits, when the model has one);
 6. summary    `summary.json`: per scene-decided behaviour the expert that took it and how purely, the
               error of the generated motion on held-out demonstrations (CNEP vs CNMP), the scene
               change's switches, where motions generated for held-out free-choice scenes end (in a slot
-              or between; CNEP vs CNMP) and when the replayed free-choice episode's gate commits.
+              or between; CNEP vs CNMP), how many free-choice gates start split and commit, and how the
+              replayed one's gate starts, when it commits and on which behaviour's expert.
 
 The behaviour labels live in each file's episode metadata and are read only here, for the summary.
 """
@@ -40,19 +43,20 @@ from pathlib import Path
 
 import numpy as np
 
-from models import TrainConfig, load_checkpoint
+from models import ConditioningPolicy, TrainConfig, load_checkpoint
 from models.checkpoint import atomic_write
 from pipeline.contract import check_writable_folder, output_folder, refuse_file_as_folder
 from pipeline.errors import PipelineError
 from pipeline.extract.stage import ExtractConfig, extract
 from pipeline.ingest.stage import IngestConfig, ingest
-from pipeline.replay.stage import RowMapping, decisions_path, read_decisions, replay
-from pipeline.demo.free_choice import COMMIT_GATE, PLACE_TOLERANCE, commitment, generated_ends, place_outcomes
+from pipeline.replay.stage import RowMapping, decide, decisions_path, read_decisions, replay
+from pipeline.demo.free_choice import (COMMIT_GATE, PLACE_TOLERANCE, SPLIT_GATE, commitment, gate_census,
+                                       generated_ends, place_outcomes, replay_pick)
 from pipeline.demo.generator import CHOICE_KEY, CHOICE_STEP_KEY, SPLITS, SWITCH_KEY, DemoSetConfig, generate
 from pipeline.demo.scene import BEHAVIOURS
 from pipeline.train.stage import TrainStageConfig, train
 from pipeline.train.constants import SCENE
-from pipeline.workers import single_thread_processes
+from pipeline.workers import single_thread_processes, torch_threads
 from recordings import read_demonstration, read_trajectory
 from recordings.constants import BLOCK_GRIPPER
 
@@ -71,6 +75,7 @@ SUMMARY_FILE = "summary.json"
 RRD_FILE = "demo.rrd"
 PER_FILE_LOGGERS = ("pipeline.ingest", "pipeline.extract")
 EXTRACTOR_FILE = "extractor.pt"
+POLICY = ConditioningPolicy()  # the replay's conditioning (models.online): the first step + the latest 10
 # Everything a demo writes into its folder (what --force replaces).
 OUTPUTS = ("recorded", "demos", "trajectories", "checkpoints", EXTRACTOR_FILE, f"{Path(RRD_FILE).stem}-*.rrd",
            decisions_path(RRD_FILE).name, SUMMARY_FILE)  # names and glob patterns
@@ -132,7 +137,7 @@ class DemoResult:
     heldout: dict[str, dict]  # model -> {"position_rmse_m", "gripper_mae_m", "behaviour_accuracy", "n"}
     scene_change: list[dict]  # per scene-change recording: label, switch step, expert before/after, switches
     free_choice: dict[str, dict]  # model -> place_outcomes on the held-out free-choice scenes
-    free_choice_replay: list[dict]  # per replayed free-choice recording: label, choice, its step, commitment
+    free_choice_replay: list[dict]  # per replayed free-choice recording: label, choice, its step, commitment, census
     seconds: dict[str, float] = field(default_factory=dict)  # stage -> wall time (s)
 
 
@@ -233,25 +238,28 @@ def _run_stages(config: DemoConfig, out: Path, size: DemoSize, seconds: dict[str
 
     stage("replay", 5)
     trajectories = {split: sorted((out / "trajectories" / split).glob("*.mcap")) for split in SPLITS}
-    replayed_choice = trajectories["free_choice"][:1]  # one free-choice episode: the gate starts split, then commits
+    traces = online_gates(checkpoints["CNEP"], trajectories["free_choice"])  # every held-out free choice's gate
+    replayed_choice = [trajectories["free_choice"][replay_pick(traces)]]  # one that starts split, then commits
     rrd = replay(checkpoints["CNEP"], trajectories["scene_change"] + trajectories["heldout"] + replayed_choice,
-                 out / RRD_FILE, connect=None, quiet=config.quiet)  # one file per recording, the scene changes first
+                 out / RRD_FILE, policy=POLICY, connect=None, quiet=config.quiet)  # one file each, scene changes first
     done("replay")
 
     stage("summary", 6)
-    labels = {key(path): label for path, label in made.labels.items()}  # split/name is kept by every stage
-    switch_steps = {key(p): int(read_demonstration(p).episode.extra[SWITCH_KEY]) for p in made.files["scene_change"]}
-    decided = [p for p in trajectories["train"] if labels[key(p)] in BEHAVIOURS]  # free choices have no purity
-    result = DemoResult(
-        out=out, rrd=rrd, checkpoints=checkpoints,
-        behaviours=expert_purity(checkpoints["CNEP"], decided + trajectories["heldout"], labels),
-        heldout={name: heldout_errors(ckpt, trajectories["heldout"], decided, labels)
-                 for name, ckpt in checkpoints.items()},
-        scene_change=scene_change_switches(out / RRD_FILE, trajectories["scene_change"], labels, switch_steps),
-        free_choice={name: place_outcomes(generated_ends(*_model_rows(ckpt, trajectories["free_choice"])))
+    with torch_threads():  # small-model forwards: one thread (the extract stage may have left torch on more)
+        labels = {key(path): label for path, label in made.labels.items()}  # split/name is kept by every stage
+        switch_steps = {key(p): int(read_demonstration(p).episode.extra[SWITCH_KEY]) for p in made.files["scene_change"]}
+        decided = [p for p in trajectories["train"] if labels[key(p)] in BEHAVIOURS]  # free choices have no purity
+        behaviours = expert_purity(checkpoints["CNEP"], decided + trajectories["heldout"], labels)
+        result = DemoResult(
+            out=out, rrd=rrd, checkpoints=checkpoints, behaviours=behaviours,
+            heldout={name: heldout_errors(ckpt, trajectories["heldout"], decided, labels)
                      for name, ckpt in checkpoints.items()},
-        free_choice_replay=free_choice_commitment(out / RRD_FILE, replayed_choice, made.files["free_choice"], labels),
-        seconds=seconds)
+            scene_change=scene_change_switches(out / RRD_FILE, trajectories["scene_change"], labels, switch_steps),
+            free_choice={name: place_outcomes(generated_ends(*_model_rows(ckpt, trajectories["free_choice"])))
+                         for name, ckpt in checkpoints.items()},
+            free_choice_replay=free_choice_commitment(out / RRD_FILE, replayed_choice, made.files["free_choice"], labels,
+                                                      behaviours, gate_census(traces)),
+            seconds=seconds)
     done("summary")
     return result
 
@@ -266,6 +274,20 @@ def _model_rows(checkpoint: Path, paths: list[Path]):
     model = load_checkpoint(checkpoint)
     mapping = RowMapping.from_checkpoint(checkpoint, model)
     return model, mapping, [mapping.select(read_trajectory(p), p, checkpoint) for p in paths]
+
+
+def online_gates(checkpoint: Path, paths: list[Path]) -> list[np.ndarray]:
+    """Each recording's (T, d) gate rows as the replay computes them (online conditioning with POLICY, one
+    torch thread like the replay: pipeline.workers)."""
+    model = load_checkpoint(checkpoint)
+    mapping = RowMapping.from_checkpoint(checkpoint, model)
+    traces = []
+    with torch_threads():
+        for path in paths:
+            trajectory = read_trajectory(path)
+            rows = mapping.select(trajectory, path, checkpoint)
+            traces.append(decide(model, rows, trajectory.timestamps_ns, POLICY).gates)
+    return traces
 
 
 def gate_of(model, rows: np.ndarray) -> np.ndarray:
@@ -348,17 +370,24 @@ def scene_change_switches(rrd: Path, paths: list[Path], labels: dict[str, str],
     return found
 
 
-def free_choice_commitment(rrd: Path, paths: list[Path], recorded: list[Path], labels: dict[str, str]) -> list[dict]:
+def free_choice_commitment(rrd: Path, paths: list[Path], recorded: list[Path], labels: dict[str, str],
+                           behaviours: dict[str, dict], census: dict) -> list[dict]:
     """For each replayed free-choice recording: its scene, the slot picked, the step its carry starts (the
-    paths part there), and the replay gate's `commitment`; `recorded`: the recorder's files (the metadata)."""
+    paths part there), the replay gate's `commitment`, the behaviours whose majority expert the gate ends on
+    (`ends_on`; `behaviours`: `expert_purity`'s table), whether one is the behaviour picked (`picked`), and
+    `census` (`gate_census` of every held-out free-choice episode); `recorded`: the recorder's files."""
     records = {key(Path(r["recording"])): r for r in read_decisions(rrd)["recordings"]}
     sources = {key(p): p for p in recorded}
     found = []
     for path in paths:
         extra = read_demonstration(sources[key(path)]).episode.extra
-        found.append({"recording": path.name, "scene": labels[key(path)], "choice": extra[CHOICE_KEY],
-                      "carry_step": int(extra[CHOICE_STEP_KEY]),
-                      **commitment(np.asarray(records[key(path)]["gates"]))})
+        scene, choice = labels[key(path)], extra[CHOICE_KEY]
+        committed = commitment(np.asarray(records[key(path)]["gates"]))
+        ends_on = [name for name, row in behaviours.items() if row["expert"] == committed["expert"]]
+        picked = f"{scene.split('-')[0]}-{choice}"  # the behaviour performed: the cup's side, the slot picked
+        found.append({"recording": path.name, "scene": scene, "choice": choice,
+                      "carry_step": int(extra[CHOICE_STEP_KEY]), **committed, "ends_on": ends_on,
+                      "picked": picked in ends_on, "census": census})
     return found
 
 
@@ -390,11 +419,7 @@ def format_summary(result: DemoResult) -> str:
         lines.append(f"{name:<6} {row['valid']:>9.2f}  {row['near']:>4.2f}  {row['far']:>3.2f}  "
                      f"{row['between']:>7.2f}  {100 * row['distance_m']:>10.1f} (n = {row['n']})")
     for episode in result.free_choice_replay:
-        (e0, p0), (e1, p1) = episode["start"]
-        commits = (f"holds expert {episode['expert']} at p >= {COMMIT_GATE} from step {episode['step']}"
-                   if episode["step"] is not None else f"ends on expert {episode['expert']} below p = {COMMIT_GATE}")
-        lines.append(f"replayed free choice {episode['scene']} (picked {episode['choice']}, carry from step "
-                     f"{episode['carry_step']}): gate at step 0 expert {e0} {p0:.2f}, expert {e1} {p1:.2f}; {commits}")
+        lines.extend(replay_lines(episode, result.behaviours))
     lines.append("")
     lines.append(f"Rerun recordings: {len(result.rrd)} files {result.out}/{Path(RRD_FILE).stem}-*.rrd, one per replayed "
                  f"recording; the scene change: `rerun {result.rrd[0]}`")
@@ -402,6 +427,30 @@ def format_summary(result: DemoResult) -> str:
     lines.append(f"summary: {result.out / SUMMARY_FILE}")
     lines.append("stage times (s): " + ", ".join(f"{k} {v:.1f}" for k, v in result.seconds.items()))
     return "\n".join(lines)
+
+
+def replay_lines(episode: dict, behaviours: dict[str, dict]) -> list[str]:
+    """The summary's lines on one replayed free-choice episode (`free_choice_commitment`'s entry)."""
+    census = episode["census"]
+
+    def expert(e: int) -> str:
+        names = [name for name, row in behaviours.items() if row["expert"] == e]
+        return f"expert {e} ({', '.join(names) or 'no behaviour'}'s)"
+
+    (e0, p0), (e1, p1) = episode["start"]
+    split = "split" if p0 < SPLIT_GATE else "not split"
+    if episode["step"] is None:
+        commits = f"ends on {expert(episode['expert'])} below p = {COMMIT_GATE}, not committed"
+    else:
+        commits = f"holds {expert(episode['expert'])} at p >= {COMMIT_GATE} from step {episode['step']}"
+    slot = "the behaviour picked" if episode["picked"] else "not the behaviour picked"
+    chosen = (f"the least certain step 0 of the {census['split_commit']} that start split and commit"
+              if census["split_commit"] else "none starts split and commits: the least certain step 0 of all")
+    return [f"online gate of the {census['n']} held-out free-choice episodes: {census['split']} start split (no expert at "
+            f"p >= {SPLIT_GATE} at step 0), {census['split_commit']} of them then commit (p >= {COMMIT_GATE} to the end)",
+            f"replayed free choice {episode['recording']} ({episode['scene']}, picked {episode['choice']}, carry from step "
+            f"{episode['carry_step']}; {chosen}):",
+            f"  gate at step 0 {expert(e0)} {p0:.2f}, {expert(e1)} {p1:.2f} ({split}); {commits}: {slot}"]
 
 
 def _jsonable(value):

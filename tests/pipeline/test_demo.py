@@ -9,7 +9,8 @@ import pytest
 from models import load_checkpoint, read_checkpoint_config
 import pipeline.replay.layout as L
 from pipeline.cli.main import main
-from pipeline.demo.stage import GATE_LR_SCALE, QUICK, RRD_FILE, SUMMARY_FILE
+from pipeline.demo.free_choice import gate_census, replay_pick
+from pipeline.demo.stage import GATE_LR_SCALE, QUICK, RRD_FILE, SUMMARY_FILE, online_gates
 from pipeline.errors import PipelineError
 from pipeline.replay.stage import read_decisions
 from pipeline.demo.generator import CHOICE_KEY, LABEL_KEY
@@ -132,7 +133,24 @@ def test_summary_covers_behaviours_models_and_the_scene_change(demo_run):
     (episode,) = summary["free_choice_replay"]
     assert episode["scene"] in FREE_CHOICE and episode["choice"] in ("near", "far")
     assert len(episode["start"]) == 2 and 0 <= episode["expert"] < 4
+    census = episode["census"]
+    assert census["n"] == N_FREE and 0 <= census["split_commit"] <= census["split"] <= N_FREE
+    assert episode["ends_on"] == [b for b, row in summary["behaviours"].items() if row["expert"] == episode["expert"]]
+    side = episode["scene"].split("-")[0]
+    assert episode["picked"] == (f"{side}-{episode['choice']}" in episode["ends_on"])
     assert set(summary["seconds"]) == {"generate", "ingest", "extract", "train", "replay", "summary"}
+
+
+def test_the_replayed_free_choice_is_the_one_the_rule_picks(demo_run):
+    """The replay_pick rule on every held-out free-choice episode's online gate, as the replay computes it."""
+    paths = sorted((demo_run / "trajectories" / "free_choice").glob("*.mcap"))
+    traces = online_gates(demo_run / "checkpoints" / "cnep", paths)
+    (episode,) = json.loads((demo_run / SUMMARY_FILE).read_text())["free_choice_replay"]
+    assert episode["recording"] == paths[replay_pick(traces)].name
+    record = {Path(r["recording"]).parent.name + "/" + Path(r["recording"]).name: r
+              for r in read_decisions(demo_run / RRD_FILE)["recordings"]}[f"free_choice/{episode['recording']}"]
+    np.testing.assert_allclose(record["gates"], traces[replay_pick(traces)], atol=1e-5)  # what Rerun shows
+    assert episode["census"] == gate_census(traces)
 
 
 def test_the_rrd_holds_each_replayed_recording(demo_run):
@@ -140,8 +158,10 @@ def test_the_rrd_holds_each_replayed_recording(demo_run):
     assert files[0].name == "demo-01-scene_change-demo_000.rrd"  # the scene change first, one recording per file
     recordings = [rec for file in files for rec in _rrd_recordings(file)]
     assert len(recordings) == len(files)
+    (choice,) = json.loads((demo_run / SUMMARY_FILE).read_text())["free_choice_replay"]
     replayed = sorted((demo_run / "trajectories" / "heldout").glob("*.mcap")) + \
-        [demo_run / "trajectories" / split / "demo_000.mcap" for split in ("scene_change", "free_choice")]
+        [demo_run / "trajectories" / "scene_change" / "demo_000.mcap",
+         demo_run / "trajectories" / "free_choice" / choice["recording"]]
     assert len(recordings) == len(replayed)
     decisions = {Path(r["recording"]).parent.name + "/" + Path(r["recording"]).name: r
                  for r in read_decisions(demo_run / RRD_FILE)["recordings"]}
