@@ -68,8 +68,9 @@ def authors_coefficients(n_experts: int) -> tuple[float, float, float]:
 
 # The reconstruction terms of the loss (models.loss.reconstruction): "paper" = mean_i (1/d) sum_e p_ie L_ie,
 # "mixture" = mean_i (1/(d n_i)) (-log sum_e p_ie exp(-S_ie)), "annealed" = EM on the posterior annealed
-# from soft to the mixture's.
-ASSIGNMENTS = ("paper", "mixture", "annealed")
+# from soft to the mixture's, balanced over the experts while it anneals, "bounded" = the same with the balancing
+# bounded (every expert's share between 0.5 and 1.5 x B/d) instead of equal.
+ASSIGNMENTS = ("paper", "mixture", "annealed", "bounded")
 
 
 @dataclass(frozen=True)
@@ -82,7 +83,7 @@ class CNEPConfig:
     `assignment` chooses L_rec (models.loss): "paper", the gate-weighted expert NLL of the paper,
     "mixture", the mixture likelihood whose responsibilities come from the targets, or "annealed", the
     experts on the posterior responsibilities and the gate towards them, the posterior annealed from soft
-    to the mixture's over training (docs/model.md).
+    to the mixture's over training, or "bounded", the same with looser balancing (docs/model.md).
     """
 
     layout: Layout = field(default_factory=Layout)

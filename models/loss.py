@@ -3,7 +3,7 @@
     L_e     = mean over targets and output dims of -log N(y | mu_e, sigma_e)        (B, d)
     L_rec   = mean_i (1/d) sum_e p_ie L_ie                                   (assignment "paper")
             = mean_i (1/(d n_i)) (-log sum_e p_ie exp(-S_ie))                (assignment "mixture")
-            = mean_i (1/d) sum_e r_ie (L_ie - log p_ie),  r detached           (assignment "annealed")
+            = mean_i (1/d) sum_e r_ie (L_ie - log p_ie),  r detached           (assignments "annealed", "bounded")
     L_batch = H(mean_i p_i)            entropy of the batch-mean gate distribution
     L_ind   = mean_i H(p_i)            mean entropy of each sample's gate distribution
     L_total = a_rec L_rec - a_batch L_batch + a_ind L_ind
@@ -33,6 +33,17 @@ still lets one expert take every behaviour that the context already tells apart 
 behaviours on one expert); balancing while annealing keeps every expert in use, and once the experts
 differ the free posterior keeps them pure and lets the targets decide where the context cannot.
 
+"bounded" is "annealed" with the balancing bounded instead of equal (`BALANCE_BOUNDS`): every expert's
+share of the batch's mass is kept between 0.5 and 1.5 x B/d, and shares in between are the posterior's
+own (session 8, docs/model.md "Balancing between a floor and a cap"). Equal shares force d equal parts
+where the behaviours do not come in d equal parts: 8 experts on 6 modes (seed 1: a spare expert took
+the samples two modes share and the gate sent both modes to it, 12 of 25 commitment queries valid;
+bounded 25 of 25), and Baxter's 2 experts on batches of 32 draws of 2 demonstrations, which are rarely
+half and half (seed 2: the chosen expert followed a start 8.4 cm off its demonstration by 6.6 cm, into
+the box; bounded 5.3 cm, outside it). But where the behaviours do come in d equal parts (the demo: 4
+behaviours, 4 experts) the room between floor and cap let two behaviours share an expert on one seed
+of three, which equal shares did not: so both are kept, measured side by side.
+
 The paper prints `+ a_batch L_batch`; the text asks for batch entropy to be maximised and the authors'
 code subtracts it, so we subtract it. Entropies are computed per row with clamped logs: a probability
 that underflows to 0 contributes 0 and never renormalises other rows.
@@ -49,7 +60,9 @@ from models.config import CNEPConfig
 _TINY = 1e-12
 _HALF_LOG_2PI = 0.5 * math.log(2 * math.pi)
 ANNEAL_FRACTION = 0.6  # "annealed": the posterior reaches the mixture's sharpness at this fraction of training
-SINKHORN_ITERATIONS = 3  # "annealed": balancing steps of the posterior over the batch while it anneals
+SINKHORN_ITERATIONS = 3  # "annealed", "bounded": balancing steps of the posterior over the batch while it anneals
+# each assignment's bounds on an expert's share of the batch's mass while balancing, as fractions of B/d
+BALANCE_BOUNDS = {"annealed": (1.0, 1.0), "bounded": (0.5, 1.5)}
 
 
 def entropy(p: torch.Tensor) -> torch.Tensor:
@@ -78,30 +91,41 @@ def annealed_sharpness(values: torch.Tensor, progress: float) -> torch.Tensor:
     return values.clamp_min(1.0) ** min(1.0, max(0.0, progress) / ANNEAL_FRACTION)
 
 
-def balanced(log_r: torch.Tensor, iterations: int = SINKHORN_ITERATIONS) -> torch.Tensor:
-    """Sinkhorn balancing of log responsibilities (..., B, d) over the batch: alternately scale each expert's
-    column to B/d of the mass and each sample's row to 1 (the last step), in log space -> (..., B, d)."""
+def balanced(log_r: torch.Tensor, iterations: int = SINKHORN_ITERATIONS, floor: float = 1.0,
+             cap: float = 1.0) -> torch.Tensor:
+    """Balancing of log responsibilities (..., B, d) over the batch, in log space -> (..., B, d): alternately
+    bring each expert's column mass into [`floor`, `cap`] * B/d (a column below the floor is raised to it,
+    one above the cap lowered to it, the others keep the posterior's mass) and scale each sample's row to 1
+    (the last step). Each half-step is the nearest distribution (in KL) meeting its own constraint; `floor` = `cap`
+    = 1 (the default) gives Sinkhorn's steps to equal shares, B/d each."""
     B, d = log_r.shape[-2:]
+    low, high = math.log(floor * B / d), math.log(cap * B / d)
     for _ in range(iterations):
-        log_r = log_r - torch.logsumexp(log_r, -2, keepdim=True) + math.log(B / d)
+        column = torch.logsumexp(log_r, -2, keepdim=True)  # (..., 1, d) log mass per expert
+        if floor == cap:
+            log_r = log_r - column + low
+        else:
+            log_r = log_r + (low - column).clamp_min(0.0) + (high - column).clamp_max(0.0)
         log_r = log_r - torch.logsumexp(log_r, -1, keepdim=True)
     return log_r
 
 
-def annealed_posterior(log_p: torch.Tensor, nll: torch.Tensor, values: torch.Tensor, progress: float) -> torch.Tensor:
+def annealed_posterior(log_p: torch.Tensor, nll: torch.Tensor, values: torch.Tensor, progress: float,
+                       bounds: tuple[float, float] = BALANCE_BOUNDS["annealed"]) -> torch.Tensor:
     """The "annealed" responsibilities r (B, d), detached: softmax_e(log p_ie - k_i L_ie), balanced over the
-    batch (`balanced`) while progress < ANNEAL_FRACTION. log_p, nll (B, d); values (B,)."""
+    batch (`balanced` within `bounds`, fractions of B/d) while progress < ANNEAL_FRACTION. log_p, nll (B, d);
+    values (B,)."""
     k = annealed_sharpness(values, progress).unsqueeze(-1)  # (B, 1)
     log_r = (log_p - k * nll).detach()
     if progress < ANNEAL_FRACTION:
-        log_r = balanced(log_r)
+        log_r = balanced(log_r, SINKHORN_ITERATIONS, *bounds)
     return torch.softmax(log_r, dim=-1)
 
 
 def reconstruction(nll: torch.Tensor, gate: torch.Tensor, values: torch.Tensor, assignment: str,
                    progress: float = 1.0) -> torch.Tensor:
     """L_rec of `assignment`: nll (..., B, d) mean NLL per value, gate (..., B, d), values (..., B) target values
-    per sample -> (...); progress: the fraction of training done (only "annealed" depends on it)."""
+    per sample -> (...); progress: the fraction of training done (only "annealed" and "bounded" depend on it)."""
     d = gate.shape[-1]
     if assignment == "paper":
         return (gate * nll).sum(-1).mean(-1) / d
@@ -109,9 +133,9 @@ def reconstruction(nll: torch.Tensor, gate: torch.Tensor, values: torch.Tensor, 
         n = values.clamp_min(1.0).unsqueeze(-1)  # (B, 1)
         log_joint = gate.clamp_min(_TINY).log() - n * nll  # (B, d): log p_ie - S_ie
         return (-torch.logsumexp(log_joint, dim=-1) / n[..., 0]).mean(-1) / d
-    if assignment == "annealed":
+    if assignment in BALANCE_BOUNDS:  # "annealed", "bounded"
         log_p = gate.clamp_min(_TINY).log()  # (B, d)
-        r = annealed_posterior(log_p, nll, values, progress)  # (B, d), detached
+        r = annealed_posterior(log_p, nll, values, progress, BALANCE_BOUNDS[assignment])  # (B, d), detached
         return ((r * nll).sum(-1) - (r * log_p).sum(-1)).mean(-1) / d
     raise ValueError(f"unknown assignment {assignment!r}")
 

@@ -95,13 +95,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     m = parser.add_argument_group("model")
     m.add_argument("--experts", type=int, default=keep,
                    help=f"number of experts; 1 is a CNMP (default {_default('experts')})")
-    m.add_argument("--assignment", default=keep, choices=("paper", "mixture", "annealed"),
+    m.add_argument("--assignment", default=keep, choices=("paper", "mixture", "annealed", "bounded"),
                    help="how the loss assigns a context's targets to the experts: paper = the paper's gate-weighted "
                         "NLL (every expert the gate has not ruled out learns every target), mixture = the mixture "
                         "likelihood (the expert that explains the targets learns them; commits where the context "
                         "cannot tell behaviours apart), annealed = the same posterior assignment, soft and balanced "
                         "over the experts early in training, as sharp as the mixture's from 60%% of the steps on, "
-                        f"the gate trained towards it at full strength; docs/model.md (default {_default('assignment')})")
+                        "the gate trained towards it at full strength, bounded = annealed with each expert's share "
+                        "kept within 0.5-1.5x an equal one instead of equal; docs/model.md "
+                        f"(default {_default('assignment')})")
     m.add_argument("--encoder-widths", type=_widths, default=keep,
                    help=f"encoder layer widths (default {_default('encoder_widths')})")
     m.add_argument("--expert-widths", type=_widths, default=keep,

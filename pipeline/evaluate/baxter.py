@@ -9,9 +9,9 @@ Data (read in place, never copied): a folder like the paper's `data/baxter/first
 2. take the end-effector's (p_x, p_y) (m), resample each demonstration to `samples` steps evenly in
    time (t = k / (samples - 1)); the model's normaliser standardises the columns;
 3. train a 2-expert CNEP per assignment of the loss (`models.CNEPConfig.assignment`: the paper's
-   gate-weighted NLL, the mixture likelihood, the annealed posterior) and a CNMP (1 expert, widened to
-   about the same number of parameters) with `models.fit`, seeded; with only two demonstrations both
-   serve for training and validation;
+   gate-weighted NLL, the mixture likelihood, the annealed posterior balanced to equal or to bounded
+   shares) and a CNMP (1 expert, widened to about the same number of parameters) with `models.fit`,
+   seeded; with only two demonstrations both serve for training and validation;
 4. condition each model on each test recording's first sample at t = 0 (and, with `goal=True`, also
    on its last sample at t = 1) and generate the path at the `samples` times: each CNEP winner-take-all
    (the paper's inference) and as the gate-weighted mixture of its experts (CNEP-MoE);
@@ -123,8 +123,8 @@ def load_recordings(config: BaxterConfig, work: Path) -> tuple[list[Path], list[
 
 
 def train_models(demos: np.ndarray, config: BaxterConfig) -> dict:
-    """A 2-expert CNEP per assignment ("CNEP (paper)", "CNEP (mixture)", "CNEP (annealed)") and a parameter-matched
-    "CNMP" on (N, T, 2) paths; all seeded."""
+    """A 2-expert CNEP per assignment ("CNEP (paper)", "CNEP (mixture)", "CNEP (annealed)", "CNEP (bounded)") and
+    a parameter-matched "CNMP" on (N, T, 2) paths; all seeded."""
     train = TrainConfig(steps=config.steps, warmup_steps=config.steps // 10, val_every=max(1, config.steps // 20),
                         seed=config.seed)
     trajectories = list(demos)

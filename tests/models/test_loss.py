@@ -5,8 +5,8 @@ import pytest
 import torch
 
 from models.config import CNEPConfig
-from models.loss import (ANNEAL_FRACTION, SINKHORN_ITERATIONS, annealed_posterior, annealed_sharpness, balanced,
-                         cnep_loss, entropy, expert_nll)
+from models.loss import (ANNEAL_FRACTION, BALANCE_BOUNDS, SINKHORN_ITERATIONS, annealed_posterior, annealed_sharpness,
+                         balanced, cnep_loss, entropy, expert_nll)
 
 
 def test_expert_nll_against_a_hand_computation():
@@ -110,7 +110,8 @@ def test_mixture_sends_the_targets_to_the_expert_that_explains_them():
     torch.testing.assert_close(grads["paper"][1] / grads["paper"][0], torch.tensor(4.0 / 0.2), rtol=1e-5, atol=0)  # sum |y - mu|
 
 
-@pytest.mark.parametrize("assignment, progress", [("mixture", 1.0), ("annealed", 0.2), ("annealed", 1.0)])
+@pytest.mark.parametrize("assignment, progress", [("mixture", 1.0), ("annealed", 0.2), ("annealed", 1.0),
+                                                  ("bounded", 0.2)])
 def test_each_assignment_equals_the_paper_term_with_one_expert_in_value_and_gradient(assignment, progress):
     # d = 1: -log(1 * exp(-S_i)) / n_i = S_i / n_i = L_i, and the paper's (1/1) sum_e p_ie L_ie = L_i.
     # The equality needs the mixture's sum over a sample's target values divided by their number n_i
@@ -173,26 +174,29 @@ def _two_sample_example():
     return mean, std, target, mask, gate, (L0, 2), (L1, 1)
 
 
-def _hand_posterior(Ls, ns, ps, progress):
+def _hand_posterior(Ls, ns, ps, progress, bounds=(1.0, 1.0)):
     """The "annealed" responsibilities by hand: per sample p_e exp(-k L_e) with k = n ** min(1, progress / 0.6),
-    then while annealing 3 rounds of scaling each expert's column to B/d and each row to 1, else rows to 1."""
+    then while annealing 3 rounds of scaling each expert's column into [floor, cap] * B/d (`bounds`; equal
+    shares B/d for "annealed") and each row to 1, else rows to 1."""
     w = [[p * math.exp(-n ** min(1.0, progress / ANNEAL_FRACTION) * le) for p, le in zip(pi, Li)]
          for Li, n, pi in zip(Ls, ns, ps)]
     B, d = len(w), len(w[0])
     for _ in range(SINKHORN_ITERATIONS if progress < ANNEAL_FRACTION else 0):
         column = [sum(w[i][e] for i in range(B)) for e in range(d)]
-        w = [[w[i][e] * (B / d) / column[e] for e in range(d)] for i in range(B)]
+        kept = [min(max(c, bounds[0] * B / d), bounds[1] * B / d) for c in column]
+        w = [[w[i][e] * kept[e] / column[e] for e in range(d)] for i in range(B)]
         w = [[x / sum(row) for x in row] for row in w]
     return [[x / sum(row) for x in row] for row in w]
 
 
-def test_annealed_term_against_a_hand_computation():
-    cfg = CNEPConfig(n_experts=2, a_rec=1.0, a_batch=0.0, a_ind=0.0, assignment="annealed")
+@pytest.mark.parametrize("assignment", ["annealed", "bounded"])
+def test_annealed_term_against_a_hand_computation(assignment):
+    cfg = CNEPConfig(n_experts=2, a_rec=1.0, a_batch=0.0, a_ind=0.0, assignment=assignment)
     mean, std, target, mask, gate, (L0, n0), (L1, n1) = _two_sample_example()
     p = gate.tolist()
     for progress in (0.0, 0.3, 1.0):  # balanced and soft, balanced and sharper, free and as sharp as the mixture
         _, terms = cnep_loss(mean, std, gate, target, mask, cfg, progress)
-        r = _hand_posterior([L0, L1], [n0, n1], p, progress)
+        r = _hand_posterior([L0, L1], [n0, n1], p, progress, BALANCE_BOUNDS[assignment])
         rec = [sum(re * (le - math.log(pe)) for re, le, pe in zip(ri, Li, pi)) for ri, Li, pi in zip(r, [L0, L1], p)]
         assert math.isclose(terms["rec"], (rec[0] + rec[1]) / 2 / 2, rel_tol=1e-6)  # mean over samples, then / d
 
@@ -227,6 +231,42 @@ def test_balancing_spreads_the_batch_over_the_experts_while_the_posterior_anneal
     torch.testing.assert_close(held.sum(0), torch.full((3,), 4 / 3), atol=0.05, rtol=0)
     torch.testing.assert_close(balanced(held.log(), 50).exp().sum(0), torch.full((3,), 4 / 3))  # Sinkhorn converges
     assert int(held.argmax(-1)[2]) == 2 and int(held.argmax(-1)[1]) == 1  # the next best expert takes the mass
+
+
+def test_bounded_balancing_keeps_every_experts_share_between_a_floor_and_a_cap():
+    # every sample is explained best by expert 0: free, expert 0 takes nearly all of the batch; bounded, no
+    # expert takes more than cap * B/d (exactly, once converged) nor less than floor * B/d, each row stays a
+    # distribution, and each sample's next best expert takes its mass
+    floor, cap = BALANCE_BOUNDS["bounded"]
+    nll = torch.tensor([[0.0, 2.0, 3.0, 3.0], [0.1, 1.0, 4.0, 3.0], [0.0, 3.0, 1.0, 3.0], [0.2, 2.0, 2.0, 1.5]])
+    log_p = torch.full((4, 4), -math.log(4.0))  # B/d = 1
+    values = torch.full((4,), 4.0)
+    free = annealed_posterior(log_p, nll, values, 1.0, (floor, cap))
+    held = annealed_posterior(log_p, nll, values, 0.0, (floor, cap))
+    assert free[:, 0].sum() > 3.9
+    torch.testing.assert_close(held.sum(-1), torch.ones(4))
+    assert held.sum(0)[0] < cap + 0.05 and (held.sum(0) > floor).all()
+    converged = balanced(held.log(), 50, floor, cap).exp().sum(0)
+    torch.testing.assert_close(converged[0], torch.tensor(cap))
+    assert (converged >= floor).all()
+    assert held.argmax(-1).tolist() == [0, 1, 2, 3]
+
+
+def test_bounded_balancing_leaves_shares_between_the_floor_and_the_cap_to_the_posterior():
+    floor, cap = BALANCE_BOUNDS["bounded"]
+    log_r = torch.log_softmax(torch.tensor([[2.0, 0.0, 0.0], [0.0, 2.0, 0.0], [0.0, 0.0, 2.0], [1.0, 0.0, 1.0]]), -1)
+    shares = log_r.exp().sum(0)  # about 1.42, 1.16, 1.42 of 4 samples: inside [floor, cap] * B/d = [0.67, 2.0]
+    assert (shares > floor * 4 / 3).all() and (shares < cap * 4 / 3).all()
+    torch.testing.assert_close(balanced(log_r, floor=floor, cap=cap), log_r)
+    assert not torch.allclose(balanced(log_r), log_r, atol=1e-3)  # equal shares (annealed) move them
+
+
+@pytest.mark.parametrize("assignment", ["annealed", "bounded"])
+def test_balancing_of_stacked_models_is_each_models_own(assignment):
+    log_r = torch.randn(3, 5, 4, generator=torch.Generator().manual_seed(0))  # k = 3 stacked models, B = 5, d = 4
+    stacked = balanced(log_r, SINKHORN_ITERATIONS, *BALANCE_BOUNDS[assignment])
+    for i in range(3):
+        assert torch.equal(stacked[i], balanced(log_r[i], SINKHORN_ITERATIONS, *BALANCE_BOUNDS[assignment]))
 
 
 def test_the_papers_and_the_mixtures_terms_do_not_depend_on_the_training_progress():

@@ -58,14 +58,14 @@ def test_example_reports_every_start_point(data, tmp_path):
     assert (tmp_path / "work" / "demos" / "demo_a.mcap").is_file()  # went through the ingest stage
     models = train_models(demos, config)
     assert MODELS == ("CNMP", "CNEP (paper)", "CNEP-MoE (paper)", "CNEP (mixture)", "CNEP-MoE (mixture)",
-                      "CNEP (annealed)", "CNEP-MoE (annealed)")
+                      "CNEP (annealed)", "CNEP-MoE (annealed)", "CNEP (bounded)", "CNEP-MoE (bounded)")
     for goal in (False, True):
         results = score_starts(models, demos, tests, goal)
         assert [r.name for r in results] == ["0", "1"]
         for r, x0 in zip(results, (0.78, 0.93)):
             np.testing.assert_allclose(r.start, [x0, -0.48])
             assert list(r.paths) == list(MODELS) and set(r.chosen_expert) == {"CNEP (paper)", "CNEP (mixture)",
-                                                                                  "CNEP (annealed)"}
+                                                                                  "CNEP (annealed)", "CNEP (bounded)"}
             for name in MODELS:
                 path, executed = r.paths[name], r.executed[name]
                 assert path.shape == executed.shape == (50, 2) and np.isfinite(path).all()

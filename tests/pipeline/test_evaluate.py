@@ -19,9 +19,9 @@ def test_plan_trains_each_shared_network_once():
     keys = [(j.set_name, j.seed, j.spec) for j in jobs]
     assert len(keys) == len(set(keys))
     # bimodal (d=2 CNEP) per seed: baselines, CNMP, CNEP-d2 (comparison, ablation's CNEP/MoE, experts' CNEP-2),
-    # 3 ablation variants, CNEP-4 and CNEP-8, and the commitment table's CNEP-d2 with the mixture and the
-    # annealed assignment
-    assert sum(j.set_name == "bimodal" for j in jobs) == 2 * 10
+    # 3 ablation variants, CNEP-4 and CNEP-8, and the commitment table's CNEP-d2 with the mixture, the
+    # annealed and the bounded assignment
+    assert sum(j.set_name == "bimodal" for j in jobs) == 2 * 11
     assert {j.set_name for j in jobs} == {"bimodal", "multimodal"}
 
 
@@ -48,7 +48,8 @@ def test_rows_of_each_table():
     assert [r.spec.n_experts for r in table_rows("experts", "multimodal6") if r.spec] == [2, 4, 8]
     commitment = {r.label: r for r in table_rows("commitment", "multimodal6")}
     assert list(commitment) == ["ProMP", "GMM-GMR", "CNMP", "CNEP (paper)", "CNEP-MoE (paper)", "CNEP (mixture)",
-                                "CNEP-MoE (mixture)", "CNEP (annealed)", "CNEP-MoE (annealed)", "Nearest demo"]
+                                "CNEP-MoE (mixture)", "CNEP (annealed)", "CNEP-MoE (annealed)", "CNEP (bounded)",
+                                "CNEP-MoE (bounded)", "Nearest demo"]
     assert commitment["CNEP (mixture)"].spec == ModelSpec(8, assignment="mixture")
     assert commitment["CNEP-MoE (paper)"].spec == commitment["CNEP (paper)"].spec == ModelSpec(8)
 
