@@ -96,8 +96,11 @@ def balanced(log_r: torch.Tensor, iterations: int = SINKHORN_ITERATIONS, floor: 
     """Balancing of log responsibilities (..., B, d) over the batch, in log space -> (..., B, d): alternately
     bring each expert's column mass into [`floor`, `cap`] * B/d (a column below the floor is raised to it,
     one above the cap lowered to it, the others keep the posterior's mass) and scale each sample's row to 1
-    (the last step). Each half-step is the nearest distribution (in KL) meeting its own constraint; `floor` = `cap`
-    = 1 (the default) gives Sinkhorn's steps to equal shares, B/d each."""
+    (the last step). Each half-step is the nearest distribution (in KL) meeting its own constraint; `floor`
+    = `cap` = 1 (the default) gives Sinkhorn's steps to equal shares, B/d each. The first column step acts
+    on the posterior as given (log p - k L, rows not yet normalised): where every column lies on the same
+    side of the bounds, as with a sharp posterior, that step equalises them as Sinkhorn's would, and the
+    bounds act from the second step on (what docs/model.md measured)."""
     B, d = log_r.shape[-2:]
     low, high = math.log(floor * B / d), math.log(cap * B / d)
     for _ in range(iterations):
