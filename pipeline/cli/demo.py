@@ -17,9 +17,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="seed of every random draw (default 0)")
     parser.add_argument("--force", action="store_true", help="use a non-empty --out folder: first delete what an "
                         "earlier demo wrote there (other files stay)")
-    parser.add_argument("--assignment", choices=("paper", "mixture", "annealed"), default=None,
-                        help="the CNEP's reconstruction term: the paper's gate-weighted NLL, the mixture likelihood or "
-                             "the annealed posterior assignment (default annealed: docs/demo.md)")
+    parser.add_argument("--assignment", choices=("paper", "mixture", "annealed", "bounded"), default=None,
+                        help="the CNEP's reconstruction term: the paper's gate-weighted NLL, the mixture likelihood, "
+                             "the annealed posterior assignment, or annealed with bounded rather than equal expert "
+                             "shares (default annealed: docs/demo.md)")
     parser.add_argument("--precision", choices=("fp32", "int8"), default="fp32",
                         help="feature extraction precision (default fp32; int8 as `cnep extract --precision int8`)")
 
