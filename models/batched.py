@@ -43,10 +43,12 @@ MAX_MODELS = 8  # models per batched computation in `fit_many`
 
 
 def batch_key(trainer: Trainer) -> tuple:
-    """Trainers with equal keys can train together: network shape, schedule (all but the seed), batch shape."""
+    """Trainers with equal keys can train together: network shape, schedule (all but the seed and the gate's
+    learning rate), batch shape."""
     T = trainer.train.observed.shape[1]
     cfg = trainer.cfg
-    return (tuple(getattr(trainer.model.config, f) for f in ARCHITECTURE_FIELDS), dataclasses.replace(cfg, seed=0),
+    return (tuple(getattr(trainer.model.config, f) for f in ARCHITECTURE_FIELDS),
+            dataclasses.replace(cfg, seed=0, gate_lr_scale=None),
             min(cfg.n_max, T), min(cfg.m_max, T))
 
 
@@ -165,8 +167,10 @@ class BatchedTrainer:
         self.net = StackedCNEP([self.trainers[i].model for i in active])
         self.views = [{name: p[j].detach() for name, p in self.net.params.items()} for j in range(len(active))]
         network = [v for views in self.views for name, v in views.items() if not name.startswith("gate.")]
-        gate = [v for views in self.views for name, v in views.items() if name.startswith("gate.")]
-        self.optimizer = make_optimizer(network, gate, self.cfg)
+        scales = [self.trainers[i].cfg.gate_lr_scale for i in active]  # each model's own (its assignment's)
+        gates = [([v for views, s in zip(self.views, scales) if s == scale
+                   for name, v in views.items() if name.startswith("gate.")], scale) for scale in sorted(set(scales))]
+        self.optimizer = make_optimizer([(network, 1.0), *gates], self.cfg.lr)
         for i, views in zip(active, self.views):
             for name, view in views.items():
                 if (i, name) in old:

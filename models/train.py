@@ -3,7 +3,9 @@
 The optimiser recipe for a CPU budget of minutes (measured, see docs/model.md): Adam, a linear
 learning-rate warm-up then cosine decay, and the gate held uniform (zero-initialised, not updated) for
 the first `gate_freeze_fraction` of the steps, so that the experts learn to reconstruct before the
-gate starts to commit, and then learning at `gate_lr_scale` times the learning rate.
+gate starts to commit, and then learning at `gate_lr_scale` times the learning rate (by default the
+assignment's own: `models.config.GATE_LR_SCALES`). The best model by validation error is kept, from the
+step where the assignment's posterior has settled on (`models.loss.settled_fraction`).
 
 Adam runs fused (one kernel over all parameters: 0.5 ms a step instead of 4 ms for the per-tensor
 `foreach` path on the 2-core machine, benchmarks/bench_training.py). `models.batched` trains several
@@ -25,7 +27,7 @@ import torch
 from models.cnep import CNEP
 from models.config import CNEPConfig, TrainConfig
 from models.errors import ConfigError
-from models.loss import cnep_loss
+from models.loss import cnep_loss, settled_fraction
 from models.sampler import Batch, TrajectoryStack, sample_batch
 
 log = logging.getLogger(__name__)
@@ -69,10 +71,10 @@ def lr_factor(step: int, cfg: TrainConfig) -> float:
     return 0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * min(1.0, progress)))
 
 
-def make_optimizer(params: list[torch.Tensor], gate_params: list[torch.Tensor], cfg: TrainConfig) -> torch.optim.Adam:
-    """Adam over the network (`lr_scale` 1) and the gate (`lr_scale` = cfg.gate_lr_scale), fused into one kernel."""
-    groups = [{"params": params, "lr_scale": 1.0}, {"params": gate_params, "lr_scale": cfg.gate_lr_scale}]
-    return torch.optim.Adam(groups, lr=cfg.lr, fused=True)
+def make_optimizer(groups: Sequence[tuple[list[torch.Tensor], float]], lr: float) -> torch.optim.Adam:
+    """Adam over (parameters, `lr_scale`) groups (the network at 1, the gate at its gate_lr_scale), fused into one
+    kernel."""
+    return torch.optim.Adam([{"params": params, "lr_scale": scale} for params, scale in groups], lr=lr, fused=True)
 
 
 def set_learning_rate(optimizer: torch.optim.Optimizer, step: int, cfg: TrainConfig) -> None:
@@ -101,18 +103,22 @@ class Trainer:
     step: int = 0
     best_error: float = math.inf
     best_state: dict = field(default_factory=dict)
+    best_step: int = 0
     history: list[dict] = field(default_factory=list)
 
     def __post_init__(self) -> None:
+        self.cfg = self.cfg.for_assignment(self.model.config.assignment)
         gate = {id(p) for p in self.model.gate.parameters()}
-        self.optimizer = make_optimizer([p for p in self.model.parameters() if id(p) not in gate],
-                                        list(self.model.gate.parameters()), self.cfg)
+        self.optimizer = make_optimizer([([p for p in self.model.parameters() if id(p) not in gate], 1.0),
+                                         (list(self.model.gate.parameters()), self.cfg.gate_lr_scale)], self.cfg.lr)
         self.generator = torch.Generator().manual_seed(self.cfg.seed)
         val_gen = torch.Generator().manual_seed(self.cfg.seed + 1)
         self.val_batches = [
             sample_batch(self.val, VAL_BATCH_SIZE, self.cfg.n_max, self.cfg.m_max, val_gen) for _ in range(VAL_BATCHES)
         ]
         self.freeze_steps = int(self.cfg.gate_freeze_fraction * self.cfg.steps)
+        # validations before this step are logged but never kept as the best model (models.loss.settled_fraction)
+        self.keep_from = int(settled_fraction(self.model.config.assignment) * self.cfg.steps)
 
     @property
     def device(self) -> torch.device:
@@ -146,8 +152,8 @@ class Trainer:
         self.model.eval()
         error = float(np.mean([wta_error(self.model, b.to(self.device)) for b in self.val_batches]))
         self.model.train()
-        if error < self.best_error:
-            self.best_error = error
+        if error < self.best_error and self.step >= self.keep_from:
+            self.best_error, self.best_step = error, self.step
             self.best_state = copy.deepcopy(self.model.state_dict())
         return error
 
@@ -159,6 +165,7 @@ class Trainer:
             "step": self.step,
             "best_error": self.best_error,
             "best_state": self.best_state,
+            "best_step": self.best_step,
             "history": self.history,
         }
 
@@ -168,6 +175,7 @@ class Trainer:
         self.generator.set_state(state["generator"])
         self.step, self.best_error = state["step"], state["best_error"]
         self.best_state, self.history = state["best_state"], state["history"]
+        self.best_step = state.get("best_step", min(self.history, key=lambda h: h["val_error"])["step"] if self.history else 0)
 
     def run(self, progress: bool = True, until: int | None = None) -> None:
         """Train up to step `until` (default: all steps), validating every `val_every` steps."""

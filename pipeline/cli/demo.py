@@ -20,7 +20,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--assignment", choices=("paper", "mixture", "annealed", "bounded"), default=None,
                         help="the CNEP's reconstruction term: the paper's gate-weighted NLL, the mixture likelihood, "
                              "the annealed posterior assignment, or annealed with bounded rather than equal expert "
-                             "shares (default annealed: docs/demo.md)")
+                             "shares, faded out (default bounded: docs/demo.md)")
     parser.add_argument("--precision", choices=("fp32", "int8"), default="fp32",
                         help="feature extraction precision (default fp32; int8 as `cnep extract --precision int8`)")
 

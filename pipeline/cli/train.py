@@ -33,7 +33,7 @@ TRAIN_OPTIONS = {
 DEFAULTS = {
     "layout": DEFAULT_PRESET,
     "experts": 2,
-    "assignment": "paper",
+    "assignment": "bounded",
     "encoder_widths": (128, 128),
     "expert_widths": (128, 128),
     "patience": DEFAULT_PATIENCE,
@@ -54,22 +54,40 @@ def _widths(text: str) -> tuple[int, ...]:
 
 def _default(name: str) -> str:
     value = DEFAULTS[name] if DEFAULTS[name] is not None else train_config_defaults().get(name)
+    if value is None and name == "gate_lr_scale":  # None: the assignment's own
+        return "the assignment's: " + ", ".join(f"{scale} for {a}" for a, scale in _config_literal("GATE_LR_SCALES").items())
     if value is None:
         return "models.TrainConfig's default"
     return ",".join(map(str, value)) if isinstance(value, tuple) else str(value)
 
 
 @functools.cache
-def train_config_defaults() -> dict:
-    """models.TrainConfig's literal field defaults, read from models/config.py without importing it (torch)."""
+def _config_tree():
+    """models/config.py parsed, without importing it (torch)."""
     import ast
     import importlib.util
     from pathlib import Path
 
     spec = importlib.util.find_spec("models")
     source = Path(next(iter(spec.submodule_search_locations))) / "config.py"
-    tree = ast.parse(source.read_text(encoding="utf-8"))
-    body = next(node.body for node in tree.body if isinstance(node, ast.ClassDef) and node.name == "TrainConfig")
+    return ast.parse(source.read_text(encoding="utf-8"))
+
+
+def _config_literal(name: str):
+    """The literal value of a module-level constant of models/config.py."""
+    import ast
+
+    node = next(node for node in _config_tree().body if isinstance(node, ast.Assign)
+                and any(isinstance(t, ast.Name) and t.id == name for t in node.targets))
+    return ast.literal_eval(node.value)
+
+
+@functools.cache
+def train_config_defaults() -> dict:
+    """models.TrainConfig's literal field defaults, read from models/config.py without importing it (torch)."""
+    import ast
+
+    body = next(node.body for node in _config_tree().body if isinstance(node, ast.ClassDef) and node.name == "TrainConfig")
     found = {}
     for node in body:
         if isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name) and node.value is not None:
@@ -102,8 +120,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "cannot tell behaviours apart), annealed = the same posterior assignment, soft and balanced "
                         "over the experts early in training, as sharp as the mixture's from 60%% of the steps on, "
                         "the gate trained towards it at full strength, bounded = annealed with each expert's share "
-                        "kept within 0.5-1.5x an equal one instead of equal; docs/model.md "
-                        f"(default {_default('assignment')})")
+                        "kept within 0.5-1.5x an equal one instead of equal, faded out over 60-80%% of the steps; "
+                        "the best model is kept from where the balancing ends; docs/model.md "
+                        f"(default {_default('assignment')}: commits on shared contexts, keeps the paper's accuracy)")
     m.add_argument("--encoder-widths", type=_widths, default=keep,
                    help=f"encoder layer widths (default {_default('encoder_widths')})")
     m.add_argument("--expert-widths", type=_widths, default=keep,

@@ -205,19 +205,20 @@ def _fit_networks(unit: Sequence[Job], data: list, progress: Progress | None) ->
     if progress is not None and trained() < planned:
         progress.put(planned - trained())
     fit_seconds = (time.perf_counter() - start) / len(unit)
-    return [_scored_network(job, s, qs, config, *finish_fit(t, split), fit_seconds, t.step)
+    return [_scored_network(job, s, qs, config, *finish_fit(t, split), fit_seconds, t.step, t.best_error)
             for job, (s, qs), config, (t, split) in zip(unit, data, configs, prepared)]
 
 
 def _scored_network(job: Job, s, qs: dict, config, model, history: list[dict], fit_seconds: float,
-                    steps: int) -> dict:
+                    steps: int, best_val_error: float) -> dict:
     """A fitted network's results: winner-take-all (and for CNEPs the mixture) on both protocols, with training info
-    (`steps`: the steps it trained, fewer than job.steps after an early stop; `val_curve`: (step, validation error))."""
+    (`steps`: the steps it trained, fewer than job.steps after an early stop; `val_curve`: (step, validation error);
+    `best_val_error`: the kept model's, models.train.Trainer.best_error)."""
     info = {
         "fit_seconds": fit_seconds,
         "steps": steps,
         "val_curve": [(h["step"], h["val_error"]) for h in history],
-        "best_val_error": min(h["val_error"] for h in history),
+        "best_val_error": best_val_error,
         "final_usage": history[-1]["usage"],
         "parameters": sum(p.numel() for p in model.parameters()),
         "expert_widths": list(config.expert_widths),

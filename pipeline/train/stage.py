@@ -162,13 +162,12 @@ def _train(config: TrainStageConfig, procs: Processes, device: torch.device) -> 
 
     if procs.is_main:
         model.load_state_dict(trainer.best_state)
-        best = min(trainer.history, key=lambda h: h["val_error"])
-        summary = {"best_step": best["step"], "best_val_error": best["val_error"], "steps_run": trainer.step,
+        summary = {"best_step": trainer.best_step, "best_val_error": trainer.best_error, "steps_run": trainer.step,
                    "stopped_early": trainer.step < cfg.steps, "elapsed_s": round(elapsed, 3)}
         extra = {key: value for key, value in identity.items() if key != "model"}  # save_checkpoint writes "model"
         save_checkpoint(model, work, {**extra, "result": summary, "log": LOG_FILE})
         publish(work, config.out)
-        log.info("best validation error %.4g at step %d; %d steps in %.1f s -> %s", best["val_error"], best["step"],
+        log.info("best validation error %.4g at step %d; %d steps in %.1f s -> %s", trainer.best_error, trainer.best_step,
                  trainer.step, elapsed, config.out)
     return config.out
 
@@ -189,7 +188,7 @@ def run_identity(config: TrainStageConfig, data: TrainingSet, layout: TrainingLa
         "stage": "train",
         "layout": layout.to_dict(),
         "model": model_config.to_dict(),
-        "training": {**asdict(config.training), "val_fraction": config.val_fraction, "world_size": procs.world_size,
+        "training": {**asdict(config.training.for_assignment(model_config.assignment)), "val_fraction": config.val_fraction, "world_size": procs.world_size,
                      "batch_size_total": config.training.batch_size * procs.world_size},
         "extractor": data.extractor,
         "files": files,

@@ -16,11 +16,11 @@ SCHEDULE = TrainConfig(steps=40, warmup_steps=5, val_every=10, batch_size=16, lr
 
 
 def _runs() -> list[FitRun]:
-    """Four runs of one shape: other seeds, other data, other loss weights (an ablation) or assignment (whose
-    schedule follows the step), one layout with queries."""
+    """Four runs of one shape: other seeds, other data, other loss weights (an ablation) or assignments (whose
+    schedules follow the step and whose gates learn at their own rate), one layout with queries."""
     config = dataclasses.replace(tiny_config(n_experts=3), encoder_widths=(16, 16))
     runs = []
-    losses = [{}, {"assignment": "annealed"}, {"a_batch": 0.0}, {"a_batch": 0.0, "a_ind": 0.0}]
+    losses = [{}, {"assignment": "annealed"}, {"assignment": "bounded"}, {"a_batch": 0.0, "a_ind": 0.0}]
     for seed, loss in enumerate(losses):
         trajs, _ = two_mode_trajectories(n=12, T=30, seed=seed)
         wide = [torch.randn(30, 5, generator=torch.Generator().manual_seed(seed)).numpy() + t for t in trajs]

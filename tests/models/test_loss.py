@@ -5,8 +5,8 @@ import pytest
 import torch
 
 from models.config import CNEPConfig
-from models.loss import (ANNEAL_FRACTION, BALANCE_BOUNDS, SINKHORN_ITERATIONS, annealed_posterior, annealed_sharpness,
-                         balanced, cnep_loss, entropy, expert_nll)
+from models.loss import (ANNEAL_FRACTION, BALANCING, SINKHORN_ITERATIONS, annealed_posterior, annealed_sharpness,
+                         balanced, cnep_loss, entropy, expert_nll, settled_fraction)
 
 
 def test_expert_nll_against_a_hand_computation():
@@ -174,19 +174,25 @@ def _two_sample_example():
     return mean, std, target, mask, gate, (L0, 2), (L1, 1)
 
 
-def _hand_posterior(Ls, ns, ps, progress, bounds=(1.0, 1.0)):
-    """The "annealed" responsibilities by hand: per sample p_e exp(-k L_e) with k = n ** min(1, progress / 0.6),
-    then while annealing 3 rounds of scaling each expert's column into [floor, cap] * B/d (`bounds`; equal
-    shares B/d for "annealed") and each row to 1, else rows to 1."""
+def _hand_posterior(Ls, ns, ps, progress, balancing=BALANCING["annealed"]):
+    """The "annealed" responsibilities by hand: per sample p_e exp(-k L_e) with k = n ** min(1, progress / 0.6);
+    balanced: 3 rounds of scaling each expert's column into [floor, cap] * B/d (equal shares B/d for "annealed")
+    and each row to 1; free: rows to 1; between the balancing's fade_from and until, the rows of
+    balanced^(1 - s) free^s with s = (progress - fade_from) / (until - fade_from)."""
     w = [[p * math.exp(-n ** min(1.0, progress / ANNEAL_FRACTION) * le) for p, le in zip(pi, Li)]
          for Li, n, pi in zip(Ls, ns, ps)]
     B, d = len(w), len(w[0])
-    for _ in range(SINKHORN_ITERATIONS if progress < ANNEAL_FRACTION else 0):
+    free = [[x / sum(row) for x in row] for row in w]
+    if progress >= balancing.until:
+        return free
+    for _ in range(SINKHORN_ITERATIONS):
         column = [sum(w[i][e] for i in range(B)) for e in range(d)]
-        kept = [min(max(c, bounds[0] * B / d), bounds[1] * B / d) for c in column]
+        kept = [min(max(c, balancing.floor * B / d), balancing.cap * B / d) for c in column]
         w = [[w[i][e] * kept[e] / column[e] for e in range(d)] for i in range(B)]
         w = [[x / sum(row) for x in row] for row in w]
-    return [[x / sum(row) for x in row] for row in w]
+    s = (progress - balancing.fade_from) / (balancing.until - balancing.fade_from) if progress > balancing.fade_from else 0.0
+    mixed = [[held ** (1 - s) * f ** s for held, f in zip(hrow, frow)] for hrow, frow in zip(w, free)]
+    return [[x / sum(row) for x in row] for row in mixed]
 
 
 @pytest.mark.parametrize("assignment", ["annealed", "bounded"])
@@ -194,9 +200,10 @@ def test_annealed_term_against_a_hand_computation(assignment):
     cfg = CNEPConfig(n_experts=2, a_rec=1.0, a_batch=0.0, a_ind=0.0, assignment=assignment)
     mean, std, target, mask, gate, (L0, n0), (L1, n1) = _two_sample_example()
     p = gate.tolist()
-    for progress in (0.0, 0.3, 1.0):  # balanced and soft, balanced and sharper, free and as sharp as the mixture
+    # balanced and soft, balanced and sharper, "bounded" halfway through its fade, free and as sharp as the mixture
+    for progress in (0.0, 0.3, 0.7, 1.0):
         _, terms = cnep_loss(mean, std, gate, target, mask, cfg, progress)
-        r = _hand_posterior([L0, L1], [n0, n1], p, progress, BALANCE_BOUNDS[assignment])
+        r = _hand_posterior([L0, L1], [n0, n1], p, progress, BALANCING[assignment])
         rec = [sum(re * (le - math.log(pe)) for re, le, pe in zip(ri, Li, pi)) for ri, Li, pi in zip(r, [L0, L1], p)]
         assert math.isclose(terms["rec"], (rec[0] + rec[1]) / 2 / 2, rel_tol=1e-6)  # mean over samples, then / d
 
@@ -237,12 +244,13 @@ def test_bounded_balancing_keeps_every_experts_share_between_a_floor_and_a_cap()
     # every sample is explained best by expert 0: free, expert 0 takes nearly all of the batch; bounded, no
     # expert takes more than cap * B/d (exactly, once converged) nor less than floor * B/d, each row stays a
     # distribution, and each sample's next best expert takes its mass
-    floor, cap = BALANCE_BOUNDS["bounded"]
+    bounded = BALANCING["bounded"]
+    floor, cap = bounded.floor, bounded.cap
     nll = torch.tensor([[0.0, 2.0, 3.0, 3.0], [0.1, 1.0, 4.0, 3.0], [0.0, 3.0, 1.0, 3.0], [0.2, 2.0, 2.0, 1.5]])
     log_p = torch.full((4, 4), -math.log(4.0))  # B/d = 1
     values = torch.full((4,), 4.0)
-    free = annealed_posterior(log_p, nll, values, 1.0, (floor, cap))
-    held = annealed_posterior(log_p, nll, values, 0.0, (floor, cap))
+    free = annealed_posterior(log_p, nll, values, 1.0, bounded)
+    held = annealed_posterior(log_p, nll, values, 0.0, bounded)
     assert free[:, 0].sum() > 3.9
     torch.testing.assert_close(held.sum(-1), torch.ones(4))
     assert held.sum(0)[0] < cap + 0.05 and (held.sum(0) > floor).all()
@@ -252,8 +260,17 @@ def test_bounded_balancing_keeps_every_experts_share_between_a_floor_and_a_cap()
     assert held.argmax(-1).tolist() == [0, 1, 2, 3]
 
 
+def test_bounded_balancing_fades_out_where_annealed_balancing_stops():
+    bounded, annealed = BALANCING["bounded"], BALANCING["annealed"]
+    assert [bounded.free_weight(p) for p in (0.0, 0.59, 0.6, 0.7, 0.8, 1.0)] == pytest.approx([0, 0, 0, 0.5, 1, 1])
+    assert [annealed.free_weight(p) for p in (0.0, 0.59, 0.6, 1.0)] == [0, 0, 1, 1]
+    # the best model is kept only once the posterior is the final one
+    assert settled_fraction("bounded") == bounded.until and settled_fraction("annealed") == ANNEAL_FRACTION
+    assert settled_fraction("paper") == settled_fraction("mixture") == 0.0
+
+
 def test_bounded_balancing_leaves_shares_between_the_floor_and_the_cap_to_the_posterior():
-    floor, cap = BALANCE_BOUNDS["bounded"]
+    floor, cap = BALANCING["bounded"].floor, BALANCING["bounded"].cap
     log_r = torch.log_softmax(torch.tensor([[2.0, 0.0, 0.0], [0.0, 2.0, 0.0], [0.0, 0.0, 2.0], [1.0, 0.0, 1.0]]), -1)
     shares = log_r.exp().sum(0)  # about 1.42, 1.16, 1.42 of 4 samples: inside [floor, cap] * B/d = [0.67, 2.0]
     assert (shares > floor * 4 / 3).all() and (shares < cap * 4 / 3).all()
@@ -264,9 +281,10 @@ def test_bounded_balancing_leaves_shares_between_the_floor_and_the_cap_to_the_po
 @pytest.mark.parametrize("assignment", ["annealed", "bounded"])
 def test_balancing_of_stacked_models_is_each_models_own(assignment):
     log_r = torch.randn(3, 5, 4, generator=torch.Generator().manual_seed(0))  # k = 3 stacked models, B = 5, d = 4
-    stacked = balanced(log_r, SINKHORN_ITERATIONS, *BALANCE_BOUNDS[assignment])
+    bounds = BALANCING[assignment].floor, BALANCING[assignment].cap
+    stacked = balanced(log_r, SINKHORN_ITERATIONS, *bounds)
     for i in range(3):
-        assert torch.equal(stacked[i], balanced(log_r[i], SINKHORN_ITERATIONS, *BALANCE_BOUNDS[assignment]))
+        assert torch.equal(stacked[i], balanced(log_r[i], SINKHORN_ITERATIONS, *bounds))
 
 
 def test_the_papers_and_the_mixtures_terms_do_not_depend_on_the_training_progress():

@@ -1,10 +1,12 @@
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
 
-from models.config import CNEPConfig, TrainConfig
+from models.config import GATE_LR_SCALES, CNEPConfig, TrainConfig
 from models.errors import ConfigError
-from models.train import Trainer, build_model, fit, lr_factor, split_validation
+from models.train import Trainer, build_model, fit, lr_factor, prepare_fit, split_validation
 from models.sampler import TrajectoryStack
 from tests.models.factories import two_mode_trajectories
 
@@ -53,6 +55,31 @@ def test_gate_learns_at_its_share_of_the_learning_rate(scale):
     moved = {name: float((p.detach() - before[name]).abs().max()) for name, p in model.named_parameters()}
     assert moved["gate.weight"] == pytest.approx(1e-3 * scale, rel=1e-3)
     assert max(v for name, v in moved.items() if not name.startswith("gate.")) == pytest.approx(1e-3, rel=1e-3)
+
+
+@pytest.mark.parametrize("assignment", ["paper", "bounded"])
+def test_the_gates_learning_rate_defaults_to_its_assignments(assignment):
+    trajs, _ = two_mode_trajectories()
+    cfg = TrainConfig(steps=10, warmup_steps=0, gate_freeze_fraction=0.0, lr=1e-3, batch_size=16)
+    assert cfg.gate_lr_scale is None and TrainConfig(gate_lr_scale=0.5).for_assignment(assignment).gate_lr_scale == 0.5
+    model = build_model(CNEPConfig(**SMALL, assignment=assignment), trajs, seed=0)
+    before = model.gate.weight.detach().clone()
+    trainer = Trainer(model, TrajectoryStack(trajs, model), TrajectoryStack(trajs[:4], model), cfg)
+    trainer.train_step()
+    assert trainer.cfg.gate_lr_scale == GATE_LR_SCALES[assignment]
+    assert float((model.gate.weight.detach() - before).abs().max()) == pytest.approx(1e-3 * GATE_LR_SCALES[assignment],
+                                                                                      rel=1e-3)
+
+
+def test_no_model_from_before_the_posterior_settles_is_kept():
+    """"bounded" balances its posterior until 0.8 of the steps: the best model comes from a validation at or after it."""
+    trajs, _ = two_mode_trajectories()
+    cfg = dataclasses.replace(QUICK, val_every=5)
+    trainer, _ = prepare_fit(trajs, CNEPConfig(**SMALL, assignment="bounded"), cfg)
+    trainer.run(progress=False)
+    settled = [h["val_error"] for h in trainer.history if h["step"] >= 0.8 * cfg.steps]
+    assert trainer.best_step >= 0.8 * cfg.steps and trainer.best_error == min(settled)
+    assert min(h["val_error"] for h in trainer.history) < trainer.best_error  # an earlier model was better and not kept
 
 
 def test_learning_rate_warms_up_then_decays():

@@ -9,6 +9,7 @@ import torch
 from safetensors.torch import load_file
 
 from models import Trainer, TrainConfig, load_checkpoint, read_checkpoint_config
+from models.loss import settled_fraction
 from models.sampler import TrajectoryStack
 from pipeline.cli.main import main
 from pipeline.errors import PipelineError
@@ -68,7 +69,9 @@ def test_cli_trains_a_checkpoint_that_loads_and_generates(full_set, tmp_path, ca
     log = [json.loads(line) for line in (out / LOG_FILE).read_text().splitlines()]
     assert [entry["step"] for entry in log] == [10, 20, 30]
     assert {"loss", "rec", "batch_entropy", "ind_entropy", "usage", "val_error"} <= set(log[0])
-    best = min(log, key=lambda e: e["val_error"])
+    assert config["model"]["assignment"] == "bounded" and config["training"]["gate_lr_scale"] == 1.0  # the defaults
+    settled = [e for e in log if e["step"] >= settled_fraction("bounded") * 30]  # the best model is kept from there
+    best = min(settled, key=lambda e: e["val_error"])
     assert config["result"]["best_step"] == best["step"] and config["result"]["best_val_error"] == best["val_error"]
 
     model = load_checkpoint(out)
