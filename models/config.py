@@ -69,7 +69,7 @@ def authors_coefficients(n_experts: int) -> tuple[float, float, float]:
 # The reconstruction terms of the loss (models.loss.reconstruction): "paper" = mean_i (1/d) sum_e p_ie L_ie,
 # "mixture" = mean_i (1/(d n_i)) (-log sum_e p_ie exp(-S_ie)), "annealed" = EM on the posterior annealed
 # from soft to the mixture's, balanced over the experts while it anneals, "bounded" = the same with the balancing
-# bounded (every expert's share between 0.5 and 1.5 x B/d) instead of equal.
+# bounded (every expert's share between 0.5 and 1.5 x B/d) instead of equal, and faded out instead of stopped.
 ASSIGNMENTS = ("paper", "mixture", "annealed", "bounded")
 # The gate's learning rate as a fraction of the network's (TrainConfig.gate_lr_scale left None), per assignment.
 # The paper's term moves the gate by p (L - mean L) / d and the mixture's by (p - r) / (d n_i): 0.3 was measured

@@ -175,7 +175,10 @@ class Trainer:
         self.generator.set_state(state["generator"])
         self.step, self.best_error = state["step"], state["best_error"]
         self.best_state, self.history = state["best_state"], state["history"]
-        self.best_step = state.get("best_step", min(self.history, key=lambda h: h["val_error"])["step"] if self.history else 0)
+        if "best_step" in state:
+            self.best_step = state["best_step"]
+        elif self.history:  # saved before best_step was recorded: every validation could be kept then
+            self.best_step = min(self.history, key=lambda h: h["val_error"])["step"]
 
     def run(self, progress: bool = True, until: int | None = None) -> None:
         """Train up to step `until` (default: all steps), validating every `val_every` steps."""
