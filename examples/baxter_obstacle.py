@@ -3,7 +3,7 @@
     python examples/baxter_obstacle.py PATH/TO/data/baxter/first [--goal] [--steps N] [--seed N]
 
 PATH holds `start_end/*.csv` (the two demonstrations) and the test recordings `0.csv` ... `6.csv`;
-it is only read. Trains a CNMP and a 2-expert CNEP per loss assignment (paper, mixture, annealed), and prints,
+it is only read. Trains a CNMP and a 2-expert CNEP per loss assignment (paper, mixture, annealed, bounded), and prints,
 per test start point and model (CNMP, CNEP and CNEP-MoE of each assignment), the generated path's
 distance to the nearest demonstration and whether the generated path / the path executed by the
 paper's PID controller from the real start enters the box x in [0.71, 0.95] m, y in [-0.36, -0.24] m.
