@@ -85,14 +85,20 @@ class TrainStageConfig:
 
 @dataclass
 class StageTrainer(Trainer):
-    """`models.Trainer` that reports every step to `on_step(step, terms)` (the progress bar)."""
+    """`models.Trainer` that reports every step to `on_step(trainer, terms)` (the progress bar).
 
-    on_step: Callable[[int, dict], None] | None = None
+    The callback is handed the trainer rather than closing over it: a trainer that refers to itself
+    through its callback lives on in a reference cycle, and so does the DistributedDataParallel wrapper
+    with its process group. Collected only at interpreter exit, gloo's threads were torn down while
+    Python finalised and the process aborted ("terminate called without an active exception", CI).
+    """
+
+    on_step: Callable[[Trainer, dict], None] | None = None
 
     def train_step(self) -> dict[str, float]:
         terms = super().train_step()
         if self.on_step is not None:
-            self.on_step(self.step, terms)
+            self.on_step(self, terms)
         return terms
 
 
@@ -148,7 +154,7 @@ def _train(config: TrainStageConfig, procs: Processes, device: torch.device) -> 
     work, cfg = work_dir(config.out), config.training
     clock = time.perf_counter() - elapsed  # training time (s) counts across resumes, reading the files does not
     with progress_bar(trainer, disabled=config.quiet or not procs.is_main) as bar:
-        trainer.on_step = lambda step, terms: report_step(bar, trainer, terms, time.perf_counter() - clock)
+        trainer.on_step = lambda stepped, terms: report_step(bar, stepped, terms, time.perf_counter() - clock)
         try:
             while trainer.step < cfg.steps and not trainer.should_stop():
                 trainer.run(progress=False, until=(trainer.step // config.save_every + 1) * config.save_every)

@@ -1,5 +1,7 @@
+import gc
 import os
 import subprocess
+import weakref
 import sys
 from pathlib import Path
 
@@ -7,11 +9,14 @@ import numpy as np
 import pytest
 import torch
 from safetensors.torch import load_file
+from torch import distributed as dist
 
 from models import load_checkpoint, read_checkpoint_config
 from pipeline.cli.main import main
+from pipeline.train import stage
+from pipeline.train.parallel import Processes
 from recordings import read_trajectory
-from tests.pipeline.test_train import write_set
+from tests.pipeline.test_train import stage_config, write_set
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # tiny models run on one thread
 
@@ -45,3 +50,31 @@ def test_two_process_torchrun_trains_a_loadable_checkpoint(tmp_path):
     assert single["model"] == config["model"]
     two, one = load_file(out / "model.safetensors"), load_file(alone / "model.safetensors")
     assert any(not torch.equal(two[k], one[k]) for k in one)
+
+
+def test_training_frees_its_ddp_wrapper_before_the_interpreter_exits(tmp_path, monkeypatch):
+    """A wrapper left in a reference cycle is collected at interpreter exit, where gloo's threads abort the process.
+
+    Rank 0 of a real gloo group of one process, told it is one of two so that the model is wrapped in
+    DistributedDataParallel; the cyclic garbage collector is off, so only reference counts free it.
+    """
+    wrappers = []
+
+    class Recorded(torch.nn.parallel.DistributedDataParallel):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            wrappers.append(weakref.ref(self))
+
+    dist.init_process_group("gloo", init_method=f"file://{tmp_path / 'store'}", rank=0, world_size=1)
+    monkeypatch.setattr(stage, "start_processes", lambda device: (Processes(rank=0, world_size=2), torch.device("cpu")))
+    monkeypatch.setattr(torch.nn.parallel, "DistributedDataParallel", Recorded)
+    was_enabled = gc.isenabled()
+    gc.disable()
+    try:
+        stage.train(stage_config(write_set(tmp_path / "data"), tmp_path / "out", steps=20))
+    finally:
+        if was_enabled:
+            gc.enable()
+        if dist.is_initialized():
+            dist.destroy_process_group()
+    assert len(wrappers) == 1 and wrappers[0]() is None
