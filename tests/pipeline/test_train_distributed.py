@@ -1,8 +1,8 @@
 import gc
 import os
 import subprocess
-import weakref
 import sys
+import weakref
 from pathlib import Path
 
 import numpy as np
