@@ -20,7 +20,7 @@ import subprocess
 import sys
 import time
 
-from pipeline.workers import SMALL_MODEL_MALLOC
+from cnep.pipeline.workers import SMALL_MODEL_MALLOC
 
 
 def measure(n_experts: int, k: int, steps: int) -> dict[str, float]:
@@ -28,7 +28,7 @@ def measure(n_experts: int, k: int, steps: int) -> dict[str, float]:
     import torch
 
     from benchmarks.bench_training import trainers
-    from models.batched import BatchedTrainer
+    from cnep.models.batched import BatchedTrainer
 
     torch.set_num_threads(1)
     sequential, batched = trainers(n_experts, k), BatchedTrainer(trainers(n_experts, k))

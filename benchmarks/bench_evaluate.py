@@ -20,11 +20,11 @@ from collections import defaultdict
 
 import torch
 
-from models import TrainConfig
-from models.train import prepare_fit
-from pipeline.evaluate.constants import JOBS, TABLES
-from pipeline.evaluate.jobs import Job, _scored_network, model_config, queries, run_job
-from pipeline.evaluate.stage import EvaluateConfig, plan
+from cnep.models import TrainConfig
+from cnep.models.train import prepare_fit
+from cnep.pipeline.evaluate.constants import JOBS, TABLES
+from cnep.pipeline.evaluate.jobs import Job, _scored_network, model_config, queries, run_job
+from cnep.pipeline.evaluate.stage import EvaluateConfig, plan
 
 WARMUP_STEPS = 20
 

@@ -20,10 +20,10 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from models import CNEP, CNEPConfig
-from models.loss import cnep_loss
-from models.sampler import TrajectoryStack, sample_batch
-from models.synthetic import make_set
+from cnep.models import CNEP, CNEPConfig
+from cnep.models.loss import cnep_loss
+from cnep.models.sampler import TrajectoryStack, sample_batch
+from cnep.models.synthetic import make_set
 
 SYNTHETIC_SET = "multimodal"
 TOLERANCE = {"rtol": 1e-4, "atol": 1e-5}

@@ -25,9 +25,9 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.bench_perception import jpeg_frames, synthetic_frames
-from perception import FeatureExtractor
-from pipeline.extract.stage import ExtractConfig, extract
-from recordings import Demonstration, Episode, write_demonstration
+from cnep.perception import FeatureExtractor
+from cnep.pipeline.extract.stage import ExtractConfig, extract
+from cnep.recordings import Demonstration, Episode, write_demonstration
 
 
 def write_demos(folder: Path, files: int, frames: int) -> list[Path]:

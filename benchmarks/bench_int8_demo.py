@@ -27,11 +27,11 @@ from unittest import mock
 
 import numpy as np
 
-from pipeline.demo import stage
-from pipeline.demo.generator import LABEL_KEY
-from pipeline.demo.scene import BEHAVIOURS
-from pipeline.demo.stage import SUMMARY_FILE, DemoConfig, run_demo
-from recordings import read_demonstration, read_trajectory
+from cnep.pipeline.demo import stage
+from cnep.pipeline.demo.generator import LABEL_KEY
+from cnep.pipeline.demo.scene import BEHAVIOURS
+from cnep.pipeline.demo.stage import SUMMARY_FILE, DemoConfig, run_demo
+from cnep.recordings import read_demonstration, read_trajectory
 
 PRECISIONS = ("fp32", "int8")
 

@@ -4,8 +4,8 @@ Run on demand:
     python -m benchmarks.bench_lerobot [--episodes 50] [--steps 30] [--size 96] [--version v3.0] [--threads 1]
 
 Builds a synthetic dataset with the test fixture builder (tests/recordings/lerobot_sources.py: H.264
-video, one camera, an 8-value state vector), then runs `python -m pipeline ingest` and
-`python -m pipeline extract` (random weights, calibrated on the frames; ImageNet weights give the same
+video, one camera, an 8-value state vector), then runs `python -m cnep.pipeline ingest` and
+`python -m cnep.pipeline extract` (random weights, calibrated on the frames; ImageNet weights give the same
 network cost) with stderr redirected to a file, the way a CI log sees it. Reports wall seconds per stage,
 frames per second, and the number of lines the extract stage wrote to that log.
 """
@@ -46,7 +46,7 @@ def main() -> None:
     build_lerobot(work / "dataset", args.version, episodes=args.episodes, steps=args.steps, size=args.size)
     built = time.perf_counter() - start
     frames = args.episodes * args.steps
-    python = [sys.executable, "-m", "pipeline"]
+    python = [sys.executable, "-m", "cnep.pipeline"]
     ingest_s = timed([*python, "ingest", str(work / "dataset"), "--out", str(work / "demos")], work / "ingest.log", env)
     extract_s = timed([*python, "extract", str(work / "demos"), "--out", str(work / "traj"), "--weights", "random",
                        "--backend", "eager", "--threads", str(args.threads)], work / "extract.log", env)

@@ -25,7 +25,7 @@ import time
 import numpy as np
 import torch
 
-from models import CNEPConfig, ConditioningPolicy, Layout, OnlineConditioner, build_model
+from cnep.models import CNEPConfig, ConditioningPolicy, Layout, OnlineConditioner, build_model
 
 TARGET_P99_MS = 2.0  # from issue 5
 WIDTH = 1288

@@ -25,9 +25,9 @@ import torch
 from torchvision.models import mobilenet_v2
 from torchvision.transforms.v2 import functional as tvf
 
-from perception import FeatureExtractor, available_backends
-from pipeline.extract.stage import decode_batch, features_of_frames
-from perception.constants import DEFAULT_BATCH_SIZE, IMAGE_SIZE, IMAGENET_MEAN, IMAGENET_STD
+from cnep.perception import FeatureExtractor, available_backends
+from cnep.pipeline.extract.stage import decode_batch, features_of_frames
+from cnep.perception.constants import DEFAULT_BATCH_SIZE, IMAGE_SIZE, IMAGENET_MEAN, IMAGENET_STD
 
 GFLOP_PER_FRAME = 0.6  # MobileNet-v2 features at 224x224: ~0.3 G multiply-adds
 FRAME_HW = (480, 640)  # a typical camera frame

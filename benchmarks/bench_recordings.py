@@ -22,9 +22,9 @@ from unittest import mock
 
 import numpy as np
 
-import recordings.writers
-from recordings import Episode, Trajectory, read_trajectory, write_trajectory
-from recordings.constants import KIND_TRAJECTORY, STEP_DIM
+import cnep.recordings.writers
+from cnep.recordings import Episode, Trajectory, read_trajectory, write_trajectory
+from cnep.recordings.constants import KIND_TRAJECTORY, STEP_DIM
 
 READ_TARGET = 50_000  # steps/s, from issue 3
 
@@ -75,7 +75,7 @@ def main() -> None:
         for compression in ("lz4", "zstd"):
             path = d / f"traj_{compression}.mcap"
             by_kind = {KIND_TRAJECTORY: compression}
-            with mock.patch.object(recordings.writers, "COMPRESSION_BY_KIND", by_kind):  # zstd for comparison only
+            with mock.patch.object(cnep.recordings.writers, "COMPRESSION_BY_KIND", by_kind):  # zstd for comparison only
                 write_s = best_seconds(lambda: write_trajectory(path, traj), args.repeats)
             back = read_trajectory(path)
             assert np.array_equal(back.data, traj.data), "round trip changed the data"

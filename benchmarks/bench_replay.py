@@ -25,11 +25,11 @@ import cv2
 import numpy as np
 import torch
 
-from models import CNEPConfig, ConditioningPolicy, Layout, build_model, load_checkpoint, save_checkpoint
-import pipeline.replay.layout as L
-from pipeline.replay.stage import RowMapping, decide, replay, switch_text, write_recording
-from recordings import Episode, Trajectory, read_trajectory, write_trajectory
-from recordings.constants import STEP_DIM
+from cnep.models import CNEPConfig, ConditioningPolicy, Layout, build_model, load_checkpoint, save_checkpoint
+import cnep.pipeline.replay.layout as L
+from cnep.pipeline.replay.stage import RowMapping, decide, replay, switch_text, write_recording
+from cnep.recordings import Episode, Trajectory, read_trajectory, write_trajectory
+from cnep.recordings.constants import STEP_DIM
 
 
 def best_seconds(fn: Callable[[], object], repeats: int) -> float:

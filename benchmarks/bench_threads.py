@@ -33,13 +33,13 @@ import numpy as np
 import torch
 
 from benchmarks.bench_perception import extractor_path, naive_loop, synthetic_frames
-from models import CNEPConfig, TrainConfig
-from models.synthetic import make_set
-from models.train import prepare_fit
-from perception import FeatureExtractor, available_backends, resize_frames
-from perception.constants import DEFAULT_BATCH_SIZE
-from perception.backends import onnx_model, session_options
-from pipeline.workers import inference_threads
+from cnep.models import CNEPConfig, TrainConfig
+from cnep.models.synthetic import make_set
+from cnep.models.train import prepare_fit
+from cnep.perception import FeatureExtractor, available_backends, resize_frames
+from cnep.perception.constants import DEFAULT_BATCH_SIZE
+from cnep.perception.backends import onnx_model, session_options
+from cnep.pipeline.workers import inference_threads
 
 
 def busy_training(parent: int) -> None:
@@ -120,7 +120,7 @@ def spinning_report(frames: np.ndarray, threads: int) -> str:
     """CPU seconds burnt while idle by each runtime's session with `threads` threads (see idle_cpu_seconds)."""
     import onnxruntime as ort
 
-    from perception.backends import onnxruntime_runner, openvino_runner
+    from cnep.perception.backends import onnxruntime_runner, openvino_runner
 
     extractor = FeatureExtractor("random", threads=threads)
     extractor.calibrate(frames[:8])

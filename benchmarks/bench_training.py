@@ -21,10 +21,10 @@ import time
 
 import torch
 
-from models import CNEPConfig, TrainConfig
-from models.batched import BatchedTrainer
-from models.synthetic import make_set
-from models.train import Trainer, prepare_fit
+from cnep.models import CNEPConfig, TrainConfig
+from cnep.models.batched import BatchedTrainer
+from cnep.models.synthetic import make_set
+from cnep.models.train import Trainer, prepare_fit
 
 SYNTHETIC_SET = "multimodal"
 

@@ -30,8 +30,8 @@ def main(argv: list[str] | None = None) -> int:
 
     import torch
 
-    from pipeline.evaluate.baxter import BaxterConfig, format_table, run_baxter
-    from pipeline.errors import USER_ERRORS
+    from cnep.pipeline.evaluate.baxter import BaxterConfig, format_table, run_baxter
+    from cnep.pipeline.errors import USER_ERRORS
 
     torch.set_num_threads(1)  # small networks: one thread is fastest and leaves the other core free
     config = BaxterConfig(data=Path(args.data), work=Path(args.work) if args.work else None, steps=args.steps,

@@ -22,9 +22,9 @@ import numpy as np
 import torch
 from torch import nn
 
-from models import CNEP, CNEPConfig
-from models.cnep import mlp
-from pipeline.evaluate.jobs import queries
+from cnep.models import CNEP, CNEPConfig
+from cnep.models.cnep import mlp
+from cnep.pipeline.evaluate.jobs import queries
 
 BATCH = 64
 HIDDEN = 256

@@ -3,12 +3,12 @@
 Takes numpy arrays, never files or images.
 """
 
-from models.checkpoint import load_checkpoint, read_checkpoint_config, save_checkpoint
-from models.cnep import CNEP, Prediction
-from models.config import CNEPConfig, Layout, TrainConfig, authors_coefficients
-from models.errors import ConfigError
-from models.matched import matched_cnmp, parameter_count
-from models.train import Trainer, build_model, fit
+from cnep.models.checkpoint import load_checkpoint, read_checkpoint_config, save_checkpoint
+from cnep.models.cnep import CNEP, Prediction
+from cnep.models.config import CNEPConfig, Layout, TrainConfig, authors_coefficients
+from cnep.models.errors import ConfigError
+from cnep.models.matched import matched_cnmp, parameter_count
+from cnep.models.train import Trainer, build_model, fit
 
 __all__ = [
     "CNEP",
@@ -28,7 +28,7 @@ __all__ = [
     "save_checkpoint",
 ]
 
-from models.online import ConditioningPolicy, ExpertSwitch, OnlineConditioner, OnlineStep  # noqa: E402
-from models.pid import PIDGains, pid_track  # noqa: E402
+from cnep.models.online import ConditioningPolicy, ExpertSwitch, OnlineConditioner, OnlineStep  # noqa: E402
+from cnep.models.pid import PIDGains, pid_track  # noqa: E402
 
 __all__ += ["ConditioningPolicy", "ExpertSwitch", "OnlineConditioner", "OnlineStep", "PIDGains", "pid_track"]

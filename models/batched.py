@@ -31,11 +31,11 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from models.cnep import CNEP
-from models.config import CNEPConfig, TrainConfig
-from models.errors import ConfigError
-from models.loss import loss_terms
-from models.train import Trainer, finish_fit, make_optimizer, prepare_fit, set_learning_rate
+from cnep.models.cnep import CNEP
+from cnep.models.config import CNEPConfig, TrainConfig
+from cnep.models.errors import ConfigError
+from cnep.models.loss import loss_terms
+from cnep.models.train import Trainer, finish_fit, make_optimizer, prepare_fit, set_learning_rate
 
 # What must agree for two networks to stack (the loss weights a_rec, a_batch, a_ind may differ).
 ARCHITECTURE_FIELDS = ("layout", "n_experts", "encoder_widths", "expert_widths", "min_std", "time_frequencies")

@@ -15,9 +15,9 @@ import os
 import tempfile
 from pathlib import Path
 
-from models.cnep import CNEP
-from models.config import CNEPConfig
-from models.errors import ConfigError
+from cnep.models.cnep import CNEP
+from cnep.models.config import CNEPConfig
+from cnep.models.errors import ConfigError
 
 FORMAT_VERSION = 1
 CONFIG_FILE = "config.json"

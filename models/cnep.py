@@ -19,9 +19,9 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from models.config import CNEPConfig, span_indices
-from models.errors import ConfigError
-from models.normaliser import Normaliser
+from cnep.models.config import CNEPConfig, span_indices
+from cnep.models.errors import ConfigError
+from cnep.models.normaliser import Normaliser
 
 
 def mlp(widths: list[int]) -> nn.Sequential:

@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass, field, fields, replace
 
-from models.errors import ConfigError
+from cnep.models.errors import ConfigError
 
 Spans = tuple[tuple[int, int], ...]
 

@@ -57,7 +57,7 @@ from dataclasses import dataclass
 
 import torch
 
-from models.config import CNEPConfig
+from cnep.models.config import CNEPConfig
 
 _TINY = 1e-12
 _HALF_LOG_2PI = 0.5 * math.log(2 * math.pi)

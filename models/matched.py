@@ -12,9 +12,9 @@ import dataclasses
 
 import torch
 
-from models.cnep import CNEP
-from models.config import CNEPConfig
-from models.errors import ConfigError
+from cnep.models.cnep import CNEP
+from cnep.models.config import CNEPConfig
+from cnep.models.errors import ConfigError
 
 MAX_WIDTH = 8192
 

@@ -12,7 +12,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from models.errors import ConfigError
+from cnep.models.errors import ConfigError
 
 
 class Normaliser(nn.Module):

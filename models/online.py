@@ -25,8 +25,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from models.cnep import CNEP
-from models.errors import ConfigError
+from cnep.models.cnep import CNEP
+from cnep.models.errors import ConfigError
 
 
 @dataclass(frozen=True)

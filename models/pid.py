@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from models.errors import ConfigError
+from cnep.models.errors import ConfigError
 
 
 @dataclass(frozen=True)

@@ -24,11 +24,11 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from models.cnep import CNEP
-from models.config import CNEPConfig, TrainConfig
-from models.errors import ConfigError
-from models.loss import cnep_loss, settled_fraction
-from models.sampler import Batch, TrajectoryStack, sample_batch
+from cnep.models.cnep import CNEP
+from cnep.models.config import CNEPConfig, TrainConfig
+from cnep.models.errors import ConfigError
+from cnep.models.loss import cnep_loss, settled_fraction
+from cnep.models.sampler import Batch, TrajectoryStack, sample_batch
 
 log = logging.getLogger(__name__)
 

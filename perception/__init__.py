@@ -1,11 +1,11 @@
 """Perception: RGB frames (numpy, any size) -> 1280-d MobileNet-v2 features (numpy). See docs/perception.md."""
 
-from perception.backends import available_backends
-from perception.constants import FEATURE_DIM, IMAGE_SIZE
-from perception.errors import PerceptionError
-from perception.extractor import FeatureExtractor, compatibility_key
-from perception.frames import decode_image, resize_frames
-from perception.weights import find_imagenet_weights, resolve_weights, state_dict_sha256
+from cnep.perception.backends import available_backends
+from cnep.perception.constants import FEATURE_DIM, IMAGE_SIZE
+from cnep.perception.errors import PerceptionError
+from cnep.perception.extractor import FeatureExtractor, compatibility_key
+from cnep.perception.frames import decode_image, resize_frames
+from cnep.perception.weights import find_imagenet_weights, resolve_weights, state_dict_sha256
 
 __all__ = [
     "FEATURE_DIM",

@@ -23,8 +23,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from perception.constants import BACKEND_MODULES, BACKENDS, CACHE_ENV_VAR, IMAGE_SIZE, ONNX_OPSET
-from perception.errors import PerceptionError
+from cnep.perception.constants import BACKEND_MODULES, BACKENDS, CACHE_ENV_VAR, IMAGE_SIZE, ONNX_OPSET
+from cnep.perception.errors import PerceptionError
 
 Runner = Callable[[np.ndarray], np.ndarray]
 INSTALL_HINT = "onnxruntime needs: pip install 'cnep-pipeline[onnx]'; openvino: pip install 'cnep-pipeline[openvino]'"

@@ -26,7 +26,7 @@ import torch
 from torch import nn
 from torchvision.ops.misc import Conv2dNormActivation
 
-from perception.errors import PerceptionError
+from cnep.perception.errors import PerceptionError
 
 ACTIVATION_BIAS = 2.0  # batch-norm shift before each ReLU6, in standard deviations (measured: docs/perception.md)
 

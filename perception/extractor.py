@@ -7,16 +7,16 @@ from pathlib import Path
 
 import numpy as np
 
-from perception.backends import (INSTALL_HINT, Runner, available_backends, build_runner, onnx_model,
+from cnep.perception.backends import (INSTALL_HINT, Runner, available_backends, build_runner, onnx_model,
                                   onnxruntime_runner, openvino_runner)
-from perception.calibration import ACTIVATION_BIAS, calibrate_random_network
-from perception.constants import (ARCHITECTURE, CALIBRATION_BATCH, COMPATIBILITY_FIELDS, CUDA_BATCH_SIZE,
+from cnep.perception.calibration import ACTIVATION_BIAS, calibrate_random_network
+from cnep.perception.constants import (ARCHITECTURE, CALIBRATION_BATCH, COMPATIBILITY_FIELDS, CUDA_BATCH_SIZE,
                                   DEFAULT_BATCH_SIZE, FEATURE_DIM, INT8_BACKENDS, PRECISIONS, PREPROCESSING)
-from perception.errors import PerceptionError
-from perception.frames import resize_frames
-from perception.network import FeatureNet, mobilenet_v2_features
-from perception.quantisation import QUANTISATION, pixels_sha256, quantise_int8
-from perception.weights import resolve_weights, save_state_dict, state_dict_sha256
+from cnep.perception.errors import PerceptionError
+from cnep.perception.frames import resize_frames
+from cnep.perception.network import FeatureNet, mobilenet_v2_features
+from cnep.perception.quantisation import QUANTISATION, pixels_sha256, quantise_int8
+from cnep.perception.weights import resolve_weights, save_state_dict, state_dict_sha256
 
 log = logging.getLogger(__name__)
 

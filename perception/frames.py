@@ -5,8 +5,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from perception.constants import IMAGE_SIZE
-from perception.errors import PerceptionError
+from cnep.perception.constants import IMAGE_SIZE
+from cnep.perception.errors import PerceptionError
 
 
 def decode_image(data: bytes) -> np.ndarray:

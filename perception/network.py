@@ -6,7 +6,7 @@ import torch
 from torch import nn
 from torchvision.models import mobilenet_v2
 
-from perception.constants import IMAGENET_MEAN, IMAGENET_STD
+from cnep.perception.constants import IMAGENET_MEAN, IMAGENET_STD
 
 
 def mobilenet_v2_features() -> nn.Module:

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from perception.backends import cache_path, write_cache_file
+from cnep.perception.backends import cache_path, write_cache_file
 
 QUANTISATION = "onnxruntime static QDQ, weights int8 per channel, activations uint8 per tensor, min-max"
 

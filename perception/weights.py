@@ -23,9 +23,9 @@ from pathlib import Path
 import torch
 from tqdm import tqdm
 
-from perception.constants import DOWNLOAD_TIMEOUT_S, IMAGENET_WEIGHT_FILES, OFFLINE_ENV_VAR, WEIGHTS_ENV_VAR
-from perception.errors import PerceptionError
-from perception.network import mobilenet_v2_features
+from cnep.perception.constants import DOWNLOAD_TIMEOUT_S, IMAGENET_WEIGHT_FILES, OFFLINE_ENV_VAR, WEIGHTS_ENV_VAR
+from cnep.perception.errors import PerceptionError
+from cnep.perception.network import mobilenet_v2_features
 
 _FEATURES_PREFIX = "features."  # keys of a full torchvision mobilenet_v2 state dict
 HASH_PREFIX = re.compile(r"-([a-f0-9]*)\.")  # torchvision file names end in -<first hex digits of the sha256>.pth

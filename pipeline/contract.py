@@ -29,7 +29,7 @@ import traceback
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
-from pipeline.errors import PipelineError, loaded_user_errors
+from cnep.pipeline.errors import PipelineError, loaded_user_errors
 
 EXIT_OK = 0
 EXIT_BUG = 1

@@ -10,8 +10,8 @@ Public API (stable; see docs/recordings.md for the file contract):
     constants    recordings.constants (topics, schemas, LAYOUT_FULL, LAYOUT_MOTION, FORMAT_VERSION, ...)
 """
 
-from recordings import constants
-from recordings.constants import (
+from cnep.recordings import constants
+from cnep.recordings.constants import (
     FEATURE_DIM,
     FORMAT_VERSION,
     LAYOUT_FULL,
@@ -19,11 +19,11 @@ from recordings.constants import (
     MOTION_DIM,
     STEP_DIM,
 )
-from recordings.errors import RecordingError
-from recordings.events import add_events, read_events
-from recordings.readers import DemonstrationReader, TrajectoryReader, read_demonstration, read_trajectory
-from recordings.records import Demonstration, Episode, Event, Trajectory
-from recordings.writers import DemonstrationWriter, TrajectoryWriter, write_demonstration, write_trajectory
+from cnep.recordings.errors import RecordingError
+from cnep.recordings.events import add_events, read_events
+from cnep.recordings.readers import DemonstrationReader, TrajectoryReader, read_demonstration, read_trajectory
+from cnep.recordings.records import Demonstration, Episode, Event, Trajectory
+from cnep.recordings.writers import DemonstrationWriter, TrajectoryWriter, write_demonstration, write_trajectory
 
 __all__ = [
     "FEATURE_DIM",

@@ -19,11 +19,11 @@ from pathlib import Path
 
 import numpy as np
 
-from recordings.csv_motion import CsvColumns, MotionTable, read_motion_csv
-from recordings.errors import RecordingError
-from recordings.interpolate import interpolate_linear, slerp
-from recordings.media import VIDEO_SUFFIXES, numbered_images, read_images, read_video
-from recordings.records import Demonstration, Episode
+from cnep.recordings.csv_motion import CsvColumns, MotionTable, read_motion_csv
+from cnep.recordings.errors import RecordingError
+from cnep.recordings.interpolate import interpolate_linear, slerp
+from cnep.recordings.media import VIDEO_SUFFIXES, numbered_images, read_images, read_video
+from cnep.recordings.records import Demonstration, Episode
 
 log = logging.getLogger(__name__)
 

@@ -27,8 +27,8 @@ from mcap.records import Attachment, Channel, Chunk, DataEnd, Footer, Header, Me
 from mcap.stream_reader import get_chunk_data_stream
 from mcap.writer import CompressionType, Writer
 
-from recordings.constants import CHUNK_SIZE_BYTES, COMPRESSION_BY_KIND, DEFAULT_COMPRESSION, LIBRARY_NAME, METADATA_EPISODE
-from recordings.errors import RecordingError
+from cnep.recordings.constants import CHUNK_SIZE_BYTES, COMPRESSION_BY_KIND, DEFAULT_COMPRESSION, LIBRARY_NAME, METADATA_EPISODE
+from cnep.recordings.errors import RecordingError
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 _RECORD_HEAD = struct.Struct("<BQ")  # opcode, body length

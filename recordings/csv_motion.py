@@ -18,7 +18,7 @@ from typing import Mapping
 
 import numpy as np
 
-from recordings.errors import RecordingError
+from cnep.recordings.errors import RecordingError
 
 NS_PER_UNIT = {"s": 1e9, "ms": 1e6, "us": 1e3, "ns": 1.0}
 

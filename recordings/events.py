@@ -16,12 +16,12 @@ from typing import Sequence
 
 from mcap.records import Channel, Message, Schema
 
-from recordings.constants import SCHEMA_EVENT, TOPIC_EVENTS
-from recordings.container import read_mcap, refuse_overwrite_input, rewrite_mcap
-from recordings.errors import RecordingError
-from recordings.readers import in_file
-from recordings.records import Event
-from recordings.schemas import FOXGLOVE_CLASSES, decode_event, encode_event, schema_data
+from cnep.recordings.constants import SCHEMA_EVENT, TOPIC_EVENTS
+from cnep.recordings.container import read_mcap, refuse_overwrite_input, rewrite_mcap
+from cnep.recordings.errors import RecordingError
+from cnep.recordings.readers import in_file
+from cnep.recordings.records import Event
+from cnep.recordings.schemas import FOXGLOVE_CLASSES, decode_event, encode_event, schema_data
 
 
 def add_events(src: str | os.PathLike, dst: str | os.PathLike, events: Sequence[Event]) -> Path:

@@ -12,17 +12,17 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from recordings.constants import (
+from cnep.recordings.constants import (
     CHANNEL_KEY_LAYOUT,
     KIND_DEMONSTRATION,
     KIND_TRAJECTORY,
     METADATA_EPISODE,
     TOPIC_IMAGE,
 )
-from recordings.container import read_mcap
-from recordings.errors import RecordingError
-from recordings.media import first_undecodable
-from recordings.readers import demonstration_from, trajectory_from
+from cnep.recordings.container import read_mcap
+from cnep.recordings.errors import RecordingError
+from cnep.recordings.media import first_undecodable
+from cnep.recordings.readers import demonstration_from, trajectory_from
 
 NS_PER_S = 1e9
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from recordings.errors import RecordingError
+from cnep.recordings.errors import RecordingError
 
 
 def _bracket(t_src: np.ndarray, t_query: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -32,10 +32,10 @@ from typing import Any
 
 import numpy as np
 
-from recordings.errors import RecordingError
-from recordings.lerobot_columns import NS_PER_S, LerobotMapping, motion_of_rows, resolve_columns
-from recordings.media import as_jpeg, video_frames_at
-from recordings.records import Demonstration, Episode
+from cnep.recordings.errors import RecordingError
+from cnep.recordings.lerobot_columns import NS_PER_S, LerobotMapping, motion_of_rows, resolve_columns
+from cnep.recordings.media import as_jpeg, video_frames_at
+from cnep.recordings.records import Demonstration, Episode
 
 SUPPORTED_VERSIONS = ("v2.1", "v3.0")
 TOLERANCE_S = 1e-4  # largest gap between a Parquet timestamp and its video frame (LeRobot's default)

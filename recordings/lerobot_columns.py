@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from recordings.errors import RecordingError
+from cnep.recordings.errors import RecordingError
 
 NS_PER_S = 1_000_000_000
 # Pose names recognised without --pose: xyz + quaternion xyzw, or xyz + roll/pitch/yaw (radians).

@@ -27,12 +27,12 @@ from foxglove_schemas_protobuf.JointStates_pb2 import JointStates
 from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
 
-from recordings.adapters import median_rate, motion_at
-from recordings.container import McapContents, read_mcap
-from recordings.errors import RecordingError
-from recordings.media import as_jpeg, encode_raw_image
-from recordings.readers import in_file
-from recordings.records import Demonstration, Episode
+from cnep.recordings.adapters import median_rate, motion_at
+from cnep.recordings.container import McapContents, read_mcap
+from cnep.recordings.errors import RecordingError
+from cnep.recordings.media import as_jpeg, encode_raw_image
+from cnep.recordings.readers import in_file
+from cnep.recordings.records import Demonstration, Episode
 
 log = logging.getLogger(__name__)
 

@@ -12,9 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
-from recordings.constants import JPEG_QUALITY
-from recordings.errors import RecordingError
-from recordings.validation import JPEG_MAGIC
+from cnep.recordings.constants import JPEG_QUALITY
+from cnep.recordings.errors import RecordingError
+from cnep.recordings.validation import JPEG_MAGIC
 
 VIDEO_SUFFIXES = frozenset({".mp4", ".avi", ".mov", ".mkv"})
 IMAGE_SUFFIXES = frozenset({".jpg", ".jpeg", ".png", ".bmp"})

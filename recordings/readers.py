@@ -20,7 +20,7 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from recordings.constants import (
+from cnep.recordings.constants import (
     CHANNEL_KEY_LAYOUT,
     CHANNEL_KEY_WIDTH,
     IMAGE_FORMAT,
@@ -34,17 +34,17 @@ from recordings.constants import (
     TOPIC_POSE,
     TOPIC_TRAJECTORY,
 )
-from recordings.container import CORRUPTION_ERRORS, McapContents, read_mcap
-from recordings.errors import RecordingError
-from recordings.records import RESERVED_EPISODE_KEYS, Demonstration, Episode, Trajectory
-from recordings.schemas import decode_gripper, decode_image, decode_pose, vector_payload
+from cnep.recordings.container import CORRUPTION_ERRORS, McapContents, read_mcap
+from cnep.recordings.errors import RecordingError
+from cnep.recordings.records import RESERVED_EPISODE_KEYS, Demonstration, Episode, Trajectory
+from cnep.recordings.schemas import decode_gripper, decode_image, decode_pose, vector_payload
 
 # (kind found, kind expected) -> what to do about it, appended to the error.
 _KIND_FIXES = {
     (KIND_DEMONSTRATION, KIND_TRAJECTORY): "; run `cnep extract` on the demonstrations first and give its output",
     (KIND_TRAJECTORY, KIND_DEMONSTRATION): "; it is already extracted: give it to `cnep train` or `cnep replay`",
 }
-from recordings.validation import check_format_version, check_layout
+from cnep.recordings.validation import check_format_version, check_layout
 
 
 @contextlib.contextmanager

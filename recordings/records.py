@@ -18,7 +18,7 @@ from typing import Mapping
 
 import numpy as np
 
-from recordings.constants import (
+from cnep.recordings.constants import (
     BLOCK_FEATURES,
     BLOCK_GRIPPER,
     BLOCK_POSE_QUAT,
@@ -27,8 +27,8 @@ from recordings.constants import (
     LAYOUT_FULL,
     LAYOUT_MOTION,
 )
-from recordings.errors import RecordingError
-from recordings.validation import (
+from cnep.recordings.errors import RecordingError
+from cnep.recordings.validation import (
     check_extractor,
     check_fps,
     check_frames,

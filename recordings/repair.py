@@ -13,7 +13,7 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from recordings.constants import (
+from cnep.recordings.constants import (
     KIND_DEMONSTRATION,
     KIND_TRAJECTORY,
     METADATA_EPISODE,
@@ -24,10 +24,10 @@ from recordings.constants import (
     TOPIC_POSE,
     TOPIC_TRAJECTORY,
 )
-from recordings.container import McapContents, read_mcap, refuse_overwrite_input, rewrite_mcap
-from recordings.errors import RecordingError
-from recordings.readers import demonstration_from, trajectory_from
-from recordings.writers import steps_metadata
+from cnep.recordings.container import McapContents, read_mcap, refuse_overwrite_input, rewrite_mcap
+from cnep.recordings.errors import RecordingError
+from cnep.recordings.readers import demonstration_from, trajectory_from
+from cnep.recordings.writers import steps_metadata
 
 STEP_TOPICS = {KIND_DEMONSTRATION: (TOPIC_POSE, TOPIC_GRIPPER), KIND_TRAJECTORY: (TOPIC_TRAJECTORY,)}
 

@@ -19,10 +19,10 @@ import os
 from pathlib import Path
 from typing import Any
 
-from recordings.errors import RecordingError
-from recordings.mcap_source import (GRIPPER_EXTRACTORS, IMAGE_EXTRACTORS, POSE_EXTRACTORS, Extractor, McapTopics,
+from cnep.recordings.errors import RecordingError
+from cnep.recordings.mcap_source import (GRIPPER_EXTRACTORS, IMAGE_EXTRACTORS, POSE_EXTRACTORS, Extractor, McapTopics,
                                     Series, ros_stamp, transform_pose, demonstration_from_series, sorted_series)
-from recordings.records import Demonstration
+from cnep.recordings.records import Demonstration
 
 TF_TYPE = "tf2_msgs/msg/TFMessage"
 INSTALL_HINT = "pip install 'cnep-pipeline[ros]'"

@@ -25,8 +25,8 @@ from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 from google.protobuf import descriptor_pb2, timestamp_pb2
 from mcap_protobuf.schema import build_file_descriptor_set
 
-from recordings.constants import FRAME_ID_BASE, FRAME_ID_CAMERA, GRIPPER_JOINT, IMAGE_FORMAT, SCHEMA_TRAJECTORY
-from recordings.records import Event
+from cnep.recordings.constants import FRAME_ID_BASE, FRAME_ID_CAMERA, GRIPPER_JOINT, IMAGE_FORMAT, SCHEMA_TRAJECTORY
+from cnep.recordings.records import Event
 
 NS_PER_S = 1_000_000_000
 

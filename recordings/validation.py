@@ -11,13 +11,13 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from recordings.constants import (
+from cnep.recordings.constants import (
     BLOCK_FEATURES,
     LAYOUTS,
     POSE_DIM,
     SUPPORTED_FORMAT_VERSIONS,
 )
-from recordings.errors import RecordingError
+from cnep.recordings.errors import RecordingError
 
 JPEG_MAGIC = b"\xff\xd8"
 

@@ -24,7 +24,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from recordings.constants import (
+from cnep.recordings.constants import (
     BLOCK_POSE_QUAT,
     BLOCK_POSE_XYZ,
     CHANNEL_KEY_DTYPE,
@@ -46,10 +46,10 @@ from recordings.constants import (
     TOPIC_POSE,
     TOPIC_TRAJECTORY,
 )
-from recordings.container import atomic_output, new_writer
-from recordings.errors import RecordingError
-from recordings.records import Demonstration, Episode, Trajectory
-from recordings.schemas import (
+from cnep.recordings.container import atomic_output, new_writer
+from cnep.recordings.errors import RecordingError
+from cnep.recordings.records import Demonstration, Episode, Trajectory
+from cnep.recordings.schemas import (
     FOXGLOVE_CLASSES,
     encode_gripper,
     encode_image,
@@ -58,7 +58,7 @@ from recordings.schemas import (
     feature_vector_schema,
     schema_data,
 )
-from recordings.validation import (
+from cnep.recordings.validation import (
     check_extractor,
     check_frames,
     check_gripper,

@@ -23,7 +23,9 @@ def imports(package: str) -> list[tuple[Path, str]]:
 
 
 def top(module: str) -> str:
-    return module.split(".")[0]
+    """The project package a module belongs to (`cnep.models.train` -> `models`), else its top-level name."""
+    parts = module.split(".")
+    return parts[1] if parts[0] == "cnep" and len(parts) > 1 else parts[0]
 
 
 def stage_of(path: Path) -> str | None:
@@ -52,8 +54,8 @@ def test_every_pipeline_folder_is_a_known_stage():
 def test_stages_import_only_earlier_stages_and_shared_modules():
     bad = []
     for path, module in imports("pipeline"):
-        parts = module.split(".")
-        if parts[0] != "pipeline" or len(parts) < 2 or parts[1] not in STAGE_ORDER:
+        parts = module.split(".")[1:] if module.startswith("cnep.") else []
+        if not parts or parts[0] != "pipeline" or len(parts) < 2 or parts[1] not in STAGE_ORDER:
             continue
         importer, imported = stage_of(path), parts[1]
         if path.name == "__main__.py" and importer is None and imported == "cli":

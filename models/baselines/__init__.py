@@ -12,9 +12,9 @@ the query times (linear interpolation between the demonstration's steps). ProMP 
 optional extra: `pip install .[baselines]`; their libraries are imported only when fitting.
 """
 
-from models.baselines.base import Method
-from models.baselines.gmm import GMMGMR
-from models.baselines.nearest import NearestDemo
-from models.baselines.promp import ProMP
+from cnep.models.baselines.base import Method
+from cnep.models.baselines.gmm import GMMGMR
+from cnep.models.baselines.nearest import NearestDemo
+from cnep.models.baselines.promp import ProMP
 
 __all__ = ["GMMGMR", "Method", "NearestDemo", "ProMP"]

@@ -8,7 +8,7 @@ from typing import Protocol
 
 import numpy as np
 
-from models.errors import ConfigError
+from cnep.models.errors import ConfigError
 
 EXTRA = "baselines"  # the optional extra of pyproject.toml that installs the baselines' libraries
 

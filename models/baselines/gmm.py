@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from models.baselines.base import check_demos, require, resample
+from cnep.models.baselines.base import check_demos, require, resample
 
 RIDGE = 1e-3  # default covariance ridge, as a fraction of the squared data range
 EM_ITERATIONS = 100

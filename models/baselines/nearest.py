@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from models.baselines.base import check_demos, grid, resample
+from cnep.models.baselines.base import check_demos, grid, resample
 
 
 class NearestDemo:

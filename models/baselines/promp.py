@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from models.baselines.base import check_demos, grid, require, resample
+from cnep.models.baselines.base import check_demos, grid, require, resample
 
 
 class ProMP:

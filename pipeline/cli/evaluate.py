@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from pipeline.evaluate.constants import SET_TITLES
+from cnep.pipeline.evaluate.constants import SET_TITLES
 
 HELP = "reproduce the paper's tables (CNEP vs CNMP, ProMP, GMM-GMR, nearest demo) on its synthetic sets"
 
@@ -36,8 +36,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from pipeline.evaluate.stage import EvaluateConfig, evaluate
-    from pipeline.evaluate.constants import PATIENCE, TABLES
+    from cnep.pipeline.evaluate.stage import EvaluateConfig, evaluate
+    from cnep.pipeline.evaluate.constants import PATIENCE, TABLES
 
     config = EvaluateConfig(
         tables=TABLES if args.table == "all" else (args.table,),

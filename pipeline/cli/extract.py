@@ -46,7 +46,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from pipeline.extract.stage import ExtractConfig, extract
+    from cnep.pipeline.extract.stage import ExtractConfig, extract
 
     options = {"batch_size": args.batch_size} if args.batch_size is not None else {}
     config = ExtractConfig(

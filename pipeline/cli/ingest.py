@@ -59,11 +59,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from pipeline.ingest.stage import IngestConfig, ingest
-    from recordings.adapters import FrameTiming
-    from recordings.csv_motion import CsvColumns
-    from recordings.lerobot import LerobotMapping
-    from recordings.mcap_source import McapTopics
+    from cnep.pipeline.ingest.stage import IngestConfig, ingest
+    from cnep.recordings.adapters import FrameTiming
+    from cnep.recordings.csv_motion import CsvColumns
+    from cnep.recordings.lerobot import LerobotMapping
+    from cnep.recordings.mcap_source import McapTopics
 
     config = IngestConfig(
         src=Path(args.src),

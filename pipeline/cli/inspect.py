@@ -15,9 +15,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Exit 0 if every file is complete (and, for cnep files, accepted), else 2 after reporting on every file:
     the report on stdout, one line per refused file on stderr."""
-    from pipeline.contract import EXIT_OK, EXIT_USER, error_line
-    from recordings.errors import RecordingError
-    from recordings.inspection import format_report, inspect_file
+    from cnep.pipeline.contract import EXIT_OK, EXIT_USER, error_line
+    from cnep.recordings.errors import RecordingError
+    from cnep.recordings.inspection import format_report, inspect_file
 
     status = EXIT_OK
     for path in args.files:

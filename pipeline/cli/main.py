@@ -29,9 +29,9 @@ def _available_commands() -> list[tuple[str, object]]:
     found = []
     for name in COMMANDS:
         try:
-            module = importlib.import_module(f"pipeline.cli.{name}")
+            module = importlib.import_module(f"cnep.pipeline.cli.{name}")
         except ModuleNotFoundError as exc:
-            if exc.name != f"pipeline.cli.{name}":
+            if exc.name != f"cnep.pipeline.cli.{name}":
                 raise
             continue  # that stage is not part of this build yet
         found.append((name, module))
@@ -58,7 +58,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     level = logging.WARNING if args.quiet else logging.DEBUG if args.verbose else logging.INFO
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
-    from pipeline.contract import run_command
+    from cnep.pipeline.contract import run_command
 
     return run_command(args.command, lambda: args._run(args), verbose=args.verbose)
 

@@ -17,9 +17,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from pipeline.contract import output_folder, refuse_existing
-    from recordings.container import refuse_overwrite_input
-    from recordings.repair import repair
+    from cnep.pipeline.contract import output_folder, refuse_existing
+    from cnep.recordings.container import refuse_overwrite_input
+    from cnep.recordings.repair import repair
 
     refuse_overwrite_input(args.src, args.dst)
     refuse_existing([Path(args.dst)], args.force, "repaired file")

@@ -35,8 +35,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import time
 
-    from models import ConditioningPolicy
-    from pipeline.replay.stage import DEFAULT_VIEWER_URL, decisions_path, read_decisions, replay, serve
+    from cnep.models import ConditioningPolicy
+    from cnep.pipeline.replay.stage import DEFAULT_VIEWER_URL, decisions_path, read_decisions, replay, serve
 
     server = None
     connect = None if args.no_live else args.connect or DEFAULT_VIEWER_URL

@@ -11,7 +11,7 @@ import argparse
 import functools
 import json
 
-from pipeline.train.constants import (DEFAULT_DEVICE, DEFAULT_PATIENCE, DEFAULT_PRESET, DEFAULT_SAVE_EVERY,
+from cnep.pipeline.train.constants import (DEFAULT_DEVICE, DEFAULT_PATIENCE, DEFAULT_PRESET, DEFAULT_SAVE_EVERY,
                                          DEFAULT_VAL_FRACTION, DEVICES, PRESET_NAMES)
 
 HELP = "train a CNEP on trajectory files (resumable; multi-process with torchrun)"
@@ -68,7 +68,7 @@ def _config_tree():
     import importlib.util
     from pathlib import Path
 
-    spec = importlib.util.find_spec("models")
+    spec = importlib.util.find_spec("cnep.models")
     source = Path(next(iter(spec.submodule_search_locations))) / "config.py"
     return ast.parse(source.read_text(encoding="utf-8"))
 
@@ -157,7 +157,7 @@ def settings(args: argparse.Namespace) -> dict:
 
 def read_settings(path: str) -> dict:
     """The settings of a --config JSON file, checked against DEFAULTS' names and types."""
-    from pipeline.errors import PipelineError  # here, not at module level: it imports torch
+    from cnep.pipeline.errors import PipelineError  # here, not at module level: it imports torch
 
     try:
         with open(path, encoding="utf-8") as f:
@@ -173,7 +173,7 @@ def read_settings(path: str) -> dict:
 
 
 def _checked(path: str, name: str, value):
-    from pipeline.errors import PipelineError
+    from cnep.pipeline.errors import PipelineError
 
     kind = TRAIN_OPTIONS[name][0] if name in TRAIN_OPTIONS else type(DEFAULTS[name])
     if kind is tuple and isinstance(value, list) and all(isinstance(v, int) for v in value):
@@ -196,7 +196,7 @@ def fit_warmup(training, warmup_given: bool):
 
     if training.warmup_steps < training.steps:
         return training
-    log = logging.getLogger("pipeline.train")
+    log = logging.getLogger("cnep.pipeline.train")
     if warmup_given:
         log.warning("--warmup-steps %d >= --steps %d: the learning rate never reaches its peak --lr",
                     training.warmup_steps, training.steps)
@@ -213,8 +213,8 @@ def run(args: argparse.Namespace) -> int:
     import os
     from pathlib import Path
 
-    from models import TrainConfig
-    from pipeline.train.stage import TrainStageConfig, train
+    from cnep.models import TrainConfig
+    from cnep.pipeline.train.stage import TrainStageConfig, train
 
     chosen = settings(args)
     given = {name: chosen[name] for name in TRAIN_OPTIONS if chosen[name] is not None}
@@ -239,7 +239,7 @@ def run(args: argparse.Namespace) -> int:
     )
     out = train(config)
     if os.environ.get("RANK", "0") == "0":  # under torchrun only rank 0 reports
-        from models import read_checkpoint_config
+        from cnep.models import read_checkpoint_config
 
         result = read_checkpoint_config(out)["result"]
         print(f"trained {result['steps_run']} steps in {result['elapsed_s']:.1f} s; best validation error "

@@ -4,7 +4,7 @@
 the behaviour; `generator` records the seeded demonstrations as robot MCAP files.
 """
 
-from pipeline._lazy import stage_attribute
+from cnep.pipeline._lazy import stage_attribute
 
 
 def __getattr__(name: str) -> object:

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.demo.scene import SLOT_XY
+from cnep.pipeline.demo.scene import SLOT_XY
 
 # A motion ends in a slot when its last xy lies within this distance (m) of the slot's nominal centre. The
 # slots are 12 cm squares 39 cm apart; the tray moves by 0.5 cm (std) per scene, the demonstrated place

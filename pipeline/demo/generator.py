@@ -30,15 +30,15 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.demo.scene import (BEHAVIOURS, FREE_CHOICE, SIDES, Scene, behaviour_parts, draw_frame, encode_jpeg,
+from cnep.pipeline.demo.scene import (BEHAVIOURS, FREE_CHOICE, SIDES, Scene, behaviour_parts, draw_frame, encode_jpeg,
                                  gripper_quaternion, sample_scene)
-from pipeline.progress import progress_bar
-from recordings import Demonstration, Episode, write_demonstration
+from cnep.pipeline.progress import progress_bar
+from cnep.recordings import Demonstration, Episode, write_demonstration
 
 log = logging.getLogger(__name__)
 
 TASK = "tabletop: put the cup into the free slot"
-SOURCE = "pipeline.demo.generator"
+SOURCE = "cnep.pipeline.demo.generator"
 LABEL_KEY = "behaviour"  # episode extra metadata: the behaviour name (summary only, never a training input)
 SWITCH_KEY = "switch_step"  # scene-change episodes: the first step showing the changed scene
 CHOICE_KEY = "choice"  # free-choice episodes: the slot the demonstrator picked (summary only)

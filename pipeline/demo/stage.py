@@ -43,22 +43,22 @@ from pathlib import Path
 
 import numpy as np
 
-from models import ConditioningPolicy, TrainConfig, load_checkpoint
-from models.checkpoint import atomic_write
-from pipeline.contract import check_writable_folder, output_folder, refuse_file_as_folder
-from pipeline.errors import PipelineError
-from pipeline.extract.stage import ExtractConfig, extract
-from pipeline.ingest.stage import IngestConfig, ingest
-from pipeline.replay.stage import RowMapping, decide, decisions_path, read_decisions, replay
-from pipeline.demo.free_choice import (COMMIT_GATE, PLACE_TOLERANCE, SPLIT_GATE, commitment, gate_census,
+from cnep.models import ConditioningPolicy, TrainConfig, load_checkpoint
+from cnep.models.checkpoint import atomic_write
+from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_file_as_folder
+from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.extract.stage import ExtractConfig, extract
+from cnep.pipeline.ingest.stage import IngestConfig, ingest
+from cnep.pipeline.replay.stage import RowMapping, decide, decisions_path, read_decisions, replay
+from cnep.pipeline.demo.free_choice import (COMMIT_GATE, PLACE_TOLERANCE, SPLIT_GATE, commitment, gate_census,
                                        generated_ends, place_outcomes, replay_pick)
-from pipeline.demo.generator import CHOICE_KEY, CHOICE_STEP_KEY, SPLITS, SWITCH_KEY, DemoSetConfig, generate
-from pipeline.demo.scene import BEHAVIOURS
-from pipeline.train.stage import TrainStageConfig, train
-from pipeline.train.constants import SCENE
-from pipeline.workers import single_thread_processes, torch_threads
-from recordings import read_demonstration, read_trajectory
-from recordings.constants import BLOCK_GRIPPER
+from cnep.pipeline.demo.generator import CHOICE_KEY, CHOICE_STEP_KEY, SPLITS, SWITCH_KEY, DemoSetConfig, generate
+from cnep.pipeline.demo.scene import BEHAVIOURS
+from cnep.pipeline.train.stage import TrainStageConfig, train
+from cnep.pipeline.train.constants import SCENE
+from cnep.pipeline.workers import single_thread_processes, torch_threads
+from cnep.recordings import read_demonstration, read_trajectory
+from cnep.recordings.constants import BLOCK_GRIPPER
 
 log = logging.getLogger(__name__)
 
@@ -73,7 +73,7 @@ GATE_LR_SCALE = 1.0
 ASSIGNMENT = "bounded"
 SUMMARY_FILE = "summary.json"
 RRD_FILE = "demo.rrd"
-PER_FILE_LOGGERS = ("pipeline.ingest", "pipeline.extract")
+PER_FILE_LOGGERS = ("cnep.pipeline.ingest", "cnep.pipeline.extract")
 EXTRACTOR_FILE = "extractor.pt"
 POLICY = ConditioningPolicy()  # the replay's conditioning (models.online): the first step + the latest 10
 # Everything a demo writes into its folder (what --force replaces).

@@ -5,7 +5,7 @@
 recordings through ingest and train and asks whether a model commits to one side of the box.
 """
 
-from pipeline._lazy import stage_attribute
+from cnep.pipeline._lazy import stage_attribute
 
 
 def __getattr__(name: str) -> object:

@@ -33,11 +33,11 @@ from pathlib import Path
 
 import numpy as np
 
-from models import CNEPConfig, Layout, TrainConfig, fit, matched_cnmp, pid_track
-from models.config import ASSIGNMENTS
-from pipeline.errors import PipelineError
-from pipeline.ingest.stage import IngestConfig, ingest
-from recordings import Demonstration, read_demonstration
+from cnep.models import CNEPConfig, Layout, TrainConfig, fit, matched_cnmp, pid_track
+from cnep.models.config import ASSIGNMENTS
+from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.ingest.stage import IngestConfig, ingest
+from cnep.recordings import Demonstration, read_demonstration
 
 log = logging.getLogger(__name__)
 

@@ -12,9 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
-from models.checkpoint import atomic_write
-from pipeline.errors import PipelineError
-from pipeline.evaluate.jobs import queries
+from cnep.models.checkpoint import atomic_write
+from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.evaluate.jobs import queries
 
 
 def _pyplot():

@@ -31,8 +31,8 @@ from typing import Protocol
 
 import numpy as np
 
-from pipeline.evaluate.constants import GMM_COMPONENTS, PROMP_WEIGHTS, REPORT_STEPS, SAMPLES_IN_FIGURE
-from pipeline.workers import SMALL_MODEL_THREADS
+from cnep.pipeline.evaluate.constants import GMM_COMPONENTS, PROMP_WEIGHTS, REPORT_STEPS, SAMPLES_IN_FIGURE
+from cnep.pipeline.workers import SMALL_MODEL_THREADS
 
 PROTOCOLS = ("paper", "heldout")
 
@@ -85,8 +85,8 @@ class Job:
 
 def queries(set_name: str, seed: int, n: int):
     """The data set and every protocol's queries of a (set, seed): (SyntheticSet, {protocol: [query]})."""
-    from models.evaluation import heldout_queries, paper_queries, shared_queries
-    from models.synthetic import make_set
+    from cnep.models.evaluation import heldout_queries, paper_queries, shared_queries
+    from cnep.models.synthetic import make_set
 
     s = make_set(set_name, seed)
     return s, {
@@ -98,7 +98,7 @@ def queries(set_name: str, seed: int, n: int):
 
 def _scored(generate, s, qs: dict) -> dict:
     """Score one method on every protocol, counting queries whose output is not finite."""
-    from models.evaluation import commitment, score
+    from cnep.models.evaluation import commitment, score
 
     failures = {p: 0 for p in PROTOCOLS}
 
@@ -128,7 +128,7 @@ def _scored(generate, s, qs: dict) -> dict:
 
 def baselines(set_name: str, seed: int) -> dict:
     """name -> unfitted baseline, with the authors' sizes for this set (see pipeline.evaluate.constants)."""
-    from models.baselines import GMMGMR, NearestDemo, ProMP
+    from cnep.models.baselines import GMMGMR, NearestDemo, ProMP
 
     return {
         "ProMP": ProMP(PROMP_WEIGHTS[set_name]),
@@ -139,7 +139,7 @@ def baselines(set_name: str, seed: int) -> dict:
 
 
 def model_config(spec: ModelSpec, cnmp_matches: int):
-    from models import CNEPConfig, matched_cnmp
+    from cnep.models import CNEPConfig, matched_cnmp
 
     if spec.n_experts == 1:
         return matched_cnmp(CNEPConfig(n_experts=cnmp_matches))
@@ -187,9 +187,9 @@ def run_unit(unit: Sequence[Job], progress: Progress | None = None) -> list[dict
 def _fit_networks(unit: Sequence[Job], data: list, progress: Progress | None) -> list[dict]:
     """Train the unit's networks as `models.fit` does (each validated on its set's validation split), together,
     reporting steps, and score each. fit_seconds: the unit's training time over its number of networks."""
-    from models import TrainConfig
-    from models.batched import BatchedTrainer
-    from models.train import finish_fit, prepare_fit
+    from cnep.models import TrainConfig
+    from cnep.models.batched import BatchedTrainer
+    from cnep.models.train import finish_fit, prepare_fit
 
     start = time.perf_counter()
     configs = [model_config(job.spec, job.cnmp_matches) for job in unit]

@@ -26,10 +26,10 @@ from queue import Empty
 
 import numpy as np
 
-from models.config import ASSIGNMENTS
-from pipeline.contract import check_writable_folder, output_folder, refuse_existing
-from pipeline.errors import PipelineError
-from pipeline.evaluate.constants import (
+from cnep.models.config import ASSIGNMENTS
+from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_existing
+from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.evaluate.constants import (
     CNEP_EXPERTS,
     DEFAULT_OUT,
     EXPERT_COUNTS,
@@ -46,8 +46,8 @@ from pipeline.evaluate.constants import (
     TABLES,
     UNIT_NETWORKS,
 )
-from pipeline.evaluate.jobs import PROTOCOLS, Job, ModelSpec, run_unit, unit_key
-from pipeline.workers import single_thread_processes
+from cnep.pipeline.evaluate.jobs import PROTOCOLS, Job, ModelSpec, run_unit, unit_key
+from cnep.pipeline.workers import single_thread_processes
 
 log = logging.getLogger(__name__)
 
@@ -195,7 +195,7 @@ def run_jobs(jobs: Sequence[Job], workers: int, quiet: bool) -> Iterator[tuple[J
     moves while networks train and its time left is an estimate from the steps' rate; the fits done and
     the last one finished follow it.
     """
-    from pipeline.progress import progress_bar
+    from cnep.pipeline.progress import progress_bar
 
     total = sum(job.steps for job in jobs if job.spec is not None)
     bar = progress_bar(total=total, quiet=quiet, desc="evaluate", unit="step")
@@ -341,7 +341,7 @@ def evaluate(config: EvaluateConfig) -> dict[str, Path]:
 
 def write_table(table: str, config: EvaluateConfig, done: dict[tuple, dict], wall: float) -> Path:
     """Write <table>.md, <table>.json and the table's figures; returns the Markdown path."""
-    from pipeline.evaluate.tables import PAPER_NOTE, to_markdown, write_text
+    from cnep.pipeline.evaluate.tables import PAPER_NOTE, to_markdown, write_text
 
     data = assemble(table, config, done)
     data["wall_seconds"] = wall
@@ -350,7 +350,7 @@ def write_table(table: str, config: EvaluateConfig, done: dict[tuple, dict], wal
     markdown = config.out / f"{table}.md"
     write_text(markdown, to_markdown(data))
     if config.figures:
-        from pipeline.evaluate.figures import plot_set
+        from cnep.pipeline.evaluate.figures import plot_set
 
         for set_name in config.table_sets(table):
             plot_set(config.out / "figures" / f"{table}-{set_name}.png", set_name, config.n_queries,

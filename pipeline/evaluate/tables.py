@@ -6,8 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
-from models.checkpoint import atomic_write
-from pipeline.evaluate.constants import PAPER, SET_TITLES
+from cnep.models.checkpoint import atomic_write
+from cnep.pipeline.evaluate.constants import PAPER, SET_TITLES
 
 TITLES = {
     "comparison": "Comparison with the baselines: MSE over generated trajectories conditioned from intermediate points",

@@ -4,7 +4,7 @@
 trajectory file beside the extractor's identity, which train and replay check.
 """
 
-from pipeline._lazy import stage_attribute
+from cnep.pipeline._lazy import stage_attribute
 
 
 def __getattr__(name: str) -> object:

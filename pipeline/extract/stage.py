@@ -35,17 +35,17 @@ import numpy as np
 from tqdm import tqdm
 from tqdm.contrib.logging import logging_redirect_tqdm
 
-from perception import FeatureExtractor, PerceptionError, compatibility_key
-from perception.constants import CALIBRATION_FRAMES, FEATURE_DIM
-from perception.frames import decode_image, resize_frames
-from perception.weights import find_imagenet_weights
-from pipeline.contract import output_folder, raise_if_skipped, refuse_existing
-from pipeline.errors import PipelineError
-from pipeline.progress import progress_bar
-from pipeline.workers import cpu_cores, inference_threads, thread_environment
-from recordings import (DemonstrationReader, RecordingError, Trajectory, TrajectoryReader, read_demonstration,
+from cnep.perception import FeatureExtractor, PerceptionError, compatibility_key
+from cnep.perception.constants import CALIBRATION_FRAMES, FEATURE_DIM
+from cnep.perception.frames import decode_image, resize_frames
+from cnep.perception.weights import find_imagenet_weights
+from cnep.pipeline.contract import output_folder, raise_if_skipped, refuse_existing
+from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.progress import progress_bar
+from cnep.pipeline.workers import cpu_cores, inference_threads, thread_environment
+from cnep.recordings import (DemonstrationReader, RecordingError, Trajectory, TrajectoryReader, read_demonstration,
                         write_trajectory)
-from recordings.constants import TOPIC_IMAGE
+from cnep.recordings.constants import TOPIC_IMAGE
 
 log = logging.getLogger(__name__)
 

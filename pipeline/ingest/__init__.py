@@ -4,7 +4,7 @@
 themselves are read by `recordings`.
 """
 
-from pipeline._lazy import stage_attribute
+from cnep.pipeline._lazy import stage_attribute
 
 
 def __getattr__(name: str) -> object:

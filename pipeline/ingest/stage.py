@@ -19,16 +19,16 @@ from pathlib import Path
 
 from tqdm.contrib.logging import logging_redirect_tqdm
 
-from pipeline.contract import output_folder, raise_if_skipped, refuse_existing
-from pipeline.errors import PipelineError
-from pipeline.progress import progress_bar
-from recordings import Demonstration, RecordingError, write_demonstration
-from recordings.adapters import FrameTiming, demonstration_from_csv, demonstration_from_folder, media_of
-from recordings.csv_motion import CsvColumns
-from recordings.lerobot import LerobotMapping, demonstration_from_lerobot, is_lerobot_dataset, plan_lerobot
-from recordings.mcap_source import McapTopics, demonstration_from_mcap
-from recordings.media import check_decodable
-from recordings.rosbag import demonstration_from_rosbag, is_ros2_bag
+from cnep.pipeline.contract import output_folder, raise_if_skipped, refuse_existing
+from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.progress import progress_bar
+from cnep.recordings import Demonstration, RecordingError, write_demonstration
+from cnep.recordings.adapters import FrameTiming, demonstration_from_csv, demonstration_from_folder, media_of
+from cnep.recordings.csv_motion import CsvColumns
+from cnep.recordings.lerobot import LerobotMapping, demonstration_from_lerobot, is_lerobot_dataset, plan_lerobot
+from cnep.recordings.mcap_source import McapTopics, demonstration_from_mcap
+from cnep.recordings.media import check_decodable
+from cnep.recordings.rosbag import demonstration_from_rosbag, is_ros2_bag
 
 log = logging.getLogger(__name__)
 

@@ -4,7 +4,7 @@
 entity paths, colours and the blueprint.
 """
 
-from pipeline._lazy import stage_attribute
+from cnep.pipeline._lazy import stage_attribute
 
 
 def __getattr__(name: str) -> object:

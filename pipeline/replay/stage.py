@@ -39,14 +39,14 @@ from urllib.parse import urlparse
 
 import numpy as np
 
-from models import CNEP, ConditioningPolicy, ExpertSwitch, OnlineConditioner, load_checkpoint, read_checkpoint_config
-from models.checkpoint import CONFIG_FILE, atomic_write
-import pipeline.replay.layout as L
-from pipeline.contract import check_writable_folder, output_folder, refuse_existing
-from pipeline.errors import PipelineError
-from pipeline.extract.stage import check_identities
-from recordings import Event, Trajectory, add_events, read_trajectory
-from recordings.constants import BLOCK_FEATURES, BLOCK_POSE_XYZ, LAYOUTS
+from cnep.models import CNEP, ConditioningPolicy, ExpertSwitch, OnlineConditioner, load_checkpoint, read_checkpoint_config
+from cnep.models.checkpoint import CONFIG_FILE, atomic_write
+import cnep.pipeline.replay.layout as L
+from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_existing
+from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.extract.stage import check_identities
+from cnep.recordings import Event, Trajectory, add_events, read_trajectory
+from cnep.recordings.constants import BLOCK_FEATURES, BLOCK_POSE_XYZ, LAYOUTS
 
 log = logging.getLogger(__name__)
 
@@ -197,7 +197,7 @@ def replay(
     """
     import torch
 
-    from pipeline.progress import progress_bar
+    from cnep.pipeline.progress import progress_bar
 
     checkpoint, out = Path(checkpoint_dir), Path(out_rrd)
     paths = [Path(p) for p in recording_paths]

@@ -5,7 +5,7 @@ file's columns; `state` keeps the resumable work folder and the log; `parallel` 
 `constants` holds the names and defaults the CLI shows without importing torch.
 """
 
-from pipeline._lazy import stage_attribute
+from cnep.pipeline._lazy import stage_attribute
 
 
 def __getattr__(name: str) -> object:

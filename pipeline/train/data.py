@@ -10,9 +10,9 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.errors import PipelineError
-from pipeline.extract.stage import SUFFIX, _names, check_identities
-from recordings import Trajectory, read_trajectory
+from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.extract.stage import SUFFIX, _names, check_identities
+from cnep.recordings import Trajectory, read_trajectory
 
 log = logging.getLogger(__name__)
 

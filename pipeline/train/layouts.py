@@ -26,10 +26,10 @@ from pathlib import Path
 
 import numpy as np
 
-from models import Layout
-from pipeline.errors import PipelineError
-from pipeline.train.constants import ALL, MOTION, SCENE, WINE_GLASS
-from recordings.constants import BLOCK_FEATURES, BLOCK_GRIPPER, BLOCK_POSE_QUAT, BLOCK_POSE_XYZ, LAYOUTS
+from cnep.models import Layout
+from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.train.constants import ALL, MOTION, SCENE, WINE_GLASS
+from cnep.recordings.constants import BLOCK_FEATURES, BLOCK_GRIPPER, BLOCK_POSE_QUAT, BLOCK_POSE_XYZ, LAYOUTS
 
 MOTION_BLOCKS = (BLOCK_POSE_XYZ, BLOCK_POSE_QUAT, BLOCK_GRIPPER)
 EVERY_BLOCK = None  # stands for every block of the file, in file order

@@ -19,9 +19,9 @@ import numpy as np
 import torch
 from torch import distributed as dist
 
-from models import CNEP
-from pipeline.errors import USER_ERRORS, PipelineError
-from pipeline.train.constants import DEVICES
+from cnep.models import CNEP
+from cnep.pipeline.errors import USER_ERRORS, PipelineError
+from cnep.pipeline.train.constants import DEVICES
 
 log = logging.getLogger(__name__)
 

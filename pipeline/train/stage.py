@@ -26,20 +26,20 @@ from pathlib import Path
 import torch
 from tqdm import tqdm
 
-from models import CNEPConfig, TrainConfig, Trainer, build_model, save_checkpoint
-from models.matched import matched_cnmp
-from models.sampler import TrajectoryStack
-from pipeline import progress
-from models.train import split_validation
-from pipeline.errors import PipelineError
-from pipeline.train.data import TrainingSet, find_trajectory_files, load_training_set
-from pipeline.train.constants import (DEFAULT_DEVICE, DEFAULT_PATIENCE, DEFAULT_PRESET, DEFAULT_SAVE_EVERY,
+from cnep.models import CNEPConfig, TrainConfig, Trainer, build_model, save_checkpoint
+from cnep.models.matched import matched_cnmp
+from cnep.models.sampler import TrajectoryStack
+from cnep.pipeline import progress
+from cnep.models.train import split_validation
+from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.train.data import TrainingSet, find_trajectory_files, load_training_set
+from cnep.pipeline.train.constants import (DEFAULT_DEVICE, DEFAULT_PATIENCE, DEFAULT_PRESET, DEFAULT_SAVE_EVERY,
                                          DEFAULT_VAL_FRACTION, LOG_FILE, STATE_FILE)
-from pipeline.train.layouts import TrainingLayout, resolve_layout
-from pipeline.train.parallel import (PlacedModel, Processes, from_main, gather, rank_seed, start_processes,
+from cnep.pipeline.train.layouts import TrainingLayout, resolve_layout
+from cnep.pipeline.train.parallel import (PlacedModel, Processes, from_main, gather, rank_seed, start_processes,
                                         stop_processes)
-from pipeline.train.state import check_same_run, prepare_work_dir, publish, save_state, work_dir, write_log
-from pipeline.workers import SMALL_MODEL_THREADS, torch_threads
+from cnep.pipeline.train.state import check_same_run, prepare_work_dir, publish, save_state, work_dir, write_log
+from cnep.pipeline.workers import SMALL_MODEL_THREADS, torch_threads
 
 log = logging.getLogger(__name__)
 

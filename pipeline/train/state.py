@@ -19,9 +19,9 @@ from pathlib import Path
 
 import torch
 
-from models.checkpoint import atomic_write
-from pipeline.errors import PipelineError
-from pipeline.train.constants import LOG_FILE, STATE_FILE
+from cnep.models.checkpoint import atomic_write
+from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.train.constants import LOG_FILE, STATE_FILE
 
 log = logging.getLogger(__name__)
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from models.config import CNEPConfig, Layout
+from cnep.models.config import CNEPConfig, Layout
 
 
 def tiny_config(n_experts: int = 3, obs_dim: int = 2, query_dim: int = 1, out_dim: int = 2) -> CNEPConfig:

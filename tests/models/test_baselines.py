@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-from models.baselines import GMMGMR, NearestDemo, ProMP
-from models.baselines import base
-from models.errors import ConfigError
-from models.evaluation import paper_queries
-from models.synthetic import make_set
+from cnep.models.baselines import GMMGMR, NearestDemo, ProMP
+from cnep.models.baselines import base
+from cnep.models.errors import ConfigError
+from cnep.models.evaluation import paper_queries
+from cnep.models.synthetic import make_set
 
 
 def two_modes(n: int = 12, T: int = 40, seed: int = 0):

@@ -3,10 +3,10 @@ import dataclasses
 import pytest
 import torch
 
-from models.batched import BatchedTrainer, FitRun, fit_many
-from models.config import TrainConfig
-from models.errors import ConfigError
-from models.train import fit, prepare_fit
+from cnep.models.batched import BatchedTrainer, FitRun, fit_many
+from cnep.models.config import TrainConfig
+from cnep.models.errors import ConfigError
+from cnep.models.train import fit, prepare_fit
 from tests.models.factories import tiny_config, two_mode_trajectories
 
 # Steps cross the gate's freeze (30% = step 12), validations every 10 steps; lr high enough that gradients

@@ -2,9 +2,9 @@ import numpy as np
 import pytest
 import torch
 
-from models.cnep import CNEP
-from models.config import CNEPConfig, TrainConfig
-from models.errors import ConfigError
+from cnep.models.cnep import CNEP
+from cnep.models.config import CNEPConfig, TrainConfig
+from cnep.models.errors import ConfigError
 from tests.models.factories import random_inputs, tiny_config
 
 

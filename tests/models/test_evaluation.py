@@ -1,9 +1,9 @@
 import numpy as np
 import pytest
 
-from models.evaluation import (DECISIVE, NOISE, _decisive, _separable_partners, commitment, commitment_scores,
+from cnep.models.evaluation import (DECISIVE, NOISE, _decisive, _separable_partners, commitment, commitment_scores,
                                heldout_queries, paper_queries, score, shared_queries, within_mode_band)
-from models.synthetic import SETS, make_set
+from cnep.models.synthetic import SETS, make_set
 
 
 @pytest.mark.parametrize("name", sorted(SETS))

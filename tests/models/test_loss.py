@@ -4,8 +4,8 @@ import math
 import pytest
 import torch
 
-from models.config import CNEPConfig
-from models.loss import (ANNEAL_FRACTION, BALANCING, SINKHORN_ITERATIONS, annealed_posterior, annealed_sharpness,
+from cnep.models.config import CNEPConfig
+from cnep.models.loss import (ANNEAL_FRACTION, BALANCING, SINKHORN_ITERATIONS, annealed_posterior, annealed_sharpness,
                          balanced, cnep_loss, entropy, expert_nll, settled_fraction)
 
 
@@ -296,9 +296,9 @@ def test_the_papers_and_the_mixtures_terms_do_not_depend_on_the_training_progres
 
 
 def test_the_trainer_gives_the_loss_the_fraction_of_training_done(monkeypatch):
-    import models.train
-    from models.config import TrainConfig
-    from models.train import fit
+    import cnep.models.train
+    from cnep.models.config import TrainConfig
+    from cnep.models.train import fit
     from tests.models.factories import two_mode_trajectories
 
     seen = []
@@ -307,7 +307,7 @@ def test_the_trainer_gives_the_loss_the_fraction_of_training_done(monkeypatch):
         seen.append(args[-1])
         return cnep_loss(*args)
 
-    monkeypatch.setattr(models.train, "cnep_loss", spy)
+    monkeypatch.setattr(cnep.models.train, "cnep_loss", spy)
     trajs, _ = two_mode_trajectories(n=4, T=10, seed=0)
     fit(trajs, CNEPConfig(n_experts=2, encoder_widths=(8,), expert_widths=(8,), assignment="annealed"),
         TrainConfig(steps=4, warmup_steps=1, val_every=2), progress=False)

@@ -1,6 +1,6 @@
 import pytest
 
-from models import CNEP, CNEPConfig, ConfigError, Layout, matched_cnmp, parameter_count
+from cnep.models import CNEP, CNEPConfig, ConfigError, Layout, matched_cnmp, parameter_count
 
 # The train stage's presets as models.Layout (pipeline.train.layouts resolves them the same way).
 LAYOUTS = {

@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 import torch
 
-from models.cnep import CNEP
-from models.errors import ConfigError
-from models.online import ConditioningPolicy, OnlineConditioner
+from cnep.models.cnep import CNEP
+from cnep.models.errors import ConfigError
+from cnep.models.online import ConditioningPolicy, OnlineConditioner
 from tests.models.factories import tiny_config
 
 

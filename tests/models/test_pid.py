@@ -4,8 +4,8 @@ back to the generated trajectory as the correction decays."""
 import numpy as np
 import pytest
 
-from models.errors import ConfigError
-from models.pid import PIDGains, correction_weights, pid_track, reference
+from cnep.models.errors import ConfigError
+from cnep.models.pid import PIDGains, correction_weights, pid_track, reference
 
 
 def generated(T: int = 120) -> np.ndarray:

@@ -1,8 +1,8 @@
 import numpy as np
 import torch
 
-from models.cnep import CNEP
-from models.sampler import TrajectoryStack, sample_batch
+from cnep.models.cnep import CNEP
+from cnep.models.sampler import TrajectoryStack, sample_batch
 from tests.models.factories import tiny_config
 
 

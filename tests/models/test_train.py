@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 import torch
 
-from models.config import GATE_LR_SCALES, CNEPConfig, TrainConfig
-from models.errors import ConfigError
-from models.train import Trainer, build_model, fit, lr_factor, prepare_fit, split_validation
-from models.sampler import TrajectoryStack
+from cnep.models.config import GATE_LR_SCALES, CNEPConfig, TrainConfig
+from cnep.models.errors import ConfigError
+from cnep.models.train import Trainer, build_model, fit, lr_factor, prepare_fit, split_validation
+from cnep.models.sampler import TrajectoryStack
 from tests.models.factories import two_mode_trajectories
 
 SMALL = dict(encoder_widths=(32, 32), expert_widths=(32, 32), time_frequencies=4)
@@ -113,7 +113,7 @@ def test_two_modes_end_on_different_experts():
 
 def test_fit_with_two_trajectories_trains_on_both_and_says_so(caplog):
     trajs, _ = two_mode_trajectories(n=2)
-    with caplog.at_level("WARNING", logger="models.train"):
+    with caplog.at_level("WARNING", logger="cnep.models.train"):
         model, history = fit(trajs, CNEPConfig(**SMALL), QUICK, progress=False)
     assert history[-1]["n_train"] == 2 and history[-1]["validation"] == "training set"
     assert "only 2 trajectories" in caplog.text
@@ -124,7 +124,7 @@ def test_fit_with_two_trajectories_trains_on_both_and_says_so(caplog):
 
 def test_fit_holds_out_a_reported_fifth_from_ten_trajectories_on(caplog):
     trajs, _ = two_mode_trajectories(n=10)
-    with caplog.at_level("INFO", logger="models.train"):
+    with caplog.at_level("INFO", logger="cnep.models.train"):
         _, history = fit(trajs, CNEPConfig(**SMALL), QUICK, progress=False)
     assert (history[0]["n_train"], history[0]["n_val"], history[0]["validation"]) == (8, 2, "held out")
     assert "validating on 2 of the 10 trajectories" in caplog.text

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from perception import FeatureExtractor, available_backends
+from cnep.perception import FeatureExtractor, available_backends
 
 from .conftest import scene_frames
 
@@ -49,7 +49,7 @@ def test_cuda_is_the_default_on_a_gpu_with_gpu_sized_batches():
 
 @pytest.mark.skipif("onnxruntime" not in available_backends(), reason="needs the onnx extra")
 def test_onnx_export_is_cached_by_weights_hash(monkeypatch, tmp_path):
-    from perception import backends
+    from cnep.perception import backends
 
     monkeypatch.setenv("CNEP_CACHE_DIR", str(tmp_path))
     net = FeatureExtractor("random", threads=1).net
@@ -64,7 +64,7 @@ def test_onnx_export_is_cached_by_weights_hash(monkeypatch, tmp_path):
 
 @pytest.mark.skipif("onnxruntime" not in available_backends(), reason="needs the onnx extra")
 def test_onnxruntime_sessions_do_not_spin():
-    from perception.backends import session_options
+    from cnep.perception.backends import session_options
 
     options = session_options(1)
     assert options.get_session_config_entry("session.intra_op.allow_spinning") == "0"
@@ -116,7 +116,7 @@ def test_auto_runs_int8_on_openvino_and_fp32_on_onnxruntime():
 def test_openvino_runs_the_requested_threads_unpinned():
     import openvino as ov
 
-    from perception.backends import onnx_model, openvino_config
+    from cnep.perception.backends import onnx_model, openvino_config
 
     extractor = FeatureExtractor("random", threads=1)
     core = ov.Core()
@@ -131,7 +131,7 @@ def test_a_torch_runner_leaves_the_process_thread_count_as_it_was():
     """torch's thread count is process-wide: the extractor uses its threads during a call, not after it."""
     import torch
 
-    from perception.backends import build_runner
+    from cnep.perception.backends import build_runner
 
     before = torch.get_num_threads()
     seen = []

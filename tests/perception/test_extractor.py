@@ -2,9 +2,9 @@ import numpy as np
 import pytest
 import torch
 
-from perception import FeatureExtractor, PerceptionError, compatibility_key
-from perception.calibration import recalibrate_batchnorm
-from perception.constants import ARCHITECTURE, PREPROCESSING
+from cnep.perception import FeatureExtractor, PerceptionError, compatibility_key
+from cnep.perception.calibration import recalibrate_batchnorm
+from cnep.perception.constants import ARCHITECTURE, PREPROCESSING
 
 from .conftest import scene_frames
 
@@ -61,7 +61,7 @@ def test_uncalibrated_features_are_dead_and_calibration_revives_them(two_scenes)
 
 
 def _pixels(frames: np.ndarray) -> np.ndarray:
-    from perception import resize_frames
+    from cnep.perception import resize_frames
 
     return resize_frames(frames)
 

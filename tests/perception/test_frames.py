@@ -2,7 +2,7 @@ import cv2
 import numpy as np
 import pytest
 
-from perception import PerceptionError, decode_image, resize_frames
+from cnep.perception import PerceptionError, decode_image, resize_frames
 
 
 def _jpeg(rgb: np.ndarray) -> bytes:

@@ -2,9 +2,9 @@ import torch
 import pytest
 from torchvision.models import mobilenet_v2
 
-from perception import PerceptionError, find_imagenet_weights, resolve_weights, state_dict_sha256
-from perception.constants import IMAGENET_WEIGHT_FILES, WEIGHTS_ENV_VAR
-from perception.weights import save_state_dict
+from cnep.perception import PerceptionError, find_imagenet_weights, resolve_weights, state_dict_sha256
+from cnep.perception.constants import IMAGENET_WEIGHT_FILES, WEIGHTS_ENV_VAR
+from cnep.perception.weights import save_state_dict
 
 
 @pytest.fixture

@@ -9,11 +9,11 @@ import pytest
 import torch
 from torchvision.models import mobilenet_v2
 
-import perception.weights as weights_module
-from perception import PerceptionError, resolve_weights, state_dict_sha256
-from perception.constants import OFFLINE_ENV_VAR, WEIGHTS_ENV_VAR
-from pipeline.cli.main import main
-from recordings import write_demonstration
+import cnep.perception.weights as weights_module
+from cnep.perception import PerceptionError, resolve_weights, state_dict_sha256
+from cnep.perception.constants import OFFLINE_ENV_VAR, WEIGHTS_ENV_VAR
+from cnep.pipeline.cli.main import main
+from cnep.recordings import write_demonstration
 from tests.recordings.factories import demonstration_factory
 
 

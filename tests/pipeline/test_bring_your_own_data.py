@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.cli.main import main
-from pipeline.replay.stage import read_decisions
-from recordings import read_trajectory
+from cnep.pipeline.cli.main import main
+from cnep.pipeline.replay.stage import read_decisions
+from cnep.recordings import read_trajectory
 
 TINY_TRAIN = ["--steps", "6", "--val-every", "3", "--warmup-steps", "1", "--batch-size", "2",
               "--encoder-widths", "8,8", "--expert-widths", "8,8", "--seed", "0"]

@@ -1,7 +1,7 @@
 import subprocess
 import sys
 
-from pipeline.cli.main import build_parser, main
+from cnep.pipeline.cli.main import build_parser, main
 
 
 def test_help_lists_subcommands_without_heavy_imports():

@@ -21,9 +21,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from models.checkpoint import CHECKSUM_KEY, config_checksum
-from pipeline.cli.main import main
-from recordings import Trajectory, write_demonstration, write_trajectory
+from cnep.models.checkpoint import CHECKSUM_KEY, config_checksum
+from cnep.pipeline.cli.main import main
+from cnep.recordings import Trajectory, write_demonstration, write_trajectory
 from tests.recordings.factories import demonstration_factory
 from tests.recordings.sources import baxter_csv
 
@@ -227,18 +227,18 @@ def part_then_interrupt(path, *args, **kwargs):
 
 
 INTERRUPTED = {  # argv, and the function replaced by one that interrupts (Ctrl-C in the middle of the work)
-    "ingest": lambda w, t: (["ingest", w.csv, "--out", t / "out"], "recordings.writers", "new_writer"),
-    "inspect": lambda w, t: (["inspect", w.demos / "d0.mcap"], "recordings.inspection", "read_mcap"),
-    "repair": lambda w, t: (["repair", w.truncated_demo, t / "out" / "fixed.mcap"], "recordings.container",
+    "ingest": lambda w, t: (["ingest", w.csv, "--out", t / "out"], "cnep.recordings.writers", "new_writer"),
+    "inspect": lambda w, t: (["inspect", w.demos / "d0.mcap"], "cnep.recordings.inspection", "read_mcap"),
+    "repair": lambda w, t: (["repair", w.truncated_demo, t / "out" / "fixed.mcap"], "cnep.recordings.container",
                             "new_writer"),
-    "extract": lambda w, t: (["extract", w.demos, "--out", t / "out"], "recordings.writers", "new_writer"),
-    "train": lambda w, t: (["train", w.trajs, "--out", t / "out" / "ckpt", *TINY_TRAINING], "pipeline.train.stage",
+    "extract": lambda w, t: (["extract", w.demos, "--out", t / "out"], "cnep.recordings.writers", "new_writer"),
+    "train": lambda w, t: (["train", w.trajs, "--out", t / "out" / "ckpt", *TINY_TRAINING], "cnep.pipeline.train.stage",
                            "save_progress"),
     "replay": lambda w, t: (["replay", w.ckpt, w.trajs / "t0.mcap", "--out", t / "out" / "r.rrd", "--no-live"],
-                            "pipeline.replay.stage", "write_recording"),
-    "evaluate": lambda w, t: (["evaluate", *QUICK_EVALUATE, "--out", t / "out"], "pipeline.evaluate.stage",
+                            "cnep.pipeline.replay.stage", "write_recording"),
+    "evaluate": lambda w, t: (["evaluate", *QUICK_EVALUATE, "--out", t / "out"], "cnep.pipeline.evaluate.stage",
                               "run_jobs"),
-    "demo": lambda w, t: (["demo", "--quick", "--out", t / "out"], "pipeline.demo.stage", "ingest"),
+    "demo": lambda w, t: (["demo", "--quick", "--out", t / "out"], "cnep.pipeline.demo.stage", "ingest"),
 }
 
 
@@ -279,7 +279,7 @@ def test_inspect_does_not_import_torch(world):
 def test_a_reader_that_stops_reading_ends_inspect_quietly(world):
     """`cnep inspect A B | head -1`: no BrokenPipeError traceback, exit 0."""
     files = [str(world.demos / f"d{i}.mcap") for i in range(3)] * 20
-    proc = subprocess.Popen([sys.executable, "-m", "pipeline", "inspect", *files], cwd=ROOT, stdout=subprocess.PIPE,
+    proc = subprocess.Popen([sys.executable, "-m", "cnep.pipeline", "inspect", *files], cwd=ROOT, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE)
     proc.stdout.readline()
     proc.stdout.close()  # what `head -1` does after its line
@@ -291,7 +291,7 @@ def test_a_bug_is_exit_1_with_one_line_and_v_shows_the_traceback(world, tmp_path
     def broken(*args, **kwargs):
         raise TypeError("an internal slip")
 
-    monkeypatch.setattr(importlib.import_module("recordings.inspection"), "read_mcap", broken)
+    monkeypatch.setattr(importlib.import_module("cnep.recordings.inspection"), "read_mcap", broken)
     code, err = run_cli(["inspect", world.demos / "d0.mcap"], capsys)
     assert code == 1
     assert_one_line(err, "inspect", "internal error (TypeError: an internal slip)", "this is a bug", "-v")
@@ -408,11 +408,11 @@ def test_train_fits_the_warm_up_into_few_steps_and_says_so(world, tmp_path, capl
 def test_train_help_shows_the_actual_defaults():
     import dataclasses
 
-    from models import TrainConfig
-    from pipeline.cli.train import TRAIN_OPTIONS, train_config_defaults
+    from cnep.models import TrainConfig
+    from cnep.pipeline.cli.train import TRAIN_OPTIONS, train_config_defaults
 
     defaults = {f.name: f.default for f in dataclasses.fields(TrainConfig)}
     assert {name: train_config_defaults()[name] for name in TRAIN_OPTIONS} == {name: defaults[name] for name in TRAIN_OPTIONS}
-    done = subprocess.run([sys.executable, "-m", "pipeline", "train", "--help"], capture_output=True, text=True,
+    done = subprocess.run([sys.executable, "-m", "cnep.pipeline", "train", "--help"], capture_output=True, text=True,
                           cwd=ROOT, timeout=60)
     assert "TrainConfig's default" not in done.stdout and "(default 10000)" in done.stdout

@@ -6,18 +6,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from models import load_checkpoint, read_checkpoint_config
-import pipeline.replay.layout as L
-from pipeline.cli.main import main
-from pipeline.demo.free_choice import gate_census, replay_pick
-from pipeline.demo.stage import GATE_LR_SCALE, QUICK, RRD_FILE, SUMMARY_FILE, online_gates
-from pipeline.errors import PipelineError
-from pipeline.replay.stage import read_decisions
-from pipeline.demo.generator import CHOICE_KEY, LABEL_KEY
-from pipeline.demo.scene import BEHAVIOURS, FREE_CHOICE, SIDES
-from pipeline.train.constants import SCENE
-from recordings import read_demonstration, read_trajectory
-from recordings.constants import STEP_DIM
+from cnep.models import load_checkpoint, read_checkpoint_config
+import cnep.pipeline.replay.layout as L
+from cnep.pipeline.cli.main import main
+from cnep.pipeline.demo.free_choice import gate_census, replay_pick
+from cnep.pipeline.demo.stage import GATE_LR_SCALE, QUICK, RRD_FILE, SUMMARY_FILE, online_gates
+from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.replay.stage import read_decisions
+from cnep.pipeline.demo.generator import CHOICE_KEY, LABEL_KEY
+from cnep.pipeline.demo.scene import BEHAVIOURS, FREE_CHOICE, SIDES
+from cnep.pipeline.train.constants import SCENE
+from cnep.recordings import read_demonstration, read_trajectory
+from cnep.recordings.constants import STEP_DIM
 
 N_TRAIN = QUICK.per_behaviour * len(BEHAVIOURS) + QUICK.free_choice_per_side * len(SIDES)
 N_HELDOUT = QUICK.heldout_per_behaviour * len(BEHAVIOURS)
@@ -177,14 +177,14 @@ def test_the_rrd_holds_each_replayed_recording(demo_run):
 
 def test_a_used_output_folder_is_refused(tmp_path):
     (tmp_path / "something").write_text("x")
-    from pipeline.demo.stage import DemoConfig, run_demo
+    from cnep.pipeline.demo.stage import DemoConfig, run_demo
 
     with pytest.raises(PipelineError, match="not empty"):
         run_demo(DemoConfig(out=tmp_path, quick=True, quiet=True))
 
 
 def test_the_default_output_folder_never_mixes_runs(tmp_path):
-    from pipeline.cli.demo import free_folder
+    from cnep.pipeline.cli.demo import free_folder
 
     base = tmp_path / "cnep-demo"
     assert free_folder(base) == base
@@ -195,7 +195,7 @@ def test_the_default_output_folder_never_mixes_runs(tmp_path):
 
 
 def test_precision_reaches_every_extraction_quantised_on_the_training_frames(tmp_path, monkeypatch):
-    from pipeline.demo import stage
+    from cnep.pipeline.demo import stage
 
     def stop(workers):  # at training: only the extract calls matter here
         raise PipelineError("stopped before training")

@@ -5,10 +5,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.evaluate.baxter import (BOX_X, BOX_Y, MODELS, BaxterConfig, format_table, in_box, load_paths,
+from cnep.pipeline.evaluate.baxter import (BOX_X, BOX_Y, MODELS, BaxterConfig, format_table, in_box, load_paths,
                                       nearest_demo_distance, run_baxter, score_starts, train_models, xy_path)
-from pipeline.errors import PipelineError
-from recordings import Demonstration, Episode
+from cnep.pipeline.errors import PipelineError
+from cnep.recordings import Demonstration, Episode
 
 HEADER = "Time,p_x,p_y,p_z,q_x,q_y,q_z,q_w,gripper_position\n"
 BOX_CENTRE = np.array([(BOX_X[0] + BOX_X[1]) / 2, (BOX_Y[0] + BOX_Y[1]) / 2])

@@ -4,8 +4,8 @@ shows the demonstrator's pick."""
 import numpy as np
 import pytest
 
-from pipeline.demo.free_choice import COMMIT_GATE, SPLIT_GATE, gate_census, replay_pick, starts_split
-from pipeline.demo.generator import CHOICE_KEY, CHOICE_STEP_KEY, make_free_choice
+from cnep.pipeline.demo.free_choice import COMMIT_GATE, SPLIT_GATE, gate_census, replay_pick, starts_split
+from cnep.pipeline.demo.generator import CHOICE_KEY, CHOICE_STEP_KEY, make_free_choice
 
 
 def _trace(first: list[float], last: list[float], steps: int = 6) -> np.ndarray:

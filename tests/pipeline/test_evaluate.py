@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 import torch
 
-import models.baselines.gmm as gmm_module
-from pipeline.cli.main import main
-from pipeline.evaluate.stage import EvaluateConfig, evaluate, plan, pooled, table_rows
-from pipeline.evaluate.constants import PAPER, QUICK_QUERIES, QUICK_SETS, QUICK_STEPS, TABLES
-from pipeline.evaluate.jobs import ModelSpec
+import cnep.models.baselines.gmm as gmm_module
+from cnep.pipeline.cli.main import main
+from cnep.pipeline.evaluate.stage import EvaluateConfig, evaluate, plan, pooled, table_rows
+from cnep.pipeline.evaluate.constants import PAPER, QUICK_QUERIES, QUICK_SETS, QUICK_STEPS, TABLES
+from cnep.pipeline.evaluate.jobs import ModelSpec
 
 
 def test_plan_trains_each_shared_network_once():
@@ -33,7 +33,7 @@ def test_steps_per_set_unless_given():
 
 
 def test_patience_reaches_every_network_unless_turned_off():
-    from pipeline.evaluate.constants import PATIENCE
+    from cnep.pipeline.evaluate.constants import PATIENCE
 
     assert {j.patience for j in plan(EvaluateConfig(tables=("comparison",)))} == {PATIENCE}
     assert {j.patience for j in plan(EvaluateConfig(tables=("comparison",), patience=None))} == {None}
@@ -143,10 +143,10 @@ class _Reports:
 
 
 def test_a_network_job_reports_its_steps_and_trains_as_fit(torch_threads):
-    from models import TrainConfig, fit
-    from models.synthetic import make_set
-    from pipeline.evaluate.constants import REPORT_STEPS
-    from pipeline.evaluate.jobs import Job, model_config, run_job
+    from cnep.models import TrainConfig, fit
+    from cnep.models.synthetic import make_set
+    from cnep.pipeline.evaluate.constants import REPORT_STEPS
+    from cnep.pipeline.evaluate.jobs import Job, model_config, run_job
 
     job = Job("bimodal", 1, ModelSpec(2, assignment="bounded"), steps=REPORT_STEPS + 30, n_queries=3)
     reports = _Reports()
@@ -161,9 +161,9 @@ def test_a_network_job_reports_its_steps_and_trains_as_fit(torch_threads):
 
 
 def test_units_group_one_network_shape_on_one_set():
-    from pipeline.evaluate.constants import UNIT_NETWORKS
-    from pipeline.evaluate.jobs import Job
-    from pipeline.evaluate.stage import units
+    from cnep.pipeline.evaluate.constants import UNIT_NETWORKS
+    from cnep.pipeline.evaluate.jobs import Job
+    from cnep.pipeline.evaluate.stage import units
 
     jobs = [Job("bimodal", seed, ModelSpec(2, a_ind=a_ind), 40, 3) for seed in range(3) for a_ind in (None, 0.0)]
     jobs += [Job("bimodal", 0, None, 40, 3), Job("bimodal", 1, None, 40, 3), Job("bimodal", 0, ModelSpec(1), 40, 3),
@@ -177,7 +177,7 @@ def test_units_group_one_network_shape_on_one_set():
 
 
 def test_a_unit_trains_each_network_as_alone(torch_threads):
-    from pipeline.evaluate.jobs import Job, run_job, run_unit
+    from cnep.pipeline.evaluate.jobs import Job, run_job, run_unit
 
     unit = (Job("bimodal", 0, ModelSpec(2), 60, 3), Job("bimodal", 1, ModelSpec(2, assignment="annealed"), 60, 3))
     reports = _Reports()
@@ -190,8 +190,8 @@ def test_a_unit_trains_each_network_as_alone(torch_threads):
 
 
 def test_an_early_stop_credits_the_steps_it_skipped(monkeypatch, torch_threads):
-    from models.train import Trainer
-    from pipeline.evaluate.jobs import Job, run_job
+    from cnep.models.train import Trainer
+    from cnep.pipeline.evaluate.jobs import Job, run_job
 
     validate = Trainer.validate
     monkeypatch.setattr(Trainer, "validation_due", lambda self: True)  # validate after every step
@@ -204,8 +204,8 @@ def test_an_early_stop_credits_the_steps_it_skipped(monkeypatch, torch_threads):
 
 
 def test_progress_counts_training_steps_in_whole_lines(capsys, torch_threads):
-    from pipeline.evaluate.jobs import Job
-    from pipeline.evaluate.stage import run_jobs
+    from cnep.pipeline.evaluate.jobs import Job
+    from cnep.pipeline.evaluate.stage import run_jobs
 
     jobs = [Job("bimodal", 0, ModelSpec(2), steps=40, n_queries=3), Job("bimodal", 0, ModelSpec(1), steps=40, n_queries=3)]
     assert [job for job, _ in run_jobs(jobs, workers=1, quiet=False)] != []

@@ -4,13 +4,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from perception import FeatureExtractor, PerceptionError, decode_image
-from perception.constants import WEIGHTS_ENV_VAR
-from pipeline.cli.main import main
-from pipeline.errors import PipelineError
-from pipeline.extract.stage import (ExtractConfig, calibration_frames, check_identities, check_same_extractor, extract,
+from cnep.perception import FeatureExtractor, PerceptionError, decode_image
+from cnep.perception.constants import WEIGHTS_ENV_VAR
+from cnep.pipeline.cli.main import main
+from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.extract.stage import (ExtractConfig, calibration_frames, check_identities, check_same_extractor, extract,
                               plan_outputs)
-from recordings import read_trajectory, write_demonstration
+from cnep.recordings import read_trajectory, write_demonstration
 from tests.recordings.factories import demonstration_factory
 
 
@@ -205,7 +205,7 @@ def test_workers_must_be_positive(demos, tmp_path):
 
 
 def test_auto_workers_start_processes_only_for_jobs_that_pay(demos, tmp_path, monkeypatch):
-    from pipeline.extract import stage
+    from cnep.pipeline.extract import stage
 
     monkeypatch.setattr(stage, "cpu_cores", lambda: 2)
     assert stage.auto_workers(demos) == 1  # 12 frames: far below WORKER_MIN_FRAMES, no process is started
@@ -217,7 +217,7 @@ def test_auto_workers_start_processes_only_for_jobs_that_pay(demos, tmp_path, mo
 
 
 def test_cli_workers_auto_extracts_a_small_job_in_this_process(demos, tmp_path, capsys, monkeypatch):
-    from pipeline.extract import stage
+    from cnep.pipeline.extract import stage
 
     monkeypatch.setattr(stage, "extract_in_processes", lambda *a: pytest.fail("started worker processes"))
     assert main(["-q", "extract", *map(str, demos), "--out", str(tmp_path / "out"), "--weights", "random",
@@ -239,7 +239,7 @@ def test_calibrate_on_gives_later_runs_the_first_runs_identity(demos, tmp_path):
 
 
 @pytest.mark.slow  # quantising MobileNet-v2 takes ~10 s (cached afterwards)
-@pytest.mark.skipif("onnxruntime" not in __import__("perception").available_backends(), reason="needs the onnx extra")
+@pytest.mark.skipif("onnxruntime" not in __import__("cnep.perception", fromlist=["_"]).available_backends(), reason="needs the onnx extra")
 def test_int8_features_are_close_to_fp32_and_never_mixed_with_them(demos, tmp_path):
     fp32 = extract(_config(demos, tmp_path / "fp32", backend="onnxruntime"))
     int8 = extract(_config(demos, tmp_path / "int8", backend="onnxruntime", precision="int8"))

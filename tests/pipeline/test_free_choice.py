@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from pipeline.demo.free_choice import PLACE_TOLERANCE, commitment, place_outcomes
-from pipeline.demo.scene import SLOT_XY
+from cnep.pipeline.demo.free_choice import PLACE_TOLERANCE, commitment, place_outcomes
+from cnep.pipeline.demo.scene import SLOT_XY
 
 NEAR, FAR = np.asarray(SLOT_XY["near"]), np.asarray(SLOT_XY["far"])
 

@@ -6,9 +6,9 @@ import logging
 import pytest
 from tqdm.contrib.logging import logging_redirect_tqdm
 
-import pipeline.progress as progress
-from pipeline.cli.main import main
-from recordings import write_demonstration
+import cnep.pipeline.progress as progress
+from cnep.pipeline.cli.main import main
+from cnep.recordings import write_demonstration
 from tests.recordings.factories import demonstration_factory
 
 

@@ -15,13 +15,13 @@ import numpy as np
 import pytest
 import torch
 
-from models import CNEPConfig, Layout, build_model, save_checkpoint
-import pipeline.replay.layout as L
-from pipeline.cli.main import main
-from pipeline.errors import PipelineError
-from pipeline.replay.stage import decisions_path, read_decisions, replay, serve, viewer_reachable
-from recordings import Episode, Trajectory, read_events, write_trajectory
-from recordings.constants import LAYOUT_FULL, LAYOUT_MOTION, MOTION_DIM, STEP_DIM
+from cnep.models import CNEPConfig, Layout, build_model, save_checkpoint
+import cnep.pipeline.replay.layout as L
+from cnep.pipeline.cli.main import main
+from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.replay.stage import decisions_path, read_decisions, replay, serve, viewer_reachable
+from cnep.recordings import Episode, Trajectory, read_events, write_trajectory
+from cnep.recordings.constants import LAYOUT_FULL, LAYOUT_MOTION, MOTION_DIM, STEP_DIM
 
 RERUN = Path(sys.executable).parent / "rerun"
 N_EXPERTS = 3
@@ -281,7 +281,7 @@ def free_port() -> int:
 def test_no_viewer_means_a_warning_and_the_file(tmp_path, checkpoint, caplog):
     rec = write_trajectory(tmp_path / "ep.mcap", trajectory(steps=10, frames=False))
     url = f"rerun+http://127.0.0.1:{free_port()}/proxy"
-    with caplog.at_level(logging.WARNING, logger="pipeline.replay.stage"):
+    with caplog.at_level(logging.WARNING, logger="cnep.pipeline.replay.stage"):
         (out,) = replay(checkpoint, [rec], tmp_path / "r.rrd", connect=url, quiet=True)
     assert "no Rerun viewer answers" in caplog.text
     assert column(out, L.CAMERA, "EncodedImage:blob") == ([], [])  # motion-only: no camera entity
@@ -315,7 +315,7 @@ def test_a_reachable_viewer_receives_the_live_stream_and_the_file_is_still_compl
         while not viewer_reachable(url) and time.monotonic() < deadline:
             time.sleep(0.1)
         rec = write_trajectory(tmp_path / "ep.mcap", trajectory(steps=15))
-        with caplog.at_level(logging.INFO, logger="pipeline.replay.stage"):
+        with caplog.at_level(logging.INFO, logger="cnep.pipeline.replay.stage"):
             (out,) = replay(checkpoint, [rec], tmp_path / "r.rrd", connect=url, quiet=True)
         assert f"streaming live to {url}" in caplog.text
         while gate_rows_received(received) < 15 and time.monotonic() < deadline:
@@ -333,7 +333,7 @@ def test_serve_hosts_a_server_that_replay_streams_to(tmp_path, checkpoint, caplo
     try:
         assert viewer_reachable(url)
         rec = write_trajectory(tmp_path / "ep.mcap", trajectory(steps=15))
-        with caplog.at_level(logging.INFO, logger="pipeline.replay.stage"):
+        with caplog.at_level(logging.INFO, logger="cnep.pipeline.replay.stage"):
             (out,) = replay(checkpoint, [rec], tmp_path / "r.rrd", connect=url, quiet=True)
         assert "streaming live" in caplog.text
     finally:

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 import torch
 
-from models import CNEPConfig, Layout, TrainConfig, fit, save_checkpoint
-from pipeline.replay.stage import read_decisions, replay
-from recordings import Episode, Trajectory, write_trajectory
-from recordings.constants import FEATURE_DIM, STEP_DIM
+from cnep.models import CNEPConfig, Layout, TrainConfig, fit, save_checkpoint
+from cnep.pipeline.replay.stage import read_decisions, replay
+from cnep.recordings import Episode, Trajectory, write_trajectory
+from cnep.recordings.constants import FEATURE_DIM, STEP_DIM
 
 T = 60
 

@@ -5,13 +5,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from perception import FeatureExtractor, decode_image
-from pipeline.demo.free_choice import place_outcomes
-from pipeline.demo.scene import (BEHAVIOURS, BLOCK_RGB, FRAME_HEIGHT, FRAME_WIDTH, FREE_CHOICE, draw_frame,
+from cnep.perception import FeatureExtractor, decode_image
+from cnep.pipeline.demo.free_choice import place_outcomes
+from cnep.pipeline.demo.scene import (BEHAVIOURS, BLOCK_RGB, FRAME_HEIGHT, FRAME_WIDTH, FREE_CHOICE, draw_frame,
                                  gripper_quaternion, sample_scene, yaw_of)
-from pipeline.demo.generator import (CHOICE_KEY, CHOICE_STEP_KEY, GRIPPER_OPEN, HOME, LABEL_KEY, SWITCH_KEY,
+from cnep.pipeline.demo.generator import (CHOICE_KEY, CHOICE_STEP_KEY, GRIPPER_OPEN, HOME, LABEL_KEY, SWITCH_KEY,
                                      DemoSetConfig, generate)
-from recordings import read_demonstration
+from cnep.recordings import read_demonstration
 
 STEPS = 24
 SCENES = 8  # per behaviour, in the read-out check

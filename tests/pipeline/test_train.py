@@ -8,17 +8,17 @@ import pytest
 import torch
 from safetensors.torch import load_file
 
-from models import Trainer, TrainConfig, load_checkpoint, read_checkpoint_config
-from models.loss import settled_fraction
-from models.sampler import TrajectoryStack
-from pipeline.cli.main import main
-from pipeline.errors import PipelineError
-from pipeline.train.stage import StageTrainer, TrainStageConfig, train
-from pipeline.train.constants import LOG_FILE, STATE_FILE
-from pipeline.train.layouts import resolve_layout
-from pipeline.train.parallel import rank_seed
-from pipeline.train.state import work_dir
-from recordings import Trajectory, read_trajectory, write_trajectory
+from cnep.models import Trainer, TrainConfig, load_checkpoint, read_checkpoint_config
+from cnep.models.loss import settled_fraction
+from cnep.models.sampler import TrajectoryStack
+from cnep.pipeline.cli.main import main
+from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.train.stage import StageTrainer, TrainStageConfig, train
+from cnep.pipeline.train.constants import LOG_FILE, STATE_FILE
+from cnep.pipeline.train.layouts import resolve_layout
+from cnep.pipeline.train.parallel import rank_seed
+from cnep.pipeline.train.state import work_dir
+from cnep.recordings import Trajectory, read_trajectory, write_trajectory
 from tests.recordings.factories import trajectory_factory
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # tiny models run on one thread

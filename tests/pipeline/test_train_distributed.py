@@ -11,11 +11,11 @@ import torch
 from safetensors.torch import load_file
 from torch import distributed as dist
 
-from models import load_checkpoint, read_checkpoint_config
-from pipeline.cli.main import main
-from pipeline.train import stage
-from pipeline.train.parallel import Processes
-from recordings import read_trajectory
+from cnep.models import load_checkpoint, read_checkpoint_config
+from cnep.pipeline.cli.main import main
+from cnep.pipeline.train import stage
+from cnep.pipeline.train.parallel import Processes
+from cnep.recordings import read_trajectory
 from tests.pipeline.test_train import stage_config, write_set
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # tiny models run on one thread
@@ -30,7 +30,7 @@ def test_two_process_torchrun_trains_a_loadable_checkpoint(tmp_path):
     out = tmp_path / "runs" / "ddp"
     env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": str(Path(__file__).parents[2])}
     done = subprocess.run([sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node=2",
-                           "-m", "pipeline", "-q", "train", str(tmp_path / "data"), "--out", str(out),
+                           "-m", "cnep.pipeline", "-q", "train", str(tmp_path / "data"), "--out", str(out),
                            "--layout", "motion", *ARGS], env=env, capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr[-3000:]
     assert done.stdout.count("best validation error") == 1  # only rank 0 reports

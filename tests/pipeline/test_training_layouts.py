@@ -5,14 +5,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from models import TrainConfig, load_checkpoint, read_checkpoint_config
-from models.online import ConditioningPolicy
-from pipeline.errors import PipelineError
-from pipeline.replay.stage import RowMapping, decide
-from pipeline.train.stage import TrainStageConfig, train
-from pipeline.train.constants import PRESET_NAMES, SCENE
-from pipeline.train.layouts import resolve_layout
-from recordings import read_trajectory, write_trajectory
+from cnep.models import TrainConfig, load_checkpoint, read_checkpoint_config
+from cnep.models.online import ConditioningPolicy
+from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.replay.stage import RowMapping, decide
+from cnep.pipeline.train.stage import TrainStageConfig, train
+from cnep.pipeline.train.constants import PRESET_NAMES, SCENE
+from cnep.pipeline.train.layouts import resolve_layout
+from cnep.recordings import read_trajectory, write_trajectory
 from tests.recordings.factories import trajectory_factory
 
 pytestmark = pytest.mark.usefixtures("one_thread")

@@ -1,6 +1,6 @@
 import os
 
-from pipeline.workers import SMALL_MODEL_MALLOC, THREAD_VARIABLES, single_thread_processes
+from cnep.pipeline.workers import SMALL_MODEL_MALLOC, THREAD_VARIABLES, single_thread_processes
 
 
 def threads_seen() -> tuple[dict, int]:
@@ -23,7 +23,7 @@ def test_workers_start_with_one_thread_and_the_environment_is_restored(monkeypat
 
 
 def test_inference_threads_share_the_cores_unless_given(monkeypatch):
-    from pipeline import workers
+    from cnep.pipeline import workers
 
     monkeypatch.setattr(workers, "cpu_cores", lambda: 8)
     assert workers.inference_threads() == 8
@@ -35,7 +35,7 @@ def test_inference_threads_share_the_cores_unless_given(monkeypatch):
 def test_torch_threads_is_restored():
     import torch
 
-    from pipeline.workers import torch_threads
+    from cnep.pipeline.workers import torch_threads
 
     before = torch.get_num_threads()
     with torch_threads(3):

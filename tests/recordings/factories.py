@@ -5,7 +5,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from recordings import Demonstration, Episode, Trajectory
+from cnep.recordings import Demonstration, Episode, Trajectory
 
 
 def jpeg_frames(steps: int, size: int = 16, seed: int = 0) -> list[bytes]:

@@ -7,7 +7,7 @@ import pytest
 from mcap.reader import make_reader
 from mcap.writer import Writer
 
-from recordings import (
+from cnep.recordings import (
     Demonstration,
     Episode,
     RecordingError,
@@ -17,9 +17,9 @@ from recordings import (
     write_demonstration,
     write_trajectory,
 )
-from recordings.constants import TOPIC_GRIPPER, TOPIC_TRAJECTORY
-from recordings.container import read_mcap
-from recordings.schemas import encode_vector
+from cnep.recordings.constants import TOPIC_GRIPPER, TOPIC_TRAJECTORY
+from cnep.recordings.container import read_mcap
+from cnep.recordings.schemas import encode_vector
 from tests.recordings.factories import demonstration_factory, jpeg_frames, trajectory_factory
 
 
@@ -235,7 +235,7 @@ def test_episode_validation(kwargs, words):
 
 
 def test_writer_rejects_backwards_step_and_mixed_frames(tmp_path):
-    from recordings import DemonstrationWriter
+    from cnep.recordings import DemonstrationWriter
 
     demo = demonstration_factory(steps=3, frames=False)
     with pytest.raises(RecordingError, match="backwards"):

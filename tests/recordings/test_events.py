@@ -1,9 +1,9 @@
 import numpy as np
 import pytest
 
-from recordings import Event, RecordingError, add_events, read_events, read_trajectory, write_trajectory
-from recordings.constants import TOPIC_EVENTS
-from recordings.container import read_mcap
+from cnep.recordings import Event, RecordingError, add_events, read_events, read_trajectory, write_trajectory
+from cnep.recordings.constants import TOPIC_EVENTS
+from cnep.recordings.container import read_mcap
 from tests.recordings.factories import trajectory_factory
 
 

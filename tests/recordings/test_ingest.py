@@ -5,13 +5,13 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from pipeline.cli.main import main
-from pipeline.errors import PipelineError
-from pipeline.ingest.stage import IngestConfig, ingest
-from recordings import RecordingError, read_demonstration
-from recordings.adapters import FrameTiming, demonstration_from_csv
-from recordings.csv_motion import CsvColumns
-from recordings.mcap_source import McapTopics
+from cnep.pipeline.cli.main import main
+from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.ingest.stage import IngestConfig, ingest
+from cnep.recordings import RecordingError, read_demonstration
+from cnep.recordings.adapters import FrameTiming, demonstration_from_csv
+from cnep.recordings.csv_motion import CsvColumns
+from cnep.recordings.mcap_source import McapTopics
 from tests.recordings.sources import baxter_csv, images, jpeg_of, motion, robot_mcap, robot_samples, ros2_robot_mcap, video
 
 
@@ -252,7 +252,7 @@ def test_a_corrupt_jpeg_in_an_image_folder_is_refused_at_ingest(tmp_path):
 
 
 def test_check_decodable_names_the_first_bad_frame():
-    from recordings.media import check_decodable
+    from cnep.recordings.media import check_decodable
 
     good = jpeg_of(np.zeros((8, 8, 3), np.uint8))
     check_decodable([good, good], "x.mcap")

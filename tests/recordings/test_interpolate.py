@@ -3,8 +3,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from recordings import RecordingError
-from recordings.interpolate import interpolate_linear, slerp
+from cnep.recordings import RecordingError
+from cnep.recordings.interpolate import interpolate_linear, slerp
 
 
 def z_rotation(angle):

@@ -9,11 +9,11 @@ import pytest
 pytest.importorskip("pyarrow")
 pytest.importorskip("av")
 
-from pipeline.cli.main import main  # noqa: E402
-from pipeline.ingest.stage import IngestConfig, ingest  # noqa: E402
-from recordings import RecordingError, read_demonstration  # noqa: E402
-from recordings.lerobot import LerobotMapping, demonstration_from_lerobot, plan_lerobot  # noqa: E402
-from recordings.lerobot_columns import quaternion_from_rpy  # noqa: E402
+from cnep.pipeline.cli.main import main  # noqa: E402
+from cnep.pipeline.ingest.stage import IngestConfig, ingest  # noqa: E402
+from cnep.recordings import RecordingError, read_demonstration  # noqa: E402
+from cnep.recordings.lerobot import LerobotMapping, demonstration_from_lerobot, plan_lerobot  # noqa: E402
+from cnep.recordings.lerobot_columns import quaternion_from_rpy  # noqa: E402
 from tests.recordings.lerobot_sources import TASKS, build_lerobot, level_of, state_of  # noqa: E402
 
 STEPS, FPS = 6, 10

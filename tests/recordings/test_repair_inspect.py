@@ -1,10 +1,10 @@
 import numpy as np
 import pytest
 
-from pipeline.cli.main import main
-from recordings import RecordingError, read_demonstration, read_trajectory, write_demonstration, write_trajectory
-from recordings.inspection import format_report, inspect_file
-from recordings.repair import repair
+from cnep.pipeline.cli.main import main
+from cnep.recordings import RecordingError, read_demonstration, read_trajectory, write_demonstration, write_trajectory
+from cnep.recordings.inspection import format_report, inspect_file
+from cnep.recordings.repair import repair
 from tests.recordings.factories import demonstration_factory, trajectory_factory
 
 

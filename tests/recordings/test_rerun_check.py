@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.ingest.stage import IngestConfig, ingest
-from recordings import Event, add_events, write_demonstration, write_trajectory
-from recordings.mcap_source import McapTopics
-from recordings.repair import repair
+from cnep.pipeline.ingest.stage import IngestConfig, ingest
+from cnep.recordings import Event, add_events, write_demonstration, write_trajectory
+from cnep.recordings.mcap_source import McapTopics
+from cnep.recordings.repair import repair
 from tests.recordings.factories import demonstration_factory, trajectory_factory
 from tests.recordings.sources import baxter_csv, ros2_robot_mcap
 

@@ -6,11 +6,11 @@ import pytest
 
 pytest.importorskip("rosbags")
 
-from pipeline.cli.main import main  # noqa: E402
-from pipeline.ingest.stage import IngestConfig, ingest  # noqa: E402
-from recordings import RecordingError, read_demonstration  # noqa: E402
-from recordings.mcap_source import McapTopics  # noqa: E402
-from recordings.rosbag import demonstration_from_rosbag  # noqa: E402
+from cnep.pipeline.cli.main import main  # noqa: E402
+from cnep.pipeline.ingest.stage import IngestConfig, ingest  # noqa: E402
+from cnep.recordings import RecordingError, read_demonstration  # noqa: E402
+from cnep.recordings.mcap_source import McapTopics  # noqa: E402
+from cnep.recordings.rosbag import demonstration_from_rosbag  # noqa: E402
 from tests.recordings.rosbag_sources import FRAME_TIMES_S, T0_NS, frame_level, write_ros1_bag, write_ros2_bag  # noqa: E402
 from tests.recordings.sources import motion  # noqa: E402
 

@@ -4,8 +4,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-import recordings
-from recordings import (
+from cnep import recordings
+from cnep.recordings import (
     LAYOUT_FULL,
     LAYOUT_MOTION,
     DemonstrationReader,
@@ -19,8 +19,8 @@ from recordings import (
     write_demonstration,
     write_trajectory,
 )
-from recordings.constants import METADATA_STEPS, TOPIC_GRIPPER, TOPIC_IMAGE, TOPIC_POSE, TOPIC_TRAJECTORY
-from recordings.container import read_mcap
+from cnep.recordings.constants import METADATA_STEPS, TOPIC_GRIPPER, TOPIC_IMAGE, TOPIC_POSE, TOPIC_TRAJECTORY
+from cnep.recordings.container import read_mcap
 from tests.recordings.factories import demonstration_factory, random_pose, trajectory_factory
 
 
@@ -168,7 +168,7 @@ def test_feature_vector_bytes_decode_with_the_protobuf_runtime():
     """Any protobuf-aware MCAP tool builds the class from the schema in the file: check it decodes ours."""
     from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 
-    from recordings.schemas import encode_vector, feature_vector_schema, vector_payload
+    from cnep.recordings.schemas import encode_vector, feature_vector_schema, vector_payload
 
     pool = descriptor_pool.DescriptorPool()
     for fd in descriptor_pb2.FileDescriptorSet.FromString(feature_vector_schema()).file:
@@ -190,8 +190,9 @@ def test_recordings_never_imports_torch_pipeline_or_opencv_at_import():
     import sys
 
     code = (
-        "import sys, recordings, recordings.repair, recordings.inspection, recordings.mcap_source, recordings.adapters; "
-        "print(','.join(m for m in ('torch', 'pipeline', 'cv2', 'perception', 'models') if m in sys.modules))"
+        "import sys, cnep.recordings, cnep.recordings.repair, cnep.recordings.inspection, cnep.recordings.mcap_source, "
+        "cnep.recordings.adapters; "
+        "print(','.join(m for m in ('torch', 'cnep.pipeline', 'cv2', 'cnep.perception', 'cnep.models') if m in sys.modules))"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == ""
@@ -199,7 +200,7 @@ def test_recordings_never_imports_torch_pipeline_or_opencv_at_import():
 
 @pytest.mark.parametrize("compression", ["", "lz4", "zstd"])
 def test_reader_accepts_any_chunk_compression(tmp_path, compression):
-    from recordings.container import new_writer
+    from cnep.recordings.container import new_writer
 
     traj = trajectory_factory(steps=9, features=False)
     contents = read_mcap(write_trajectory(tmp_path / "t.mcap", traj))
