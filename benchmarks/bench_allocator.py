@@ -59,13 +59,28 @@ def main() -> None:
     base = {name: value for name, value in os.environ.items() if name not in SMALL_MODEL_MALLOC}
     for _ in range(args.rounds):
         for label, env in (("glibc default", base), ("SMALL_MODEL_MALLOC", {**base, **SMALL_MODEL_MALLOC})):
-            command = [sys.executable, "-m", "benchmarks.bench_allocator", "--child", "--experts", str(args.experts),
-                       "--k", str(args.k), "--steps", str(args.steps)]
-            r = json.loads(subprocess.run(command, env={**env, "OMP_NUM_THREADS": "1"}, check=True,
-                                          capture_output=True, text=True).stdout.splitlines()[-1])
-            print(f"{label:>18}: model-steps per CPU-s sequential {r['sequential']:.1f}, batched {r['batched']:.1f} "
-                  f"({r['batched'] / r['sequential']:.2f}x); minor faults a step {r['sequential_faults']:.0f} / "
-                  f"{r['batched_faults']:.0f}")
+            command = [
+                sys.executable,
+                "-m",
+                "benchmarks.bench_allocator",
+                "--child",
+                "--experts",
+                str(args.experts),
+                "--k",
+                str(args.k),
+                "--steps",
+                str(args.steps),
+            ]
+            r = json.loads(
+                subprocess.run(
+                    command, env={**env, "OMP_NUM_THREADS": "1"}, check=True, capture_output=True, text=True
+                ).stdout.splitlines()[-1]
+            )
+            print(
+                f"{label:>18}: model-steps per CPU-s sequential {r['sequential']:.1f}, batched {r['batched']:.1f} "
+                f"({r['batched'] / r['sequential']:.2f}x); minor faults a step {r['sequential_faults']:.0f} / "
+                f"{r['batched_faults']:.0f}"
+            )
     print(f"load after: {os.getloadavg()[0]:.2f}")
 
 

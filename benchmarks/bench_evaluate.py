@@ -61,16 +61,20 @@ def main() -> None:
         if job.spec is not None:
             shapes[(job.set_name, job.spec.n_experts)].append(job)
     total = 0.0
-    print(f"{len(jobs)} fits, {sum(len(v) for v in shapes.values())} networks, "
-          f"{sum(j.steps for v in shapes.values() for j in v)} training steps")
+    print(
+        f"{len(jobs)} fits, {sum(len(v) for v in shapes.values())} networks, "
+        f"{sum(j.steps for v in shapes.values() for j in v)} training steps"
+    )
     print("| set | network | networks | steps each | steps/s | score s | core-s |\n|---|---|---|---|---|---|---|")
     for (set_name, d), group in sorted(shapes.items()):
         rate, score_s = network_rate(group[0], args.steps)
         seconds = sum(j.steps / rate + score_s for j in group)
         total += seconds
         name = "CNMP" if d == 1 else f"CNEP d={d}"
-        print(f"| {set_name} | {name} | {len(group)} | {group[0].steps} | {rate:.1f} | {score_s:.2f} | {seconds:.0f} |",
-              flush=True)
+        print(
+            f"| {set_name} | {name} | {len(group)} | {group[0].steps} | {rate:.1f} | {score_s:.2f} | {seconds:.0f} |",
+            flush=True,
+        )
     for set_name in dict.fromkeys(j.set_name for j in jobs):
         start = time.perf_counter()
         run_job(Job(set_name, 0, None, 0, jobs[0].n_queries))

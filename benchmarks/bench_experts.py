@@ -61,7 +61,7 @@ class LoopCNEP(nn.Module):
     def __init__(self, model: CNEP) -> None:
         super().__init__()
         self.batched = model
-        self.encoder = nn.Sequential(*[m for m in _copy(model).encoder])
+        self.encoder = nn.Sequential(*list(_copy(model).encoder))
         self.gate = _copy(model).gate
         self.experts = LoopExperts(model)
 
@@ -144,7 +144,10 @@ def main() -> None:
     torch.set_num_threads(1)
     torch.manual_seed(0)
     data = make_set(SYNTHETIC_SET, 0)
-    print(f"one training step (batch {args.batch}, n_max = m_max = 10, {SYNTHETIC_SET} set, 1 thread), median of {args.repeats}")
+    print(
+        f"one training step (batch {args.batch}, n_max = m_max = 10, {SYNTHETIC_SET} set, 1 thread), "
+        f"median of {args.repeats}"
+    )
     print(f"{'d':>3} {'batched ms':>11} {'loop ms':>9} {'loop / batched':>15}")
     for d in args.experts:
         config = CNEPConfig(n_experts=d)

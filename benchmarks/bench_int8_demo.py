@@ -37,7 +37,8 @@ PRECISIONS = ("fp32", "int8")
 
 
 def demo_folder(out: Path, precision: str, seed: int, backend: str = "auto") -> Path:
-    """The demo of `precision` and `seed` under `out` (features on `backend`), run now unless a finished one is there."""
+    """The demo of `precision` and `seed` under `out` (features on `backend`), run now unless a finished one is
+    there."""
     folder = out / (f"demo-{precision}-s{seed}" if backend == "auto" else f"demo-{precision}-{backend}-s{seed}")
     if not (folder / SUMMARY_FILE).is_file():
         config = DemoConfig(out=folder, seed=seed, precision=precision, quiet=True, force=folder.exists())
@@ -60,8 +61,13 @@ def feature_error(fp32: Path, int8: Path) -> dict[str, float]:
         cosines.append((a * b).sum(1) / np.linalg.norm(a, axis=1) / np.linalg.norm(b, axis=1))
         relative.append(np.linalg.norm(a - b, axis=1) / np.linalg.norm(a, axis=1))
     cos, rel = np.concatenate(cosines), np.concatenate(relative)
-    return {"steps": len(cos), "cosine_min": float(cos.min()), "cosine_median": float(np.median(cos)),
-            "relative_l2_median": float(np.median(rel)), "relative_l2_max": float(rel.max())}
+    return {
+        "steps": len(cos),
+        "cosine_min": float(cos.min()),
+        "cosine_median": float(np.median(cos)),
+        "relative_l2_median": float(np.median(rel)),
+        "relative_l2_max": float(rel.max()),
+    }
 
 
 def first_step_spread(demo: Path) -> dict[str, float]:
@@ -77,8 +83,11 @@ def first_step_spread(demo: Path) -> dict[str, float]:
     distance = np.linalg.norm(x[:, None] - x[None], axis=-1) / np.median(np.linalg.norm(x, axis=1))  # (n, n)
     same = (y[:, None] == y[None]) & ~np.eye(len(y), dtype=bool)
     different = y[:, None] != y[None]
-    return {"same": float(np.median(distance[same])), "different": float(np.median(distance[different])),
-            "different_min": float(distance[different].min())}
+    return {
+        "same": float(np.median(distance[same])),
+        "different": float(np.median(distance[different])),
+        "different_min": float(distance[different].min()),
+    }
 
 
 def describe(summary: dict) -> str:
@@ -87,13 +96,17 @@ def describe(summary: dict) -> str:
     purity = " ".join(f"{name} {row['purity']:.2f}->{row['expert']}" for name, row in behaviours.items())
     lines = [f"  purity: {purity}; {len({row['expert'] for row in behaviours.values()})} distinct experts"]
     for model, row in summary["heldout"].items():
-        lines.append(f"  {model}: held-out position RMSE {100 * row['position_rmse_m']:.2f} cm (median "
-                     f"{100 * row['position_rmse_median_m']:.2f}), gripper MAE {1000 * row['gripper_mae_m']:.2f} mm, "
-                     f"behaviour accuracy {row['behaviour_accuracy']:.2f}; free choice in a slot "
-                     f"{summary['free_choice'][model]['valid']:.2f}")
+        lines.append(
+            f"  {model}: held-out position RMSE {100 * row['position_rmse_m']:.2f} cm (median "
+            f"{100 * row['position_rmse_median_m']:.2f}), gripper MAE {1000 * row['gripper_mae_m']:.2f} mm, "
+            f"behaviour accuracy {row['behaviour_accuracy']:.2f}; free choice in a slot "
+            f"{summary['free_choice'][model]['valid']:.2f}"
+        )
     for change in summary["scene_change"]:
-        lines.append(f"  scene change at step {change['change_step']}: expert {change['expert_before']} -> "
-                     f"{change['expert_after']}, switches {change['switches']}")
+        lines.append(
+            f"  scene change at step {change['change_step']}: expert {change['expert_before']} -> "
+            f"{change['expert_after']}, switches {change['switches']}"
+        )
     lines.append(f"  extract stage {summary['seconds']['extract']:.1f} s")
     return "\n".join(lines)
 
@@ -115,13 +128,17 @@ def main() -> None:
             if name == "fp32":
                 continue
             error = feature_error(folders["fp32"], folder)
-            print(f"seed {seed}: {name} vs fp32 features over {error['steps']} steps: cosine min "
-                  f"{error['cosine_min']:.6f} median {error['cosine_median']:.6f}, relative L2 median "
-                  f"{error['relative_l2_median']:.2e} max {error['relative_l2_max']:.2e}")
+            print(
+                f"seed {seed}: {name} vs fp32 features over {error['steps']} steps: cosine min "
+                f"{error['cosine_min']:.6f} median {error['cosine_median']:.6f}, relative L2 median "
+                f"{error['relative_l2_median']:.2e} max {error['relative_l2_max']:.2e}"
+            )
         spread = first_step_spread(folders["fp32"])
-        print(f"seed {seed}: fp32 first-step features of two training scenes lie {spread['same']:.4f} apart (relative "
-              f"L2, median) for the same behaviour, {spread['different']:.4f} for different ones (closest pair "
-              f"{spread['different_min']:.4f})")
+        print(
+            f"seed {seed}: fp32 first-step features of two training scenes lie {spread['same']:.4f} apart (relative "
+            f"L2, median) for the same behaviour, {spread['different']:.4f} for different ones (closest pair "
+            f"{spread['different_min']:.4f})"
+        )
 
 
 if __name__ == "__main__":

@@ -48,16 +48,38 @@ def main() -> None:
     frames = args.episodes * args.steps
     python = [sys.executable, "-m", "cnep.pipeline"]
     ingest_s = timed([*python, "ingest", str(work / "dataset"), "--out", str(work / "demos")], work / "ingest.log", env)
-    extract_s = timed([*python, "extract", str(work / "demos"), "--out", str(work / "traj"), "--weights", "random",
-                       "--backend", "eager", "--threads", str(args.threads)], work / "extract.log", env)
+    extract_s = timed(
+        [
+            *python,
+            "extract",
+            str(work / "demos"),
+            "--out",
+            str(work / "traj"),
+            "--weights",
+            "random",
+            "--backend",
+            "eager",
+            "--threads",
+            str(args.threads),
+        ],
+        work / "extract.log",
+        env,
+    )
     lines = (work / "extract.log").read_text().splitlines()
-    print(f"dataset: LeRobot {args.version}, {args.episodes} episodes x {args.steps} frames of {args.size}x{args.size} "
-          f"px (H.264), built in {built:.1f} s")
+    print(
+        f"dataset: LeRobot {args.version}, {args.episodes} episodes x {args.steps} frames of {args.size}x{args.size} "
+        f"px (H.264), built in {built:.1f} s"
+    )
     print(f"ingest : {ingest_s:6.1f} s  ({frames / ingest_s:6.1f} frames/s, process start-up included)")
-    print(f"extract: {extract_s:6.1f} s  ({frames / extract_s:6.1f} frames/s, {args.threads} thread(s), incl. "
-          f"calibration and start-up)")
-    print(f"extract log (stderr not a terminal): {len(lines)} lines, {sum(l.count(chr(13)) for l in lines)} carriage "
-          f"returns; last: {lines[-1] if lines else ''}")
+    print(
+        f"extract: {extract_s:6.1f} s  ({frames / extract_s:6.1f} frames/s, {args.threads} thread(s), incl. "
+        f"calibration and start-up)"
+    )
+    print(
+        f"extract log (stderr not a terminal): {len(lines)} lines, "
+        f"{sum(line.count(chr(13)) for line in lines)} carriage "
+        f"returns; last: {lines[-1] if lines else ''}"
+    )
     print(f"load average: {os.getloadavg()[0]:.2f}; work folder: {work}")
 
 

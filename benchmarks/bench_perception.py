@@ -26,8 +26,8 @@ from torchvision.models import mobilenet_v2
 from torchvision.transforms.v2 import functional as tvf
 
 from cnep.perception import FeatureExtractor, available_backends
-from cnep.pipeline.extract.stage import decode_batch, features_of_frames
 from cnep.perception.constants import DEFAULT_BATCH_SIZE, IMAGE_SIZE, IMAGENET_MEAN, IMAGENET_STD
+from cnep.pipeline.extract.stage import decode_batch, features_of_frames
 
 GFLOP_PER_FRAME = 0.6  # MobileNet-v2 features at 224x224: ~0.3 G multiply-adds
 FRAME_HW = (480, 640)  # a typical camera frame
@@ -67,9 +67,12 @@ def _onnx_matmul_session(threads: int) -> object:
     from onnx import TensorProto, helper
 
     shape = [MATMUL_SIZE, MATMUL_SIZE]
-    graph = helper.make_graph([helper.make_node("MatMul", ["a", "b"], ["c"])], "matmul",
-                              [helper.make_tensor_value_info(n, TensorProto.FLOAT, shape) for n in "ab"],
-                              [helper.make_tensor_value_info("c", TensorProto.FLOAT, shape)])
+    graph = helper.make_graph(
+        [helper.make_node("MatMul", ["a", "b"], ["c"])],
+        "matmul",
+        [helper.make_tensor_value_info(n, TensorProto.FLOAT, shape) for n in "ab"],
+        [helper.make_tensor_value_info("c", TensorProto.FLOAT, shape)],
+    )
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)], ir_version=8)
     options = ort.SessionOptions()
     options.intra_op_num_threads = threads
@@ -110,8 +113,9 @@ def extractor_path(frames: np.ndarray, backend: str, threads: int, batch_size: i
 
 def jpeg_frames(frames: np.ndarray, quality: int = 90) -> list[bytes]:
     """JPEG bytes of (N, H, W, 3) uint8 RGB frames, as a demonstration file stores them."""
-    encoded = [cv2.imencode(".jpg", cv2.cvtColor(f, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, quality])[1]
-               for f in frames]
+    encoded = [
+        cv2.imencode(".jpg", cv2.cvtColor(f, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, quality])[1] for f in frames
+    ]
     return [e.tobytes() for e in encoded]
 
 
@@ -120,16 +124,22 @@ def stage_paths(frames: np.ndarray, threads: int, batch_size: int) -> dict[str, 
     extractor = FeatureExtractor("random", backend="auto", threads=threads, batch_size=batch_size)
     extractor.calibrate(frames[:8])
     jpegs, src = jpeg_frames(frames), Path("benchmark.mcap")
-    return {"(d) JPEG: decode all, then infer": lambda: extractor.features(decode_batch(jpegs, 0, len(jpegs), src)),
-            "(d) JPEG: decode overlapped (stage)": lambda: features_of_frames(jpegs, extractor, src)}
+    return {
+        "(d) JPEG: decode all, then infer": lambda: extractor.features(decode_batch(jpegs, 0, len(jpegs), src)),
+        "(d) JPEG: decode overlapped (stage)": lambda: features_of_frames(jpegs, extractor, src),
+    }
 
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=64, help="frames per timed pass (default 64)")
     parser.add_argument("--threads", type=int, default=os.cpu_count(), help="CPU threads (default: all cores)")
-    parser.add_argument("--batch-size", type=int, default=DEFAULT_BATCH_SIZE,
-                        help=f"frames per forward pass of the project paths (default {DEFAULT_BATCH_SIZE})")
+    parser.add_argument(
+        "--batch-size",
+        type=int,
+        default=DEFAULT_BATCH_SIZE,
+        help=f"frames per forward pass of the project paths (default {DEFAULT_BATCH_SIZE})",
+    )
     parser.add_argument("--repeats", type=int, default=3, help="timed passes per path, best kept (default 3)")
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
@@ -140,22 +150,31 @@ def main(argv: list[str] | None = None) -> None:
     gflops = max(matmul.values())
     limit_fps = gflops / GFLOP_PER_FRAME
     default = available_backends()[0]
-    paths = {"(a) naive per-frame eager loop": naive_loop(frames),
-             f"(b) project default [{default}]": extractor_path(frames, "auto", args.threads, args.batch_size)}
+    paths = {
+        "(a) naive per-frame eager loop": naive_loop(frames),
+        f"(b) project default [{default}]": extractor_path(frames, "auto", args.threads, args.batch_size),
+    }
     for backend in available_backends()[1:]:
         paths[f"(c) backend {backend}"] = extractor_path(frames, backend, args.threads, args.batch_size)
 
-    print(f"torch {torch.__version__}, {args.threads} threads, {args.frames} frames of {FRAME_HW[1]}x{FRAME_HW[0]}, "
-          f"batch size {args.batch_size}, best of {args.repeats}")
-    print(f"fp32 matmul {MATMUL_SIZE}x{MATMUL_SIZE} GFLOP/s: "
-          + ", ".join(f"{name} {value:.1f}" for name, value in matmul.items()))
-    print(f"compute limit: best matmul {gflops:.1f} GFLOP/s -> {limit_fps:.1f} frames/s at {GFLOP_PER_FRAME} "
-          f"GFLOP/frame")
+    print(
+        f"torch {torch.__version__}, {args.threads} threads, {args.frames} frames of {FRAME_HW[1]}x{FRAME_HW[0]}, "
+        f"batch size {args.batch_size}, best of {args.repeats}"
+    )
+    print(
+        f"fp32 matmul {MATMUL_SIZE}x{MATMUL_SIZE} GFLOP/s: "
+        + ", ".join(f"{name} {value:.1f}" for name, value in matmul.items())
+    )
+    print(
+        f"compute limit: best matmul {gflops:.1f} GFLOP/s -> {limit_fps:.1f} frames/s at {GFLOP_PER_FRAME} GFLOP/frame"
+    )
     fps = {}
     for name, run in paths.items():
         fps[name] = args.frames / best_seconds(run, args.repeats)
-        print(f"{name:<40} {fps[name]:7.1f} frames/s  {fps[name] * GFLOP_PER_FRAME:6.1f} GFLOP/s  "
-              f"{fps[name] / limit_fps:5.1%} of limit")
+        print(
+            f"{name:<40} {fps[name]:7.1f} frames/s  {fps[name] * GFLOP_PER_FRAME:6.1f} GFLOP/s  "
+            f"{fps[name] / limit_fps:5.1%} of limit"
+        )
     for name, run in stage_paths(frames, args.threads, args.batch_size).items():
         fps[name] = args.frames / best_seconds(run, args.repeats)
         print(f"{name:<40} {fps[name]:7.1f} frames/s")

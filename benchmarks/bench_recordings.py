@@ -61,7 +61,10 @@ def main() -> None:
         os.sched_setaffinity(0, {args.core})
     traj = make_trajectory(args.steps)
     T = args.steps
-    print(f"{T} steps x {STEP_DIM} float32 ({traj.data.nbytes / 1e6:.1f} MB), best of {args.repeats}, pinned to core {args.core}")
+    print(
+        f"{T} steps x {STEP_DIM} float32 ({traj.data.nbytes / 1e6:.1f} MB), best of {args.repeats}, "
+        f"pinned to core {args.core}"
+    )
 
     with tempfile.TemporaryDirectory() as tmp:
         d = Path(tmp)
@@ -76,10 +79,10 @@ def main() -> None:
             path = d / f"traj_{compression}.mcap"
             by_kind = {KIND_TRAJECTORY: compression}
             with mock.patch.object(cnep.recordings.writers, "COMPRESSION_BY_KIND", by_kind):  # zstd for comparison only
-                write_s = best_seconds(lambda: write_trajectory(path, traj), args.repeats)
+                write_s = best_seconds(lambda path=path: write_trajectory(path, traj), args.repeats)
             back = read_trajectory(path)
             assert np.array_equal(back.data, traj.data), "round trip changed the data"
-            read_s = best_seconds(lambda: read_trajectory(path), args.repeats)
+            read_s = best_seconds(lambda path=path: read_trajectory(path), args.repeats)
             label = f"cnep MCAP ({compression}{', default' if compression == 'lz4' else ''})"
             rows[label] = (write_s, read_s, path.stat().st_size)
 
@@ -89,7 +92,10 @@ def main() -> None:
         print(f"{label:28} {T / w:14,.0f} {T / r:14,.0f} {size / 1e6:8.1f} {base_w / w:10.3f}x {base_r / r:10.3f}x")
     default_read = T / rows["cnep MCAP (lz4, default)"][1]
     verdict = "meets" if default_read >= READ_TARGET else "MISSES"
-    print(f"read of the default format: {default_read:,.0f} steps/s {verdict} the target of {READ_TARGET:,} steps/s on one core")
+    print(
+        f"read of the default format: {default_read:,.0f} steps/s {verdict} the target of {READ_TARGET:,} steps/s "
+        "on one core"
+    )
 
 
 if __name__ == "__main__":

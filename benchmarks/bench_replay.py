@@ -25,8 +25,8 @@ import cv2
 import numpy as np
 import torch
 
-from cnep.models import CNEPConfig, ConditioningPolicy, Layout, build_model, load_checkpoint, save_checkpoint
 import cnep.pipeline.replay.layout as L
+from cnep.models import CNEPConfig, ConditioningPolicy, Layout, build_model, load_checkpoint, save_checkpoint
 from cnep.pipeline.replay.stage import RowMapping, decide, replay, switch_text, write_recording
 from cnep.recordings import Episode, Trajectory, read_trajectory, write_trajectory
 from cnep.recordings.constants import STEP_DIM
@@ -48,8 +48,13 @@ def make_trajectory(steps: int, seed: int = 0) -> Trajectory:
     for k in range(steps):  # a moving gradient with sensor noise: ~realistic JPEG sizes
         img = np.clip(np.roll(gradient, k, axis=1) + rng.normal(0, 8, (240, 320, 3)), 0, 255).astype(np.uint8)
         frames.append(cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 90])[1].tobytes())
-    return Trajectory(episode=Episode("bench", fps=30.0), timestamps_ns=np.arange(steps, dtype=np.int64) * 33_333_333,
-                      data=data, frames=frames, extractor={"architecture": "mobilenet_v2", "weights": "benchmark"})
+    return Trajectory(
+        episode=Episode("bench", fps=30.0),
+        timestamps_ns=np.arange(steps, dtype=np.int64) * 33_333_333,
+        data=data,
+        frames=frames,
+        extractor={"architecture": "mobilenet_v2", "weights": "benchmark"},
+    )
 
 
 def write_per_row(path: Path, traj: Trajectory, decisions) -> None:
@@ -101,19 +106,30 @@ def main() -> None:
         rows, xyz = mapping.select(traj, rec_path, ckpt), mapping.predicted_xyz(model)
         decisions = decide(model, rows, traj.timestamps_ns, ConditioningPolicy(), xyz)
 
-        total = best_seconds(lambda: replay(ckpt, [rec_path], tmp / "out.rrd", connect=None, force=True, quiet=True), args.repeats)
+        total = best_seconds(
+            lambda: replay(ckpt, [rec_path], tmp / "out.rrd", connect=None, force=True, quiet=True), args.repeats
+        )
         read = best_seconds(lambda: read_trajectory(rec_path), args.repeats)
         cond = best_seconds(lambda: decide(model, rows, traj.timestamps_ns, ConditioningPolicy(), xyz), args.repeats)
-        bulk = best_seconds(lambda: write_recording(tmp / "bulk.rrd", "bulk", "bulk", traj, decisions, None), args.repeats)
+        bulk = best_seconds(
+            lambda: write_recording(tmp / "bulk.rrd", "bulk", "bulk", traj, decisions, None), args.repeats
+        )
         per_row = best_seconds(lambda: write_per_row(tmp / "rows.rrd", traj, decisions), args.repeats)
         mb = (tmp / "out.rrd").stat().st_size / 1e6
         frames_mb = sum(len(f) for f in traj.frames) / 1e6
-    print(f"replay of {args.steps} steps (1288-d, {frames_mb:.1f} MB of JPEG frames), {args.experts} experts, "
-          f"best of {args.repeats}, 1 thread, core {args.core}, load average {os.getloadavg()[0]:.2f}")
+    print(
+        f"replay of {args.steps} steps (1288-d, {frames_mb:.1f} MB of JPEG frames), {args.experts} experts, "
+        f"best of {args.repeats}, 1 thread, core {args.core}, load average {os.getloadavg()[0]:.2f}"
+    )
     print("| part | seconds | steps/s |")
     print("|---|---|---|")
-    for name, s in (("replay() end to end", total), ("read_trajectory", read), ("decide (online conditioning)", cond),
-                    ("write_recording (send_columns)", bulk), ("baseline: per-row rec.log", per_row)):
+    for name, s in (
+        ("replay() end to end", total),
+        ("read_trajectory", read),
+        ("decide (online conditioning)", cond),
+        ("write_recording (send_columns)", bulk),
+        ("baseline: per-row rec.log", per_row),
+    ):
         print(f"| {name} | {s:.3f} | {args.steps / s:,.0f} |")
     print(f".rrd size {mb:.1f} MB; send_columns vs per-row log: {per_row / bulk:.1f}x faster")
 

@@ -37,8 +37,8 @@ from cnep.models import CNEPConfig, TrainConfig
 from cnep.models.synthetic import make_set
 from cnep.models.train import prepare_fit
 from cnep.perception import FeatureExtractor, available_backends, resize_frames
-from cnep.perception.constants import DEFAULT_BATCH_SIZE
 from cnep.perception.backends import onnx_model, session_options
+from cnep.perception.constants import DEFAULT_BATCH_SIZE
 from cnep.pipeline.workers import inference_threads
 
 
@@ -58,6 +58,7 @@ def training_step_fn(seed: int = 0) -> Callable[[], object]:
 
 def threaded(fn: Callable[[], object], threads: int) -> Callable[[], object]:
     """`fn` run with `threads` torch threads (restored after)."""
+
     def run() -> object:
         before = torch.get_num_threads()
         torch.set_num_threads(threads)
@@ -65,6 +66,7 @@ def threaded(fn: Callable[[], object], threads: int) -> Callable[[], object]:
             return fn()
         finally:
             torch.set_num_threads(before)
+
     return run
 
 
@@ -77,8 +79,9 @@ def onnx_session_path(frames: np.ndarray, threads: int, spinning: bool) -> Calla
     extractor.calibrate(frames[:8])
     options = session_options(threads or None)
     options.add_session_config_entry("session.intra_op.allow_spinning", "1" if spinning else "0")
-    session = ort.InferenceSession(onnx_model(extractor.net, extractor.identity["weights_sha256"]), options,
-                                   providers=["CPUExecutionProvider"])
+    session = ort.InferenceSession(
+        onnx_model(extractor.net, extractor.identity["weights_sha256"]), options, providers=["CPUExecutionProvider"]
+    )
     extractor._runner = lambda pixels: session.run(None, {"pixels": pixels})[0]  # the benchmark's own session
     return lambda: extractor(frames)
 
@@ -94,13 +97,18 @@ def int8_path(frames: np.ndarray, threads: int, backend: str) -> tuple[Callable[
     a, b = fp32(frames), int8(frames)  # (N, 1280) each
     cosine = (a * b).sum(1) / np.linalg.norm(a, axis=1) / np.linalg.norm(b, axis=1)
     relative = np.linalg.norm(a - b, axis=1) / np.linalg.norm(a, axis=1)
-    error = {"cosine_min": float(cosine.min()), "cosine_median": float(np.median(cosine)),
-             "relative_l2_median": float(np.median(relative)), "relative_l2_max": float(relative.max())}
+    error = {
+        "cosine_min": float(cosine.min()),
+        "cosine_median": float(np.median(cosine)),
+        "relative_l2_median": float(np.median(relative)),
+        "relative_l2_max": float(relative.max()),
+    }
     return lambda: int8(frames), error
 
 
-def idle_cpu_seconds(run: Callable[[np.ndarray], object], pixels: np.ndarray, pauses: int = 5,
-                     pause_s: float = 0.3) -> float:
+def idle_cpu_seconds(
+    run: Callable[[np.ndarray], object], pixels: np.ndarray, pauses: int = 5, pause_s: float = 0.3
+) -> float:
     """CPU seconds this process burns during `pauses` sleeps of `pause_s` s, each right after `run(pixels)`.
 
     Threads that sleep when idle burn ~0; threads that spin burn up to threads x pause_s per pause.
@@ -158,20 +166,27 @@ def main() -> None:
         "extract, naive eager loop": (threaded(naive_loop(frames), torch.get_num_threads()), args.frames),
         "extract, naive eager loop, 1 thread": (threaded(naive_loop(frames), 1), args.frames),
         "extract, old default (ORT all cores, spinning)": (onnx_session_path(frames, 0, True), args.frames),
-        f"extract, new default (ORT {policy} threads, no spin)": (onnx_session_path(frames, policy, False), args.frames),
+        f"extract, new default (ORT {policy} threads, no spin)": (
+            onnx_session_path(frames, policy, False),
+            args.frames,
+        ),
         "extract, ORT 1 thread, no spin": (onnx_session_path(frames, 1, False), args.frames),
     }
     int8_backends = ["onnxruntime"]
     if "openvino" in available_backends():
         variants[f"extract, OpenVINO fp32 ({policy} threads)"] = (
-            extractor_path(frames, "openvino", policy, DEFAULT_BATCH_SIZE), args.frames)
+            extractor_path(frames, "openvino", policy, DEFAULT_BATCH_SIZE),
+            args.frames,
+        )
         int8_backends.append("openvino")
     for backend in int8_backends:
         int8, error = int8_path(frames, policy, backend)
         variants[f"extract, int8 {backend} ({policy} threads)"] = (int8, args.frames)
         print(f"int8 on {backend} vs fp32 features: " + ", ".join(f"{k} {v:.5f}" for k, v in error.items()))
-    print(f"CPU time burnt during 5 x 0.3 s idle pauses between batches, {policy} threads: "
-          f"{spinning_report(frames, policy)}")
+    print(
+        f"CPU time burnt during 5 x 0.3 s idle pauses between batches, {policy} threads: "
+        f"{spinning_report(frames, policy)}"
+    )
     for fn, _ in variants.values():
         fn()  # warm-up
     load = multiprocessing.get_context("spawn").Process(target=busy_training, args=(os.getpid(),), daemon=True)
@@ -199,11 +214,15 @@ def main() -> None:
     for condition in ("idle", "loaded"):
         train = median[("train, 1 thread (policy)", condition)] / median[("train, 2 threads", condition)]
         naive, old, new = (median[(names[i], condition)] for i in (2, 4, 5))
-        print(f"{condition}: training 1 thread / 2 threads {train:.2f}x; extraction new default / old default "
-              f"{new / old:.2f}x, new default / naive loop {new / naive:.2f}x")
+        print(
+            f"{condition}: training 1 thread / 2 threads {train:.2f}x; extraction new default / old default "
+            f"{new / old:.2f}x, new default / naive loop {new / naive:.2f}x"
+        )
         for name in names[7:]:
-            print(f"{condition}:   {name[len('extract, '):]} / new default fp32 {median[(name, condition)] / new:.2f}x, "
-                  f"/ naive loop {median[(name, condition)] / naive:.2f}x")
+            print(
+                f"{condition}:   {name[len('extract, ') :]} / new default fp32 {median[(name, condition)] / new:.2f}x, "
+                f"/ naive loop {median[(name, condition)] / naive:.2f}x"
+            )
 
 
 if __name__ == "__main__":

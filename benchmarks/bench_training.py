@@ -34,7 +34,9 @@ def trainers(n_experts: int, k: int, device: str = "cpu") -> list[Trainer]:
     out = []
     for seed in range(k):
         data = make_set(SYNTHETIC_SET, seed)
-        trainer, _ = prepare_fit(list(data.train), CNEPConfig(n_experts=n_experts), TrainConfig(seed=seed), list(data.val))
+        trainer, _ = prepare_fit(
+            list(data.train), CNEPConfig(n_experts=n_experts), TrainConfig(seed=seed), list(data.val)
+        )
         trainer.model.to(device)  # in place: the optimiser keeps its parameters; batches follow them (Trainer.device)
         out.append(trainer)
     return out
@@ -86,13 +88,17 @@ def main() -> None:
     parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu")
     args = parser.parse_args()
     torch.set_num_threads(1)
-    print(f"load before: {' '.join(f'{x:.2f}' for x in os.getloadavg())}; one torch thread; k = {args.k}; "
-          f"device {args.device}")
+    print(
+        f"load before: {' '.join(f'{x:.2f}' for x in os.getloadavg())}; one torch thread; k = {args.k}; "
+        f"device {args.device}"
+    )
     for d in args.experts:
         r = bench(d, args.k, args.steps, args.rounds, args.device)
-        print(f"d={d}: steps/s foreach Adam {r['foreach']:.1f}, fused Adam {r['fused']:.1f} "
-              f"({r['fused'] / r['foreach']:.2f}x); model-steps/s {args.k} sequential {r['sequential']:.1f}, "
-              f"{args.k} batched {r['batched']:.1f} ({r['batched'] / r['sequential']:.2f}x)")
+        print(
+            f"d={d}: steps/s foreach Adam {r['foreach']:.1f}, fused Adam {r['fused']:.1f} "
+            f"({r['fused'] / r['foreach']:.2f}x); model-steps/s {args.k} sequential {r['sequential']:.1f}, "
+            f"{args.k} batched {r['batched']:.1f} ({r['batched'] / r['sequential']:.2f}x)"
+        )
     print(f"load after: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
 
 

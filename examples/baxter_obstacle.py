@@ -20,22 +20,32 @@ from pathlib import Path
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("data", help="the folder with start_end/*.csv and the test CSVs (read only)")
-    parser.add_argument("--goal", action="store_true", help="also condition on each test recording's last sample at t = 1")
+    parser.add_argument(
+        "--goal", action="store_true", help="also condition on each test recording's last sample at t = 1"
+    )
     parser.add_argument("--steps", type=int, default=4000, help="training steps per model (default 4000)")
     parser.add_argument("--seed", type=int, default=0, help="training seed (default 0)")
     parser.add_argument("--work", default=None, help="keep the ingested files in this folder (default: temporary)")
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
     args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.WARNING if args.quiet else logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    logging.basicConfig(
+        level=logging.WARNING if args.quiet else logging.INFO, format="%(levelname)s %(name)s: %(message)s"
+    )
 
     import torch
 
-    from cnep.pipeline.evaluate.baxter import BaxterConfig, format_table, run_baxter
     from cnep.pipeline.errors import USER_ERRORS
+    from cnep.pipeline.evaluate.baxter import BaxterConfig, format_table, run_baxter
 
     torch.set_num_threads(1)  # small networks: one thread is fastest and leaves the other core free
-    config = BaxterConfig(data=Path(args.data), work=Path(args.work) if args.work else None, steps=args.steps,
-                          seed=args.seed, goal=args.goal, quiet=args.quiet)
+    config = BaxterConfig(
+        data=Path(args.data),
+        work=Path(args.work) if args.work else None,
+        steps=args.steps,
+        seed=args.seed,
+        goal=args.goal,
+        quiet=args.quiet,
+    )
     try:
         results = run_baxter(config)
     except USER_ERRORS as exc:

@@ -91,15 +91,25 @@ def accuracy(classifier: nn.Module, cnep: CNEP, data, paper, steps: int, seed: i
         loss.backward()
         optimiser.step()
     with torch.no_grad():
-        obs = torch.stack([cnep.prepare(torch.as_tensor(q.obs_t, dtype=torch.float32), torch.as_tensor(q.obs_y, dtype=torch.float32),
-                                        cnep.obs_columns) for q in paper])  # (Q, 2, 2)
+        obs = torch.stack(
+            [
+                cnep.prepare(
+                    torch.as_tensor(q.obs_t, dtype=torch.float32),
+                    torch.as_tensor(q.obs_y, dtype=torch.float32),
+                    cnep.obs_columns,
+                )
+                for q in paper
+            ]
+        )  # (Q, 2, 2)
         named = classifier(obs).argmax(-1).numpy()
     return float(np.mean(named == np.array([q.mode for q in paper])))
 
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seeds", type=int, default=3, help="seeds 0..N-1, each with its own data and queries (default 3)")
+    parser.add_argument(
+        "--seeds", type=int, default=3, help="seeds 0..N-1, each with its own data and queries (default 3)"
+    )
     parser.add_argument("--steps", type=int, default=3000, help="training steps per classifier (default 3000)")
     parser.add_argument("--set", default="multimodal", help="synthetic set (default multimodal: 4 modes)")
     args = parser.parse_args(argv)

@@ -47,9 +47,12 @@ def batch_key(trainer: Trainer) -> tuple:
     learning rate), batch shape."""
     T = trainer.train.observed.shape[1]
     cfg = trainer.cfg
-    return (tuple(getattr(trainer.model.config, f) for f in ARCHITECTURE_FIELDS),
-            dataclasses.replace(cfg, seed=0, gate_lr_scale=None),
-            min(cfg.n_max, T), min(cfg.m_max, T))
+    return (
+        tuple(getattr(trainer.model.config, f) for f in ARCHITECTURE_FIELDS),
+        dataclasses.replace(cfg, seed=0, gate_lr_scale=None),
+        min(cfg.n_max, T),
+        min(cfg.m_max, T),
+    )
 
 
 class StackedLinear(torch.autograd.Function):
@@ -89,7 +92,8 @@ class StackedCNEP:
         return len(next(iter(self.params.values())))
 
     def __call__(self, obs: torch.Tensor, obs_mask: torch.Tensor, query: torch.Tensor):
-        """obs (k, B, N, 1+obs_dim), obs_mask (k, B, N), query (k, B, M, 1+dq) -> mean, std (k, B, d, M, dy), gate (k, B, d)."""
+        """obs (k, B, N, 1+obs_dim), obs_mask (k, B, N), query (k, B, M, 1+dq) -> mean, std (k, B, d, M, dy),
+        gate (k, B, d)."""
         r = self.encode(obs, obs_mask)  # (k, B, H)
         logits = StackedLinear.apply(r, self.params["gate.weight"], self.params["gate.bias"])  # (k, B, d)
         mean, std = self.decode(r, query)
@@ -103,12 +107,15 @@ class StackedCNEP:
         for j, i in enumerate(self.encoder_layers):
             if j:
                 x = F.relu(x)
-            x = StackedLinear.apply(x, self.params[f"encoder.{i}.weight"], self.params[f"encoder.{i}.bias"])  # (k, B*N, out)
+            x = StackedLinear.apply(
+                x, self.params[f"encoder.{i}.weight"], self.params[f"encoder.{i}.bias"]
+            )  # (k, B*N, out)
         enc = x.view(k, B, N, -1) * w  # (k, B, N, H); padded rows contribute exactly 0
         return enc.sum(2) / w.sum(2).clamp_min(1.0)  # (k, B, H)
 
     def decode(self, r: torch.Tensor, query: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """CNEP.decode (models.cnep.Experts) for k models: r (k, B, H), query (k, B, M, dq) -> mean, std (k, B, d, M, dy)."""
+        """CNEP.decode (models.cnep.Experts) for k models: r (k, B, H), query (k, B, M, dq) -> mean, std
+        (k, B, d, M, dy)."""
         k, B, M, _ = query.shape
         d, dy = self.base.n_experts, self.base.config.layout.out_dim
         P = self.params
@@ -145,13 +152,17 @@ class BatchedTrainer:
     def __init__(self, trainers: Sequence[Trainer]) -> None:
         keys = {batch_key(t) for t in trainers}
         if len(keys) != 1 or any(t.step for t in trainers):
-            raise ConfigError("BatchedTrainer needs fresh trainers of one network shape, schedule and batch shape "
-                              f"(models.batched.batch_key); got {len(keys)} different key(s) over {len(trainers)} trainers.")
+            raise ConfigError(
+                "BatchedTrainer needs fresh trainers of one network shape, schedule and batch shape "
+                f"(models.batched.batch_key); got {len(keys)} different key(s) over {len(trainers)} trainers."
+            )
         self.trainers = list(trainers)
         self.cfg = trainers[0].cfg
         self.step = 0
         self.active: list[int] = []  # the trainers still training, in stack order
-        self.views: list[dict[str, torch.Tensor]] = []  # per active model: its slice (a view) of every stacked parameter
+        self.views: list[
+            dict[str, torch.Tensor]
+        ] = []  # per active model: its slice (a view) of every stacked parameter
         self.optimizer: torch.optim.Adam | None = None
         self._stack(list(range(len(trainers))))
 
@@ -168,8 +179,19 @@ class BatchedTrainer:
         self.views = [{name: p[j].detach() for name, p in self.net.params.items()} for j in range(len(active))]
         network = [v for views in self.views for name, v in views.items() if not name.startswith("gate.")]
         scales = [self.trainers[i].cfg.gate_lr_scale for i in active]  # each model's own (its assignment's)
-        gates = [([v for views, s in zip(self.views, scales) if s == scale
-                   for name, v in views.items() if name.startswith("gate.")], scale) for scale in sorted(set(scales))]
+        gates = [
+            (
+                [
+                    v
+                    for views, s in zip(self.views, scales)
+                    if s == scale
+                    for name, v in views.items()
+                    if name.startswith("gate.")
+                ],
+                scale,
+            )
+            for scale in sorted(set(scales))
+        ]
         self.optimizer = make_optimizer([(network, 1.0), *gates], self.cfg.lr)
         for i, views in zip(active, self.views):
             for name, view in views.items():
@@ -179,11 +201,14 @@ class BatchedTrainer:
     def train_step(self) -> list[dict[str, float]]:
         """One optimiser step of every active model; returns each one's loss terms (as `Trainer.train_step`)."""
         batches = [self.trainers[i].next_batch() for i in self.active]  # each from its own generator
-        stacked = {f: torch.stack([getattr(b, f) for b in batches]) for f in ("obs", "obs_mask", "query", "target",
-                                                                              "target_mask")}
+        stacked = {
+            f: torch.stack([getattr(b, f) for b in batches])
+            for f in ("obs", "obs_mask", "query", "target", "target_mask")
+        }
         mean, std, gate = self.net(stacked["obs"], stacked["obs_mask"], stacked["query"])  # (k, B, d, M, dy), (k, B, d)
-        terms = stacked_loss_terms(mean, std, gate, stacked["target"], stacked["target_mask"], self.assignments,
-                                   self.step / self.cfg.steps)  # name -> (k,)
+        terms = stacked_loss_terms(
+            mean, std, gate, stacked["target"], stacked["target_mask"], self.assignments, self.step / self.cfg.steps
+        )  # name -> (k,)
         a = self.weights
         total = a[:, 0] * terms["rec"] - a[:, 1] * terms["batch_entropy"] + a[:, 2] * terms["ind_entropy"]  # (k,)
         params = self.net.params
@@ -203,8 +228,10 @@ class BatchedTrainer:
         self.step += 1
         values = torch.stack([total, terms["rec"], terms["batch_entropy"], terms["ind_entropy"]], 1).tolist()
         usage = gate.detach().mean(-2).tolist()  # (k, d)
-        return [{"loss": v[0], "rec": v[1], "batch_entropy": v[2], "ind_entropy": v[3], "usage": u}
-                for v, u in zip(values, usage)]
+        return [
+            {"loss": v[0], "rec": v[1], "batch_entropy": v[2], "ind_entropy": v[3], "usage": u}
+            for v, u in zip(values, usage)
+        ]
 
     def run(self, until: int | None = None) -> None:
         """Train up to step `until` (default: the end of the schedule), validating and stopping each model as its
@@ -228,14 +255,24 @@ class BatchedTrainer:
             self.net.copy_to(j, self.trainers[i].model)
 
 
-def stacked_loss_terms(mean: torch.Tensor, std: torch.Tensor, gate: torch.Tensor, target: torch.Tensor,
-                       target_mask: torch.Tensor, assignments: Sequence[str], progress: float) -> dict[str, torch.Tensor]:
-    """`models.loss.loss_terms` of k stacked models (leading dimension k), model j with `assignments[j]` -> name -> (k,)."""
+def stacked_loss_terms(
+    mean: torch.Tensor,
+    std: torch.Tensor,
+    gate: torch.Tensor,
+    target: torch.Tensor,
+    target_mask: torch.Tensor,
+    assignments: Sequence[str],
+    progress: float,
+) -> dict[str, torch.Tensor]:
+    """`models.loss.loss_terms` of k stacked models (leading dimension k), model j with `assignments[j]` -> name ->
+    (k,)."""
     groups = {a: [j for j, x in enumerate(assignments) if x == a] for a in dict.fromkeys(assignments)}
     if len(groups) == 1:
         return loss_terms(mean, std, gate, target, target_mask, assignments[0], progress)
-    parts = [loss_terms(mean[idx], std[idx], gate[idx], target[idx], target_mask[idx], a, progress)
-             for a, idx in groups.items()]
+    parts = [
+        loss_terms(mean[idx], std[idx], gate[idx], target[idx], target_mask[idx], a, progress)
+        for a, idx in groups.items()
+    ]
     order = torch.tensor([j for idx in groups.values() for j in idx]).argsort().to(gate.device)
     return {name: torch.cat([part[name] for part in parts])[order] for name in parts[0]}
 
@@ -265,7 +302,8 @@ class FitRun:
 
 
 def fit_many(runs: Sequence[FitRun], max_models: int = MAX_MODELS) -> list[tuple[CNEP, list[dict]]]:
-    """`models.fit` for each run (no progress bar), runs of one `batch_key` trained together, up to `max_models` at once.
+    """`models.fit` for each run (no progress bar), runs of one `batch_key` trained together, up to `max_models` at
+    once.
 
     Returns, in order, what `fit` returns for each run: the best model and its history.
     """
@@ -275,7 +313,7 @@ def fit_many(runs: Sequence[FitRun], max_models: int = MAX_MODELS) -> list[tuple
         groups.setdefault(batch_key(trainer), []).append(trainer)
     for trainers in groups.values():
         for start in range(0, len(trainers), max_models):
-            chunk = trainers[start:start + max_models]
+            chunk = trainers[start : start + max_models]
             if len(chunk) == 1:
                 chunk[0].run(progress=False)
             else:

@@ -57,7 +57,9 @@ def save_checkpoint(model: CNEP, directory: str | Path, extra: dict | None = Non
     directory = Path(directory)
     state = {k: v.detach().cpu().contiguous() for k, v in model.state_dict().items()}
     atomic_write(directory / WEIGHTS_FILE, save(state, metadata={"format_version": str(FORMAT_VERSION)}))
-    config = json.loads(json.dumps({"format_version": FORMAT_VERSION, "model": model.config.to_dict(), **(extra or {})}))
+    config = json.loads(
+        json.dumps({"format_version": FORMAT_VERSION, "model": model.config.to_dict(), **(extra or {})})
+    )
     config[CHECKSUM_KEY] = config_checksum(config)  # of the config as read back (tuples are lists there)
     atomic_write(directory / CONFIG_FILE, json.dumps(config, indent=2).encode())
     return directory
@@ -67,8 +69,10 @@ def read_checkpoint_config(directory: str | Path) -> dict:
     """The checkpoint's `config.json`, checked for its format version."""
     path = Path(directory) / CONFIG_FILE
     if Path(directory).is_file():
-        raise ConfigError(f"{directory}: is a file; pass the checkpoint folder written by `cnep train` (the one "
-                          f"holding {CONFIG_FILE} and {WEIGHTS_FILE}).")
+        raise ConfigError(
+            f"{directory}: is a file; pass the checkpoint folder written by `cnep train` (the one "
+            f"holding {CONFIG_FILE} and {WEIGHTS_FILE})."
+        )
     try:
         config = json.loads(path.read_text())
     except FileNotFoundError:
@@ -84,8 +88,10 @@ def read_checkpoint_config(directory: str | Path) -> dict:
     saved = config.pop(CHECKSUM_KEY, None)
     if saved != config_checksum(config):
         state = "has no checksum" if saved is None else "does not match its checksum"
-        raise ConfigError(f"{path}: the checkpoint config {state}: it was edited after training (or written by an "
-                          f"older cnep); retrain with `cnep train` instead of editing it.")
+        raise ConfigError(
+            f"{path}: the checkpoint config {state}: it was edited after training (or written by an "
+            f"older cnep); retrain with `cnep train` instead of editing it."
+        )
     return config
 
 
@@ -112,6 +118,8 @@ def load_checkpoint(directory: str | Path, device: str = "cpu") -> CNEP:
         model.load_state_dict(state, strict=True)
     except RuntimeError as exc:  # torch lists every mismatched tensor over many lines: the first one says enough
         first = next((line.strip() for line in str(exc).splitlines()[1:] if line.strip()), str(exc))
-        raise ConfigError(f"{path}: weights do not match {CONFIG_FILE} ({first}); retrain, or restore the "
-                          f"{CONFIG_FILE} written with these weights.") from None
+        raise ConfigError(
+            f"{path}: weights do not match {CONFIG_FILE} ({first}); retrain, or restore the "
+            f"{CONFIG_FILE} written with these weights."
+        ) from None
     return model.to(device).eval()

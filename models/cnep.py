@@ -89,7 +89,11 @@ class CNEP(nn.Module):
         self.config = config
         lay = config.layout
         self.normaliser = Normaliser(lay.width)
-        for name, spans in (("obs_columns", lay.observed), ("query_columns", lay.query), ("out_columns", lay.predicted)):
+        for name, spans in (
+            ("obs_columns", lay.observed),
+            ("query_columns", lay.query),
+            ("out_columns", lay.predicted),
+        ):
             self.register_buffer(name, torch.tensor(span_indices(spans), dtype=torch.long), persistent=False)
         H, dy = config.latent_dim, lay.out_dim
         time_dim = 1 + 2 * config.time_frequencies
@@ -156,7 +160,11 @@ class CNEP(nn.Module):
         p = next(self.parameters())
         obs = self.prepare(torch.as_tensor(obs_t, dtype=p.dtype), torch.as_tensor(obs_values), self.obs_columns)
         query = self.prepare(torch.as_tensor(query_t, dtype=p.dtype), torch.as_tensor(query_values), self.query_columns)
-        mean, std, gate = self(obs[None].to(p.device), torch.ones(1, len(obs_t), dtype=torch.bool, device=p.device), query[None].to(p.device))
+        mean, std, gate = self(
+            obs[None].to(p.device),
+            torch.ones(1, len(obs_t), dtype=torch.bool, device=p.device),
+            query[None].to(p.device),
+        )
         mean, std, gate = mean[0], std[0], gate[0]  # (d, M, dy), (d, M, dy), (d,)
         scale = self.normaliser.scale[self.out_columns]
         means = self.normaliser.denormalise(mean, self.out_columns)  # (d, M, dy)

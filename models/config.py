@@ -135,7 +135,7 @@ class CNEPConfig:
         return asdict(self)
 
     @classmethod
-    def from_dict(cls, data: dict) -> "CNEPConfig":
+    def from_dict(cls, data: dict) -> CNEPConfig:
         """The config of `to_dict`; one written before `assignment` existed trained with the paper's term."""
         return cls(**{"assignment": "paper", **_known(cls, data)})
 
@@ -165,13 +165,15 @@ class TrainConfig:
         if not 0 <= self.gate_freeze_fraction < 1:
             raise ConfigError(f"gate_freeze_fraction must be in [0, 1), got {self.gate_freeze_fraction}.")
         if self.gate_lr_scale is not None and not self.gate_lr_scale > 0:
-            raise ConfigError(f"gate_lr_scale must be > 0 (use gate_freeze_fraction to hold the gate), got {self.gate_lr_scale}.")
+            raise ConfigError(
+                f"gate_lr_scale must be > 0 (use gate_freeze_fraction to hold the gate), got {self.gate_lr_scale}."
+            )
         if not self.obs_noise >= 0:
             raise ConfigError(f"obs_noise must be >= 0 (a standard deviation), got {self.obs_noise}.")
         if not self.lr > 0 or self.warmup_steps < 0:
             raise ConfigError(f"lr must be > 0 and warmup_steps >= 0, got {self.lr} and {self.warmup_steps}.")
 
-    def for_assignment(self, assignment: str) -> "TrainConfig":
+    def for_assignment(self, assignment: str) -> TrainConfig:
         """This config with `gate_lr_scale` filled in for `assignment` when it was left None."""
         if self.gate_lr_scale is not None:
             return self
@@ -181,7 +183,7 @@ class TrainConfig:
         return asdict(self)
 
     @classmethod
-    def from_dict(cls, data: dict) -> "TrainConfig":
+    def from_dict(cls, data: dict) -> TrainConfig:
         return cls(**_known(cls, data))
 
 

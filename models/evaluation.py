@@ -209,7 +209,7 @@ def shared_queries(demos: np.ndarray, modes: np.ndarray) -> list[SharedQuery]:
     labels = np.unique(modes)
     means = np.stack([demos[modes == k].mean(0) for k in labels])  # (K, T, dy)
     found: list[tuple[int, np.ndarray]] = []
-    for i, a in enumerate(labels):
+    for i in range(len(labels)):
         for b in range(i + 1, len(labels)):
             gap = np.linalg.norm(means[i] - means[b], axis=-1)  # (T,)
             close = np.concatenate([[False], gap <= band, [False]]).astype(int)
@@ -228,8 +228,9 @@ def shared_queries(demos: np.ndarray, modes: np.ndarray) -> list[SharedQuery]:
     return out
 
 
-def commitment_scores(generated: np.ndarray, queries: list[SharedQuery], pool: np.ndarray,
-                      pool_modes: np.ndarray) -> dict[str, np.ndarray]:
+def commitment_scores(
+    generated: np.ndarray, queries: list[SharedQuery], pool: np.ndarray, pool_modes: np.ndarray
+) -> dict[str, np.ndarray]:
     """Per query: generated `(Q, T, dy)` against the pool `(N, T, dy)`.
 
     Returns "mse" and "max_deviation" (each minimised over the demonstrations), "valid" (bool) and
@@ -240,8 +241,9 @@ def commitment_scores(generated: np.ndarray, queries: list[SharedQuery], pool: n
     deviation = np.linalg.norm(generated[:, None] - pool[None], axis=-1)  # (Q, N, T)
     deviation = np.where(np.isfinite(deviation), deviation, np.inf)
     steps = np.array([int(round(q.obs_t[0] * (T - 1))) for q in queries])  # (Q,)
-    at_point = np.linalg.norm(pool[:, steps].transpose(1, 0, 2) - np.stack([q.obs_y[0] for q in queries])[:, None],
-                              axis=-1)  # (Q, N): each demonstration's distance from the query's point
+    at_point = np.linalg.norm(
+        pool[:, steps].transpose(1, 0, 2) - np.stack([q.obs_y[0] for q in queries])[:, None], axis=-1
+    )  # (Q, N): each demonstration's distance from the query's point
     worst = deviation.max(-1)  # (Q, N)
     nearest = worst.argmin(-1)  # (Q,)
     consistent = np.where(at_point <= band, worst, np.inf)  # only demonstrations through the point count
@@ -253,13 +255,15 @@ def commitment_scores(generated: np.ndarray, queries: list[SharedQuery], pool: n
     }
 
 
-def commitment(generate: Generate, queries: list[SharedQuery], pool: np.ndarray,
-               pool_modes: np.ndarray) -> dict[str, float]:
+def commitment(
+    generate: Generate, queries: list[SharedQuery], pool: np.ndarray, pool_modes: np.ndarray
+) -> dict[str, float]:
     """One method on the commitment queries: mean MSE and max deviation (std over the queries with a finite
     output), valid share (of all queries), the band, and the number of non-finite outputs."""
     T = pool.shape[1]
-    generated = np.stack([np.asarray(generate(q.obs_t, q.obs_y, _times(T)), dtype=np.float64).reshape(T, -1)
-                          for q in queries])  # (Q, T, dy)
+    generated = np.stack(
+        [np.asarray(generate(q.obs_t, q.obs_y, _times(T)), dtype=np.float64).reshape(T, -1) for q in queries]
+    )  # (Q, T, dy)
     s = commitment_scores(generated, queries, pool, pool_modes)
     finite = np.isfinite(s["max_deviation"])  # a non-finite trajectory is invalid and counted as a failure
     mse, worst = s["mse"][finite], s["max_deviation"][finite]

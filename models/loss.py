@@ -90,8 +90,10 @@ class Balancing:
 
 # Each EM assignment's balancing: "annealed" to equal shares, stopped when the anneal ends; "bounded" within
 # [0.5, 1.5] x B/d, faded out over the next 0.2 of training (docs/model.md).
-BALANCING = {"annealed": Balancing(1.0, 1.0, ANNEAL_FRACTION, ANNEAL_FRACTION),
-             "bounded": Balancing(0.5, 1.5, ANNEAL_FRACTION, 0.8)}
+BALANCING = {
+    "annealed": Balancing(1.0, 1.0, ANNEAL_FRACTION, ANNEAL_FRACTION),
+    "bounded": Balancing(0.5, 1.5, ANNEAL_FRACTION, 0.8),
+}
 
 
 def settled_fraction(assignment: str) -> float:
@@ -127,8 +129,9 @@ def annealed_sharpness(values: torch.Tensor, progress: float) -> torch.Tensor:
     return values.clamp_min(1.0) ** min(1.0, max(0.0, progress) / ANNEAL_FRACTION)
 
 
-def balanced(log_r: torch.Tensor, iterations: int = SINKHORN_ITERATIONS, floor: float = 1.0,
-             cap: float = 1.0) -> torch.Tensor:
+def balanced(
+    log_r: torch.Tensor, iterations: int = SINKHORN_ITERATIONS, floor: float = 1.0, cap: float = 1.0
+) -> torch.Tensor:
     """Balancing of log responsibilities (..., B, d) over the batch, in log space -> (..., B, d): alternately
     bring each expert's column mass into [`floor`, `cap`] * B/d (a column below the floor is raised to it,
     one above the cap lowered to it, the others keep the posterior's mass) and scale each sample's row to 1
@@ -149,8 +152,13 @@ def balanced(log_r: torch.Tensor, iterations: int = SINKHORN_ITERATIONS, floor: 
     return log_r
 
 
-def annealed_posterior(log_p: torch.Tensor, nll: torch.Tensor, values: torch.Tensor, progress: float,
-                       balancing: Balancing = BALANCING["annealed"]) -> torch.Tensor:
+def annealed_posterior(
+    log_p: torch.Tensor,
+    nll: torch.Tensor,
+    values: torch.Tensor,
+    progress: float,
+    balancing: Balancing = BALANCING["annealed"],
+) -> torch.Tensor:
     """The "annealed" responsibilities r (B, d), detached: softmax_e(log p_ie - k_i L_ie), balanced over the
     batch (`balanced` within the `balancing` bounds) as its schedule says. log_p, nll (B, d); values (B,)."""
     k = annealed_sharpness(values, progress).unsqueeze(-1)  # (B, 1)
@@ -162,8 +170,9 @@ def annealed_posterior(log_p: torch.Tensor, nll: torch.Tensor, values: torch.Ten
     return torch.softmax(log_r, dim=-1)
 
 
-def reconstruction(nll: torch.Tensor, gate: torch.Tensor, values: torch.Tensor, assignment: str,
-                   progress: float = 1.0) -> torch.Tensor:
+def reconstruction(
+    nll: torch.Tensor, gate: torch.Tensor, values: torch.Tensor, assignment: str, progress: float = 1.0
+) -> torch.Tensor:
     """L_rec of `assignment`: nll (..., B, d) mean NLL per value, gate (..., B, d), values (..., B) target values
     per sample -> (...); progress: the fraction of training done (only "annealed" and "bounded" depend on it)."""
     d = gate.shape[-1]
@@ -193,8 +202,11 @@ def loss_terms(
     are k stacked models (models.batched), each computed exactly as alone."""
     nll = expert_nll(mean, std, target, target_mask)  # (B, d)
     values = target_mask.to(nll.dtype).sum(-1) * mean.shape[-1]  # (B,) target values per sample
-    return {"rec": reconstruction(nll, gate, values, assignment, progress),
-            "batch_entropy": entropy(gate.mean(-2)), "ind_entropy": entropy(gate).mean(-1)}
+    return {
+        "rec": reconstruction(nll, gate, values, assignment, progress),
+        "batch_entropy": entropy(gate.mean(-2)),
+        "ind_entropy": entropy(gate).mean(-1),
+    }
 
 
 def cnep_loss(

@@ -35,8 +35,9 @@ def matched_cnmp(config: CNEPConfig) -> CNEPConfig:
         raise ConfigError("matched_cnmp widens the expert's hidden layers; a config with expert_widths=() has none.")
 
     def cnmp(width: int) -> CNEPConfig:
-        return dataclasses.replace(config, n_experts=1, expert_widths=(width,) * depth,
-                                   a_rec=None, a_batch=None, a_ind=None)
+        return dataclasses.replace(
+            config, n_experts=1, expert_widths=(width,) * depth, a_rec=None, a_batch=None, a_ind=None
+        )
 
     target = parameter_count(config)
     lo, hi = 1, MAX_WIDTH

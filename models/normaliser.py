@@ -24,7 +24,7 @@ class Normaliser(nn.Module):
         self.register_buffer("scale", torch.ones(width))
 
     @torch.no_grad()
-    def fit(self, trajectories: Sequence[np.ndarray]) -> "Normaliser":
+    def fit(self, trajectories: Sequence[np.ndarray]) -> Normaliser:
         rows = np.concatenate([np.asarray(t, dtype=np.float64) for t in trajectories], axis=0)
         if rows.shape[1] != self.loc.numel():
             raise ConfigError(f"Normaliser expects {self.loc.numel()} columns, got trajectories with {rows.shape[1]}.")

@@ -122,7 +122,9 @@ class OnlineConditioner:
         """Take the observation at the next step (a `(width,)` trajectory row) and re-evaluate the gate."""
         row = np.asarray(row, dtype=np.float32)
         if row.shape != (self.width,):
-            raise ConfigError(f"An online observation must be a ({self.width},) row in the model's layout, got shape {row.shape}.")
+            raise ConfigError(
+                f"An online observation must be a ({self.width},) row in the model's layout, got shape {row.shape}."
+            )
         k, t = self.k, float(self.time_of(self.k))
         x = torch.from_numpy(row)
         obs = (x[self._obs_cols] - self._obs_loc) / self._obs_scale  # (obs_dim,)

@@ -23,7 +23,7 @@ class Batch:
     target: torch.Tensor  # (B, m_max, dy)
     target_mask: torch.Tensor  # (B, m_max) bool
 
-    def to(self, device: torch.device) -> "Batch":
+    def to(self, device: torch.device) -> Batch:
         """This batch on `device` (itself, not a copy, where it is there already)."""
         return Batch(*(getattr(self, f.name).to(device) for f in dataclasses.fields(self)))
 

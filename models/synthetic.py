@@ -59,7 +59,9 @@ def _multimodal6(modes: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     sigmoid = 2 / (1 + np.exp(-12 * (x - 0.5))) - 1
     u = 8 * (x - 0.5) ** 2 - 1
     shapes = np.stack([np.sin(2 * np.pi * x), np.cos(2 * np.pi * x), sigmoid, -sigmoid, u, -u])  # (6, T)
-    return shapes[modes] + 0.02 * rng.standard_normal((len(modes), 1)) + 0.01 * rng.standard_normal((len(modes), len(x)))
+    return (
+        shapes[modes] + 0.02 * rng.standard_normal((len(modes), 1)) + 0.01 * rng.standard_normal((len(modes), len(x)))
+    )
 
 
 # name -> (generator, number of modes, demonstrations per split: train, val, test)

@@ -109,8 +109,13 @@ class Trainer:
     def __post_init__(self) -> None:
         self.cfg = self.cfg.for_assignment(self.model.config.assignment)
         gate = {id(p) for p in self.model.gate.parameters()}
-        self.optimizer = make_optimizer([([p for p in self.model.parameters() if id(p) not in gate], 1.0),
-                                         (list(self.model.gate.parameters()), self.cfg.gate_lr_scale)], self.cfg.lr)
+        self.optimizer = make_optimizer(
+            [
+                ([p for p in self.model.parameters() if id(p) not in gate], 1.0),
+                (list(self.model.gate.parameters()), self.cfg.gate_lr_scale),
+            ],
+            self.cfg.lr,
+        )
         self.generator = torch.Generator().manual_seed(self.cfg.seed)
         val_gen = torch.Generator().manual_seed(self.cfg.seed + 1)
         self.val_batches = [
@@ -127,15 +132,17 @@ class Trainer:
 
     def next_batch(self) -> Batch:
         """The next training batch from this run's generator, on the model's device."""
-        return sample_batch(self.train, self.cfg.batch_size, self.cfg.n_max, self.cfg.m_max, self.generator,
-                            self.cfg.obs_noise).to(self.device)
+        return sample_batch(
+            self.train, self.cfg.batch_size, self.cfg.n_max, self.cfg.m_max, self.generator, self.cfg.obs_noise
+        ).to(self.device)
 
     def train_step(self) -> dict[str, float]:
         batch = self.next_batch()
         set_learning_rate(self.optimizer, self.step, self.cfg)
         mean, std, gate = self.model(batch.obs, batch.obs_mask, batch.query)
-        loss, terms = cnep_loss(mean, std, gate, batch.target, batch.target_mask, self.model.config,
-                                self.step / self.cfg.steps)
+        loss, terms = cnep_loss(
+            mean, std, gate, batch.target, batch.target_mask, self.model.config, self.step / self.cfg.steps
+        )
         self.optimizer.zero_grad(set_to_none=False)
         loss.backward()
         if self.step < self.freeze_steps:  # Adam moments stay 0, so the gate does not move
@@ -191,8 +198,11 @@ class Trainer:
             bar.update(1)
             stop = self.after_step(terms)
             if "val_error" in terms:
-                bar.set_postfix(loss=f"{terms['loss']:.3g}", val=f"{terms['val_error']:.3g}",
-                                usage="/".join(f"{u:.2f}" for u in terms["usage"]))
+                bar.set_postfix(
+                    loss=f"{terms['loss']:.3g}",
+                    val=f"{terms['val_error']:.3g}",
+                    usage="/".join(f"{u:.2f}" for u in terms["usage"]),
+                )
             if stop:
                 break
         bar.close()
@@ -240,8 +250,12 @@ def fit(
     return finish_fit(trainer, split)
 
 
-def prepare_fit(trajectories: Sequence[np.ndarray], config: CNEPConfig, train_config: TrainConfig,
-                val_trajectories: Sequence[np.ndarray] | None = None) -> tuple[Trainer, dict]:
+def prepare_fit(
+    trajectories: Sequence[np.ndarray],
+    config: CNEPConfig,
+    train_config: TrainConfig,
+    val_trajectories: Sequence[np.ndarray] | None = None,
+) -> tuple[Trainer, dict]:
     """`fit` up to training: the checked data, the seeded model and its Trainer, and the split's description."""
     train, val, validation = _validation_split(list(trajectories), val_trajectories, train_config.seed)
     for t in train + val:
@@ -260,17 +274,26 @@ def finish_fit(trainer: Trainer, split: dict) -> tuple[CNEP, list[dict]]:
     return model, [{**record, **split} for record in trainer.history]
 
 
-def _validation_split(trajectories: list[np.ndarray], val_trajectories: Sequence[np.ndarray] | None,
-                      seed: int) -> tuple[list[np.ndarray], list[np.ndarray], str]:
+def _validation_split(
+    trajectories: list[np.ndarray], val_trajectories: Sequence[np.ndarray] | None, seed: int
+) -> tuple[list[np.ndarray], list[np.ndarray], str]:
     """(train, validation, which validation) for `fit`; never drops a trajectory silently."""
     if val_trajectories:
         return trajectories, list(val_trajectories), "given"
     n = len(trajectories)
     if n >= MIN_TRAJECTORIES_TO_HOLD_OUT:
         train, val = split_validation(trajectories, VAL_FRACTION, seed)
-        log.info("fit: validating on %d of the %d trajectories, held out of training (pass val_trajectories "
-                 "to train on all of them)", len(val), n)
+        log.info(
+            "fit: validating on %d of the %d trajectories, held out of training (pass val_trajectories "
+            "to train on all of them)",
+            len(val),
+            n,
+        )
         return train, val, "held out"
-    log.warning("fit: only %d trajectories (fewer than %d), so all of them train and validation uses the training "
-                "set; pass val_trajectories to validate on others", n, MIN_TRAJECTORIES_TO_HOLD_OUT)
+    log.warning(
+        "fit: only %d trajectories (fewer than %d), so all of them train and validation uses the training "
+        "set; pass val_trajectories to validate on others",
+        n,
+        MIN_TRAJECTORIES_TO_HOLD_OUT,
+    )
     return trajectories, trajectories, "training set"

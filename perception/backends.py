@@ -33,9 +33,13 @@ INSTALL_HINT = "onnxruntime needs: pip install 'cnep-pipeline[onnx]'; openvino: 
 def available_backends() -> list[str]:
     """Backends usable in this environment, fastest first (`cuda` needs a GPU that torch sees, ONNX Runtime
     the `onnx` extra, OpenVINO the `openvino` extra)."""
-    usable = {"cuda": torch.cuda.is_available(),
-              **{name: all(importlib.util.find_spec(module) is not None for module in modules)
-                 for name, modules in BACKEND_MODULES.items()}}
+    usable = {
+        "cuda": torch.cuda.is_available(),
+        **{
+            name: all(importlib.util.find_spec(module) is not None for module in modules)
+            for name, modules in BACKEND_MODULES.items()
+        },
+    }
     return [name for name in BACKENDS if usable.get(name, True)]
 
 
@@ -48,8 +52,9 @@ def build_runner(backend: str, net: nn.Module, threads: int | None = None, cache
     if backend == "auto":
         backend = available_backends()[0]
     if backend not in available_backends():
-        raise PerceptionError(f"backend {backend!r} is not available; choose one of {available_backends()} or "
-                              f"`auto` ({INSTALL_HINT})")
+        raise PerceptionError(
+            f"backend {backend!r} is not available; choose one of {available_backends()} or `auto` ({INSTALL_HINT})"
+        )
     net = net.eval()
     if backend == "onnxruntime":
         return onnxruntime_runner(onnx_model(net, cache_key), threads)
@@ -141,9 +146,16 @@ def onnx_model(net: nn.Module, cache_key: str | None = None) -> bytes:
         # The dynamo exporter needs onnxscript; the TorchScript exporter handles this plain CNN exactly.
         warnings.filterwarnings("ignore", category=DeprecationWarning)
         warnings.filterwarnings("ignore", message=".*(legacy|deprecated|removed).*")
-        torch.onnx.export(net, (_example_input(),), buffer, dynamo=False, input_names=["pixels"],
-                          output_names=["features"], dynamic_axes={"pixels": {0: "n"}, "features": {0: "n"}},
-                          opset_version=ONNX_OPSET)
+        torch.onnx.export(
+            net,
+            (_example_input(),),
+            buffer,
+            dynamo=False,
+            input_names=["pixels"],
+            output_names=["features"],
+            dynamic_axes={"pixels": {0: "n"}, "features": {0: "n"}},
+            opset_version=ONNX_OPSET,
+        )
     if path is not None:
         write_cache_file(path, buffer.getvalue())
     return buffer.getvalue()
@@ -163,7 +175,8 @@ def cache_path(name: str, identity: str) -> Path:
 
 
 def write_cache_file(path: Path, data: bytes) -> None:
-    """Cache `data` at `path`: written beside it under a temporary name, then renamed (readers never see half a file)."""
+    """Cache `data` at `path`: written beside it under a temporary name, then renamed (readers never see half a
+    file)."""
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
@@ -216,12 +229,18 @@ def openvino_config(threads: int | None) -> dict[str, object]:
     a busy one; fp32 inference precision, so CPUs with bf16 units do not silently lower it. OpenVINO's
     idle threads sleep (it has no spinning option to turn off; docs/perception.md measures them).
     """
-    return {"INFERENCE_NUM_THREADS": threads or 0, "NUM_STREAMS": 1, "PERFORMANCE_HINT": "LATENCY",
-            "ENABLE_CPU_PINNING": False, "INFERENCE_PRECISION_HINT": "f32"}
+    return {
+        "INFERENCE_NUM_THREADS": threads or 0,
+        "NUM_STREAMS": 1,
+        "PERFORMANCE_HINT": "LATENCY",
+        "ENABLE_CPU_PINNING": False,
+        "INFERENCE_PRECISION_HINT": "f32",
+    }
 
 
 def openvino_runner(model: bytes, threads: int | None) -> Runner:
-    """A runner over ONNX graph `model` (input `pixels`, output `features`) on OpenVINO's CPU plugin: fp32 or int8 QDQ."""
+    """A runner over ONNX graph `model` (input `pixels`, output `features`) on OpenVINO's CPU plugin: fp32 or int8
+    QDQ."""
     import openvino as ov
 
     core = ov.Core()

@@ -31,8 +31,9 @@ from cnep.perception.errors import PerceptionError
 ACTIVATION_BIAS = 2.0  # batch-norm shift before each ReLU6, in standard deviations (measured: docs/perception.md)
 
 
-def calibrate_random_network(net: nn.Module, batches: Iterable[np.ndarray],
-                             activation_bias: float = ACTIVATION_BIAS) -> int:
+def calibrate_random_network(
+    net: nn.Module, batches: Iterable[np.ndarray], activation_bias: float = ACTIVATION_BIAS
+) -> int:
     """Set the activation bias, then re-estimate batch-norm statistics on uint8 (B, 224, 224, 3) pixel batches.
 
     `net` is a FeatureNet with seeded random weights. Returns the number of frames used; leaves it in eval mode.

@@ -7,11 +7,27 @@ from pathlib import Path
 
 import numpy as np
 
-from cnep.perception.backends import (INSTALL_HINT, Runner, available_backends, build_runner, onnx_model,
-                                  onnxruntime_runner, openvino_runner)
+from cnep.perception.backends import (
+    INSTALL_HINT,
+    Runner,
+    available_backends,
+    build_runner,
+    onnx_model,
+    onnxruntime_runner,
+    openvino_runner,
+)
 from cnep.perception.calibration import ACTIVATION_BIAS, calibrate_random_network
-from cnep.perception.constants import (ARCHITECTURE, CALIBRATION_BATCH, COMPATIBILITY_FIELDS, CUDA_BATCH_SIZE,
-                                  DEFAULT_BATCH_SIZE, FEATURE_DIM, INT8_BACKENDS, PRECISIONS, PREPROCESSING)
+from cnep.perception.constants import (
+    ARCHITECTURE,
+    CALIBRATION_BATCH,
+    COMPATIBILITY_FIELDS,
+    CUDA_BATCH_SIZE,
+    DEFAULT_BATCH_SIZE,
+    FEATURE_DIM,
+    INT8_BACKENDS,
+    PRECISIONS,
+    PREPROCESSING,
+)
 from cnep.perception.errors import PerceptionError
 from cnep.perception.frames import resize_frames
 from cnep.perception.network import FeatureNet, mobilenet_v2_features
@@ -33,21 +49,33 @@ class FeatureExtractor:
     see perception.quantisation).
     """
 
-    def __init__(self, weights: str | Path = "imagenet", backend: str = "auto", threads: int | None = None,
-                 batch_size: int | None = None, seed: int = 0, precision: str = "fp32") -> None:
+    def __init__(
+        self,
+        weights: str | Path = "imagenet",
+        backend: str = "auto",
+        threads: int | None = None,
+        batch_size: int | None = None,
+        seed: int = 0,
+        precision: str = "fp32",
+    ) -> None:
         if precision not in PRECISIONS:
             raise PerceptionError(f"precision must be one of {PRECISIONS}, got {precision!r}")
-        if precision == "int8" and (backend not in ("auto", *INT8_BACKENDS) or "onnxruntime" not in available_backends()):
-            raise PerceptionError(f"precision int8 is quantised by ONNX Runtime and runs on backend `auto`, "
-                                  f"{' or '.join(f'`{b}`' for b in INT8_BACKENDS)} (pip install "
-                                  f"'cnep-pipeline[onnx]'), got backend {backend!r}")
+        if precision == "int8" and (
+            backend not in ("auto", *INT8_BACKENDS) or "onnxruntime" not in available_backends()
+        ):
+            raise PerceptionError(
+                f"precision int8 is quantised by ONNX Runtime and runs on backend `auto`, "
+                f"{' or '.join(f'`{b}`' for b in INT8_BACKENDS)} (pip install "
+                f"'cnep-pipeline[onnx]'), got backend {backend!r}"
+            )
         if batch_size is not None and batch_size < 1:
             raise PerceptionError(f"batch_size must be >= 1, got {batch_size}")
         if threads is not None and threads < 1:
             raise PerceptionError(f"threads must be >= 1 (or None for the default), got {threads}")
         if backend != "auto" and backend not in available_backends():
-            raise PerceptionError(f"backend {backend!r} is not available; choose `auto` or one of "
-                                  f"{available_backends()} ({INSTALL_HINT})")
+            raise PerceptionError(
+                f"backend {backend!r} is not available; choose `auto` or one of {available_backends()} ({INSTALL_HINT})"
+            )
         resolved = resolve_weights(weights, seed)
         features = mobilenet_v2_features()
         features.load_state_dict(resolved.state_dict)
@@ -72,7 +100,7 @@ class FeatureExtractor:
         if not self.weights_name.startswith("random:"):
             raise PerceptionError(f"calibrate() is for seeded random weights; {self.weights_name} are used as given")
         pixels = resize_frames(frames)  # (N, 224, 224, 3)
-        batches = (pixels[i:i + CALIBRATION_BATCH] for i in range(0, len(pixels), CALIBRATION_BATCH))
+        batches = (pixels[i : i + CALIBRATION_BATCH] for i in range(0, len(pixels), CALIBRATION_BATCH))
         self.calibrated_on = calibrate_random_network(self.net, batches)
         self._sha256 = state_dict_sha256(self.net.features.state_dict())
         self._needs_calibration = False
@@ -86,16 +114,18 @@ class FeatureExtractor:
         return self.precision == "int8" and self._int8_model is None
 
     def quantise(self, frames: np.ndarray) -> None:
-        """int8 only: quantise the network, activation ranges calibrated on (N, H, W, 3) uint8 frames of the recordings."""
+        """int8 only: quantise the network, activation ranges calibrated on (N, H, W, 3) uint8 frames of the
+        recordings."""
         if self.precision != "int8":
             raise PerceptionError("quantise() is for precision int8; this extractor runs fp32")
         if self._needs_calibration:
             raise PerceptionError(f"weights {self.weights_name} need calibrate(frames) before they are quantised")
         pixels = resize_frames(frames)  # (N, 224, 224, 3)
-        batches = [pixels[i:i + CALIBRATION_BATCH] for i in range(0, len(pixels), CALIBRATION_BATCH)]
+        batches = [pixels[i : i + CALIBRATION_BATCH] for i in range(0, len(pixels), CALIBRATION_BATCH)]
         calibration = pixels_sha256(batches)
-        self._int8_model = quantise_int8(onnx_model(self.net, self._sha256), batches,
-                                         cache_key=f"{self._sha256}|{calibration}")
+        self._int8_model = quantise_int8(
+            onnx_model(self.net, self._sha256), batches, cache_key=f"{self._sha256}|{calibration}"
+        )
         self._quantised_on = f"frames={len(pixels)},sha256={calibration[:16]}"
         self._runner = None
         log.info("quantised to int8 on %d frames (%s)", len(pixels), self._quantised_on)
@@ -113,8 +143,11 @@ class FeatureExtractor:
             "weights_sha256": self._sha256,
             "preprocessing": PREPROCESSING,
             "backend": self._resolved_backend(),
-            **({"precision": "int8", "quantisation": f"{QUANTISATION},{self._quantised_on}"}
-               if self.precision == "int8" else {}),
+            **(
+                {"precision": "int8", "quantisation": f"{QUANTISATION},{self._quantised_on}"}
+                if self.precision == "int8"
+                else {}
+            ),
         }
 
     def __call__(self, frames: np.ndarray) -> np.ndarray:
@@ -124,14 +157,16 @@ class FeatureExtractor:
     def features(self, pixels: np.ndarray) -> np.ndarray:
         """Features of frames already resized to (N, 224, 224, 3) uint8: (N, 1280) float32."""
         if self._needs_calibration:
-            raise PerceptionError(f"weights {self.weights_name} are freshly initialised: their features are ~1e-9 "
-                                  f"and carry no signal; call calibrate(frames) with frames of the recordings first")
+            raise PerceptionError(
+                f"weights {self.weights_name} are freshly initialised: their features are ~1e-9 "
+                f"and carry no signal; call calibrate(frames) with frames of the recordings first"
+            )
         if self.needs_quantisation:
             raise PerceptionError("precision int8 needs quantise(frames) with frames of the recordings first")
         runner = self._get_runner()
         out = np.empty((len(pixels), FEATURE_DIM), dtype=np.float32)  # (N, 1280)
         for i in range(0, len(pixels), self.batch_size):
-            out[i:i + self.batch_size] = runner(np.ascontiguousarray(pixels[i:i + self.batch_size]))
+            out[i : i + self.batch_size] = runner(np.ascontiguousarray(pixels[i : i + self.batch_size]))
         return out
 
     def prepare(self) -> None:
@@ -176,5 +211,8 @@ def compatibility_key(identity: dict[str, str]) -> tuple[str, ...]:
     """
     fields = tuple(f"{field}={identity.get(field, '(missing)')}" for field in COMPATIBILITY_FIELDS)
     precision = identity.get("precision", "fp32")
-    return fields + (f"precision={precision}",) + ((f"quantisation={identity.get('quantisation')}",)
-                                                    if precision != "fp32" else ())
+    return (
+        fields
+        + (f"precision={precision}",)
+        + ((f"quantisation={identity.get('quantisation')}",) if precision != "fp32" else ())
+    )

@@ -25,11 +25,14 @@ def check_frames(frames: np.ndarray) -> None:
     """Raise PerceptionError unless `frames` is an (N, H, W, 3) uint8 array with N, H, W >= 1."""
     if not isinstance(frames, np.ndarray) or frames.dtype != np.uint8:
         kind = frames.dtype if isinstance(frames, np.ndarray) else type(frames).__name__
-        raise PerceptionError(f"frames must be a uint8 numpy array of RGB pixels, got {kind}; convert with "
-                              f"np.asarray(frames, dtype=np.uint8)")
+        raise PerceptionError(
+            f"frames must be a uint8 numpy array of RGB pixels, got {kind}; convert with "
+            f"np.asarray(frames, dtype=np.uint8)"
+        )
     if frames.ndim != 4 or frames.shape[-1] != 3 or 0 in frames.shape[1:3]:
-        raise PerceptionError(f"frames must have shape (N, H, W, 3), got {frames.shape}; "
-                              f"stack single frames with frames[None]")
+        raise PerceptionError(
+            f"frames must have shape (N, H, W, 3), got {frames.shape}; stack single frames with frames[None]"
+        )
 
 
 def resize_frames(frames: np.ndarray, size: int = IMAGE_SIZE) -> np.ndarray:

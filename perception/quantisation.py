@@ -3,9 +3,10 @@
 Weights are quantised per output channel (int8, symmetric); activations per tensor (uint8), their
 ranges calibrated (min-max) on frames of the recordings. uint8 activations ("U8S8"): with int8 ones
 (S8S8) the graph ran slower than fp32 on this AMD CPU (0.7-0.9x), with uint8 1.4-1.8x, at the
-same feature error (cosine 0.99986 against fp32; measured 2026-11-22, see docs/perception.md). The result is an ONNX graph with
-QuantizeLinear/DequantizeLinear pairs around each convolution, which ONNX Runtime, or OpenVINO
-reading the same graph (perception.backends.openvino_runner), fuses into int8 kernels. Its identity (precision, the calibration frames' sha256) goes into the extractor's
+same feature error (cosine 0.99986 against fp32; measured 2026-11-22, see docs/perception.md). The
+result is an ONNX graph with QuantizeLinear/DequantizeLinear pairs around each convolution, which
+ONNX Runtime, or OpenVINO reading the same graph (perception.backends.openvino_runner), fuses into
+int8 kernels. Its identity (precision, the calibration frames' sha256) goes into the extractor's
 identity, so int8 features are never mixed with fp32 ones (perception.compatibility_key).
 Feature error and speed against fp32: benchmarks/bench_threads.py, docs/perception.md.
 """
@@ -34,7 +35,8 @@ def pixels_sha256(batches: Sequence[np.ndarray]) -> str:
 
 
 def quantise_int8(model: bytes, batches: Sequence[np.ndarray], cache_key: str | None = None) -> bytes:
-    """The int8 QDQ graph of fp32 ONNX `model` (input `pixels`), activation ranges from uint8 (B, 224, 224, 3) `batches`.
+    """The int8 QDQ graph of fp32 ONNX `model` (input `pixels`), activation ranges from uint8 (B, 224, 224, 3)
+    `batches`.
 
     With `cache_key` (what identifies `model` and `batches`) the result is cached on disk beside the fp32
     exports (perception.backends.onnx_cache_dir): quantising takes seconds to tens of seconds.
@@ -62,8 +64,15 @@ def quantise_int8(model: bytes, batches: Sequence[np.ndarray], cache_key: str | 
         with tempfile.TemporaryDirectory(prefix="cnep-int8-") as tmp:
             src, dst = Path(tmp) / "fp32.onnx", Path(tmp) / "int8.onnx"
             src.write_bytes(model)
-            quantize_static(src, dst, Frames(), quant_format=QuantFormat.QDQ, per_channel=True,
-                            activation_type=QuantType.QUInt8, weight_type=QuantType.QInt8)
+            quantize_static(
+                src,
+                dst,
+                Frames(),
+                quant_format=QuantFormat.QDQ,
+                per_channel=True,
+                activation_type=QuantType.QUInt8,
+                weight_type=QuantType.QInt8,
+            )
             quantised = dst.read_bytes()
     finally:
         ort.set_default_logger_severity(2)  # ONNX Runtime's default: warnings

@@ -55,8 +55,10 @@ def resolve_weights(spec: str | Path, seed: int = 0) -> Weights:
         return Weights(f"imagenet:{path.name}", load_state_dict(path))
     path = Path(spec)
     if not path.is_file():
-        raise PerceptionError(f"weights file {path} does not exist; pass `imagenet`, `random` or the path of a "
-                              f"MobileNet-v2 state dict (.pth/.pt or .safetensors)")
+        raise PerceptionError(
+            f"weights file {path} does not exist; pass `imagenet`, `random` or the path of a "
+            f"MobileNet-v2 state dict (.pth/.pt or .safetensors)"
+        )
     return Weights(f"path:{path.name}", load_state_dict(path))
 
 
@@ -87,8 +89,10 @@ def find_imagenet_weights(download: bool | None = None) -> Path:
         if path.is_file():
             return path
     if os.environ.get(WEIGHTS_ENV_VAR):
-        raise PerceptionError(f"{WEIGHTS_ENV_VAR}={os.environ[WEIGHTS_ENV_VAR]} is not a file; point it at a "
-                              f"MobileNet-v2 ImageNet state dict")
+        raise PerceptionError(
+            f"{WEIGHTS_ENV_VAR}={os.environ[WEIGHTS_ENV_VAR]} is not a file; point it at a "
+            f"MobileNet-v2 ImageNet state dict"
+        )
     if download is None:
         download = not offline()
     if download:
@@ -96,10 +100,12 @@ def find_imagenet_weights(download: bool | None = None) -> Path:
         return download_weights(url, hub_checkpoints() / name)
     names = " or ".join(IMAGENET_WEIGHT_FILES)
     urls = " or ".join(IMAGENET_WEIGHT_FILES.values())
-    raise PerceptionError(f"ImageNet weights for MobileNet-v2 not found and downloading is off ({OFFLINE_ENV_VAR} or "
-                          f"--offline): put {names} in {hub_checkpoints()} (or set {WEIGHTS_ENV_VAR} to the file); "
-                          f"download it from {urls} on a machine with internet access, or choose weights `random` "
-                          f"(seeded) explicitly")
+    raise PerceptionError(
+        f"ImageNet weights for MobileNet-v2 not found and downloading is off ({OFFLINE_ENV_VAR} or "
+        f"--offline): put {names} in {hub_checkpoints()} (or set {WEIGHTS_ENV_VAR} to the file); "
+        f"download it from {urls} on a machine with internet access, or choose weights `random` "
+        f"(seeded) explicitly"
+    )
 
 
 def download_weights(url: str, dst: Path, timeout_s: float = DOWNLOAD_TIMEOUT_S) -> Path:
@@ -110,34 +116,47 @@ def download_weights(url: str, dst: Path, timeout_s: float = DOWNLOAD_TIMEOUT_S)
     before and one after.
     """
     match = HASH_PREFIX.search(dst.name)
-    alternatives = (f"put the file there yourself (from a machine with internet access), set {WEIGHTS_ENV_VAR} to "
-                    f"a copy of it, or choose weights `random` (seeded) explicitly")
+    alternatives = (
+        f"put the file there yourself (from a machine with internet access), set {WEIGHTS_ENV_VAR} to "
+        f"a copy of it, or choose weights `random` (seeded) explicitly"
+    )
     try:
         dst.parent.mkdir(parents=True, exist_ok=True)
-        tmp = tempfile.NamedTemporaryFile(dir=dst.parent, prefix=f".{dst.name}.", suffix=".partial", delete=False)
+        tmp = tempfile.NamedTemporaryFile(dir=dst.parent, prefix=f".{dst.name}.", suffix=".partial", delete=False)  # noqa: SIM115 (closed below)
     except OSError as exc:
-        raise PerceptionError(f"cannot write ImageNet weights into {dst.parent} ({exc.strerror}); {alternatives}") from None
+        raise PerceptionError(
+            f"cannot write ImageNet weights into {dst.parent} ({exc.strerror}); {alternatives}"
+        ) from None
     digest = hashlib.sha256()
     try:
         with tmp, urllib.request.urlopen(url, timeout=timeout_s) as response:
             size = int(response.headers.get("Content-Length") or 0) or None
-            log.info("downloading ImageNet weights %s (%s) into %s", url,
-                     f"{size / 1e6:.1f} MB" if size else "size unknown", dst)
+            log.info(
+                "downloading ImageNet weights %s (%s) into %s",
+                url,
+                f"{size / 1e6:.1f} MB" if size else "size unknown",
+                dst,
+            )
             show = sys.stderr.isatty() and log.isEnabledFor(logging.INFO)
-            with tqdm(total=size, unit="B", unit_scale=True, unit_divisor=1024, desc="download", disable=not show) as bar:
+            with tqdm(
+                total=size, unit="B", unit_scale=True, unit_divisor=1024, desc="download", disable=not show
+            ) as bar:
                 while chunk := response.read(1 << 16):
                     tmp.write(chunk)
                     digest.update(chunk)
                     bar.update(len(chunk))
         if match and not digest.hexdigest().startswith(match.group(1)):
-            raise PerceptionError(f"the download from {url} is corrupt: its sha256 {digest.hexdigest()[:16]}... does "
-                                  f"not start with {match.group(1)!r} as its name says; nothing was saved to {dst}; "
-                                  f"try again, or {alternatives}")
+            raise PerceptionError(
+                f"the download from {url} is corrupt: its sha256 {digest.hexdigest()[:16]}... does "
+                f"not start with {match.group(1)!r} as its name says; nothing was saved to {dst}; "
+                f"try again, or {alternatives}"
+            )
         os.replace(tmp.name, dst)
     except (urllib.error.URLError, OSError) as exc:
         reason = getattr(exc, "reason", None) or exc.strerror or exc
-        raise PerceptionError(f"cannot download ImageNet weights from {url} into {dst} ({reason}); {alternatives}") \
-            from None
+        raise PerceptionError(
+            f"cannot download ImageNet weights from {url} into {dst} ({reason}); {alternatives}"
+        ) from None
     finally:
         Path(tmp.name).unlink(missing_ok=True)
     log.info("saved %s (sha256 %s...)", dst, digest.hexdigest()[:12])
@@ -164,23 +183,31 @@ def load_state_dict(path: Path) -> dict[str, torch.Tensor]:
         else:
             raw = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # pickle, zip and safetensors errors have no common base class
-        raise PerceptionError(f"cannot load weights file {path}: {exc}; expected a state dict saved with "
-                              f"torch.save(model.state_dict(), path)") from exc
+        raise PerceptionError(
+            f"cannot load weights file {path}: {exc}; expected a state dict saved with "
+            f"torch.save(model.state_dict(), path)"
+        ) from exc
     if not isinstance(raw, dict):
-        raise PerceptionError(f"weights file {path} holds a {type(raw).__name__}, not a state dict; save it with "
-                              f"torch.save(model.state_dict(), path)")
+        raise PerceptionError(
+            f"weights file {path} holds a {type(raw).__name__}, not a state dict; save it with "
+            f"torch.save(model.state_dict(), path)"
+        )
     if any(key.startswith(_FEATURES_PREFIX) for key in raw):
-        raw = {k[len(_FEATURES_PREFIX):]: v for k, v in raw.items() if k.startswith(_FEATURES_PREFIX)}
+        raw = {k[len(_FEATURES_PREFIX) :]: v for k, v in raw.items() if k.startswith(_FEATURES_PREFIX)}
     reference = mobilenet_v2_features().state_dict()
     missing = sorted(set(reference) - set(raw))
     if missing:
-        raise PerceptionError(f"weights file {path} is not a MobileNet-v2 state dict: {len(missing)} keys missing "
-                              f"(e.g. features.{missing[0]})")
+        raise PerceptionError(
+            f"weights file {path} is not a MobileNet-v2 state dict: {len(missing)} keys missing "
+            f"(e.g. features.{missing[0]})"
+        )
     for key, tensor in reference.items():
         if not isinstance(raw[key], torch.Tensor) or raw[key].shape != tensor.shape:
             shape = getattr(raw[key], "shape", type(raw[key]).__name__)
-            raise PerceptionError(f"weights file {path}: features.{key} has shape {tuple(shape)}, MobileNet-v2 "
-                                  f"expects {tuple(tensor.shape)}")
+            raise PerceptionError(
+                f"weights file {path}: features.{key} has shape {tuple(shape)}, MobileNet-v2 "
+                f"expects {tuple(tensor.shape)}"
+            )
     return {key: raw[key].to(tensor.dtype) for key, tensor in reference.items()}
 
 

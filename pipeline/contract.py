@@ -66,8 +66,10 @@ def run_command(command: str, run: Callable[[], int | None], verbose: bool = Fal
         _stdout_to_devnull()
         return EXIT_OK
     except KeyboardInterrupt:
-        print(f"cnep {command}: interrupted; nothing half-written was kept, run the command again to finish",
-              file=sys.stderr)
+        print(
+            f"cnep {command}: interrupted; nothing half-written was kept, run the command again to finish",
+            file=sys.stderr,
+        )
         return EXIT_INTERRUPTED
     except Exception as exc:  # noqa: BLE001 - the contract: every failure is one line and an exit status
         user = isinstance(exc, (*loaded_user_errors(), OSError))
@@ -76,8 +78,11 @@ def run_command(command: str, run: Callable[[], int | None], verbose: bool = Fal
         if user:
             print(error_line(command, exc), file=sys.stderr)
             return EXIT_USER
-        print(f"cnep {command}: error: internal error ({type(exc).__name__}: {' '.join(str(exc).split())}); this is "
-              f"a bug in cnep: run again with -v for the traceback and report it", file=sys.stderr)
+        print(
+            f"cnep {command}: error: internal error ({type(exc).__name__}: {' '.join(str(exc).split())}); this is "
+            f"a bug in cnep: run again with -v for the traceback and report it",
+            file=sys.stderr,
+        )
         return EXIT_BUG
 
 
@@ -98,8 +103,9 @@ def refuse_existing(paths: Sequence[Path], force: bool, what: str = "output", wh
     existing = [Path(p) for p in paths if os.path.lexists(p)]
     if existing:
         more = f" (and {len(existing) - 1} more)" if len(existing) > 1 else ""
-        raise PipelineError(f"{existing[0]}: the {what} already exists{why}{more}; add --force to replace it, or "
-                            f"choose another output")
+        raise PipelineError(
+            f"{existing[0]}: the {what} already exists{why}{more}; add --force to replace it, or choose another output"
+        )
 
 
 def refuse_file_as_folder(folder: Path, option: str = "--out") -> None:
@@ -122,8 +128,10 @@ def output_folder(folder: Path, option: str = "--out") -> Iterator[Path]:
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise PipelineError(f"{folder}: cannot create the output folder ({exc.strerror}); "
-                            f"{_OS_FIXES.get(exc.errno or 0, 'check the path')}") from None
+        raise PipelineError(
+            f"{folder}: cannot create the output folder ({exc.strerror}); "
+            f"{_OS_FIXES.get(exc.errno or 0, 'check the path')}"
+        ) from None
     try:
         yield folder
     except BaseException:
@@ -137,8 +145,9 @@ def output_folder(folder: Path, option: str = "--out") -> Iterator[Path]:
 def check_writable_folder(folder: Path) -> None:
     """Raise PipelineError unless files can be created in `folder` (an existing folder)."""
     if not os.access(folder, os.W_OK | os.X_OK):
-        raise PipelineError(f"{folder}: cannot write in this folder (permission denied); choose an output "
-                            f"folder you can write to")
+        raise PipelineError(
+            f"{folder}: cannot write in this folder (permission denied); choose an output folder you can write to"
+        )
 
 
 def raise_if_skipped(skipped: Sequence[str], total: int, verb: str) -> None:
@@ -147,5 +156,7 @@ def raise_if_skipped(skipped: Sequence[str], total: int, verb: str) -> None:
         return
     shown = "; ".join(skipped[:3])
     more = f"; and {len(skipped) - 3} more (see the warnings above)" if len(skipped) > 3 else ""
-    raise PipelineError(f"{len(skipped)} of {total} input(s) skipped, the other {total - len(skipped)} {verb}: "
-                        f"{shown}{more}; fix or remove the skipped inputs and run again for them")
+    raise PipelineError(
+        f"{len(skipped)} of {total} input(s) skipped, the other {total - len(skipped)} {verb}: "
+        f"{shown}{more}; fix or remove the skipped inputs and run again for them"
+    )

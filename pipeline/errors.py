@@ -11,8 +11,11 @@ import importlib
 import sys
 
 # (module, class) of every package's user-error class besides PipelineError.
-_PACKAGE_ERRORS = (("cnep.models.errors", "ConfigError"), ("cnep.recordings.errors", "RecordingError"),
-                   ("cnep.perception.errors", "PerceptionError"))
+_PACKAGE_ERRORS = (
+    ("cnep.models.errors", "ConfigError"),
+    ("cnep.recordings.errors", "RecordingError"),
+    ("cnep.perception.errors", "PerceptionError"),
+)
 
 
 class PipelineError(Exception):

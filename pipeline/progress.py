@@ -47,9 +47,17 @@ class _Lines:
         self.last = time.monotonic()
 
 
-def progress_bar(iterable: Iterable | None = None, *, total: float | None = None, desc: str, unit: str,
-                 quiet: bool = False, open_ended: bool = False, stream: TextIO | None = None,
-                 **options: Any) -> tqdm:
+def progress_bar(
+    iterable: Iterable | None = None,
+    *,
+    total: float | None = None,
+    desc: str,
+    unit: str,
+    quiet: bool = False,
+    open_ended: bool = False,
+    stream: TextIO | None = None,
+    **options: Any,
+) -> tqdm:
     """A tqdm bar for one stage (see the module docstring); `stream` defaults to sys.stderr.
 
     open_ended: the total grows while the stage runs, so show the count and rate only.
@@ -61,5 +69,13 @@ def progress_bar(iterable: Iterable | None = None, *, total: float | None = None
         return tqdm(iterable, total=total, disable=True)
     if stream.isatty():
         return tqdm(iterable, total=total, desc=desc, unit=unit, file=stream, dynamic_ncols=True, **options)
-    return tqdm(iterable, total=total, desc=desc, unit=unit, file=_Lines(stream, LINE_INTERVAL_S),
-                mininterval=LINE_INTERVAL_S, ascii=True, **options)
+    return tqdm(
+        iterable,
+        total=total,
+        desc=desc,
+        unit=unit,
+        file=_Lines(stream, LINE_INTERVAL_S),
+        mininterval=LINE_INTERVAL_S,
+        ascii=True,
+        **options,
+    )

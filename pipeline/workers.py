@@ -61,9 +61,11 @@ def torch_threads(threads: int = SMALL_MODEL_THREADS) -> Iterator[None]:
 def single_thread_processes(workers: int) -> Iterator[ProcessPoolExecutor]:
     """A pool of `workers` spawned processes whose BLAS and torch start with one thread each, with
     SMALL_MODEL_MALLOC's allocator settings."""
-    with environment({**{name: "1" for name in THREAD_VARIABLES}, **SMALL_MODEL_MALLOC}):
-        with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
-            yield pool
+    with (
+        environment({**dict.fromkeys(THREAD_VARIABLES, "1"), **SMALL_MODEL_MALLOC}),
+        ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool,
+    ):
+        yield pool
 
 
 def thread_environment(threads: int):

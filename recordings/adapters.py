@@ -45,7 +45,9 @@ class FrameTiming:
         if self.frame_rate is not None and not (np.isfinite(self.frame_rate) and self.frame_rate > 0):
             raise RecordingError(f"frame rate (--frame-rate) must be a finite number of Hz > 0, got {self.frame_rate}")
         if not np.isfinite(self.offset_ms):
-            raise RecordingError(f"frame offset (--frame-offset-ms) must be a finite number of ms, got {self.offset_ms}")
+            raise RecordingError(
+                f"frame offset (--frame-offset-ms) must be a finite number of ms, got {self.offset_ms}"
+            )
 
     def times_ns(self, n_frames: int, first_row_ns: int, rate: float) -> tuple[np.ndarray, str]:
         """Times (n_frames,) int64 ns of frames at `rate` Hz after the first CSV row, and how they were made."""
@@ -90,12 +92,18 @@ def demonstration_with_frames(
         times, pose, gripper, kept = table.timestamps_ns, table.pose, table.gripper, frames
         extra = {**extra, "frame_times": "one frame per CSV row", "interpolation": "none"}
     else:
-        keep, pose, gripper = motion_at(frame_times_ns, table.timestamps_ns, table.pose, table.timestamps_ns, table.gripper)
+        keep, pose, gripper = motion_at(
+            frame_times_ns, table.timestamps_ns, table.pose, table.timestamps_ns, table.gripper
+        )
         dropped = int((~keep).sum())
         if dropped:
-            log.info("%s: %d of %d frames lie outside the CSV's time span and are dropped", table.path, dropped, len(frames))
+            log.info(
+                "%s: %d of %d frames lie outside the CSV's time span and are dropped", table.path, dropped, len(frames)
+            )
         if keep.sum() < 2:
-            raise RecordingError(f"{table.path}: fewer than 2 frames fall inside the CSV's time span; check --frame-offset-ms")
+            raise RecordingError(
+                f"{table.path}: fewer than 2 frames fall inside the CSV's time span; check --frame-offset-ms"
+            )
         times, kept = frame_times_ns[keep], [f for f, k in zip(frames, keep) if k]
         extra = {**extra, "interpolation": "pose xyz and gripper linear, quaternion slerp, at frame times"}
     return Demonstration(
@@ -107,11 +115,19 @@ def demonstration_with_frames(
     )
 
 
-def demonstration_from_csv(path: str | os.PathLike, episode_id: str, columns: CsvColumns = CsvColumns(), task: str = "") -> Demonstration:
+def demonstration_from_csv(
+    path: str | os.PathLike, episode_id: str, columns: CsvColumns = CsvColumns(), task: str = ""
+) -> Demonstration:
     """A motion-only demonstration: one step per CSV row."""
     table = read_motion_csv(path, columns)
     return Demonstration(
-        episode=Episode(episode_id, fps=median_rate(table.timestamps_ns), task=task, source=str(table.path), extra={"frames": "none"}),
+        episode=Episode(
+            episode_id,
+            fps=median_rate(table.timestamps_ns),
+            task=task,
+            source=str(table.path),
+            extra={"frames": "none"},
+        ),
         timestamps_ns=table.timestamps_ns,
         pose=table.pose,
         gripper=table.gripper,
@@ -135,17 +151,24 @@ def demonstration_from_folder(
     d = Path(folder)
     csvs = sorted(f for f in d.iterdir() if f.is_file() and f.suffix.lower() == ".csv")
     if len(csvs) != 1:
-        raise RecordingError(f"{d}: a folder with frames needs exactly one CSV of pose and gripper values, found {len(csvs)}")
+        raise RecordingError(
+            f"{d}: a folder with frames needs exactly one CSV of pose and gripper values, found {len(csvs)}"
+        )
     table = read_motion_csv(csvs[0], columns)
     videos, images = media_of(d)
     first = int(table.timestamps_ns[0])
     if videos:
         if len(videos) > 1 or images:
-            raise RecordingError(f"{d}: give one video or numbered images per folder, found {len(videos)} videos and {len(images)} images")
+            raise RecordingError(
+                f"{d}: give one video or numbered images per folder, found {len(videos)} videos and "
+                f"{len(images)} images"
+            )
         frames, video_fps = read_video(videos[0])
         if len(frames) < 2:
-            raise RecordingError(f"{videos[0]}: the video has {len(frames)} readable frame; a demonstration needs at "
-                                 f"least 2 (give the whole video)")
+            raise RecordingError(
+                f"{videos[0]}: the video has {len(frames)} readable frame; a demonstration needs at "
+                f"least 2 (give the whole video)"
+            )
         times, how = timing.times_ns(len(frames), first, timing.frame_rate or video_fps)
         extra = {"frame_source": videos[0].name, "frame_times": how}
         return demonstration_with_frames(episode_id, table, frames, times, task, extra)
@@ -155,7 +178,8 @@ def demonstration_from_folder(
         return demonstration_with_frames(episode_id, table, frames, None, task, extra)
     if timing.frame_rate is None:
         raise RecordingError(
-            f"{d}: {len(frames)} images for {len(table.timestamps_ns)} CSV rows; give the camera rate with --frame-rate HZ "
+            f"{d}: {len(frames)} images for {len(table.timestamps_ns)} CSV rows; "
+            "give the camera rate with --frame-rate HZ "
             "(or one image per CSV row)"
         )
     times, extra["frame_times"] = timing.times_ns(len(frames), first, timing.frame_rate)

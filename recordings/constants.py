@@ -6,8 +6,8 @@ range. Changing anything here that changes what a file contains means bumping `F
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from types import MappingProxyType
-from typing import Mapping
 
 # Version of the file contract written into every file's `episode` metadata. Readers refuse others.
 FORMAT_VERSION = "1"

@@ -14,20 +14,27 @@ import os
 import secrets
 import struct
 import zlib
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Iterator
+from typing import IO
 
 import zstandard
 from google.protobuf.message import DecodeError
-from mcap.exceptions import McapError
 from mcap.data_stream import ReadDataStream
+from mcap.exceptions import McapError
 from mcap.opcode import Opcode
 from mcap.records import Attachment, Channel, Chunk, DataEnd, Footer, Header, Message, Metadata, Schema
 from mcap.stream_reader import get_chunk_data_stream
 from mcap.writer import CompressionType, Writer
 
-from cnep.recordings.constants import CHUNK_SIZE_BYTES, COMPRESSION_BY_KIND, DEFAULT_COMPRESSION, LIBRARY_NAME, METADATA_EPISODE
+from cnep.recordings.constants import (
+    CHUNK_SIZE_BYTES,
+    COMPRESSION_BY_KIND,
+    DEFAULT_COMPRESSION,
+    LIBRARY_NAME,
+    METADATA_EPISODE,
+)
 from cnep.recordings.errors import RecordingError
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
@@ -64,8 +71,9 @@ def atomic_output(path: str | os.PathLike) -> Iterator[IO[bytes]]:
     try:  # 0666 less the umask, like any other file the user writes (mkstemp would give 0600)
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
     except OSError as exc:
-        raise RecordingError(f"{target}: cannot write in {target.parent} ({exc.strerror}); choose an output folder "
-                             f"you can write to") from None
+        raise RecordingError(
+            f"{target}: cannot write in {target.parent} ({exc.strerror}); choose an output folder you can write to"
+        ) from None
     try:
         with os.fdopen(fd, "wb") as stream:
             yield stream
@@ -225,7 +233,9 @@ def _walk(data: bytes, out: McapContents, salvage: bool) -> None:
         opcode, length = _RECORD_HEAD.unpack_from(data, pos)
         body, end = pos + _RECORD_HEAD.size, pos + _RECORD_HEAD.size + length
         if end > size:
-            raise _Damage(f"the record at byte {pos} runs past the end of the file ({size} bytes)", truncated=not closed)
+            raise _Damage(
+                f"the record at byte {pos} runs past the end of the file ({size} bytes)", truncated=not closed
+            )
         if opcode in (Opcode.MESSAGE, Opcode.CHUNK) or opcode in _TOP_LEVEL:
             try:
                 if opcode == Opcode.CHUNK:
@@ -242,7 +252,9 @@ def _walk(data: bytes, out: McapContents, salvage: bool) -> None:
                     if not salvage:
                         raise _Damage(f"damaged chunk at byte {pos} ({_describe(exc)})", truncated=False) from None
                     out.chunks_lost += 1
-                    out.problem = f"{out.chunks_lost} damaged chunk(s) skipped, the last at byte {pos} ({_describe(exc)})"
+                    out.problem = (
+                        f"{out.chunks_lost} damaged chunk(s) skipped, the last at byte {pos} ({_describe(exc)})"
+                    )
                 else:
                     out.chunks_read += 1
                     for r in inner:
@@ -250,7 +262,9 @@ def _walk(data: bytes, out: McapContents, salvage: bool) -> None:
             elif isinstance(record, DataEnd):
                 if record.data_section_crc and zlib.crc32(view[:pos]) != record.data_section_crc:
                     if not salvage:
-                        raise _Damage("CRC mismatch in the data section (a byte outside the chunks changed)", truncated=False)
+                        raise _Damage(
+                            "CRC mismatch in the data section (a byte outside the chunks changed)", truncated=False
+                        )
                     out.problem = out.problem or "CRC mismatch in the data section"
             elif isinstance(record, Attachment):
                 stored = struct.unpack_from("<I", data, end - 4)[0]
@@ -261,7 +275,11 @@ def _walk(data: bytes, out: McapContents, salvage: bool) -> None:
                 out.bytes_used = end
                 if data[end:] != MCAP_MAGIC:
                     raise _Damage("no closing magic bytes after the footer", truncated=size < end + len(MCAP_MAGIC))
-                if record.summary_crc and record.summary_start and zlib.crc32(view[record.summary_start : body + 16]) != record.summary_crc:
+                if (
+                    record.summary_crc
+                    and record.summary_start
+                    and zlib.crc32(view[record.summary_start : body + 16]) != record.summary_crc
+                ):
                     raise _Damage("CRC mismatch in the summary section", truncated=False)
                 return
             else:
@@ -296,8 +314,10 @@ def read_mcap(path: str | os.PathLike, salvage: bool = False) -> McapContents:
         out.complete = out.chunks_lost == 0 and out.problem is None
     except _Damage as damage:
         if damage.truncated and not out.messages:
-            why = (f"truncated: {damage} (the recorder did not finish the file) and no chunk is complete, so "
-                   f"nothing can be salvaged; record or export it again")
+            why = (
+                f"truncated: {damage} (the recorder did not finish the file) and no chunk is complete, so "
+                f"nothing can be salvaged; record or export it again"
+            )
         elif damage.truncated:
             why = (
                 f"truncated: {damage} (the recorder did not finish the file); "
@@ -338,11 +358,14 @@ def rewrite_mcap(dst: str | os.PathLike, contents: McapContents) -> Path:
     with atomic_output(target) as stream:
         writer = new_writer(stream, COMPRESSION_BY_KIND.get(kind, DEFAULT_COMPRESSION))
         for a in contents.attachments:
-            writer.add_attachment(create_time=a.create_time, log_time=a.log_time, name=a.name, media_type=a.media_type, data=a.data)
+            writer.add_attachment(
+                create_time=a.create_time, log_time=a.log_time, name=a.name, media_type=a.media_type, data=a.data
+            )
         for name, data in contents.metadata.items():
             writer.add_metadata(name, data)
         schema_ids = {
-            old: writer.register_schema(name=s.name, encoding=s.encoding, data=s.data) for old, s in contents.schemas.items()
+            old: writer.register_schema(name=s.name, encoding=s.encoding, data=s.data)
+            for old, s in contents.schemas.items()
         }
         channel_ids = {
             old: writer.register_channel(
@@ -356,7 +379,11 @@ def rewrite_mcap(dst: str | os.PathLike, contents: McapContents) -> Path:
         for m in sorted(contents.messages, key=lambda m: m.log_time):
             if m.channel_id in channel_ids:
                 writer.add_message(
-                    channel_id=channel_ids[m.channel_id], log_time=m.log_time, data=m.data, publish_time=m.publish_time, sequence=m.sequence
+                    channel_id=channel_ids[m.channel_id],
+                    log_time=m.log_time,
+                    data=m.data,
+                    publish_time=m.publish_time,
+                    sequence=m.sequence,
                 )
         writer.finish()
     return target

@@ -12,9 +12,9 @@ from __future__ import annotations
 import csv
 import io
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
-from typing import Mapping
 
 import numpy as np
 
@@ -40,10 +40,12 @@ class CsvColumns:
 
     def __post_init__(self) -> None:
         if self.time_unit not in NS_PER_UNIT:
-            raise RecordingError(f"CSV column mapping: time_unit {self.time_unit!r} is not one of {sorted(NS_PER_UNIT)}")
+            raise RecordingError(
+                f"CSV column mapping: time_unit {self.time_unit!r} is not one of {sorted(NS_PER_UNIT)}"
+            )
 
     @classmethod
-    def from_overrides(cls, overrides: Mapping[str, str]) -> "CsvColumns":
+    def from_overrides(cls, overrides: Mapping[str, str]) -> CsvColumns:
         """The Baxter defaults with some keys replaced, e.g. {"time": "stamp", "time_unit": "s"}."""
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(overrides) - known)
@@ -89,8 +91,10 @@ def read_motion_csv(path: str | os.PathLike, columns: CsvColumns = CsvColumns())
     rows = [row for _, row in numbered]
     if len(rows) < 3:
         found = "no rows" if not rows else f"a header and {len(rows) - 1} data row{'s' if len(rows) != 2 else ''}"
-        raise RecordingError(f"{p}: needs a header row and at least 2 data rows, found {found}; a demonstration "
-                             f"needs at least 2 time steps")
+        raise RecordingError(
+            f"{p}: needs a header row and at least 2 data rows, found {found}; a demonstration "
+            f"needs at least 2 time steps"
+        )
     header = [_normalise(h) for h in rows[0]]
     wanted = [columns.time, columns.x, columns.y, columns.z, columns.qx, columns.qy, columns.qz, columns.qw]
     if columns.gripper:
@@ -109,7 +113,9 @@ def read_motion_csv(path: str | os.PathLike, columns: CsvColumns = CsvColumns())
                 values[r, c] = float(row[col])
             except (IndexError, ValueError):
                 cell = row[col] if col < len(row) else "<missing>"
-                raise RecordingError(f"{p}: line {lines[r + 1]}, column {wanted[c]!r}: {cell!r} is not a number") from None
+                raise RecordingError(
+                    f"{p}: line {lines[r + 1]}, column {wanted[c]!r}: {cell!r} is not a number"
+                ) from None
     bad = ~np.isfinite(values)
     if bad.any():
         r, c = np.argwhere(bad)[0]
@@ -118,7 +124,10 @@ def read_motion_csv(path: str | os.PathLike, columns: CsvColumns = CsvColumns())
     back = np.diff(ts) <= 0
     if back.any():
         r = int(np.flatnonzero(back)[0]) + 1
-        raise RecordingError(f"{p}: time goes backwards (or repeats) at line {lines[r + 1]} ({values[r - 1, 0]} then {values[r, 0]} {columns.time_unit})")
+        raise RecordingError(
+            f"{p}: time goes backwards (or repeats) at line {lines[r + 1]} "
+            f"({values[r - 1, 0]} then {values[r, 0]} {columns.time_unit})"
+        )
     if ts[0] < 0:
         raise RecordingError(f"{p}: negative time {values[0, 0]} {columns.time_unit} on line {lines[1]}")
     quat = values[:, 4:8]  # (N, 4)

@@ -10,9 +10,9 @@ order, so Foxglove and Rerun show them on the same timeline as the trajectory.
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
-from typing import Sequence
 
 from mcap.records import Channel, Message, Schema
 
@@ -40,14 +40,30 @@ def add_events(src: str | os.PathLike, dst: str | os.PathLike, events: Sequence[
     channel = contents.channel_of_topic(TOPIC_EVENTS)
     if channel is None:
         schema_id = max(contents.schemas, default=0) + 1
-        contents.schemas[schema_id] = Schema(id=schema_id, name=SCHEMA_EVENT, encoding="protobuf", data=schema_data(FOXGLOVE_CLASSES[SCHEMA_EVENT]))
-        channel = Channel(id=max(contents.channels, default=0) + 1, topic=TOPIC_EVENTS, message_encoding="protobuf", metadata={}, schema_id=schema_id)
+        contents.schemas[schema_id] = Schema(
+            id=schema_id, name=SCHEMA_EVENT, encoding="protobuf", data=schema_data(FOXGLOVE_CLASSES[SCHEMA_EVENT])
+        )
+        channel = Channel(
+            id=max(contents.channels, default=0) + 1,
+            topic=TOPIC_EVENTS,
+            message_encoding="protobuf",
+            metadata={},
+            schema_id=schema_id,
+        )
         contents.channels[channel.id] = channel
     elif contents.schema_name(TOPIC_EVENTS) != SCHEMA_EVENT:
-        raise RecordingError(f"{src}: topic {TOPIC_EVENTS} has schema {contents.schema_name(TOPIC_EVENTS)!r}, not {SCHEMA_EVENT!r}")
+        raise RecordingError(
+            f"{src}: topic {TOPIC_EVENTS} has schema {contents.schema_name(TOPIC_EVENTS)!r}, not {SCHEMA_EVENT!r}"
+        )
     for e in events:
         contents.messages.append(
-            Message(channel_id=channel.id, log_time=e.timestamp_ns, publish_time=e.timestamp_ns, sequence=0, data=encode_event(e))
+            Message(
+                channel_id=channel.id,
+                log_time=e.timestamp_ns,
+                publish_time=e.timestamp_ns,
+                sequence=0,
+                data=encode_event(e),
+            )
         )
     return rewrite_mcap(dst, contents)
 

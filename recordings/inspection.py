@@ -69,7 +69,11 @@ def inspect_file(path: str | os.PathLike) -> FileReport:
     topics = []
     for ch in sorted(contents.channels.values(), key=lambda c: c.topic):
         times = [m.log_time for m in contents.messages if m.channel_id == ch.id]
-        topics.append(TopicSummary(ch.topic, contents.schema_name(ch.topic), len(times), min(times, default=0), max(times, default=0)))
+        topics.append(
+            TopicSummary(
+                ch.topic, contents.schema_name(ch.topic), len(times), min(times, default=0), max(times, default=0)
+            )
+        )
     layouts = {}
     for ch in contents.channels.values():
         if CHANNEL_KEY_LAYOUT in ch.metadata:
@@ -86,8 +90,14 @@ def inspect_file(path: str | os.PathLike) -> FileReport:
             try:
                 record = (demonstration_from if kind == KIND_DEMONSTRATION else trajectory_from)(contents)
                 bad = first_undecodable(record.frames) if record.frames else None
-                check = "ok" if bad is None else (f"refused: {contents.path}: frame {bad} on {TOPIC_IMAGE} is not a decodable JPEG; "
-                                                  f"ingest the recording again from its source")
+                check = (
+                    "ok"
+                    if bad is None
+                    else (
+                        f"refused: {contents.path}: frame {bad} on {TOPIC_IMAGE} is not a decodable JPEG; "
+                        f"ingest the recording again from its source"
+                    )
+                )
             except RecordingError as exc:
                 check = f"refused: {exc}"
     return FileReport(

@@ -52,4 +52,3 @@ def slerp(t_src: np.ndarray, quats: np.ndarray, t_query: np.ndarray) -> np.ndarr
     w1 = np.where(near, frac, np.sin(frac * theta) / sin_theta)
     out = q0 * w0[:, None] + q1 * w1[:, None]  # (Q, 4)
     return out / np.linalg.norm(out, axis=1, keepdims=True)
-

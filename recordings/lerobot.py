@@ -107,8 +107,10 @@ def _read_info(root: Path) -> dict:
         raise RecordingError(f"{path}: cannot read as JSON ({exc})") from None
     version = info.get("codebase_version")
     if version not in SUPPORTED_VERSIONS:
-        raise RecordingError(f"{path}: codebase_version {version!r} is not supported (supported: "
-                             f"{', '.join(SUPPORTED_VERSIONS)}); convert the dataset with LeRobot's conversion scripts")
+        raise RecordingError(
+            f"{path}: codebase_version {version!r} is not supported (supported: "
+            f"{', '.join(SUPPORTED_VERSIONS)}); convert the dataset with LeRobot's conversion scripts"
+        )
     for key in ("fps", "features", "data_path"):
         if key not in info:
             raise RecordingError(f"{path}: no {key!r} entry; is this a LeRobot {version} dataset?")
@@ -123,12 +125,15 @@ def _choose_camera(info: dict, wanted: str | None, where: Path) -> str:
         if len(cameras) == 1:
             return cameras[0]
         if not cameras:
-            raise RecordingError(f"{where}: the dataset has no camera feature (dtype video or image); "
-                                 f'ingest it motion-only with --camera ""')
+            raise RecordingError(
+                f"{where}: the dataset has no camera feature (dtype video or image); "
+                f'ingest it motion-only with --camera ""'
+            )
         raise RecordingError(f"{where}: the dataset has {len(cameras)} cameras {cameras}; choose one with --camera KEY")
     if wanted not in cameras:
-        raise RecordingError(f"{where}: no camera {wanted!r} in the dataset (cameras: {cameras}); choose one with "
-                             f"--camera KEY")
+        raise RecordingError(
+            f"{where}: no camera {wanted!r} in the dataset (cameras: {cameras}); choose one with --camera KEY"
+        )
     return wanted
 
 
@@ -183,8 +188,9 @@ def _task(entry: dict) -> str:
     return " | ".join(str(t) for t in tasks) if isinstance(tasks, list) else str(tasks)
 
 
-def _episode_files(root: Path, info: dict, version: str, entry: dict, video_key: str,
-                   chunks_size: int) -> tuple[Path, Path | None, float]:
+def _episode_files(
+    root: Path, info: dict, version: str, entry: dict, video_key: str, chunks_size: int
+) -> tuple[Path, Path | None, float]:
     """(data file, video file or None, episode start inside the video in s) of one episode."""
     index = int(entry["episode_index"])
     if version == "v2.1":  # one file per episode, grouped in chunks of chunks_size episodes
@@ -192,13 +198,18 @@ def _episode_files(root: Path, info: dict, version: str, entry: dict, video_key:
         data = root / info["data_path"].format(episode_chunk=chunk, episode_index=index)
         if not video_key:
             return data, None, 0.0
-        return data, root / info["video_path"].format(episode_chunk=chunk, video_key=video_key, episode_index=index), 0.0
+        return (
+            data,
+            root / info["video_path"].format(episode_chunk=chunk, video_key=video_key, episode_index=index),
+            0.0,
+        )
     data = root / info["data_path"].format(chunk_index=entry["data/chunk_index"], file_index=entry["data/file_index"])
     if not video_key:
         return data, None, 0.0
     prefix = f"videos/{video_key}/"
-    video = root / info["video_path"].format(video_key=video_key, chunk_index=entry[prefix + "chunk_index"],
-                                             file_index=entry[prefix + "file_index"])
+    video = root / info["video_path"].format(
+        video_key=video_key, chunk_index=entry[prefix + "chunk_index"], file_index=entry[prefix + "file_index"]
+    )
     return data, video, float(entry[prefix + "from_timestamp"])
 
 
@@ -211,7 +222,9 @@ def plan_lerobot(root: str | os.PathLike, mapping: LerobotMapping = LerobotMappi
     columns = resolve_columns(info, mapping, root / "meta" / "info.json")
     is_video = bool(camera) and info["features"][camera]["dtype"] == "video"
     if is_video and "video_path" not in info:
-        raise RecordingError(f"{root / 'meta' / 'info.json'}: camera {camera!r} is a video but there is no 'video_path'")
+        raise RecordingError(
+            f"{root / 'meta' / 'info.json'}: camera {camera!r} is a video but there is no 'video_path'"
+        )
     entries = _episodes_v21(root) if version == "v2.1" else _episodes_v30(root)
     if not entries:
         raise RecordingError(f"{root}: the dataset lists no episodes")
@@ -223,8 +236,10 @@ def plan_lerobot(root: str | os.PathLike, mapping: LerobotMapping = LerobotMappi
         try:
             data, video, offset = _episode_files(root, info, version, entry, camera if is_video else "", chunks_size)
         except KeyError as exc:
-            raise RecordingError(f"{root}: episode {index} has no {exc.args[0]!r} (meta/episodes or the path templates "
-                                 f"of meta/info.json); is the dataset complete?") from None
+            raise RecordingError(
+                f"{root}: episode {index} has no {exc.args[0]!r} (meta/episodes or the path templates "
+                f"of meta/info.json); is the dataset complete?"
+            ) from None
         if data not in cached:  # consecutive episodes share a v3.0 data file: read it once
             cached.clear()
             cached[data] = _motion_table(data, mapping.state)
@@ -232,8 +247,9 @@ def plan_lerobot(root: str | os.PathLike, mapping: LerobotMapping = LerobotMappi
         rows = np.arange(table.num_rows) if episode_of_row is None else np.flatnonzero(episode_of_row == index)
         where = f"{data} (episode {index})"
         if len(rows) == 0:
-            raise RecordingError(f"{where}: the episode has no frames (no rows); remove it from the dataset or fix "
-                                 f"its data file")
+            raise RecordingError(
+                f"{where}: the episode has no frames (no rows); remove it from the dataset or fix its data file"
+            )
         if len(rows) < 2:
             raise RecordingError(f"{where}: the episode has only 1 frame; a demonstration needs at least 2")
         times, pose, gripper = motion_of_rows(table.take(rows), columns, mapping.state, where)
@@ -242,11 +258,17 @@ def plan_lerobot(root: str | os.PathLike, mapping: LerobotMapping = LerobotMappi
         frames = None
         if camera:
             frames = FrameSource(video, offset) if video is not None else FrameSource(data, rows=rows)
-        extra = {"format": f"lerobot {version}", "episode_index": str(index), "camera": camera or "none",
-                 "columns": columns.described, "frame_times": "Parquet timestamp" + (" + video offset" if video else ""),
-                 "interpolation": "none"}
-        planned.append(LerobotEpisode(root, index, _task(entry), float(info["fps"]), times, pose, gripper, camera,
-                                      frames, extra))
+        extra = {
+            "format": f"lerobot {version}",
+            "episode_index": str(index),
+            "camera": camera or "none",
+            "columns": columns.described,
+            "frame_times": "Parquet timestamp" + (" + video offset" if video else ""),
+            "interpolation": "none",
+        }
+        planned.append(
+            LerobotEpisode(root, index, _task(entry), float(info["fps"]), times, pose, gripper, camera, frames, extra)
+        )
     return planned
 
 
@@ -271,8 +293,13 @@ def demonstration_from_lerobot(episode: LerobotEpisode, task: str = "") -> Demon
         else:
             frames = _parquet_images(episode.frames, episode.camera)
     return Demonstration(
-        episode=Episode(episode.episode_id, fps=episode.fps, task=task or episode.task, source=str(episode.dataset),
-                        extra=episode.extra),
+        episode=Episode(
+            episode.episode_id,
+            fps=episode.fps,
+            task=task or episode.task,
+            source=str(episode.dataset),
+            extra=episode.extra,
+        ),
         timestamps_ns=episode.timestamps_ns,
         pose=episode.pose,
         gripper=episode.gripper,

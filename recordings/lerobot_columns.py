@@ -38,8 +38,10 @@ class LerobotMapping:
 
     def __post_init__(self) -> None:
         if self.pose is not None and len(self.pose) not in (6, 7):
-            raise RecordingError(f"LeRobot pose mapping {list(self.pose)}: give 7 entries (x y z qx qy qz qw) "
-                                 f"or 6 (x y z roll pitch yaw)")
+            raise RecordingError(
+                f"LeRobot pose mapping {list(self.pose)}: give 7 entries (x y z qx qy qz qw) "
+                f"or 6 (x y z roll pitch yaw)"
+            )
 
 
 def _vector_names(feature: dict) -> list[str] | None:
@@ -59,10 +61,14 @@ def _index_of(entry: str, names: list[str] | None, width: int, column: str, wher
         index = int(entry)
         if 0 <= index < width:
             return index
-        raise RecordingError(f"{where}: index {index} is outside {column!r}, a vector of {width} values; "
-                             f"the pose/gripper mapping needs a longer state vector or other indices")
-    raise RecordingError(f"{where}: {column!r} has no entry named {entry!r} (names: {names}); map it with "
-                         f"--pose/--gripper by name or index")
+        raise RecordingError(
+            f"{where}: index {index} is outside {column!r}, a vector of {width} values; "
+            f"the pose/gripper mapping needs a longer state vector or other indices"
+        )
+    raise RecordingError(
+        f"{where}: {column!r} has no entry named {entry!r} (names: {names}); map it with "
+        f"--pose/--gripper by name or index"
+    )
 
 
 @dataclass(frozen=True)
@@ -78,8 +84,9 @@ def resolve_columns(info: dict, mapping: LerobotMapping, where: Path) -> StateCo
     feature = info["features"].get(mapping.state)
     if feature is None:
         vectors = sorted(k for k, f in info["features"].items() if f.get("dtype") in ("float32", "float64"))
-        raise RecordingError(f"{where}: no feature {mapping.state!r} (vector features: {vectors}); choose the column "
-                             f"with --state-column")
+        raise RecordingError(
+            f"{where}: no feature {mapping.state!r} (vector features: {vectors}); choose the column with --state-column"
+        )
     width = int((feature.get("shape") or [1])[0])
     names = _vector_names(feature)
     pose = mapping.pose
@@ -90,16 +97,20 @@ def resolve_columns(info: dict, mapping: LerobotMapping, where: Path) -> StateCo
                 pose = tuple(names[lowered.index(c)] for c in candidate)
                 break
         else:
-            raise RecordingError(f"{where}: cannot tell which entries of {mapping.state!r} are the end-effector pose "
-                                 f"(names: {names}); give them with --pose x,y,z,qx,qy,qz,qw (or x,y,z,roll,pitch,yaw) "
-                                 f"as names or indices")
+            raise RecordingError(
+                f"{where}: cannot tell which entries of {mapping.state!r} are the end-effector pose "
+                f"(names: {names}); give them with --pose x,y,z,qx,qy,qz,qw (or x,y,z,roll,pitch,yaw) "
+                f"as names or indices"
+            )
     pose_idx = tuple(_index_of(e, names, width, mapping.state, where) for e in pose)
     gripper = mapping.gripper
     if gripper is None:
         gripper = "gripper" if names and "gripper" in names else None
         if gripper is None:
-            raise RecordingError(f"{where}: no entry named 'gripper' in {mapping.state!r} (names: {names}); give it "
-                                 f'with --gripper NAME|INDEX, or --gripper "" for none')
+            raise RecordingError(
+                f"{where}: no entry named 'gripper' in {mapping.state!r} (names: {names}); give it "
+                f'with --gripper NAME|INDEX, or --gripper "" for none'
+            )
     grip_idx = _index_of(gripper, names, width, mapping.state, where) if gripper else None
     described = f"{mapping.state}[{','.join(pose)}]" + (f", gripper {mapping.state}[{gripper}]" if gripper else "")
     return StateColumns(pose_idx, grip_idx, described)
@@ -110,10 +121,15 @@ def quaternion_from_rpy(rpy: np.ndarray) -> np.ndarray:
     half = rpy / 2.0
     cr, cp, cy = np.cos(half).T
     sr, sp, sy = np.sin(half).T
-    return np.stack([sr * cp * cy - cr * sp * sy,
-                     cr * sp * cy + sr * cp * sy,
-                     cr * cp * sy - sr * sp * cy,
-                     cr * cp * cy + sr * sp * sy], axis=1)
+    return np.stack(
+        [
+            sr * cp * cy - cr * sp * sy,
+            cr * sp * cy + sr * cp * sy,
+            cr * cp * sy - sr * sp * cy,
+            cr * cp * cy + sr * sp * sy,
+        ],
+        axis=1,
+    )
 
 
 def _vectors(table: Any, column: str, where: str) -> np.ndarray:
@@ -128,8 +144,9 @@ def _vectors(table: Any, column: str, where: str) -> np.ndarray:
     if pa.types.is_list(values.type) or pa.types.is_large_list(values.type) or pa.types.is_fixed_size_list(values.type):
         lengths = pc.list_value_length(values).to_numpy(zero_copy_only=False)  # (N,)
         if n and (lengths != lengths[0]).any():
-            raise RecordingError(f"{where}: column {column!r} holds vectors of different lengths "
-                                 f"({sorted(set(lengths.tolist()))})")
+            raise RecordingError(
+                f"{where}: column {column!r} holds vectors of different lengths ({sorted(set(lengths.tolist()))})"
+            )
         flat = values.flatten()
         width = int(lengths[0]) if n else 0
     else:
@@ -140,7 +157,9 @@ def _vectors(table: Any, column: str, where: str) -> np.ndarray:
         raise RecordingError(f"{where}: column {column!r} does not hold numbers ({values.type})") from None
 
 
-def motion_of_rows(table: Any, columns: StateColumns, state: str, where: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def motion_of_rows(
+    table: Any, columns: StateColumns, state: str, where: str
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(timestamps_ns (T,), pose (T, 7), gripper (T,)) of an episode's rows, checked."""
     for needed in ("timestamp", state):
         if needed not in table.column_names:
@@ -149,8 +168,10 @@ def motion_of_rows(table: Any, columns: StateColumns, state: str, where: str) ->
     vectors = _vectors(table, state, where)  # (T, D)
     needed_width = max(columns.pose + ((columns.gripper,) if columns.gripper is not None else ())) + 1
     if vectors.shape[1] < needed_width:
-        raise RecordingError(f"{where}: {state!r} holds {vectors.shape[1]} values per row, the pose/gripper mapping "
-                             f"reads index {needed_width - 1}")
+        raise RecordingError(
+            f"{where}: {state!r} holds {vectors.shape[1]} values per row, the pose/gripper mapping "
+            f"reads index {needed_width - 1}"
+        )
     if not (np.isfinite(seconds).all() and np.isfinite(vectors).all()):
         raise RecordingError(f"{where}: NaN or infinite values in 'timestamp' or {state!r}")
     times = np.round(seconds * NS_PER_S).astype(np.int64)  # (T,)

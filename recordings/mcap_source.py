@@ -18,8 +18,9 @@ from __future__ import annotations
 
 import logging
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
@@ -106,9 +107,15 @@ def _joint_position(names: list[str], positions: list[float], joint: str, where:
 Extractor = Callable[[Any, int, str, McapTopics], tuple[int, Any]]
 IMAGE_EXTRACTORS: dict[str, Extractor] = {
     "foxglove.CompressedImage": lambda m, t, w, o: (_foxglove_stamp(m, t), _jpeg_of_compressed(m.data, m.format, w)),
-    "foxglove.RawImage": lambda m, t, w, o: (_foxglove_stamp(m, t), _jpeg_of_raw(m.width, m.height, m.encoding, m.step, m.data, w)),
+    "foxglove.RawImage": lambda m, t, w, o: (
+        _foxglove_stamp(m, t),
+        _jpeg_of_raw(m.width, m.height, m.encoding, m.step, m.data, w),
+    ),
     "sensor_msgs/msg/CompressedImage": lambda m, t, w, o: (ros_stamp(m, t), _jpeg_of_compressed(m.data, m.format, w)),
-    "sensor_msgs/msg/Image": lambda m, t, w, o: (ros_stamp(m, t), _jpeg_of_raw(m.width, m.height, m.encoding, m.step, m.data, w)),
+    "sensor_msgs/msg/Image": lambda m, t, w, o: (
+        ros_stamp(m, t),
+        _jpeg_of_raw(m.width, m.height, m.encoding, m.step, m.data, w),
+    ),
 }
 POSE_EXTRACTORS: dict[str, Extractor] = {
     "foxglove.PoseInFrame": lambda m, t, w, o: (_foxglove_stamp(m, t), _pose_of(m.pose)),
@@ -120,7 +127,10 @@ GRIPPER_EXTRACTORS: dict[str, Extractor] = {
         _foxglove_stamp(m, t),
         _joint_position([j.name for j in m.joints], [j.position for j in m.joints], o.gripper_joint, w),
     ),
-    "sensor_msgs/msg/JointState": lambda m, t, w, o: (ros_stamp(m, t), _joint_position(m.name, m.position, o.gripper_joint, w)),
+    "sensor_msgs/msg/JointState": lambda m, t, w, o: (
+        ros_stamp(m, t),
+        _joint_position(m.name, m.position, o.gripper_joint, w),
+    ),
 }
 
 
@@ -134,7 +144,9 @@ def _decoder(contents: McapContents, topic: str) -> Callable[[bytes], Any]:
         try:
             from mcap_ros2.decoder import DecoderFactory
         except ImportError:
-            raise RecordingError(f"{contents.path}: {topic!r} is ROS 2 data; install mcap-ros2-support to read it") from None
+            raise RecordingError(
+                f"{contents.path}: {topic!r} is ROS 2 data; install mcap-ros2-support to read it"
+            ) from None
         decode = DecoderFactory().decoder_for(ch.message_encoding, schema)
         if decode is not None:
             return decode
@@ -154,21 +166,32 @@ def sorted_series(decoded: list[tuple[int, Any]], where: str) -> tuple[np.ndarra
     return times[first], [v for (_, v), k in zip(decoded, first) if k]
 
 
-def _series(contents: McapContents, topic: str, extractors: dict[str, Extractor], flag: str, topics: McapTopics) -> tuple[np.ndarray, list]:
+def _series(
+    contents: McapContents, topic: str, extractors: dict[str, Extractor], flag: str, topics: McapTopics
+) -> tuple[np.ndarray, list]:
     """(times (N,) int64 sorted, values) of `topic`; duplicate times keep their first message."""
     contents.require_channel(topic, hint=f"; choose one with {flag}")
     schema = contents.schema_name(topic)
     if schema not in extractors:
         raise RecordingError(f"{contents.path}: topic {topic!r} has schema {schema!r}; supported: {sorted(extractors)}")
     decode, extract, where = _decoder(contents, topic), extractors[schema], f"{contents.path} {topic}"
-    return sorted_series([extract(decode(m.data), m.log_time, where, topics) for m in contents.topic_messages(topic)], where)
+    return sorted_series(
+        [extract(decode(m.data), m.log_time, where, topics) for m in contents.topic_messages(topic)], where
+    )
 
 
 Series = tuple[np.ndarray, list]  # (times (N,) int64 ascending, values)
 
 
-def demonstration_from_series(source: str, episode_id: str, topics: McapTopics, task: str, pose_series: Series,
-                              gripper_series: Series | None, image_series: Series | None) -> Demonstration:
+def demonstration_from_series(
+    source: str,
+    episode_id: str,
+    topics: McapTopics,
+    task: str,
+    pose_series: Series,
+    gripper_series: Series | None,
+    image_series: Series | None,
+) -> Demonstration:
     """A demonstration from time series of poses (xyz + quaternion xyzw), gripper values and JPEG frames.
 
     With frames, the steps are the frames and pose/gripper are interpolated at their times (xyz and
@@ -207,11 +230,15 @@ def demonstration_from_series(source: str, episode_id: str, topics: McapTopics, 
     )
 
 
-def demonstration_from_mcap(path: str | os.PathLike, episode_id: str, topics: McapTopics = McapTopics(), task: str = "") -> Demonstration:
+def demonstration_from_mcap(
+    path: str | os.PathLike, episode_id: str, topics: McapTopics = McapTopics(), task: str = ""
+) -> Demonstration:
     """Read a robot's MCAP recording (strict: a damaged file is refused; `cnep repair` it first)."""
     contents = read_mcap(path)
     with in_file(contents.path):
         pose = _series(contents, topics.pose, POSE_EXTRACTORS, "--pose-topic", topics)
-        gripper = _series(contents, topics.gripper, GRIPPER_EXTRACTORS, "--gripper-topic", topics) if topics.gripper else None
+        gripper = (
+            _series(contents, topics.gripper, GRIPPER_EXTRACTORS, "--gripper-topic", topics) if topics.gripper else None
+        )
         image = _series(contents, topics.image, IMAGE_EXTRACTORS, "--image-topic", topics) if topics.image else None
         return demonstration_from_series(str(contents.path), episode_id, topics, task, pose, gripper, image)

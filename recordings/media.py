@@ -89,8 +89,9 @@ def read_images(paths: list[Path]) -> list[bytes]:
     frames = [as_jpeg(p.read_bytes(), str(p)) for p in paths]
     bad = first_undecodable(frames)
     if bad is not None:
-        raise RecordingError(f"{paths[bad]}: not a decodable JPEG (damaged or cut short); replace or remove it and "
-                             f"ingest again")
+        raise RecordingError(
+            f"{paths[bad]}: not a decodable JPEG (damaged or cut short); replace or remove it and ingest again"
+        )
     return frames
 
 
@@ -115,8 +116,10 @@ def check_decodable(frames: list[bytes] | None, where: str) -> None:
     """Raise RecordingError naming the step of the first frame that is not a decodable JPEG (None: no frames)."""
     bad = first_undecodable(frames) if frames else None
     if bad is not None:
-        raise RecordingError(f"{where}: frame {bad} ({len(frames[bad])} bytes) is not a decodable JPEG; replace or "
-                             f"remove it at the source and ingest again")
+        raise RecordingError(
+            f"{where}: frame {bad} ({len(frames[bad])} bytes) is not a decodable JPEG; replace or "
+            f"remove it at the source and ingest again"
+        )
 
 
 def video_frames_at(path: Path, times_s: np.ndarray, tolerance_s: float) -> list[bytes]:
@@ -149,6 +152,8 @@ def video_frames_at(path: Path, times_s: np.ndarray, tolerance_s: float) -> list
     except av.error.FFmpegError as exc:
         raise RecordingError(f"{path}: cannot decode the video ({exc})") from None
     if len(frames) < len(times_s):
-        raise RecordingError(f"{path}: no video frame within {tolerance_s * 1e3:g} ms of {times_s[len(frames)]:.4f} s "
-                             f"(frame {len(frames)} of {len(times_s)}); the video and the Parquet timestamps disagree")
+        raise RecordingError(
+            f"{path}: no video frame within {tolerance_s * 1e3:g} ms of {times_s[len(frames)]:.4f} s "
+            f"(frame {len(frames)} of {len(times_s)}); the video and the Parquet timestamps disagree"
+        )
     return frames

@@ -15,8 +15,9 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import numpy as np
 
@@ -38,13 +39,13 @@ from cnep.recordings.container import CORRUPTION_ERRORS, McapContents, read_mcap
 from cnep.recordings.errors import RecordingError
 from cnep.recordings.records import RESERVED_EPISODE_KEYS, Demonstration, Episode, Trajectory
 from cnep.recordings.schemas import decode_gripper, decode_image, decode_pose, vector_payload
+from cnep.recordings.validation import check_format_version, check_layout
 
 # (kind found, kind expected) -> what to do about it, appended to the error.
 _KIND_FIXES = {
     (KIND_DEMONSTRATION, KIND_TRAJECTORY): "; run `cnep extract` on the demonstrations first and give its output",
     (KIND_TRAJECTORY, KIND_DEMONSTRATION): "; it is already extracted: give it to `cnep train` or `cnep replay`",
 }
-from cnep.recordings.validation import check_format_version, check_layout
 
 
 @contextlib.contextmanager
@@ -72,9 +73,14 @@ def read_episode(contents: McapContents, kind: str) -> Episode:
         )
     check_format_version(meta.get("format_version"), str(path))
     if meta.get("kind") != kind:
-        raise RecordingError(f"{path}: is a {meta.get('kind')!r} file, expected a {kind!r} file{_KIND_FIXES.get((meta.get('kind'), kind), '')}")
+        raise RecordingError(
+            f"{path}: is a {meta.get('kind')!r} file, expected a {kind!r} file"
+            f"{_KIND_FIXES.get((meta.get('kind'), kind), '')}"
+        )
     if METADATA_STEPS not in contents.metadata:
-        raise RecordingError(f"{path}: no '{METADATA_STEPS}' record: the writer never closed it; salvage it with `cnep repair`")
+        raise RecordingError(
+            f"{path}: no '{METADATA_STEPS}' record: the writer never closed it; salvage it with `cnep repair`"
+        )
     with in_file(path):
         return Episode(
             episode_id=meta.get("episode_id", ""),
@@ -93,7 +99,9 @@ def _timestamps(contents: McapContents, topic: str) -> tuple[list[Any], np.ndarr
 def _check_steps(contents: McapContents, topic: str, n: int) -> None:
     declared = contents.metadata[METADATA_STEPS].get("n_steps")
     if declared != str(n):
-        raise RecordingError(f"{contents.path}: '{METADATA_STEPS}' record says {declared} steps but {topic} has {n} messages")
+        raise RecordingError(
+            f"{contents.path}: '{METADATA_STEPS}' record says {declared} steps but {topic} has {n} messages"
+        )
 
 
 def _frames(contents: McapContents, timestamps: np.ndarray) -> list[bytes] | None:
@@ -107,7 +115,9 @@ def _frames(contents: McapContents, timestamps: np.ndarray) -> list[bytes] | Non
     for i, m in enumerate(msgs):
         data, fmt = decode_image(m.data)
         if fmt != IMAGE_FORMAT:
-            raise RecordingError(f"{contents.path}: frame {i} on {TOPIC_IMAGE} has format {fmt!r}, expected {IMAGE_FORMAT!r}")
+            raise RecordingError(
+                f"{contents.path}: frame {i} on {TOPIC_IMAGE} has format {fmt!r}, expected {IMAGE_FORMAT!r}"
+            )
         frames.append(data)
     return frames
 
@@ -120,7 +130,9 @@ def demonstration_from(contents: McapContents) -> Demonstration:
         pose_msgs, ts = _timestamps(contents, TOPIC_POSE)
         grip_msgs, grip_ts = _timestamps(contents, TOPIC_GRIPPER)
         if not np.array_equal(ts, grip_ts):
-            raise RecordingError(f"{path}: {TOPIC_GRIPPER} ({len(grip_ts)} messages) is not at the times of {TOPIC_POSE} ({len(ts)})")
+            raise RecordingError(
+                f"{path}: {TOPIC_GRIPPER} ({len(grip_ts)} messages) is not at the times of {TOPIC_POSE} ({len(ts)})"
+            )
         _check_steps(contents, TOPIC_POSE, len(ts))
         try:
             gripper = [decode_gripper(m.data) for m in grip_msgs]
@@ -223,7 +235,7 @@ class TrajectoryReader(_Reader):
 
     kind = KIND_TRAJECTORY
 
-    def __enter__(self) -> "TrajectoryReader":
+    def __enter__(self) -> TrajectoryReader:
         super().__enter__()
         self.layout, self.width = channel_layout(self._loaded())
         self.extractor = dict(self._loaded().metadata.get(METADATA_EXTRACTOR, {}))

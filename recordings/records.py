@@ -13,8 +13,8 @@ is a record that can be written.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Mapping
 
 import numpy as np
 
@@ -137,7 +137,7 @@ class Trajectory:
         features: np.ndarray | None = None,
         extractor: Mapping[str, str] | None = None,
         keep_frames: bool = True,
-    ) -> "Trajectory":
+    ) -> Trajectory:
         """Build the trajectory of `demo`: features (T, 1280) or None for the 8-wide motion-only layout."""
         motion = np.concatenate([demo.pose, demo.gripper[:, None]], axis=1)  # (T, 8)
         if features is None:
@@ -174,7 +174,9 @@ class Trajectory:
     def block(self, name: str) -> np.ndarray:
         """Columns of block `name` (a view of `data`), e.g. `block("pose_xyz")` is (T, 3)."""
         if name not in self.layout:
-            raise RecordingError(f"Trajectory {self.episode.episode_id!r}: no block {name!r}; it has {list(self.layout)}")
+            raise RecordingError(
+                f"Trajectory {self.episode.episode_id!r}: no block {name!r}; it has {list(self.layout)}"
+            )
         start, stop = self.layout[name]
         return self.data[:, start:stop]
 
@@ -216,4 +218,3 @@ class Event:
         object.__setattr__(self, "timestamp_ns", int(self.timestamp_ns))
         object.__setattr__(self, "duration_ns", int(self.duration_ns))
         object.__setattr__(self, "metadata", meta)
-

@@ -53,8 +53,10 @@ class RepairReport:
         steps = f"{self.steps} complete steps; " if self.steps is not None else ""
         state = "the input was already complete" if self.was_complete else f"lost: {self.problem}"
         return (
-            f"wrote {self.dst}: {steps}{sum(self.messages.values())} messages ({msgs}) from {self.chunks_read} chunk(s), "
-            f"{self.bytes_used} of {self.size} bytes of {self.src} used, {self.chunks_lost} damaged chunk(s) skipped; {state}"
+            f"wrote {self.dst}: {steps}{sum(self.messages.values())} messages ({msgs}) "
+            f"from {self.chunks_read} chunk(s), "
+            f"{self.bytes_used} of {self.size} bytes of {self.src} used, "
+            f"{self.chunks_lost} damaged chunk(s) skipped; {state}"
         )
 
 
@@ -63,7 +65,9 @@ def _trim_steps(contents: McapContents, kind: str) -> list[int]:
     topics = [t for t in (*STEP_TOPICS[kind], TOPIC_IMAGE) if contents.channel_of_topic(t) is not None]
     if len(topics) < len(STEP_TOPICS[kind]) or not topics:
         missing = [t for t in STEP_TOPICS[kind] if contents.channel_of_topic(t) is None]
-        raise RecordingError(f"{contents.path}: no complete chunk holds topic(s) {missing}; nothing of the {kind} can be salvaged")
+        raise RecordingError(
+            f"{contents.path}: no complete chunk holds topic(s) {missing}; nothing of the {kind} can be salvaged"
+        )
     ids = {contents.channel_of_topic(t).id for t in topics}  # type: ignore[union-attr]
     per_topic = [{m.log_time for m in contents.topic_messages(t)} for t in topics]
     common = set.intersection(*per_topic)
@@ -77,7 +81,9 @@ def repair(src: str | os.PathLike, dst: str | os.PathLike) -> RepairReport:
     contents = read_mcap(src, salvage=True)
     contents.messages = [m for m in contents.messages if m.channel_id in contents.channels]  # channel lost with a chunk
     if not contents.messages:
-        raise RecordingError(f"{contents.path}: nothing to salvage: no complete chunk with messages ({contents.problem})")
+        raise RecordingError(
+            f"{contents.path}: nothing to salvage: no complete chunk with messages ({contents.problem})"
+        )
     kind = contents.metadata.get(METADATA_EPISODE, {}).get("kind")
     steps = None
     if kind in STEP_TOPICS:

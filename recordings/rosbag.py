@@ -20,8 +20,18 @@ from pathlib import Path
 from typing import Any
 
 from cnep.recordings.errors import RecordingError
-from cnep.recordings.mcap_source import (GRIPPER_EXTRACTORS, IMAGE_EXTRACTORS, POSE_EXTRACTORS, Extractor, McapTopics,
-                                    Series, ros_stamp, transform_pose, demonstration_from_series, sorted_series)
+from cnep.recordings.mcap_source import (
+    GRIPPER_EXTRACTORS,
+    IMAGE_EXTRACTORS,
+    POSE_EXTRACTORS,
+    Extractor,
+    McapTopics,
+    Series,
+    demonstration_from_series,
+    ros_stamp,
+    sorted_series,
+    transform_pose,
+)
 from cnep.recordings.records import Demonstration
 
 TF_TYPE = "tf2_msgs/msg/TFMessage"
@@ -33,8 +43,9 @@ def is_ros2_bag(path: str | os.PathLike) -> bool:
     return (Path(path) / "metadata.yaml").is_file()
 
 
-def _series(reader: Any, source: Path, topic: str, extractors: dict[str, Extractor], flag: str,
-            topics: McapTopics) -> Series:
+def _series(
+    reader: Any, source: Path, topic: str, extractors: dict[str, Extractor], flag: str, topics: McapTopics
+) -> Series:
     connections = [c for c in reader.connections if c.topic == topic]
     if not connections:
         raise RecordingError(f"{source}: no topic {topic!r} (topics: {sorted(reader.topics)}); choose one with {flag}")
@@ -60,8 +71,9 @@ def _series(reader: Any, source: Path, topic: str, extractors: dict[str, Extract
     return sorted_series(decoded, where)
 
 
-def demonstration_from_rosbag(path: str | os.PathLike, episode_id: str, topics: McapTopics = McapTopics(),
-                              task: str = "") -> Demonstration:
+def demonstration_from_rosbag(
+    path: str | os.PathLike, episode_id: str, topics: McapTopics = McapTopics(), task: str = ""
+) -> Demonstration:
     """Read a ROS 1 `.bag` file or a ROS 2 bag folder into one demonstration."""
     try:
         from rosbags.highlevel import AnyReader
@@ -73,10 +85,16 @@ def demonstration_from_rosbag(path: str | os.PathLike, episode_id: str, topics: 
         # ROS 2 bags may omit message definitions; the Humble type store supplies the standard ones.
         with AnyReader([source], default_typestore=get_typestore(Stores.ROS2_HUMBLE)) as reader:
             pose = _series(reader, source, topics.pose, POSE_EXTRACTORS, "--pose-topic", topics)
-            gripper = _series(reader, source, topics.gripper, GRIPPER_EXTRACTORS, "--gripper-topic", topics) \
-                if topics.gripper else None
-            image = _series(reader, source, topics.image, IMAGE_EXTRACTORS, "--image-topic", topics) \
-                if topics.image else None
+            gripper = (
+                _series(reader, source, topics.gripper, GRIPPER_EXTRACTORS, "--gripper-topic", topics)
+                if topics.gripper
+                else None
+            )
+            image = (
+                _series(reader, source, topics.image, IMAGE_EXTRACTORS, "--image-topic", topics)
+                if topics.image
+                else None
+            )
     except RecordingError:
         raise
     except Exception as exc:  # rosbags raises its own error types per storage format (and struct errors on bad data)

@@ -12,7 +12,7 @@ Its packed floats are written and read with numpy directly (the protobuf runtime
 
 from __future__ import annotations
 
-from functools import lru_cache
+from functools import cache, lru_cache
 from typing import Any
 
 import numpy as np
@@ -31,7 +31,7 @@ from cnep.recordings.records import Event
 NS_PER_S = 1_000_000_000
 
 
-@lru_cache(maxsize=None)
+@cache
 def schema_data(message_class: Any) -> bytes:
     """Serialized FileDescriptorSet of a generated protobuf message class (MCAP schema data)."""
     return build_file_descriptor_set(message_class).SerializeToString()
@@ -48,7 +48,9 @@ def feature_vector_schema() -> bytes:
     )
     msg = fd.message_type.add(name=SCHEMA_TRAJECTORY.split(".")[-1])
     F = descriptor_pb2.FieldDescriptorProto
-    msg.field.add(name="timestamp", number=1, type=F.TYPE_MESSAGE, label=F.LABEL_OPTIONAL, type_name=".google.protobuf.Timestamp")
+    msg.field.add(
+        name="timestamp", number=1, type=F.TYPE_MESSAGE, label=F.LABEL_OPTIONAL, type_name=".google.protobuf.Timestamp"
+    )
     msg.field.add(name="data", number=2, type=F.TYPE_FLOAT, label=F.LABEL_REPEATED)  # packed (proto3 default)
     fds = descriptor_pb2.FileDescriptorSet()
     timestamp_pb2.DESCRIPTOR.CopyToProto(fds.file.add())
@@ -183,7 +185,9 @@ def decode_gripper(buf: bytes, joint: str = GRIPPER_JOINT) -> float:
 
 def encode_image(t_ns: int, jpeg: bytes) -> bytes:
     """foxglove.CompressedImage bytes of one JPEG frame in frame `camera`."""
-    return CompressedImage(timestamp=_timestamp(t_ns), frame_id=FRAME_ID_CAMERA, data=jpeg, format=IMAGE_FORMAT).SerializeToString()
+    return CompressedImage(
+        timestamp=_timestamp(t_ns), frame_id=FRAME_ID_CAMERA, data=jpeg, format=IMAGE_FORMAT
+    ).SerializeToString()
 
 
 def decode_image(buf: bytes) -> tuple[bytes, str]:
@@ -205,7 +209,9 @@ def encode_event(event: Event) -> bytes:
 def decode_event(buf: bytes) -> Event:
     msg = EventMsg.FromString(buf)
     start = _ns(msg.start_time)
-    return Event(timestamp_ns=start, duration_ns=_ns(msg.end_time) - start, metadata={kv.key: kv.value for kv in msg.metadata})
+    return Event(
+        timestamp_ns=start, duration_ns=_ns(msg.end_time) - start, metadata={kv.key: kv.value for kv in msg.metadata}
+    )
 
 
 # Message classes of the well-known schemas by schema name (for registering them in a writer).

@@ -7,7 +7,7 @@ stating the rule, the offending value and the fix.
 
 from __future__ import annotations
 
-from typing import Mapping, Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
@@ -62,7 +62,9 @@ def check_pose(pose: object, n_steps: int, where: str) -> np.ndarray:
     """Return pose as float64 (T, 7): xyz in m, then a non-zero quaternion xyzw."""
     arr = np.asarray(pose, dtype=np.float64)
     if arr.shape != (n_steps, POSE_DIM):
-        raise RecordingError(f"{where}: pose must have shape ({n_steps}, {POSE_DIM}) (xyz + quaternion xyzw), got {arr.shape}")
+        raise RecordingError(
+            f"{where}: pose must have shape ({n_steps}, {POSE_DIM}) (xyz + quaternion xyzw), got {arr.shape}"
+        )
     check_finite(arr, "pose", where)
     norms = np.linalg.norm(arr[:, 3:], axis=1)
     if (norms < 1e-6).any():

@@ -18,9 +18,10 @@ from __future__ import annotations
 import json
 import mimetypes
 import os
+from collections.abc import Mapping, Sequence
 from contextlib import ExitStack
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -112,10 +113,19 @@ class _McapFile:
         """Id of the channel of `topic`, registering it (and its schema) on first use."""
         if topic not in self.channels:
             if schema_name not in self._schema_ids:
-                data = feature_vector_schema() if schema_name == SCHEMA_TRAJECTORY else schema_data(FOXGLOVE_CLASSES[schema_name])
-                self._schema_ids[schema_name] = self.writer.register_schema(name=schema_name, encoding="protobuf", data=data)
+                data = (
+                    feature_vector_schema()
+                    if schema_name == SCHEMA_TRAJECTORY
+                    else schema_data(FOXGLOVE_CLASSES[schema_name])
+                )
+                self._schema_ids[schema_name] = self.writer.register_schema(
+                    name=schema_name, encoding="protobuf", data=data
+                )
             self.channels[topic] = self.writer.register_channel(
-                topic=topic, message_encoding="protobuf", schema_id=self._schema_ids[schema_name], metadata=dict(metadata or {})
+                topic=topic,
+                message_encoding="protobuf",
+                schema_id=self._schema_ids[schema_name],
+                metadata=dict(metadata or {}),
             )
         return self.channels[topic]
 
@@ -294,4 +304,3 @@ def write_trajectory(path: str | os.PathLike, traj: Trajectory) -> Path:
     with TrajectoryWriter(path, traj.episode, traj.width, traj.extractor) as w:
         w.write_steps(traj.timestamps_ns, traj.data, traj.frames)
     return Path(path)
-

@@ -5,7 +5,9 @@ import os
 # A value set by the caller is kept.
 for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_name, "1")
-os.environ.setdefault("CNEP_CACHE_DIR", os.path.join(os.environ.get("TMPDIR", "/tmp"), f"cnep-test-cache-{os.getuid()}"))
+os.environ.setdefault(
+    "CNEP_CACHE_DIR", os.path.join(os.environ.get("TMPDIR", "/tmp"), f"cnep-test-cache-{os.getuid()}")
+)
 
 import pytest  # noqa: E402
 

@@ -16,7 +16,7 @@ EXTRA = "baselines"  # the optional extra of pyproject.toml that installs the ba
 class Method(Protocol):
     """Fit on demonstrations, then generate from conditioning points."""
 
-    def fit(self, demos: np.ndarray) -> "Method":
+    def fit(self, demos: np.ndarray) -> Method:
         """demos: (N, T, dy), step k at time k / (T - 1)."""
         ...
 

@@ -29,7 +29,7 @@ class GMMGMR:
     def __init__(self, n_components: int = 10, ridge: float = RIDGE, seed: int = 0) -> None:
         self.n_components, self.ridge, self.seed = n_components, ridge, seed
 
-    def fit(self, demos: np.ndarray) -> "GMMGMR":
+    def fit(self, demos: np.ndarray) -> GMMGMR:
         gmr = require("gmr", "gmr")
         demos = check_demos(demos)  # (N, T, dy)
         N, self.T, self.dy = demos.shape

@@ -10,7 +10,7 @@ from cnep.models.baselines.base import check_demos, grid, resample
 class NearestDemo:
     """The demonstration with the smallest squared distance to the conditioning points (interpolated in time)."""
 
-    def fit(self, demos: np.ndarray) -> "NearestDemo":
+    def fit(self, demos: np.ndarray) -> NearestDemo:
         self.demos = check_demos(demos)  # (N, T, dy)
         return self
 

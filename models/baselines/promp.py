@@ -13,7 +13,7 @@ class ProMP:
     def __init__(self, n_weights: int = 10) -> None:
         self.n_weights = n_weights
 
-    def fit(self, demos: np.ndarray) -> "ProMP":
+    def fit(self, demos: np.ndarray) -> ProMP:
         promp = require("movement_primitives.promp", "movement-primitives")
         demos = check_demos(demos)  # (N, T, dy)
         N, T, dy = demos.shape

@@ -5,24 +5,44 @@ from __future__ import annotations
 import argparse
 
 DEFAULT_OUT = "cnep-demo"
-HELP = ("run the whole pipeline on built-in synthetic tabletop demonstrations: generate, ingest, extract, train "
-        "CNEP and CNMP, replay to Rerun, print which expert took which behaviour")
+HELP = (
+    "run the whole pipeline on built-in synthetic tabletop demonstrations: generate, ingest, extract, train "
+    "CNEP and CNMP, replay to Rerun, print which expert took which behaviour"
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--out", default=None, help=f"new or empty folder for everything (default: the first of "
-                        f"{DEFAULT_OUT}, {DEFAULT_OUT}-2, ... that is new or empty)")
-    parser.add_argument("--quick", action="store_true", help="a small, fast variant (for CI): fewer demonstrations, "
-                        "shorter episodes, a few training steps")
+    parser.add_argument(
+        "--out",
+        default=None,
+        help=f"new or empty folder for everything (default: the first of "
+        f"{DEFAULT_OUT}, {DEFAULT_OUT}-2, ... that is new or empty)",
+    )
+    parser.add_argument(
+        "--quick",
+        action="store_true",
+        help="a small, fast variant (for CI): fewer demonstrations, shorter episodes, a few training steps",
+    )
     parser.add_argument("--seed", type=int, default=0, help="seed of every random draw (default 0)")
-    parser.add_argument("--force", action="store_true", help="use a non-empty --out folder: first delete what an "
-                        "earlier demo wrote there (other files stay)")
-    parser.add_argument("--assignment", choices=("paper", "mixture", "annealed", "bounded"), default=None,
-                        help="the CNEP's reconstruction term: the paper's gate-weighted NLL, the mixture likelihood, "
-                             "the annealed posterior assignment, or annealed with bounded rather than equal expert "
-                             "shares, faded out (default bounded: docs/demo.md)")
-    parser.add_argument("--precision", choices=("fp32", "int8"), default="fp32",
-                        help="feature extraction precision (default fp32; int8 as `cnep extract --precision int8`)")
+    parser.add_argument(
+        "--force",
+        action="store_true",
+        help="use a non-empty --out folder: first delete what an earlier demo wrote there (other files stay)",
+    )
+    parser.add_argument(
+        "--assignment",
+        choices=("paper", "mixture", "annealed", "bounded"),
+        default=None,
+        help="the CNEP's reconstruction term: the paper's gate-weighted NLL, the mixture likelihood, "
+        "the annealed posterior assignment, or annealed with bounded rather than equal expert "
+        "shares, faded out (default bounded: docs/demo.md)",
+    )
+    parser.add_argument(
+        "--precision",
+        choices=("fp32", "int8"),
+        default="fp32",
+        help="feature extraction precision (default fp32; int8 as `cnep extract --precision int8`)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -33,15 +53,25 @@ def run(args: argparse.Namespace) -> int:
 
     start = time.perf_counter()
     out = Path(args.out) if args.out is not None else free_folder(Path(DEFAULT_OUT))
-    result = run_demo(DemoConfig(out=out, quick=args.quick, seed=args.seed, force=args.force, quiet=args.quiet,
-                                 assignment=args.assignment or ASSIGNMENT, precision=args.precision))
+    result = run_demo(
+        DemoConfig(
+            out=out,
+            quick=args.quick,
+            seed=args.seed,
+            force=args.force,
+            quiet=args.quiet,
+            assignment=args.assignment or ASSIGNMENT,
+            precision=args.precision,
+        )
+    )
     print(format_summary(result))
     print(f"cnep demo: done in {time.perf_counter() - start:.1f} s")
     return 0
 
 
 def free_folder(base):
-    """`base`, or `base-2`, `base-3`, ...: the first that does not exist or is empty (a new run never mixes with an old one)."""
+    """`base`, or `base-2`, `base-3`, ...: the first that does not exist or is empty (a new run never mixes with an
+    old one)."""
     from itertools import chain, count
 
     for candidate in chain([base], (base.with_name(f"{base.name}-{k}") for k in count(2))):

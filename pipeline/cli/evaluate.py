@@ -13,20 +13,47 @@ SET_CHOICES = tuple(SET_TITLES)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--table", choices=TABLE_CHOICES, default="comparison",
-                        help="which table to measure (default: comparison, the CNEP vs CNMP and baselines table; "
-                             "commitment: conditioned only on points several modes share, does a model return one "
-                             "demonstrated mode or their average)")
-    parser.add_argument("--quick", action="store_true",
-                        help="a few minutes: fewer training steps, one seed, the bimodal and 4-mode sets, 20 queries")
-    parser.add_argument("--seeds", type=int, default=None, help="seeds per cell (default 1; the full run of docs/evaluation.md uses 2)")
-    parser.add_argument("--steps", type=int, default=None, help="training steps per network on every set (default: 4000 on the unimodal and bimodal sets, 10000 on 4 and 6 modes; 1500 with --quick)")
-    parser.add_argument("--patience", type=int, default=None,
-                        help="stop a network after N validations (every 500 steps) without improvement, keeping its best "
-                             "(default 4; 0: train every network for all its steps)")
-    parser.add_argument("--sets", nargs="+", choices=SET_CHOICES, default=None, metavar="SET",
-                        help=f"only these data sets of each table ({', '.join(SET_CHOICES)}; default: all of the table's)")
-    parser.add_argument("--queries", type=int, default=None, help="queries per protocol and set (default 50; 20 with --quick)")
+    parser.add_argument(
+        "--table",
+        choices=TABLE_CHOICES,
+        default="comparison",
+        help="which table to measure (default: comparison, the CNEP vs CNMP and baselines table; "
+        "commitment: conditioned only on points several modes share, does a model return one "
+        "demonstrated mode or their average)",
+    )
+    parser.add_argument(
+        "--quick",
+        action="store_true",
+        help="a few minutes: fewer training steps, one seed, the bimodal and 4-mode sets, 20 queries",
+    )
+    parser.add_argument(
+        "--seeds", type=int, default=None, help="seeds per cell (default 1; the full run of docs/evaluation.md uses 2)"
+    )
+    parser.add_argument(
+        "--steps",
+        type=int,
+        default=None,
+        help="training steps per network on every set (default: 4000 on the unimodal and bimodal sets, 10000 on 4 "
+        "and 6 modes; 1500 with --quick)",
+    )
+    parser.add_argument(
+        "--patience",
+        type=int,
+        default=None,
+        help="stop a network after N validations (every 500 steps) without improvement, keeping its best "
+        "(default 4; 0: train every network for all its steps)",
+    )
+    parser.add_argument(
+        "--sets",
+        nargs="+",
+        choices=SET_CHOICES,
+        default=None,
+        metavar="SET",
+        help=f"only these data sets of each table ({', '.join(SET_CHOICES)}; default: all of the table's)",
+    )
+    parser.add_argument(
+        "--queries", type=int, default=None, help="queries per protocol and set (default 50; 20 with --quick)"
+    )
     parser.add_argument("--out", default="cnep-evaluation", help="folder for the Markdown, JSON and PNG outputs")
     parser.add_argument("--jobs", type=int, default=2, help="worker processes, one thread each (0: this process only)")
     parser.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
@@ -36,8 +63,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from cnep.pipeline.evaluate.stage import EvaluateConfig, evaluate
     from cnep.pipeline.evaluate.constants import PATIENCE, TABLES
+    from cnep.pipeline.evaluate.stage import EvaluateConfig, evaluate
 
     config = EvaluateConfig(
         tables=TABLES if args.table == "all" else (args.table,),
@@ -54,7 +81,7 @@ def run(args: argparse.Namespace) -> int:
         quiet=args.quiet,
     )
     written = evaluate(config)
-    for table, path in written.items():
+    for path in written.values():
         print(path.read_text())
     print("written: " + ", ".join(str(p) for p in written.values()) + f" (+ JSON; figures in {config.out / 'figures'})")
     return 0

@@ -10,37 +10,75 @@ HELP = "turn demonstration files into trajectory files of MobileNet-v2 features 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("inputs", nargs="+", metavar="IN", help="demonstration files or folders of them (read only)")
     parser.add_argument("--out", required=True, help="folder for the trajectory files (created if missing)")
-    parser.add_argument("--weights", default="imagenet",
-                        help="`imagenet` (torch hub cache, downloaded there if missing, or $CNEP_MOBILENET_WEIGHTS), "
-                             "`random` (seeded, calibrated on the inputs' frames) or the path of a MobileNet-v2 state "
-                             "dict (default: imagenet)")
+    parser.add_argument(
+        "--weights",
+        default="imagenet",
+        help="`imagenet` (torch hub cache, downloaded there if missing, or $CNEP_MOBILENET_WEIGHTS), "
+        "`random` (seeded, calibrated on the inputs' frames) or the path of a MobileNet-v2 state "
+        "dict (default: imagenet)",
+    )
     parser.add_argument("--seed", type=int, default=0, help="seed of the random weights (default 0)")
-    parser.add_argument("--save-weights", metavar="PATH", default=None,
-                        help="save the weights used (after calibration) to reuse them later with --weights PATH")
-    parser.add_argument("--backend", default="auto",
-                        choices=("auto", "cuda", "onnxruntime", "openvino", "torchscript", "eager"),
-                        help="inference backend (default: the fastest available for the precision, cuda where torch "
-                             "sees a GPU; openvino needs pip install 'cnep-pipeline[openvino]')")
-    parser.add_argument("--threads", type=int, default=None,
-                        help="CPU threads per process for inference (default: the cores shared among the workers)")
-    parser.add_argument("--precision", choices=("fp32", "int8"), default="fp32",
-                        help="fp32 (default) or int8: ONNX Runtime static quantisation calibrated on the inputs' frames "
-                             "(~1%% feature error, faster; never mixed with fp32 features)")
-    parser.add_argument("--workers", type=_workers, default=1,
-                        help="processes extracting files side by side on this machine (default 1), or `auto`: one per "
-                             "core, but only as many as the job pays for (a worker takes seconds to start); under "
-                             "torchrun each rank extracts its share of the files")
-    parser.add_argument("--calibrate-on", nargs="+", metavar="DEMO", default=(),
-                        help="demonstration files or folders whose frames calibrate random weights and quantise int8, "
-                             "instead of the inputs: extract later files with the first run's int8 identity")
-    parser.add_argument("--batch-size", type=int, default=None, help="frames per forward pass (default 4 on a CPU, 64 on a GPU)")
-    parser.add_argument("--force", action="store_true", help="re-extract outputs that are already up to date, and "
-                        "replace existing outputs made otherwise (other weights, or not trajectory files)")
-    parser.add_argument("--keep-going", action="store_true",
-                        help="skip demonstrations that fail, extract the others, and list the skipped ones at the end "
-                             "(exit 2)")
-    parser.add_argument("--offline", action="store_true",
-                        help="never download the ImageNet weights (also: environment variable CNEP_OFFLINE=1)")
+    parser.add_argument(
+        "--save-weights",
+        metavar="PATH",
+        default=None,
+        help="save the weights used (after calibration) to reuse them later with --weights PATH",
+    )
+    parser.add_argument(
+        "--backend",
+        default="auto",
+        choices=("auto", "cuda", "onnxruntime", "openvino", "torchscript", "eager"),
+        help="inference backend (default: the fastest available for the precision, cuda where torch "
+        "sees a GPU; openvino needs pip install 'cnep-pipeline[openvino]')",
+    )
+    parser.add_argument(
+        "--threads",
+        type=int,
+        default=None,
+        help="CPU threads per process for inference (default: the cores shared among the workers)",
+    )
+    parser.add_argument(
+        "--precision",
+        choices=("fp32", "int8"),
+        default="fp32",
+        help="fp32 (default) or int8: ONNX Runtime static quantisation calibrated on the inputs' frames "
+        "(~1%% feature error, faster; never mixed with fp32 features)",
+    )
+    parser.add_argument(
+        "--workers",
+        type=_workers,
+        default=1,
+        help="processes extracting files side by side on this machine (default 1), or `auto`: one per "
+        "core, but only as many as the job pays for (a worker takes seconds to start); under "
+        "torchrun each rank extracts its share of the files",
+    )
+    parser.add_argument(
+        "--calibrate-on",
+        nargs="+",
+        metavar="DEMO",
+        default=(),
+        help="demonstration files or folders whose frames calibrate random weights and quantise int8, "
+        "instead of the inputs: extract later files with the first run's int8 identity",
+    )
+    parser.add_argument(
+        "--batch-size", type=int, default=None, help="frames per forward pass (default 4 on a CPU, 64 on a GPU)"
+    )
+    parser.add_argument(
+        "--force",
+        action="store_true",
+        help="re-extract outputs that are already up to date, and "
+        "replace existing outputs made otherwise (other weights, or not trajectory files)",
+    )
+    parser.add_argument(
+        "--keep-going",
+        action="store_true",
+        help="skip demonstrations that fail, extract the others, and list the skipped ones at the end (exit 2)",
+    )
+    parser.add_argument(
+        "--offline",
+        action="store_true",
+        help="never download the ImageNet weights (also: environment variable CNEP_OFFLINE=1)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -68,8 +106,10 @@ def run(args: argparse.Namespace) -> int:
     )
     done = extract(config)
     skipped = sum(item.skipped for item in done)
-    print(f"extracted {len(done) - skipped} trajectory file(s) into {config.out} ({skipped} up to date, "
-          f"{sum(item.n_steps for item in done)} steps)")
+    print(
+        f"extracted {len(done) - skipped} trajectory file(s) into {config.out} ({skipped} up to date, "
+        f"{sum(item.n_steps for item in done)} steps)"
+    )
     return 0
 
 

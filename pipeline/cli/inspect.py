@@ -5,7 +5,9 @@ from __future__ import annotations
 import argparse
 import sys
 
-HELP = "show what MCAP files hold (topics, message counts, duration, rate, metadata, layout) and whether they are complete"
+HELP = (
+    "show what MCAP files hold (topics, message counts, duration, rate, metadata, layout) and whether they are complete"
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -29,7 +31,9 @@ def run(args: argparse.Namespace) -> int:
             continue
         print(format_report(report), flush=True)
         if not report.complete or (report.check not in (None, "ok")):
-            problem = f"{report.path}: {report.problem}" if not report.complete else report.check.removeprefix("refused: ")
+            problem = (
+                f"{report.path}: {report.problem}" if not report.complete else report.check.removeprefix("refused: ")
+            )
             print(f"cnep inspect: error: {problem}", file=sys.stderr)
             status = EXIT_USER
     return status

@@ -9,8 +9,11 @@ HELP = "salvage every complete chunk of a truncated or damaged MCAP file into a 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("src", metavar="IN", help="the damaged MCAP file (read only)")
-    parser.add_argument("dst", metavar="OUT", help="where to write the salvaged file (must differ from IN; its folder "
-                        "is created if missing)")
+    parser.add_argument(
+        "dst",
+        metavar="OUT",
+        help="where to write the salvaged file (must differ from IN; its folder is created if missing)",
+    )
     parser.add_argument("--force", action="store_true", help="replace OUT if it exists")
 
 

@@ -10,26 +10,54 @@ HELP = "replay trajectory files through a trained CNEP: expert probabilities ove
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("checkpoint", help="checkpoint directory written by `cnep train`")
     parser.add_argument("recordings", nargs="+", metavar="RECORDING", help="trajectory files (read only)")
-    parser.add_argument("--out", default="replay.rrd", help="the .rrd file to write (default: replay.rrd); several "
-                        "recordings go to one file each beside it, <name>-01-<folder>-<file>.rrd, ..., which the "
-                        "viewer opens on that recording; the decisions go beside it as <name>.experts.json")
-    parser.add_argument("--merge", action="store_true", help="write every recording into the one --out file instead "
-                        "(the viewer then opens on one of them, which one is not fixed)")
+    parser.add_argument(
+        "--out",
+        default="replay.rrd",
+        help="the .rrd file to write (default: replay.rrd); several "
+        "recordings go to one file each beside it, <name>-01-<folder>-<file>.rrd, ..., which the "
+        "viewer opens on that recording; the decisions go beside it as <name>.experts.json",
+    )
+    parser.add_argument(
+        "--merge",
+        action="store_true",
+        help="write every recording into the one --out file instead "
+        "(the viewer then opens on one of them, which one is not fixed)",
+    )
     live = parser.add_mutually_exclusive_group()
-    live.add_argument("--connect", metavar="URL", default=None,
-                      help="stream to the viewer at URL too, if one answers (default: the local viewer, "
-                           "rerun+http://127.0.0.1:9876/proxy)")
-    live.add_argument("--serve", action="store_true",
-                      help="host a gRPC server (port --port) for viewers to connect to; keeps serving until Ctrl-C")
+    live.add_argument(
+        "--connect",
+        metavar="URL",
+        default=None,
+        help="stream to the viewer at URL too, if one answers (default: the local viewer, "
+        "rerun+http://127.0.0.1:9876/proxy)",
+    )
+    live.add_argument(
+        "--serve",
+        action="store_true",
+        help="host a gRPC server (port --port) for viewers to connect to; keeps serving until Ctrl-C",
+    )
     live.add_argument("--no-live", action="store_true", help="write the .rrd only, do not look for a viewer")
     parser.add_argument("--port", type=int, default=9876, help="port of --serve (default 9876)")
-    parser.add_argument("--window", type=int, default=10, help="latest observations in the conditioning set (default 10)")
-    parser.add_argument("--anchors", type=int, default=1,
-                        help="first observations kept in the conditioning set for the whole episode (default 1: the start)")
-    parser.add_argument("--events-out", metavar="DIR", default=None,
-                        help="also write copies of the recordings with the expert decisions on /events into DIR")
-    parser.add_argument("--force", action="store_true",
-                        help="replace existing outputs (the .rrd files, the .experts.json, the copies in --events-out)")
+    parser.add_argument(
+        "--window", type=int, default=10, help="latest observations in the conditioning set (default 10)"
+    )
+    parser.add_argument(
+        "--anchors",
+        type=int,
+        default=1,
+        help="first observations kept in the conditioning set for the whole episode (default 1: the start)",
+    )
+    parser.add_argument(
+        "--events-out",
+        metavar="DIR",
+        default=None,
+        help="also write copies of the recordings with the expert decisions on /events into DIR",
+    )
+    parser.add_argument(
+        "--force",
+        action="store_true",
+        help="replace existing outputs (the .rrd files, the .experts.json, the copies in --events-out)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -43,14 +71,27 @@ def run(args: argparse.Namespace) -> int:
     if args.serve:
         server, connect = serve(args.port)
         print(f"serving on {connect}: connect a viewer with `rerun {connect}`")
-    files = replay(args.checkpoint, args.recordings, args.out, policy=ConditioningPolicy(args.window, args.anchors),
-                   connect=connect, events_dir=args.events_out, merge=args.merge, force=args.force, quiet=args.quiet)
+    files = replay(
+        args.checkpoint,
+        args.recordings,
+        args.out,
+        policy=ConditioningPolicy(args.window, args.anchors),
+        connect=connect,
+        events_dir=args.events_out,
+        merge=args.merge,
+        force=args.force,
+        quiet=args.quiet,
+    )
     for rec in read_decisions(args.out)["recordings"]:
         share = ", ".join(f"{p:.0%}" for p in rec["share"])
-        print(f"{rec['recording']}: expert {rec['majority_expert']} (steps per expert: {share}), "
-              f"{len(rec['switches'])} switch(es)" + (f" -> {rec['rrd']}" if len(files) > 1 else ""))
-    print(f"wrote {files[0] if len(files) == 1 else f'{len(files)} .rrd files'} and {decisions_path(args.out)}; "
-          f"open one with `rerun {files[0]}`")
+        print(
+            f"{rec['recording']}: expert {rec['majority_expert']} (steps per expert: {share}), "
+            f"{len(rec['switches'])} switch(es)" + (f" -> {rec['rrd']}" if len(files) > 1 else "")
+        )
+    print(
+        f"wrote {files[0] if len(files) == 1 else f'{len(files)} .rrd files'} and {decisions_path(args.out)}; "
+        f"open one with `rerun {files[0]}`"
+    )
     if server is not None:
         print("serving until Ctrl-C")
         try:

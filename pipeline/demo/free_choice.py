@@ -43,8 +43,13 @@ def place_outcomes(ends_xy: np.ndarray, tolerance: float = PLACE_TOLERANCE) -> d
     nearest = distance.argmin(1)
     inside = distance.min(1) <= tolerance
     shares = {name: float(np.mean(inside & (nearest == i))) for i, name in enumerate(names)}
-    return {"n": len(ends), "valid": float(inside.mean()), **shares, "between": float(1.0 - inside.mean()),
-            "distance_m": float(distance.min(1).mean())}
+    return {
+        "n": len(ends),
+        "valid": float(inside.mean()),
+        **shares,
+        "between": float(1.0 - inside.mean()),
+        "distance_m": float(distance.min(1).mean()),
+    }
 
 
 def generated_ends(model, mapping, rows: list[np.ndarray]) -> np.ndarray:
@@ -105,5 +110,8 @@ def replay_pick(traces: list[np.ndarray], split: float = SPLIT_GATE, threshold: 
 def gate_census(traces: list[np.ndarray], split: float = SPLIT_GATE, threshold: float = COMMIT_GATE) -> dict:
     """{"n": episodes, "split": whose gate starts split, "split_commit": of those, whose gate then commits}."""
     split_starts = [g for g in traces if starts_split(g, split)]
-    return {"n": len(traces), "split": len(split_starts),
-            "split_commit": sum(commitment(g, threshold)["step"] is not None for g in split_starts)}
+    return {
+        "n": len(traces),
+        "split": len(split_starts),
+        "split_commit": sum(commitment(g, threshold)["step"] is not None for g in split_starts),
+    }

@@ -30,8 +30,17 @@ from pathlib import Path
 
 import numpy as np
 
-from cnep.pipeline.demo.scene import (BEHAVIOURS, FREE_CHOICE, SIDES, Scene, behaviour_parts, draw_frame, encode_jpeg,
-                                 gripper_quaternion, sample_scene)
+from cnep.pipeline.demo.scene import (
+    BEHAVIOURS,
+    FREE_CHOICE,
+    SIDES,
+    Scene,
+    behaviour_parts,
+    draw_frame,
+    encode_jpeg,
+    gripper_quaternion,
+    sample_scene,
+)
 from cnep.pipeline.progress import progress_bar
 from cnep.recordings import Demonstration, Episode, write_demonstration
 
@@ -54,8 +63,16 @@ HOLD_OPENING = 0.35  # fraction of GRIPPER_OPEN while holding the cup
 GRASP_YAW = {"left": 0.6, "right": -0.6}  # rad: the cup is approached from the side it stands on
 PLACE_YAW = {"near": -0.25, "far": 0.25}
 # Phases (name, nominal share of the episode); the lift ends at the scene-change point.
-PHASES = (("reach", 0.18), ("descend", 0.08), ("close", 0.07), ("lift", 0.09),
-          ("carry", 0.22), ("lower", 0.08), ("open", 0.07), ("retreat", 0.11))
+PHASES = (
+    ("reach", 0.18),
+    ("descend", 0.08),
+    ("close", 0.07),
+    ("lift", 0.09),
+    ("carry", 0.22),
+    ("lower", 0.08),
+    ("open", 0.07),
+    ("retreat", 0.11),
+)
 TIMING_JITTER = 0.15  # relative std of each phase's duration
 WAYPOINT_NOISE = 0.006  # std of each waypoint's xyz offset (m): demonstrator variability
 SPLITS = ("train", "heldout", "scene_change", "free_choice")
@@ -76,7 +93,7 @@ class Plan:
             a, b = self.steps[i], self.steps[i + 1]
             s = (np.arange(a, b + 1) - a) / max(1, b - a)
             blend = 10 * s**3 - 15 * s**4 + 6 * s**5  # minimum jerk, 0 -> 1 with zero velocity at both ends
-            out[a:b + 1] = self.states[i] + blend[:, None] * (self.states[i + 1] - self.states[i])
+            out[a : b + 1] = self.states[i] + blend[:, None] * (self.states[i + 1] - self.states[i])
         return out
 
 
@@ -92,26 +109,30 @@ def plan_motion(scene: Scene, slot: str, steps: np.ndarray, rng: np.random.Gener
     side, _ = behaviour_parts(scene.behaviour)
     cup, target = scene.cup_xy, scene.slot_xy[slot]
     g, p = GRASP_YAW[side], PLACE_YAW[slot]
-    states = np.array([
-        [*HOME, 0.0, 1.0],
-        [*cup, HOVER_Z, g, 1.0],  # reach: above the cup
-        [*cup, GRASP_Z, g, 1.0],  # descend
-        [*cup, GRASP_Z, g, HOLD_OPENING],  # close
-        [*cup, CARRY_Z, g, HOLD_OPENING],  # lift
-        [*target, CARRY_Z, p, HOLD_OPENING],  # carry
-        [*target, PLACE_Z, p, HOLD_OPENING],  # lower
-        [*target, PLACE_Z, p, 1.0],  # open
-        [*target, CARRY_Z, p, 1.0],  # retreat
-    ])
+    states = np.array(
+        [
+            [*HOME, 0.0, 1.0],
+            [*cup, HOVER_Z, g, 1.0],  # reach: above the cup
+            [*cup, GRASP_Z, g, 1.0],  # descend
+            [*cup, GRASP_Z, g, HOLD_OPENING],  # close
+            [*cup, CARRY_Z, g, HOLD_OPENING],  # lift
+            [*target, CARRY_Z, p, HOLD_OPENING],  # carry
+            [*target, PLACE_Z, p, HOLD_OPENING],  # lower
+            [*target, PLACE_Z, p, 1.0],  # open
+            [*target, CARRY_Z, p, 1.0],  # retreat
+        ]
+    )
     states[1:, :3] += rng.normal(0.0, WAYPOINT_NOISE, (len(states) - 1, 3))
     states[2:4, :3] = states[2, :3]  # the fingers close where they went down
     states[6:8, :3] = states[6, :3]  # and open where they went down
     return Plan(steps, states)
 
 
-def render(scenes: Sequence[Scene], switch: int, plan: Plan, fps: float, rng: np.random.Generator,
-           episode: Episode) -> Demonstration:
-    """Frames, pose and gripper of a planned demonstration; frames before step `switch` show scenes[0], then scenes[-1]."""
+def render(
+    scenes: Sequence[Scene], switch: int, plan: Plan, fps: float, rng: np.random.Generator, episode: Episode
+) -> Demonstration:
+    """Frames, pose and gripper of a planned demonstration; frames before step `switch` show scenes[0], then
+    scenes[-1]."""
     T = int(plan.steps[-1]) + 1
     states = plan.at(T)  # (T, 5)
     pose = np.concatenate([states[:, :3], np.stack([gripper_quaternion(y) for y in states[:, 3]])], axis=1)
@@ -126,8 +147,9 @@ def render(scenes: Sequence[Scene], switch: int, plan: Plan, fps: float, rng: np
     return Demonstration(episode, timestamps, pose, states[:, 4] * GRIPPER_OPEN, frames)
 
 
-def make_demonstration(behaviour: int, steps: int, fps: float, rng: np.random.Generator,
-                       episode_id: str) -> Demonstration:
+def make_demonstration(
+    behaviour: int, steps: int, fps: float, rng: np.random.Generator, episode_id: str
+) -> Demonstration:
     """One demonstration of `behaviour` (index into BEHAVIOURS) with `steps` steps at `fps` Hz."""
     scene = sample_scene(behaviour, rng)
     plan = plan_motion(scene, scene.free_slot, phase_steps(steps, rng), rng)
@@ -135,8 +157,9 @@ def make_demonstration(behaviour: int, steps: int, fps: float, rng: np.random.Ge
     return render([scene], steps, plan, fps, rng, episode)
 
 
-def make_scene_change(behaviour: int, steps: int, fps: float, rng: np.random.Generator,
-                      episode_id: str) -> Demonstration:
+def make_scene_change(
+    behaviour: int, steps: int, fps: float, rng: np.random.Generator, episode_id: str
+) -> Demonstration:
     """A demonstration that starts as `behaviour`; once the cup is lifted, the block moves to the other slot.
 
     From that step on the frames show the changed scene and the demonstrator places the cup into the
@@ -154,8 +177,7 @@ def make_scene_change(behaviour: int, steps: int, fps: float, rng: np.random.Gen
     return render([before, after], switch, plan, fps, rng, episode)
 
 
-def make_free_choice(side: str, steps: int, fps: float, rng: np.random.Generator,
-                     episode_id: str) -> Demonstration:
+def make_free_choice(side: str, steps: int, fps: float, rng: np.random.Generator, episode_id: str) -> Demonstration:
     """One demonstration in a scene with both slots free: the cup on `side`, the slot picked at random by `rng`."""
     slot = SLOTS[int(rng.integers(len(SLOTS)))]
     scene = sample_scene(BEHAVIOURS.index(f"{side}-{slot}"), rng, both_free=True)
@@ -204,11 +226,14 @@ def generate(config: DemoSetConfig) -> DemoSet:
         raise ValueError(f"steps must be >= {2 * len(PHASES)} (two per motion phase), got {config.steps}")
     K = len(BEHAVIOURS)
     kinds = {  # per split, the kind of each episode before shuffling: 0..K-1 a behaviour, K + s free choice on side s
-        "train": [*np.arange(config.per_behaviour * K) % K,
-                  *(K + np.arange(config.free_choice_per_side * len(SIDES)) % len(SIDES))],
+        "train": [
+            *np.arange(config.per_behaviour * K) % K,
+            *(K + np.arange(config.free_choice_per_side * len(SIDES)) % len(SIDES)),
+        ],
         "heldout": [*np.arange(config.heldout_per_behaviour * K) % K],
         "scene_change": [*np.arange(config.scene_changes) % K],
-        "free_choice": [*(K + np.arange(config.heldout_free_choice_per_side * len(SIDES)) % len(SIDES))]}
+        "free_choice": [*(K + np.arange(config.heldout_free_choice_per_side * len(SIDES)) % len(SIDES))],
+    }
     root = np.random.SeedSequence(config.seed)
     split_seeds = dict(zip(SPLITS, root.spawn(len(SPLITS))))
     files: dict[str, list[Path]] = {split: [] for split in SPLITS}

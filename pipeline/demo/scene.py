@@ -125,8 +125,15 @@ def sample_scene(behaviour: int, rng: np.random.Generator, both_free: bool = Fal
         x = rng.uniform(-TABLE_HALF_WIDTH, TABLE_HALF_WIDTH)
         y = rng.uniform(TABLE_NEAR, TABLE_FAR)
         clutter.append((x, y, rng.uniform(*CLUTTER_RADIUS), int(rng.integers(len(CLUTTER_RGB)))))
-    return Scene(behaviour, cup, slots, tuple(clutter), float(rng.uniform(*GAIN_RANGE)),
-                 rng.uniform(-GRADIENT_MAX, GRADIENT_MAX, 2), both_free)
+    return Scene(
+        behaviour,
+        cup,
+        slots,
+        tuple(clutter),
+        float(rng.uniform(*GAIN_RANGE)),
+        rng.uniform(-GRADIENT_MAX, GRADIENT_MAX, 2),
+        both_free,
+    )
 
 
 def to_pixels(xy: np.ndarray) -> tuple[int, int]:
@@ -165,8 +172,14 @@ def _gripper(img: np.ndarray, pose: np.ndarray, opening: float) -> None:
     for sign in (-1.0, 1.0):
         centre = np.array([u, v]) + sign * half_gap * across
         a, b = centre - 0.5 * length * along, centre + 0.5 * length * along
-        cv2.line(img, tuple(int(c) for c in a), tuple(int(c) for c in b), GRIPPER_RGB,
-                 metres_to_pixels(0.012 * scale), cv2.LINE_AA)
+        cv2.line(
+            img,
+            tuple(int(c) for c in a),
+            tuple(int(c) for c in b),
+            GRIPPER_RGB,
+            metres_to_pixels(0.012 * scale),
+            cv2.LINE_AA,
+        )
     cv2.line(img, (u, v), (u, CANVAS_HEIGHT), GRIPPER_RGB, metres_to_pixels(0.02 * scale), cv2.LINE_AA)  # the arm
 
 
@@ -183,8 +196,9 @@ def yaw_of(quat_xyzw: np.ndarray) -> float:
     return float(2.0 * np.arctan2(quat_xyzw[1], quat_xyzw[0]))
 
 
-def draw_frame(scene: Scene, pose: np.ndarray, opening: float, cup_xy: np.ndarray | None,
-               rng: np.random.Generator) -> np.ndarray:
+def draw_frame(
+    scene: Scene, pose: np.ndarray, opening: float, cup_xy: np.ndarray | None, rng: np.random.Generator
+) -> np.ndarray:
     """The camera frame (FRAME_HEIGHT, FRAME_WIDTH, 3) uint8 RGB of `scene` with the gripper at `pose` (7,).
 
     opening: gripper opening, 0 closed .. 1 open; cup_xy: where the cup stands (2,), or None while it is
@@ -207,8 +221,14 @@ def draw_frame(scene: Scene, pose: np.ndarray, opening: float, cup_xy: np.ndarra
     cup_at = pose[:2] if cup_xy is None else cup_xy
     cv2.circle(img, to_pixels(cup_at), metres_to_pixels(CUP_RADIUS), CUP_RGB, -1, cv2.LINE_AA)
     _gripper(img, pose, opening)
-    frame = cv2.warpPerspective(img, camera_homography(), (FRAME_WIDTH, FRAME_HEIGHT), flags=cv2.INTER_LINEAR,
-                                borderMode=cv2.BORDER_CONSTANT, borderValue=FLOOR_RGB)
+    frame = cv2.warpPerspective(
+        img,
+        camera_homography(),
+        (FRAME_WIDTH, FRAME_HEIGHT),
+        flags=cv2.INTER_LINEAR,
+        borderMode=cv2.BORDER_CONSTANT,
+        borderValue=FLOOR_RGB,
+    )
     return _light(frame, scene, rng)
 
 

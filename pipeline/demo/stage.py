@@ -46,16 +46,24 @@ import numpy as np
 from cnep.models import ConditioningPolicy, TrainConfig, load_checkpoint
 from cnep.models.checkpoint import atomic_write
 from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_file_as_folder
+from cnep.pipeline.demo.free_choice import (
+    COMMIT_GATE,
+    PLACE_TOLERANCE,
+    SPLIT_GATE,
+    commitment,
+    gate_census,
+    generated_ends,
+    place_outcomes,
+    replay_pick,
+)
+from cnep.pipeline.demo.generator import CHOICE_KEY, CHOICE_STEP_KEY, SPLITS, SWITCH_KEY, DemoSetConfig, generate
+from cnep.pipeline.demo.scene import BEHAVIOURS
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.extract.stage import ExtractConfig, extract
 from cnep.pipeline.ingest.stage import IngestConfig, ingest
 from cnep.pipeline.replay.stage import RowMapping, decide, decisions_path, read_decisions, replay
-from cnep.pipeline.demo.free_choice import (COMMIT_GATE, PLACE_TOLERANCE, SPLIT_GATE, commitment, gate_census,
-                                       generated_ends, place_outcomes, replay_pick)
-from cnep.pipeline.demo.generator import CHOICE_KEY, CHOICE_STEP_KEY, SPLITS, SWITCH_KEY, DemoSetConfig, generate
-from cnep.pipeline.demo.scene import BEHAVIOURS
-from cnep.pipeline.train.stage import TrainStageConfig, train
 from cnep.pipeline.train.constants import SCENE
+from cnep.pipeline.train.stage import TrainStageConfig, train
 from cnep.pipeline.workers import single_thread_processes, torch_threads
 from cnep.recordings import read_demonstration, read_trajectory
 from cnep.recordings.constants import BLOCK_GRIPPER
@@ -77,8 +85,16 @@ PER_FILE_LOGGERS = ("cnep.pipeline.ingest", "cnep.pipeline.extract")
 EXTRACTOR_FILE = "extractor.pt"
 POLICY = ConditioningPolicy()  # the replay's conditioning (models.online): the first step + the latest 10
 # Everything a demo writes into its folder (what --force replaces).
-OUTPUTS = ("recorded", "demos", "trajectories", "checkpoints", EXTRACTOR_FILE, f"{Path(RRD_FILE).stem}-*.rrd",
-           decisions_path(RRD_FILE).name, SUMMARY_FILE)  # names and glob patterns
+OUTPUTS = (
+    "recorded",
+    "demos",
+    "trajectories",
+    "checkpoints",
+    EXTRACTOR_FILE,
+    f"{Path(RRD_FILE).stem}-*.rrd",
+    decisions_path(RRD_FILE).name,
+    SUMMARY_FILE,
+)  # names and glob patterns
 
 
 @dataclass(frozen=True)
@@ -99,10 +115,25 @@ class DemoSize:
     warmup_steps: int = TrainConfig.warmup_steps
 
 
-FULL = DemoSize(per_behaviour=30, heldout_per_behaviour=5, free_choice_per_side=20, heldout_free_choice_per_side=10,
-                steps=40, train_steps=4000, val_every=250)
-QUICK = DemoSize(per_behaviour=2, heldout_per_behaviour=1, free_choice_per_side=2, heldout_free_choice_per_side=1,
-                 steps=16, train_steps=60, val_every=20, warmup_steps=6)
+FULL = DemoSize(
+    per_behaviour=30,
+    heldout_per_behaviour=5,
+    free_choice_per_side=20,
+    heldout_free_choice_per_side=10,
+    steps=40,
+    train_steps=4000,
+    val_every=250,
+)
+QUICK = DemoSize(
+    per_behaviour=2,
+    heldout_per_behaviour=1,
+    free_choice_per_side=2,
+    heldout_free_choice_per_side=1,
+    steps=16,
+    train_steps=60,
+    val_every=20,
+    warmup_steps=6,
+)
 
 
 @dataclass(frozen=True)
@@ -147,8 +178,10 @@ def run_demo(config: DemoConfig) -> DemoResult:
     refuse_file_as_folder(out)
     fresh = not out.exists() or not any(out.iterdir())
     if not fresh and not config.force:
-        raise PipelineError(f"{out}: the demo writes into a new folder and this one is not empty; give another --out, "
-                            f"remove it, or add --force to replace the demo's files in it")
+        raise PipelineError(
+            f"{out}: the demo writes into a new folder and this one is not empty; give another --out, "
+            f"remove it, or add --force to replace the demo's files in it"
+        )
     if config.force and not fresh:
         remove_outputs(out)
     seconds: dict[str, float] = {}
@@ -200,9 +233,19 @@ def _run_stages(config: DemoConfig, out: Path, size: DemoSize, seconds: dict[str
         log.info("%s done in %.1f s", name, seconds[name])
 
     stage("generate", 1)
-    made = generate(DemoSetConfig(out / "recorded", size.per_behaviour, size.heldout_per_behaviour, 1, size.steps,
-                                  seed=config.seed, quiet=config.quiet, free_choice_per_side=size.free_choice_per_side,
-                                  heldout_free_choice_per_side=size.heldout_free_choice_per_side))
+    made = generate(
+        DemoSetConfig(
+            out / "recorded",
+            size.per_behaviour,
+            size.heldout_per_behaviour,
+            1,
+            size.steps,
+            seed=config.seed,
+            quiet=config.quiet,
+            free_choice_per_side=size.free_choice_per_side,
+            heldout_free_choice_per_side=size.heldout_free_choice_per_side,
+        )
+    )
     done("generate")
 
     stage("ingest", 2)
@@ -211,26 +254,58 @@ def _run_stages(config: DemoConfig, out: Path, size: DemoSize, seconds: dict[str
 
     stage("extract", 3)
     weights = out / EXTRACTOR_FILE
-    common = {"seed": config.seed, "quiet": config.quiet, "precision": config.precision,
-              "calibrate_on": (out / "demos" / "train",)}  # int8: every split quantised on the training frames
-    extract(ExtractConfig(inputs=(out / "demos" / "train",), out=out / "trajectories" / "train", weights="random",
-                          save_weights=weights, **common))
+    common = {
+        "seed": config.seed,
+        "quiet": config.quiet,
+        "precision": config.precision,
+        "calibrate_on": (out / "demos" / "train",),
+    }  # int8: every split quantised on the training frames
+    extract(
+        ExtractConfig(
+            inputs=(out / "demos" / "train",),
+            out=out / "trajectories" / "train",
+            weights="random",
+            save_weights=weights,
+            **common,
+        )
+    )
     for split in SPLITS[1:]:
-        extract(ExtractConfig(inputs=(out / "demos" / split,), out=out / "trajectories" / split, weights=str(weights),
-                              **common))
+        extract(
+            ExtractConfig(
+                inputs=(out / "demos" / split,), out=out / "trajectories" / split, weights=str(weights), **common
+            )
+        )
     done("extract")
 
     stage("train", 4)
-    training = TrainConfig(steps=size.train_steps, warmup_steps=size.warmup_steps, val_every=size.val_every,
-                           gate_lr_scale=GATE_LR_SCALE, seed=config.seed)
+    training = TrainConfig(
+        steps=size.train_steps,
+        warmup_steps=size.warmup_steps,
+        val_every=size.val_every,
+        gate_lr_scale=GATE_LR_SCALE,
+        seed=config.seed,
+    )
     checkpoints = {"CNEP": out / "checkpoints" / "cnep", "CNMP": out / "checkpoints" / "cnmp"}
-    networks = {"CNEP": {"n_experts": CNEP_EXPERTS, "assignment": config.assignment},
-                "CNMP": {"n_experts": CNEP_EXPERTS, "matched_cnmp": True}}
+    networks = {
+        "CNEP": {"n_experts": CNEP_EXPERTS, "assignment": config.assignment},
+        "CNMP": {"n_experts": CNEP_EXPERTS, "matched_cnmp": True},
+    }
     log.info("training the CNEP and the CNMP side by side (%d steps each, one process each)", size.train_steps)
     with single_thread_processes(len(checkpoints)) as pool:  # the workers train quietly; their errors reach us
-        futures = {pool.submit(train, TrainStageConfig(inputs=(out / "trajectories" / "train",), out=path, layout=LAYOUT,
-                                                       training=training, quiet=True, **networks[name])): name
-                   for name, path in checkpoints.items()}
+        futures = {
+            pool.submit(
+                train,
+                TrainStageConfig(
+                    inputs=(out / "trajectories" / "train",),
+                    out=path,
+                    layout=LAYOUT,
+                    training=training,
+                    quiet=True,
+                    **networks[name],
+                ),
+            ): name
+            for name, path in checkpoints.items()
+        }
         for future in as_completed(futures):
             future.result()
             log.info("%s trained (%.1f s into the stage)", futures[future], time.perf_counter() - seconds["train"])
@@ -240,26 +315,43 @@ def _run_stages(config: DemoConfig, out: Path, size: DemoSize, seconds: dict[str
     trajectories = {split: sorted((out / "trajectories" / split).glob("*.mcap")) for split in SPLITS}
     traces = online_gates(checkpoints["CNEP"], trajectories["free_choice"])  # every held-out free choice's gate
     replayed_choice = [trajectories["free_choice"][replay_pick(traces)]]  # one that starts split, then commits
-    rrd = replay(checkpoints["CNEP"], trajectories["scene_change"] + trajectories["heldout"] + replayed_choice,
-                 out / RRD_FILE, policy=POLICY, connect=None, quiet=config.quiet)  # one file each, scene changes first
+    rrd = replay(
+        checkpoints["CNEP"],
+        trajectories["scene_change"] + trajectories["heldout"] + replayed_choice,
+        out / RRD_FILE,
+        policy=POLICY,
+        connect=None,
+        quiet=config.quiet,
+    )  # one file each, scene changes first
     done("replay")
 
     stage("summary", 6)
     with torch_threads():  # small-model forwards: one thread (the extract stage may have left torch on more)
         labels = {key(path): label for path, label in made.labels.items()}  # split/name is kept by every stage
-        switch_steps = {key(p): int(read_demonstration(p).episode.extra[SWITCH_KEY]) for p in made.files["scene_change"]}
+        switch_steps = {
+            key(p): int(read_demonstration(p).episode.extra[SWITCH_KEY]) for p in made.files["scene_change"]
+        }
         decided = [p for p in trajectories["train"] if labels[key(p)] in BEHAVIOURS]  # free choices have no purity
         behaviours = expert_purity(checkpoints["CNEP"], decided + trajectories["heldout"], labels)
         result = DemoResult(
-            out=out, rrd=rrd, checkpoints=checkpoints, behaviours=behaviours,
-            heldout={name: heldout_errors(ckpt, trajectories["heldout"], decided, labels)
-                     for name, ckpt in checkpoints.items()},
+            out=out,
+            rrd=rrd,
+            checkpoints=checkpoints,
+            behaviours=behaviours,
+            heldout={
+                name: heldout_errors(ckpt, trajectories["heldout"], decided, labels)
+                for name, ckpt in checkpoints.items()
+            },
             scene_change=scene_change_switches(out / RRD_FILE, trajectories["scene_change"], labels, switch_steps),
-            free_choice={name: place_outcomes(generated_ends(*_model_rows(ckpt, trajectories["free_choice"])))
-                         for name, ckpt in checkpoints.items()},
-            free_choice_replay=free_choice_commitment(out / RRD_FILE, replayed_choice, made.files["free_choice"], labels,
-                                                      behaviours, gate_census(traces)),
-            seconds=seconds)
+            free_choice={
+                name: place_outcomes(generated_ends(*_model_rows(ckpt, trajectories["free_choice"])))
+                for name, ckpt in checkpoints.items()
+            },
+            free_choice_replay=free_choice_commitment(
+                out / RRD_FILE, replayed_choice, made.files["free_choice"], labels, behaviours, gate_census(traces)
+            ),
+            seconds=seconds,
+        )
     done("summary")
     return result
 
@@ -313,8 +405,12 @@ def expert_purity(checkpoint: Path, paths: list[Path], labels: dict[str, str]) -
     for behaviour in sorted(chosen):
         counts = Counter(chosen[behaviour])
         expert, n = counts.most_common(1)[0]
-        table[behaviour] = {"n": len(chosen[behaviour]), "expert": expert, "purity": n / len(chosen[behaviour]),
-                            "experts": dict(sorted(counts.items()))}
+        table[behaviour] = {
+            "n": len(chosen[behaviour]),
+            "expert": expert,
+            "purity": n / len(chosen[behaviour]),
+            "experts": dict(sorted(counts.items())),
+        }
     return table
 
 
@@ -345,16 +441,24 @@ def heldout_errors(checkpoint: Path, heldout: list[Path], train_paths: list[Path
         truth = r[:, out_cols]  # (T, dy)
         sq.append(((mean[:, xyz] - truth[:, xyz]) ** 2).sum(-1))  # (T,)
         grip.append(np.abs(mean[:, gripper] - truth[:, gripper]))
-        same_length = [(np.linalg.norm(d - mean[:, xyz], axis=-1).mean(), lab)
-                       for d, lab in zip(train_xyz, train_labels) if len(d) == T]
+        same_length = [
+            (np.linalg.norm(d - mean[:, xyz], axis=-1).mean(), lab)
+            for d, lab in zip(train_xyz, train_labels)
+            if len(d) == T
+        ]
         hits.append(min(same_length)[1] == labels[key(path)])
-    return {"n": len(heldout), "position_rmse_m": float(np.sqrt(np.concatenate(sq).mean())),
-            "position_rmse_median_m": float(np.median([np.sqrt(e.mean()) for e in sq])),
-            "gripper_mae_m": float(np.concatenate(grip).mean()), "behaviour_accuracy": float(np.mean(hits))}
+    return {
+        "n": len(heldout),
+        "position_rmse_m": float(np.sqrt(np.concatenate(sq).mean())),
+        "position_rmse_median_m": float(np.median([np.sqrt(e.mean()) for e in sq])),
+        "gripper_mae_m": float(np.concatenate(grip).mean()),
+        "behaviour_accuracy": float(np.mean(hits)),
+    }
 
 
-def scene_change_switches(rrd: Path, paths: list[Path], labels: dict[str, str],
-                          switch_steps: dict[str, int]) -> list[dict]:
+def scene_change_switches(
+    rrd: Path, paths: list[Path], labels: dict[str, str], switch_steps: dict[str, int]
+) -> list[dict]:
     """For each scene-change recording: the replay's active expert before and after the change, and its switches
     (`rrd`: the replay's `out_rrd`, which names its decisions file)."""
     records = {key(Path(r["recording"])): r for r in read_decisions(rrd)["recordings"]}
@@ -364,14 +468,27 @@ def scene_change_switches(rrd: Path, paths: list[Path], labels: dict[str, str],
         experts = np.asarray(record["experts"])
         before = Counter(experts[:switch].tolist()).most_common(1)[0][0]
         after = Counter(experts[switch:].tolist()).most_common(1)[0][0]
-        found.append({"recording": path.name, "behaviour": labels[key(path)], "change_step": switch,
-                      "expert_before": before, "expert_after": after,
-                      "switches": [(s["step"], s["from"], s["to"]) for s in record["switches"]]})
+        found.append(
+            {
+                "recording": path.name,
+                "behaviour": labels[key(path)],
+                "change_step": switch,
+                "expert_before": before,
+                "expert_after": after,
+                "switches": [(s["step"], s["from"], s["to"]) for s in record["switches"]],
+            }
+        )
     return found
 
 
-def free_choice_commitment(rrd: Path, paths: list[Path], recorded: list[Path], labels: dict[str, str],
-                           behaviours: dict[str, dict], census: dict) -> list[dict]:
+def free_choice_commitment(
+    rrd: Path,
+    paths: list[Path],
+    recorded: list[Path],
+    labels: dict[str, str],
+    behaviours: dict[str, dict],
+    census: dict,
+) -> list[dict]:
     """For each replayed free-choice recording: its scene, the slot picked, the step its carry starts (the
     paths part there), the replay gate's `commitment`, the behaviours whose majority expert the gate ends on
     (`ends_on`; `behaviours`: `expert_purity`'s table), whether one is the behaviour picked (`picked`), and
@@ -385,9 +502,18 @@ def free_choice_commitment(rrd: Path, paths: list[Path], recorded: list[Path], l
         committed = commitment(np.asarray(records[key(path)]["gates"]))
         ends_on = [name for name, row in behaviours.items() if row["expert"] == committed["expert"]]
         picked = f"{scene.split('-')[0]}-{choice}"  # the behaviour performed: the cup's side, the slot picked
-        found.append({"recording": path.name, "scene": scene, "choice": choice,
-                      "carry_step": int(extra[CHOICE_STEP_KEY]), **committed, "ends_on": ends_on,
-                      "picked": picked in ends_on, "census": census})
+        found.append(
+            {
+                "recording": path.name,
+                "scene": scene,
+                "choice": choice,
+                "carry_step": int(extra[CHOICE_STEP_KEY]),
+                **committed,
+                "ends_on": ends_on,
+                "picked": picked in ends_on,
+                "census": census,
+            }
+        )
     return found
 
 
@@ -398,31 +524,43 @@ def format_summary(result: DemoResult) -> str:
         spread = ", ".join(f"{e}: {n}" for e, n in row["experts"].items())
         lines.append(f"{name:<14} {row['n']:>5}  {row['expert']:>6}  {row['purity']:>6.2f}  ({spread})")
     majority = {row["expert"] for row in result.behaviours.values()}
-    lines.append(f"{len(result.behaviours)} behaviours -> {len(majority)} distinct majority expert(s) "
-                 f"(purity alone is 1.0 when every demonstration goes to one expert)")
+    lines.append(
+        f"{len(result.behaviours)} behaviours -> {len(majority)} distinct majority expert(s) "
+        f"(purity alone is 1.0 when every demonstration goes to one expert)"
+    )
     lines.append("")
     lines.append("held-out demonstrations, conditioned on the first step (t = 0):")
     lines.append("model  position RMSE (cm)  median per demo (cm)  gripper MAE (mm)  nearest-demo behaviour accuracy")
     for name, row in result.heldout.items():
-        lines.append(f"{name:<6} {100 * row['position_rmse_m']:>18.2f}  {100 * row['position_rmse_median_m']:>20.2f}  "
-                     f"{1000 * row['gripper_mae_m']:>16.2f}  {row['behaviour_accuracy']:>10.2f} (n = {row['n']})")
+        lines.append(
+            f"{name:<6} {100 * row['position_rmse_m']:>18.2f}  {100 * row['position_rmse_median_m']:>20.2f}  "
+            f"{1000 * row['gripper_mae_m']:>16.2f}  {row['behaviour_accuracy']:>10.2f} (n = {row['n']})"
+        )
     lines.append("")
     for change in result.scene_change:
         moves = ", ".join(f"step {s}: {a} -> {b}" for s, a, b in change["switches"]) or "none"
-        lines.append(f"scene change {change['behaviour']} at step {change['change_step']}: expert "
-                     f"{change['expert_before']} before, {change['expert_after']} after; switches: {moves}")
+        lines.append(
+            f"scene change {change['behaviour']} at step {change['change_step']}: expert "
+            f"{change['expert_before']} before, {change['expert_after']} after; switches: {moves}"
+        )
     lines.append("")
-    lines.append(f"held-out free-choice scenes (both slots free), conditioned on the first step: where the motion "
-                 f"ends (within {100 * PLACE_TOLERANCE:.0f} cm of a slot centre, or between):")
+    lines.append(
+        f"held-out free-choice scenes (both slots free), conditioned on the first step: where the motion "
+        f"ends (within {100 * PLACE_TOLERANCE:.0f} cm of a slot centre, or between):"
+    )
     lines.append("model  in a slot  near  far  between  mean distance to a slot (cm)")
     for name, row in result.free_choice.items():
-        lines.append(f"{name:<6} {row['valid']:>9.2f}  {row['near']:>4.2f}  {row['far']:>3.2f}  "
-                     f"{row['between']:>7.2f}  {100 * row['distance_m']:>10.1f} (n = {row['n']})")
+        lines.append(
+            f"{name:<6} {row['valid']:>9.2f}  {row['near']:>4.2f}  {row['far']:>3.2f}  "
+            f"{row['between']:>7.2f}  {100 * row['distance_m']:>10.1f} (n = {row['n']})"
+        )
     for episode in result.free_choice_replay:
         lines.extend(replay_lines(episode, result.behaviours))
     lines.append("")
-    lines.append(f"Rerun recordings: {len(result.rrd)} files {result.out}/{Path(RRD_FILE).stem}-*.rrd, one per replayed "
-                 f"recording; the scene change: `rerun {result.rrd[0]}`")
+    lines.append(
+        f"Rerun recordings: {len(result.rrd)} files {result.out}/{Path(RRD_FILE).stem}-*.rrd, one per replayed "
+        f"recording; the scene change: `rerun {result.rrd[0]}`"
+    )
     lines.append(f"checkpoints: {', '.join(str(p) for p in result.checkpoints.values())}")
     lines.append(f"summary: {result.out / SUMMARY_FILE}")
     lines.append("stage times (s): " + ", ".join(f"{k} {v:.1f}" for k, v in result.seconds.items()))
@@ -444,13 +582,18 @@ def replay_lines(episode: dict, behaviours: dict[str, dict]) -> list[str]:
     else:
         commits = f"holds {expert(episode['expert'])} at p >= {COMMIT_GATE} from step {episode['step']}"
     slot = "the behaviour picked" if episode["picked"] else "not the behaviour picked"
-    chosen = (f"the least certain step 0 of the {census['split_commit']} that start split and commit"
-              if census["split_commit"] else "none starts split and commits: the least certain step 0 of all")
-    return [f"online gate of the {census['n']} held-out free-choice episodes: {census['split']} start split (no expert at "
-            f"p >= {SPLIT_GATE} at step 0), {census['split_commit']} of them then commit (p >= {COMMIT_GATE} to the end)",
-            f"replayed free choice {episode['recording']} ({episode['scene']}, picked {episode['choice']}, carry from step "
-            f"{episode['carry_step']}; {chosen}):",
-            f"  gate at step 0 {expert(e0)} {p0:.2f}, {expert(e1)} {p1:.2f} ({split}); {commits}: {slot}"]
+    chosen = (
+        f"the least certain step 0 of the {census['split_commit']} that start split and commit"
+        if census["split_commit"]
+        else "none starts split and commits: the least certain step 0 of all"
+    )
+    return [
+        f"online gate of the {census['n']} held-out free-choice episodes: {census['split']} start split (no expert at "
+        f"p >= {SPLIT_GATE} at step 0), {census['split_commit']} of them then commit (p >= {COMMIT_GATE} to the end)",
+        f"replayed free choice {episode['recording']} ({episode['scene']}, picked {episode['choice']}, carry from step "
+        f"{episode['carry_step']}; {chosen}):",
+        f"  gate at step 0 {expert(e0)} {p0:.2f}, {expert(e1)} {p1:.2f} ({split}); {commits}: {slot}",
+    ]
 
 
 def _jsonable(value):

@@ -95,7 +95,7 @@ def xy_path(demo: Demonstration, samples: int) -> np.ndarray:
 
 def in_box(path: np.ndarray) -> np.ndarray:
     """(N,) bool: which points of a (N, 2) path lie inside the box."""
-    return ((path[:, 0] >= BOX_X[0]) & (path[:, 0] <= BOX_X[1]) & (path[:, 1] >= BOX_Y[0]) & (path[:, 1] <= BOX_Y[1]))
+    return (path[:, 0] >= BOX_X[0]) & (path[:, 0] <= BOX_X[1]) & (path[:, 1] >= BOX_Y[0]) & (path[:, 1] <= BOX_Y[1])
 
 
 def nearest_demo_distance(path: np.ndarray, demos: np.ndarray) -> float:
@@ -114,8 +114,10 @@ def load_recordings(config: BaxterConfig, work: Path) -> tuple[list[Path], list[
     demo_dir = data / DEMO_FOLDER
     tests = sorted((p for p in data.glob("*.csv")), key=lambda p: (len(p.stem), p.stem))
     if not demo_dir.is_dir() or not tests:
-        raise PipelineError(f"{data}: expected the demonstrations in {DEMO_FOLDER}/*.csv and test recordings *.csv "
-                            f"beside it (the paper's data/baxter/first/ folder); give that folder")
+        raise PipelineError(
+            f"{data}: expected the demonstrations in {DEMO_FOLDER}/*.csv and test recordings *.csv "
+            f"beside it (the paper's data/baxter/first/ folder); give that folder"
+        )
     demos = _ingest_paths(demo_dir, work / "demos", config.quiet)
     if len(demos) < 2:
         raise PipelineError(f"{demo_dir}: found {len(demos)} demonstration(s); the example needs at least 2")
@@ -125,8 +127,9 @@ def load_recordings(config: BaxterConfig, work: Path) -> tuple[list[Path], list[
 def train_models(demos: np.ndarray, config: BaxterConfig) -> dict:
     """A 2-expert CNEP per assignment ("CNEP (paper)", "CNEP (mixture)", "CNEP (annealed)", "CNEP (bounded)") and
     a parameter-matched "CNMP" on (N, T, 2) paths; all seeded."""
-    train = TrainConfig(steps=config.steps, warmup_steps=config.steps // 10, val_every=max(1, config.steps // 20),
-                        seed=config.seed)
+    train = TrainConfig(
+        steps=config.steps, warmup_steps=config.steps // 10, val_every=max(1, config.steps // 20), seed=config.seed
+    )
     trajectories = list(demos)
     models = {}
     cnep = CNEPConfig(layout=LAYOUT_XY, n_experts=2)
@@ -147,7 +150,9 @@ def load_paths(config: BaxterConfig) -> tuple[np.ndarray, list[tuple[str, Demons
         return demos, [(p.stem, read_demonstration(p)) for p in test_files]
 
 
-def score_starts(models: dict, demos: np.ndarray, tests: list[tuple[str, Demonstration]], goal: bool) -> list[StartResult]:
+def score_starts(
+    models: dict, demos: np.ndarray, tests: list[tuple[str, Demonstration]], goal: bool
+) -> list[StartResult]:
     """Condition `models` (from `train_models`) on each test's start (and goal), generate, execute, score."""
     samples = demos.shape[1]
     grid = np.linspace(0.0, 1.0, samples)
@@ -165,13 +170,19 @@ def score_starts(models: dict, demos: np.ndarray, tests: list[tuple[str, Demonst
                 paths[model_name.replace("CNEP", "CNEP-MoE")] = model.generate(obs_t, obs_y, grid, mixture=True).mean
         paths = {m: paths[m] for m in MODELS if m in paths}
         executed = {m: pid_track(p, steps, obs_y, start=start) for m, p in paths.items()}
-        results.append(StartResult(
-            name=name, start=start,
-            distance={m: nearest_demo_distance(p, demos) for m, p in paths.items()},
-            enters_box={m: bool(in_box(p).any()) for m, p in paths.items()},
-            chosen_expert=experts, paths=paths, executed=executed,
-            executed_enters_box={m: bool(in_box(x).any()) for m, x in executed.items()},
-            executed_miss={m: float(np.linalg.norm(x[steps] - obs_y, axis=-1).max()) for m, x in executed.items()}))
+        results.append(
+            StartResult(
+                name=name,
+                start=start,
+                distance={m: nearest_demo_distance(p, demos) for m, p in paths.items()},
+                enters_box={m: bool(in_box(p).any()) for m, p in paths.items()},
+                chosen_expert=experts,
+                paths=paths,
+                executed=executed,
+                executed_enters_box={m: bool(in_box(x).any()) for m, x in executed.items()},
+                executed_miss={m: float(np.linalg.norm(x[steps] - obs_y, axis=-1).max()) for m, x in executed.items()},
+            )
+        )
     return results
 
 
@@ -198,10 +209,17 @@ def format_table(results: list[StartResult]) -> str:
         cells = []
         for m in models:
             expert = f"expert {r.chosen_expert[m]}, " if m in r.chosen_expert else ""
-            cells.append(f"{expert}{100 * r.distance[m]:.1f} cm, {_yes(r.enters_box[m])} / {_yes(r.executed_enters_box[m])}")
+            cells.append(
+                f"{expert}{100 * r.distance[m]:.1f} cm, {_yes(r.enters_box[m])} / {_yes(r.executed_enters_box[m])}"
+            )
         lines.append(f"| {r.name} | ({r.start[0]:.3f}, {r.start[1]:.3f}) | " + " | ".join(cells) + " |")
     n = len(results)
-    lines.append("| box entries, generated / PID | | " + " | ".join(
-        f"{sum(r.enters_box[m] for r in results)}/{n} / {sum(r.executed_enters_box[m] for r in results)}/{n}"
-        for m in models) + " |")
+    lines.append(
+        "| box entries, generated / PID | | "
+        + " | ".join(
+            f"{sum(r.enters_box[m] for r in results)}/{n} / {sum(r.executed_enters_box[m] for r in results)}/{n}"
+            for m in models
+        )
+        + " |"
+    )
     return "\n".join(lines)

@@ -37,8 +37,9 @@ def _demos(ax, t: np.ndarray, demos: np.ndarray, colours, width: float, alpha: f
     ax.autoscale_view()
 
 
-def plot_set(path: Path, set_name: str, n_queries: int, generated: dict[str, np.ndarray], title: str,
-             protocol: str = "paper") -> None:
+def plot_set(
+    path: Path, set_name: str, n_queries: int, generated: dict[str, np.ndarray], title: str, protocol: str = "paper"
+) -> None:
     """Write the figure of one set (seed 0) to `path`; `generated`: row label -> (k, T, dy) on the first k
     queries of `protocol` ("paper", or "commitment": one shared point, no ground truth)."""
     plt = _pyplot()

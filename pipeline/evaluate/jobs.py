@@ -100,7 +100,7 @@ def _scored(generate, s, qs: dict) -> dict:
     """Score one method on every protocol, counting queries whose output is not finite."""
     from cnep.models.evaluation import commitment, score
 
-    failures = {p: 0 for p in PROTOCOLS}
+    failures = dict.fromkeys(PROTOCOLS, 0)
 
     def guarded(protocol):
         def run(obs_t, obs_y, query_t):
@@ -121,8 +121,9 @@ def _scored(generate, s, qs: dict) -> dict:
     result["examples"] = np.stack([generate(q.obs_t, q.obs_y, times) for q in qs["paper"][:SAMPLES_IN_FIGURE]])
     if qs["commitment"]:  # a set whose modes share no point (unimodal) has no commitment queries
         result["commitment"] = commitment(generate, qs["commitment"], s.train, s.train_modes)
-        result["commitment_examples"] = np.stack([generate(q.obs_t, q.obs_y, times)
-                                                  for q in qs["commitment"][:SAMPLES_IN_FIGURE]])
+        result["commitment_examples"] = np.stack(
+            [generate(q.obs_t, q.obs_y, times) for q in qs["commitment"][:SAMPLES_IN_FIGURE]]
+        )
     return result
 
 
@@ -147,10 +148,17 @@ def model_config(spec: ModelSpec, cnmp_matches: int):
 
 
 def unit_key(job: Job) -> tuple | None:
-    """Network jobs with equal keys train together (one network shape and schedule on one set); None: a baselines job."""
+    """Network jobs with equal keys train together (one network shape and schedule on one set); None: a baselines
+    job."""
     if job.spec is None:
         return None
-    return job.set_name, job.steps, job.patience, job.spec.n_experts, job.cnmp_matches if job.spec.n_experts == 1 else None
+    return (
+        job.set_name,
+        job.steps,
+        job.patience,
+        job.spec.n_experts,
+        job.cnmp_matches if job.spec.n_experts == 1 else None,
+    )
 
 
 def run_job(job: Job, progress: Progress | None = None) -> dict:
@@ -174,7 +182,7 @@ def run_unit(unit: Sequence[Job], progress: Progress | None = None) -> list[dict
     data = [queries(job.set_name, job.seed, job.n_queries) for job in unit]
     if unit[0].spec is not None:
         return _fit_networks(unit, data, progress)
-    (s, qs), = data
+    ((s, qs),) = data
     out = {}
     for name, method in baselines(unit[0].set_name, unit[0].seed).items():
         start = time.perf_counter()
@@ -193,8 +201,12 @@ def _fit_networks(unit: Sequence[Job], data: list, progress: Progress | None) ->
 
     start = time.perf_counter()
     configs = [model_config(job.spec, job.cnmp_matches) for job in unit]
-    prepared = [prepare_fit(list(s.train), config, TrainConfig(steps=job.steps, patience=job.patience, seed=job.seed),
-                            list(s.val)) for job, (s, _), config in zip(unit, data, configs)]
+    prepared = [
+        prepare_fit(
+            list(s.train), config, TrainConfig(steps=job.steps, patience=job.patience, seed=job.seed), list(s.val)
+        )
+        for job, (s, _), config in zip(unit, data, configs)
+    ]
     trainer = BatchedTrainer([t for t, _ in prepared])
     planned, trained = sum(job.steps for job in unit), lambda: sum(t.step for t, _ in prepared)
     while trainer.active and trainer.step < unit[0].steps:
@@ -205,12 +217,15 @@ def _fit_networks(unit: Sequence[Job], data: list, progress: Progress | None) ->
     if progress is not None and trained() < planned:
         progress.put(planned - trained())
     fit_seconds = (time.perf_counter() - start) / len(unit)
-    return [_scored_network(job, s, qs, config, *finish_fit(t, split), fit_seconds, t.step, t.best_error)
-            for job, (s, qs), config, (t, split) in zip(unit, data, configs, prepared)]
+    return [
+        _scored_network(job, s, qs, config, *finish_fit(t, split), fit_seconds, t.step, t.best_error)
+        for job, (s, qs), config, (t, split) in zip(unit, data, configs, prepared)
+    ]
 
 
-def _scored_network(job: Job, s, qs: dict, config, model, history: list[dict], fit_seconds: float,
-                    steps: int, best_val_error: float) -> dict:
+def _scored_network(
+    job: Job, s, qs: dict, config, model, history: list[dict], fit_seconds: float, steps: int, best_val_error: float
+) -> dict:
     """A fitted network's results: winner-take-all (and for CNEPs the mixture) on both protocols, with training info
     (`steps`: the steps it trained, fewer than job.steps after an early stop; `val_curve`: (step, validation error);
     `best_val_error`: the kept model's, models.train.Trainer.best_error)."""
@@ -234,4 +249,3 @@ def _scored_network(job: Job, s, qs: dict, config, model, history: list[dict], f
     if job.spec.n_experts > 1:
         out[job.spec.key + "+moe"] = {**_scored(moe, s, qs), **info}
     return out
-

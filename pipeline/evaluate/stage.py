@@ -84,8 +84,10 @@ class EvaluateConfig:
                 raise PipelineError(f"--{name} must be >= 1, got {value}")
         empty = [t for t in self.tables if not self.table_sets(t)]
         if empty:
-            raise PipelineError(f"no data set left for the {', '.join(empty)} table(s): it covers "
-                                f"{', '.join(TABLE_SETS[empty[0]])}, the run asked for {', '.join(self.sets or QUICK_SETS)}")
+            raise PipelineError(
+                f"no data set left for the {', '.join(empty)} table(s): it covers "
+                f"{', '.join(TABLE_SETS[empty[0]])}, the run asked for {', '.join(self.sets or QUICK_SETS)}"
+            )
         if self.jobs < 0:
             raise PipelineError(f"--jobs must be >= 0 (0: no worker processes), got {self.jobs}")
 
@@ -126,15 +128,21 @@ def table_rows(table: str, set_name: str) -> list[Row]:
         baselines = [Row(name, None, name) for name in ("ProMP", "GMM-GMR", "GMM-GMR (no ridge)")]
         return baselines + [Row("CNMP", ModelSpec(1), "cnmp"), Row("CNEP", cnep, cnep.key), nearest]
     if table == "ablation":
-        variants = {"CNEP-Uni": ModelSpec(d, a_batch=0.0), "CNEP-UnSpec": ModelSpec(d, a_ind=0.0),
-                    "CNEP-Rec": ModelSpec(d, a_batch=0.0, a_ind=0.0)}
+        variants = {
+            "CNEP-Uni": ModelSpec(d, a_batch=0.0),
+            "CNEP-UnSpec": ModelSpec(d, a_ind=0.0),
+            "CNEP-Rec": ModelSpec(d, a_batch=0.0, a_ind=0.0),
+        }
         rows = [Row(label, spec, spec.key) for label, spec in variants.items()]
         return rows + [Row("CNEP-MoE", cnep, cnep.key + "+moe"), Row("CNEP", cnep, cnep.key), nearest]
     if table == "commitment":
         rows = [Row(name, None, name) for name in ("ProMP", "GMM-GMR")] + [Row("CNMP", ModelSpec(1), "cnmp")]
         for assignment in ASSIGNMENTS:
             spec = ModelSpec(d, assignment=assignment)
-            rows += [Row(f"CNEP ({assignment})", spec, spec.key), Row(f"CNEP-MoE ({assignment})", spec, spec.key + "+moe")]
+            rows += [
+                Row(f"CNEP ({assignment})", spec, spec.key),
+                Row(f"CNEP-MoE ({assignment})", spec, spec.key + "+moe"),
+            ]
         return rows + [nearest]
     return [Row(f"CNEP-{k}", ModelSpec(k), ModelSpec(k).key) for k in EXPERT_COUNTS] + [nearest]
 
@@ -147,8 +155,15 @@ def plan(config: EvaluateConfig) -> list[Job]:
         for set_name in config.table_sets(table):
             for seed in range(config.n_seeds):
                 for row in table_rows(table, set_name):
-                    job = Job(set_name, seed, row.spec, config.n_steps(set_name), config.n_queries,
-                              cnmp_matches=CNEP_EXPERTS[set_name], patience=config.patience)
+                    job = Job(
+                        set_name,
+                        seed,
+                        row.spec,
+                        config.n_steps(set_name),
+                        config.n_queries,
+                        cnmp_matches=CNEP_EXPERTS[set_name],
+                        patience=config.patience,
+                    )
                     jobs.setdefault(job.key, (rank, job))
     cost = {job: (rank, 0 if job.spec is None else -job.spec.n_experts) for rank, job in jobs.values()}
     return sorted(cost, key=cost.get)
@@ -156,8 +171,12 @@ def plan(config: EvaluateConfig) -> list[Job]:
 
 def needs(table: str, config: EvaluateConfig) -> set[tuple]:
     """The (set, seed, spec) keys of the jobs a table reads."""
-    return {(s, seed, row.spec) for s in config.table_sets(table) for seed in range(config.n_seeds)
-            for row in table_rows(table, s)}
+    return {
+        (s, seed, row.spec)
+        for s in config.table_sets(table)
+        for seed in range(config.n_seeds)
+        for row in table_rows(table, s)
+    }
 
 
 PROGRESS_POLL_S = 1.0  # how often the parent reads the workers' step reports
@@ -259,9 +278,13 @@ def pooled_commitment(per_seed: Sequence[dict]) -> dict:
     (and per seed), MSE and max deviation as mean +- std over all finite queries (each seed weighted by them)."""
     queries = np.array([r["queries"] for r in per_seed])
     finite = queries - np.array([r["failures"] for r in per_seed])
-    cell: dict = {"valid": float(np.sum([r["valid"] * n for r, n in zip(per_seed, queries)]) / queries.sum()),
-                  "valid_per_seed": [r["valid"] for r in per_seed], "queries": queries.tolist(),
-                  "band": [r["band"] for r in per_seed], "failures": int(queries.sum() - finite.sum())}
+    cell: dict = {
+        "valid": float(np.sum([r["valid"] * n for r, n in zip(per_seed, queries)]) / queries.sum()),
+        "valid_per_seed": [r["valid"] for r in per_seed],
+        "queries": queries.tolist(),
+        "band": [r["band"] for r in per_seed],
+        "failures": int(queries.sum() - finite.sum()),
+    }
     for metric in ("mse", "max_deviation"):
         keep = finite > 0
         means = np.array([r[metric] for r in per_seed])[keep]
@@ -289,20 +312,35 @@ def assemble(table: str, config: EvaluateConfig, done: dict[tuple, dict]) -> dic
                 results[p].setdefault(row.label, {})[set_name] = pooled([r[p] for r in runs])
             if table == "commitment":
                 results.setdefault("commitment", {}).setdefault(row.label, {})[set_name] = pooled_commitment(
-                    [r["commitment"] for r in runs])
+                    [r["commitment"] for r in runs]
+                )
             training.setdefault(row.label, {})[set_name] = {
                 "fit_seconds": [r["fit_seconds"] for r in runs],
-                **({"best_val_error": [r["best_val_error"] for r in runs], "final_usage": [r["final_usage"] for r in runs],
-                    "steps": [r["steps"] for r in runs], "val_curve": [r["val_curve"] for r in runs],
-                    "parameters": runs[0]["parameters"], "expert_widths": runs[0]["expert_widths"]}
-                   if row.spec is not None else {}),
+                **(
+                    {
+                        "best_val_error": [r["best_val_error"] for r in runs],
+                        "final_usage": [r["final_usage"] for r in runs],
+                        "steps": [r["steps"] for r in runs],
+                        "val_curve": [r["val_curve"] for r in runs],
+                        "parameters": runs[0]["parameters"],
+                        "expert_widths": runs[0]["expert_widths"],
+                    }
+                    if row.spec is not None
+                    else {}
+                ),
             }
     return {
         "table": table,
         "sets": list(sets),
         "rows": labels,
-        "settings": {"seeds": config.n_seeds, "steps": {s: config.n_steps(s) for s in sets}, "queries": config.n_queries,
-                     "patience": config.patience, "quick": config.quick, "jobs": config.jobs},
+        "settings": {
+            "seeds": config.n_seeds,
+            "steps": {s: config.n_steps(s) for s in sets},
+            "queries": config.n_queries,
+            "patience": config.patience,
+            "quick": config.quick,
+            "jobs": config.jobs,
+        },
         "results": results,
         "training": training,
     }
@@ -321,10 +359,20 @@ def evaluate(config: EvaluateConfig) -> dict[str, Path]:
     """
     start = time.perf_counter()
     jobs = plan(config)
-    log.info("evaluate: %d fits (%s), steps %s, %d seed(s), %d queries per protocol, %d worker(s)",
-             len(jobs), ", ".join(config.tables), config.steps_by_set(), config.n_seeds, config.n_queries, config.jobs)
-    refuse_existing([config.out / f"{table}{suffix}" for table in config.tables for suffix in (".md", ".json")],
-                    config.force, "table")
+    log.info(
+        "evaluate: %d fits (%s), steps %s, %d seed(s), %d queries per protocol, %d worker(s)",
+        len(jobs),
+        ", ".join(config.tables),
+        config.steps_by_set(),
+        config.n_seeds,
+        config.n_queries,
+        config.jobs,
+    )
+    refuse_existing(
+        [config.out / f"{table}{suffix}" for table in config.tables for suffix in (".md", ".json")],
+        config.force,
+        "table",
+    )
     pending = {table: needs(table, config) for table in config.tables}
     done: dict[tuple, dict] = {}  # Job.key -> results
     written = {}
@@ -353,9 +401,14 @@ def write_table(table: str, config: EvaluateConfig, done: dict[tuple, dict], wal
         from cnep.pipeline.evaluate.figures import plot_set
 
         for set_name in config.table_sets(table):
-            plot_set(config.out / "figures" / f"{table}-{set_name}.png", set_name, config.n_queries,
-                     examples(table, done, set_name), title=f"{table}: {set_name}",
-                     protocol="commitment" if table == "commitment" else "paper")
+            plot_set(
+                config.out / "figures" / f"{table}-{set_name}.png",
+                set_name,
+                config.n_queries,
+                examples(table, done, set_name),
+                title=f"{table}: {set_name}",
+                protocol="commitment" if table == "commitment" else "paper",
+            )
     return markdown
 
 

@@ -1,4 +1,5 @@
-"""Markdown rendering of an evaluated table (the dict of pipeline.evaluate.assemble), the paper's numbers beside ours."""
+"""Markdown rendering of an evaluated table (the dict of pipeline.evaluate.assemble), the paper's numbers beside
+ours."""
 
 from __future__ import annotations
 
@@ -13,7 +14,8 @@ TITLES = {
     "comparison": "Comparison with the baselines: MSE over generated trajectories conditioned from intermediate points",
     "ablation": "Influence of the loss components (and winner-take-all vs mixture at inference)",
     "experts": "Influence of the number of experts",
-    "commitment": "Commitment: conditioned only on a point that several modes share, one demonstrated mode or their average?",
+    "commitment": "Commitment: conditioned only on a point that several modes share, one demonstrated mode or "
+    "their average?",
 }
 COMMITMENT_NOTE = (
     "Each query conditions on one point that two or more modes share (a crossing of their mean trajectories, a "
@@ -23,7 +25,8 @@ COMMITMENT_NOTE = (
     "demonstration of any mode."
 )
 PROTOCOL_TITLES = {
-    "paper": "Paper protocol (conditioning points between two modes; truth: the training demonstration nearest to them)",
+    "paper": "Paper protocol (conditioning points between two modes; truth: the training demonstration nearest to "
+    "them)",
     "heldout": "Held-out protocol (conditioning points of unseen test demonstrations; truth: that demonstration)",
 }
 PAPER_NOTE = (
@@ -60,8 +63,10 @@ def _grid(data: dict, protocol: str, metric: str, with_paper: bool) -> list[str]
     lines = ["| Method | " + " | ".join(SET_TITLES[s] for s in sets) + " |", "|---" * (len(sets) + 1) + "|"]
     for row in data["rows"]:
         cells = data["results"][protocol].get(row, {})
-        texts = [_cell(cells[s], metric, paper.get(row, {}).get(s) if with_paper else None) if s in cells else ""
-                 for s in sets]
+        texts = [
+            _cell(cells[s], metric, paper.get(row, {}).get(s) if with_paper else None) if s in cells else ""
+            for s in sets
+        ]
         lines.append(f"| {row} | " + " | ".join(texts) + " |")
     return lines
 
@@ -80,8 +85,9 @@ def _commitment_grid(data: dict, metric: str) -> list[str]:
                 text = _pm(cell[metric], cell[f"{metric}_std"], 4 if metric == "mse" else 3)
             texts.append(text + (f" ({cell['failures']} non-finite)" if cell["failures"] and metric == "valid" else ""))
         lines.append(f"| {row} | " + " | ".join(texts) + " |")
-    bands = " | ".join(", ".join(f"{b:.3f}" for b in data["results"]["commitment"][data["rows"][0]][s]["band"])
-                       for s in sets)
+    bands = " | ".join(
+        ", ".join(f"{b:.3f}" for b in data["results"]["commitment"][data["rows"][0]][s]["band"]) for s in sets
+    )
     return lines + [f"| band (per seed) | {bands} |"] if metric == "valid" else lines
 
 
@@ -98,8 +104,10 @@ def _training(data: dict) -> list[str]:
             text = f"fit {np.mean(info['fit_seconds']):.1f} s"
             if "parameters" in info:
                 usage = "/".join(f"{u:.2f}" for u in info["final_usage"][0])
-                text += (f", {info['parameters']} params, {np.mean(info['steps']):.0f} steps, "
-                         f"val {np.mean(info['best_val_error']):.4f}, usage {usage}")
+                text += (
+                    f", {info['parameters']} params, {np.mean(info['steps']):.0f} steps, "
+                    f"val {np.mean(info['best_val_error']):.4f}, usage {usage}"
+                )
             texts.append(text)
         lines.append(f"| {row} | " + " | ".join(texts) + " |")
     return lines
@@ -126,7 +134,12 @@ def to_markdown(data: dict) -> str:
         lines += ["", "### Max deviation from the nearest demonstration", ""]
         lines += _commitment_grid(data, "max_deviation") + [""]
     for protocol, title in PROTOCOL_TITLES.items():
-        lines += [f"## {title}", "", "### MSE" + (" (the paper's number beside ours)" if protocol == "paper" else ""), ""]
+        lines += [
+            f"## {title}",
+            "",
+            "### MSE" + (" (the paper's number beside ours)" if protocol == "paper" else ""),
+            "",
+        ]
         lines += _grid(data, protocol, "mse", with_paper=protocol == "paper")
         lines += ["", "### MAE", ""] + _grid(data, protocol, "mae", False)
         lines += ["", "### Mode accuracy", ""] + _grid(data, protocol, "mode_accuracy", False) + [""]

@@ -43,8 +43,14 @@ from cnep.pipeline.contract import output_folder, raise_if_skipped, refuse_exist
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.progress import progress_bar
 from cnep.pipeline.workers import cpu_cores, inference_threads, thread_environment
-from cnep.recordings import (DemonstrationReader, RecordingError, Trajectory, TrajectoryReader, read_demonstration,
-                        write_trajectory)
+from cnep.recordings import (
+    DemonstrationReader,
+    RecordingError,
+    Trajectory,
+    TrajectoryReader,
+    read_demonstration,
+    write_trajectory,
+)
 from cnep.recordings.constants import TOPIC_IMAGE
 
 log = logging.getLogger(__name__)
@@ -120,8 +126,11 @@ def extract(config: ExtractConfig) -> list[Extracted]:
 
     def extractor() -> FeatureExtractor:
         if not built:
-            sources = ([src for given in config.calibrate_on for src in demonstration_files(given)]
-                       if config.calibrate_on else [src for src, _ in all_pairs])
+            sources = (
+                [src for given in config.calibrate_on for src in demonstration_files(given)]
+                if config.calibrate_on
+                else [src for src, _ in all_pairs]
+            )
             built.append(build_extractor(config, sources))
         return built[0]
 
@@ -138,12 +147,19 @@ def extract(config: ExtractConfig) -> list[Extracted]:
         for _, dst in pairs:  # nested input folders keep their sub-folders under --out
             dst.parent.mkdir(parents=True, exist_ok=True)
         current = {dst: None if config.force else up_to_date_steps(src, dst, extractor) for src, dst in pairs}
-        refuse_existing([dst for src, dst in pairs if current[dst] is None and _newer_than(dst, src)], config.force,
-                        "output", " and is not this input's trajectory file from these weights")
+        refuse_existing(
+            [dst for src, dst in pairs if current[dst] is None and _newer_than(dst, src)],
+            config.force,
+            "output",
+            " and is not this input's trajectory file from these weights",
+        )
         if config.save_weights is not None and rank == 0:
             extractor().save_weights(config.save_weights)
-            log.info("saved the extractor weights to %s (reuse them with --weights %s)", config.save_weights,
-                     config.save_weights)
+            log.info(
+                "saved the extractor weights to %s (reuse them with --weights %s)",
+                config.save_weights,
+                config.save_weights,
+            )
         todo = []
         for i, (src, dst) in enumerate(pairs):
             if current[dst] is None:
@@ -151,12 +167,15 @@ def extract(config: ExtractConfig) -> list[Extracted]:
             else:
                 log.info("%s is up to date, skipped", dst)
                 done[i] = Extracted(src, dst, current[dst], skipped=True)
-        with logging_redirect_tqdm(), progress_bar(total=0, unit="frame", desc="extract", quiet=config.quiet,
-                                                   open_ended=True) as bar:
+        with (
+            logging_redirect_tqdm(),
+            progress_bar(total=0, unit="frame", desc="extract", quiet=config.quiet, open_ended=True) as bar,
+        ):
             workers = auto_workers([pairs[i][0] for i in todo]) if config.workers == "auto" else config.workers
             if workers > 1 and len(todo) > 1:
-                done.update(extract_in_processes([pairs[i] for i in todo], todo, extractor, config, workers, bar,
-                                                 failed))
+                done.update(
+                    extract_in_processes([pairs[i] for i in todo], todo, extractor, config, workers, bar, failed)
+                )
             else:
                 for i in todo:
                     try:
@@ -186,14 +205,21 @@ def auto_workers(sources: Sequence[Path]) -> int:
         with DemonstrationReader(src) as reader:
             frames += reader.n_steps if reader.has_frames else 0
     workers = max(1, min(cpu_cores(), len(sources), frames // WORKER_MIN_FRAMES))
-    log.info("--workers auto: %d worker(s) for %d file(s), %d frames on %d cores", workers, len(sources), frames,
-             cpu_cores())
+    log.info(
+        "--workers auto: %d worker(s) for %d file(s), %d frames on %d cores", workers, len(sources), frames, cpu_cores()
+    )
     return workers
 
 
-def extract_in_processes(pairs: Sequence[tuple[Path, Path]], keys: Sequence[int],
-                         extractor: Callable[[], FeatureExtractor], config: ExtractConfig, workers: int,
-                         bar: tqdm, failed: Callable[[Path, Exception], None]) -> dict[int, Extracted]:
+def extract_in_processes(
+    pairs: Sequence[tuple[Path, Path]],
+    keys: Sequence[int],
+    extractor: Callable[[], FeatureExtractor],
+    config: ExtractConfig,
+    workers: int,
+    bar: tqdm,
+    failed: Callable[[Path, Exception], None],
+) -> dict[int, Extracted]:
     """Extract `pairs` in `workers` spawned processes sharing the cores; returns {key: Extracted}.
 
     Every worker receives this process's extractor (calibrated once, here), so all files share one
@@ -205,9 +231,12 @@ def extract_in_processes(pairs: Sequence[tuple[Path, Path]], keys: Sequence[int]
     with_frames = any(read_demonstration(src).frames is not None for src, _ in pairs)
     shared = extractor() if with_frames else None  # motion-only inputs need no network
     done = {}
-    with thread_environment(threads), ProcessPoolExecutor(workers, mp_context=get_context("spawn"),
-                                                          initializer=_set_worker_extractor,
-                                                          initargs=(shared, threads)) as pool:
+    with (
+        thread_environment(threads),
+        ProcessPoolExecutor(
+            workers, mp_context=get_context("spawn"), initializer=_set_worker_extractor, initargs=(shared, threads)
+        ) as pool,
+    ):
         futures = {pool.submit(_extract_in_worker, src, dst): (key, src) for key, (src, dst) in zip(keys, pairs)}
         for future in as_completed(futures):
             key, src = futures[future]
@@ -239,8 +268,14 @@ def build_extractor(config: ExtractConfig, sources: Sequence[Path]) -> FeatureEx
     """The configured extractor; random weights are calibrated, and int8 quantised, on frames sampled from `sources`."""
     if config.offline and config.weights == "imagenet":
         find_imagenet_weights(download=False)  # refuses here, naming the cache and the alternatives
-    extractor = FeatureExtractor(config.weights, backend=config.backend, threads=inference_threads(config.threads),
-                                 batch_size=config.batch_size, seed=config.seed, precision=config.precision)
+    extractor = FeatureExtractor(
+        config.weights,
+        backend=config.backend,
+        threads=inference_threads(config.threads),
+        batch_size=config.batch_size,
+        seed=config.seed,
+        precision=config.precision,
+    )
     frames = None
     if extractor.needs_calibration:
         frames = calibration_frames(sources, CALIBRATION_FRAMES)
@@ -270,8 +305,9 @@ def extract_file(src: Path, dst: Path, extractor: Callable[[], FeatureExtractor]
     return Extracted(src, dst, demo.n_steps, skipped=False)
 
 
-def features_of_frames(frames: Sequence[bytes], extractor: FeatureExtractor, src: Path,
-                       bar: tqdm | None = None) -> np.ndarray:
+def features_of_frames(
+    frames: Sequence[bytes], extractor: FeatureExtractor, src: Path, bar: tqdm | None = None
+) -> np.ndarray:
     """Features of JPEG frames: (T, 1280) float32. Decoding of the next batch overlaps inference of this one."""
     out = np.empty((len(frames), FEATURE_DIM), dtype=np.float32)  # (T, 1280)
     starts = range(0, len(frames), extractor.batch_size)
@@ -281,7 +317,7 @@ def features_of_frames(frames: Sequence[bytes], extractor: FeatureExtractor, src
             pixels = pending.result()  # (B, 224, 224, 3) uint8
             if start + extractor.batch_size < len(frames):
                 pending = pool.submit(decode_batch, frames, start + extractor.batch_size, extractor.batch_size, src)
-            out[start:start + len(pixels)] = extractor.features(pixels)
+            out[start : start + len(pixels)] = extractor.features(pixels)
             if bar is not None:
                 bar.update(len(pixels))
     return out
@@ -294,8 +330,10 @@ def decode_batch(frames: Sequence[bytes], start: int, size: int, src: Path) -> n
         try:
             decoded.append(resize_frames(decode_image(frames[step])[None])[0])  # (224, 224, 3)
         except PerceptionError as exc:
-            raise PerceptionError(f"{src}: step {step} on {TOPIC_IMAGE}: {exc}; the frame is corrupt: re-ingest "
-                                  f"the recording from its source") from None
+            raise PerceptionError(
+                f"{src}: step {step} on {TOPIC_IMAGE}: {exc}; the frame is corrupt: re-ingest "
+                f"the recording from its source"
+            ) from None
     return np.stack(decoded)
 
 
@@ -310,8 +348,10 @@ def calibration_frames(sources: Sequence[Path], count: int) -> np.ndarray:
         if demo.frames is not None:
             with_frames.append((src, demo.frames))
     if not with_frames:
-        raise PipelineError("random weights are calibrated on the recordings' frames, but no input has frames; "
-                            "give demonstrations with a camera topic, or use --weights imagenet or a weights file")
+        raise PipelineError(
+            "random weights are calibrated on the recordings' frames, but no input has frames; "
+            "give demonstrations with a camera topic, or use --weights imagenet or a weights file"
+        )
     per_file = math.ceil(count / len(with_frames))
     frames = []
     for src, jpegs in with_frames:
@@ -345,24 +385,29 @@ def plan_outputs(inputs: Sequence[Path], out: Path) -> list[tuple[Path, Path]]:
         if dst.resolve() == src.resolve():
             raise PipelineError(f"{src}: the output would overwrite this input; choose another --out folder")
         if dst.resolve() in sources:
-            raise PipelineError(f"{sources[dst.resolve()]} and {src} would both be written to {dst}; extract them "
-                                f"into different --out folders")
+            raise PipelineError(
+                f"{sources[dst.resolve()]} and {src} would both be written to {dst}; extract them "
+                f"into different --out folders"
+            )
         sources[dst.resolve()] = src
     inputs_resolved = {src.resolve() for src, _ in pairs}
     for dst in sources:
         if dst in inputs_resolved:
-            raise PipelineError(f"{dst} is an input and would be overwritten by another input's output; choose "
-                                f"another --out folder")
+            raise PipelineError(
+                f"{dst} is an input and would be overwritten by another input's output; choose another --out folder"
+            )
     return pairs
 
 
 def demonstration_files(given: Path) -> list[Path]:
-    """`given` if it is a file, else the `*.mcap` files under folder `given` (recursively, sorted); PipelineError if none."""
+    """`given` if it is a file, else the `*.mcap` files under folder `given` (recursively, sorted); PipelineError if
+    none."""
     if given.is_dir():
         found = sorted(p for p in given.rglob(f"*{SUFFIX}") if p.is_file())
         if not found:
-            raise PipelineError(f"{given}: no {SUFFIX} files in this folder; give demonstration files made by "
-                                f"`cnep ingest`")
+            raise PipelineError(
+                f"{given}: no {SUFFIX} files in this folder; give demonstration files made by `cnep ingest`"
+            )
         return found
     if given.is_file():
         return [given]
@@ -390,21 +435,25 @@ def check_identities(identities: Mapping[Path, Mapping[str, str]]) -> dict[str, 
     if len(groups) <= 1:
         return dict(next(iter(identities.values()), {}))
     ordered = sorted(groups.values(), key=len, reverse=True)  # the largest group is the reference
-    described = "; ".join(f"{len(files)} file(s) {_describe(identities[files[0]])}: {_names(files)}"
-                          for files in ordered)
-    raise PipelineError(f"trajectory files come from different feature extractors and cannot be mixed: {described}; "
-                        f"re-extract the odd files with the same --weights (one `cnep extract` run for random "
-                        f"weights, or --weights with the file saved by --save-weights)")
+    described = "; ".join(
+        f"{len(files)} file(s) {_describe(identities[files[0]])}: {_names(files)}" for files in ordered
+    )
+    raise PipelineError(
+        f"trajectory files come from different feature extractors and cannot be mixed: {described}; "
+        f"re-extract the odd files with the same --weights (one `cnep extract` run for random "
+        f"weights, or --weights with the file saved by --save-weights)"
+    )
 
 
 def _describe(identity: Mapping[str, str]) -> str:
     if not identity:
         return "without features (motion-only)"
-    return (f"with weights {identity.get('weights', '?')} (sha256 {identity.get('weights_sha256', '?')[:12]}), "
-            f"{identity.get('architecture', '?')}")
+    return (
+        f"with weights {identity.get('weights', '?')} (sha256 {identity.get('weights_sha256', '?')[:12]}), "
+        f"{identity.get('architecture', '?')}"
+    )
 
 
 def _names(files: Sequence[Path], shown: int = 5) -> str:
     names = ", ".join(str(f) for f in files[:shown])
     return names + (f" and {len(files) - shown} more" if len(files) > shown else "")
-

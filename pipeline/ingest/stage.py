@@ -94,8 +94,10 @@ def discover(src: Path, fmt: str = "auto", lerobot: LerobotMapping = LerobotMapp
     if src.is_file():
         kind = FILE_KINDS.get(src.suffix.lower())
         if kind is None:
-            raise RecordingError(f"{src}: cannot ingest a {src.suffix or 'suffix-less'} file; give a CSV, an MCAP, a ROS "
-                                 f".bag or a folder")
+            raise RecordingError(
+                f"{src}: cannot ingest a {src.suffix or 'suffix-less'} file; give a CSV, an MCAP, a ROS "
+                f".bag or a folder"
+            )
         return [Source(kind, src, src.stem)]
     found: list[Source] = []
     whole: list[Path] = []  # ROS 2 bags and LeRobot datasets: the files inside are not sources of their own
@@ -120,8 +122,10 @@ def discover(src: Path, fmt: str = "auto", lerobot: LerobotMapping = LerobotMapp
             if kind:
                 found.append(Source(kind, f, _episode_id(src, f, strip_suffix=True)))
     if not found:
-        raise RecordingError(f"{src}: no recordings found (looked for CSV, MCAP and ROS bag files, ROS 2 bag folders, and "
-                             f"folders with a video or images)")
+        raise RecordingError(
+            f"{src}: no recordings found (looked for CSV, MCAP and ROS bag files, ROS 2 bag folders, and "
+            f"folders with a video or images)"
+        )
     return found
 
 

@@ -23,8 +23,16 @@ WORLD = "/world"
 
 # Expert colours (RGB), cycled when there are more experts than colours.
 PALETTE = (
-    (31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),
-    (140, 86, 75), (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207),
+    (31, 119, 180),
+    (255, 127, 14),
+    (44, 160, 44),
+    (214, 39, 40),
+    (148, 103, 189),
+    (140, 86, 75),
+    (227, 119, 194),
+    (127, 127, 127),
+    (188, 189, 34),
+    (23, 190, 207),
 )
 PATH_COLOR = (200, 200, 200)
 GATE_AXIS = (-0.05, 1.05)  # the gate plot's y range: probabilities of exactly 0 and 1 stay clear of the border
@@ -58,17 +66,26 @@ def blueprint(n_experts: int, camera: bool = True):
     series = rr.SeriesLines(names=expert_names(n_experts), colors=expert_colors(n_experts))
     scene = [rrb.Spatial2DView(origin=CAMERA, name="camera")] if camera else []
     log_columns = rrb.TextLogColumns(  # the text says the step and the time itself: no narrow, cut time column
-        timeline_columns=[rrb.components.TimelineColumn(TIMELINE_TIME, visible=False),
-                          rrb.components.TimelineColumn(TIMELINE_FRAME, visible=False)],
-        text_log_columns=[rrb.components.TextLogColumn("Body"),
-                          rrb.components.TextLogColumn("EntityPath", visible=False),
-                          rrb.components.TextLogColumn("LogLevel", visible=False)])
+        timeline_columns=[
+            rrb.components.TimelineColumn(TIMELINE_TIME, visible=False),
+            rrb.components.TimelineColumn(TIMELINE_FRAME, visible=False),
+        ],
+        text_log_columns=[
+            rrb.components.TextLogColumn("Body"),
+            rrb.components.TextLogColumn("EntityPath", visible=False),
+            rrb.components.TextLogColumn("LogLevel", visible=False),
+        ],
+    )
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Vertical(*scene, rrb.Spatial3DView(origin=WORLD, name="end effector and prediction")),
             rrb.Vertical(
-                rrb.TimeSeriesView(origin=GATES, name=f"gate probabilities ({n_experts} experts)", defaults=[series],
-                                   axis_y=rrb.ScalarAxis(range=GATE_AXIS)),
+                rrb.TimeSeriesView(
+                    origin=GATES,
+                    name=f"gate probabilities ({n_experts} experts)",
+                    defaults=[series],
+                    axis_y=rrb.ScalarAxis(range=GATE_AXIS),
+                ),
                 rrb.StateTimelineView(origin=ACTIVE_EXPERT, name="active expert"),
                 rrb.TextLogView(origin=SWITCH_LOG, name="expert switches", columns=log_columns),
                 row_shares=[3, 1, 2],

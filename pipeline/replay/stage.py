@@ -39,9 +39,16 @@ from urllib.parse import urlparse
 
 import numpy as np
 
-from cnep.models import CNEP, ConditioningPolicy, ExpertSwitch, OnlineConditioner, load_checkpoint, read_checkpoint_config
-from cnep.models.checkpoint import CONFIG_FILE, atomic_write
 import cnep.pipeline.replay.layout as L
+from cnep.models import (
+    CNEP,
+    ConditioningPolicy,
+    ExpertSwitch,
+    OnlineConditioner,
+    load_checkpoint,
+    read_checkpoint_config,
+)
+from cnep.models.checkpoint import CONFIG_FILE, atomic_write
 from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_existing
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.extract.stage import check_identities
@@ -66,18 +73,23 @@ class RowMapping:
     blocks: dict[str, tuple[int, int]]
 
     @classmethod
-    def from_checkpoint(cls, checkpoint: Path, model: CNEP) -> "RowMapping":
+    def from_checkpoint(cls, checkpoint: Path, model: CNEP) -> RowMapping:
         layout = read_checkpoint_config(checkpoint).get("layout")
         width = model.config.layout.width
         if isinstance(layout, dict) and "columns" in layout:
-            mapping = cls(int(layout["recording_width"]), tuple((int(a), int(b)) for a, b in layout["columns"]),
-                          {k: (int(a), int(b)) for k, (a, b) in layout.get("blocks", {}).items()})
+            mapping = cls(
+                int(layout["recording_width"]),
+                tuple((int(a), int(b)) for a, b in layout["columns"]),
+                {k: (int(a), int(b)) for k, (a, b) in layout.get("blocks", {}).items()},
+            )
         else:
             mapping = cls(width, ((0, width),), dict(LAYOUTS.get(width, {})))
         if sum(b - a for a, b in mapping.columns) != width:
-            raise PipelineError(f"{checkpoint}: the layout's columns {mapping.columns} give "
-                                f"{sum(b - a for a, b in mapping.columns)} model columns but the model takes {width}; "
-                                f"the checkpoint is inconsistent, retrain it with `cnep train`")
+            raise PipelineError(
+                f"{checkpoint}: the layout's columns {mapping.columns} give "
+                f"{sum(b - a for a, b in mapping.columns)} model columns but the model takes {width}; "
+                f"the checkpoint is inconsistent, retrain it with `cnep train`"
+            )
         return mapping
 
     def select(self, traj: Trajectory, path: Path, checkpoint: Path) -> np.ndarray:
@@ -92,11 +104,13 @@ class RowMapping:
         else:
             missing = [name for name in self.blocks if name not in traj.layout]
             if missing or not self.blocks:
-                raise PipelineError(f"{path}: the recording has {traj.width} columns per step "
-                                    f"({', '.join(traj.layout)}) but the checkpoint {checkpoint} was trained on "
-                                    f"{self.recording_width}-column trajectories and needs "
-                                    f"{', '.join(missing or ['its training layout'])}; replay trajectory files made "
-                                    f"like its training data (check widths with `cnep inspect`)")
+                raise PipelineError(
+                    f"{path}: the recording has {traj.width} columns per step "
+                    f"({', '.join(traj.layout)}) but the checkpoint {checkpoint} was trained on "
+                    f"{self.recording_width}-column trajectories and needs "
+                    f"{', '.join(missing or ['its training layout'])}; replay trajectory files made "
+                    f"like its training data (check widths with `cnep inspect`)"
+                )
             spans = tuple(traj.layout[name] for name in sorted(self.blocks, key=lambda n: self.blocks[n][0]))
         return np.concatenate([traj.data[:, a:b] for a, b in spans], axis=1).astype(np.float32)
 
@@ -133,8 +147,14 @@ class Decisions:
         return np.bincount(self.experts, minlength=self.gates.shape[1]) / len(self.experts)
 
 
-def decide(model: CNEP, rows: np.ndarray, timestamps_ns: np.ndarray, policy: ConditioningPolicy,
-           xyz: list[int] | None = None, prediction_points: int = DEFAULT_PREDICTION_POINTS) -> Decisions:
+def decide(
+    model: CNEP,
+    rows: np.ndarray,
+    timestamps_ns: np.ndarray,
+    policy: ConditioningPolicy,
+    xyz: list[int] | None = None,
+    prediction_points: int = DEFAULT_PREDICTION_POINTS,
+) -> Decisions:
     """Step an online conditioner through `rows` (T, model width) at `timestamps_ns` (T,)."""
     T, d = len(rows), model.n_experts
     online = OnlineConditioner(model, horizon=T, policy=policy)
@@ -207,8 +227,10 @@ def replay(
         raise PipelineError(f"{out}: the replay output must be a .rrd file")
     names = [p.name for p in paths]
     if events_dir is not None and len(set(names)) < len(names):
-        raise PipelineError(f"{events_dir}: several recordings are named alike ({', '.join(sorted(names))}) and their "
-                            f"copies with events would overwrite each other; replay them in separate runs")
+        raise PipelineError(
+            f"{events_dir}: several recordings are named alike ({', '.join(sorted(names))}) and their "
+            f"copies with events would overwrite each other; replay them in separate runs"
+        )
     files = rrd_files(out, paths, merge)
     outputs = [*files, decisions_path(out), *(Path(events_dir) / name for name in names if events_dir is not None)]
     refuse_existing(outputs, force, "replay output")
@@ -220,12 +242,15 @@ def replay(
         check_extractor(checkpoint, trajectories, paths)
     for traj, p in zip(trajectories, paths):
         if traj.n_steps < 2:
-            raise PipelineError(f"{p}: {traj.n_steps} step(s); replay needs at least 2 (time runs from the first to the last)")
+            raise PipelineError(
+                f"{p}: {traj.n_steps} step(s); replay needs at least 2 (time runs from the first to the last)"
+            )
     xyz = mapping.predicted_xyz(model)
     live = connect if connect and viewer_reachable(connect) else None
     if connect and live is None:
-        log.warning("no Rerun viewer answers at %s; writing %s only (open it with `rerun %s`)", connect, files[0],
-                    files[0])
+        log.warning(
+            "no Rerun viewer answers at %s; writing %s only (open it with `rerun %s`)", connect, files[0], files[0]
+        )
     elif live:
         log.info("streaming live to %s", live)
     run_id = uuid.uuid4().hex[:8]  # a new replay is a new recording in a viewer, not more rows in an old one
@@ -255,14 +280,25 @@ def replay(
             merge_rrd(parts, done[0])
         for i, summary in enumerate(summaries):
             summary["rrd"] = files[min(i, len(files) - 1)].name
-        record = {"checkpoint": str(checkpoint), "rrd": [file.name for file in files], "n_experts": model.n_experts,
-                  "policy": {"window": policy.window, "anchors": policy.anchors}, "recordings": summaries}
+        record = {
+            "checkpoint": str(checkpoint),
+            "rrd": [file.name for file in files],
+            "n_experts": model.n_experts,
+            "policy": {"window": policy.window, "anchors": policy.anchors},
+            "recordings": summaries,
+        }
         atomic_write(decisions_path(out), json.dumps(record, indent=1).encode())
         for part, file in zip(done, files):
             os.replace(part, file)
     for s in summaries:
-        log.debug("%s: expert %d on %.0f%% of %d steps, %d switch(es)", s["recording"], s["majority_expert"],
-                 100 * max(s["share"]), s["n_steps"], len(s["switches"]))
+        log.debug(
+            "%s: expert %d on %.0f%% of %d steps, %d switch(es)",
+            s["recording"],
+            s["majority_expert"],
+            100 * max(s["share"]),
+            s["n_steps"],
+            len(s["switches"]),
+        )
     return files
 
 
@@ -271,8 +307,10 @@ def rrd_files(out: Path, paths: list[Path], merge: bool) -> list[Path]:
     `<out stem>-NN-<folder>-<file stem>.rrd` in the order given (a file holding one recording opens on it)."""
     if merge or len(paths) == 1:
         return [out]
-    return [out.with_name(f"{out.stem}-{i + 1:02d}-{path.parent.name}-{path.stem}.rrd".replace(" ", "_"))
-            for i, path in enumerate(paths)]
+    return [
+        out.with_name(f"{out.stem}-{i + 1:02d}-{path.parent.name}-{path.stem}.rrd".replace(" ", "_"))
+        for i, path in enumerate(paths)
+    ]
 
 
 def check_extractor(checkpoint: Path, trajectories: list[Trajectory], paths: list[Path]) -> None:
@@ -284,9 +322,11 @@ def check_extractor(checkpoint: Path, trajectories: list[Trajectory], paths: lis
     config_file = checkpoint / CONFIG_FILE
     trained = read_checkpoint_config(checkpoint).get("extractor") or {}
     if not trained:
-        raise PipelineError(f"{config_file}: the model sees image features but the checkpoint names no feature "
-                            f"extractor, so the recordings' features cannot be checked against its training data; "
-                            f"train it with `cnep train` (which records the extractor)")
+        raise PipelineError(
+            f"{config_file}: the model sees image features but the checkpoint names no feature "
+            f"extractor, so the recordings' features cannot be checked against its training data; "
+            f"train it with `cnep train` (which records the extractor)"
+        )
     for traj, path in zip(trajectories, paths):
         check_identities({config_file: trained, path: traj.extractor or {}})
 
@@ -317,8 +357,16 @@ def summarise(path: Path, traj: Trajectory, decisions: Decisions) -> dict:
         "share": [round(float(s), 6) for s in share],
         "experts": decisions.experts.tolist(),
         "gates": np.round(decisions.gates, 6).tolist(),
-        "switches": [{"step": s.step, "timestamp_ns": s.timestamp_ns, "from": s.from_expert, "to": s.to_expert,
-                      "gate": np.round(s.gate, 6).tolist()} for s in decisions.switches],
+        "switches": [
+            {
+                "step": s.step,
+                "timestamp_ns": s.timestamp_ns,
+                "from": s.from_expert,
+                "to": s.to_expert,
+                "gate": np.round(s.gate, 6).tolist(),
+            }
+            for s in decisions.switches
+        ],
     }
 
 
@@ -329,17 +377,23 @@ def decision_events(traj: Trajectory, decisions: Decisions) -> list[Event]:
     ends = starts[1:] + [len(ts) - 1]
     events = []
     for i, (a, b) in enumerate(zip(starts, ends)):
-        meta = {"kind": "active_expert", "expert": str(decisions.experts[a]), "step": str(a),
-                "previous": str(decisions.experts[a - 1]) if i else "",
-                "gate": ",".join(f"{p:.4f}" for p in decisions.gates[a])}
+        meta = {
+            "kind": "active_expert",
+            "expert": str(decisions.experts[a]),
+            "step": str(a),
+            "previous": str(decisions.experts[a - 1]) if i else "",
+            "gate": ",".join(f"{p:.4f}" for p in decisions.gates[a]),
+        }
         events.append(Event(int(ts[a]), meta, duration_ns=int(ts[b] - ts[a])))
     return events
 
 
 def switch_text(switch: ExpertSwitch, start_ns: int) -> str:
     gate = ", ".join(f"{p:.2f}" for p in switch.gate)
-    return (f"step {switch.step} ({(switch.timestamp_ns - start_ns) / 1e9:.2f} s): "
-            f"{L.expert_name(switch.from_expert)} -> {L.expert_name(switch.to_expert)} (p = {gate})")
+    return (
+        f"step {switch.step} ({(switch.timestamp_ns - start_ns) / 1e9:.2f} s): "
+        f"{L.expert_name(switch.from_expert)} -> {L.expert_name(switch.to_expert)} (p = {gate})"
+    )
 
 
 def recording_id(index: int, traj: Trajectory, run_id: str) -> str:
@@ -353,8 +407,9 @@ def recording_name(index: int, source: Path) -> str:
     return f"{source.stem} ({source.parent.name or '.'}) #{index + 1}"
 
 
-def write_recording(path: Path, recording_id: str, name: str, traj: Trajectory, decisions: Decisions,
-                    live: str | None) -> None:
+def write_recording(
+    path: Path, recording_id: str, name: str, traj: Trajectory, decisions: Decisions, live: str | None
+) -> None:
     """One Rerun recording (file sink, plus the live viewer if any) of one replayed trajectory."""
     import rerun as rr
 
@@ -371,8 +426,11 @@ def write_recording(path: Path, recording_id: str, name: str, traj: Trajectory, 
     log_switches(rec, traj, decisions)
     if decisions.predictions is not None:
         colors = [L.expert_colors(d)[e] for e in decisions.experts]  # the active expert's colour at each step
-        rec.send_columns(L.PREDICTION, indexes=index,
-                         columns=rr.LineStrips3D.columns(strips=list(decisions.predictions), colors=colors))
+        rec.send_columns(
+            L.PREDICTION,
+            indexes=index,
+            columns=rr.LineStrips3D.columns(strips=list(decisions.predictions), colors=colors),
+        )
     rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
     rec.disconnect()
 
@@ -383,8 +441,11 @@ def log_camera(rec, index, traj: Trajectory) -> None:
 
     if traj.frames is None:
         return
-    rec.send_columns(L.CAMERA, indexes=index,
-                     columns=rr.EncodedImage.columns(blob=traj.frames, media_type=["image/jpeg"] * len(traj.frames)))
+    rec.send_columns(
+        L.CAMERA,
+        indexes=index,
+        columns=rr.EncodedImage.columns(blob=traj.frames, media_type=["image/jpeg"] * len(traj.frames)),
+    )
 
 
 def log_pose(rec, index, traj: Trajectory) -> None:
@@ -393,7 +454,9 @@ def log_pose(rec, index, traj: Trajectory) -> None:
 
     pose = traj.pose  # (T, 7)
     rec.log(L.EE, rr.TransformAxes3D(axis_length=0.05), static=True)
-    rec.send_columns(L.EE, indexes=index, columns=rr.Transform3D.columns(translation=pose[:, :3], quaternion=pose[:, 3:]))
+    rec.send_columns(
+        L.EE, indexes=index, columns=rr.Transform3D.columns(translation=pose[:, :3], quaternion=pose[:, 3:])
+    )
     rec.log(L.EE_PATH, rr.LineStrips3D([pose[:, :3]], colors=[L.PATH_COLOR]), static=True)
 
 
@@ -432,8 +495,11 @@ def log_switches(rec, traj: Trajectory, decisions: Decisions) -> None:
         return
     start = int(traj.timestamps_ns[0])
     texts = [switch_text(s, start) for s in decisions.switches]
-    rec.send_columns(L.SWITCH_LOG, indexes=change_index(traj, [s.step for s in decisions.switches]),
-                     columns=rr.TextLog.columns(text=texts, level=["INFO"] * len(texts)))
+    rec.send_columns(
+        L.SWITCH_LOG,
+        indexes=change_index(traj, [s.step for s in decisions.switches]),
+        columns=rr.TextLog.columns(text=texts, level=["INFO"] * len(texts)),
+    )
 
 
 def merge_rrd(parts: list[Path], dst: Path) -> None:

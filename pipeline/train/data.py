@@ -31,8 +31,12 @@ class TrainingFile:
 
     def describe(self) -> dict:
         """JSON-able entry for config.json (the data itself is left out)."""
-        return {"path": str(self.path.resolve()), "sha256": self.sha256, "episode_id": self.episode_id,
-                "n_steps": self.n_steps}
+        return {
+            "path": str(self.path.resolve()),
+            "sha256": self.sha256,
+            "episode_id": self.episode_id,
+            "n_steps": self.n_steps,
+        }
 
 
 @dataclass(frozen=True)
@@ -51,8 +55,9 @@ def find_trajectory_files(inputs: Sequence[Path]) -> list[Path]:
         if given.is_dir():
             inside = sorted(p for p in given.rglob(f"*{SUFFIX}") if p.is_file())
             if not inside:
-                raise PipelineError(f"{given}: no {SUFFIX} files in this folder; give trajectory files made by "
-                                    f"`cnep extract`")
+                raise PipelineError(
+                    f"{given}: no {SUFFIX} files in this folder; give trajectory files made by `cnep extract`"
+                )
             found += inside
         elif given.is_file():
             found.append(given)
@@ -61,8 +66,10 @@ def find_trajectory_files(inputs: Sequence[Path]) -> list[Path]:
     seen: set[Path] = set()
     unique = [p for p in found if not (p.resolve() in seen or seen.add(p.resolve()))]
     if len(unique) < 2:
-        raise PipelineError(f"training needs at least 2 trajectory files (one is held out for validation), got "
-                            f"{len(unique)} from {', '.join(map(str, inputs))}")
+        raise PipelineError(
+            f"training needs at least 2 trajectory files (one is held out for validation), got "
+            f"{len(unique)} from {', '.join(map(str, inputs))}"
+        )
     return unique
 
 
@@ -75,10 +82,14 @@ def load_training_set(paths: Sequence[Path]) -> TrainingSet:
         extractors[path] = trajectory.extractor or {}
         widths.setdefault(trajectory.width, []).append(path)
     if len(widths) > 1:
-        described = "; ".join(f"{len(files_)} file(s) {width} columns wide: {_names(files_)}"
-                              for width, files_ in sorted(widths.items(), key=lambda item: -len(item[1])))
-        raise PipelineError(f"trajectory files have different column layouts and cannot be trained together: "
-                            f"{described}; train on files of one kind (with features, or motion-only)")
+        described = "; ".join(
+            f"{len(files_)} file(s) {width} columns wide: {_names(files_)}"
+            for width, files_ in sorted(widths.items(), key=lambda item: -len(item[1]))
+        )
+        raise PipelineError(
+            f"trajectory files have different column layouts and cannot be trained together: "
+            f"{described}; train on files of one kind (with features, or motion-only)"
+        )
     extractor = check_identities(extractors)
     return TrainingSet(files=tuple(files), width=next(iter(widths)), extractor=extractor)
 
@@ -93,5 +104,10 @@ def file_sha256(path: Path) -> str:
 
 
 def _training_file(path: Path, trajectory: Trajectory) -> TrainingFile:
-    return TrainingFile(path=Path(path), sha256=file_sha256(path), episode_id=trajectory.episode.episode_id,
-                        n_steps=trajectory.n_steps, data=trajectory.data)
+    return TrainingFile(
+        path=Path(path),
+        sha256=file_sha256(path),
+        episode_id=trajectory.episode.episode_id,
+        n_steps=trajectory.n_steps,
+        data=trajectory.data,
+    )

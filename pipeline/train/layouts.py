@@ -46,8 +46,9 @@ class Preset:
 
 
 PRESETS: Mapping[str, Preset] = {
-    WINE_GLASS: Preset(observed=(BLOCK_FEATURES, *MOTION_BLOCKS), query=(BLOCK_FEATURES,), predicted=MOTION_BLOCKS,
-                       kept=EVERY_BLOCK),
+    WINE_GLASS: Preset(
+        observed=(BLOCK_FEATURES, *MOTION_BLOCKS), query=(BLOCK_FEATURES,), predicted=MOTION_BLOCKS, kept=EVERY_BLOCK
+    ),
     SCENE: Preset(observed=(BLOCK_FEATURES, *MOTION_BLOCKS), query=(), predicted=MOTION_BLOCKS, kept=EVERY_BLOCK),
     MOTION: Preset(observed=MOTION_BLOCKS, query=(), predicted=MOTION_BLOCKS, kept=MOTION_BLOCKS),
     ALL: Preset(observed=EVERY_BLOCK, query=(), predicted=EVERY_BLOCK, kept=EVERY_BLOCK),
@@ -96,9 +97,11 @@ def resolve_layout(name: str, width: int, example: Path) -> TrainingLayout:
     needed = {*(preset.observed or ()), *preset.query, *(preset.predicted or ()), *(preset.kept or ())}
     missing = sorted(needed - set(file_blocks))
     if missing:
-        raise PipelineError(f"{example}: layout {name!r} needs the block(s) {', '.join(missing)} but these "
-                            f"trajectory files are {width} columns wide ({', '.join(file_blocks)}); use --layout "
-                            f"{MOTION} for motion-only files, or extract trajectories from demonstrations with frames")
+        raise PipelineError(
+            f"{example}: layout {name!r} needs the block(s) {', '.join(missing)} but these "
+            f"trajectory files are {width} columns wide ({', '.join(file_blocks)}); use --layout "
+            f"{MOTION} for motion-only files, or extract trajectories from demonstrations with frames"
+        )
     kept = [b for b in file_blocks if preset.kept is EVERY_BLOCK or b in preset.kept]  # file order
     blocks, start = {}, 0
     for block in kept:
@@ -107,10 +110,22 @@ def resolve_layout(name: str, width: int, example: Path) -> TrainingLayout:
         start += b - a
     observed = tuple(kept if preset.observed is EVERY_BLOCK else preset.observed)
     predicted = tuple(kept if preset.predicted is EVERY_BLOCK else preset.predicted)
-    model = Layout(width=start, observed=_spans(blocks, observed), query=_spans(blocks, preset.query),
-                   predicted=_spans(blocks, predicted))
-    return TrainingLayout(name=name, recording_width=width, columns=_spans(file_blocks, kept), blocks=blocks,
-                          observed=observed, query=preset.query, predicted=predicted, model=model)
+    model = Layout(
+        width=start,
+        observed=_spans(blocks, observed),
+        query=_spans(blocks, preset.query),
+        predicted=_spans(blocks, predicted),
+    )
+    return TrainingLayout(
+        name=name,
+        recording_width=width,
+        columns=_spans(file_blocks, kept),
+        blocks=blocks,
+        observed=observed,
+        query=preset.query,
+        predicted=predicted,
+        model=model,
+    )
 
 
 def _spans(blocks: Mapping[str, tuple[int, int]], names: Sequence[str]) -> tuple[tuple[int, int], ...]:

@@ -123,11 +123,11 @@ class PlacedModel:
     def __call__(self, obs: torch.Tensor, obs_mask: torch.Tensor, query: torch.Tensor):
         return self.net(obs, obs_mask, query)
 
-    def train(self, mode: bool = True) -> "PlacedModel":
+    def train(self, mode: bool = True) -> PlacedModel:
         self.net.train(mode)
         return self
 
-    def eval(self) -> "PlacedModel":
+    def eval(self) -> PlacedModel:
         return self.train(False)
 
     def __getattr__(self, name: str) -> Any:  # only called for names this wrapper lacks

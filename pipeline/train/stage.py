@@ -29,15 +29,29 @@ from tqdm import tqdm
 from cnep.models import CNEPConfig, TrainConfig, Trainer, build_model, save_checkpoint
 from cnep.models.matched import matched_cnmp
 from cnep.models.sampler import TrajectoryStack
-from cnep.pipeline import progress
 from cnep.models.train import split_validation
+from cnep.pipeline import progress
 from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.train.constants import (
+    DEFAULT_DEVICE,
+    DEFAULT_PATIENCE,
+    DEFAULT_PRESET,
+    DEFAULT_SAVE_EVERY,
+    DEFAULT_VAL_FRACTION,
+    LOG_FILE,
+    STATE_FILE,
+)
 from cnep.pipeline.train.data import TrainingSet, find_trajectory_files, load_training_set
-from cnep.pipeline.train.constants import (DEFAULT_DEVICE, DEFAULT_PATIENCE, DEFAULT_PRESET, DEFAULT_SAVE_EVERY,
-                                         DEFAULT_VAL_FRACTION, LOG_FILE, STATE_FILE)
 from cnep.pipeline.train.layouts import TrainingLayout, resolve_layout
-from cnep.pipeline.train.parallel import (PlacedModel, Processes, from_main, gather, rank_seed, start_processes,
-                                        stop_processes)
+from cnep.pipeline.train.parallel import (
+    PlacedModel,
+    Processes,
+    from_main,
+    gather,
+    rank_seed,
+    start_processes,
+    stop_processes,
+)
 from cnep.pipeline.train.state import check_same_run, prepare_work_dir, publish, save_state, work_dir, write_log
 from cnep.pipeline.workers import SMALL_MODEL_THREADS, torch_threads
 
@@ -122,9 +136,14 @@ def train(config: TrainStageConfig) -> Path:
 def _train(config: TrainStageConfig, procs: Processes, device: torch.device) -> Path:
     data = load_training_set(find_trajectory_files(config.inputs))
     layout = resolve_layout(config.layout, data.width, data.files[0].path)
-    model_config = CNEPConfig(layout=layout.model, n_experts=config.n_experts, assignment=config.assignment,
-                              encoder_widths=config.encoder_widths,
-                              expert_widths=config.expert_widths, time_frequencies=config.time_frequencies)
+    model_config = CNEPConfig(
+        layout=layout.model,
+        n_experts=config.n_experts,
+        assignment=config.assignment,
+        encoder_widths=config.encoder_widths,
+        expert_widths=config.expert_widths,
+        time_frequencies=config.time_frequencies,
+    )
     if config.matched_cnmp:
         model_config = matched_cnmp(model_config)
     train_idx, val_idx = split_validation(list(range(len(data.files))), config.val_fraction, config.training.seed)
@@ -146,10 +165,15 @@ def _train(config: TrainStageConfig, procs: Processes, device: torch.device) -> 
         elapsed = saved["elapsed_s"]
         log.info("resuming at step %d of %d", trainer.step, config.training.steps)
     if procs.is_main:
-        log.info("training on %d demonstrations, validating on %d; layout %s (%d columns -> %d predicted), "
-                 "%d process(es)",
-                 len(train_idx), len(val_idx), layout.name, layout.model.width, layout.model.out_dim,
-                 procs.world_size)
+        log.info(
+            "training on %d demonstrations, validating on %d; layout %s (%d columns -> %d predicted), %d process(es)",
+            len(train_idx),
+            len(val_idx),
+            layout.name,
+            layout.model.width,
+            layout.model.out_dim,
+            procs.world_size,
+        )
 
     work, cfg = work_dir(config.out), config.training
     clock = time.perf_counter() - elapsed  # training time (s) counts across resumes, reading the files does not
@@ -161,20 +185,36 @@ def _train(config: TrainStageConfig, procs: Processes, device: torch.device) -> 
                 save_progress(trainer, procs, work, {"identity": identity, "elapsed_s": time.perf_counter() - clock})
         except KeyboardInterrupt:
             if procs.is_main:
-                log.warning("interrupted at step %d; the state saved every %d steps is in %s: add --resume to the same "
-                            "command to continue", trainer.step, config.save_every, work)
+                log.warning(
+                    "interrupted at step %d; the state saved every %d steps is in %s: add --resume to the same "
+                    "command to continue",
+                    trainer.step,
+                    config.save_every,
+                    work,
+                )
             raise
     elapsed = time.perf_counter() - clock
 
     if procs.is_main:
         model.load_state_dict(trainer.best_state)
-        summary = {"best_step": trainer.best_step, "best_val_error": trainer.best_error, "steps_run": trainer.step,
-                   "stopped_early": trainer.step < cfg.steps, "elapsed_s": round(elapsed, 3)}
+        summary = {
+            "best_step": trainer.best_step,
+            "best_val_error": trainer.best_error,
+            "steps_run": trainer.step,
+            "stopped_early": trainer.step < cfg.steps,
+            "elapsed_s": round(elapsed, 3),
+        }
         extra = {key: value for key, value in identity.items() if key != "model"}  # save_checkpoint writes "model"
         save_checkpoint(model, work, {**extra, "result": summary, "log": LOG_FILE})
         publish(work, config.out)
-        log.info("best validation error %.4g at step %d; %d steps in %.1f s -> %s", trainer.best_error, trainer.best_step,
-                 trainer.step, elapsed, config.out)
+        log.info(
+            "best validation error %.4g at step %d; %d steps in %.1f s -> %s",
+            trainer.best_error,
+            trainer.best_step,
+            trainer.step,
+            elapsed,
+            config.out,
+        )
     return config.out
 
 
@@ -186,16 +226,27 @@ def save_progress(trainer: Trainer, procs: Processes, work: Path, extra: dict) -
         write_log(work / LOG_FILE, trainer.history)
 
 
-def run_identity(config: TrainStageConfig, data: TrainingSet, layout: TrainingLayout, model_config: CNEPConfig,
-                 train_idx: list[int], val_idx: list[int], procs: Processes) -> dict:
+def run_identity(
+    config: TrainStageConfig,
+    data: TrainingSet,
+    layout: TrainingLayout,
+    model_config: CNEPConfig,
+    train_idx: list[int],
+    val_idx: list[int],
+    procs: Processes,
+) -> dict:
     """What makes a run: saved in config.json and compared on --resume (JSON-able, as JSON reads it back)."""
     files = [dict(f.describe(), split="train" if i in train_idx else "validation") for i, f in enumerate(data.files)]
     identity = {
         "stage": "train",
         "layout": layout.to_dict(),
         "model": model_config.to_dict(),
-        "training": {**asdict(config.training.for_assignment(model_config.assignment)), "val_fraction": config.val_fraction, "world_size": procs.world_size,
-                     "batch_size_total": config.training.batch_size * procs.world_size},
+        "training": {
+            **asdict(config.training.for_assignment(model_config.assignment)),
+            "val_fraction": config.val_fraction,
+            "world_size": procs.world_size,
+            "batch_size_total": config.training.batch_size * procs.world_size,
+        },
         "extractor": data.extractor,
         "files": files,
     }
@@ -203,7 +254,9 @@ def run_identity(config: TrainStageConfig, data: TrainingSet, layout: TrainingLa
 
 
 def progress_bar(trainer: Trainer, disabled: bool) -> tqdm:
-    return progress.progress_bar(total=trainer.cfg.steps, initial=trainer.step, desc="train", unit="step", quiet=disabled)
+    return progress.progress_bar(
+        total=trainer.cfg.steps, initial=trainer.step, desc="train", unit="step", quiet=disabled
+    )
 
 
 def report_step(bar: tqdm, trainer: Trainer, terms: dict, elapsed: float) -> None:
@@ -216,7 +269,12 @@ def report_step(bar: tqdm, trainer: Trainer, terms: dict, elapsed: float) -> Non
     bar.update(1)
     if bar.disable:
         return
-    bar.set_postfix(loss=f"{terms['loss']:.3g}", rec=f"{terms['rec']:.3g}", H_batch=f"{terms['batch_entropy']:.3g}",
-                    H_ind=f"{terms['ind_entropy']:.3g}", usage="/".join(f"{u:.2f}" for u in terms["usage"]),
-                    best_val=f"{trainer.best_error:.3g}", refresh=False)
-
+    bar.set_postfix(
+        loss=f"{terms['loss']:.3g}",
+        rec=f"{terms['rec']:.3g}",
+        H_batch=f"{terms['batch_entropy']:.3g}",
+        H_ind=f"{terms['ind_entropy']:.3g}",
+        usage="/".join(f"{u:.2f}" for u in terms["usage"]),
+        best_val=f"{trainer.best_error:.3g}",
+        refresh=False,
+    )

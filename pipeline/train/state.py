@@ -21,7 +21,7 @@ import torch
 
 from cnep.models.checkpoint import atomic_write
 from cnep.pipeline.errors import PipelineError
-from cnep.pipeline.train.constants import LOG_FILE, STATE_FILE
+from cnep.pipeline.train.constants import STATE_FILE
 
 log = logging.getLogger(__name__)
 
@@ -37,12 +37,15 @@ def prepare_work_dir(out: Path, resume: bool, force: bool) -> dict | None:
     """Check OUT and the work folder for a run; returns the saved state to resume from (None: start at step 0)."""
     work = work_dir(out)
     if out.exists() and not force:
-        raise PipelineError(f"{out} already exists; choose another --out, or add --force to replace it when the new "
-                            f"run completes")
+        raise PipelineError(
+            f"{out} already exists; choose another --out, or add --force to replace it when the new run completes"
+        )
     if not resume:
         if work.exists():
-            raise PipelineError(f"{work} holds an unfinished run for {out}; add --resume to continue it, or delete "
-                                f"that folder to start again")
+            raise PipelineError(
+                f"{work} holds an unfinished run for {out}; add --resume to continue it, or delete "
+                f"that folder to start again"
+            )
         work.mkdir(parents=True)
         return None
     if not work.is_dir():
@@ -65,11 +68,15 @@ def load_state(path: Path) -> dict:
     try:
         state = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # torch raises many types for a damaged file; all mean the same to the user
-        raise PipelineError(f"{path}: cannot read the saved training state ({exc}); delete {path.parent} and "
-                            f"train again without --resume") from None
+        raise PipelineError(
+            f"{path}: cannot read the saved training state ({exc}); delete {path.parent} and "
+            f"train again without --resume"
+        ) from None
     if state.get("state_version") != STATE_VERSION:
-        raise PipelineError(f"{path}: training state version {state.get('state_version')!r} is not "
-                            f"{STATE_VERSION}; delete {path.parent} and train again without --resume")
+        raise PipelineError(
+            f"{path}: training state version {state.get('state_version')!r} is not "
+            f"{STATE_VERSION}; delete {path.parent} and train again without --resume"
+        )
     return state
 
 
@@ -77,10 +84,15 @@ def check_same_run(saved: dict, current: dict, path: Path) -> None:
     """Refuse to resume a run whose identity (data, layout, model, training settings, processes) changed."""
     changed = _changed_keys(saved, current)
     if changed:
-        details = "; ".join(f"{key}: saved {_short(a)}, now {_short(b)}"
-                            for key in changed for a, b in [_differing(saved.get(key), current.get(key))])
-        raise PipelineError(f"{path}: cannot resume, the run was started with other settings ({details}); use the "
-                            f"same inputs and options, or delete {path.parent} to start again")
+        details = "; ".join(
+            f"{key}: saved {_short(a)}, now {_short(b)}"
+            for key in changed
+            for a, b in [_differing(saved.get(key), current.get(key))]
+        )
+        raise PipelineError(
+            f"{path}: cannot resume, the run was started with other settings ({details}); use the "
+            f"same inputs and options, or delete {path.parent} to start again"
+        )
 
 
 def write_log(path: Path, history: list[dict]) -> None:

@@ -3,8 +3,7 @@
 import numpy as np
 import pytest
 
-from cnep.models.baselines import GMMGMR, NearestDemo, ProMP
-from cnep.models.baselines import base
+from cnep.models.baselines import GMMGMR, NearestDemo, ProMP, base
 from cnep.models.errors import ConfigError
 from cnep.models.evaluation import paper_queries
 from cnep.models.synthetic import make_set

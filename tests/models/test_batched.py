@@ -10,8 +10,8 @@ from cnep.models.train import fit, prepare_fit
 from tests.models.factories import tiny_config, two_mode_trajectories
 
 # Steps cross the gate's freeze (30% = step 12), validations every 10 steps; lr high enough that gradients
-# exceed the clipping norm (3) on some steps and not on others, so each model's own clipping norm matters. Batch 16 and latent 16 keep
-# every product above torch's small-bmm threshold (see models.batched).
+# exceed the clipping norm (3) on some steps and not on others, so each model's own clipping norm matters.
+# Batch 16 and latent 16 keep every product above torch's small-bmm threshold (see models.batched).
 SCHEDULE = TrainConfig(steps=40, warmup_steps=5, val_every=10, batch_size=16, lr=1e-2, grad_clip=3.0)
 
 
@@ -24,8 +24,9 @@ def _runs() -> list[FitRun]:
     for seed, loss in enumerate(losses):
         trajs, _ = two_mode_trajectories(n=12, T=30, seed=seed)
         wide = [torch.randn(30, 5, generator=torch.Generator().manual_seed(seed)).numpy() + t for t in trajs]
-        runs.append(FitRun(wide[:10], dataclasses.replace(config, **loss), dataclasses.replace(SCHEDULE, seed=seed),
-                           wide[10:]))
+        runs.append(
+            FitRun(wide[:10], dataclasses.replace(config, **loss), dataclasses.replace(SCHEDULE, seed=seed), wide[10:])
+        )
     return runs
 
 
@@ -62,8 +63,9 @@ def test_gradients_were_clipped_in_the_identity_test():
 
 def test_early_stopping_stops_each_model_as_alone():
     """A model that stops leaves the stack; the others go on with their Adam state, still bit-identical."""
-    runs = [dataclasses.replace(r, train_config=dataclasses.replace(r.train_config, patience=1, steps=80))
-            for r in _runs()]
+    runs = [
+        dataclasses.replace(r, train_config=dataclasses.replace(r.train_config, patience=1, steps=80)) for r in _runs()
+    ]
     together = fit_many(runs)
     assert len({history[-1]["step"] for _, history in together}) > 1  # one stopped while others trained on
     for run, (model, history) in zip(runs, together):
@@ -75,7 +77,9 @@ def test_early_stopping_stops_each_model_as_alone():
 def test_models_of_different_shapes_or_schedules_are_not_batched_together():
     runs = _runs()[:2]
     other_shape = dataclasses.replace(runs[1], config=dataclasses.replace(runs[1].config, n_experts=2))
-    trainers = [prepare_fit(r.trajectories, r.config, r.train_config, r.val_trajectories)[0] for r in (runs[0], other_shape)]
+    trainers = [
+        prepare_fit(r.trajectories, r.config, r.train_config, r.val_trajectories)[0] for r in (runs[0], other_shape)
+    ]
     with pytest.raises(ConfigError, match="one network shape"):
         BatchedTrainer(trainers)
     other_steps = dataclasses.replace(runs[1], train_config=dataclasses.replace(runs[1].train_config, steps=30))

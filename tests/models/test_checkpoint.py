@@ -4,8 +4,15 @@ import numpy as np
 import pytest
 import torch
 
-from cnep.models.checkpoint import (CHECKSUM_KEY, CONFIG_FILE, WEIGHTS_FILE, config_checksum, load_checkpoint,
-                               read_checkpoint_config, save_checkpoint)
+from cnep.models.checkpoint import (
+    CHECKSUM_KEY,
+    CONFIG_FILE,
+    WEIGHTS_FILE,
+    config_checksum,
+    load_checkpoint,
+    read_checkpoint_config,
+    save_checkpoint,
+)
 from cnep.models.errors import ConfigError
 from cnep.models.train import build_model
 from tests.models.factories import random_inputs, tiny_config

@@ -1,8 +1,19 @@
 import numpy as np
 import pytest
 
-from cnep.models.evaluation import (DECISIVE, NOISE, _decisive, _separable_partners, commitment, commitment_scores,
-                               heldout_queries, paper_queries, score, shared_queries, within_mode_band)
+from cnep.models.evaluation import (
+    DECISIVE,
+    NOISE,
+    _decisive,
+    _separable_partners,
+    commitment,
+    commitment_scores,
+    heldout_queries,
+    paper_queries,
+    score,
+    shared_queries,
+    within_mode_band,
+)
 from cnep.models.synthetic import SETS, make_set
 
 
@@ -102,7 +113,9 @@ def test_points_that_two_modes_pass_within_the_noise_are_not_decisive():
     three = ds.train[ds.train_modes == 3][0]
     dist = ((ds.train[:, steps] - three[steps]) ** 2).sum((1, 2))
     assert dist[ds.train_modes == 3].min() == 0  # infinitely nearer by the ratio alone
-    assert np.sqrt(dist[ds.train_modes == 2].min()) < NOISE * np.ptp(ds.train)  # but a mode-2 demo passes within the noise
+    assert np.sqrt(dist[ds.train_modes == 2].min()) < NOISE * np.ptp(
+        ds.train
+    )  # but a mode-2 demo passes within the noise
     assert not _decisive(ds.train, ds.train_modes, steps, three[steps], 3)
 
 

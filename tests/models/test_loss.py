@@ -5,8 +5,18 @@ import pytest
 import torch
 
 from cnep.models.config import CNEPConfig
-from cnep.models.loss import (ANNEAL_FRACTION, BALANCING, SINKHORN_ITERATIONS, annealed_posterior, annealed_sharpness,
-                         balanced, cnep_loss, entropy, expert_nll, settled_fraction)
+from cnep.models.loss import (
+    ANNEAL_FRACTION,
+    BALANCING,
+    SINKHORN_ITERATIONS,
+    annealed_posterior,
+    annealed_sharpness,
+    balanced,
+    cnep_loss,
+    entropy,
+    expert_nll,
+    settled_fraction,
+)
 
 
 def test_expert_nll_against_a_hand_computation():
@@ -59,8 +69,10 @@ def test_batch_entropy_is_rewarded_and_individual_entropy_penalised():
     collapsed = torch.tensor([[1.0, 0.0], [1.0, 0.0]])  # confident, but one expert for all
     spread = torch.tensor([[1.0, 0.0], [0.0, 1.0]])  # confident, both experts used
     unsure = torch.tensor([[0.5, 0.5], [0.5, 0.5]])  # both used on average, no confidence
-    loss = {name: cnep_loss(*args[:2], g, *args[2:], cfg)[0].item() for name, g in
-            [("collapsed", collapsed), ("spread", spread), ("unsure", unsure)]}
+    loss = {
+        name: cnep_loss(*args[:2], g, *args[2:], cfg)[0].item()
+        for name, g in [("collapsed", collapsed), ("spread", spread), ("unsure", unsure)]
+    }
     assert loss["spread"] < loss["collapsed"]
     assert loss["spread"] < loss["unsure"]
 
@@ -107,11 +119,14 @@ def test_mixture_sends_the_targets_to_the_expert_that_explains_them():
         cnep_loss(mean, std, gate, target, mask, cfg)[0].backward()
         grads[assignment] = mean.grad.abs().sum((0, 2, 3))  # (d,)
     assert grads["mixture"][1] < 1e-6 * grads["mixture"][0]
-    torch.testing.assert_close(grads["paper"][1] / grads["paper"][0], torch.tensor(4.0 / 0.2), rtol=1e-5, atol=0)  # sum |y - mu|
+    torch.testing.assert_close(
+        grads["paper"][1] / grads["paper"][0], torch.tensor(4.0 / 0.2), rtol=1e-5, atol=0
+    )  # sum |y - mu|
 
 
-@pytest.mark.parametrize("assignment, progress", [("mixture", 1.0), ("annealed", 0.2), ("annealed", 1.0),
-                                                  ("bounded", 0.2)])
+@pytest.mark.parametrize(
+    "assignment, progress", [("mixture", 1.0), ("annealed", 0.2), ("annealed", 1.0), ("bounded", 0.2)]
+)
 def test_each_assignment_equals_the_paper_term_with_one_expert_in_value_and_gradient(assignment, progress):
     # d = 1: -log(1 * exp(-S_i)) / n_i = S_i / n_i = L_i, and the paper's (1/1) sum_e p_ie L_ie = L_i.
     # The equality needs the mixture's sum over a sample's target values divided by their number n_i
@@ -142,13 +157,17 @@ def test_mixture_equals_the_paper_term_when_the_experts_agree():
     std, target = torch.ones(3, 3, 4, 1), torch.zeros(3, 4, 1)
     gate = torch.softmax(torch.randn(3, 3, generator=torch.Generator().manual_seed(2)), -1)
     mask = torch.ones(3, 4, dtype=torch.bool)
-    recs = [cnep_loss(mean, std, gate, target, mask, CNEPConfig(n_experts=3, assignment=a))[1]["rec"]
-            for a in ("paper", "mixture")]
+    recs = [
+        cnep_loss(mean, std, gate, target, mask, CNEPConfig(n_experts=3, assignment=a))[1]["rec"]
+        for a in ("paper", "mixture")
+    ]
     assert math.isclose(recs[0], recs[1], rel_tol=1e-6)
     # and they differ as soon as the experts disagree
     apart = mean + torch.arange(3.0)[None, :, None, None]
-    recs = [cnep_loss(apart, std, gate, target, mask, CNEPConfig(n_experts=3, assignment=a))[1]["rec"]
-            for a in ("paper", "mixture")]
+    recs = [
+        cnep_loss(apart, std, gate, target, mask, CNEPConfig(n_experts=3, assignment=a))[1]["rec"]
+        for a in ("paper", "mixture")
+    ]
     assert not math.isclose(recs[0], recs[1], rel_tol=1e-3)
 
 
@@ -162,10 +181,10 @@ def test_annealed_sharpness_rises_geometrically_from_one_to_the_number_of_values
 
 def _two_sample_example():
     # sample 0: two targets (one masked out of three), dy = 1; sample 1: one target
-    mean = torch.tensor([[[[0.0], [1.0], [9.0]], [[2.0], [2.0], [9.0]]],
-                         [[[0.5], [0.0], [0.0]], [[-1.0], [0.0], [0.0]]]])  # (B=2, d=2, M=3, dy=1)
-    std = torch.tensor([[[[1.0], [2.0], [1.0]], [[0.5], [0.5], [1.0]]],
-                        [[[1.0], [1.0], [1.0]], [[2.0], [1.0], [1.0]]]])
+    mean = torch.tensor(
+        [[[[0.0], [1.0], [9.0]], [[2.0], [2.0], [9.0]]], [[[0.5], [0.0], [0.0]], [[-1.0], [0.0], [0.0]]]]
+    )  # (B=2, d=2, M=3, dy=1)
+    std = torch.tensor([[[[1.0], [2.0], [1.0]], [[0.5], [0.5], [1.0]]], [[[1.0], [1.0], [1.0]], [[2.0], [1.0], [1.0]]]])
     target = torch.tensor([[[0.0], [3.0], [5.0]], [[1.0], [0.0], [0.0]]])  # (2, 3, 1)
     mask = torch.tensor([[True, True, False], [True, False, False]])
     gate = torch.tensor([[0.8, 0.2], [0.4, 0.6]])
@@ -179,8 +198,10 @@ def _hand_posterior(Ls, ns, ps, progress, balancing=BALANCING["annealed"]):
     balanced: 3 rounds of scaling each expert's column into [floor, cap] * B/d (equal shares B/d for "annealed")
     and each row to 1; free: rows to 1; between the balancing's fade_from and until, the rows of
     balanced^(1 - s) free^s with s = (progress - fade_from) / (until - fade_from)."""
-    w = [[p * math.exp(-n ** min(1.0, progress / ANNEAL_FRACTION) * le) for p, le in zip(pi, Li)]
-         for Li, n, pi in zip(Ls, ns, ps)]
+    w = [
+        [p * math.exp(-(n ** min(1.0, progress / ANNEAL_FRACTION)) * le) for p, le in zip(pi, Li)]
+        for Li, n, pi in zip(Ls, ns, ps)
+    ]
     B, d = len(w), len(w[0])
     free = [[x / sum(row) for x in row] for row in w]
     if progress >= balancing.until:
@@ -190,8 +211,12 @@ def _hand_posterior(Ls, ns, ps, progress, balancing=BALANCING["annealed"]):
         kept = [min(max(c, balancing.floor * B / d), balancing.cap * B / d) for c in column]
         w = [[w[i][e] * kept[e] / column[e] for e in range(d)] for i in range(B)]
         w = [[x / sum(row) for x in row] for row in w]
-    s = (progress - balancing.fade_from) / (balancing.until - balancing.fade_from) if progress > balancing.fade_from else 0.0
-    mixed = [[held ** (1 - s) * f ** s for held, f in zip(hrow, frow)] for hrow, frow in zip(w, free)]
+    s = (
+        (progress - balancing.fade_from) / (balancing.until - balancing.fade_from)
+        if progress > balancing.fade_from
+        else 0.0
+    )
+    mixed = [[held ** (1 - s) * f**s for held, f in zip(hrow, frow)] for hrow, frow in zip(w, free)]
     return [[x / sum(row) for x in row] for row in mixed]
 
 
@@ -309,6 +334,10 @@ def test_the_trainer_gives_the_loss_the_fraction_of_training_done(monkeypatch):
 
     monkeypatch.setattr(cnep.models.train, "cnep_loss", spy)
     trajs, _ = two_mode_trajectories(n=4, T=10, seed=0)
-    fit(trajs, CNEPConfig(n_experts=2, encoder_widths=(8,), expert_widths=(8,), assignment="annealed"),
-        TrainConfig(steps=4, warmup_steps=1, val_every=2), progress=False)
+    fit(
+        trajs,
+        CNEPConfig(n_experts=2, encoder_widths=(8,), expert_widths=(8,), assignment="annealed"),
+        TrainConfig(steps=4, warmup_steps=1, val_every=2),
+        progress=False,
+    )
     assert seen == [0.0, 0.25, 0.5, 0.75]

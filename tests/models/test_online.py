@@ -29,8 +29,14 @@ def expected_set(k: int, policy: ConditioningPolicy) -> list[int]:
     return anchors + list(recent)
 
 
-@pytest.mark.parametrize("policy", [ConditioningPolicy(window=4, anchors=1), ConditioningPolicy(window=7, anchors=0),
-                                    ConditioningPolicy(window=1, anchors=3)])
+@pytest.mark.parametrize(
+    "policy",
+    [
+        ConditioningPolicy(window=4, anchors=1),
+        ConditioningPolicy(window=7, anchors=0),
+        ConditioningPolicy(window=1, anchors=3),
+    ],
+)
 def test_incremental_conditioning_equals_conditioning_on_the_whole_set(policy):
     model, traj = random_model()
     T = len(traj)

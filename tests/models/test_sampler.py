@@ -11,7 +11,9 @@ def _stack(lengths=(5, 12, 30)):
     model = CNEP(cfg)
     width = cfg.layout.width
     # column 0 of step k holds k, so a sampled value tells which step it came from
-    trajs = [np.column_stack([np.arange(T), np.full((T, width - 1), i)]).astype(np.float32) for i, T in enumerate(lengths)]
+    trajs = [
+        np.column_stack([np.arange(T), np.full((T, width - 1), i)]).astype(np.float32) for i, T in enumerate(lengths)
+    ]
     return TrajectoryStack(trajs, model), lengths
 
 

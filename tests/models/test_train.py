@@ -6,11 +6,11 @@ import torch
 
 from cnep.models.config import GATE_LR_SCALES, CNEPConfig, TrainConfig
 from cnep.models.errors import ConfigError
-from cnep.models.train import Trainer, build_model, fit, lr_factor, prepare_fit, split_validation
 from cnep.models.sampler import TrajectoryStack
+from cnep.models.train import Trainer, build_model, fit, lr_factor, prepare_fit, split_validation
 from tests.models.factories import two_mode_trajectories
 
-SMALL = dict(encoder_widths=(32, 32), expert_widths=(32, 32), time_frequencies=4)
+SMALL = {"encoder_widths": (32, 32), "expert_widths": (32, 32), "time_frequencies": 4}
 QUICK = TrainConfig(steps=60, warmup_steps=10, val_every=20, batch_size=8)
 
 
@@ -67,12 +67,14 @@ def test_the_gates_learning_rate_defaults_to_its_assignments(assignment):
     trainer = Trainer(model, TrajectoryStack(trajs, model), TrajectoryStack(trajs[:4], model), cfg)
     trainer.train_step()
     assert trainer.cfg.gate_lr_scale == GATE_LR_SCALES[assignment]
-    assert float((model.gate.weight.detach() - before).abs().max()) == pytest.approx(1e-3 * GATE_LR_SCALES[assignment],
-                                                                                      rel=1e-3)
+    assert float((model.gate.weight.detach() - before).abs().max()) == pytest.approx(
+        1e-3 * GATE_LR_SCALES[assignment], rel=1e-3
+    )
 
 
 def test_no_model_from_before_the_posterior_settles_is_kept():
-    """"bounded" balances its posterior until 0.8 of the steps: the best model comes from a validation at or after it."""
+    """ "bounded" balances its posterior until 0.8 of the steps: the best model comes from a validation at or after
+    it."""
     trajs, _ = two_mode_trajectories()
     cfg = dataclasses.replace(QUICK, val_every=5)
     trainer, _ = prepare_fit(trajs, CNEPConfig(**SMALL, assignment="bounded"), cfg)

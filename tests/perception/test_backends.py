@@ -75,8 +75,9 @@ def _relative_l2(values: np.ndarray, reference: np.ndarray) -> np.ndarray:
     return np.linalg.norm(values - reference, axis=1) / np.linalg.norm(reference, axis=1)  # (N,)
 
 
-needs_openvino = pytest.mark.skipif(not {"onnxruntime", "openvino"} <= set(available_backends()),
-                                    reason="needs the onnx and openvino extras")
+needs_openvino = pytest.mark.skipif(
+    not {"onnxruntime", "openvino"} <= set(available_backends()), reason="needs the onnx and openvino extras"
+)
 
 
 @needs_openvino

@@ -143,11 +143,14 @@ def test_saved_calibrated_weights_reload_with_the_same_features(calibrated, two_
     np.testing.assert_array_equal(reloaded(two_scenes[0]), calibrated(two_scenes[0]))
 
 
-@pytest.mark.parametrize("kwargs, message", [
-    ({"backend": "tensorrt"}, "backend 'tensorrt' is not available"),
-    ({"batch_size": 0}, "batch_size must be >= 1"),
-    ({"threads": 0}, "threads must be >= 1"),
-])
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        ({"backend": "tensorrt"}, "backend 'tensorrt' is not available"),
+        ({"batch_size": 0}, "batch_size must be >= 1"),
+        ({"threads": 0}, "threads must be >= 1"),
+    ],
+)
 def test_bad_settings_are_rejected(kwargs, message):
     with pytest.raises(PerceptionError, match=message):
         FeatureExtractor("random", **kwargs)

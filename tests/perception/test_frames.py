@@ -43,13 +43,16 @@ def test_resize_keeps_a_flat_colour():
     assert (resize_frames(frames) == np.array((10, 120, 250), dtype=np.uint8)).all()
 
 
-@pytest.mark.parametrize("frames, message", [
-    (np.zeros((2, 8, 8, 3), dtype=np.float32), "uint8"),
-    (np.zeros((8, 8, 3), dtype=np.uint8), r"\(N, H, W, 3\)"),
-    (np.zeros((2, 8, 8, 4), dtype=np.uint8), r"\(N, H, W, 3\)"),
-    (np.zeros((2, 0, 8, 3), dtype=np.uint8), r"\(N, H, W, 3\)"),
-    ([[1, 2, 3]], "uint8"),
-])
+@pytest.mark.parametrize(
+    "frames, message",
+    [
+        (np.zeros((2, 8, 8, 3), dtype=np.float32), "uint8"),
+        (np.zeros((8, 8, 3), dtype=np.uint8), r"\(N, H, W, 3\)"),
+        (np.zeros((2, 8, 8, 4), dtype=np.uint8), r"\(N, H, W, 3\)"),
+        (np.zeros((2, 0, 8, 3), dtype=np.uint8), r"\(N, H, W, 3\)"),
+        ([[1, 2, 3]], "uint8"),
+    ],
+)
 def test_bad_frames_are_rejected_with_the_rule(frames, message):
     with pytest.raises(PerceptionError, match=message):
         resize_frames(frames)

@@ -1,5 +1,5 @@
-import torch
 import pytest
+import torch
 from torchvision.models import mobilenet_v2
 
 from cnep.perception import PerceptionError, find_imagenet_weights, resolve_weights, state_dict_sha256
@@ -40,7 +40,7 @@ def test_path_loader_round_trips_a_full_torchvision_state_dict(tmp_path):
     torch.save(full, tmp_path / "mine.pth")
     weights = resolve_weights(tmp_path / "mine.pth")
     assert weights.name == "path:mine.pth" and not weights.is_random
-    features = {k[len("features."):]: v for k, v in full.items() if k.startswith("features.")}
+    features = {k[len("features.") :]: v for k, v in full.items() if k.startswith("features.")}
     assert state_dict_sha256(weights.state_dict) == state_dict_sha256(features)
 
 
@@ -57,7 +57,7 @@ def test_safetensors_file_loads(tmp_path):
 
     full = _full_model_state_dict(seed=4)
     save_file({k: v.contiguous() for k, v in full.items()}, str(tmp_path / "w.safetensors"))
-    features = {k[len("features."):]: v for k, v in full.items() if k.startswith("features.")}
+    features = {k[len("features.") :]: v for k, v in full.items() if k.startswith("features.")}
     assert state_dict_sha256(resolve_weights(tmp_path / "w.safetensors").state_dict) == state_dict_sha256(features)
 
 

@@ -12,8 +12,22 @@ from cnep.pipeline.cli.main import main
 from cnep.pipeline.replay.stage import read_decisions
 from cnep.recordings import read_trajectory
 
-TINY_TRAIN = ["--steps", "6", "--val-every", "3", "--warmup-steps", "1", "--batch-size", "2",
-              "--encoder-widths", "8,8", "--expert-widths", "8,8", "--seed", "0"]
+TINY_TRAIN = [
+    "--steps",
+    "6",
+    "--val-every",
+    "3",
+    "--warmup-steps",
+    "1",
+    "--batch-size",
+    "2",
+    "--encoder-widths",
+    "8,8",
+    "--expert-widths",
+    "8,8",
+    "--seed",
+    "0",
+]
 
 
 @pytest.fixture(autouse=True)
@@ -27,12 +41,40 @@ def quiet_rerun(tmp_path, monkeypatch, one_thread):
 def run_pipeline(src: Path, work: Path, *ingest_args: str) -> list[Path]:
     """Run the four stages as a user would; returns the trajectory files."""
     assert main(["-q", "ingest", str(src), "--out", str(work / "demos"), *ingest_args]) == 0
-    assert main(["-q", "extract", str(work / "demos"), "--out", str(work / "traj"), "--weights", "random",
-                 "--backend", "eager", "--threads", "1"]) == 0
+    assert (
+        main(
+            [
+                "-q",
+                "extract",
+                str(work / "demos"),
+                "--out",
+                str(work / "traj"),
+                "--weights",
+                "random",
+                "--backend",
+                "eager",
+                "--threads",
+                "1",
+            ]
+        )
+        == 0
+    )
     trajectories = sorted((work / "traj").rglob("*.mcap"))
     assert main(["-q", "train", str(work / "traj"), "--out", str(work / "ckpt"), *TINY_TRAIN]) == 0
-    assert main(["-q", "replay", str(work / "ckpt"), *map(str, trajectories), "--out", str(work / "replay.rrd"),
-                 "--no-live"]) == 0
+    assert (
+        main(
+            [
+                "-q",
+                "replay",
+                str(work / "ckpt"),
+                *map(str, trajectories),
+                "--out",
+                str(work / "replay.rrd"),
+                "--no-live",
+            ]
+        )
+        == 0
+    )
     decisions = read_decisions(work / "replay.rrd")
     rrds = sorted(work.glob("replay-*.rrd"))  # one .rrd per recording (pipeline.replay.stage.rrd_files)
     assert len(decisions["recordings"]) == len(trajectories) == len(rrds) and all(p.stat().st_size > 0 for p in rrds)
@@ -68,8 +110,18 @@ def test_ros_bags_end_to_end(tmp_path, kind):
             write_ros1_bag(tmp_path / "bags" / f"run{k}.bag", compressed=k == 1)
         else:
             write_ros2_bag(tmp_path / "bags" / f"run{k}", storage=("sqlite3", "mcap")[k])
-    trajectories = run_pipeline(tmp_path / "bags", tmp_path / "work", "--image-topic", "/camera/rgb",
-                                "--pose-topic", "/ee/pose", "--gripper-topic", "/gripper", "--gripper-joint", "gripper")
+    trajectories = run_pipeline(
+        tmp_path / "bags",
+        tmp_path / "work",
+        "--image-topic",
+        "/camera/rgb",
+        "--pose-topic",
+        "/ee/pose",
+        "--gripper-topic",
+        "/gripper",
+        "--gripper-joint",
+        "gripper",
+    )
     assert [t.name for t in trajectories] == ["run0.mcap", "run1.mcap"]
     kept = FRAME_TIMES_S[:-1]
     pose, gripper = motion(kept)

@@ -28,10 +28,37 @@ from tests.recordings.factories import demonstration_factory
 from tests.recordings.sources import baxter_csv
 
 ROOT = Path(__file__).resolve().parents[2]
-QUICK_EVALUATE = ["--table", "comparison", "--sets", "bimodal", "--seeds", "1", "--steps", "2", "--queries", "1",
-                  "--jobs", "0", "--no-figures"]
-TINY_TRAINING = ["--layout", "motion", "--steps", "4", "--val-every", "2", "--encoder-widths", "8",
-                 "--expert-widths", "8", "--batch-size", "2", "--experts", "2"]
+QUICK_EVALUATE = [
+    "--table",
+    "comparison",
+    "--sets",
+    "bimodal",
+    "--seeds",
+    "1",
+    "--steps",
+    "2",
+    "--queries",
+    "1",
+    "--jobs",
+    "0",
+    "--no-figures",
+]
+TINY_TRAINING = [
+    "--layout",
+    "motion",
+    "--steps",
+    "4",
+    "--val-every",
+    "2",
+    "--encoder-widths",
+    "8",
+    "--expert-widths",
+    "8",
+    "--batch-size",
+    "2",
+    "--experts",
+    "2",
+]
 
 
 @dataclass(frozen=True)
@@ -50,7 +77,7 @@ class World:
 
 def cut(src: Path, dst: Path, keep: float) -> Path:
     data = src.read_bytes()
-    dst.write_bytes(data[:int(len(data) * keep)])
+    dst.write_bytes(data[: int(len(data) * keep)])
     return dst
 
 
@@ -68,10 +95,16 @@ def world(tmp_path_factory) -> World:
     assert main(["-q", "train", str(root / "trajs"), "--out", str(root / "ckpt"), *TINY_TRAINING]) == 0
     short = root / "bad" / "short.csv"
     short.write_text("\n".join(csv.read_text().splitlines()[:2]) + "\n")
-    return World(csv=csv, demos=root / "demos", trajs=root / "trajs", ckpt=root / "ckpt",
-                 truncated_demo=cut(big, root / "bad" / "truncated-demo.mcap", 0.9),
-                 truncated_traj=cut(root / "trajs" / "t0.mcap", root / "bad" / "truncated-traj.mcap", 0.6),
-                 empty_chunks=cut(big, root / "bad" / "no-chunk.mcap", 0.05), short_csv=short)
+    return World(
+        csv=csv,
+        demos=root / "demos",
+        trajs=root / "trajs",
+        ckpt=root / "ckpt",
+        truncated_demo=cut(big, root / "bad" / "truncated-demo.mcap", 0.9),
+        truncated_traj=cut(root / "trajs" / "t0.mcap", root / "bad" / "truncated-traj.mcap", 0.6),
+        empty_chunks=cut(big, root / "bad" / "no-chunk.mcap", 0.05),
+        short_csv=short,
+    )
 
 
 def run_cli(argv: list, capsys) -> tuple[int, list[str]]:
@@ -122,8 +155,11 @@ DAMAGED_INPUT = {
     "repair": lambda w, t: (["repair", w.empty_chunks, t / "out" / "fixed.mcap"], w.empty_chunks, "nothing to salvage"),
     "extract": lambda w, t: (["extract", w.truncated_demo, "--out", t / "out"], w.truncated_demo, "cnep repair"),
     "train": lambda w, t: (["train", w.trajs, w.truncated_traj, "--out", t / "out"], w.truncated_traj, "truncated"),
-    "replay": lambda w, t: (["replay", w.ckpt, w.truncated_traj, "--out", t / "out" / "r.rrd", "--no-live"],
-                            w.truncated_traj, "truncated"),
+    "replay": lambda w, t: (
+        ["replay", w.ckpt, w.truncated_traj, "--out", t / "out" / "r.rrd", "--no-live"],
+        w.truncated_traj,
+        "truncated",
+    ),
 }
 
 
@@ -146,8 +182,11 @@ EXISTING_OUTPUT = {  # argv, the output path to pre-fill, whether --force is qui
     "repair": lambda w, t: (["repair", w.truncated_demo, t / "out" / "fixed.mcap"], t / "out" / "fixed.mcap", True),
     "extract": lambda w, t: (["extract", w.demos, "--out", t / "out"], t / "out" / "d1.mcap", True),
     "train": lambda w, t: (["train", w.trajs, "--out", t / "out" / "ckpt", *TINY_TRAINING], t / "out" / "ckpt", True),
-    "replay": lambda w, t: (["replay", w.ckpt, w.trajs / "t0.mcap", "--out", t / "out" / "r.rrd", "--no-live"],
-                            t / "out" / "r.experts.json", True),
+    "replay": lambda w, t: (
+        ["replay", w.ckpt, w.trajs / "t0.mcap", "--out", t / "out" / "r.rrd", "--no-live"],
+        t / "out" / "r.experts.json",
+        True,
+    ),
     "evaluate": lambda w, t: (["evaluate", *QUICK_EVALUATE, "--out", t / "out"], t / "out" / "comparison.md", False),
     "demo": lambda w, t: (["demo", "--quick", "--out", t / "out"], t / "out" / "notes.txt", False),
 }
@@ -171,14 +210,18 @@ def test_an_existing_output_is_never_overwritten_without_force(world, tmp_path, 
 
 def test_an_output_that_is_a_file_where_a_folder_is_expected_is_one_line(world, tmp_path, capsys):
     (tmp_path / "file").write_text("keep")
-    for argv in (["extract", world.demos, "--out", tmp_path / "file"], ["demo", "--out", tmp_path / "file"],
-                 ["ingest", world.csv, "--out", tmp_path / "file"]):
+    for argv in (
+        ["extract", world.demos, "--out", tmp_path / "file"],
+        ["demo", "--out", tmp_path / "file"],
+        ["ingest", world.csv, "--out", tmp_path / "file"],
+    ):
         code, err = run_cli(argv, capsys)
         assert code == 2 and "is a file" in assert_one_line(err, argv[0], str(tmp_path / "file"))
     assert (tmp_path / "file").read_text() == "keep"
 
 
 # --- read-only output folder: exit 2, one line, nothing written ----------------------------------------------------
+
 
 @pytest.fixture
 def read_only(tmp_path):
@@ -217,6 +260,7 @@ def test_a_read_only_output_folder_is_one_line_and_exit_2(world, read_only, caps
 
 # --- interrupted: exit 130, one line, nothing half-written and no folder left --------------------------------------
 
+
 def interrupt(*args, **kwargs):
     raise KeyboardInterrupt
 
@@ -229,25 +273,39 @@ def part_then_interrupt(path, *args, **kwargs):
 INTERRUPTED = {  # argv, and the function replaced by one that interrupts (Ctrl-C in the middle of the work)
     "ingest": lambda w, t: (["ingest", w.csv, "--out", t / "out"], "cnep.recordings.writers", "new_writer"),
     "inspect": lambda w, t: (["inspect", w.demos / "d0.mcap"], "cnep.recordings.inspection", "read_mcap"),
-    "repair": lambda w, t: (["repair", w.truncated_demo, t / "out" / "fixed.mcap"], "cnep.recordings.container",
-                            "new_writer"),
+    "repair": lambda w, t: (
+        ["repair", w.truncated_demo, t / "out" / "fixed.mcap"],
+        "cnep.recordings.container",
+        "new_writer",
+    ),
     "extract": lambda w, t: (["extract", w.demos, "--out", t / "out"], "cnep.recordings.writers", "new_writer"),
-    "train": lambda w, t: (["train", w.trajs, "--out", t / "out" / "ckpt", *TINY_TRAINING], "cnep.pipeline.train.stage",
-                           "save_progress"),
-    "replay": lambda w, t: (["replay", w.ckpt, w.trajs / "t0.mcap", "--out", t / "out" / "r.rrd", "--no-live"],
-                            "cnep.pipeline.replay.stage", "write_recording"),
-    "evaluate": lambda w, t: (["evaluate", *QUICK_EVALUATE, "--out", t / "out"], "cnep.pipeline.evaluate.stage",
-                              "run_jobs"),
+    "train": lambda w, t: (
+        ["train", w.trajs, "--out", t / "out" / "ckpt", *TINY_TRAINING],
+        "cnep.pipeline.train.stage",
+        "save_progress",
+    ),
+    "replay": lambda w, t: (
+        ["replay", w.ckpt, w.trajs / "t0.mcap", "--out", t / "out" / "r.rrd", "--no-live"],
+        "cnep.pipeline.replay.stage",
+        "write_recording",
+    ),
+    "evaluate": lambda w, t: (
+        ["evaluate", *QUICK_EVALUATE, "--out", t / "out"],
+        "cnep.pipeline.evaluate.stage",
+        "run_jobs",
+    ),
     "demo": lambda w, t: (["demo", "--quick", "--out", t / "out"], "cnep.pipeline.demo.stage", "ingest"),
 }
 
 
 @pytest.mark.parametrize("command", INTERRUPTED)
-def test_an_interruption_is_exit_130_and_leaves_nothing_half_written(world, tmp_path, capsys, monkeypatch, command,
-                                                                     one_thread):
+def test_an_interruption_is_exit_130_and_leaves_nothing_half_written(
+    world, tmp_path, capsys, monkeypatch, command, one_thread
+):
     argv, module, name = INTERRUPTED[command](world, tmp_path)
-    monkeypatch.setattr(importlib.import_module(module), name,
-                        part_then_interrupt if name == "write_recording" else interrupt)
+    monkeypatch.setattr(
+        importlib.import_module(module), name, part_then_interrupt if name == "write_recording" else interrupt
+    )
     code, err = run_cli(argv, capsys)
     assert code == 130
     assert_one_line(err, command, "interrupted")
@@ -259,6 +317,7 @@ def test_an_interruption_is_exit_130_and_leaves_nothing_half_written(world, tmp_
 
 # --- the other rows: --version, no torch for inspect, broken pipes, bugs, umask, --keep-going --------------------
 
+
 def test_version_is_printed(capsys):
     with pytest.raises(SystemExit) as done:
         main(["--version"])
@@ -269,18 +328,29 @@ def test_version_is_printed(capsys):
 
 
 def test_inspect_does_not_import_torch(world):
-    code = ("import sys; from pipeline.cli.main import main; status = main(['inspect', sys.argv[1]]); "
-            "print('torch' in sys.modules, status, file=sys.stderr)")
-    done = subprocess.run([sys.executable, "-c", code, str(world.demos / "d0.mcap")], capture_output=True, text=True,
-                          cwd=ROOT, timeout=120)
+    code = (
+        "import sys; from pipeline.cli.main import main; status = main(['inspect', sys.argv[1]]); "
+        "print('torch' in sys.modules, status, file=sys.stderr)"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code, str(world.demos / "d0.mcap")],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=120,
+    )
     assert done.stderr.strip().splitlines()[-1] == "False 0", done.stderr
 
 
 def test_a_reader_that_stops_reading_ends_inspect_quietly(world):
     """`cnep inspect A B | head -1`: no BrokenPipeError traceback, exit 0."""
     files = [str(world.demos / f"d{i}.mcap") for i in range(3)] * 20
-    proc = subprocess.Popen([sys.executable, "-m", "cnep.pipeline", "inspect", *files], cwd=ROOT, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "cnep.pipeline", "inspect", *files],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
     proc.stdout.readline()
     proc.stdout.close()  # what `head -1` does after its line
     err = proc.stderr.read().decode()
@@ -314,11 +384,20 @@ def test_files_are_written_with_the_users_umask(world, tmp_path, capsys, umask):
     try:
         assert run_cli(["ingest", world.csv, "--out", tmp_path / "demos"], capsys)[0] == 0
         assert run_cli(["repair", tmp_path / "demos" / "a.mcap", tmp_path / "fixed.mcap"], capsys)[0] == 0
-        assert run_cli(["replay", world.ckpt, world.trajs / "t0.mcap", "--out", tmp_path / "r.rrd", "--no-live"],
-                       capsys)[0] == 0
+        assert (
+            run_cli(["replay", world.ckpt, world.trajs / "t0.mcap", "--out", tmp_path / "r.rrd", "--no-live"], capsys)[
+                0
+            ]
+            == 0
+        )
     finally:
         os.umask(old)
-    for path in (tmp_path / "demos" / "a.mcap", tmp_path / "fixed.mcap", tmp_path / "r.rrd", tmp_path / "r.experts.json"):
+    for path in (
+        tmp_path / "demos" / "a.mcap",
+        tmp_path / "fixed.mcap",
+        tmp_path / "r.rrd",
+        tmp_path / "r.experts.json",
+    ):
         assert stat.S_IMODE(path.stat().st_mode) == 0o666 & ~umask, path
 
 
@@ -349,6 +428,7 @@ def test_extract_keep_going_extracts_the_good_files_and_names_the_bad_one(world,
 
 # --- messages that used to mislead --------------------------------------------------------------------------------
 
+
 def test_a_checkpoint_with_edited_n_experts_is_one_line(world, tmp_path, capsys):
     ckpt = tmp_path / "ckpt"
     shutil.copytree(world.ckpt, ckpt)
@@ -365,8 +445,10 @@ def test_a_checkpoint_with_edited_n_experts_is_one_line(world, tmp_path, capsys)
 
 
 def test_a_checkpoint_file_instead_of_its_folder_is_one_line(world, tmp_path, capsys):
-    code, err = run_cli(["replay", world.ckpt / "config.json", world.trajs / "t0.mcap", "--out", tmp_path / "r.rrd",
-                         "--no-live"], capsys)
+    code, err = run_cli(
+        ["replay", world.ckpt / "config.json", world.trajs / "t0.mcap", "--out", tmp_path / "r.rrd", "--no-live"],
+        capsys,
+    )
     assert code == 2 and "is a file; pass the checkpoint folder" in assert_one_line(err, "replay")
 
 
@@ -400,8 +482,21 @@ def test_train_fits_the_warm_up_into_few_steps_and_says_so(world, tmp_path, capl
     assert json.loads((tmp_path / "ckpt" / "config.json").read_text())["training"]["warmup_steps"] == 0
     caplog.clear()
     with caplog.at_level(logging.WARNING):
-        assert main(["-q", "train", str(world.trajs), "--out", str(tmp_path / "ckpt2"), *TINY_TRAINING,
-                     "--warmup-steps", "9"]) == 0
+        assert (
+            main(
+                [
+                    "-q",
+                    "train",
+                    str(world.trajs),
+                    "--out",
+                    str(tmp_path / "ckpt2"),
+                    *TINY_TRAINING,
+                    "--warmup-steps",
+                    "9",
+                ]
+            )
+            == 0
+        )
     assert "--warmup-steps 9 >= --steps 4" in caplog.text
 
 
@@ -412,7 +507,10 @@ def test_train_help_shows_the_actual_defaults():
     from cnep.pipeline.cli.train import TRAIN_OPTIONS, train_config_defaults
 
     defaults = {f.name: f.default for f in dataclasses.fields(TrainConfig)}
-    assert {name: train_config_defaults()[name] for name in TRAIN_OPTIONS} == {name: defaults[name] for name in TRAIN_OPTIONS}
-    done = subprocess.run([sys.executable, "-m", "cnep.pipeline", "train", "--help"], capture_output=True, text=True,
-                          cwd=ROOT, timeout=60)
+    assert {name: train_config_defaults()[name] for name in TRAIN_OPTIONS} == {
+        name: defaults[name] for name in TRAIN_OPTIONS
+    }
+    done = subprocess.run(
+        [sys.executable, "-m", "cnep.pipeline", "train", "--help"], capture_output=True, text=True, cwd=ROOT, timeout=60
+    )
     assert "TrainConfig's default" not in done.stdout and "(default 10000)" in done.stdout

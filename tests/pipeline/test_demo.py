@@ -6,15 +6,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cnep.models import load_checkpoint, read_checkpoint_config
 import cnep.pipeline.replay.layout as L
+from cnep.models import load_checkpoint, read_checkpoint_config
 from cnep.pipeline.cli.main import main
 from cnep.pipeline.demo.free_choice import gate_census, replay_pick
+from cnep.pipeline.demo.generator import CHOICE_KEY, LABEL_KEY
+from cnep.pipeline.demo.scene import BEHAVIOURS, FREE_CHOICE, SIDES
 from cnep.pipeline.demo.stage import GATE_LR_SCALE, QUICK, RRD_FILE, SUMMARY_FILE, online_gates
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.replay.stage import read_decisions
-from cnep.pipeline.demo.generator import CHOICE_KEY, LABEL_KEY
-from cnep.pipeline.demo.scene import BEHAVIOURS, FREE_CHOICE, SIDES
 from cnep.pipeline.train.constants import SCENE
 from cnep.recordings import read_demonstration, read_trajectory
 from cnep.recordings.constants import STEP_DIM
@@ -62,15 +62,22 @@ def _rrd_recordings(path: Path) -> list[dict]:
                 continue
             column = "EncodedImage:blob" if chunk.entity_path == L.CAMERA else "Scalars:scalars"
             rows[chunk.entity_path] += zip(batch.column(L.TIMELINE_FRAME).to_pylist(), batch.column(column).to_pylist())
-        found.append({"frames": [bytes(v[0]) for _, v in sorted(rows[L.CAMERA])],
-                      "gates": np.array([v for _, v in sorted(rows[L.GATES])]), "names": names})
+        found.append(
+            {
+                "frames": [bytes(v[0]) for _, v in sorted(rows[L.CAMERA])],
+                "gates": np.array([v for _, v in sorted(rows[L.GATES])]),
+                "names": names,
+            }
+        )
     return found
 
 
 def test_every_stage_leaves_its_files(demo_run):
     for stage in ("recorded", "demos", "trajectories"):
-        counts = {split: len(list((demo_run / stage / split).glob("*.mcap")))
-                  for split in ("train", "heldout", "scene_change", "free_choice")}
+        counts = {
+            split: len(list((demo_run / stage / split).glob("*.mcap")))
+            for split in ("train", "heldout", "scene_change", "free_choice")
+        }
         assert counts == {"train": N_TRAIN, "heldout": N_HELDOUT, "scene_change": 1, "free_choice": N_FREE}, stage
     recorded = read_demonstration(demo_run / "recorded" / "train" / "demo_000.mcap")
     ingested = read_demonstration(demo_run / "demos" / "train" / "demo_000.mcap")
@@ -147,8 +154,10 @@ def test_the_replayed_free_choice_is_the_one_the_rule_picks(demo_run):
     traces = online_gates(demo_run / "checkpoints" / "cnep", paths)
     (episode,) = json.loads((demo_run / SUMMARY_FILE).read_text())["free_choice_replay"]
     assert episode["recording"] == paths[replay_pick(traces)].name
-    record = {Path(r["recording"]).parent.name + "/" + Path(r["recording"]).name: r
-              for r in read_decisions(demo_run / RRD_FILE)["recordings"]}[f"free_choice/{episode['recording']}"]
+    record = {
+        Path(r["recording"]).parent.name + "/" + Path(r["recording"]).name: r
+        for r in read_decisions(demo_run / RRD_FILE)["recordings"]
+    }[f"free_choice/{episode['recording']}"]
     np.testing.assert_allclose(record["gates"], traces[replay_pick(traces)], atol=1e-5)  # what Rerun shows
     assert episode["census"] == gate_census(traces)
 
@@ -159,12 +168,15 @@ def test_the_rrd_holds_each_replayed_recording(demo_run):
     recordings = [rec for file in files for rec in _rrd_recordings(file)]
     assert len(recordings) == len(files)
     (choice,) = json.loads((demo_run / SUMMARY_FILE).read_text())["free_choice_replay"]
-    replayed = sorted((demo_run / "trajectories" / "heldout").glob("*.mcap")) + \
-        [demo_run / "trajectories" / "scene_change" / "demo_000.mcap",
-         demo_run / "trajectories" / "free_choice" / choice["recording"]]
+    replayed = sorted((demo_run / "trajectories" / "heldout").glob("*.mcap")) + [
+        demo_run / "trajectories" / "scene_change" / "demo_000.mcap",
+        demo_run / "trajectories" / "free_choice" / choice["recording"],
+    ]
     assert len(recordings) == len(replayed)
-    decisions = {Path(r["recording"]).parent.name + "/" + Path(r["recording"]).name: r
-                 for r in read_decisions(demo_run / RRD_FILE)["recordings"]}
+    decisions = {
+        Path(r["recording"]).parent.name + "/" + Path(r["recording"]).name: r
+        for r in read_decisions(demo_run / RRD_FILE)["recordings"]
+    }
     for path in replayed:
         frames = read_trajectory(path).frames
         (rec,) = [r for r in recordings if r["frames"] == frames]  # the stored JPEG bytes, one recording each

@@ -5,9 +5,21 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cnep.pipeline.evaluate.baxter import (BOX_X, BOX_Y, MODELS, BaxterConfig, format_table, in_box, load_paths,
-                                      nearest_demo_distance, run_baxter, score_starts, train_models, xy_path)
 from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.evaluate.baxter import (
+    BOX_X,
+    BOX_Y,
+    MODELS,
+    BaxterConfig,
+    format_table,
+    in_box,
+    load_paths,
+    nearest_demo_distance,
+    run_baxter,
+    score_starts,
+    train_models,
+    xy_path,
+)
 from cnep.recordings import Demonstration, Episode
 
 HEADER = "Time,p_x,p_y,p_z,q_x,q_y,q_z,q_w,gripper_position\n"
@@ -57,15 +69,28 @@ def test_example_reports_every_start_point(data, tmp_path):
     demos, tests = load_paths(config)
     assert (tmp_path / "work" / "demos" / "demo_a.mcap").is_file()  # went through the ingest stage
     models = train_models(demos, config)
-    assert MODELS == ("CNMP", "CNEP (paper)", "CNEP-MoE (paper)", "CNEP (mixture)", "CNEP-MoE (mixture)",
-                      "CNEP (annealed)", "CNEP-MoE (annealed)", "CNEP (bounded)", "CNEP-MoE (bounded)")
+    assert MODELS == (
+        "CNMP",
+        "CNEP (paper)",
+        "CNEP-MoE (paper)",
+        "CNEP (mixture)",
+        "CNEP-MoE (mixture)",
+        "CNEP (annealed)",
+        "CNEP-MoE (annealed)",
+        "CNEP (bounded)",
+        "CNEP-MoE (bounded)",
+    )
     for goal in (False, True):
         results = score_starts(models, demos, tests, goal)
         assert [r.name for r in results] == ["0", "1"]
         for r, x0 in zip(results, (0.78, 0.93)):
             np.testing.assert_allclose(r.start, [x0, -0.48])
-            assert list(r.paths) == list(MODELS) and set(r.chosen_expert) == {"CNEP (paper)", "CNEP (mixture)",
-                                                                                  "CNEP (annealed)", "CNEP (bounded)"}
+            assert list(r.paths) == list(MODELS) and set(r.chosen_expert) == {
+                "CNEP (paper)",
+                "CNEP (mixture)",
+                "CNEP (annealed)",
+                "CNEP (bounded)",
+            }
             for name in MODELS:
                 path, executed = r.paths[name], r.executed[name]
                 assert path.shape == executed.shape == (50, 2) and np.isfinite(path).all()

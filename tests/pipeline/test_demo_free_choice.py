@@ -69,7 +69,7 @@ def test_nothing_before_the_carry_shows_the_pick(side):
     assert (near.episode.extra[CHOICE_KEY], far.episode.extra[CHOICE_KEY]) == ("near", "far")
     carry = int(near.episode.extra[CHOICE_STEP_KEY])
     assert carry == int(far.episode.extra[CHOICE_STEP_KEY]) and 0 < carry < 23
-    assert near.frames[:carry + 1] == far.frames[:carry + 1]
-    np.testing.assert_array_equal(near.pose[:carry + 1], far.pose[:carry + 1])
-    np.testing.assert_array_equal(near.gripper[:carry + 1], far.gripper[:carry + 1])
+    assert near.frames[: carry + 1] == far.frames[: carry + 1]
+    np.testing.assert_array_equal(near.pose[: carry + 1], far.pose[: carry + 1])
+    np.testing.assert_array_equal(near.gripper[: carry + 1], far.gripper[: carry + 1])
     assert np.linalg.norm(near.pose[-1, :2] - far.pose[-1, :2]) > 0.2  # then each goes to its own slot

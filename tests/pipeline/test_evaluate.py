@@ -8,9 +8,9 @@ import torch
 
 import cnep.models.baselines.gmm as gmm_module
 from cnep.pipeline.cli.main import main
-from cnep.pipeline.evaluate.stage import EvaluateConfig, evaluate, plan, pooled, table_rows
 from cnep.pipeline.evaluate.constants import PAPER, QUICK_QUERIES, QUICK_SETS, QUICK_STEPS, TABLES
 from cnep.pipeline.evaluate.jobs import ModelSpec
+from cnep.pipeline.evaluate.stage import EvaluateConfig, evaluate, plan, pooled, table_rows
 
 
 def test_plan_trains_each_shared_network_once():
@@ -41,15 +41,32 @@ def test_patience_reaches_every_network_unless_turned_off():
 
 def test_rows_of_each_table():
     assert [r.label for r in table_rows("comparison", "bimodal")] == [
-        "ProMP", "GMM-GMR", "GMM-GMR (no ridge)", "CNMP", "CNEP", "Nearest demo"]
+        "ProMP",
+        "GMM-GMR",
+        "GMM-GMR (no ridge)",
+        "CNMP",
+        "CNEP",
+        "Nearest demo",
+    ]
     ablation = {r.label: r for r in table_rows("ablation", "multimodal")}
     assert ablation["CNEP-Rec"].spec == ModelSpec(4, a_batch=0.0, a_ind=0.0)
     assert ablation["CNEP-MoE"].spec == ablation["CNEP"].spec and ablation["CNEP-MoE"].method.endswith("+moe")
     assert [r.spec.n_experts for r in table_rows("experts", "multimodal6") if r.spec] == [2, 4, 8]
     commitment = {r.label: r for r in table_rows("commitment", "multimodal6")}
-    assert list(commitment) == ["ProMP", "GMM-GMR", "CNMP", "CNEP (paper)", "CNEP-MoE (paper)", "CNEP (mixture)",
-                                "CNEP-MoE (mixture)", "CNEP (annealed)", "CNEP-MoE (annealed)", "CNEP (bounded)",
-                                "CNEP-MoE (bounded)", "Nearest demo"]
+    assert list(commitment) == [
+        "ProMP",
+        "GMM-GMR",
+        "CNMP",
+        "CNEP (paper)",
+        "CNEP-MoE (paper)",
+        "CNEP (mixture)",
+        "CNEP-MoE (mixture)",
+        "CNEP (annealed)",
+        "CNEP-MoE (annealed)",
+        "CNEP (bounded)",
+        "CNEP-MoE (bounded)",
+        "Nearest demo",
+    ]
     assert commitment["CNEP (mixture)"].spec == ModelSpec(8, assignment="mixture")
     assert commitment["CNEP-MoE (paper)"].spec == commitment["CNEP (paper)"].spec == ModelSpec(8)
 
@@ -57,8 +74,10 @@ def test_rows_of_each_table():
 def test_pooled_equals_statistics_over_all_queries():
     rng = np.random.default_rng(0)
     errors = rng.random((3, 7))  # seeds x queries
-    per_seed = [{"mse": e.mean(), "mse_std": e.std(), "mae": e.mean(), "mae_std": e.std(),
-                 "mode_accuracy": a, "failures": 0} for e, a in zip(errors, (0.5, 1.0, 0.75))]
+    per_seed = [
+        {"mse": e.mean(), "mse_std": e.std(), "mae": e.mean(), "mae_std": e.std(), "mode_accuracy": a, "failures": 0}
+        for e, a in zip(errors, (0.5, 1.0, 0.75))
+    ]
     cell = pooled(per_seed)
     assert cell["mse"] == pytest.approx(errors.mean())
     assert cell["mse_std"] == pytest.approx(errors.std())
@@ -76,8 +95,9 @@ def torch_threads():
 
 def test_tiny_run_writes_every_table(tmp_path, monkeypatch, torch_threads):
     monkeypatch.setattr(gmm_module, "EM_ITERATIONS", 3)  # structure only: a few EM steps are enough
-    config = EvaluateConfig(tables=TABLES, seeds=1, steps=20, queries=3, sets=("bimodal",), out=tmp_path, jobs=0,
-                            quiet=True)
+    config = EvaluateConfig(
+        tables=TABLES, seeds=1, steps=20, queries=3, sets=("bimodal",), out=tmp_path, jobs=0, quiet=True
+    )
     written = evaluate(config)
     assert set(written) == set(TABLES)
     for table in TABLES:
@@ -92,7 +112,7 @@ def test_tiny_run_writes_every_table(tmp_path, monkeypatch, torch_threads):
         nearest = data["results"]["paper"]["Nearest demo"]["bimodal"]
         assert nearest["mse"] == pytest.approx(0.0, abs=1e-12) and nearest["mode_accuracy"] == 1.0
         markdown = written[table].read_text()
-        for row, by_set in PAPER.get(table, {}).items():
+        for by_set in PAPER.get(table, {}).values():
             if "bimodal" in by_set:
                 assert f"(paper {by_set['bimodal'][0]:.3f}" in markdown
         assert (tmp_path / "figures" / f"{table}-bimodal.png").read_bytes()[:4] == b"\x89PNG"
@@ -123,7 +143,7 @@ def test_quick_command_runs_the_comparison_on_two_sets(tmp_path):
     data = json.loads((tmp_path / "comparison.json").read_text())
     settings = data["settings"]
     assert data["sets"] == list(QUICK_SETS) and settings["quick"]
-    assert settings["steps"] == {s: QUICK_STEPS for s in QUICK_SETS} and settings["queries"] == QUICK_QUERIES
+    assert settings["steps"] == dict.fromkeys(QUICK_SETS, QUICK_STEPS) and settings["queries"] == QUICK_QUERIES
     for protocol in ("paper", "heldout"):
         for row in ("CNEP", "CNMP"):  # 1500 steps already tell the two bimodal modes apart
             assert data["results"][protocol][row]["bimodal"]["mode_accuracy"] == 1.0
@@ -153,8 +173,13 @@ def test_a_network_job_reports_its_steps_and_trains_as_fit(torch_threads):
     result = run_job(job, reports)["cnep-d2-bounded"]
     assert reports.steps == [REPORT_STEPS, 30] and result["steps"] == job.steps
     s = make_set("bimodal", 1)  # the same network trained by one models.fit call: the same validation curve
-    _, history = fit(list(s.train), model_config(job.spec, job.cnmp_matches), TrainConfig(steps=job.steps, seed=1),
-                     list(s.val), progress=False)
+    _, history = fit(
+        list(s.train),
+        model_config(job.spec, job.cnmp_matches),
+        TrainConfig(steps=job.steps, seed=1),
+        list(s.val),
+        progress=False,
+    )
     assert result["val_curve"] == [(h["step"], h["val_error"]) for h in history]
     # the kept model's: the best from where the posterior settles (models.loss.settled_fraction) on
     assert result["best_val_error"] == min(h["val_error"] for h in history if h["step"] >= 0.8 * job.steps)
@@ -166,8 +191,13 @@ def test_units_group_one_network_shape_on_one_set():
     from cnep.pipeline.evaluate.stage import units
 
     jobs = [Job("bimodal", seed, ModelSpec(2, a_ind=a_ind), 40, 3) for seed in range(3) for a_ind in (None, 0.0)]
-    jobs += [Job("bimodal", 0, None, 40, 3), Job("bimodal", 1, None, 40, 3), Job("bimodal", 0, ModelSpec(1), 40, 3),
-             Job("multimodal", 0, ModelSpec(2), 40, 3), Job("bimodal", 0, ModelSpec(4), 40, 3)]
+    jobs += [
+        Job("bimodal", 0, None, 40, 3),
+        Job("bimodal", 1, None, 40, 3),
+        Job("bimodal", 0, ModelSpec(1), 40, 3),
+        Job("multimodal", 0, ModelSpec(2), 40, 3),
+        Job("bimodal", 0, ModelSpec(4), 40, 3),
+    ]
     got = units(jobs)
     assert sorted(len(u) for u in got) == [1] * 5 + [UNIT_NETWORKS] * (6 // UNIT_NETWORKS)
     assert sorted(map(repr, (job for unit in got for job in unit))) == sorted(map(repr, jobs))  # each job once
@@ -195,7 +225,8 @@ def test_an_early_stop_credits_the_steps_it_skipped(monkeypatch, torch_threads):
 
     validate = Trainer.validate
     monkeypatch.setattr(Trainer, "validation_due", lambda self: True)  # validate after every step
-    # the recorded error grows after the first validation (the best model stays the real one): patience 2 stops at step 3
+    # the recorded error grows after the first validation (the best model stays the real one):
+    # patience 2 stops at step 3
     monkeypatch.setattr(Trainer, "validate", lambda self: validate(self) + self.step)
     reports = _Reports()
     result = run_job(Job("bimodal", 0, ModelSpec(1), steps=150, n_queries=3, patience=2), reports)["cnmp"]
@@ -207,7 +238,10 @@ def test_progress_counts_training_steps_in_whole_lines(capsys, torch_threads):
     from cnep.pipeline.evaluate.jobs import Job
     from cnep.pipeline.evaluate.stage import run_jobs
 
-    jobs = [Job("bimodal", 0, ModelSpec(2), steps=40, n_queries=3), Job("bimodal", 0, ModelSpec(1), steps=40, n_queries=3)]
+    jobs = [
+        Job("bimodal", 0, ModelSpec(2), steps=40, n_queries=3),
+        Job("bimodal", 0, ModelSpec(1), steps=40, n_queries=3),
+    ]
     assert [job for job, _ in run_jobs(jobs, workers=1, quiet=False)] != []
     lines = capsys.readouterr().err.splitlines()
     assert "\r" not in "".join(lines) and "80/80" in lines[-1] and "2/2 fits" in lines[-1]
@@ -215,8 +249,17 @@ def test_progress_counts_training_steps_in_whole_lines(capsys, torch_threads):
 
 def test_unimodal_has_no_commitment_queries_and_still_scores(tmp_path, monkeypatch, torch_threads):
     monkeypatch.setattr(gmm_module, "EM_ITERATIONS", 3)
-    config = EvaluateConfig(tables=("comparison",), seeds=1, steps=20, queries=3, sets=("unimodal",), out=tmp_path,
-                            jobs=0, quiet=True, figures=False)
+    config = EvaluateConfig(
+        tables=("comparison",),
+        seeds=1,
+        steps=20,
+        queries=3,
+        sets=("unimodal",),
+        out=tmp_path,
+        jobs=0,
+        quiet=True,
+        figures=False,
+    )
     evaluate(config)
     data = json.loads((tmp_path / "comparison.json").read_text())
     assert data["results"]["paper"]["CNEP"]["unimodal"]["failures"] == 0

@@ -8,8 +8,14 @@ from cnep.perception import FeatureExtractor, PerceptionError, decode_image
 from cnep.perception.constants import WEIGHTS_ENV_VAR
 from cnep.pipeline.cli.main import main
 from cnep.pipeline.errors import PipelineError
-from cnep.pipeline.extract.stage import (ExtractConfig, calibration_frames, check_identities, check_same_extractor, extract,
-                              plan_outputs)
+from cnep.pipeline.extract.stage import (
+    ExtractConfig,
+    calibration_frames,
+    check_identities,
+    check_same_extractor,
+    extract,
+    plan_outputs,
+)
 from cnep.recordings import read_trajectory, write_demonstration
 from tests.recordings.factories import demonstration_factory
 
@@ -19,8 +25,10 @@ def demos(tmp_path) -> list[Path]:
     """Two demonstration files with 6 frames each, in tmp_path/demos."""
     folder = tmp_path / "demos"
     folder.mkdir()
-    return [write_demonstration(folder / f"demo-{k}.mcap", demonstration_factory(6, seed=k, episode_id=f"demo-{k}"))
-            for k in range(2)]
+    return [
+        write_demonstration(folder / f"demo-{k}.mcap", demonstration_factory(6, seed=k, episode_id=f"demo-{k}"))
+        for k in range(2)
+    ]
 
 
 def _config(inputs, out, **overrides) -> ExtractConfig:
@@ -65,8 +73,10 @@ def test_up_to_date_outputs_are_skipped_and_stale_ones_redone(demos, tmp_path):
     assert [item.skipped for item in extract(_config(demos, out))] == [True, False]
     assert [item.skipped for item in extract(_config(demos, out, force=True))] == [False, False]
     before = {p.name: p.read_bytes() for p in out.iterdir()}
-    with pytest.raises(PipelineError, match="already exists and is not this input's trajectory file from these "
-                                            "weights .and 1 more.; add --force"):
+    with pytest.raises(
+        PipelineError,
+        match="already exists and is not this input's trajectory file from these weights .and 1 more.; add --force",
+    ):
         extract(_config(demos, out, seed=1))  # other weights: their features are not replaced silently
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before
     assert [item.skipped for item in extract(_config(demos, out, seed=1, force=True))] == [False, False]
@@ -123,8 +133,14 @@ def test_mixing_extractors_is_refused_naming_the_odd_files(demos, tmp_path):
 
 
 def test_backend_alone_does_not_prevent_mixing():
-    identity = {"architecture": "a", "feature_dim": "1280", "weights": "w", "weights_sha256": "0" * 64,
-                "preprocessing": "p", "backend": "eager"}
+    identity = {
+        "architecture": "a",
+        "feature_dim": "1280",
+        "weights": "w",
+        "weights_sha256": "0" * 64,
+        "preprocessing": "p",
+        "backend": "eager",
+    }
     shared = check_identities({Path("x"): identity, Path("y"): {**identity, "backend": "onnxruntime"}})
     assert shared == identity
     with pytest.raises(PipelineError, match="without features \\(motion-only\\): z"):
@@ -152,8 +168,21 @@ def test_folder_inputs_keep_relative_paths(tmp_path):
 
 def test_cli_extracts_and_reports(demos, tmp_path, capsys):
     out = tmp_path / "out"
-    code = main(["-q", "extract", str(demos[0].parent), "--out", str(out), "--weights", "random", "--backend",
-                 "eager", "--threads", "1"])
+    code = main(
+        [
+            "-q",
+            "extract",
+            str(demos[0].parent),
+            "--out",
+            str(out),
+            "--weights",
+            "random",
+            "--backend",
+            "eager",
+            "--threads",
+            "1",
+        ]
+    )
     assert code == 0
     assert "extracted 2 trajectory file(s)" in capsys.readouterr().out
     assert sorted(p.name for p in out.iterdir()) == ["demo-0.mcap", "demo-1.mcap"]
@@ -220,8 +249,26 @@ def test_cli_workers_auto_extracts_a_small_job_in_this_process(demos, tmp_path, 
     from cnep.pipeline.extract import stage
 
     monkeypatch.setattr(stage, "extract_in_processes", lambda *a: pytest.fail("started worker processes"))
-    assert main(["-q", "extract", *map(str, demos), "--out", str(tmp_path / "out"), "--weights", "random",
-                 "--backend", "eager", "--threads", "1", "--workers", "auto"]) == 0
+    assert (
+        main(
+            [
+                "-q",
+                "extract",
+                *map(str, demos),
+                "--out",
+                str(tmp_path / "out"),
+                "--weights",
+                "random",
+                "--backend",
+                "eager",
+                "--threads",
+                "1",
+                "--workers",
+                "auto",
+            ]
+        )
+        == 0
+    )
     assert "extracted 2 trajectory file(s)" in capsys.readouterr().out
     with pytest.raises(SystemExit):
         main(["extract", str(demos[0]), "--out", str(tmp_path / "x"), "--workers", "two"])
@@ -239,7 +286,10 @@ def test_calibrate_on_gives_later_runs_the_first_runs_identity(demos, tmp_path):
 
 
 @pytest.mark.slow  # quantising MobileNet-v2 takes ~10 s (cached afterwards)
-@pytest.mark.skipif("onnxruntime" not in __import__("cnep.perception", fromlist=["_"]).available_backends(), reason="needs the onnx extra")
+@pytest.mark.skipif(
+    "onnxruntime" not in __import__("cnep.perception", fromlist=["_"]).available_backends(),
+    reason="needs the onnx extra",
+)
 def test_int8_features_are_close_to_fp32_and_never_mixed_with_them(demos, tmp_path):
     fp32 = extract(_config(demos, tmp_path / "fp32", backend="onnxruntime"))
     int8 = extract(_config(demos, tmp_path / "int8", backend="onnxruntime", precision="int8"))

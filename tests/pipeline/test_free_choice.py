@@ -10,8 +10,15 @@ NEAR, FAR = np.asarray(SLOT_XY["near"]), np.asarray(SLOT_XY["far"])
 
 
 def test_ends_in_a_slot_are_valid_and_the_average_of_the_two_is_not():
-    ends = np.stack([NEAR, NEAR + [0.0, 0.8 * PLACE_TOLERANCE], FAR + [0.03, 0.0], (NEAR + FAR) / 2,
-                     NEAR + [1.2 * PLACE_TOLERANCE, 0.0]])
+    ends = np.stack(
+        [
+            NEAR,
+            NEAR + [0.0, 0.8 * PLACE_TOLERANCE],
+            FAR + [0.03, 0.0],
+            (NEAR + FAR) / 2,
+            NEAR + [1.2 * PLACE_TOLERANCE, 0.0],
+        ]
+    )
     found = place_outcomes(ends)
     assert found["n"] == 5
     assert found["near"] == pytest.approx(2 / 5) and found["far"] == pytest.approx(1 / 5)
@@ -27,11 +34,15 @@ def test_no_motion_end_is_an_error():
 
 
 def test_a_gate_that_starts_split_and_commits():
-    gates = np.array([[0.48, 0.02, 0.47, 0.03],  # step 0: split between experts 0 and 2
-                      [0.60, 0.00, 0.40, 0.00],
-                      [0.40, 0.00, 0.60, 0.00],
-                      [0.05, 0.00, 0.95, 0.00],  # from here expert 2 holds p >= 0.9
-                      [0.01, 0.00, 0.99, 0.00]])
+    gates = np.array(
+        [
+            [0.48, 0.02, 0.47, 0.03],  # step 0: split between experts 0 and 2
+            [0.60, 0.00, 0.40, 0.00],
+            [0.40, 0.00, 0.60, 0.00],
+            [0.05, 0.00, 0.95, 0.00],  # from here expert 2 holds p >= 0.9
+            [0.01, 0.00, 0.99, 0.00],
+        ]
+    )
     found = commitment(gates)
     assert [e for e, _ in found["start"]] == [0, 2]
     assert found["start"][0][1] == pytest.approx(0.48) and found["start"][1][1] == pytest.approx(0.47)

@@ -66,8 +66,10 @@ def test_log_messages_stay_whole_lines_beside_the_bar():
     handler = logging.StreamHandler(stream)
     logger.addHandler(handler)
     try:
-        with logging_redirect_tqdm(loggers=[logger]), progress.progress_bar(total=2, desc="x", unit="f",
-                                                                              stream=stream) as bar:
+        with (
+            logging_redirect_tqdm(loggers=[logger]),
+            progress.progress_bar(total=2, desc="x", unit="f", stream=stream) as bar,
+        ):
             for k in range(2):
                 logger.warning("file %d done", k)
                 bar.update(1)
@@ -79,8 +81,18 @@ def test_log_messages_stay_whole_lines_beside_the_bar():
 @pytest.mark.parametrize("quiet", [True, False])
 def test_cnep_extract_in_a_log(tmp_path, capfd, quiet):
     demo = write_demonstration(tmp_path / "d.mcap", demonstration_factory(5))
-    args = ["extract", str(demo), "--out", str(tmp_path / "out"), "--weights", "random", "--backend", "eager",
-            "--threads", "1"]
+    args = [
+        "extract",
+        str(demo),
+        "--out",
+        str(tmp_path / "out"),
+        "--weights",
+        "random",
+        "--backend",
+        "eager",
+        "--threads",
+        "1",
+    ]
     assert main(["-q", *args] if quiet else args) == 0
     err = capfd.readouterr().err
     assert "\r" not in err

@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 import torch
 
-from cnep.models import CNEPConfig, Layout, build_model, save_checkpoint
 import cnep.pipeline.replay.layout as L
+from cnep.models import CNEPConfig, Layout, build_model, save_checkpoint
 from cnep.pipeline.cli.main import main
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.replay.stage import decisions_path, read_decisions, replay, serve, viewer_reachable
@@ -54,11 +54,19 @@ def motion_rows(steps: int, seed: int) -> np.ndarray:
     return data
 
 
-def trajectory(steps: int = 40, seed: int = 0, frames: bool = True, width: int = MOTION_DIM, name: str = "ep",
-               extractor: dict | None = None) -> Trajectory:
+def trajectory(
+    steps: int = 40,
+    seed: int = 0,
+    frames: bool = True,
+    width: int = MOTION_DIM,
+    name: str = "ep",
+    extractor: dict | None = None,
+) -> Trajectory:
     data = motion_rows(steps, seed)
     if width == STEP_DIM:
-        data = np.concatenate([np.abs(np.random.default_rng(seed).normal(size=(steps, 1280))).astype(np.float32), data], 1)
+        data = np.concatenate(
+            [np.abs(np.random.default_rng(seed).normal(size=(steps, 1280))).astype(np.float32), data], 1
+        )
         extractor = extractor or {"architecture": "mobilenet_v2", "weights": "random"}
     return Trajectory(
         episode=Episode(episode_id=name, fps=10.0),
@@ -72,8 +80,9 @@ def trajectory(steps: int = 40, seed: int = 0, frames: bool = True, width: int =
 def make_checkpoint(directory: Path, extra: dict | None = None) -> Path:
     """An untrained (seeded) 8-column model whose gate tells the two xyz regions of `motion_rows` apart."""
     layout = Layout(width=MOTION_DIM, observed=((0, MOTION_DIM),), predicted=((0, MOTION_DIM),))
-    config = CNEPConfig(layout=layout, n_experts=N_EXPERTS, encoder_widths=(16, 16), expert_widths=(16, 16),
-                        time_frequencies=2)
+    config = CNEPConfig(
+        layout=layout, n_experts=N_EXPERTS, encoder_widths=(16, 16), expert_widths=(16, 16), time_frequencies=2
+    )
     rows = motion_rows(40, 0)
     model = build_model(config, [rows] + [motion_rows(40, s) for s in range(1, 4)], seed=0)
     with torch.no_grad():
@@ -153,7 +162,9 @@ def test_the_rrd_holds_one_gate_row_per_step_and_switches_at_argmax_changes(tmp_
     _, colors = column(out, L.PREDICTION, "LineStrips3D:colors")  # the active expert's colour, packed RGBA
     packed = [(r << 24) | (g << 16) | (b << 8) | 255 for r, g, b in L.expert_colors(N_EXPERTS)]
     assert [c[0] for c in colors] == [packed[e] for e in argmax]
-    time_rows = [c.to_record_batch().column(L.TIMELINE_TIME).to_pylist() for c in chunks(out, L.GATES) if not c.is_static]
+    time_rows = [
+        c.to_record_batch().column(L.TIMELINE_TIME).to_pylist() for c in chunks(out, L.GATES) if not c.is_static
+    ]
     assert sorted(t for rows in time_rows for t in rows)[:2] == [dt.timedelta(0), dt.timedelta(seconds=0.1)]
     _, names = column(out, L.GATES, "SeriesLines:names", static=True)
     assert names == [[f"expert {e}" for e in range(N_EXPERTS)]]
@@ -171,8 +182,10 @@ def test_several_recordings_become_one_file_each_in_the_order_given(tmp_path, ch
     from rerun.chunk import RrdReader
 
     (tmp_path / "traj").mkdir()
-    paths = [write_trajectory(tmp_path / "traj" / f"ep{i}.mcap", trajectory(steps=20 + 10 * i, seed=i, name=f"ep{i}"))
-             for i in (1, 0)]
+    paths = [
+        write_trajectory(tmp_path / "traj" / f"ep{i}.mcap", trajectory(steps=20 + 10 * i, seed=i, name=f"ep{i}"))
+        for i in (1, 0)
+    ]
     files = replay(checkpoint, paths, tmp_path / "both.rrd", connect=None, quiet=True)
     assert files == [tmp_path / "both-01-traj-ep1.rrd", tmp_path / "both-02-traj-ep0.rrd"]
     assert not (tmp_path / "both.rrd").exists() and not list(tmp_path.glob(".both*"))
@@ -188,8 +201,9 @@ def test_several_recordings_become_one_file_each_in_the_order_given(tmp_path, ch
 def test_merge_puts_every_recording_into_one_file_in_the_order_given(tmp_path, checkpoint):
     from rerun.chunk import RrdReader
 
-    paths = [write_trajectory(tmp_path / f"ep{i}.mcap", trajectory(steps=20 + 10 * i, seed=i, name=f"ep{i}"))
-             for i in (1, 0)]
+    paths = [
+        write_trajectory(tmp_path / f"ep{i}.mcap", trajectory(steps=20 + 10 * i, seed=i, name=f"ep{i}")) for i in (1, 0)
+    ]
     (out,) = replay(checkpoint, paths, tmp_path / "both.rrd", connect=None, merge=True, quiet=True)
     assert out == tmp_path / "both.rrd"
     assert [r.recording_id.split("-")[1] for r in RrdReader(out).recordings()] == ["ep1", "ep0"]
@@ -208,15 +222,21 @@ def make_feature_checkpoint(directory: Path, extractor: dict) -> Path:
     config = CNEPConfig(layout=layout, n_experts=2, encoder_widths=(8,), expert_widths=(8,), time_frequencies=2)
     model = build_model(config, [trajectory(width=STEP_DIM, seed=s).data for s in range(3)], seed=0)
     blocks = {name: list(span) for name, span in LAYOUT_FULL.items()}
-    return save_checkpoint(model, directory, {"layout": {"recording_width": STEP_DIM, "columns": [[0, STEP_DIM]],
-                                                         "blocks": blocks}, "extractor": extractor})
+    return save_checkpoint(
+        model,
+        directory,
+        {"layout": {"recording_width": STEP_DIM, "columns": [[0, STEP_DIM]], "blocks": blocks}, "extractor": extractor},
+    )
 
 
 def test_a_recording_without_the_blocks_the_checkpoint_needs_is_refused_before_anything_is_written(tmp_path):
     ckpt = make_feature_checkpoint(tmp_path / "ckpt", IDENTITY)
     rec = write_trajectory(tmp_path / "narrow.mcap", trajectory())
-    with pytest.raises(PipelineError, match=r"narrow.mcap: the recording has 8 columns .* 1288-column trajectories "
-                                            r"and needs features"):
+    with pytest.raises(
+        PipelineError,
+        match=r"narrow.mcap: the recording has 8 columns .* 1288-column trajectories "
+        r"and needs features",
+    ):
         replay(ckpt, [rec], tmp_path / "x.rrd", connect=None, quiet=True)
     assert not (tmp_path / "x.rrd").exists() and not decisions_path(tmp_path / "x.rrd").exists()
 
@@ -226,10 +246,14 @@ def test_a_recording_from_another_extractor_is_refused_naming_both(tmp_path):
     ckpt = make_feature_checkpoint(tmp_path / "ckpt", IDENTITY)
     same = write_trajectory(tmp_path / "same.mcap", trajectory(width=STEP_DIM, extractor=IDENTITY))
     assert replay(ckpt, [same], tmp_path / "ok.rrd", connect=None, quiet=True) == [tmp_path / "ok.rrd"]
-    other = write_trajectory(tmp_path / "other.mcap", trajectory(width=STEP_DIM,
-                                                                 extractor={**IDENTITY, "weights_sha256": "b" * 64}))
-    with pytest.raises(PipelineError, match=r"different feature extractors.*sha256 aaaaaaaaaaaa.*ckpt/config.json.*"
-                                            r"sha256 bbbbbbbbbbbb.*other.mcap"):
+    other = write_trajectory(
+        tmp_path / "other.mcap", trajectory(width=STEP_DIM, extractor={**IDENTITY, "weights_sha256": "b" * 64})
+    )
+    with pytest.raises(
+        PipelineError,
+        match=r"different feature extractors.*sha256 aaaaaaaaaaaa.*ckpt/config.json.*"
+        r"sha256 bbbbbbbbbbbb.*other.mcap",
+    ):
         replay(ckpt, [same, other], tmp_path / "x.rrd", connect=None, quiet=True)
     assert not list(tmp_path.glob("x.*")) and not list(tmp_path.glob(".x.*"))
 
@@ -238,7 +262,9 @@ def test_a_checkpoint_whose_extractor_was_edited_is_refused(tmp_path, capsys):
     ckpt = make_feature_checkpoint(tmp_path / "ckpt", IDENTITY)
     config = ckpt / "config.json"
     config.write_text(config.read_text().replace("a" * 64, "0" * 64))
-    rec = write_trajectory(tmp_path / "rec.mcap", trajectory(width=STEP_DIM, extractor={**IDENTITY, "weights_sha256": "0" * 64}))
+    rec = write_trajectory(
+        tmp_path / "rec.mcap", trajectory(width=STEP_DIM, extractor={**IDENTITY, "weights_sha256": "0" * 64})
+    )
     assert main(["replay", str(ckpt), str(rec), "--out", str(tmp_path / "x.rrd"), "--no-live"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "config.json: the checkpoint config does not match its checksum" in err
@@ -246,15 +272,23 @@ def test_a_checkpoint_whose_extractor_was_edited_is_refused(tmp_path, capsys):
 
 def test_a_motion_checkpoint_replays_8_and_1288_column_recordings_alike(tmp_path):
     """The motion columns are found by the recording's layout, whatever width the checkpoint was trained on."""
-    layout = {"recording_width": STEP_DIM, "columns": [[1280, 1288]],
-              "blocks": {name: list(span) for name, span in LAYOUT_MOTION.items()}}
+    layout = {
+        "recording_width": STEP_DIM,
+        "columns": [[1280, 1288]],
+        "blocks": {name: list(span) for name, span in LAYOUT_MOTION.items()},
+    }
     from_wide = make_checkpoint(tmp_path / "ckpt", extra={"layout": layout})
     from_narrow = make_checkpoint(tmp_path / "plain")  # no layout entry: the model's own 8 columns
     wide = write_trajectory(tmp_path / "wide.mcap", trajectory(width=STEP_DIM))
     narrow = write_trajectory(tmp_path / "n.mcap", trajectory())
-    gates = [read_decisions(replay(ckpt, [rec], tmp_path / f"{i}.rrd", connect=None, quiet=True)[0])["recordings"][0]["gates"]
-             for i, (ckpt, rec) in enumerate([(from_wide, wide), (from_wide, narrow), (from_narrow, wide),
-                                              (from_narrow, narrow)])]
+    gates = [
+        read_decisions(replay(ckpt, [rec], tmp_path / f"{i}.rrd", connect=None, quiet=True)[0])["recordings"][0][
+            "gates"
+        ]
+        for i, (ckpt, rec) in enumerate(
+            [(from_wide, wide), (from_wide, narrow), (from_narrow, wide), (from_narrow, narrow)]
+        )
+    ]
     assert all(g == gates[0] for g in gates[1:])
 
 
@@ -267,7 +301,9 @@ def test_decisions_go_into_a_copy_of_the_recording_as_events(tmp_path, checkpoin
     decisions = read_decisions(out)["recordings"][0]
     assert len(events) == 1 + len(decisions["switches"])
     assert [int(e.metadata["step"]) for e in events] == [0] + [s["step"] for s in decisions["switches"]]
-    assert [int(e.metadata["expert"]) for e in events] == [decisions["experts"][int(e.metadata["step"])] for e in events]
+    assert [int(e.metadata["expert"]) for e in events] == [
+        decisions["experts"][int(e.metadata["step"])] for e in events
+    ]
     ts = 1_700_000_000_000_000_000 + np.arange(40) * 100_000_000
     assert sum(e.duration_ns for e in events) == ts[-1] - ts[0]
 
@@ -307,8 +343,9 @@ def test_a_reachable_viewer_receives_the_live_stream_and_the_file_is_still_compl
 
     port, received = free_port(), tmp_path / "received.rrd"
     exe = Path(rerun_cli.__file__).parent / "rerun"  # the binary itself (the `rerun` script would fork it)
-    viewer = subprocess.Popen([str(exe), "--port", str(port), "--save", str(received)], stdout=subprocess.DEVNULL,
-                              stderr=subprocess.DEVNULL)
+    viewer = subprocess.Popen(
+        [str(exe), "--port", str(port), "--save", str(received)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+    )
     try:
         url = f"rerun+http://127.0.0.1:{port}/proxy"
         deadline = time.monotonic() + 20
@@ -343,8 +380,21 @@ def test_serve_hosts_a_server_that_replay_streams_to(tmp_path, checkpoint, caplo
 
 def test_cli_replay_prints_the_expert_of_each_recording(tmp_path, checkpoint, capsys):
     rec = write_trajectory(tmp_path / "ep.mcap", trajectory(steps=20))
-    code = main(["-q", "replay", str(checkpoint), str(rec), "--out", str(tmp_path / "c.rrd"), "--no-live",
-                 "--window", "3", "--anchors", "0"])
+    code = main(
+        [
+            "-q",
+            "replay",
+            str(checkpoint),
+            str(rec),
+            "--out",
+            str(tmp_path / "c.rrd"),
+            "--no-live",
+            "--window",
+            "3",
+            "--anchors",
+            "0",
+        ]
+    )
     assert code == 0
     printed = capsys.readouterr().out
     majority = read_decisions(tmp_path / "c.rrd")["recordings"][0]["majority_expert"]
@@ -383,6 +433,9 @@ def test_event_copies_that_would_overwrite_each_other_are_refused(tmp_path, chec
 def test_a_feature_checkpoint_that_names_no_extractor_is_refused(tmp_path):
     ckpt = make_feature_checkpoint(tmp_path / "ckpt", {})
     rec = write_trajectory(tmp_path / "rec.mcap", trajectory(width=STEP_DIM, extractor=IDENTITY))
-    with pytest.raises(PipelineError, match=r"ckpt/config.json: the model sees image features but the checkpoint "
-                                            r"names no feature extractor"):
+    with pytest.raises(
+        PipelineError,
+        match=r"ckpt/config.json: the model sees image features but the checkpoint "
+        r"names no feature extractor",
+    ):
         replay(ckpt, [rec], tmp_path / "x.rrd", connect=None, quiet=True)

@@ -24,7 +24,7 @@ def scene_rows(scene: int, rng: np.random.Generator) -> np.ndarray:
     data = np.zeros((T, STEP_DIM), np.float32)
     half = FEATURE_DIM // 2
     data[:, :FEATURE_DIM] = 0.2 * rng.random(FEATURE_DIM) + 0.05 * rng.standard_normal((T, FEATURE_DIM))
-    data[:, scene * half:(scene + 1) * half] += 1.0
+    data[:, scene * half : (scene + 1) * half] += 1.0
     sign = 1.0 if scene == 0 else -1.0
     data[:, 1280] = t
     data[:, 1281] = sign * 0.3 * np.sin(np.pi * t) + 0.02 * rng.standard_normal()
@@ -35,9 +35,12 @@ def scene_rows(scene: int, rng: np.random.Generator) -> np.ndarray:
 
 
 def as_trajectory(data: np.ndarray, name: str) -> Trajectory:
-    return Trajectory(episode=Episode(episode_id=name, fps=10.0),
-                      timestamps_ns=np.arange(len(data), dtype=np.int64) * 100_000_000, data=data,
-                      extractor={"architecture": "synthetic", "weights": "none"})
+    return Trajectory(
+        episode=Episode(episode_id=name, fps=10.0),
+        timestamps_ns=np.arange(len(data), dtype=np.int64) * 100_000_000,
+        data=data,
+        extractor={"architecture": "synthetic", "weights": "none"},
+    )
 
 
 @pytest.fixture(scope="module")
@@ -49,8 +52,11 @@ def checkpoint(tmp_path_factory):
     config = CNEPConfig(layout=layout, n_experts=2, encoder_widths=(32, 32), expert_widths=(32, 32), time_frequencies=2)
     train = TrainConfig(steps=300, batch_size=32, warmup_steps=100, gate_freeze_fraction=0.3, val_every=100, seed=0)
     model, _ = fit(demos, config, train, progress=False)
-    return save_checkpoint(model, tmp_path_factory.mktemp("scene") / "ckpt",  # the features' extractor, as training records
-                           {"extractor": {"architecture": "synthetic", "weights": "none"}})
+    return save_checkpoint(
+        model,
+        tmp_path_factory.mktemp("scene") / "ckpt",  # the features' extractor, as training records
+        {"extractor": {"architecture": "synthetic", "weights": "none"}},
+    )
 
 
 def test_the_gate_moves_to_another_expert_when_the_scene_changes(tmp_path, checkpoint, monkeypatch):
@@ -58,9 +64,11 @@ def test_the_gate_moves_to_another_expert_when_the_scene_changes(tmp_path, check
     monkeypatch.setenv("HOME", str(tmp_path))
     rng = np.random.default_rng(1)
     a, b = scene_rows(0, rng), scene_rows(1, rng)
-    switching = np.concatenate([a[: T // 2], b[T // 2:]])
-    paths = [write_trajectory(tmp_path / f"{name}.mcap", as_trajectory(data, name))
-             for name, data in (("scene0", a), ("scene1", b), ("switch", switching))]
+    switching = np.concatenate([a[: T // 2], b[T // 2 :]])
+    paths = [
+        write_trajectory(tmp_path / f"{name}.mcap", as_trajectory(data, name))
+        for name, data in (("scene0", a), ("scene1", b), ("switch", switching))
+    ]
     replay(checkpoint, paths, tmp_path / "scene.rrd", connect=None, quiet=True)
     pure0, pure1, switch = read_decisions(tmp_path / "scene.rrd")["recordings"]
 
@@ -70,7 +78,7 @@ def test_the_gate_moves_to_another_expert_when_the_scene_changes(tmp_path, check
 
     experts = np.array(switch["experts"])
     assert (experts[: T // 2] == e0).mean() > 0.9  # scene 0 first ...
-    assert (experts[-T // 4:] == e1).all()  # ... then scene 1 once the window holds only scene-1 steps
+    assert (experts[-T // 4 :] == e1).all()  # ... then scene 1 once the window holds only scene-1 steps
     moves = [s for s in switch["switches"] if (s["from"], s["to"]) == (e0, e1)]
     assert moves and T // 2 <= moves[-1]["step"] <= T // 2 + 10  # within the conditioning window of the change
     gate = np.array(switch["gates"])

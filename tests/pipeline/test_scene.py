@@ -1,16 +1,31 @@
 """The synthetic tabletop generator: files, motion, labels, seeds, and that random-weight features see the scene."""
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 from cnep.perception import FeatureExtractor, decode_image
 from cnep.pipeline.demo.free_choice import place_outcomes
-from cnep.pipeline.demo.scene import (BEHAVIOURS, BLOCK_RGB, FRAME_HEIGHT, FRAME_WIDTH, FREE_CHOICE, draw_frame,
-                                 gripper_quaternion, sample_scene, yaw_of)
-from cnep.pipeline.demo.generator import (CHOICE_KEY, CHOICE_STEP_KEY, GRIPPER_OPEN, HOME, LABEL_KEY, SWITCH_KEY,
-                                     DemoSetConfig, generate)
+from cnep.pipeline.demo.generator import (
+    CHOICE_KEY,
+    CHOICE_STEP_KEY,
+    GRIPPER_OPEN,
+    HOME,
+    LABEL_KEY,
+    SWITCH_KEY,
+    DemoSetConfig,
+    generate,
+)
+from cnep.pipeline.demo.scene import (
+    BEHAVIOURS,
+    BLOCK_RGB,
+    FRAME_HEIGHT,
+    FRAME_WIDTH,
+    FREE_CHOICE,
+    draw_frame,
+    gripper_quaternion,
+    sample_scene,
+    yaw_of,
+)
 from cnep.recordings import read_demonstration
 
 STEPS = 24
@@ -21,13 +36,28 @@ POSES = 4  # gripper poses per scene, in the read-out check
 @pytest.fixture(scope="module")
 def demo_set(tmp_path_factory):
     out = tmp_path_factory.mktemp("tabletop")
-    return generate(DemoSetConfig(out, per_behaviour=2, heldout_per_behaviour=1, scene_changes=2, steps=STEPS,
-                                  seed=3, quiet=True, free_choice_per_side=3, heldout_free_choice_per_side=2))
+    return generate(
+        DemoSetConfig(
+            out,
+            per_behaviour=2,
+            heldout_per_behaviour=1,
+            scene_changes=2,
+            steps=STEPS,
+            seed=3,
+            quiet=True,
+            free_choice_per_side=3,
+            heldout_free_choice_per_side=2,
+        )
+    )
 
 
 def test_files_per_split_and_labels_only_in_metadata(demo_set):
-    assert {k: len(v) for k, v in demo_set.files.items()} == {"train": 14, "heldout": 4, "scene_change": 2,
-                                                              "free_choice": 4}
+    assert {k: len(v) for k, v in demo_set.files.items()} == {
+        "train": 14,
+        "heldout": 4,
+        "scene_change": 2,
+        "free_choice": 4,
+    }
     train_labels = sorted(demo_set.labels[p] for p in demo_set.files["train"])
     assert train_labels == sorted(BEHAVIOURS * 2 + FREE_CHOICE * 3)
     assert sorted(demo_set.labels[p] for p in demo_set.files["free_choice"]) == sorted(FREE_CHOICE * 2)
@@ -56,16 +86,37 @@ def test_motion_shares_the_start_closes_and_opens_the_gripper(demo_set):
 
 
 def test_same_seed_same_recordings(demo_set, tmp_path):
-    again = generate(DemoSetConfig(tmp_path, per_behaviour=2, heldout_per_behaviour=1, scene_changes=2, steps=STEPS,
-                                   seed=3, quiet=True, free_choice_per_side=3, heldout_free_choice_per_side=2))
+    again = generate(
+        DemoSetConfig(
+            tmp_path,
+            per_behaviour=2,
+            heldout_per_behaviour=1,
+            scene_changes=2,
+            steps=STEPS,
+            seed=3,
+            quiet=True,
+            free_choice_per_side=3,
+            heldout_free_choice_per_side=2,
+        )
+    )
     for a, b in zip(demo_set.files["train"], again.files["train"]):
         da, db = read_demonstration(a), read_demonstration(b)
         np.testing.assert_array_equal(da.pose, db.pose)
         assert da.frames == db.frames
-    other = generate(DemoSetConfig(tmp_path / "other", per_behaviour=2, heldout_per_behaviour=0, scene_changes=0,
-                                   steps=STEPS, seed=4, quiet=True))
-    assert not np.array_equal(read_demonstration(other.files["train"][0]).pose,
-                              read_demonstration(demo_set.files["train"][0]).pose)
+    other = generate(
+        DemoSetConfig(
+            tmp_path / "other",
+            per_behaviour=2,
+            heldout_per_behaviour=0,
+            scene_changes=0,
+            steps=STEPS,
+            seed=4,
+            quiet=True,
+        )
+    )
+    assert not np.array_equal(
+        read_demonstration(other.files["train"][0]).pose, read_demonstration(demo_set.files["train"][0]).pose
+    )
 
 
 def test_scene_change_moves_the_block_and_the_place_point(demo_set):
@@ -96,8 +147,12 @@ def test_a_free_choice_scene_shows_no_block():
 
 
 def _free_choices(demo_set) -> list:
-    return [read_demonstration(p) for split in ("train", "free_choice") for p in demo_set.files[split]
-            if demo_set.labels[p] in FREE_CHOICE]
+    return [
+        read_demonstration(p)
+        for split in ("train", "free_choice")
+        for p in demo_set.files[split]
+        if demo_set.labels[p] in FREE_CHOICE
+    ]
 
 
 def test_free_choice_demonstrations_pick_either_slot_and_end_in_it(demo_set):
@@ -114,12 +169,32 @@ def test_free_choice_demonstrations_pick_either_slot_and_end_in_it(demo_set):
 
 
 def test_the_demonstrators_choice_is_seeded(demo_set, tmp_path):
-    again = generate(DemoSetConfig(tmp_path / "again", per_behaviour=0, heldout_per_behaviour=0, scene_changes=0,
-                                   steps=STEPS, seed=3, quiet=True, free_choice_per_side=0,
-                                   heldout_free_choice_per_side=2))
-    other = generate(DemoSetConfig(tmp_path / "other", per_behaviour=0, heldout_per_behaviour=0, scene_changes=0,
-                                   steps=STEPS, seed=5, quiet=True, free_choice_per_side=0,
-                                   heldout_free_choice_per_side=6))
+    again = generate(
+        DemoSetConfig(
+            tmp_path / "again",
+            per_behaviour=0,
+            heldout_per_behaviour=0,
+            scene_changes=0,
+            steps=STEPS,
+            seed=3,
+            quiet=True,
+            free_choice_per_side=0,
+            heldout_free_choice_per_side=2,
+        )
+    )
+    other = generate(
+        DemoSetConfig(
+            tmp_path / "other",
+            per_behaviour=0,
+            heldout_per_behaviour=0,
+            scene_changes=0,
+            steps=STEPS,
+            seed=5,
+            quiet=True,
+            free_choice_per_side=0,
+            heldout_free_choice_per_side=6,
+        )
+    )
 
     def picks(made):
         return [read_demonstration(p).episode.extra[CHOICE_KEY] for p in made.files["free_choice"]]
@@ -147,8 +222,9 @@ def test_random_weight_features_tell_the_behaviours_apart():
         for behaviour in range(len(BEHAVIOURS)):
             scene = sample_scene(behaviour, rng)
             for k in range(POSES):  # the gripper from home towards the cup
-                pose = np.array([*(np.array(HOME) + k / POSES * (np.r_[scene.cup_xy, 0.1] - HOME)),
-                                 *gripper_quaternion(0.0)])
+                pose = np.array(
+                    [*(np.array(HOME) + k / POSES * (np.r_[scene.cup_xy, 0.1] - HOME)), *gripper_quaternion(0.0)]
+                )
                 frames.append(draw_frame(scene, pose, 1.0, scene.cup_xy, rng))
                 labels.append((scene_index, behaviour))
     frames, labels = np.stack(frames), np.array(labels)

@@ -8,15 +8,15 @@ import pytest
 import torch
 from safetensors.torch import load_file
 
-from cnep.models import Trainer, TrainConfig, load_checkpoint, read_checkpoint_config
+from cnep.models import TrainConfig, Trainer, load_checkpoint, read_checkpoint_config
 from cnep.models.loss import settled_fraction
 from cnep.models.sampler import TrajectoryStack
 from cnep.pipeline.cli.main import main
 from cnep.pipeline.errors import PipelineError
-from cnep.pipeline.train.stage import StageTrainer, TrainStageConfig, train
 from cnep.pipeline.train.constants import LOG_FILE, STATE_FILE
 from cnep.pipeline.train.layouts import resolve_layout
 from cnep.pipeline.train.parallel import rank_seed
+from cnep.pipeline.train.stage import StageTrainer, TrainStageConfig, train
 from cnep.pipeline.train.state import work_dir
 from cnep.recordings import Trajectory, read_trajectory, write_trajectory
 from tests.recordings.factories import trajectory_factory
@@ -34,8 +34,9 @@ def write_set(folder: Path, features: bool = True, extractor: dict | None = None
     for k, steps in enumerate(LENGTHS):
         traj = trajectory_factory(steps, features=features, seed=k)
         if extractor is not None:
-            traj = Trajectory(episode=traj.episode, timestamps_ns=traj.timestamps_ns, data=traj.data,
-                              extractor=extractor)
+            traj = Trajectory(
+                episode=traj.episode, timestamps_ns=traj.timestamps_ns, data=traj.data, extractor=extractor
+            )
         paths.append(write_trajectory(folder / f"demo-{k}.mcap", traj))
     return paths
 
@@ -47,15 +48,36 @@ def full_set(tmp_path) -> list[Path]:
 
 def stage_config(inputs, out, steps=30, **overrides) -> TrainStageConfig:
     training = TrainConfig(steps=steps, batch_size=8, warmup_steps=5, val_every=10, patience=None, seed=3)
-    return TrainStageConfig(inputs=tuple(inputs), out=out, training=training, save_every=10, quiet=True,
-                            **{**TINY, **overrides})
+    return TrainStageConfig(
+        inputs=tuple(inputs), out=out, training=training, save_every=10, quiet=True, **{**TINY, **overrides}
+    )
 
 
 def test_cli_trains_a_checkpoint_that_loads_and_generates(full_set, tmp_path, capsys):
     out = tmp_path / "ckpt"
-    code = main(["-q", "train", str(full_set[0].parent), "--out", str(out), "--steps", "30", "--val-every", "10",
-                 "--warmup-steps", "5", "--batch-size", "8", "--encoder-widths", "16,16", "--expert-widths", "16,16",
-                 "--seed", "3"])
+    code = main(
+        [
+            "-q",
+            "train",
+            str(full_set[0].parent),
+            "--out",
+            str(out),
+            "--steps",
+            "30",
+            "--val-every",
+            "10",
+            "--warmup-steps",
+            "5",
+            "--batch-size",
+            "8",
+            "--encoder-widths",
+            "16,16",
+            "--expert-widths",
+            "16,16",
+            "--seed",
+            "3",
+        ]
+    )
     assert code == 0 and "best validation error" in capsys.readouterr().out
     assert sorted(p.name for p in out.iterdir()) == sorted(["config.json", LOG_FILE, "model.safetensors"])
     assert not work_dir(out).exists()
@@ -87,15 +109,22 @@ def test_released_weights_are_the_best_validated(full_set, tmp_path):
     layout = resolve_layout("wine-glass", 1288, full_set[0])
     rows = {f["path"]: layout.select(read_trajectory(f["path"]).data) for f in config["files"]}
     split = {s: [rows[f["path"]] for f in config["files"] if f["split"] == s] for s in ("train", "validation")}
-    again = Trainer(model, TrajectoryStack(split["train"], model), TrajectoryStack(split["validation"], model),
-                    TrainConfig(**{k: v for k, v in config["training"].items() if k in TrainConfig.__annotations__}))
+    again = Trainer(
+        model,
+        TrajectoryStack(split["train"], model),
+        TrajectoryStack(split["validation"], model),
+        TrainConfig(**{k: v for k, v in config["training"].items() if k in TrainConfig.__annotations__}),
+    )
     assert again.validate() == pytest.approx(config["result"]["best_val_error"], rel=1e-6)
 
 
 def test_layout_presets_map_blocks_to_columns(full_set):
     wine = resolve_layout("wine-glass", 1288, full_set[0])
-    assert (wine.model.observed, wine.model.query, wine.model.predicted) == (((0, 1288),), ((0, 1280),),
-                                                                               ((1280, 1288),))
+    assert (wine.model.observed, wine.model.query, wine.model.predicted) == (
+        ((0, 1288),),
+        ((0, 1280),),
+        ((1280, 1288),),
+    )
     motion_full, motion_only = resolve_layout("motion", 1288, full_set[0]), resolve_layout("motion", 8, full_set[0])
     assert motion_full.columns == ((1280, 1288),) and motion_only.columns == ((0, 8),)
     assert motion_full.model == motion_only.model and motion_full.model.width == 8 and motion_full.model.query_dim == 0
@@ -130,8 +159,11 @@ def test_mixed_layouts_are_refused_naming_the_files(full_set, tmp_path):
 def test_mixed_extractors_are_refused_naming_the_files(full_set, tmp_path):
     other = {"architecture": "mobilenet_v2", "weights": "random", "weights_sha256": "1" * 64}
     odd = write_set(tmp_path / "other", extractor=other)[:2]
-    with pytest.raises(PipelineError, match=r"different feature extractors.*2 file\(s\) with weights random "
-                                            r"\(sha256 111111111111\).*other/demo-0\.mcap, \S*other/demo-1\.mcap"):
+    with pytest.raises(
+        PipelineError,
+        match=r"different feature extractors.*2 file\(s\) with weights random "
+        r"\(sha256 111111111111\).*other/demo-0\.mcap, \S*other/demo-1\.mcap",
+    ):
         train(stage_config([*full_set, *odd], tmp_path / "ckpt"))
 
 
@@ -178,8 +210,13 @@ def test_resume_after_interruption_gives_the_same_weights(full_set, tmp_path, mo
     assert expected.keys() == got.keys()
     for key in expected:
         assert torch.equal(expected[key], got[key]), key
-    logs = [[{k: v for k, v in json.loads(line).items() if k != "elapsed_s"}
-             for line in (d / LOG_FILE).read_text().splitlines()] for d in (whole, out)]
+    logs = [
+        [
+            {k: v for k, v in json.loads(line).items() if k != "elapsed_s"}
+            for line in (d / LOG_FILE).read_text().splitlines()
+        ]
+        for d in (whole, out)
+    ]
     assert logs[0] == logs[1]
 
 
@@ -207,11 +244,32 @@ def test_unknown_device_is_refused(full_set, tmp_path):
 
 def test_settings_precedence_is_defaults_then_config_file_then_command_line(full_set, tmp_path):
     settings = tmp_path / "settings.json"
-    settings.write_text(json.dumps({"steps": 10, "seed": 5, "layout": "motion", "encoder_widths": [8, 8],
-                                    "expert_widths": [8, 8], "lr": 0.002}))
+    settings.write_text(
+        json.dumps(
+            {"steps": 10, "seed": 5, "layout": "motion", "encoder_widths": [8, 8], "expert_widths": [8, 8], "lr": 0.002}
+        )
+    )
     out = tmp_path / "ckpt"
-    assert main(["-q", "train", *map(str, full_set), "--out", str(out), "--config", str(settings), "--seed", "7",
-                 "--val-every", "5", "--assignment", "mixture"]) == 0
+    assert (
+        main(
+            [
+                "-q",
+                "train",
+                *map(str, full_set),
+                "--out",
+                str(out),
+                "--config",
+                str(settings),
+                "--seed",
+                "7",
+                "--val-every",
+                "5",
+                "--assignment",
+                "mixture",
+            ]
+        )
+        == 0
+    )
     config = read_checkpoint_config(out)
     training = config["training"]
     assert (training["steps"], training["lr"], config["layout"]["name"]) == (10, 0.002, "motion")  # file
@@ -233,9 +291,27 @@ def test_bad_config_file_is_one_clear_error(full_set, tmp_path, capsys):
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
 def test_cuda_training_is_seeded_and_its_checkpoint_runs_on_the_cpu(full_set, tmp_path):
-    args = ["-q", "train", str(full_set[0].parent), "--steps", "30", "--val-every", "10", "--warmup-steps", "5",
-            "--batch-size", "8", "--encoder-widths", "16,16", "--expert-widths", "16,16", "--seed", "3",
-            "--device", "cuda"]
+    args = [
+        "-q",
+        "train",
+        str(full_set[0].parent),
+        "--steps",
+        "30",
+        "--val-every",
+        "10",
+        "--warmup-steps",
+        "5",
+        "--batch-size",
+        "8",
+        "--encoder-widths",
+        "16,16",
+        "--expert-widths",
+        "16,16",
+        "--seed",
+        "3",
+        "--device",
+        "cuda",
+    ]
     assert main(args + ["--out", str(tmp_path / "a")]) == 0 and main(args + ["--out", str(tmp_path / "b")]) == 0
     first, second = load_file(tmp_path / "a" / "model.safetensors"), load_file(tmp_path / "b" / "model.safetensors")
     assert all(torch.equal(first[key], second[key]) for key in first)  # same seed, same model, on the GPU too

@@ -20,8 +20,24 @@ from tests.pipeline.test_train import stage_config, write_set
 
 pytestmark = pytest.mark.usefixtures("one_thread")  # tiny models run on one thread
 
-ARGS = ["--steps", "20", "--val-every", "10", "--warmup-steps", "5", "--batch-size", "8", "--encoder-widths", "16,16",
-        "--expert-widths", "16,16", "--save-every", "10", "--seed", "3"]
+ARGS = [
+    "--steps",
+    "20",
+    "--val-every",
+    "10",
+    "--warmup-steps",
+    "5",
+    "--batch-size",
+    "8",
+    "--encoder-widths",
+    "16,16",
+    "--expert-widths",
+    "16,16",
+    "--save-every",
+    "10",
+    "--seed",
+    "3",
+]
 
 
 @pytest.mark.slow  # ~20 s on 2 busy cores: three processes import torch
@@ -29,9 +45,29 @@ def test_two_process_torchrun_trains_a_loadable_checkpoint(tmp_path):
     paths = write_set(tmp_path / "data")
     out = tmp_path / "runs" / "ddp"
     env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": str(Path(__file__).parents[2])}
-    done = subprocess.run([sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node=2",
-                           "-m", "cnep.pipeline", "-q", "train", str(tmp_path / "data"), "--out", str(out),
-                           "--layout", "motion", *ARGS], env=env, capture_output=True, text=True, timeout=120)
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "torch.distributed.run",
+            "--standalone",
+            "--nproc_per_node=2",
+            "-m",
+            "cnep.pipeline",
+            "-q",
+            "train",
+            str(tmp_path / "data"),
+            "--out",
+            str(out),
+            "--layout",
+            "motion",
+            *ARGS,
+        ],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert done.returncode == 0, done.stderr[-3000:]
     assert done.stdout.count("best validation error") == 1  # only rank 0 reports
     assert [p.name for p in out.parent.iterdir()] == ["ddp"]  # only rank 0 wrote, and nothing is left over

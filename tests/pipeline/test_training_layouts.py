@@ -9,9 +9,9 @@ from cnep.models import TrainConfig, load_checkpoint, read_checkpoint_config
 from cnep.models.online import ConditioningPolicy
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.replay.stage import RowMapping, decide
-from cnep.pipeline.train.stage import TrainStageConfig, train
 from cnep.pipeline.train.constants import PRESET_NAMES, SCENE
 from cnep.pipeline.train.layouts import resolve_layout
+from cnep.pipeline.train.stage import TrainStageConfig, train
 from cnep.recordings import read_trajectory, write_trajectory
 from tests.recordings.factories import trajectory_factory
 
@@ -38,12 +38,23 @@ def test_scene_refuses_motion_only_files():
 
 def test_a_scene_checkpoint_generates_and_replays_online(tmp_path):
     (tmp_path / "traj").mkdir()
-    paths = [write_trajectory(tmp_path / "traj" / f"demo-{k}.mcap", trajectory_factory(12 + 3 * k, seed=k))
-             for k in range(4)]
+    paths = [
+        write_trajectory(tmp_path / "traj" / f"demo-{k}.mcap", trajectory_factory(12 + 3 * k, seed=k)) for k in range(4)
+    ]
     training = TrainConfig(steps=20, batch_size=8, warmup_steps=2, val_every=10, seed=1)
-    out = train(TrainStageConfig(inputs=tuple(paths), out=tmp_path / "ckpt", layout=SCENE, n_experts=3,
-                                 encoder_widths=(16, 16), expert_widths=(16, 16), time_frequencies=2,
-                                 training=training, quiet=True))
+    out = train(
+        TrainStageConfig(
+            inputs=tuple(paths),
+            out=tmp_path / "ckpt",
+            layout=SCENE,
+            n_experts=3,
+            encoder_widths=(16, 16),
+            expert_widths=(16, 16),
+            time_frequencies=2,
+            training=training,
+            quiet=True,
+        )
+    )
     assert read_checkpoint_config(out)["layout"]["name"] == SCENE
     model = load_checkpoint(out)
     traj = read_trajectory(paths[1])

@@ -16,7 +16,7 @@ def test_workers_start_with_one_thread_and_the_environment_is_restored(monkeypat
         monkeypatch.delenv(name, raising=False)
     with single_thread_processes(1) as pool:
         env, torch_threads = pool.submit(threads_seen).result()
-    assert env == {**{name: "1" for name in THREAD_VARIABLES}, **SMALL_MODEL_MALLOC}
+    assert env == {**dict.fromkeys(THREAD_VARIABLES, "1"), **SMALL_MODEL_MALLOC}
     assert torch_threads == 1
     assert os.environ["OMP_NUM_THREADS"] == "7"
     assert not {"MKL_NUM_THREADS", *SMALL_MODEL_MALLOC} & set(os.environ)

@@ -58,16 +58,28 @@ def write_video(path: Path, frames: list[np.ndarray], fps: int, codec: str = "li
 def _features(image: bool, size: int, fps: int, rpy: bool, pad: int) -> dict:
     names = state_names(rpy, pad)
     scalar = {"dtype": "int64", "shape": [1], "names": None}
-    camera = {"dtype": "image" if image else "video", "shape": [3, size, size], "names": ["channels", "height", "width"]}
+    camera = {
+        "dtype": "image" if image else "video",
+        "shape": [3, size, size],
+        "names": ["channels", "height", "width"],
+    }
     if not image:
-        camera["info"] = {"video.fps": fps, "video.height": size, "video.width": size, "video.codec": "h264",
-                          "video.pix_fmt": "yuv420p"}
+        camera["info"] = {
+            "video.fps": fps,
+            "video.height": size,
+            "video.width": size,
+            "video.codec": "h264",
+            "video.pix_fmt": "yuv420p",
+        }
     return {
         CAMERA: camera,
         STATE: {"dtype": "float32", "shape": [len(names)], "names": names},
         "action": {"dtype": "float32", "shape": [2], "names": ["a0", "a1"]},
         "timestamp": {"dtype": "float32", "shape": [1], "names": None},
-        "frame_index": scalar, "episode_index": scalar, "index": scalar, "task_index": scalar,
+        "frame_index": scalar,
+        "episode_index": scalar,
+        "index": scalar,
+        "task_index": scalar,
     }
 
 
@@ -84,25 +96,41 @@ def _rows(episode: int, steps: int, first_index: int, fps: int, image: bool, siz
         "task_index": [episode % 2] * steps,
     }
     if image:
-        columns[CAMERA] = [{"bytes": cv2.imencode(".png", grey_frame(level_of(episode, i), size))[1].tobytes(),
-                            "path": None} for i in range(steps)]
+        columns[CAMERA] = [
+            {"bytes": cv2.imencode(".png", grey_frame(level_of(episode, i), size))[1].tobytes(), "path": None}
+            for i in range(steps)
+        ]
     return columns
 
 
 def _table(columns: dict):
     import pyarrow as pa
 
-    types = {STATE: pa.list_(pa.float32()), "action": pa.list_(pa.float32()), "timestamp": pa.float32(),
-             CAMERA: pa.struct([("bytes", pa.binary()), ("path", pa.string())])}
+    types = {
+        STATE: pa.list_(pa.float32()),
+        "action": pa.list_(pa.float32()),
+        "timestamp": pa.float32(),
+        CAMERA: pa.struct([("bytes", pa.binary()), ("path", pa.string())]),
+    }
     return pa.table({k: pa.array(v, type=types.get(k, pa.int64())) for k, v in columns.items()})
 
 
 TASKS = ("pick the cube", "push the cube")
 
 
-def build_lerobot(root: Path, version: str = "v2.1", episodes: int = 2, steps: int = 6, fps: int = 10,
-                  size: int = 32, image: bool = False, rpy: bool = False, pad: int = 0,
-                  empty_episode: int | None = None, codec: str = "libx264") -> Path:
+def build_lerobot(
+    root: Path,
+    version: str = "v2.1",
+    episodes: int = 2,
+    steps: int = 6,
+    fps: int = 10,
+    size: int = 32,
+    image: bool = False,
+    rpy: bool = False,
+    pad: int = 0,
+    empty_episode: int | None = None,
+    codec: str = "libx264",
+) -> Path:
     """Write a LeRobot dataset at `root` (v2.1: files per episode; v3.0: all episodes in one data and one video file).
 
     image: store the camera as PNG images inside the Parquet rows instead of a video.
@@ -113,9 +141,17 @@ def build_lerobot(root: Path, version: str = "v2.1", episodes: int = 2, steps: i
     root.mkdir(parents=True, exist_ok=True)
     (root / "meta").mkdir(exist_ok=True)
     lengths = [0 if e == empty_episode else steps for e in range(episodes)]
-    info = {"codebase_version": version, "robot_type": "sim", "total_episodes": episodes,
-            "total_frames": sum(lengths), "total_tasks": len(TASKS), "chunks_size": 1000, "fps": fps,
-            "splits": {"train": f"0:{episodes}"}, "features": _features(image, size, fps, rpy, pad)}
+    info = {
+        "codebase_version": version,
+        "robot_type": "sim",
+        "total_episodes": episodes,
+        "total_frames": sum(lengths),
+        "total_tasks": len(TASKS),
+        "chunks_size": 1000,
+        "fps": fps,
+        "splits": {"train": f"0:{episodes}"},
+        "features": _features(image, size, fps, rpy, pad),
+    }
     per_episode = [_rows(e, n, sum(lengths[:e]), fps, image, size, rpy, pad) for e, n in enumerate(lengths)]
     frames = [[grey_frame(level_of(e, i), size) for i in range(n)] for e, n in enumerate(lengths)]
     if version == "v3.0":
@@ -126,22 +162,36 @@ def build_lerobot(root: Path, version: str = "v2.1", episodes: int = 2, steps: i
         data.parent.mkdir(parents=True)
         pq.write_table(_table(merged), data)
         if not image:
-            write_video(root / "videos" / CAMERA / "chunk-000" / "file-000.mp4", [f for fs in frames for f in fs], fps,
-                        codec)
+            write_video(
+                root / "videos" / CAMERA / "chunk-000" / "file-000.mp4", [f for fs in frames for f in fs], fps, codec
+            )
         rows = []
         for e, n in enumerate(lengths):
             start = sum(lengths[:e])
-            row = {"episode_index": e, "tasks": [TASKS[e % 2]], "length": n, "data/chunk_index": 0,
-                   "data/file_index": 0, "dataset_from_index": start, "dataset_to_index": start + n}
+            row = {
+                "episode_index": e,
+                "tasks": [TASKS[e % 2]],
+                "length": n,
+                "data/chunk_index": 0,
+                "data/file_index": 0,
+                "dataset_from_index": start,
+                "dataset_to_index": start + n,
+            }
             if not image:
-                row |= {f"videos/{CAMERA}/chunk_index": 0, f"videos/{CAMERA}/file_index": 0,
-                        f"videos/{CAMERA}/from_timestamp": start / fps, f"videos/{CAMERA}/to_timestamp": (start + n) / fps}
+                row |= {
+                    f"videos/{CAMERA}/chunk_index": 0,
+                    f"videos/{CAMERA}/file_index": 0,
+                    f"videos/{CAMERA}/from_timestamp": start / fps,
+                    f"videos/{CAMERA}/to_timestamp": (start + n) / fps,
+                }
             rows.append(row)
         import pyarrow as pa
 
         (root / "meta" / "episodes" / "chunk-000").mkdir(parents=True)
         pq.write_table(pa.Table.from_pylist(rows), root / "meta" / "episodes" / "chunk-000" / "file-000.parquet")
-        pq.write_table(pa.table({"task_index": list(range(len(TASKS))), "task": list(TASKS)}), root / "meta" / "tasks.parquet")
+        pq.write_table(
+            pa.table({"task_index": list(range(len(TASKS))), "task": list(TASKS)}), root / "meta" / "tasks.parquet"
+        )
     else:
         info["data_path"] = "data/chunk-{episode_chunk:03d}/episode_{episode_index:06d}.parquet"
         info["video_path"] = "videos/chunk-{episode_chunk:03d}/{video_key}/episode_{episode_index:06d}.mp4"
@@ -151,9 +201,14 @@ def build_lerobot(root: Path, version: str = "v2.1", episodes: int = 2, steps: i
             pq.write_table(_table(columns), data)
             if not image and frames[e]:
                 write_video(root / "videos" / "chunk-000" / CAMERA / f"episode_{e:06d}.mp4", frames[e], fps, codec)
-        (root / "meta" / "episodes.jsonl").write_text("".join(
-            json.dumps({"episode_index": e, "tasks": [TASKS[e % 2]], "length": n}) + "\n" for e, n in enumerate(lengths)))
-        (root / "meta" / "tasks.jsonl").write_text("".join(
-            json.dumps({"task_index": k, "task": t}) + "\n" for k, t in enumerate(TASKS)))
+        (root / "meta" / "episodes.jsonl").write_text(
+            "".join(
+                json.dumps({"episode_index": e, "tasks": [TASKS[e % 2]], "length": n}) + "\n"
+                for e, n in enumerate(lengths)
+            )
+        )
+        (root / "meta" / "tasks.jsonl").write_text(
+            "".join(json.dumps({"task_index": k, "task": t}) + "\n" for k, t in enumerate(TASKS))
+        )
     (root / "meta" / "info.json").write_text(json.dumps(info, indent=4))
     return root

@@ -47,35 +47,78 @@ def _messages(store, ros1: bool, compressed: bool, tf: bool) -> list[tuple[str, 
         header = _header(store, ts, "camera", ros1)
         if compressed:
             data = np.frombuffer(cv2.imencode(".jpg", image)[1].tobytes(), np.uint8)
-            out.append(("/camera/rgb", "sensor_msgs/msg/CompressedImage", ts,
-                        t["sensor_msgs/msg/CompressedImage"](header=header, format="jpeg", data=data)))
+            out.append(
+                (
+                    "/camera/rgb",
+                    "sensor_msgs/msg/CompressedImage",
+                    ts,
+                    t["sensor_msgs/msg/CompressedImage"](header=header, format="jpeg", data=data),
+                )
+            )
         else:
-            out.append(("/camera/rgb", "sensor_msgs/msg/Image", ts,
-                        t["sensor_msgs/msg/Image"](header=header, height=SIZE, width=SIZE, encoding="rgb8",
-                                                   is_bigendian=0, step=SIZE * 3, data=image.reshape(-1))))
+            out.append(
+                (
+                    "/camera/rgb",
+                    "sensor_msgs/msg/Image",
+                    ts,
+                    t["sensor_msgs/msg/Image"](
+                        header=header,
+                        height=SIZE,
+                        width=SIZE,
+                        encoding="rgb8",
+                        is_bigendian=0,
+                        step=SIZE * 3,
+                        data=image.reshape(-1),
+                    ),
+                )
+            )
     poses, _ = motion(POSE_TIMES_S)
     for ts, p in zip(POSE_TIMES_S, poses):
         if tf:
             transform = t["geometry_msgs/msg/Transform"](
                 translation=t["geometry_msgs/msg/Vector3"](x=p[0], y=p[1], z=p[2]),
-                rotation=t["geometry_msgs/msg/Quaternion"](x=p[3], y=p[4], z=p[5], w=p[6]))
-            other = t["geometry_msgs/msg/Transform"](translation=t["geometry_msgs/msg/Vector3"](x=9.0, y=9.0, z=9.0),
-                                                     rotation=t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0))
-            stamped = [t["geometry_msgs/msg/TransformStamped"](header=_header(store, ts, "base", ros1),
-                                                              child_frame_id=child, transform=tr)
-                       for child, tr in (("camera_link", other), ("tool0", transform))]
+                rotation=t["geometry_msgs/msg/Quaternion"](x=p[3], y=p[4], z=p[5], w=p[6]),
+            )
+            other = t["geometry_msgs/msg/Transform"](
+                translation=t["geometry_msgs/msg/Vector3"](x=9.0, y=9.0, z=9.0),
+                rotation=t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
+            )
+            stamped = [
+                t["geometry_msgs/msg/TransformStamped"](
+                    header=_header(store, ts, "base", ros1), child_frame_id=child, transform=tr
+                )
+                for child, tr in (("camera_link", other), ("tool0", transform))
+            ]
             out.append(("/tf", "tf2_msgs/msg/TFMessage", ts, t["tf2_msgs/msg/TFMessage"](transforms=stamped)))
         else:
-            pose = t["geometry_msgs/msg/Pose"](position=t["geometry_msgs/msg/Point"](x=p[0], y=p[1], z=p[2]),
-                                               orientation=t["geometry_msgs/msg/Quaternion"](x=p[3], y=p[4], z=p[5], w=p[6]))
-            out.append(("/ee/pose", "geometry_msgs/msg/PoseStamped", ts,
-                        t["geometry_msgs/msg/PoseStamped"](header=_header(store, ts, "base", ros1), pose=pose)))
+            pose = t["geometry_msgs/msg/Pose"](
+                position=t["geometry_msgs/msg/Point"](x=p[0], y=p[1], z=p[2]),
+                orientation=t["geometry_msgs/msg/Quaternion"](x=p[3], y=p[4], z=p[5], w=p[6]),
+            )
+            out.append(
+                (
+                    "/ee/pose",
+                    "geometry_msgs/msg/PoseStamped",
+                    ts,
+                    t["geometry_msgs/msg/PoseStamped"](header=_header(store, ts, "base", ros1), pose=pose),
+                )
+            )
     _, grip = motion(GRIPPER_TIMES_S)
     for ts, g in zip(GRIPPER_TIMES_S, grip):
-        out.append(("/gripper", "sensor_msgs/msg/JointState", ts,
-                    t["sensor_msgs/msg/JointState"](header=_header(store, ts, "", ros1), name=["finger", "gripper"],
-                                                    position=np.array([0.0, g]), velocity=np.array([], np.float64),
-                                                    effort=np.array([], np.float64))))
+        out.append(
+            (
+                "/gripper",
+                "sensor_msgs/msg/JointState",
+                ts,
+                t["sensor_msgs/msg/JointState"](
+                    header=_header(store, ts, "", ros1),
+                    name=["finger", "gripper"],
+                    position=np.array([0.0, g]),
+                    velocity=np.array([], np.float64),
+                    effort=np.array([], np.float64),
+                ),
+            )
+        )
     return sorted(out, key=lambda m: m[2])
 
 

@@ -60,7 +60,9 @@ def video(path: Path, n: int, fps: float, size: int = 32) -> Path:
 T0_NS = 1_700_000_000_000_000_000
 
 
-def robot_samples(duration_s: float, camera_hz: float, pose_hz: float, gripper_hz: float) -> list[tuple[int, str, object]]:
+def robot_samples(
+    duration_s: float, camera_hz: float, pose_hz: float, gripper_hz: float
+) -> list[tuple[int, str, object]]:
     """(time ns, role, value) of a robot's streams sampling `motion`, sorted by time.
 
     role "camera": an 8x8 RGB uint8 image whose brightness encodes the frame index;
@@ -76,7 +78,9 @@ def robot_samples(duration_s: float, camera_hz: float, pose_hz: float, gripper_h
     return sorted(samples, key=lambda s: s[0])
 
 
-def robot_mcap(path: Path, duration_s: float = 1.0, camera_hz: float = 10.0, pose_hz: float = 50.0, gripper_hz: float = 20.0) -> Path:
+def robot_mcap(
+    path: Path, duration_s: float = 1.0, camera_hz: float = 10.0, pose_hz: float = 50.0, gripper_hz: float = 20.0
+) -> Path:
     """A robot's MCAP with Foxglove schemas on non-default topics: /robot/camera (RawImage rgb8),
     /robot/ee (PoseInFrame), /robot/joints (JointStates with joints `finger` and `gripper_joint`).
     Message timestamps follow `motion`; log times lag them by 3 ms (as a recorder's would)."""
@@ -90,7 +94,9 @@ def robot_mcap(path: Path, duration_s: float = 1.0, camera_hz: float = 10.0, pos
     def message(t: int, role: str, value):
         stamp = Timestamp(seconds=t // 10**9, nanos=t % 10**9)
         if role == "camera":
-            return "/robot/camera", RawImage(timestamp=stamp, width=8, height=8, encoding="rgb8", step=24, data=value.tobytes())
+            return "/robot/camera", RawImage(
+                timestamp=stamp, width=8, height=8, encoding="rgb8", step=24, data=value.tobytes()
+            )
         if role == "pose":
             msg = PoseInFrame(timestamp=stamp, frame_id="base")
             msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = value[:3]
@@ -135,7 +141,8 @@ float64 x
 float64 y
 float64 z
 float64 w""",
-    "sensor_msgs/msg/JointState": f"std_msgs/Header header\nstring[] name\nfloat64[] position\nfloat64[] velocity\nfloat64[] effort\n{HEADER_DEFS}",
+    "sensor_msgs/msg/JointState": "std_msgs/Header header\nstring[] name\nfloat64[] position\nfloat64[] velocity\n"
+    f"float64[] effort\n{HEADER_DEFS}",
 }
 
 
@@ -146,7 +153,9 @@ def jpeg_of(rgb: np.ndarray) -> bytes:
     return buf.tobytes()
 
 
-def ros2_robot_mcap(path: Path, duration_s: float = 1.0, camera_hz: float = 10.0, pose_hz: float = 50.0, gripper_hz: float = 20.0) -> Path:
+def ros2_robot_mcap(
+    path: Path, duration_s: float = 1.0, camera_hz: float = 10.0, pose_hz: float = 50.0, gripper_hz: float = 20.0
+) -> Path:
     """The same streams as `robot_mcap` as ROS 2 messages (cdr): /cam/compressed
     (sensor_msgs/CompressedImage, JPEG), /ee_pose (geometry_msgs/PoseStamped), /joint_states
     (sensor_msgs/JointState with `finger` and `gripper_joint`)."""
@@ -159,12 +168,22 @@ def ros2_robot_mcap(path: Path, duration_s: float = 1.0, camera_hz: float = 10.0
             header = {"stamp": {"sec": t // 10**9, "nanosec": t % 10**9}, "frame_id": "base"}
             if role == "camera":
                 data = jpeg_of(value)
-                topic, schema, msg = "/cam/compressed", "sensor_msgs/msg/CompressedImage", {"header": header, "format": "jpeg", "data": data}
+                topic, schema, msg = (
+                    "/cam/compressed",
+                    "sensor_msgs/msg/CompressedImage",
+                    {"header": header, "format": "jpeg", "data": data},
+                )
             elif role == "pose":
                 pose = {"position": dict(zip("xyz", value[:3])), "orientation": dict(zip("xyzw", value[3:]))}
                 topic, schema, msg = "/ee_pose", "geometry_msgs/msg/PoseStamped", {"header": header, "pose": pose}
             else:
-                msg = {"header": header, "name": ["finger", "gripper_joint"], "position": [-1.0, value], "velocity": [], "effort": []}
+                msg = {
+                    "header": header,
+                    "name": ["finger", "gripper_joint"],
+                    "position": [-1.0, value],
+                    "velocity": [],
+                    "effort": [],
+                }
                 topic, schema = "/joint_states", "sensor_msgs/msg/JointState"
             w.write_message(topic, schemas[schema], msg, log_time=t + 3_000_000, publish_time=t + 3_000_000)
         w.finish()

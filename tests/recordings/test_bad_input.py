@@ -32,7 +32,9 @@ def write_raw(path, contents, messages, metadata=None, channel_metadata=None):
             w.add_metadata(name, data)
         sid = {k: w.register_schema(s.name, s.encoding, s.data) for k, s in contents.schemas.items()}
         cid = {
-            k: w.register_channel(c.topic, c.message_encoding, sid[c.schema_id], (channel_metadata or {}).get(c.topic, c.metadata))
+            k: w.register_channel(
+                c.topic, c.message_encoding, sid[c.schema_id], (channel_metadata or {}).get(c.topic, c.metadata)
+            )
             for k, c in contents.channels.items()
         }
         for m in messages:
@@ -127,7 +129,9 @@ def test_wrong_kind(demo_file):
 def replace_message(contents, step, data=None, log_time=None):
     ch = contents.channel_of_topic(TOPIC_TRAJECTORY).id
     msgs = [m for m in contents.messages if m.channel_id == ch]
-    new = dataclasses.replace(msgs[step], data=data or msgs[step].data, log_time=msgs[step].log_time if log_time is None else log_time)
+    new = dataclasses.replace(
+        msgs[step], data=data or msgs[step].data, log_time=msgs[step].log_time if log_time is None else log_time
+    )
     return [new if m is msgs[step] else m for m in contents.messages]
 
 
@@ -150,7 +154,9 @@ def test_timestamps_backwards_in_a_file(traj_file, tmp_path):
 def test_wrong_vector_width_in_a_message(traj_file, tmp_path):
     contents = read_mcap(traj_file)
     t = contents.messages[-1].log_time
-    out = write_raw(tmp_path / "w.mcap", contents, replace_message(contents, 5, encode_vector(t, np.ones(7, np.float32))))
+    out = write_raw(
+        tmp_path / "w.mcap", contents, replace_message(contents, 5, encode_vector(t, np.ones(7, np.float32)))
+    )
     expect_error(read_trajectory, out, "wrong vector width 7 at step 5")
 
 
@@ -179,7 +185,7 @@ def test_foreign_mcap_without_episode(traj_file, tmp_path):
 
 def demo_kwargs(steps=5):
     d = demonstration_factory(steps=steps, frames=False)
-    return dict(episode=d.episode, timestamps_ns=d.timestamps_ns, pose=d.pose, gripper=d.gripper)
+    return {"episode": d.episode, "timestamps_ns": d.timestamps_ns, "pose": d.pose, "gripper": d.gripper}
 
 
 @pytest.mark.parametrize(
@@ -223,10 +229,10 @@ def test_trajectory_validation():
 @pytest.mark.parametrize(
     "kwargs,words",
     [
-        (dict(episode_id="", fps=1), "non-empty"),
-        (dict(episode_id="e", fps=0), "> 0 Hz"),
-        (dict(episode_id="e", fps=float("nan")), "> 0 Hz"),
-        (dict(episode_id="e", fps=1, extra={"kind": "x"}), "reserved"),
+        ({"episode_id": "", "fps": 1}, "non-empty"),
+        ({"episode_id": "e", "fps": 0}, "> 0 Hz"),
+        ({"episode_id": "e", "fps": float("nan")}, "> 0 Hz"),
+        ({"episode_id": "e", "fps": 1, "extra": {"kind": "x"}}, "reserved"),
     ],
 )
 def test_episode_validation(kwargs, words):
@@ -238,15 +244,15 @@ def test_writer_rejects_backwards_step_and_mixed_frames(tmp_path):
     from cnep.recordings import DemonstrationWriter
 
     demo = demonstration_factory(steps=3, frames=False)
-    with pytest.raises(RecordingError, match="backwards"):
-        with DemonstrationWriter(tmp_path / "d.mcap", demo.episode) as w:
-            w.write_step(10, demo.pose[0], 0.0)
-            w.write_step(5, demo.pose[1], 0.0)
-    with pytest.raises(RecordingError, match="at every step or at none"):
-        with DemonstrationWriter(tmp_path / "d.mcap", demo.episode) as w:
-            w.write_step(1, demo.pose[0], 0.0, jpeg_frames(1)[0])
-            w.write_step(2, demo.pose[1], 0.0)
-    with pytest.raises(RecordingError, match="no steps"):
-        with DemonstrationWriter(tmp_path / "d.mcap", demo.episode):
-            pass
+    with pytest.raises(RecordingError, match="backwards"), DemonstrationWriter(tmp_path / "d.mcap", demo.episode) as w:
+        w.write_step(10, demo.pose[0], 0.0)
+        w.write_step(5, demo.pose[1], 0.0)
+    with (
+        pytest.raises(RecordingError, match="at every step or at none"),
+        DemonstrationWriter(tmp_path / "d.mcap", demo.episode) as w,
+    ):
+        w.write_step(1, demo.pose[0], 0.0, jpeg_frames(1)[0])
+        w.write_step(2, demo.pose[1], 0.0)
+    with pytest.raises(RecordingError, match="no steps"), DemonstrationWriter(tmp_path / "d.mcap", demo.episode):
+        pass
     assert list(tmp_path.iterdir()) == []

@@ -12,11 +12,24 @@ from cnep.recordings import RecordingError, read_demonstration
 from cnep.recordings.adapters import FrameTiming, demonstration_from_csv
 from cnep.recordings.csv_motion import CsvColumns
 from cnep.recordings.mcap_source import McapTopics
-from tests.recordings.sources import baxter_csv, images, jpeg_of, motion, robot_mcap, robot_samples, ros2_robot_mcap, video
+from tests.recordings.sources import (
+    baxter_csv,
+    images,
+    jpeg_of,
+    motion,
+    robot_mcap,
+    robot_samples,
+    ros2_robot_mcap,
+    video,
+)
 
 
 def tree_digest(folder):
-    return {p.relative_to(folder): hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(folder.rglob("*")) if p.is_file()}
+    return {
+        p.relative_to(folder): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(folder.rglob("*"))
+        if p.is_file()
+    }
 
 
 def baxter_times(n, seed=0):
@@ -91,7 +104,9 @@ def test_image_count_mismatch_needs_a_frame_rate(tmp_path):
     images(src, 5, ".jpg")
     with pytest.raises(RecordingError, match="--frame-rate"):
         ingest(IngestConfig(src=src, out=tmp_path / "out", quiet=True))
-    done = ingest(IngestConfig(src=src, out=tmp_path / "out", timing=FrameTiming(frame_rate=20.0, offset_ms=10.0), quiet=True))
+    done = ingest(
+        IngestConfig(src=src, out=tmp_path / "out", timing=FrameTiming(frame_rate=20.0, offset_ms=10.0), quiet=True)
+    )
     demo = read_demonstration(done[0].output)
     expected_t = t[0] + 10.0 + 50.0 * np.arange(5)
     np.testing.assert_array_equal(demo.timestamps_ns, (expected_t * 1e6).astype(np.int64))
@@ -105,7 +120,20 @@ def test_custom_column_mapping(tmp_path):
     pose, grip = motion(t)
     lines = ["stamp,x,y,z,rx,ry,rz,rw"] + [",".join(repr(float(v)) for v in [ti, *p]) for ti, p in zip(t, pose)]
     path.write_text("\n".join(lines))
-    cols = CsvColumns.from_overrides(dict(time="stamp", time_unit="s", x="x", y="y", z="z", qx="rx", qy="ry", qz="rz", qw="rw", gripper=""))
+    cols = CsvColumns.from_overrides(
+        {
+            "time": "stamp",
+            "time_unit": "s",
+            "x": "x",
+            "y": "y",
+            "z": "z",
+            "qx": "rx",
+            "qy": "ry",
+            "qz": "rz",
+            "qw": "rw",
+            "gripper": "",
+        }
+    )
     demo = read_demonstration(ingest(IngestConfig(src=path, out=tmp_path / "out", columns=cols, quiet=True))[0].output)
     np.testing.assert_array_equal(demo.timestamps_ns, [0, 500_000_000, 1_000_000_000])
     np.testing.assert_allclose(demo.pose, pose)
@@ -127,13 +155,17 @@ def test_robot_mcap_with_other_topic_names(tmp_path):
     assert len(demo.frames) == 11 and all(f[:2] == b"\xff\xd8" for f in demo.frames)
 
     motion_only = McapTopics(image="", pose="/robot/ee", gripper="/robot/joints", gripper_joint="gripper_joint")
-    demo = read_demonstration(ingest(IngestConfig(src=src, out=tmp_path / "out2", topics=motion_only, quiet=True))[0].output)
+    demo = read_demonstration(
+        ingest(IngestConfig(src=src, out=tmp_path / "out2", topics=motion_only, quiet=True))[0].output
+    )
     assert demo.n_steps == 51 and demo.frames is None
 
 
 def test_ros2_mcap(tmp_path):
     src = ros2_robot_mcap(tmp_path / "ros2.mcap")
-    topics = McapTopics(image="/cam/compressed", pose="/ee_pose", gripper="/joint_states", gripper_joint="gripper_joint")
+    topics = McapTopics(
+        image="/cam/compressed", pose="/ee_pose", gripper="/joint_states", gripper_joint="gripper_joint"
+    )
     demo = read_demonstration(ingest(IngestConfig(src=src, out=tmp_path / "out", topics=topics, quiet=True))[0].output)
     frame_t = np.arange(11) * 0.1
     np.testing.assert_array_equal(demo.timestamps_ns - demo.timestamps_ns[0], np.round(frame_t * 1e9).astype(np.int64))
@@ -232,7 +264,18 @@ def test_csv_ingest_property(tmp_path, seed, rows, unit, extra_columns):
     body = [",".join(repr(float(cols[names[i]][r])) for i in order) for r in range(rows)]
     path = tmp_path / f"prop_{seed}.csv"
     path.write_text("\n".join([header, *body]) + "\n")
-    mapping = dict(time="t", time_unit=unit, x="px", y="py", z="pz", qx="ox", qy="oy", qz="oz", qw="ow", gripper="grip")
+    mapping = {
+        "time": "t",
+        "time_unit": unit,
+        "x": "px",
+        "y": "py",
+        "z": "pz",
+        "qx": "ox",
+        "qy": "oy",
+        "qz": "oz",
+        "qw": "ow",
+        "gripper": "grip",
+    }
     demo = demonstration_from_csv(path, "prop", CsvColumns.from_overrides(mapping))
     np.testing.assert_allclose(demo.timestamps_ns, t_ns, rtol=0, atol=1)  # float round trip of the time unit
     np.testing.assert_allclose(demo.pose[:, :3], np.stack([cols["px"], cols["py"], cols["pz"]], axis=1), rtol=0, atol=0)
@@ -265,7 +308,9 @@ def test_a_one_frame_video_is_blamed_on_the_video(tmp_path):
     src.mkdir()
     baxter_csv(src / "pose.csv", baxter_times(20))
     video(src / "cam.avi", 1, fps=25.0)
-    with pytest.raises(RecordingError, match=r"cam.avi: the video has 1 readable frame; a demonstration needs at least 2"):
+    with pytest.raises(
+        RecordingError, match=r"cam.avi: the video has 1 readable frame; a demonstration needs at least 2"
+    ):
         ingest(IngestConfig(src=src, out=tmp_path / "out", quiet=True))
 
 

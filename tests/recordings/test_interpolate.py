@@ -42,7 +42,6 @@ def test_no_extrapolation():
         interpolate_linear(t, np.zeros(2), np.array([25]))
 
 
-
 @settings(max_examples=50, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), n=st.integers(2, 20), q=st.integers(1, 30))
 def test_slerp_properties(seed, n, q):

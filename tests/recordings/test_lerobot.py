@@ -67,9 +67,13 @@ def test_roll_pitch_yaw_and_indices_map_to_the_same_pose(tmp_path):
 def test_rpy_follows_the_z_y_x_convention():
     rpy = np.array([[0.3, -0.2, 1.1]])
     x, y, z, w = quaternion_from_rpy(rpy)[0]
-    r = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                  [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                  [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+    r = np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
     c, s = np.cos(rpy[0]), np.sin(rpy[0])
     rx = np.array([[1, 0, 0], [0, c[0], -s[0]], [0, s[0], c[0]]])
     ry = np.array([[c[1], 0, s[1]], [0, 1, 0], [-s[1], 0, c[1]]])
@@ -92,14 +96,19 @@ def _set_info(src, **changes):
 
 
 @pytest.mark.parametrize("version", ["v2.1", "v3.0"])
-@pytest.mark.parametrize("case, args, expected", [
-    ("missing camera", ["--camera", "observation.images.wrist"], "no camera 'observation.images.wrist'"),
-    ("unknown version", [], "codebase_version 'v1.6' is not supported"),
-    ("short state", ["--gripper", "8"], "index 8 is outside 'observation.state', a vector of 8 values"),
-    ("empty episode", [], "episode 1): the episode has no frames"),
-])
+@pytest.mark.parametrize(
+    "case, args, expected",
+    [
+        ("missing camera", ["--camera", "observation.images.wrist"], "no camera 'observation.images.wrist'"),
+        ("unknown version", [], "codebase_version 'v1.6' is not supported"),
+        ("short state", ["--gripper", "8"], "index 8 is outside 'observation.state', a vector of 8 values"),
+        ("empty episode", [], "episode 1): the episode has no frames"),
+    ],
+)
 def test_a_bad_dataset_gives_one_error_line_and_writes_nothing(tmp_path, capsys, version, case, args, expected):
-    src = build_lerobot(tmp_path / "ds", version, episodes=3, steps=4, empty_episode=1 if case == "empty episode" else None)
+    src = build_lerobot(
+        tmp_path / "ds", version, episodes=3, steps=4, empty_episode=1 if case == "empty episode" else None
+    )
     if case == "unknown version":
         _set_info(src, codebase_version="v1.6")
     out = tmp_path / "out"
@@ -111,16 +120,26 @@ def test_a_bad_dataset_gives_one_error_line_and_writes_nothing(tmp_path, capsys,
 
 def test_state_rows_shorter_than_the_info_says_are_refused(tmp_path):
     src = build_lerobot(tmp_path / "ds", "v2.1", episodes=1, steps=3)
-    _set_info(src, features={**json.loads((src / "meta" / "info.json").read_text())["features"],
-                             "observation.state": {"dtype": "float32", "shape": [10], "names": None}})
+    _set_info(
+        src,
+        features={
+            **json.loads((src / "meta" / "info.json").read_text())["features"],
+            "observation.state": {"dtype": "float32", "shape": [10], "names": None},
+        },
+    )
     with pytest.raises(RecordingError, match="holds 8 values per row, the pose/gripper mapping reads index 9"):
         plan_lerobot(src, LerobotMapping(pose=tuple("0123456"), gripper="9"))
 
 
 def test_unnamed_state_needs_an_explicit_pose(tmp_path):
     src = build_lerobot(tmp_path / "ds", "v2.1", episodes=1, steps=3)
-    _set_info(src, features={**json.loads((src / "meta" / "info.json").read_text())["features"],
-                             "observation.state": {"dtype": "float32", "shape": [8], "names": ["motors"]}})
+    _set_info(
+        src,
+        features={
+            **json.loads((src / "meta" / "info.json").read_text())["features"],
+            "observation.state": {"dtype": "float32", "shape": [8], "names": ["motors"]},
+        },
+    )
     with pytest.raises(RecordingError, match="--pose x,y,z,qx,qy,qz,qw"):
         plan_lerobot(src)
     assert len(plan_lerobot(src, LerobotMapping(pose=tuple("0123456"), gripper="7"))) == 1
@@ -143,7 +162,10 @@ def test_a_dataset_in_a_sub_folder_is_found_beside_other_recordings(tmp_path):
     baxter_csv(tmp_path / "in" / "arm.csv", np.arange(5) * 10.0)
     done = ingest(IngestConfig(src=tmp_path / "in", out=tmp_path / "out", quiet=True))
     assert sorted(d.output.relative_to(tmp_path / "out").as_posix() for d in done) == [
-        "arm.mcap", "lab_a/episode_000000.mcap", "lab_a/episode_000001.mcap"]
+        "arm.mcap",
+        "lab_a/episode_000000.mcap",
+        "lab_a/episode_000001.mcap",
+    ]
 
 
 def test_v30_episode_metadata_without_the_video_offset_is_refused(tmp_path):

@@ -48,7 +48,9 @@ def test_written_files_pass_rerun_mcap_check(tmp_path, rerun_env):
     src.mkdir()
     baxter_csv(src / "baxter.csv", np.arange(20) * 12.0 + 6)
     ros2_robot_mcap(src / "ros2.mcap")
-    topics = McapTopics(image="/cam/compressed", pose="/ee_pose", gripper="/joint_states", gripper_joint="gripper_joint")
+    topics = McapTopics(
+        image="/cam/compressed", pose="/ee_pose", gripper="/joint_states", gripper_joint="gripper_joint"
+    )
     files += [d.output for d in ingest(IngestConfig(src=src, out=tmp_path / "ingested", topics=topics, quiet=True))]
     assert len(files) == 8
     for path in files:

@@ -55,11 +55,17 @@ def test_motion_only_bag_steps_are_the_poses(tmp_path):
     assert demo.frames is None and demo.n_steps == 51
 
 
-@pytest.mark.parametrize("args, expected", [
-    (["--pose-topic", "/pose"], "no topic '/pose' (topics: ['/camera/rgb', '/ee/pose', '/gripper']); choose one with --pose-topic"),
-    (["--gripper-joint", "hand"], "no joint 'hand' (joints: ['finger', 'gripper']); set --gripper-joint"),
-    (["--image-topic", "/ee/pose"], "message type 'geometry_msgs/msg/PoseStamped' is not supported here"),
-])
+@pytest.mark.parametrize(
+    "args, expected",
+    [
+        (
+            ["--pose-topic", "/pose"],
+            "no topic '/pose' (topics: ['/camera/rgb', '/ee/pose', '/gripper']); choose one with --pose-topic",
+        ),
+        (["--gripper-joint", "hand"], "no joint 'hand' (joints: ['finger', 'gripper']); set --gripper-joint"),
+        (["--image-topic", "/ee/pose"], "message type 'geometry_msgs/msg/PoseStamped' is not supported here"),
+    ],
+)
 def test_bad_topic_choices_are_one_line_errors_and_write_nothing(tmp_path, capsys, args, expected):
     bag = write_ros1_bag(tmp_path / "a.bag")
     assert main(["-q", "ingest", str(bag), "--out", str(tmp_path / "out"), *args]) == 2

@@ -19,7 +19,7 @@ from cnep.recordings import (
     write_demonstration,
     write_trajectory,
 )
-from cnep.recordings.constants import METADATA_STEPS, TOPIC_GRIPPER, TOPIC_IMAGE, TOPIC_POSE, TOPIC_TRAJECTORY
+from cnep.recordings.constants import METADATA_STEPS, TOPIC_GRIPPER, TOPIC_IMAGE, TOPIC_POSE
 from cnep.recordings.container import read_mcap
 from tests.recordings.factories import demonstration_factory, random_pose, trajectory_factory
 
@@ -98,19 +98,17 @@ def test_streaming_writers_and_readers(tmp_path):
 
 def test_failed_writer_leaves_nothing(tmp_path):
     demo = demonstration_factory(steps=3, frames=False)
-    with pytest.raises(RuntimeError):
-        with DemonstrationWriter(tmp_path / "d.mcap", demo.episode) as w:
-            w.write_step(0, demo.pose[0], 1.0)
-            raise RuntimeError("recorder crashed")
+    with pytest.raises(RuntimeError), DemonstrationWriter(tmp_path / "d.mcap", demo.episode) as w:
+        w.write_step(0, demo.pose[0], 1.0)
+        raise RuntimeError("recorder crashed")
     assert list(tmp_path.iterdir()) == []
 
 
 def test_existing_output_is_kept_if_writing_fails(tmp_path):
     path = write_trajectory(tmp_path / "t.mcap", trajectory_factory(steps=4, features=False))
     before = path.read_bytes()
-    with pytest.raises(recordings.RecordingError):
-        with TrajectoryWriter(path, trajectory_factory().episode, 8) as w:
-            w.write_step(5, np.zeros(8, np.float32))  # zero quaternion: rejected
+    with pytest.raises(recordings.RecordingError), TrajectoryWriter(path, trajectory_factory().episode, 8) as w:
+        w.write_step(5, np.zeros(8, np.float32))  # zero quaternion: rejected
     assert path.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["t.mcap"]
 
@@ -192,7 +190,8 @@ def test_recordings_never_imports_torch_pipeline_or_opencv_at_import():
     code = (
         "import sys, cnep.recordings, cnep.recordings.repair, cnep.recordings.inspection, cnep.recordings.mcap_source, "
         "cnep.recordings.adapters; "
-        "print(','.join(m for m in ('torch', 'cnep.pipeline', 'cv2', 'cnep.perception', 'cnep.models') if m in sys.modules))"
+        "print(','.join(m for m in ('torch', 'cnep.pipeline', 'cv2', 'cnep.perception', 'cnep.models') "
+        "if m in sys.modules))"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == ""
@@ -209,7 +208,10 @@ def test_reader_accepts_any_chunk_compression(tmp_path, compression):
         for name, data in contents.metadata.items():
             w.add_metadata(name, data)
         sid = {k: w.register_schema(s.name, s.encoding, s.data) for k, s in contents.schemas.items()}
-        cid = {k: w.register_channel(c.topic, c.message_encoding, sid[c.schema_id], c.metadata) for k, c in contents.channels.items()}
+        cid = {
+            k: w.register_channel(c.topic, c.message_encoding, sid[c.schema_id], c.metadata)
+            for k, c in contents.channels.items()
+        }
         for m in contents.messages:
             w.add_message(cid[m.channel_id], m.log_time, m.data, m.publish_time)
         w.finish()
