@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import importlib
 import sys
+from collections.abc import Sequence
+from pathlib import Path
 
 # (module, class) of every package's user-error class besides PipelineError.
 _PACKAGE_ERRORS = (
@@ -30,6 +32,12 @@ def loaded_user_errors() -> tuple[type[Exception], ...]:
     """
     found = [getattr(sys.modules[name], cls) for name, cls in _PACKAGE_ERRORS if name in sys.modules]
     return (PipelineError, *found)
+
+
+def listed(files: Sequence[Path | str], shown: int = 5) -> str:
+    """The first `shown` of `files` for an error message, comma-separated, then how many more there are."""
+    names = ", ".join(str(f) for f in files[:shown])
+    return names + (f" and {len(files) - shown} more" if len(files) > shown else "")
 
 
 def __getattr__(name: str):

@@ -25,7 +25,7 @@ from __future__ import annotations
 import logging
 import math
 import os
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor, as_completed
 from dataclasses import dataclass
 from multiprocessing import get_context
@@ -412,48 +412,3 @@ def demonstration_files(given: Path) -> list[Path]:
     if given.is_file():
         return [given]
     raise PipelineError(f"{given}: no such file or folder; give demonstration files made by `cnep ingest`")
-
-
-def check_same_extractor(paths: Sequence[Path]) -> dict[str, str]:
-    """Read the extractor identity of trajectory files and require one; returns it ({} if none has features)."""
-    identities = {}
-    for path in paths:
-        with TrajectoryReader(path) as reader:
-            identities[Path(path)] = reader.extractor
-    return check_identities(identities)
-
-
-def check_identities(identities: Mapping[Path, Mapping[str, str]]) -> dict[str, str]:
-    """Require one extractor for all files ({} = motion-only file); raise PipelineError naming the files that differ.
-
-    Files agree when their compatibility keys agree (architecture, feature width, weights hash and
-    preprocessing; the backend may differ). Returns the shared identity of the first file.
-    """
-    groups: dict[tuple[str, ...], list[Path]] = {}
-    for path, identity in identities.items():
-        groups.setdefault(compatibility_key(identity) if identity else (), []).append(path)
-    if len(groups) <= 1:
-        return dict(next(iter(identities.values()), {}))
-    ordered = sorted(groups.values(), key=len, reverse=True)  # the largest group is the reference
-    described = "; ".join(
-        f"{len(files)} file(s) {_describe(identities[files[0]])}: {_names(files)}" for files in ordered
-    )
-    raise PipelineError(
-        f"trajectory files come from different feature extractors and cannot be mixed: {described}; "
-        f"re-extract the odd files with the same --weights (one `cnep extract` run for random "
-        f"weights, or --weights with the file saved by --save-weights)"
-    )
-
-
-def _describe(identity: Mapping[str, str]) -> str:
-    if not identity:
-        return "without features (motion-only)"
-    return (
-        f"with weights {identity.get('weights', '?')} (sha256 {identity.get('weights_sha256', '?')[:12]}), "
-        f"{identity.get('architecture', '?')}"
-    )
-
-
-def _names(files: Sequence[Path], shown: int = 5) -> str:
-    names = ", ".join(str(f) for f in files[:shown])
-    return names + (f" and {len(files) - shown} more" if len(files) > shown else "")

@@ -51,7 +51,7 @@ from cnep.models import (
 from cnep.models.checkpoint import CONFIG_FILE, atomic_write
 from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_existing
 from cnep.pipeline.errors import PipelineError
-from cnep.pipeline.extract.stage import check_identities
+from cnep.pipeline.identity import check_checkpoint_extractor
 from cnep.recordings import Event, Trajectory, add_events, read_trajectory
 from cnep.recordings.constants import BLOCK_FEATURES, BLOCK_POSE_XYZ, LAYOUTS
 
@@ -213,7 +213,7 @@ def replay(
     `connect`: a viewer URL, streamed to only if reachable (None: file only). The decisions are
     written to `decisions_path(out_rrd)` (see `read_decisions`). Existing outputs (the .rrd, the
     decisions, the event copies) are refused unless `force`; a recording whose features come from
-    another extractor than the checkpoint's training data is refused (`check_extractor`).
+    another extractor than the checkpoint's training data is refused (pipeline.identity).
     """
     import torch
 
@@ -239,7 +239,10 @@ def replay(
     trajectories = [read_trajectory(p) for p in paths]
     rows = [mapping.select(traj, p, checkpoint) for traj, p in zip(trajectories, paths)]  # refuse misfits first
     if mapping.uses_features:
-        check_extractor(checkpoint, trajectories, paths)
+        trained = read_checkpoint_config(checkpoint).get("extractor") or {}
+        check_checkpoint_extractor(
+            checkpoint / CONFIG_FILE, trained, {p: traj.extractor for p, traj in zip(paths, trajectories)}
+        )
     for traj, p in zip(trajectories, paths):
         if traj.n_steps < 2:
             raise PipelineError(
@@ -311,24 +314,6 @@ def rrd_files(out: Path, paths: list[Path], merge: bool) -> list[Path]:
         out.with_name(f"{out.stem}-{i + 1:02d}-{path.parent.name}-{path.stem}.rrd".replace(" ", "_"))
         for i, path in enumerate(paths)
     ]
-
-
-def check_extractor(checkpoint: Path, trajectories: list[Trajectory], paths: list[Path]) -> None:
-    """Refuse recordings whose features come from another extractor than the checkpoint's training data.
-
-    The same check as training (pipeline.extract.stage.check_identities, on perception's compatibility
-    key), with the checkpoint's config.json standing for its training files.
-    """
-    config_file = checkpoint / CONFIG_FILE
-    trained = read_checkpoint_config(checkpoint).get("extractor") or {}
-    if not trained:
-        raise PipelineError(
-            f"{config_file}: the model sees image features but the checkpoint names no feature "
-            f"extractor, so the recordings' features cannot be checked against its training data; "
-            f"train it with `cnep train` (which records the extractor)"
-        )
-    for traj, path in zip(trajectories, paths):
-        check_identities({config_file: trained, path: traj.extractor or {}})
 
 
 def decisions_path(out_rrd: str | os.PathLike) -> Path:

@@ -10,8 +10,9 @@ from pathlib import Path
 
 import numpy as np
 
-from cnep.pipeline.errors import PipelineError
-from cnep.pipeline.extract.stage import SUFFIX, _names, check_identities
+from cnep.pipeline.errors import PipelineError, listed
+from cnep.pipeline.extract.stage import SUFFIX
+from cnep.pipeline.identity import check_identities
 from cnep.recordings import Trajectory, read_trajectory
 
 log = logging.getLogger(__name__)
@@ -83,7 +84,7 @@ def load_training_set(paths: Sequence[Path]) -> TrainingSet:
         widths.setdefault(trajectory.width, []).append(path)
     if len(widths) > 1:
         described = "; ".join(
-            f"{len(files_)} file(s) {width} columns wide: {_names(files_)}"
+            f"{len(files_)} file(s) {width} columns wide: {listed(files_)}"
             for width, files_ in sorted(widths.items(), key=lambda item: -len(item[1]))
         )
         raise PipelineError(

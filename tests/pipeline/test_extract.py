@@ -8,14 +8,8 @@ from cnep.perception import FeatureExtractor, PerceptionError, decode_image
 from cnep.perception.constants import WEIGHTS_ENV_VAR
 from cnep.pipeline.cli.main import main
 from cnep.pipeline.errors import PipelineError
-from cnep.pipeline.extract.stage import (
-    ExtractConfig,
-    calibration_frames,
-    check_identities,
-    check_same_extractor,
-    extract,
-    plan_outputs,
-)
+from cnep.pipeline.extract.stage import ExtractConfig, calibration_frames, extract, plan_outputs
+from cnep.pipeline.identity import check_identities, check_same_extractor
 from cnep.recordings import read_trajectory, write_demonstration
 from tests.recordings.factories import demonstration_factory
 
