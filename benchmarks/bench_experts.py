@@ -66,7 +66,7 @@ class LoopCNEP(nn.Module):
         self.experts = LoopExperts(model)
 
     def forward(self, obs, obs_mask, query):
-        ref, dy = self.batched, self.batched.config.layout.out_dim
+        ref, dy = self.batched, self.batched.config.columns.out_dim
         w = obs_mask.to(obs.dtype).unsqueeze(-1)  # (B, N, 1)
         r = (self.encoder(ref.embed_time(obs)) * w).sum(1) / w.sum(1).clamp_min(1.0)  # (B, H)
         gate = torch.softmax(self.gate(r), dim=-1)  # (B, d)

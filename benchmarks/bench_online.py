@@ -25,7 +25,7 @@ import time
 import numpy as np
 import torch
 
-from cnep.models import CNEPConfig, ConditioningPolicy, Layout, OnlineConditioner, build_model
+from cnep.models import CNEPConfig, ColumnRoles, ConditioningPolicy, OnlineConditioner, build_model
 
 TARGET_P99_MS = 2.0  # from issue 5
 WIDTH = 1288
@@ -51,9 +51,9 @@ def time_steps(fn, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def bench(n_experts: int, steps: int, window: int) -> dict[str, float]:
-    layout = Layout(width=WIDTH, observed=((0, WIDTH),), predicted=PREDICTED)
+    columns = ColumnRoles(width=WIDTH, observed=((0, WIDTH),), predicted=PREDICTED)
     rows = episode(steps)
-    model = build_model(CNEPConfig(layout=layout, n_experts=n_experts), [rows], seed=0).eval()
+    model = build_model(CNEPConfig(columns=columns, n_experts=n_experts), [rows], seed=0).eval()
     with torch.no_grad():  # build_model starts the gate uniform; give it trained-like weights
         model.gate.weight.normal_(0, 0.1)
     policy = ConditioningPolicy(window=window, anchors=1)

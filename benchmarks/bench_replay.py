@@ -26,7 +26,7 @@ import numpy as np
 import torch
 
 import cnep.pipeline.replay.layout as L
-from cnep.models import CNEPConfig, ConditioningPolicy, Layout, build_model, load_checkpoint, save_checkpoint
+from cnep.models import CNEPConfig, ColumnRoles, ConditioningPolicy, build_model, load_checkpoint, save_checkpoint
 from cnep.pipeline.replay.stage import RowMapping, decide, replay, switch_text, write_recording
 from cnep.recordings import Episode, Trajectory, read_trajectory, write_trajectory
 from cnep.recordings.constants import STEP_DIM
@@ -96,8 +96,8 @@ def main() -> None:
         tmp = Path(tmp)
         traj = make_trajectory(args.steps)
         rec_path = write_trajectory(tmp / "bench.mcap", traj)
-        layout = Layout(width=STEP_DIM, observed=((0, STEP_DIM),), predicted=((1280, STEP_DIM),))
-        model = build_model(CNEPConfig(layout=layout, n_experts=args.experts), [traj.data], seed=0)
+        columns = ColumnRoles(width=STEP_DIM, observed=((0, STEP_DIM),), predicted=((1280, STEP_DIM),))
+        model = build_model(CNEPConfig(columns=columns, n_experts=args.experts), [traj.data], seed=0)
         with torch.no_grad():
             model.gate.weight.normal_(0, 0.1)
         ckpt = save_checkpoint(model, tmp / "ckpt")

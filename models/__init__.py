@@ -5,7 +5,7 @@ Takes numpy arrays, never files or images.
 
 from cnep.models.checkpoint import load_checkpoint, read_checkpoint_config, save_checkpoint
 from cnep.models.cnep import CNEP, Prediction
-from cnep.models.config import CNEPConfig, Layout, TrainConfig, authors_coefficients
+from cnep.models.config import CNEPConfig, ColumnRoles, TrainConfig, authors_coefficients
 from cnep.models.errors import ConfigError
 from cnep.models.matched import matched_cnmp, parameter_count
 from cnep.models.train import Trainer, build_model, fit
@@ -14,7 +14,7 @@ __all__ = [
     "CNEP",
     "CNEPConfig",
     "ConfigError",
-    "Layout",
+    "ColumnRoles",
     "Prediction",
     "TrainConfig",
     "Trainer",

@@ -38,7 +38,7 @@ from cnep.models.loss import loss_terms
 from cnep.models.train import Trainer, finish_fit, make_optimizer, prepare_fit, set_learning_rate
 
 # What must agree for two networks to stack (the loss weights a_rec, a_batch, a_ind may differ).
-ARCHITECTURE_FIELDS = ("layout", "n_experts", "encoder_widths", "expert_widths", "min_std", "time_frequencies")
+ARCHITECTURE_FIELDS = ("columns", "n_experts", "encoder_widths", "expert_widths", "min_std", "time_frequencies")
 MAX_MODELS = 8  # models per batched computation in `fit_many`
 
 
@@ -117,7 +117,7 @@ class StackedCNEP:
         """CNEP.decode (models.cnep.Experts) for k models: r (k, B, H), query (k, B, M, dq) -> mean, std
         (k, B, d, M, dy)."""
         k, B, M, _ = query.shape
-        d, dy = self.base.n_experts, self.base.config.layout.out_dim
+        d, dy = self.base.n_experts, self.base.config.columns.out_dim
         P = self.params
         q = self.base.embed_time(query).view(k, B * M, -1)  # (k, B*M, dq)
         latent = torch.bmm(r, P["experts.first_r"]) + P["experts.first_b"].unsqueeze(1)  # (k, B, d*w0)

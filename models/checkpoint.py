@@ -3,7 +3,7 @@
 The normaliser's statistics are buffers of the model, so they are saved with the weights. Each file
 is written to a temporary name and renamed into place, so an interrupted save leaves the previous
 checkpoint intact. `config.json` carries the sha256 of its own content (`config_sha256`, over the
-canonical JSON of every other entry), so an edited config (an expert count, a layout, the extractor
+canonical JSON of every other entry), so an edited config (an expert count, the columns, the extractor
 identity the features must match) is refused instead of silently changing what the model means.
 """
 

@@ -87,7 +87,7 @@ class CNEP(nn.Module):
     def __init__(self, config: CNEPConfig) -> None:
         super().__init__()
         self.config = config
-        lay = config.layout
+        lay = config.columns
         self.normaliser = Normaliser(lay.width)
         for name, spans in (
             ("obs_columns", lay.observed),
@@ -122,7 +122,7 @@ class CNEP(nn.Module):
     def decode(self, r: torch.Tensor, query: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """All experts at once: r (B, H), query (B, M, dq) -> mean, std (B, d, M, dy)."""
         B, M, _ = query.shape
-        d, dy = self.n_experts, self.config.layout.out_dim
+        d, dy = self.n_experts, self.config.columns.out_dim
         out = self.experts(r, self.embed_time(query))  # (d, B*M, 2dy)
         out = out.view(d, B, M, 2 * dy).transpose(0, 1)  # (B, d, M, 2dy)
         mean, raw = out.split(dy, dim=-1)  # (B, d, M, dy) each
@@ -147,10 +147,10 @@ class CNEP(nn.Module):
         """Condition on observations and predict at the query times, in the data's own units.
 
         obs_t (n,) in [0, 1]; obs_values (n, obs_dim); query_t (m,); query_values (m, query_dim) or
-        None when the layout has no query columns. `mixture=False` is winner-take-all (the paper's
+        None when the model has no query columns. `mixture=False` is winner-take-all (the paper's
         inference), `mixture=True` the gate-weighted mixture of expert means (CNEP-MoE).
         """
-        lay = self.config.layout
+        lay = self.config.columns
         obs_values = np.asarray(obs_values, dtype=np.float32).reshape(len(obs_t), lay.obs_dim)
         if query_values is None:
             if lay.query_dim:

@@ -1,9 +1,9 @@
 """Configuration of the CNEP model and of its training, validated on construction.
 
-A trajectory is a `(T, C)` float array: one row per time step, `C` columns. A `Layout` says which
+A trajectory is a `(T, C)` float array: one row per time step, `C` columns. `ColumnRoles` says which
 columns the encoder observes (besides the time), which extra columns a query carries (besides the
-time) and which columns the experts predict. Columns are given as half-open `(start, stop)` spans so
-the 1288-d pipeline layout stays short in `config.json`.
+time) and which columns the experts predict (`CNEPConfig.columns`). Columns are given as half-open
+`(start, stop)` spans so the 1288 columns of the pipeline's trajectories stay short in `config.json`.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ def _spans(value, name: str, width: int) -> Spans:
     spans = tuple((int(a), int(b)) for a, b in value)
     for a, b in spans:
         if not 0 <= a < b <= width:
-            raise ConfigError(f"Layout span {name}=({a}, {b}) must satisfy 0 <= start < stop <= width={width}.")
+            raise ConfigError(f"Column span {name}=({a}, {b}) must satisfy 0 <= start < stop <= width={width}.")
     return spans
 
 
@@ -30,7 +30,7 @@ def span_indices(spans: Spans) -> list[int]:
 
 
 @dataclass(frozen=True)
-class Layout:
+class ColumnRoles:
     """Which columns of a `(T, width)` trajectory the model observes, queries with and predicts."""
 
     width: int = 1
@@ -40,11 +40,11 @@ class Layout:
 
     def __post_init__(self) -> None:
         if self.width < 1:
-            raise ConfigError(f"Layout width must be >= 1, got {self.width}.")
+            raise ConfigError(f"The column roles' width must be >= 1, got {self.width}.")
         for name in ("observed", "query", "predicted"):
             object.__setattr__(self, name, _spans(getattr(self, name), name, self.width))
         if not self.observed or not self.predicted:
-            raise ConfigError("A layout needs at least one observed and one predicted column.")
+            raise ConfigError("A model needs at least one observed and one predicted column.")
 
     @property
     def obs_dim(self) -> int:
@@ -91,7 +91,7 @@ class CNEPConfig:
     to the mixture's over training, or "bounded", the same with looser balancing (docs/model.md).
     """
 
-    layout: Layout = field(default_factory=Layout)
+    columns: ColumnRoles = field(default_factory=ColumnRoles)  # which columns it observes, queries with, predicts
     n_experts: int = 2
     encoder_widths: tuple[int, ...] = (128, 128)  # the last width is the latent size
     expert_widths: tuple[int, ...] = (128, 128)
@@ -105,8 +105,8 @@ class CNEPConfig:
     def __post_init__(self) -> None:
         if self.assignment not in ASSIGNMENTS:
             raise ConfigError(f"assignment must be one of {', '.join(ASSIGNMENTS)}, got {self.assignment!r}.")
-        if isinstance(self.layout, dict):
-            object.__setattr__(self, "layout", Layout(**self.layout))
+        if isinstance(self.columns, dict):
+            object.__setattr__(self, "columns", ColumnRoles(**self.columns))
         object.__setattr__(self, "encoder_widths", tuple(int(w) for w in self.encoder_widths))
         object.__setattr__(self, "expert_widths", tuple(int(w) for w in self.expert_widths))
         if self.n_experts < 1:
@@ -136,7 +136,11 @@ class CNEPConfig:
 
     @classmethod
     def from_dict(cls, data: dict) -> CNEPConfig:
-        """The config of `to_dict`; one written before `assignment` existed trained with the paper's term."""
+        """The config of `to_dict`. A config without `assignment` trained with the paper's term; one whose `columns`
+        are named `layout` (a checkpoint's config.json may use either name) is read the same."""
+        data = dict(data)
+        if "layout" in data and "columns" not in data:
+            data["columns"] = data.pop("layout")
         return cls(**{"assignment": "paper", **_known(cls, data)})
 
 

@@ -3,7 +3,7 @@
 The paper compares CNEP with a CNMP "of a similar number of parameters" (the authors widened their
 CNMP's decoder to [158, 158] for d = 2). Here the encoder (shared by both models) is kept and only the
 single expert's hidden layers are widened, to the smallest width whose count reaches the CNEP's, for any
-layout (synthetic 1-column, motion, 1288-d scene).
+columns (synthetic 1-column, motion, 1288-d scene).
 """
 
 from __future__ import annotations

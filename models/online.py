@@ -13,7 +13,7 @@ window is subtracted. A step costs O(1) (one encoder row, the gate, one query pe
 the episode's length.
 
 Time: step k of an episode of `horizon` steps is at t = k / (horizon - 1) (the model's training
-convention), clamped to 1 past the horizon. Query columns (if the layout has any) of the predicted
+convention), clamped to 1 past the horizon. Query columns (if the model has any) of the predicted
 future steps are held at the current row's values, since future observations are unknown.
 """
 
@@ -85,7 +85,7 @@ class OnlineConditioner:
         self.model = model.eval()
         self.horizon = horizon
         self.policy = policy
-        lay = model.config.layout
+        lay = model.config.columns
         self.width = lay.width
         norm = model.normaliser
         # Per-column normalisation of the inputs and outputs, gathered once (not per step).
@@ -123,7 +123,7 @@ class OnlineConditioner:
         row = np.asarray(row, dtype=np.float32)
         if row.shape != (self.width,):
             raise ConfigError(
-                f"An online observation must be a ({self.width},) row in the model's layout, got shape {row.shape}."
+                f"An online observation must be a ({self.width},) row of the model's columns, got shape {row.shape}."
             )
         k, t = self.k, float(self.time_of(self.k))
         x = torch.from_numpy(row)

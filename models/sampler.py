@@ -33,7 +33,7 @@ class TrajectoryStack:
 
     def __init__(self, trajectories: Sequence[np.ndarray], model) -> None:
         lengths = [len(t) for t in trajectories]
-        T, C = max(lengths), model.config.layout.width
+        T, C = max(lengths), model.config.columns.width
         data = torch.zeros(len(trajectories), T, C)
         for i, traj in enumerate(trajectories):
             data[i, : len(traj)] = torch.as_tensor(np.asarray(traj, dtype=np.float32))

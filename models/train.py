@@ -259,8 +259,8 @@ def prepare_fit(
     """`fit` up to training: the checked data, the seeded model and its Trainer, and the split's description."""
     train, val, validation = _validation_split(list(trajectories), val_trajectories, train_config.seed)
     for t in train + val:
-        if np.ndim(t) != 2 or np.shape(t)[1] != config.layout.width:
-            raise ConfigError(f"Trajectories must be (T, {config.layout.width}) arrays, got shape {np.shape(t)}.")
+        if np.ndim(t) != 2 or np.shape(t)[1] != config.columns.width:
+            raise ConfigError(f"Trajectories must be (T, {config.columns.width}) arrays, got shape {np.shape(t)}.")
     model = build_model(config, train, train_config.seed)
     trainer = Trainer(model, TrajectoryStack(train, model), TrajectoryStack(val, model), train_config)
     return trainer, {"n_train": len(train), "n_val": len(val), "validation": validation}

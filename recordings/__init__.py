@@ -7,15 +7,15 @@ Public API (stable; see docs/recordings.md for the file contract):
     reading      DemonstrationReader, TrajectoryReader, read_demonstration, read_trajectory
     events       add_events, read_events
     errors       RecordingError
-    constants    recordings.constants (topics, schemas, LAYOUT_FULL, LAYOUT_MOTION, FORMAT_VERSION, ...)
+    constants    recordings.constants (topics, schemas, BLOCKS_FULL, BLOCKS_MOTION, FORMAT_VERSION, ...)
 """
 
 from cnep.recordings import constants
 from cnep.recordings.constants import (
+    BLOCKS_FULL,
+    BLOCKS_MOTION,
     FEATURE_DIM,
     FORMAT_VERSION,
-    LAYOUT_FULL,
-    LAYOUT_MOTION,
     MOTION_DIM,
     STEP_DIM,
 )
@@ -26,10 +26,10 @@ from cnep.recordings.records import Demonstration, Episode, Event, Trajectory
 from cnep.recordings.writers import DemonstrationWriter, TrajectoryWriter, write_demonstration, write_trajectory
 
 __all__ = [
+    "BLOCKS_FULL",
+    "BLOCKS_MOTION",
     "FEATURE_DIM",
     "FORMAT_VERSION",
-    "LAYOUT_FULL",
-    "LAYOUT_MOTION",
     "MOTION_DIM",
     "STEP_DIM",
     "Demonstration",

@@ -1,4 +1,4 @@
-"""Names, schemas and layouts of the recording files: the one place they are spelled out.
+"""Names, schemas and column blocks of the recording files: the one place they are spelled out.
 
 Every other module (and every other package) imports these; never retype a topic name or a column
 range. Changing anything here that changes what a file contains means bumping `FORMAT_VERSION`.
@@ -21,7 +21,7 @@ KIND_TRAJECTORY = "trajectory"
 TOPIC_IMAGE = "/camera/rgb"  # foxglove.CompressedImage, JPEG
 TOPIC_POSE = "/ee/pose"  # foxglove.PoseInFrame, xyz in m + quaternion xyzw
 TOPIC_GRIPPER = "/gripper"  # foxglove.JointStates with one joint named GRIPPER_JOINT
-TOPIC_TRAJECTORY = "/trajectory"  # cnep.FeatureVector, packed float32, width = layout width
+TOPIC_TRAJECTORY = "/trajectory"  # cnep.FeatureVector, packed float32, width = the column blocks' width
 TOPIC_EVENTS = "/events"  # foxglove.Event, metadata key/value pairs (e.g. expert switches)
 
 # Schema names (protobuf full names).
@@ -43,7 +43,7 @@ METADATA_EXTRACTOR = "extractor"  # feature extractor identity (trajectories wit
 METADATA_REPAIR = "repair"  # written by `cnep repair`: source file, bytes and chunks used, what was lost
 
 # Channel metadata keys of TOPIC_TRAJECTORY.
-CHANNEL_KEY_LAYOUT = "layout"  # JSON {block: [start, stop]}
+CHANNEL_KEY_BLOCKS = "layout"  # JSON {block: [start, stop]}: the column blocks (the key in the file is "layout")
 CHANNEL_KEY_WIDTH = "width"
 CHANNEL_KEY_DTYPE = "dtype"
 
@@ -58,9 +58,9 @@ BLOCK_POSE_XYZ = "pose_xyz"
 BLOCK_POSE_QUAT = "pose_quat_xyzw"
 BLOCK_GRIPPER = "gripper"
 
-Layout = Mapping[str, tuple[int, int]]  # block name -> [start, stop) column range
+Blocks = Mapping[str, tuple[int, int]]  # block name -> [start, stop) column range
 
-LAYOUT_FULL: Layout = MappingProxyType(
+BLOCKS_FULL: Blocks = MappingProxyType(
     {
         BLOCK_FEATURES: (0, FEATURE_DIM),
         BLOCK_POSE_XYZ: (FEATURE_DIM, FEATURE_DIM + 3),
@@ -68,15 +68,15 @@ LAYOUT_FULL: Layout = MappingProxyType(
         BLOCK_GRIPPER: (FEATURE_DIM + 7, STEP_DIM),
     }
 )
-LAYOUT_MOTION: Layout = MappingProxyType(
+BLOCKS_MOTION: Blocks = MappingProxyType(
     {
         BLOCK_POSE_XYZ: (0, 3),
         BLOCK_POSE_QUAT: (3, 7),
         BLOCK_GRIPPER: (7, MOTION_DIM),
     }
 )
-# The only layouts a trajectory file may carry, by width.
-LAYOUTS: Mapping[int, Layout] = MappingProxyType({STEP_DIM: LAYOUT_FULL, MOTION_DIM: LAYOUT_MOTION})
+# The only column blocks a trajectory file may carry, by width.
+BLOCKS_BY_WIDTH: Mapping[int, Blocks] = MappingProxyType({STEP_DIM: BLOCKS_FULL, MOTION_DIM: BLOCKS_MOTION})
 
 # Writing. Chunk compression by file kind: trajectories are float32 vectors that zstd shrinks by
 # only ~10%, while lz4 writes them ~1.4x faster and reads them about as fast or faster (python -m

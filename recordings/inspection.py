@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from cnep.recordings.constants import (
-    CHANNEL_KEY_LAYOUT,
+    CHANNEL_KEY_BLOCKS,
     KIND_DEMONSTRATION,
     KIND_TRAJECTORY,
     METADATA_EPISODE,
@@ -53,7 +53,7 @@ class FileReport:
     metadata: dict[str, dict[str, str]]
     attachments: list[tuple[str, str, int]]  # name, media type, bytes
     chunks: int
-    layouts: dict[str, object] = field(default_factory=dict)  # topic -> column layout from channel metadata
+    blocks: dict[str, object] = field(default_factory=dict)  # topic -> column blocks from channel metadata
     check: str | None = None  # cnep files: "ok" or why the pipeline refuses the file
 
     @property
@@ -74,13 +74,13 @@ def inspect_file(path: str | os.PathLike) -> FileReport:
                 ch.topic, contents.schema_name(ch.topic), len(times), min(times, default=0), max(times, default=0)
             )
         )
-    layouts = {}
+    blocks = {}
     for ch in contents.channels.values():
-        if CHANNEL_KEY_LAYOUT in ch.metadata:
+        if CHANNEL_KEY_BLOCKS in ch.metadata:
             try:
-                layouts[ch.topic] = json.loads(ch.metadata[CHANNEL_KEY_LAYOUT])
+                blocks[ch.topic] = json.loads(ch.metadata[CHANNEL_KEY_BLOCKS])
             except ValueError:
-                layouts[ch.topic] = ch.metadata[CHANNEL_KEY_LAYOUT]
+                blocks[ch.topic] = ch.metadata[CHANNEL_KEY_BLOCKS]
     check = None
     kind = contents.metadata.get(METADATA_EPISODE, {}).get("kind")
     if kind in (KIND_DEMONSTRATION, KIND_TRAJECTORY):
@@ -110,7 +110,7 @@ def inspect_file(path: str | os.PathLike) -> FileReport:
         metadata=contents.metadata,
         attachments=[(a.name, a.media_type, len(a.data)) for a in contents.attachments],
         chunks=contents.chunks_read,
-        layouts=layouts,
+        blocks=blocks,
         check=check,
     )
 
@@ -133,8 +133,8 @@ def format_report(report: FileReport) -> str:
         lines.append(f"    {t.topic:<{wt}}  {t.schema:<{ws}}  {t.count:>7} msgs  {t.rate_hz:8.2f} Hz")
     for name, data in report.metadata.items():
         lines.append(f"  metadata {name}: " + ", ".join(f"{k}={v}" for k, v in data.items()))
-    for topic, layout in report.layouts.items():
-        lines.append(f"  layout of {topic}: {json.dumps(layout)}")
+    for topic, blocks in report.blocks.items():
+        lines.append(f"  column blocks of {topic}: {json.dumps(blocks)}")
     for name, media, size in report.attachments:
         lines.append(f"  attachment {name} ({media}, {size} bytes)")
     return "\n".join(lines)

@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from cnep.recordings.constants import (
-    CHANNEL_KEY_LAYOUT,
+    CHANNEL_KEY_BLOCKS,
     CHANNEL_KEY_WIDTH,
     IMAGE_FORMAT,
     KIND_DEMONSTRATION,
@@ -39,7 +39,7 @@ from cnep.recordings.container import CORRUPTION_ERRORS, McapContents, read_mcap
 from cnep.recordings.errors import RecordingError
 from cnep.recordings.records import RESERVED_EPISODE_KEYS, Demonstration, Episode, Trajectory
 from cnep.recordings.schemas import decode_gripper, decode_image, decode_pose, vector_payload
-from cnep.recordings.validation import check_format_version, check_layout
+from cnep.recordings.validation import check_blocks, check_format_version
 
 # (kind found, kind expected) -> what to do about it, appended to the error.
 _KIND_FIXES = {
@@ -155,7 +155,7 @@ def trajectory_from(contents: McapContents) -> Trajectory:
     with in_file(path):
         msgs, ts = _timestamps(contents, TOPIC_TRAJECTORY)
         _check_steps(contents, TOPIC_TRAJECTORY, len(ts))
-        layout, width = channel_layout(contents)
+        blocks, width = channel_blocks(contents)
         payloads = [vector_payload(m.data) for m in msgs]
         for i, p in enumerate(payloads):
             if len(p) != 4 * width:
@@ -165,21 +165,21 @@ def trajectory_from(contents: McapContents) -> Trajectory:
             episode=episode,
             timestamps_ns=ts,
             data=data,
-            layout=layout,
+            blocks=blocks,
             extractor=contents.metadata.get(METADATA_EXTRACTOR, {}),
             frames=_frames(contents, ts),
         )
 
 
-def channel_layout(contents: McapContents) -> tuple[dict[str, tuple[int, int]], int]:
-    """(layout, width) from the channel metadata of /trajectory, checked against the known layouts."""
+def channel_blocks(contents: McapContents) -> tuple[dict[str, tuple[int, int]], int]:
+    """(blocks, width) from the channel metadata of /trajectory, checked against the known column blocks."""
     ch = contents.require_channel(TOPIC_TRAJECTORY)
     try:
         width = int(ch.metadata[CHANNEL_KEY_WIDTH])
-        layout = json.loads(ch.metadata[CHANNEL_KEY_LAYOUT])
+        blocks = json.loads(ch.metadata[CHANNEL_KEY_BLOCKS])
     except (KeyError, ValueError) as exc:
         raise RecordingError(f"{contents.path}: {TOPIC_TRAJECTORY} channel metadata lacks a valid {exc}") from None
-    return check_layout(layout, width, str(contents.path)), width
+    return check_blocks(blocks, width, str(contents.path)), width
 
 
 def read_demonstration(path: str | os.PathLike) -> Demonstration:
@@ -231,13 +231,13 @@ class DemonstrationReader(_Reader):
 
 
 class TrajectoryReader(_Reader):
-    """`with TrajectoryReader(path) as r: r.episode, r.n_steps, r.layout, r.width, r.extractor, r.read()`."""
+    """`with TrajectoryReader(path) as r: r.episode, r.n_steps, r.blocks, r.width, r.extractor, r.read()`."""
 
     kind = KIND_TRAJECTORY
 
     def __enter__(self) -> TrajectoryReader:
         super().__enter__()
-        self.layout, self.width = channel_layout(self._loaded())
+        self.blocks, self.width = channel_blocks(self._loaded())
         self.extractor = dict(self._loaded().metadata.get(METADATA_EXTRACTOR, {}))
         return self
 

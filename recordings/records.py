@@ -23,17 +23,17 @@ from cnep.recordings.constants import (
     BLOCK_GRIPPER,
     BLOCK_POSE_QUAT,
     BLOCK_POSE_XYZ,
+    BLOCKS_FULL,
+    BLOCKS_MOTION,
     FEATURE_DIM,
-    LAYOUT_FULL,
-    LAYOUT_MOTION,
 )
 from cnep.recordings.errors import RecordingError
 from cnep.recordings.validation import (
+    check_blocks,
     check_extractor,
     check_fps,
     check_frames,
     check_gripper,
-    check_layout,
     check_matrix,
     check_pose,
     check_timestamps,
@@ -108,16 +108,16 @@ class Demonstration:
 
 @dataclass(eq=False)
 class Trajectory:
-    """Per-step vectors of one demonstration: `data` (T, D) float32 with `layout` naming its columns.
+    """Per-step vectors of one demonstration: `data` (T, D) float32 with `blocks` naming its columns.
 
-    layout: block -> [start, stop) column range; defaults to the layout of the width (1288 or 8).
+    blocks: block -> [start, stop) column range; defaults to the blocks of the width (1288 or 8).
     extractor: identity of the feature extractor (str -> str); required iff there is a feature block.
     """
 
     episode: Episode
     timestamps_ns: np.ndarray  # (T,) int64
     data: np.ndarray  # (T, D) float32
-    layout: Mapping[str, tuple[int, int]] | None = None
+    blocks: Mapping[str, tuple[int, int]] | None = None
     extractor: Mapping[str, str] = field(default_factory=dict)
     frames: list[bytes] | None = None
 
@@ -125,8 +125,8 @@ class Trajectory:
         where = f"Trajectory {self.episode.episode_id!r}"
         self.timestamps_ns = check_timestamps(self.timestamps_ns, where)
         self.data = check_matrix(self.data, self.n_steps, where)
-        self.layout = check_layout(self.layout, self.data.shape[1], where)
-        self.extractor = check_extractor(self.extractor, self.layout, where)
+        self.blocks = check_blocks(self.blocks, self.data.shape[1], where)
+        self.extractor = check_extractor(self.extractor, self.blocks, where)
         self.frames = check_frames(self.frames, self.n_steps, where)
         check_pose(self.pose, self.n_steps, where)  # non-zero quaternions
 
@@ -141,7 +141,7 @@ class Trajectory:
         """Build the trajectory of `demo`: features (T, 1280) or None for the 8-wide motion-only layout."""
         motion = np.concatenate([demo.pose, demo.gripper[:, None]], axis=1)  # (T, 8)
         if features is None:
-            data, layout = motion, LAYOUT_MOTION
+            data, blocks = motion, BLOCKS_MOTION
         else:
             feats = np.asarray(features, dtype=np.float32)
             if feats.shape != (demo.n_steps, FEATURE_DIM):
@@ -149,12 +149,12 @@ class Trajectory:
                     f"Trajectory {demo.episode.episode_id!r}: features must have shape "
                     f"({demo.n_steps}, {FEATURE_DIM}), got {feats.shape}"
                 )
-            data, layout = np.concatenate([feats, motion.astype(np.float32)], axis=1), LAYOUT_FULL  # (T, 1288)
+            data, blocks = np.concatenate([feats, motion.astype(np.float32)], axis=1), BLOCKS_FULL  # (T, 1288)
         return cls(
             episode=demo.episode,
             timestamps_ns=demo.timestamps_ns,
             data=data,
-            layout=layout,
+            blocks=blocks,
             extractor=extractor or {},
             frames=demo.frames if keep_frames else None,
         )
@@ -169,15 +169,15 @@ class Trajectory:
 
     @property
     def has_features(self) -> bool:
-        return BLOCK_FEATURES in self.layout
+        return BLOCK_FEATURES in self.blocks
 
     def block(self, name: str) -> np.ndarray:
         """Columns of block `name` (a view of `data`), e.g. `block("pose_xyz")` is (T, 3)."""
-        if name not in self.layout:
+        if name not in self.blocks:
             raise RecordingError(
-                f"Trajectory {self.episode.episode_id!r}: no block {name!r}; it has {list(self.layout)}"
+                f"Trajectory {self.episode.episode_id!r}: no block {name!r}; it has {list(self.blocks)}"
             )
-        start, stop = self.layout[name]
+        start, stop = self.blocks[name]
         return self.data[:, start:stop]
 
     @property
@@ -188,7 +188,7 @@ class Trajectory:
     @property
     def pose(self) -> np.ndarray:
         """(T, 7) float32 view: xyz + quaternion xyzw."""
-        return self.data[:, self.layout[BLOCK_POSE_XYZ][0] : self.layout[BLOCK_POSE_QUAT][1]]
+        return self.data[:, self.blocks[BLOCK_POSE_XYZ][0] : self.blocks[BLOCK_POSE_QUAT][1]]
 
     @property
     def gripper(self) -> np.ndarray:

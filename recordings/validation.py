@@ -13,7 +13,7 @@ import numpy as np
 
 from cnep.recordings.constants import (
     BLOCK_FEATURES,
-    LAYOUTS,
+    BLOCKS_BY_WIDTH,
     POSE_DIM,
     SUPPORTED_FORMAT_VERSIONS,
 )
@@ -95,18 +95,18 @@ def check_frames(frames: Sequence[bytes] | None, n_steps: int, where: str) -> li
     return [bytes(f) for f in out]
 
 
-def check_layout(layout: Mapping[str, Sequence[int]] | None, width: int, where: str) -> dict[str, tuple[int, int]]:
-    """Return the column layout for a matrix of `width` columns; only the layouts in `LAYOUTS` exist."""
-    if width not in LAYOUTS:
+def check_blocks(blocks: Mapping[str, Sequence[int]] | None, width: int, where: str) -> dict[str, tuple[int, int]]:
+    """Return the column blocks of a matrix of `width` columns; only those in `BLOCKS_BY_WIDTH` exist."""
+    if width not in BLOCKS_BY_WIDTH:
         raise RecordingError(
-            f"{where}: vector width {width} is not a known layout; expected one of {sorted(LAYOUTS)} "
+            f"{where}: vector width {width} is not a known layout; expected one of {sorted(BLOCKS_BY_WIDTH)} "
             "(1288 = features|pose|gripper, 8 = pose|gripper for motion-only recordings)"
         )
-    expected = {k: tuple(v) for k, v in LAYOUTS[width].items()}
-    if layout is None:
+    expected = {k: tuple(v) for k, v in BLOCKS_BY_WIDTH[width].items()}
+    if blocks is None:
         return expected
     try:
-        given = {str(k): (int(v[0]), int(v[1])) for k, v in layout.items()}
+        given = {str(k): (int(v[0]), int(v[1])) for k, v in blocks.items()}
     except (TypeError, ValueError, IndexError, AttributeError) as exc:
         raise RecordingError(f"{where}: column layout is not a {{block: [start, stop]}} mapping ({exc})") from None
     if given != expected:
@@ -123,18 +123,18 @@ def check_matrix(data: object, n_steps: int, where: str) -> np.ndarray:
     return arr
 
 
-def check_extractor(extractor: Mapping[str, str] | None, layout: Mapping[str, object], where: str) -> dict[str, str]:
+def check_extractor(extractor: Mapping[str, str] | None, blocks: Mapping[str, object], where: str) -> dict[str, str]:
     """Return the extractor identity: required (non-empty) with a feature block, empty without one."""
     ident = {} if extractor is None else dict(extractor)
     for k, v in ident.items():
         if not isinstance(k, str) or not isinstance(v, str):
             raise RecordingError(f"{where}: extractor identity must map str to str, got {k!r}: {v!r}")
-    if BLOCK_FEATURES in layout and not ident:
+    if BLOCK_FEATURES in blocks and not ident:
         raise RecordingError(
             f"{where}: a trajectory with a feature block needs the feature extractor's identity "
             "(e.g. architecture, weights name, weights hash)"
         )
-    if BLOCK_FEATURES not in layout and ident:
+    if BLOCK_FEATURES not in blocks and ident:
         raise RecordingError(f"{where}: extractor identity given but the layout has no feature block")
     return ident
 

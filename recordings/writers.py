@@ -28,8 +28,8 @@ import numpy as np
 from cnep.recordings.constants import (
     BLOCK_POSE_QUAT,
     BLOCK_POSE_XYZ,
+    CHANNEL_KEY_BLOCKS,
     CHANNEL_KEY_DTYPE,
-    CHANNEL_KEY_LAYOUT,
     CHANNEL_KEY_WIDTH,
     COMPRESSION_BY_KIND,
     FORMAT_VERSION,
@@ -60,10 +60,10 @@ from cnep.recordings.schemas import (
     schema_data,
 )
 from cnep.recordings.validation import (
+    check_blocks,
     check_extractor,
     check_frames,
     check_gripper,
-    check_layout,
     check_matrix,
     check_pose,
     check_timestamps,
@@ -239,7 +239,7 @@ class DemonstrationWriter(_StepWriter):
 class TrajectoryWriter(_StepWriter):
     """Writes a trajectory file: `/trajectory` (one packed float32 vector per step), frames optional.
 
-    width: 1288 ([features|pose|gripper]) or 8 ([pose|gripper]); the layout goes into the channel
+    width: 1288 ([features|pose|gripper]) or 8 ([pose|gripper]); the column blocks go into the channel
     metadata. extractor: feature extractor identity (str -> str), required iff width is 1288.
     """
 
@@ -254,13 +254,13 @@ class TrajectoryWriter(_StepWriter):
         attachments: Mapping[str, bytes] | None = None,
     ):
         super().__init__(path, episode, attachments)
-        self.layout = check_layout(None, width, str(self.path))
-        self.extractor = check_extractor(extractor, self.layout, str(self.path))
+        self.blocks = check_blocks(None, width, str(self.path))
+        self.extractor = check_extractor(extractor, self.blocks, str(self.path))
         self.width = width
 
     def _open(self, f: _McapFile) -> None:
         meta = {
-            CHANNEL_KEY_LAYOUT: json.dumps({k: list(v) for k, v in self.layout.items()}),
+            CHANNEL_KEY_BLOCKS: json.dumps({k: list(v) for k, v in self.blocks.items()}),
             CHANNEL_KEY_WIDTH: str(self.width),
             CHANNEL_KEY_DTYPE: "float32",
         }
@@ -280,7 +280,7 @@ class TrajectoryWriter(_StepWriter):
         rows = check_matrix(data, ts.shape[0], where)
         if rows.shape[1] != self.width:
             raise RecordingError(f"{where}: vector width {rows.shape[1]} does not match this file's width {self.width}")
-        pose_cols = slice(self.layout[BLOCK_POSE_XYZ][0], self.layout[BLOCK_POSE_QUAT][1])
+        pose_cols = slice(self.blocks[BLOCK_POSE_XYZ][0], self.blocks[BLOCK_POSE_QUAT][1])
         check_pose(rows[:, pose_cols], ts.shape[0], where)
         check_frames(frames, ts.shape[0], where)
         self._next_time(int(ts[0]))

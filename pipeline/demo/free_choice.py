@@ -63,7 +63,7 @@ def generated_ends(model, mapping, rows: list[np.ndarray]) -> np.ndarray:
         raise ValueError("the model does not predict the end-effector position")
     ends = []
     for r in rows:
-        query = r[:1, model.query_columns.numpy()] if model.config.layout.query_dim else None  # known at t = 0
+        query = r[:1, model.query_columns.numpy()] if model.config.columns.query_dim else None  # known at t = 0
         mean = model.generate(np.zeros(1), r[:1, model.obs_columns.numpy()], np.ones(1), query).mean  # (1, dy)
         ends.append(mean[0, xyz[:2]])
     return np.stack(ends)

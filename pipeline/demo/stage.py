@@ -387,7 +387,7 @@ def gate_of(model, rows: np.ndarray) -> np.ndarray:
     T = len(rows)
     t = np.arange(T) / (T - 1)
     obs = rows[:, model.obs_columns.numpy()]
-    query = rows[:1, model.query_columns.numpy()] if model.config.layout.query_dim else None
+    query = rows[:1, model.query_columns.numpy()] if model.config.columns.query_dim else None
     return model.generate(t, obs, t[:1], query).gate
 
 
@@ -436,7 +436,7 @@ def heldout_errors(checkpoint: Path, heldout: list[Path], train_paths: list[Path
     for path, r in zip(heldout, rows):
         T = len(r)
         t = np.arange(T) / (T - 1)
-        query = r[:, model.query_columns.numpy()] if model.config.layout.query_dim else None
+        query = r[:, model.query_columns.numpy()] if model.config.columns.query_dim else None
         mean = model.generate(t[:1], r[:1, model.obs_columns.numpy()], t, query).mean  # (T, dy)
         truth = r[:, out_cols]  # (T, dy)
         sq.append(((mean[:, xyz] - truth[:, xyz]) ** 2).sum(-1))  # (T,)

@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cnep.models import CNEPConfig, Layout, TrainConfig, fit, matched_cnmp, pid_track
+from cnep.models import CNEPConfig, ColumnRoles, TrainConfig, fit, matched_cnmp, pid_track
 from cnep.models.config import ASSIGNMENTS
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.ingest.stage import IngestConfig, ingest
@@ -45,7 +45,7 @@ DEMO_FOLDER = "start_end"
 BOX_X = (0.71, 0.95)  # m, the obstacle's extent in the paper's set-up
 BOX_Y = (-0.36, -0.24)
 SAMPLES = 200
-LAYOUT_XY = Layout(width=2, observed=((0, 2),), query=(), predicted=((0, 2),))
+COLUMNS_XY = ColumnRoles(width=2, observed=((0, 2),), query=(), predicted=((0, 2),))
 
 
 @dataclass(frozen=True)
@@ -132,9 +132,9 @@ def train_models(demos: np.ndarray, config: BaxterConfig) -> dict:
     )
     trajectories = list(demos)
     models = {}
-    cnep = CNEPConfig(layout=LAYOUT_XY, n_experts=2)
+    cnep = CNEPConfig(columns=COLUMNS_XY, n_experts=2)
     configs = {"CNMP": matched_cnmp(cnep)}
-    configs.update({cnep_name(a): CNEPConfig(layout=LAYOUT_XY, n_experts=2, assignment=a) for a in ASSIGNMENTS})
+    configs.update({cnep_name(a): CNEPConfig(columns=COLUMNS_XY, n_experts=2, assignment=a) for a in ASSIGNMENTS})
     for name, cfg in configs.items():
         log.info("training %s on %d demonstrations for %d steps", name, len(demos), config.steps)
         models[name], _ = fit(trajectories, cfg, train, val_trajectories=trajectories, progress=not config.quiet)

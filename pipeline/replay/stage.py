@@ -53,7 +53,7 @@ from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.identity import check_checkpoint_extractor
 from cnep.recordings import Event, Trajectory, add_events, read_trajectory
-from cnep.recordings.constants import BLOCK_FEATURES, BLOCK_POSE_XYZ, LAYOUTS
+from cnep.recordings.constants import BLOCK_FEATURES, BLOCK_POSE_XYZ, BLOCKS_BY_WIDTH
 
 log = logging.getLogger(__name__)
 
@@ -75,7 +75,7 @@ class RowMapping:
     @classmethod
     def from_checkpoint(cls, checkpoint: Path, model: CNEP) -> RowMapping:
         layout = read_checkpoint_config(checkpoint).get("layout")
-        width = model.config.layout.width
+        width = model.config.columns.width
         if isinstance(layout, dict) and "columns" in layout:
             mapping = cls(
                 int(layout["recording_width"]),
@@ -83,7 +83,7 @@ class RowMapping:
                 {k: (int(a), int(b)) for k, (a, b) in layout.get("blocks", {}).items()},
             )
         else:
-            mapping = cls(width, ((0, width),), dict(LAYOUTS.get(width, {})))
+            mapping = cls(width, ((0, width),), dict(BLOCKS_BY_WIDTH.get(width, {})))
         if sum(b - a for a, b in mapping.columns) != width:
             raise PipelineError(
                 f"{checkpoint}: the layout's columns {mapping.columns} give "
@@ -102,16 +102,16 @@ class RowMapping:
         if traj.width == self.recording_width:
             spans = self.columns
         else:
-            missing = [name for name in self.blocks if name not in traj.layout]
+            missing = [name for name in self.blocks if name not in traj.blocks]
             if missing or not self.blocks:
                 raise PipelineError(
                     f"{path}: the recording has {traj.width} columns per step "
-                    f"({', '.join(traj.layout)}) but the checkpoint {checkpoint} was trained on "
+                    f"({', '.join(traj.blocks)}) but the checkpoint {checkpoint} was trained on "
                     f"{self.recording_width}-column trajectories and needs "
                     f"{', '.join(missing or ['its training layout'])}; replay trajectory files made "
                     f"like its training data (check widths with `cnep inspect`)"
                 )
-            spans = tuple(traj.layout[name] for name in sorted(self.blocks, key=lambda n: self.blocks[n][0]))
+            spans = tuple(traj.blocks[name] for name in sorted(self.blocks, key=lambda n: self.blocks[n][0]))
         return np.concatenate([traj.data[:, a:b] for a, b in spans], axis=1).astype(np.float32)
 
     @property

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-# Layout presets (pipeline.train.layouts maps them onto columns).
+# The presets of `--layout` (pipeline.train.presets maps them onto columns).
 WINE_GLASS = "wine-glass"
 MOTION = "motion"
 SCENE = "scene"

@@ -3,7 +3,7 @@
     train(TrainStageConfig(inputs=(folder,), out=Path("ckpt"))) -> Path("ckpt")
 
 Steps: find and read the trajectory files (one width, one feature extractor, else an error naming
-the files); pick the model's columns by layout preset (pipeline.train.layouts); split whole
+the files); pick the model's columns by layout preset (pipeline.train.presets); split whole
 demonstrations into training and validation; fit the normaliser on the training demonstrations;
 train with `models.Trainer` (time normalised per demonstration to [0, 1] by its sampler), saving a
 resumable state every `save_every` steps; keep the weights with the lowest validation error; stop
@@ -42,7 +42,6 @@ from cnep.pipeline.train.constants import (
     STATE_FILE,
 )
 from cnep.pipeline.train.data import TrainingSet, find_trajectory_files, load_training_set
-from cnep.pipeline.train.layouts import TrainingLayout, resolve_layout
 from cnep.pipeline.train.parallel import (
     PlacedModel,
     Processes,
@@ -52,6 +51,7 @@ from cnep.pipeline.train.parallel import (
     start_processes,
     stop_processes,
 )
+from cnep.pipeline.train.presets import TrainingColumns, resolve_preset
 from cnep.pipeline.train.state import check_same_run, prepare_work_dir, publish, save_state, work_dir, write_log
 from cnep.pipeline.workers import SMALL_MODEL_THREADS, torch_threads
 
@@ -135,9 +135,9 @@ def train(config: TrainStageConfig) -> Path:
 
 def _train(config: TrainStageConfig, procs: Processes, device: torch.device) -> Path:
     data = load_training_set(find_trajectory_files(config.inputs))
-    layout = resolve_layout(config.layout, data.width, data.files[0].path)
+    layout = resolve_preset(config.layout, data.width, data.files[0].path)
     model_config = CNEPConfig(
-        layout=layout.model,
+        columns=layout.roles,
         n_experts=config.n_experts,
         assignment=config.assignment,
         encoder_widths=config.encoder_widths,
@@ -170,8 +170,8 @@ def _train(config: TrainStageConfig, procs: Processes, device: torch.device) -> 
             len(train_idx),
             len(val_idx),
             layout.name,
-            layout.model.width,
-            layout.model.out_dim,
+            layout.roles.width,
+            layout.roles.out_dim,
             procs.world_size,
         )
 
@@ -229,7 +229,7 @@ def save_progress(trainer: Trainer, procs: Processes, work: Path, extra: dict) -
 def run_identity(
     config: TrainStageConfig,
     data: TrainingSet,
-    layout: TrainingLayout,
+    layout: TrainingColumns,
     model_config: CNEPConfig,
     train_idx: list[int],
     val_idx: list[int],

@@ -5,26 +5,26 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from cnep.models.config import CNEPConfig, Layout
+from cnep.models.config import CNEPConfig, ColumnRoles
 
 
 def tiny_config(n_experts: int = 3, obs_dim: int = 2, query_dim: int = 1, out_dim: int = 2) -> CNEPConfig:
     """A small model whose observed, query and predicted columns all differ."""
     width = obs_dim + query_dim + out_dim
-    layout = Layout(
+    columns = ColumnRoles(
         width=width,
         observed=((0, obs_dim),),
         query=((obs_dim, obs_dim + query_dim),) if query_dim else (),
         predicted=((obs_dim + query_dim, width),),
     )
     return CNEPConfig(
-        layout=layout, n_experts=n_experts, encoder_widths=(16, 8), expert_widths=(16, 16), time_frequencies=2
+        columns=columns, n_experts=n_experts, encoder_widths=(16, 8), expert_widths=(16, 16), time_frequencies=2
     )
 
 
 def random_inputs(config: CNEPConfig, B: int = 4, N: int = 5, M: int = 6, seed: int = 0):
     g = torch.Generator().manual_seed(seed)
-    lay = config.layout
+    lay = config.columns
     obs = torch.rand(B, N, 1 + lay.obs_dim, generator=g)
     query = torch.rand(B, M, 1 + lay.query_dim, generator=g)
     return obs, torch.ones(B, N, dtype=torch.bool), query

@@ -63,6 +63,21 @@ def test_an_edited_config_is_refused_by_its_checksum(model, tmp_path):
     assert read_checkpoint_config(tmp_path / "ckpt")["extractor"]["weights_sha256"] == "ab" * 32
 
 
+def test_a_config_that_names_the_columns_layout_and_has_no_assignment_loads_as_the_paper_trained_it(model, tmp_path):
+    save_checkpoint(model, tmp_path / "ckpt")
+    cfg_path = tmp_path / "ckpt" / CONFIG_FILE
+    cfg = json.loads(cfg_path.read_text())
+    written = {k: v for k, v in cfg["model"].items() if k not in ("columns", "assignment")}
+    cfg["model"] = {**written, "layout": cfg["model"]["columns"]}  # as such a checkpoint's config.json holds it
+    cfg[CHECKSUM_KEY] = config_checksum(cfg)
+    cfg_path.write_text(json.dumps(cfg))
+    loaded = load_checkpoint(tmp_path / "ckpt")
+    assert loaded.config.columns == model.config.columns and loaded.config.assignment == "paper"
+    obs, mask, query = random_inputs(model.config)
+    for a, b in zip(model(obs, mask, query), loaded(obs, mask, query)):
+        torch.testing.assert_close(a, b, rtol=0, atol=0)
+
+
 def test_weights_that_do_not_match_the_config_are_refused_in_one_line(model, tmp_path):
     save_checkpoint(model, tmp_path / "ckpt")
     cfg_path = tmp_path / "ckpt" / CONFIG_FILE

@@ -110,7 +110,7 @@ def test_default_coefficients_are_the_authors_rescaled_with_d(d, expected):
         ({"n_experts": 0}, "n_experts"),
         ({"min_std": 0.0}, "min_std"),
         ({"a_batch": -1.0}, "a_batch"),
-        ({"layout": {"width": 3, "observed": ((0, 4),)}}, "width=3"),
+        ({"columns": {"width": 3, "observed": ((0, 4),)}}, "width=3"),
     ],
 )
 def test_config_errors_state_the_rule_and_the_value(kwargs, message):

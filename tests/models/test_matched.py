@@ -1,26 +1,26 @@
 import pytest
 
-from cnep.models import CNEP, CNEPConfig, ConfigError, Layout, matched_cnmp, parameter_count
+from cnep.models import CNEP, CNEPConfig, ColumnRoles, ConfigError, matched_cnmp, parameter_count
 
-# The train stage's presets as models.Layout (pipeline.train.layouts resolves them the same way).
-LAYOUTS = {
-    "synthetic": Layout(),
-    "motion": Layout(width=8, observed=((0, 8),), predicted=((0, 8),)),
-    "scene-1288": Layout(width=1288, observed=((0, 1288),), predicted=((1280, 1288),)),
-    "wine-glass-1288": Layout(width=1288, observed=((0, 1288),), query=((0, 1280),), predicted=((1280, 1288),)),
+# The train stage's presets as models.ColumnRoles (pipeline.train.presets resolves them the same way).
+ROLES = {
+    "synthetic": ColumnRoles(),
+    "motion": ColumnRoles(width=8, observed=((0, 8),), predicted=((0, 8),)),
+    "scene-1288": ColumnRoles(width=1288, observed=((0, 1288),), predicted=((1280, 1288),)),
+    "wine-glass-1288": ColumnRoles(width=1288, observed=((0, 1288),), query=((0, 1280),), predicted=((1280, 1288),)),
 }
 
 
-@pytest.mark.parametrize("layout", LAYOUTS, ids=str)
+@pytest.mark.parametrize("preset", ROLES, ids=str)
 @pytest.mark.parametrize("n_experts", [2, 4])
-def test_matched_cnmp_is_within_one_percent_of_the_cnep(layout, n_experts):
-    cnep = CNEPConfig(layout=LAYOUTS[layout], n_experts=n_experts)
+def test_matched_cnmp_is_within_one_percent_of_the_cnep(preset, n_experts):
+    cnep = CNEPConfig(columns=ROLES[preset], n_experts=n_experts)
     cnmp = matched_cnmp(cnep)
-    assert cnmp.n_experts == 1 and cnmp.layout == cnep.layout and cnmp.encoder_widths == cnep.encoder_widths
+    assert cnmp.n_experts == 1 and cnmp.columns == cnep.columns and cnmp.encoder_widths == cnep.encoder_widths
     assert cnmp.a_batch == 0.0 and cnmp.a_ind == 0.0  # the CNMP's own loss weights, not the CNEP's
     ratio = parameter_count(cnmp) / parameter_count(cnep)
     assert 1.0 <= ratio < 1.01, ratio
-    narrower = CNEPConfig(layout=cnep.layout, n_experts=1, expert_widths=tuple(w - 1 for w in cnmp.expert_widths))
+    narrower = CNEPConfig(columns=cnep.columns, n_experts=1, expert_widths=tuple(w - 1 for w in cnmp.expert_widths))
     assert parameter_count(narrower) < parameter_count(cnep)  # the smallest width that reaches the count
 
 

@@ -9,7 +9,7 @@ from tests.models.factories import tiny_config
 def _stack(lengths=(5, 12, 30)):
     cfg = tiny_config(n_experts=2)
     model = CNEP(cfg)
-    width = cfg.layout.width
+    width = cfg.columns.width
     # column 0 of step k holds k, so a sampled value tells which step it came from
     trajs = [
         np.column_stack([np.arange(T), np.full((T, width - 1), i)]).astype(np.float32) for i, T in enumerate(lengths)

@@ -16,12 +16,12 @@ import pytest
 import torch
 
 import cnep.pipeline.replay.layout as L
-from cnep.models import CNEPConfig, Layout, build_model, save_checkpoint
+from cnep.models import CNEPConfig, ColumnRoles, build_model, save_checkpoint
 from cnep.pipeline.cli.main import main
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.replay.stage import decisions_path, read_decisions, replay, serve, viewer_reachable
 from cnep.recordings import Episode, Trajectory, read_events, write_trajectory
-from cnep.recordings.constants import LAYOUT_FULL, LAYOUT_MOTION, MOTION_DIM, STEP_DIM
+from cnep.recordings.constants import BLOCKS_FULL, BLOCKS_MOTION, MOTION_DIM, STEP_DIM
 
 RERUN = Path(sys.executable).parent / "rerun"
 N_EXPERTS = 3
@@ -79,9 +79,9 @@ def trajectory(
 
 def make_checkpoint(directory: Path, extra: dict | None = None) -> Path:
     """An untrained (seeded) 8-column model whose gate tells the two xyz regions of `motion_rows` apart."""
-    layout = Layout(width=MOTION_DIM, observed=((0, MOTION_DIM),), predicted=((0, MOTION_DIM),))
+    columns = ColumnRoles(width=MOTION_DIM, observed=((0, MOTION_DIM),), predicted=((0, MOTION_DIM),))
     config = CNEPConfig(
-        layout=layout, n_experts=N_EXPERTS, encoder_widths=(16, 16), expert_widths=(16, 16), time_frequencies=2
+        columns=columns, n_experts=N_EXPERTS, encoder_widths=(16, 16), expert_widths=(16, 16), time_frequencies=2
     )
     rows = motion_rows(40, 0)
     model = build_model(config, [rows] + [motion_rows(40, s) for s in range(1, 4)], seed=0)
@@ -218,10 +218,10 @@ IDENTITY = {"architecture": "mobilenet_v2", "weights": "random", "weights_sha256
 
 def make_feature_checkpoint(directory: Path, extractor: dict) -> Path:
     """An untrained 1288-column model (observes features, pose, gripper) trained on features of `extractor`."""
-    layout = Layout(width=STEP_DIM, observed=((0, STEP_DIM),), predicted=((1280, STEP_DIM),))
-    config = CNEPConfig(layout=layout, n_experts=2, encoder_widths=(8,), expert_widths=(8,), time_frequencies=2)
+    columns = ColumnRoles(width=STEP_DIM, observed=((0, STEP_DIM),), predicted=((1280, STEP_DIM),))
+    config = CNEPConfig(columns=columns, n_experts=2, encoder_widths=(8,), expert_widths=(8,), time_frequencies=2)
     model = build_model(config, [trajectory(width=STEP_DIM, seed=s).data for s in range(3)], seed=0)
-    blocks = {name: list(span) for name, span in LAYOUT_FULL.items()}
+    blocks = {name: list(span) for name, span in BLOCKS_FULL.items()}
     return save_checkpoint(
         model,
         directory,
@@ -275,7 +275,7 @@ def test_a_motion_checkpoint_replays_8_and_1288_column_recordings_alike(tmp_path
     layout = {
         "recording_width": STEP_DIM,
         "columns": [[1280, 1288]],
-        "blocks": {name: list(span) for name, span in LAYOUT_MOTION.items()},
+        "blocks": {name: list(span) for name, span in BLOCKS_MOTION.items()},
     }
     from_wide = make_checkpoint(tmp_path / "ckpt", extra={"layout": layout})
     from_narrow = make_checkpoint(tmp_path / "plain")  # no layout entry: the model's own 8 columns

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from cnep.models import CNEPConfig, Layout, TrainConfig, fit, save_checkpoint
+from cnep.models import CNEPConfig, ColumnRoles, TrainConfig, fit, save_checkpoint
 from cnep.pipeline.replay.stage import read_decisions, replay
 from cnep.recordings import Episode, Trajectory, write_trajectory
 from cnep.recordings.constants import FEATURE_DIM, STEP_DIM
@@ -48,8 +48,10 @@ def checkpoint(tmp_path_factory):
     torch.set_num_threads(1)
     rng = np.random.default_rng(0)
     demos = [scene_rows(i % 2, rng) for i in range(24)]
-    layout = Layout(width=STEP_DIM, observed=((0, STEP_DIM),), predicted=((1280, STEP_DIM),))
-    config = CNEPConfig(layout=layout, n_experts=2, encoder_widths=(32, 32), expert_widths=(32, 32), time_frequencies=2)
+    columns = ColumnRoles(width=STEP_DIM, observed=((0, STEP_DIM),), predicted=((1280, STEP_DIM),))
+    config = CNEPConfig(
+        columns=columns, n_experts=2, encoder_widths=(32, 32), expert_widths=(32, 32), time_frequencies=2
+    )
     train = TrainConfig(steps=300, batch_size=32, warmup_steps=100, gate_freeze_fraction=0.3, val_every=100, seed=0)
     model, _ = fit(demos, config, train, progress=False)
     return save_checkpoint(

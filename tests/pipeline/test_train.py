@@ -14,8 +14,8 @@ from cnep.models.sampler import TrajectoryStack
 from cnep.pipeline.cli.main import main
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.train.constants import LOG_FILE, STATE_FILE
-from cnep.pipeline.train.layouts import resolve_layout
 from cnep.pipeline.train.parallel import rank_seed
+from cnep.pipeline.train.presets import resolve_preset
 from cnep.pipeline.train.stage import StageTrainer, TrainStageConfig, train
 from cnep.pipeline.train.state import work_dir
 from cnep.recordings import Trajectory, read_trajectory, write_trajectory
@@ -106,7 +106,7 @@ def test_released_weights_are_the_best_validated(full_set, tmp_path):
     out = train(stage_config(full_set, tmp_path / "ckpt", steps=40))
     config = read_checkpoint_config(out)
     model = load_checkpoint(out)
-    layout = resolve_layout("wine-glass", 1288, full_set[0])
+    layout = resolve_preset("wine-glass", 1288, full_set[0])
     rows = {f["path"]: layout.select(read_trajectory(f["path"]).data) for f in config["files"]}
     split = {s: [rows[f["path"]] for f in config["files"] if f["split"] == s] for s in ("train", "validation")}
     again = Trainer(
@@ -119,19 +119,19 @@ def test_released_weights_are_the_best_validated(full_set, tmp_path):
 
 
 def test_layout_presets_map_blocks_to_columns(full_set):
-    wine = resolve_layout("wine-glass", 1288, full_set[0])
-    assert (wine.model.observed, wine.model.query, wine.model.predicted) == (
+    wine = resolve_preset("wine-glass", 1288, full_set[0])
+    assert (wine.roles.observed, wine.roles.query, wine.roles.predicted) == (
         ((0, 1288),),
         ((0, 1280),),
         ((1280, 1288),),
     )
-    motion_full, motion_only = resolve_layout("motion", 1288, full_set[0]), resolve_layout("motion", 8, full_set[0])
+    motion_full, motion_only = resolve_preset("motion", 1288, full_set[0]), resolve_preset("motion", 8, full_set[0])
     assert motion_full.columns == ((1280, 1288),) and motion_only.columns == ((0, 8),)
-    assert motion_full.model == motion_only.model and motion_full.model.width == 8 and motion_full.model.query_dim == 0
+    assert motion_full.roles == motion_only.roles and motion_full.roles.width == 8 and motion_full.roles.query_dim == 0
     data = read_trajectory(full_set[0]).data
     np.testing.assert_array_equal(motion_full.select(data), data[:, 1280:])
-    everything = resolve_layout("all", 1288, full_set[0])
-    assert everything.model.out_dim == 1288 and everything.model.query == ()
+    everything = resolve_preset("all", 1288, full_set[0])
+    assert everything.roles.out_dim == 1288 and everything.roles.query == ()
 
 
 def test_wine_glass_refuses_motion_only_files(tmp_path):
@@ -145,7 +145,7 @@ def test_motion_layout_on_motion_only_files(tmp_path):
     paths = write_set(tmp_path / "motion", features=False)
     out = train(stage_config(paths, tmp_path / "ckpt", steps=10, layout="motion"))
     config = read_checkpoint_config(out)
-    assert config["model"]["layout"]["width"] == 8 and config["extractor"] == {}
+    assert config["model"]["columns"]["width"] == 8 and config["extractor"] == {}
     prediction = load_checkpoint(out).generate(np.array([0.0]), read_trajectory(paths[0]).data[:1], np.array([1.0]))
     assert prediction.mean.shape == (1, 8)
 

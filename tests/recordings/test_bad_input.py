@@ -221,7 +221,7 @@ def test_trajectory_validation():
     with pytest.raises(RecordingError, match="no feature block"):
         Trajectory(ep, ts, motion, extractor={"architecture": "x"})
     with pytest.raises(RecordingError, match="does not match"):
-        Trajectory(ep, ts, motion, layout={"pose_xyz": (0, 3), "pose_quat_xyzw": (3, 7), "grip": (7, 8)})
+        Trajectory(ep, ts, motion, blocks={"pose_xyz": (0, 3), "pose_quat_xyzw": (3, 7), "grip": (7, 8)})
     with pytest.raises(RecordingError, match="shape"):
         Trajectory(ep, ts, motion[:2])
 

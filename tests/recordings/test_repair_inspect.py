@@ -81,7 +81,7 @@ def test_inspect_reports_topics_rates_metadata_and_layout(tmp_path):
     assert (topic.topic, topic.schema, topic.count) == ("/trajectory", "cnep.FeatureVector", 30)
     assert topic.rate_hz == pytest.approx(10.0)
     assert report.duration_s == pytest.approx(2.9)
-    assert report.layouts["/trajectory"]["gripper"] == [7, 8]
+    assert report.blocks["/trajectory"]["gripper"] == [7, 8]
     assert report.metadata["steps"]["n_steps"] == "30"
     text = format_report(report)
     assert "complete: yes" in text and "cnep.FeatureVector" in text and "format_version=1" in text

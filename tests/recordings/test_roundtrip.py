@@ -6,8 +6,8 @@ from hypothesis.extra import numpy as hnp
 
 from cnep import recordings
 from cnep.recordings import (
-    LAYOUT_FULL,
-    LAYOUT_MOTION,
+    BLOCKS_FULL,
+    BLOCKS_MOTION,
     DemonstrationReader,
     DemonstrationWriter,
     Episode,
@@ -58,7 +58,7 @@ def test_trajectory_round_trip(tmp_path, features, frames):
     back = read_trajectory(write_trajectory(tmp_path / "t.mcap", traj))
     np.testing.assert_array_equal(back.data, traj.data)
     np.testing.assert_array_equal(back.timestamps_ns, traj.timestamps_ns)
-    assert back.layout == dict(LAYOUT_FULL if features else LAYOUT_MOTION)
+    assert back.blocks == dict(BLOCKS_FULL if features else BLOCKS_MOTION)
     assert back.extractor == traj.extractor
     assert back.episode == traj.episode
     assert back.frames == traj.frames
@@ -92,7 +92,7 @@ def test_streaming_writers_and_readers(tmp_path):
         for i in range(3, 7):
             w.write_step(traj.timestamps_ns[i], traj.data[i])
     with TrajectoryReader(tmp_path / "t.mcap") as r:
-        assert r.width == 1288 and r.layout == dict(LAYOUT_FULL) and r.extractor == traj.extractor and r.n_steps == 7
+        assert r.width == 1288 and r.blocks == dict(BLOCKS_FULL) and r.extractor == traj.extractor and r.n_steps == 7
         np.testing.assert_array_equal(r.read().data, traj.data)
 
 

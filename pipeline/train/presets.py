@@ -1,8 +1,8 @@
-"""Layout presets of the train stage: which columns of a trajectory file the model observes, queries with and predicts.
+"""The train stage's presets (`cnep train --layout`): which trajectory columns the model observes, queries, predicts.
 
 A preset names blocks of the per-step vector (`recordings.constants`: features, pose_xyz,
 pose_quat_xyzw, gripper). Resolved against a file width (1288 or 8) it gives the recording columns
-handed to the model (`columns`, spans of the file, concatenated in order) and a `models.Layout` over
+handed to the model (`columns`, spans of the file, concatenated in order) and a `models.ColumnRoles` over
 those model columns:
 
     preset       files   model width   observed (besides t)          query (besides t)   predicted
@@ -26,10 +26,10 @@ from pathlib import Path
 
 import numpy as np
 
-from cnep.models import Layout
+from cnep.models import ColumnRoles
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.train.constants import ALL, MOTION, SCENE, WINE_GLASS
-from cnep.recordings.constants import BLOCK_FEATURES, BLOCK_GRIPPER, BLOCK_POSE_QUAT, BLOCK_POSE_XYZ, LAYOUTS
+from cnep.recordings.constants import BLOCK_FEATURES, BLOCK_GRIPPER, BLOCK_POSE_QUAT, BLOCK_POSE_XYZ, BLOCKS_BY_WIDTH
 
 MOTION_BLOCKS = (BLOCK_POSE_XYZ, BLOCK_POSE_QUAT, BLOCK_GRIPPER)
 EVERY_BLOCK = None  # stands for every block of the file, in file order
@@ -56,11 +56,12 @@ PRESETS: Mapping[str, Preset] = {
 
 
 @dataclass(frozen=True)
-class TrainingLayout:
+class TrainingColumns:
     """A preset resolved for files of one width.
 
     columns: spans of the recording's columns given to the model, concatenated in order;
-    blocks: block name -> (start, stop) in model columns; model: the `models.Layout` on model columns.
+    blocks: block name -> (start, stop) in model columns; roles: what the model does with each of its columns
+    (`models.ColumnRoles`).
     """
 
     name: str
@@ -70,7 +71,7 @@ class TrainingLayout:
     observed: tuple[str, ...]
     query: tuple[str, ...]
     predicted: tuple[str, ...]
-    model: Layout
+    roles: ColumnRoles
 
     def select(self, data: np.ndarray) -> np.ndarray:
         """(T, recording_width) recording rows -> (T, model width) model rows."""
@@ -89,11 +90,11 @@ class TrainingLayout:
         }
 
 
-def resolve_layout(name: str, width: int, example: Path) -> TrainingLayout:
+def resolve_preset(name: str, width: int, example: Path) -> TrainingColumns:
     """Preset `name` for trajectory files `width` columns wide; `example` (one such file) names them in errors."""
     if name not in PRESETS:
         raise PipelineError(f"unknown layout {name!r}; choose one of {', '.join(PRESETS)}")
-    preset, file_blocks = PRESETS[name], LAYOUTS[width]
+    preset, file_blocks = PRESETS[name], BLOCKS_BY_WIDTH[width]
     needed = {*(preset.observed or ()), *preset.query, *(preset.predicted or ()), *(preset.kept or ())}
     missing = sorted(needed - set(file_blocks))
     if missing:
@@ -110,13 +111,13 @@ def resolve_layout(name: str, width: int, example: Path) -> TrainingLayout:
         start += b - a
     observed = tuple(kept if preset.observed is EVERY_BLOCK else preset.observed)
     predicted = tuple(kept if preset.predicted is EVERY_BLOCK else preset.predicted)
-    model = Layout(
+    roles = ColumnRoles(
         width=start,
         observed=_spans(blocks, observed),
         query=_spans(blocks, preset.query),
         predicted=_spans(blocks, predicted),
     )
-    return TrainingLayout(
+    return TrainingColumns(
         name=name,
         recording_width=width,
         columns=_spans(file_blocks, kept),
@@ -124,7 +125,7 @@ def resolve_layout(name: str, width: int, example: Path) -> TrainingLayout:
         observed=observed,
         query=preset.query,
         predicted=predicted,
-        model=model,
+        roles=roles,
     )
 
 

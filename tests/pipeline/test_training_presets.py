@@ -10,7 +10,7 @@ from cnep.models.online import ConditioningPolicy
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.replay.stage import RowMapping, decide
 from cnep.pipeline.train.constants import PRESET_NAMES, SCENE
-from cnep.pipeline.train.layouts import resolve_layout
+from cnep.pipeline.train.presets import resolve_preset
 from cnep.pipeline.train.stage import TrainStageConfig, train
 from cnep.recordings import read_trajectory, write_trajectory
 from tests.recordings.factories import trajectory_factory
@@ -21,19 +21,19 @@ EXAMPLE = Path("traj/demo-0.mcap")  # only named in errors
 
 
 def test_scene_observes_everything_queries_nothing_predicts_the_motion():
-    scene = resolve_layout(SCENE, 1288, EXAMPLE)
+    scene = resolve_preset(SCENE, 1288, EXAMPLE)
     assert SCENE in PRESET_NAMES
-    assert scene.columns == ((0, 1288),) and scene.model.width == 1288
-    assert (scene.model.observed, scene.model.query, scene.model.predicted) == (((0, 1288),), (), ((1280, 1288),))
-    assert scene.model.query_dim == 0 and scene.model.out_dim == 8
-    wine = resolve_layout("wine-glass", 1288, EXAMPLE)
-    assert (wine.model.observed, wine.model.predicted) == (scene.model.observed, scene.model.predicted)
+    assert scene.columns == ((0, 1288),) and scene.roles.width == 1288
+    assert (scene.roles.observed, scene.roles.query, scene.roles.predicted) == (((0, 1288),), (), ((1280, 1288),))
+    assert scene.roles.query_dim == 0 and scene.roles.out_dim == 8
+    wine = resolve_preset("wine-glass", 1288, EXAMPLE)
+    assert (wine.roles.observed, wine.roles.predicted) == (scene.roles.observed, scene.roles.predicted)
     assert scene.to_dict()["query"] == [] and scene.to_dict()["observed"][0] == "features"
 
 
 def test_scene_refuses_motion_only_files():
     with pytest.raises(PipelineError, match=r"demo-0\.mcap.*features.*--layout motion"):
-        resolve_layout(SCENE, 8, EXAMPLE)
+        resolve_preset(SCENE, 8, EXAMPLE)
 
 
 def test_a_scene_checkpoint_generates_and_replays_online(tmp_path):
