@@ -25,9 +25,12 @@ import cv2
 import numpy as np
 import torch
 
-import cnep.pipeline.replay.layout as L
-from cnep.models import CNEPConfig, ColumnRoles, ConditioningPolicy, build_model, load_checkpoint, save_checkpoint
-from cnep.pipeline.replay.stage import RowMapping, decide, replay, switch_text, write_recording
+import cnep.pipeline.replay.viewer as L
+from cnep.models import CNEPConfig, ColumnRoles, ConditioningPolicy, build_model, save_checkpoint
+from cnep.pipeline.replay.conditioning import decide
+from cnep.pipeline.replay.rerun_log import switch_text, write_recording
+from cnep.pipeline.replay.stage import replay
+from cnep.pipeline.train.checkpoint import load_trained
 from cnep.recordings import Episode, Trajectory, read_trajectory, write_trajectory
 from cnep.recordings.constants import STEP_DIM
 
@@ -101,9 +104,9 @@ def main() -> None:
         with torch.no_grad():
             model.gate.weight.normal_(0, 0.1)
         ckpt = save_checkpoint(model, tmp / "ckpt")
-        model = load_checkpoint(ckpt)
-        mapping = RowMapping.from_checkpoint(ckpt, model)
-        rows, xyz = mapping.select(traj, rec_path, ckpt), mapping.predicted_xyz(model)
+        trained = load_trained(ckpt)
+        model = trained.model
+        rows, xyz = trained.rows(traj, rec_path), trained.mapping.predicted_xyz(model)
         decisions = decide(model, rows, traj.timestamps_ns, ConditioningPolicy(), xyz)
 
         total = best_seconds(

@@ -3,32 +3,26 @@
 Takes numpy arrays, never files or images.
 """
 
-from cnep.models.checkpoint import load_checkpoint, read_checkpoint_config, save_checkpoint
-from cnep.models.cnep import CNEP, Prediction
-from cnep.models.config import CNEPConfig, ColumnRoles, TrainConfig, authors_coefficients
-from cnep.models.errors import ConfigError
-from cnep.models.matched import matched_cnmp, parameter_count
-from cnep.models.train import Trainer, build_model, fit
+import importlib
 
-__all__ = [
-    "CNEP",
-    "CNEPConfig",
-    "ConfigError",
-    "ColumnRoles",
-    "Prediction",
-    "TrainConfig",
-    "Trainer",
-    "authors_coefficients",
-    "build_model",
-    "fit",
-    "load_checkpoint",
-    "matched_cnmp",
-    "parameter_count",
-    "read_checkpoint_config",
-    "save_checkpoint",
-]
+# Module -> the public names it defines. A name's module is imported when the name is first used (PEP 562), so
+# `cnep.models.config` (the settings `cnep train --help` shows) and `cnep.models.errors` load without torch;
+# the pipeline's stage packages hand out their names the same way (cnep.pipeline.exports).
+_MODULES = {
+    "checkpoint": ("load_checkpoint", "read_checkpoint_config", "save_checkpoint"),
+    "cnep": ("CNEP", "Prediction"),
+    "config": ("CNEPConfig", "ColumnRoles", "TrainConfig", "authors_coefficients"),
+    "errors": ("ConfigError",),
+    "matched": ("matched_cnmp", "parameter_count"),
+    "online": ("ConditioningPolicy", "ExpertSwitch", "OnlineConditioner", "OnlineStep"),
+    "pid": ("PIDGains", "pid_track"),
+    "train": ("Trainer", "build_model", "fit"),
+}
+_WHERE = {name: module for module, names in _MODULES.items() for name in names}
+__all__ = sorted(_WHERE)
 
-from cnep.models.online import ConditioningPolicy, ExpertSwitch, OnlineConditioner, OnlineStep  # noqa: E402
-from cnep.models.pid import PIDGains, pid_track  # noqa: E402
 
-__all__ += ["ConditioningPolicy", "ExpertSwitch", "OnlineConditioner", "OnlineStep", "PIDGains", "pid_track"]
+def __getattr__(name: str) -> object:
+    if name not in _WHERE:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(importlib.import_module(f"{__name__}.{_WHERE[name]}"), name)

@@ -1,5 +1,6 @@
 """The install maps the four root folders into one `cnep` namespace, and a user's own packages never shadow it."""
 
+import importlib
 import subprocess
 import sys
 from pathlib import Path
@@ -8,6 +9,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 FOLDERS = ("models", "perception", "pipeline", "recordings")
+STAGES = ("ingest", "extract", "train", "replay", "evaluate", "demo")
 
 
 def test_every_package_folder_is_installed_under_cnep():
@@ -32,3 +34,27 @@ def test_a_users_own_models_and_pipeline_packages_do_not_shadow_the_library(tmp_
     done = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     assert Path(done.stdout.strip()).resolve() == ROOT / "models" / "__init__.py"
+
+
+@pytest.mark.parametrize("package", ["cnep.models", *(f"cnep.pipeline.{stage}" for stage in STAGES)])
+def test_every_public_name_of_a_package_resolves_and_unknown_names_are_attribute_errors(package):
+    module = importlib.import_module(package)
+    assert module.__all__ == sorted(module.__all__) and module.__all__
+    for name in module.__all__:
+        assert getattr(module, name) is not None, name
+    with pytest.raises(AttributeError, match="no attribute 'nothing_here'"):
+        module.nothing_here  # noqa: B018
+    assert importlib.import_module(f"{package}.stage" if package != "cnep.models" else "cnep.models.config")
+
+
+def test_the_packages_settings_and_constants_import_without_torch():
+    code = (
+        "import sys\n"
+        "import cnep.models.config, cnep.models.errors\n"
+        "import cnep.pipeline.train.constants, cnep.pipeline.evaluate.constants\n"
+        "from cnep.pipeline.replay import __all__\n"
+        "print(sorted(m for m in ('torch', 'onnx', 'rerun') if m in sys.modules))"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "[]"

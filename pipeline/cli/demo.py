@@ -49,7 +49,8 @@ def run(args: argparse.Namespace) -> int:
     import time
     from pathlib import Path
 
-    from cnep.pipeline.demo.stage import ASSIGNMENT, DemoConfig, format_summary, run_demo
+    from cnep.pipeline.demo.report import format_summary
+    from cnep.pipeline.demo.stage import ASSIGNMENT, DemoConfig, run_demo
 
     start = time.perf_counter()
     out = Path(args.out) if args.out is not None else free_folder(Path(DEFAULT_OUT))

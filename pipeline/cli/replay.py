@@ -64,7 +64,9 @@ def run(args: argparse.Namespace) -> int:
     import time
 
     from cnep.models import ConditioningPolicy
-    from cnep.pipeline.replay.stage import DEFAULT_VIEWER_URL, decisions_path, read_decisions, replay, serve
+    from cnep.pipeline.replay.decisions import decisions_path, read_decisions
+    from cnep.pipeline.replay.rerun_log import DEFAULT_VIEWER_URL, serve
+    from cnep.pipeline.replay.stage import replay
 
     server = None
     connect = None if args.no_live else args.connect or DEFAULT_VIEWER_URL

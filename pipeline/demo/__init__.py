@@ -1,11 +1,10 @@
 """Stage `demo`: nothing -> a Rerun recording: the whole pipeline on built-in synthetic tabletop demonstrations.
 
-`stage` runs generate -> ingest -> extract -> train -> replay; `scene` draws the tabletop and decides
-the behaviour; `generator` records the seeded demonstrations as robot MCAP files.
+`stage` runs generate -> ingest -> extract -> train -> replay -> summary; `scene` draws the tabletop and
+decides the behaviour; `generator` records the seeded demonstrations as robot MCAP files; `measures`
+and `free_choice` measure what the summary reports; `report` prints it.
 """
 
-from cnep.pipeline._lazy import stage_attribute
+from cnep.pipeline import exports
 
-
-def __getattr__(name: str) -> object:
-    return stage_attribute(__name__, name)
+__getattr__, __all__ = exports(__name__, {"stage": ("DemoConfig", "run_demo"), "report": ("format_summary",)})

@@ -6,9 +6,9 @@ slot the demonstrator picked; a generated motion is *valid* when it ends in a sl
 *between* places when it ends anywhere else (e.g. the average of the two, ~19 cm from both slots).
 
 - `place_outcomes(ends_xy)`: the shares of motions ending in the near slot, the far slot, or between;
-- `generated_ends(model, mapping, rows)`: where a model's motion, conditioned on each recording's first
+- `generated_ends(trained, rows)`: where a model's motion, conditioned on each recording's first
   step, ends (xy at the last step, m);
-- `commitment(gates)`: for one replayed recording's (T, d) gate rows, how split the gate starts and the
+- `gate_commitment(gates)`: for one replayed recording's (T, d) gate rows, how split the gate starts and the
   step from which one expert holds it;
 - `replay_pick(traces)`: which held-out free-choice episode the demo replays, from every episode's online
   gate rows (the rule: the least certain first step among those that start split and commit), and
@@ -20,6 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from cnep.pipeline.demo.scene import SLOT_XY
+from cnep.pipeline.train.checkpoint import TrainedModel
 
 # A motion ends in a slot when its last xy lies within this distance (m) of the slot's nominal centre. The
 # slots are 12 cm squares 39 cm apart; the tray moves by 0.5 cm (std) per scene, the demonstrated place
@@ -52,13 +53,14 @@ def place_outcomes(ends_xy: np.ndarray, tolerance: float = PLACE_TOLERANCE) -> d
     }
 
 
-def generated_ends(model, mapping, rows: list[np.ndarray]) -> np.ndarray:
+def generated_ends(trained: TrainedModel, rows: list[np.ndarray]) -> np.ndarray:
     """(N, 2) xy (m) at the last step of the model's motion conditioned on each recording's first step (t = 0).
 
-    model: a CNEP (winner-take-all, the paper's inference; a CNMP is a one-expert CNEP); mapping: its
-    pipeline.replay.stage.RowMapping; rows: each recording's (T, model width) rows.
+    trained: a loaded checkpoint (its CNEP generates winner-take-all, the paper's inference; a CNMP is a
+    one-expert CNEP); rows: each recording's (T, model width) rows.
     """
-    xyz = mapping.predicted_xyz(model)
+    model = trained.model
+    xyz = trained.mapping.predicted_xyz(model)
     if xyz is None:
         raise ValueError("the model does not predict the end-effector position")
     ends = []
@@ -69,7 +71,7 @@ def generated_ends(model, mapping, rows: list[np.ndarray]) -> np.ndarray:
     return np.stack(ends)
 
 
-def commitment(gates: np.ndarray, threshold: float = COMMIT_GATE) -> dict:
+def gate_commitment(gates: np.ndarray, threshold: float = COMMIT_GATE) -> dict:
     """How the gate (T, d) of one replayed recording starts and commits.
 
     Returns {"start": the two largest probabilities at step 0 with their experts [(expert, p), (expert, p)],
@@ -95,7 +97,7 @@ def starts_split(gates: np.ndarray, split: float = SPLIT_GATE) -> bool:
 def replay_pick(traces: list[np.ndarray], split: float = SPLIT_GATE, threshold: float = COMMIT_GATE) -> int:
     """Index of the free-choice episode to replay, from each episode's online gate rows (T_i, d).
 
-    Among the episodes whose gate starts split (`starts_split`) and commits (`commitment`: one expert holds
+    Among the episodes whose gate starts split (`starts_split`) and commits (`gate_commitment`: one expert holds
     `threshold` until the end), the one whose step-0 gate is least certain (lowest largest probability);
     when none does both, the least certain step 0 of all. Ties go to the lower index. Uses the gates only
     (no label, no pick), so the same model gives the same episode.
@@ -103,7 +105,9 @@ def replay_pick(traces: list[np.ndarray], split: float = SPLIT_GATE, threshold: 
     if not traces:
         raise ValueError("replay_pick needs at least one gate trace")
     first = [float(np.max(np.asarray(g)[0])) for g in traces]
-    story = [i for i, g in enumerate(traces) if starts_split(g, split) and commitment(g, threshold)["step"] is not None]
+    story = [
+        i for i, g in enumerate(traces) if starts_split(g, split) and gate_commitment(g, threshold)["step"] is not None
+    ]
     return min(story or range(len(traces)), key=lambda i: (first[i], i))
 
 
@@ -113,5 +117,5 @@ def gate_census(traces: list[np.ndarray], split: float = SPLIT_GATE, threshold: 
     return {
         "n": len(traces),
         "split": len(split_starts),
-        "split_commit": sum(commitment(g, threshold)["step"] is not None for g in split_starts),
+        "split_commit": sum(gate_commitment(g, threshold)["step"] is not None for g in split_starts),
     }

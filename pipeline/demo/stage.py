@@ -20,13 +20,14 @@ Stages (each logs its progress; tqdm bars unless quiet), all under OUT:
               the CNEP, step by step; the free-choice one is picked from every held-out free-choice
               episode's online gate by `pipeline.demo.free_choice.replay_pick` (one whose gate starts split
               and commits, when the model has one);
-6. summary    `summary.json`: per scene-decided behaviour the expert that took it and how purely, the
-              error of the generated motion on held-out demonstrations (CNEP vs CNMP), the scene
-              change's switches, where motions generated for held-out free-choice scenes end (in a slot
-              or between; CNEP vs CNMP), how many free-choice gates start split and commit, and how the
-              replayed one's gate starts, when it commits and on which behaviour's expert.
+6. summary    `summary.json` (measured by pipeline.demo.measures, printed by pipeline.demo.report): per
+              scene-decided behaviour the expert that took it and how purely, the error of the generated
+              motion on held-out demonstrations (CNEP vs CNMP), the scene change's switches, where motions
+              generated for held-out free-choice scenes end (in a slot or between; CNEP vs CNMP), how many
+              free-choice gates start split and commit, and how the replayed one's gate starts, when it
+              commits and on which behaviour's expert.
 
-The behaviour labels live in each file's episode metadata and are read only here, for the summary.
+The behaviour labels live in each file's episode metadata and are read only for the summary.
 """
 
 from __future__ import annotations
@@ -35,7 +36,6 @@ import json
 import logging
 import shutil
 import time
-from collections import Counter
 from concurrent.futures import as_completed
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
@@ -43,30 +43,31 @@ from pathlib import Path
 
 import numpy as np
 
-from cnep.models import ConditioningPolicy, TrainConfig, load_checkpoint
+from cnep.models import TrainConfig
 from cnep.models.checkpoint import atomic_write
 from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_file_as_folder
-from cnep.pipeline.demo.free_choice import (
-    COMMIT_GATE,
-    PLACE_TOLERANCE,
-    SPLIT_GATE,
-    commitment,
-    gate_census,
-    generated_ends,
-    place_outcomes,
-    replay_pick,
+from cnep.pipeline.demo.free_choice import gate_census, generated_ends, place_outcomes, replay_pick
+from cnep.pipeline.demo.generator import SPLITS, SWITCH_KEY, DemoSetConfig, generate
+from cnep.pipeline.demo.measures import (
+    POLICY,
+    expert_purity,
+    free_choice_commitment,
+    heldout_errors,
+    key,
+    online_gates,
+    scene_change_switches,
+    trained_rows,
 )
-from cnep.pipeline.demo.generator import CHOICE_KEY, CHOICE_STEP_KEY, SPLITS, SWITCH_KEY, DemoSetConfig, generate
 from cnep.pipeline.demo.scene import BEHAVIOURS
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.extract.stage import ExtractConfig, extract
 from cnep.pipeline.ingest.stage import IngestConfig, ingest
-from cnep.pipeline.replay.stage import RowMapping, decide, decisions_path, read_decisions, replay
+from cnep.pipeline.replay.decisions import decisions_path
+from cnep.pipeline.replay.stage import replay
 from cnep.pipeline.train.constants import SCENE
 from cnep.pipeline.train.stage import TrainStageConfig, train
 from cnep.pipeline.workers import single_thread_processes, torch_threads
-from cnep.recordings import read_demonstration, read_trajectory
-from cnep.recordings.constants import BLOCK_GRIPPER
+from cnep.recordings import read_demonstration
 
 log = logging.getLogger(__name__)
 
@@ -83,7 +84,6 @@ SUMMARY_FILE = "summary.json"
 RRD_FILE = "demo.rrd"
 PER_FILE_LOGGERS = ("cnep.pipeline.ingest", "cnep.pipeline.extract")
 EXTRACTOR_FILE = "extractor.pt"
-POLICY = ConditioningPolicy()  # the replay's conditioning (models.online): the first step + the latest 10
 # Everything a demo writes into its folder (what --force replaces).
 OUTPUTS = (
     "recorded",
@@ -344,7 +344,7 @@ def _run_stages(config: DemoConfig, out: Path, size: DemoSize, seconds: dict[str
             },
             scene_change=scene_change_switches(out / RRD_FILE, trajectories["scene_change"], labels, switch_steps),
             free_choice={
-                name: place_outcomes(generated_ends(*_model_rows(ckpt, trajectories["free_choice"])))
+                name: place_outcomes(generated_ends(*trained_rows(ckpt, trajectories["free_choice"])))
                 for name, ckpt in checkpoints.items()
             },
             free_choice_replay=free_choice_commitment(
@@ -354,246 +354,6 @@ def _run_stages(config: DemoConfig, out: Path, size: DemoSize, seconds: dict[str
         )
     done("summary")
     return result
-
-
-def key(path: Path) -> str:
-    """`split/file name`: how a demonstration is recognised across the stages' folders."""
-    return f"{path.parent.name}/{path.name}"
-
-
-def _model_rows(checkpoint: Path, paths: list[Path]):
-    """The checkpoint's model and each file's (T, model width) rows."""
-    model = load_checkpoint(checkpoint)
-    mapping = RowMapping.from_checkpoint(checkpoint, model)
-    return model, mapping, [mapping.select(read_trajectory(p), p, checkpoint) for p in paths]
-
-
-def online_gates(checkpoint: Path, paths: list[Path]) -> list[np.ndarray]:
-    """Each recording's (T, d) gate rows as the replay computes them (online conditioning with POLICY, one
-    torch thread like the replay: pipeline.workers)."""
-    model = load_checkpoint(checkpoint)
-    mapping = RowMapping.from_checkpoint(checkpoint, model)
-    traces = []
-    with torch_threads():
-        for path in paths:
-            trajectory = read_trajectory(path)
-            rows = mapping.select(trajectory, path, checkpoint)
-            traces.append(decide(model, rows, trajectory.timestamps_ns, POLICY).gates)
-    return traces
-
-
-def gate_of(model, rows: np.ndarray) -> np.ndarray:
-    """The gate (d,) of a model conditioned on every step of a demonstration (T, model width)."""
-    T = len(rows)
-    t = np.arange(T) / (T - 1)
-    obs = rows[:, model.obs_columns.numpy()]
-    query = rows[:1, model.query_columns.numpy()] if model.config.columns.query_dim else None
-    return model.generate(t, obs, t[:1], query).gate
-
-
-def expert_purity(checkpoint: Path, paths: list[Path], labels: dict[str, str]) -> dict[str, dict]:
-    """Per behaviour: the CNEP expert most of its demonstrations go to and the fraction that do (purity).
-
-    A demonstration goes to the expert with the highest gate probability when the model is conditioned
-    on all of its steps.
-    """
-    model, _, rows = _model_rows(checkpoint, paths)
-    chosen: dict[str, list[int]] = {}
-    for path, r in zip(paths, rows):
-        chosen.setdefault(labels[key(path)], []).append(int(gate_of(model, r).argmax()))
-    table = {}
-    for behaviour in sorted(chosen):
-        counts = Counter(chosen[behaviour])
-        expert, n = counts.most_common(1)[0]
-        table[behaviour] = {
-            "n": len(chosen[behaviour]),
-            "expert": expert,
-            "purity": n / len(chosen[behaviour]),
-            "experts": dict(sorted(counts.items())),
-        }
-    return table
-
-
-def heldout_errors(checkpoint: Path, heldout: list[Path], train_paths: list[Path], labels: dict[str, str]) -> dict:
-    """Generated motion vs held-out demonstrations, conditioned on each one's first step (t = 0).
-
-    The queries carry the demonstration's own features at each step when the layout has query columns.
-    position_rmse_m: root mean squared xyz error (m) over all steps and demonstrations;
-    position_rmse_median_m: the median over demonstrations of each one's RMSE (m), which one misread
-    frame does not move (a wrong expert costs ~20 cm on its demonstration, docs/demo.md); gripper_mae_m:
-    mean absolute gripper error (m); behaviour_accuracy: the generated xyz path is nearest (mean
-    distance) to a training demonstration of the held-out demonstration's behaviour.
-    """
-    model, mapping, rows = _model_rows(checkpoint, heldout)
-    _, _, train_rows = _model_rows(checkpoint, train_paths)
-    xyz = mapping.predicted_xyz(model)
-    out_cols = model.out_columns.numpy()
-    g0, _ = mapping.blocks[BLOCK_GRIPPER]
-    gripper = list(out_cols).index(g0)
-    train_xyz = [r[:, out_cols][:, xyz] for r in train_rows]
-    train_labels = [labels[key(p)] for p in train_paths]
-    sq, grip, hits = [], [], []
-    for path, r in zip(heldout, rows):
-        T = len(r)
-        t = np.arange(T) / (T - 1)
-        query = r[:, model.query_columns.numpy()] if model.config.columns.query_dim else None
-        mean = model.generate(t[:1], r[:1, model.obs_columns.numpy()], t, query).mean  # (T, dy)
-        truth = r[:, out_cols]  # (T, dy)
-        sq.append(((mean[:, xyz] - truth[:, xyz]) ** 2).sum(-1))  # (T,)
-        grip.append(np.abs(mean[:, gripper] - truth[:, gripper]))
-        same_length = [
-            (np.linalg.norm(d - mean[:, xyz], axis=-1).mean(), lab)
-            for d, lab in zip(train_xyz, train_labels)
-            if len(d) == T
-        ]
-        hits.append(min(same_length)[1] == labels[key(path)])
-    return {
-        "n": len(heldout),
-        "position_rmse_m": float(np.sqrt(np.concatenate(sq).mean())),
-        "position_rmse_median_m": float(np.median([np.sqrt(e.mean()) for e in sq])),
-        "gripper_mae_m": float(np.concatenate(grip).mean()),
-        "behaviour_accuracy": float(np.mean(hits)),
-    }
-
-
-def scene_change_switches(
-    rrd: Path, paths: list[Path], labels: dict[str, str], switch_steps: dict[str, int]
-) -> list[dict]:
-    """For each scene-change recording: the replay's active expert before and after the change, and its switches
-    (`rrd`: the replay's `out_rrd`, which names its decisions file)."""
-    records = {key(Path(r["recording"])): r for r in read_decisions(rrd)["recordings"]}
-    found = []
-    for path in paths:
-        record, switch = records[key(path)], switch_steps[key(path)]
-        experts = np.asarray(record["experts"])
-        before = Counter(experts[:switch].tolist()).most_common(1)[0][0]
-        after = Counter(experts[switch:].tolist()).most_common(1)[0][0]
-        found.append(
-            {
-                "recording": path.name,
-                "behaviour": labels[key(path)],
-                "change_step": switch,
-                "expert_before": before,
-                "expert_after": after,
-                "switches": [(s["step"], s["from"], s["to"]) for s in record["switches"]],
-            }
-        )
-    return found
-
-
-def free_choice_commitment(
-    rrd: Path,
-    paths: list[Path],
-    recorded: list[Path],
-    labels: dict[str, str],
-    behaviours: dict[str, dict],
-    census: dict,
-) -> list[dict]:
-    """For each replayed free-choice recording: its scene, the slot picked, the step its carry starts (the
-    paths part there), the replay gate's `commitment`, the behaviours whose majority expert the gate ends on
-    (`ends_on`; `behaviours`: `expert_purity`'s table), whether one is the behaviour picked (`picked`), and
-    `census` (`gate_census` of every held-out free-choice episode); `recorded`: the recorder's files."""
-    records = {key(Path(r["recording"])): r for r in read_decisions(rrd)["recordings"]}
-    sources = {key(p): p for p in recorded}
-    found = []
-    for path in paths:
-        extra = read_demonstration(sources[key(path)]).episode.extra
-        scene, choice = labels[key(path)], extra[CHOICE_KEY]
-        committed = commitment(np.asarray(records[key(path)]["gates"]))
-        ends_on = [name for name, row in behaviours.items() if row["expert"] == committed["expert"]]
-        picked = f"{scene.split('-')[0]}-{choice}"  # the behaviour performed: the cup's side, the slot picked
-        found.append(
-            {
-                "recording": path.name,
-                "scene": scene,
-                "choice": choice,
-                "carry_step": int(extra[CHOICE_STEP_KEY]),
-                **committed,
-                "ends_on": ends_on,
-                "picked": picked in ends_on,
-                "census": census,
-            }
-        )
-    return found
-
-
-def format_summary(result: DemoResult) -> str:
-    """The printed summary: behaviours -> experts, held-out errors, the scene change, the files, the times."""
-    lines = ["behaviour      demos  expert  purity  (demonstrations per expert)"]
-    for name, row in result.behaviours.items():
-        spread = ", ".join(f"{e}: {n}" for e, n in row["experts"].items())
-        lines.append(f"{name:<14} {row['n']:>5}  {row['expert']:>6}  {row['purity']:>6.2f}  ({spread})")
-    majority = {row["expert"] for row in result.behaviours.values()}
-    lines.append(
-        f"{len(result.behaviours)} behaviours -> {len(majority)} distinct majority expert(s) "
-        f"(purity alone is 1.0 when every demonstration goes to one expert)"
-    )
-    lines.append("")
-    lines.append("held-out demonstrations, conditioned on the first step (t = 0):")
-    lines.append("model  position RMSE (cm)  median per demo (cm)  gripper MAE (mm)  nearest-demo behaviour accuracy")
-    for name, row in result.heldout.items():
-        lines.append(
-            f"{name:<6} {100 * row['position_rmse_m']:>18.2f}  {100 * row['position_rmse_median_m']:>20.2f}  "
-            f"{1000 * row['gripper_mae_m']:>16.2f}  {row['behaviour_accuracy']:>10.2f} (n = {row['n']})"
-        )
-    lines.append("")
-    for change in result.scene_change:
-        moves = ", ".join(f"step {s}: {a} -> {b}" for s, a, b in change["switches"]) or "none"
-        lines.append(
-            f"scene change {change['behaviour']} at step {change['change_step']}: expert "
-            f"{change['expert_before']} before, {change['expert_after']} after; switches: {moves}"
-        )
-    lines.append("")
-    lines.append(
-        f"held-out free-choice scenes (both slots free), conditioned on the first step: where the motion "
-        f"ends (within {100 * PLACE_TOLERANCE:.0f} cm of a slot centre, or between):"
-    )
-    lines.append("model  in a slot  near  far  between  mean distance to a slot (cm)")
-    for name, row in result.free_choice.items():
-        lines.append(
-            f"{name:<6} {row['valid']:>9.2f}  {row['near']:>4.2f}  {row['far']:>3.2f}  "
-            f"{row['between']:>7.2f}  {100 * row['distance_m']:>10.1f} (n = {row['n']})"
-        )
-    for episode in result.free_choice_replay:
-        lines.extend(replay_lines(episode, result.behaviours))
-    lines.append("")
-    lines.append(
-        f"Rerun recordings: {len(result.rrd)} files {result.out}/{Path(RRD_FILE).stem}-*.rrd, one per replayed "
-        f"recording; the scene change: `rerun {result.rrd[0]}`"
-    )
-    lines.append(f"checkpoints: {', '.join(str(p) for p in result.checkpoints.values())}")
-    lines.append(f"summary: {result.out / SUMMARY_FILE}")
-    lines.append("stage times (s): " + ", ".join(f"{k} {v:.1f}" for k, v in result.seconds.items()))
-    return "\n".join(lines)
-
-
-def replay_lines(episode: dict, behaviours: dict[str, dict]) -> list[str]:
-    """The summary's lines on one replayed free-choice episode (`free_choice_commitment`'s entry)."""
-    census = episode["census"]
-
-    def expert(e: int) -> str:
-        names = [name for name, row in behaviours.items() if row["expert"] == e]
-        return f"expert {e} ({', '.join(names) or 'no behaviour'}'s)"
-
-    (e0, p0), (e1, p1) = episode["start"]
-    split = "split" if p0 < SPLIT_GATE else "not split"
-    if episode["step"] is None:
-        commits = f"ends on {expert(episode['expert'])} below p = {COMMIT_GATE}, not committed"
-    else:
-        commits = f"holds {expert(episode['expert'])} at p >= {COMMIT_GATE} from step {episode['step']}"
-    slot = "the behaviour picked" if episode["picked"] else "not the behaviour picked"
-    chosen = (
-        f"the least certain step 0 of the {census['split_commit']} that start split and commit"
-        if census["split_commit"]
-        else "none starts split and commits: the least certain step 0 of all"
-    )
-    return [
-        f"online gate of the {census['n']} held-out free-choice episodes: {census['split']} start split (no expert at "
-        f"p >= {SPLIT_GATE} at step 0), {census['split_commit']} of them then commit (p >= {COMMIT_GATE} to the end)",
-        f"replayed free choice {episode['recording']} ({episode['scene']}, picked {episode['choice']}, carry from step "
-        f"{episode['carry_step']}; {chosen}):",
-        f"  gate at step 0 {expert(e0)} {p0:.2f}, {expert(e1)} {p1:.2f} ({split}); {commits}: {slot}",
-    ]
 
 
 def _jsonable(value):

@@ -5,8 +5,6 @@
 recordings through ingest and train and asks whether a model commits to one side of the box.
 """
 
-from cnep.pipeline._lazy import stage_attribute
+from cnep.pipeline import exports
 
-
-def __getattr__(name: str) -> object:
-    return stage_attribute(__name__, name)
+__getattr__, __all__ = exports(__name__, {"stage": ("EvaluateConfig", "evaluate")})

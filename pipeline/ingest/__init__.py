@@ -4,8 +4,6 @@
 themselves are read by `recordings`.
 """
 
-from cnep.pipeline._lazy import stage_attribute
+from cnep.pipeline import exports
 
-
-def __getattr__(name: str) -> object:
-    return stage_attribute(__name__, name)
+__getattr__, __all__ = exports(__name__, {"stage": ("IngestConfig", "ingest")})

@@ -1,11 +1,19 @@
 """Stage `replay`: a checkpoint + trajectory MCAP files -> a Rerun .rrd of the gate's decisions, step by step.
 
-`stage` conditions the model online on each recording and logs it; `layout` holds the timelines,
-entity paths, colours and the blueprint.
+`stage` checks the inputs and orchestrates; `conditioning` steps the model's online conditioner
+through each recording (`decide`); `rerun_log` logs the decisions beside the camera and the pose;
+`viewer` holds the timelines, entity paths, colours and the blueprint; `decisions` writes and reads
+the decisions file (`read_decisions`).
 """
 
-from cnep.pipeline._lazy import stage_attribute
+from cnep.pipeline import exports
 
-
-def __getattr__(name: str) -> object:
-    return stage_attribute(__name__, name)
+__getattr__, __all__ = exports(
+    __name__,
+    {
+        "stage": ("replay",),
+        "conditioning": ("Decisions", "decide"),
+        "decisions": ("decisions_path", "read_decisions"),
+        "rerun_log": ("serve",),
+    },
+)

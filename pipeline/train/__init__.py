@@ -5,8 +5,8 @@ file's columns; `state` keeps the resumable work folder and the log; `parallel` 
 `constants` holds the names and defaults the CLI shows without importing torch.
 """
 
-from cnep.pipeline._lazy import stage_attribute
+from cnep.pipeline import exports
 
-
-def __getattr__(name: str) -> object:
-    return stage_attribute(__name__, name)
+__getattr__, __all__ = exports(
+    __name__, {"stage": ("TrainStageConfig", "train"), "checkpoint": ("RowMapping", "TrainedModel", "load_trained")}
+)

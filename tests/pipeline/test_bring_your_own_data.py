@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from cnep.pipeline.cli.main import main
-from cnep.pipeline.replay.stage import read_decisions
+from cnep.pipeline.replay.decisions import read_decisions
 from cnep.recordings import read_trajectory
 
 TINY_TRAIN = [

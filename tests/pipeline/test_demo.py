@@ -6,15 +6,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import cnep.pipeline.replay.layout as L
+import cnep.pipeline.replay.viewer as L
 from cnep.models import load_checkpoint, read_checkpoint_config
 from cnep.pipeline.cli.main import main
 from cnep.pipeline.demo.free_choice import gate_census, replay_pick
 from cnep.pipeline.demo.generator import CHOICE_KEY, LABEL_KEY
+from cnep.pipeline.demo.measures import online_gates
 from cnep.pipeline.demo.scene import BEHAVIOURS, FREE_CHOICE, SIDES
-from cnep.pipeline.demo.stage import GATE_LR_SCALE, QUICK, RRD_FILE, SUMMARY_FILE, online_gates
+from cnep.pipeline.demo.stage import GATE_LR_SCALE, QUICK, RRD_FILE, SUMMARY_FILE
 from cnep.pipeline.errors import PipelineError
-from cnep.pipeline.replay.stage import read_decisions
+from cnep.pipeline.replay.decisions import read_decisions
 from cnep.pipeline.train.constants import SCENE
 from cnep.recordings import read_demonstration, read_trajectory
 from cnep.recordings.constants import STEP_DIM

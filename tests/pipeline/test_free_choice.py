@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from cnep.pipeline.demo.free_choice import PLACE_TOLERANCE, commitment, place_outcomes
+from cnep.pipeline.demo.free_choice import PLACE_TOLERANCE, gate_commitment, place_outcomes
 from cnep.pipeline.demo.scene import SLOT_XY
 
 NEAR, FAR = np.asarray(SLOT_XY["near"]), np.asarray(SLOT_XY["far"])
@@ -43,7 +43,7 @@ def test_a_gate_that_starts_split_and_commits():
             [0.01, 0.00, 0.99, 0.00],
         ]
     )
-    found = commitment(gates)
+    found = gate_commitment(gates)
     assert [e for e, _ in found["start"]] == [0, 2]
     assert found["start"][0][1] == pytest.approx(0.48) and found["start"][1][1] == pytest.approx(0.47)
     assert found["expert"] == 2 and found["step"] == 3
@@ -51,6 +51,6 @@ def test_a_gate_that_starts_split_and_commits():
 
 def test_a_gate_that_dips_below_the_threshold_commits_after_the_dip_and_one_that_never_holds_does_not():
     held = np.array([[0.0, 1.0], [0.0, 1.0], [0.2, 0.8], [0.0, 1.0]])
-    assert commitment(held)["step"] == 3
-    assert commitment(np.array([[0.5, 0.5], [0.3, 0.7]]))["step"] is None
-    assert commitment(np.array([[0.05, 0.95], [0.0, 1.0]]))["step"] == 0
+    assert gate_commitment(held)["step"] == 3
+    assert gate_commitment(np.array([[0.5, 0.5], [0.3, 0.7]]))["step"] is None
+    assert gate_commitment(np.array([[0.05, 0.95], [0.0, 1.0]]))["step"] == 0

@@ -15,11 +15,13 @@ import numpy as np
 import pytest
 import torch
 
-import cnep.pipeline.replay.layout as L
+import cnep.pipeline.replay.viewer as L
 from cnep.models import CNEPConfig, ColumnRoles, build_model, save_checkpoint
 from cnep.pipeline.cli.main import main
 from cnep.pipeline.errors import PipelineError
-from cnep.pipeline.replay.stage import decisions_path, read_decisions, replay, serve, viewer_reachable
+from cnep.pipeline.replay.decisions import decisions_path, read_decisions
+from cnep.pipeline.replay.rerun_log import serve, viewer_reachable
+from cnep.pipeline.replay.stage import replay
 from cnep.recordings import Episode, Trajectory, read_events, write_trajectory
 from cnep.recordings.constants import BLOCKS_FULL, BLOCKS_MOTION, MOTION_DIM, STEP_DIM
 

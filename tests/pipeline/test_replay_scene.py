@@ -11,7 +11,8 @@ import pytest
 import torch
 
 from cnep.models import CNEPConfig, ColumnRoles, TrainConfig, fit, save_checkpoint
-from cnep.pipeline.replay.stage import read_decisions, replay
+from cnep.pipeline.replay.decisions import read_decisions
+from cnep.pipeline.replay.stage import replay
 from cnep.recordings import Episode, Trajectory, write_trajectory
 from cnep.recordings.constants import FEATURE_DIM, STEP_DIM
 

@@ -8,7 +8,8 @@ import pytest
 from cnep.models import TrainConfig, load_checkpoint, read_checkpoint_config
 from cnep.models.online import ConditioningPolicy
 from cnep.pipeline.errors import PipelineError
-from cnep.pipeline.replay.stage import RowMapping, decide
+from cnep.pipeline.replay.conditioning import decide
+from cnep.pipeline.train.checkpoint import load_trained
 from cnep.pipeline.train.constants import PRESET_NAMES, SCENE
 from cnep.pipeline.train.presets import resolve_preset
 from cnep.pipeline.train.stage import TrainStageConfig, train
@@ -61,8 +62,8 @@ def test_a_scene_checkpoint_generates_and_replays_online(tmp_path):
     prediction = model.generate(np.array([0.0]), traj.data[:1], np.linspace(0, 1, 5), None)
     assert prediction.mean.shape == (5, 8) and np.isfinite(prediction.mean).all()
 
-    mapping = RowMapping.from_checkpoint(out, model)
-    rows = mapping.select(traj, paths[1], out)
+    trained = load_trained(out)
+    mapping, rows = trained.mapping, trained.rows(traj, paths[1])
     decisions = decide(model, rows, traj.timestamps_ns, ConditioningPolicy(), xyz=mapping.predicted_xyz(model))
     assert decisions.gates.shape == (traj.n_steps, 3)
     np.testing.assert_allclose(decisions.gates.sum(1), 1.0, atol=1e-5)

@@ -1,0 +1,171 @@
+"""The replay in Rerun: one recording stream per replayed trajectory, written to a file and, if one answers,
+to a live viewer.
+
+One `log_<source>()` function per source (camera, pose, gate, active expert, switches) sends whole
+columns at once (`send_columns`); where each goes is `pipeline.replay.viewer`. `merge_rrd` puts several
+single-recording files into one with rerun's own merge; `viewer_reachable` probes a viewer before
+streaming to it (a warning when none answers, never a hang) and `serve` hosts a server for viewers.
+"""
+
+from __future__ import annotations
+
+import socket
+import subprocess
+import sys
+from pathlib import Path
+from urllib.parse import urlparse
+
+import numpy as np
+
+import cnep.pipeline.replay.viewer as L
+from cnep.models import ExpertSwitch
+from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.replay.conditioning import Decisions
+from cnep.recordings import Trajectory
+
+DEFAULT_VIEWER_URL = "rerun+http://127.0.0.1:9876/proxy"  # where a local `rerun` viewer listens
+PROBE_TIMEOUT_S = 0.5
+FLUSH_TIMEOUT_S = 30.0  # a live viewer that stops reading may delay the end of a replay, never block it
+
+
+def viewer_reachable(url: str) -> bool:
+    """True if something accepts TCP connections at the URL's host and port."""
+    parsed = urlparse(url)
+    try:
+        with socket.create_connection((parsed.hostname or "127.0.0.1", parsed.port or 9876), timeout=PROBE_TIMEOUT_S):
+            return True
+    except OSError:
+        return False
+
+
+def serve(port: int = 9876):
+    """Host a gRPC proxy that viewers can connect to (late viewers get everything); returns (handle, url).
+
+    Keep the handle alive as long as the data should be served; pass the url as `connect` to `replay`.
+    """
+    import rerun as rr
+
+    server = rr.RecordingStream(L.APPLICATION_ID, recording_id="cnep-replay-server")
+    return server, server.serve_grpc(grpc_port=port)
+
+
+def switch_text(switch: ExpertSwitch, start_ns: int) -> str:
+    gate = ", ".join(f"{p:.2f}" for p in switch.gate)
+    return (
+        f"step {switch.step} ({(switch.timestamp_ns - start_ns) / 1e9:.2f} s): "
+        f"{L.expert_name(switch.from_expert)} -> {L.expert_name(switch.to_expert)} (p = {gate})"
+    )
+
+
+def recording_id(index: int, traj: Trajectory, run_id: str) -> str:
+    """The Rerun recording id of the `index`-th replayed recording: `rerun rrd merge` orders a file's recordings
+    by id, so the zero-padded index keeps them in the order given."""
+    return f"{index:05d}-{traj.episode.episode_id}-{run_id}"
+
+
+def recording_name(index: int, source: Path) -> str:
+    """The name the viewer lists (narrow: what tells recordings apart comes first): `demo_000 (scene_change) #1`."""
+    return f"{source.stem} ({source.parent.name or '.'}) #{index + 1}"
+
+
+def write_recording(
+    path: Path, recording_id: str, name: str, traj: Trajectory, decisions: Decisions, live: str | None
+) -> None:
+    """One Rerun recording (file sink, plus the live viewer if any) of one replayed trajectory."""
+    import rerun as rr
+
+    d = decisions.gates.shape[1]
+    rec = rr.RecordingStream(L.APPLICATION_ID, recording_id=recording_id)
+    rec.set_sinks(rr.FileSink(path), *([rr.GrpcSink(live)] if live else []))
+    rec.send_recording_name(name)
+    rec.send_blueprint(L.blueprint(d, camera=traj.frames is not None))
+    index = change_index(traj, list(range(traj.n_steps)))
+    log_camera(rec, index, traj)
+    log_pose(rec, index, traj)
+    log_gates(rec, index, decisions.gates)
+    log_active_expert(rec, traj, decisions, d)
+    log_switches(rec, traj, decisions)
+    if decisions.predictions is not None:
+        colors = [L.expert_colors(d)[e] for e in decisions.experts]  # the active expert's colour at each step
+        rec.send_columns(
+            L.PREDICTION,
+            indexes=index,
+            columns=rr.LineStrips3D.columns(strips=list(decisions.predictions), colors=colors),
+        )
+    rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
+    rec.disconnect()
+
+
+def log_camera(rec, index, traj: Trajectory) -> None:
+    """The stored JPEG bytes, one image per step (nothing for motion-only recordings)."""
+    import rerun as rr
+
+    if traj.frames is None:
+        return
+    rec.send_columns(
+        L.CAMERA,
+        indexes=index,
+        columns=rr.EncodedImage.columns(blob=traj.frames, media_type=["image/jpeg"] * len(traj.frames)),
+    )
+
+
+def log_pose(rec, index, traj: Trajectory) -> None:
+    """End-effector pose per step (Transform3D, quaternion xyzw) and the whole path (static)."""
+    import rerun as rr
+
+    pose = traj.pose  # (T, 7)
+    rec.log(L.EE, rr.TransformAxes3D(axis_length=0.05), static=True)
+    rec.send_columns(
+        L.EE, indexes=index, columns=rr.Transform3D.columns(translation=pose[:, :3], quaternion=pose[:, 3:])
+    )
+    rec.log(L.EE_PATH, rr.LineStrips3D([pose[:, :3]], colors=[L.PATH_COLOR]), static=True)
+
+
+def log_gates(rec, index, gates: np.ndarray) -> None:
+    """(T, d) gate probabilities: one row of d scalars per step, series named and coloured per expert."""
+    import rerun as rr
+
+    d = gates.shape[1]
+    rec.log(L.GATES, rr.SeriesLines(names=L.expert_names(d), colors=L.expert_colors(d)), static=True)
+    rec.send_columns(L.GATES, indexes=index, columns=rr.Scalars.columns(scalars=gates))
+
+
+def change_index(traj: Trajectory, steps: list[int]):
+    """Rerun time columns of `steps`: the step index, and the time since the recording's first step (a duration)."""
+    import rerun as rr
+
+    since_start = (traj.timestamps_ns[steps] - traj.timestamps_ns[0]).astype("timedelta64[ns]")
+    return [rr.TimeColumn(L.TIMELINE_FRAME, sequence=steps), rr.TimeColumn(L.TIMELINE_TIME, duration=since_start)]
+
+
+def log_active_expert(rec, traj: Trajectory, decisions: Decisions, d: int) -> None:
+    """The active expert as a colour lane: a StateChange at the first step and at each switch."""
+    import rerun as rr
+
+    rec.log(L.ACTIVE_EXPERT, rr.StateConfiguration(values=L.expert_names(d), colors=L.expert_colors(d)), static=True)
+    steps = [0] + [s.step for s in decisions.switches]
+    states = [L.expert_name(int(decisions.experts[k])) for k in steps]
+    rec.send_columns(L.ACTIVE_EXPERT, indexes=change_index(traj, steps), columns=rr.StateChange.columns(state=states))
+
+
+def log_switches(rec, traj: Trajectory, decisions: Decisions) -> None:
+    """One TextLog line per switch, at the step of the switch."""
+    import rerun as rr
+
+    if not decisions.switches:
+        return
+    start = int(traj.timestamps_ns[0])
+    texts = [switch_text(s, start) for s in decisions.switches]
+    rec.send_columns(
+        L.SWITCH_LOG,
+        indexes=change_index(traj, [s.step for s in decisions.switches]),
+        columns=rr.TextLog.columns(text=texts, level=["INFO"] * len(texts)),
+    )
+
+
+def merge_rrd(parts: list[Path], dst: Path) -> None:
+    """Several single-recording .rrd files -> one file holding them all (rerun's own merge)."""
+    cmd = [sys.executable, "-m", "rerun_cli", "rrd", "merge", *map(str, parts), "-o", str(dst)]
+    done = subprocess.run(cmd, capture_output=True, text=True)
+    if done.returncode != 0:
+        raise PipelineError(f"{dst}: `rerun rrd merge` failed ({done.stderr.strip().splitlines()[-1:]})")
