@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test lint evaluate bench install clean
+.PHONY: demo test lint docs evaluate bench install clean
 
 $(STAMP): pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
@@ -26,6 +26,10 @@ test: $(STAMP)
 lint: $(STAMP)
 	$(BIN)/ruff format --check .
 	$(BIN)/ruff check .
+
+# The CLI reference page, generated from the parsers (tests/test_docs.py checks it is current).
+docs: $(STAMP)
+	$(BIN)/python -m cnep.pipeline.cli.reference docs/reference/cli.md
 
 bench: $(STAMP)
 	$(BIN)/python -m benchmarks
