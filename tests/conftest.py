@@ -27,3 +27,25 @@ def one_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(before)
+
+
+@pytest.fixture(scope="session")
+def quick_demo(tmp_path_factory):
+    """`cnep demo --quick` once per test session, its outputs in `<tmp>/cnep-demo` as `make demo` leaves them
+    (the rerun CLI it calls writes analytics under HOME unless CI is set: a temporary HOME, CI=1)."""
+    import torch
+
+    from cnep.pipeline.cli.main import main
+
+    mp = pytest.MonkeyPatch()
+    mp.setenv("HOME", str(tmp_path_factory.mktemp("home")))
+    mp.setenv("CI", "1")
+    out = tmp_path_factory.mktemp("demo") / "cnep-demo"
+    threads = torch.get_num_threads()
+    try:
+        code = main(["-q", "demo", "--out", str(out), "--quick"])
+    finally:
+        torch.set_num_threads(threads)
+        mp.undo()
+    assert code == 0
+    return out

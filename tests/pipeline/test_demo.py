@@ -25,24 +25,10 @@ N_HELDOUT = QUICK.heldout_per_behaviour * len(BEHAVIOURS)
 N_FREE = QUICK.heldout_free_choice_per_side * len(SIDES)
 
 
-@pytest.fixture(scope="module")
-def demo_run(tmp_path_factory):
-    """One quick demo through the CLI (rerun's CLI is used to merge recordings: CI=1, a temporary HOME)."""
-    mp = pytest.MonkeyPatch()
-    home = tmp_path_factory.mktemp("home")
-    mp.setenv("HOME", str(home))
-    mp.setenv("CI", "1")
-    out = tmp_path_factory.mktemp("demo") / "run"
-    try:
-        import torch
-
-        threads = torch.get_num_threads()
-        code = main(["-q", "demo", "--out", str(out), "--quick"])
-        torch.set_num_threads(threads)
-    finally:
-        mp.undo()
-    assert code == 0
-    return out
+@pytest.fixture
+def demo_run(quick_demo):
+    """The session's quick demo (tests/conftest.py), read only."""
+    return quick_demo
 
 
 def _rrd_recordings(path: Path) -> list[dict]:
