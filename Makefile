@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test lint docs evaluate bench install clean
+.PHONY: demo view test lint docs evaluate bench install clean
 
 $(STAMP): pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
@@ -14,8 +14,16 @@ $(STAMP): pyproject.toml constraints.txt
 
 install: $(STAMP)
 
+DEMO_OUT ?= cnep-demo
+
+# The demo writes into $(DEMO_OUT), replacing what an earlier demo wrote there.
 demo: $(STAMP)
-	$(BIN)/cnep demo
+	$(BIN)/cnep demo --out $(DEMO_OUT) --force
+	@echo "Open the view: make view"
+
+# The demo's scene-change recording in the Rerun viewer (installed in .venv, so this works from any shell).
+view: $(STAMP)
+	$(BIN)/rerun $(DEMO_OUT)/demo.rrd
 
 evaluate: $(STAMP)
 	$(BIN)/cnep evaluate

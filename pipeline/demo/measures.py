@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cnep.models import ConditioningPolicy
+from cnep.models import CNEP, ConditioningPolicy, Prediction
 from cnep.pipeline.demo.free_choice import gate_commitment
 from cnep.pipeline.demo.generator import CHOICE_KEY, CHOICE_STEP_KEY
 from cnep.pipeline.replay.conditioning import decide
@@ -88,6 +88,14 @@ def expert_purity(checkpoint: Path, paths: list[Path], labels: dict[str, str]) -
     return table
 
 
+def first_step_prediction(model: CNEP, rows: np.ndarray) -> Prediction:
+    """The model conditioned on a recording's first step (t = 0) and queried at every step (rows: (T, model
+    width)); the queries carry each step's own query columns when the model has any."""
+    t = np.arange(len(rows)) / (len(rows) - 1)
+    query = rows[:, model.query_columns.numpy()] if model.config.columns.query_dim else None
+    return model.generate(t[:1], rows[:1, model.obs_columns.numpy()], t, query)
+
+
 def heldout_errors(checkpoint: Path, heldout: list[Path], train_paths: list[Path], labels: dict[str, str]) -> dict:
     """Generated motion vs held-out demonstrations, conditioned on each one's first step (t = 0).
 
@@ -110,9 +118,7 @@ def heldout_errors(checkpoint: Path, heldout: list[Path], train_paths: list[Path
     sq, grip, hits = [], [], []
     for path, r in zip(heldout, rows):
         T = len(r)
-        t = np.arange(T) / (T - 1)
-        query = r[:, model.query_columns.numpy()] if model.config.columns.query_dim else None
-        mean = model.generate(t[:1], r[:1, model.obs_columns.numpy()], t, query).mean  # (T, dy)
+        mean = first_step_prediction(model, r).mean  # (T, dy)
         truth = r[:, out_cols]  # (T, dy)
         sq.append(((mean[:, xyz] - truth[:, xyz]) ** 2).sum(-1))  # (T,)
         grip.append(np.abs(mean[:, gripper] - truth[:, gripper]))

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import shutil
+import sys
 from pathlib import Path
 
 from cnep.pipeline.demo.free_choice import COMMIT_GATE, PLACE_TOLERANCE, SPLIT_GATE
-from cnep.pipeline.demo.stage import RRD_FILE, SUMMARY_FILE, DemoResult
+from cnep.pipeline.demo.stage import REPLAYS_RRD, RRD_FILE, SUMMARY_FILE, DemoResult
 
 
 def format_summary(result: DemoResult) -> str:
@@ -48,14 +50,26 @@ def format_summary(result: DemoResult) -> str:
     for episode in result.free_choice_replay:
         lines.extend(replay_lines(episode, result.behaviours))
     lines.append("")
-    lines.append(
-        f"Rerun recordings: {len(result.rrd)} files {result.out}/{Path(RRD_FILE).stem}-*.rrd, one per replayed "
-        f"recording; the scene change: `rerun {result.rrd[0]}`"
-    )
+    if result.figure is not None:
+        lines.append(f"summary figure: {result.figure}")
+    lines.append(f"other replayed recordings: {result.out / Path(REPLAYS_RRD).parent}/")
+    lines.append(f"open the view (the scene change): {viewer_command()} {result.out / RRD_FILE}")
     lines.append(f"checkpoints: {', '.join(str(p) for p in result.checkpoints.values())}")
     lines.append(f"summary: {result.out / SUMMARY_FILE}")
     lines.append("stage times (s): " + ", ".join(f"{k} {v:.1f}" for k, v in result.seconds.items()))
     return "\n".join(lines)
+
+
+def viewer_command() -> str:
+    """How to start the Rerun viewer from a fresh shell: `rerun` when it is on PATH, else the one installed beside
+    this Python (a virtual environment that is not activated)."""
+    if shutil.which("rerun"):
+        return "rerun"
+    beside = Path(sys.executable).parent / "rerun"
+    try:
+        return str(beside.relative_to(Path.cwd()))
+    except ValueError:
+        return str(beside)
 
 
 def replay_lines(episode: dict, behaviours: dict[str, dict]) -> list[str]:

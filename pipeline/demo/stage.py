@@ -15,17 +15,19 @@ Stages (each logs its progress; tqdm bars unless quiet), all under OUT:
 4. train      `checkpoints/cnep` (4 experts) and `checkpoints/cnmp` (1 expert, parameter-matched
               widths) on the training trajectories (layout `scene`: observe features + pose + gripper,
               query with time only, predict pose + gripper), seeded;
-5. replay     `demo-NN-<split>-<name>.rrd`, one per recording (+ `demo.experts.json`): the scene-change
-              recordings (numbered first), the held-out ones and one held-out free-choice recording through
-              the CNEP, step by step; the free-choice one is picked from every held-out free-choice
-              episode's online gate by `pipeline.demo.free_choice.replay_pick` (one whose gate starts split
-              and commits, when the model has one);
+5. replay     `demo.rrd` (+ `demo.experts.json`), the one file to open: the scene-change recording through the
+              CNEP, step by step; `replays/replay-NN-<split>-<name>.rrd` (+ `replays/replay.experts.json`): the
+              held-out recordings and one held-out free-choice recording, picked from every held-out
+              free-choice episode's online gate by `pipeline.demo.free_choice.replay_pick` (one whose gate
+              starts split and commits, when the model has one);
 6. summary    `summary.json` (measured by pipeline.demo.measures, printed by pipeline.demo.report): per
               scene-decided behaviour the expert that took it and how purely, the error of the generated
               motion on held-out demonstrations (CNEP vs CNMP), the scene change's switches, where motions
               generated for held-out free-choice scenes end (in a slot or between; CNEP vs CNMP), how many
               free-choice gates start split and commit, and how the replayed one's gate starts, when it
-              commits and on which behaviour's expert.
+              commits and on which behaviour's expert; `summary.png` (pipeline.demo.figure, when matplotlib
+              is installed): the gate over time and the predicted paths of the scene change, a held-out
+              scene and the replayed free choice.
 
 The behaviour labels live in each file's episode metadata and are read only for the summary.
 """
@@ -46,6 +48,7 @@ import numpy as np
 from cnep.models import TrainConfig
 from cnep.models.checkpoint import atomic_write
 from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_file_as_folder
+from cnep.pipeline.demo.figure import FIGURE_FILE, Scene, draw_summary
 from cnep.pipeline.demo.free_choice import gate_census, generated_ends, place_outcomes, replay_pick
 from cnep.pipeline.demo.generator import SPLITS, SWITCH_KEY, DemoSetConfig, generate
 from cnep.pipeline.demo.measures import (
@@ -62,7 +65,7 @@ from cnep.pipeline.demo.scene import BEHAVIOURS
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.extract.stage import ExtractConfig, extract
 from cnep.pipeline.ingest.stage import IngestConfig, ingest
-from cnep.pipeline.replay.decisions import decisions_path
+from cnep.pipeline.replay.decisions import decisions_path, read_decisions
 from cnep.pipeline.replay.stage import replay
 from cnep.pipeline.train.constants import SCENE
 from cnep.pipeline.train.stage import TrainStageConfig, train
@@ -81,7 +84,8 @@ GATE_LR_SCALE = 1.0
 # (CNMP 0.55-0.70); the paper's term 0.55-0.75 (purity 0.63 for one behaviour on seed 2).
 ASSIGNMENT = "bounded"
 SUMMARY_FILE = "summary.json"
-RRD_FILE = "demo.rrd"
+RRD_FILE = "demo.rrd"  # the scene change: what `make view` opens
+REPLAYS_RRD = "replays/replay.rrd"  # the other replayed recordings, one file each beside it
 PER_FILE_LOGGERS = ("cnep.pipeline.ingest", "cnep.pipeline.extract")
 EXTRACTOR_FILE = "extractor.pt"
 # Everything a demo writes into its folder (what --force replaces).
@@ -91,9 +95,11 @@ OUTPUTS = (
     "trajectories",
     "checkpoints",
     EXTRACTOR_FILE,
-    f"{Path(RRD_FILE).stem}-*.rrd",
+    RRD_FILE,
     decisions_path(RRD_FILE).name,
+    Path(REPLAYS_RRD).parent.name,
     SUMMARY_FILE,
+    FIGURE_FILE,
 )  # names and glob patterns
 
 
@@ -162,7 +168,7 @@ class DemoResult:
     """What the demo made and measured (also written to OUT/summary.json)."""
 
     out: Path
-    rrd: list[Path]  # one .rrd per replayed recording, the scene changes first
+    rrd: list[Path]  # one .rrd per replayed recording: RRD_FILE (the scene change) first
     checkpoints: dict[str, Path]
     behaviours: dict[str, dict]  # scene-decided behaviour -> {"n", "expert", "purity", "experts": {expert: count}}
     heldout: dict[str, dict]  # model -> {"position_rmse_m", "gripper_mae_m", "behaviour_accuracy", "n"}
@@ -170,6 +176,7 @@ class DemoResult:
     free_choice: dict[str, dict]  # model -> place_outcomes on the held-out free-choice scenes
     free_choice_replay: list[dict]  # per replayed free-choice recording: label, choice, its step, commitment, census
     seconds: dict[str, float] = field(default_factory=dict)  # stage -> wall time (s)
+    figure: Path | None = None  # FIGURE_FILE, None without matplotlib
 
 
 def run_demo(config: DemoConfig) -> DemoResult:
@@ -315,14 +322,15 @@ def _run_stages(config: DemoConfig, out: Path, size: DemoSize, seconds: dict[str
     trajectories = {split: sorted((out / "trajectories" / split).glob("*.mcap")) for split in SPLITS}
     traces = online_gates(checkpoints["CNEP"], trajectories["free_choice"])  # every held-out free choice's gate
     replayed_choice = [trajectories["free_choice"][replay_pick(traces)]]  # one that starts split, then commits
-    rrd = replay(
-        checkpoints["CNEP"],
-        trajectories["scene_change"] + trajectories["heldout"] + replayed_choice,
-        out / RRD_FILE,
-        policy=POLICY,
-        connect=None,
-        quiet=config.quiet,
-    )  # one file each, scene changes first
+    (out / REPLAYS_RRD).parent.mkdir(exist_ok=True)
+    rrd = [
+        path
+        for recordings, target in (
+            (trajectories["scene_change"], out / RRD_FILE),
+            (trajectories["heldout"] + replayed_choice, out / REPLAYS_RRD),
+        )
+        for path in replay(checkpoints["CNEP"], recordings, target, policy=POLICY, connect=None, quiet=config.quiet)
+    ]  # one file each
     done("replay")
 
     stage("summary", 6)
@@ -348,12 +356,47 @@ def _run_stages(config: DemoConfig, out: Path, size: DemoSize, seconds: dict[str
                 for name, ckpt in checkpoints.items()
             },
             free_choice_replay=free_choice_commitment(
-                out / RRD_FILE, replayed_choice, made.files["free_choice"], labels, behaviours, gate_census(traces)
+                out / REPLAYS_RRD, replayed_choice, made.files["free_choice"], labels, behaviours, gate_census(traces)
             ),
             seconds=seconds,
         )
+        result.figure = summary_figure(out, result, trajectories)
     done("summary")
     return result
+
+
+def summary_figure(out: Path, result: DemoResult, trajectories: dict[str, list[Path]]) -> Path | None:
+    """Draw FIGURE_FILE (pipeline.demo.figure) for the scene change, the first held-out scene and the replayed free
+    choice, from the replay's online gates; None, with a warning, when matplotlib (the `plots` extra) is missing."""
+    try:
+        import matplotlib  # noqa: F401
+    except ModuleNotFoundError:
+        log.warning("no summary figure: matplotlib is missing; pip install 'cnep-pipeline[plots]'")
+        return None
+    gates = {
+        key(Path(r["recording"])): np.asarray(r["gates"])
+        for rrd in (out / RRD_FILE, out / REPLAYS_RRD)
+        for r in read_decisions(rrd)["recordings"]
+    }
+    change, choice = result.scene_change[0], result.free_choice_replay[0]
+    shown = [  # title, split/name, the step to mark and what happens there
+        (
+            f"scene change ({change['behaviour']})",
+            f"scene_change/{change['recording']}",
+            change["change_step"],
+            "block moves",
+        ),
+        ("a held-out scene", key(trajectories["heldout"][0]), None, ""),
+        (
+            f"free choice ({choice['scene']}, {choice['choice']} picked)",
+            f"free_choice/{choice['recording']}",
+            choice["carry_step"],
+            "carry starts",
+        ),
+    ]
+    scenes = [Scene(title, out / "trajectories" / name, gates[name], step, what) for title, name, step, what in shown]
+    experts = {row["expert"]: behaviour for behaviour, row in result.behaviours.items()}
+    return draw_summary(scenes, result.checkpoints, experts, out / FIGURE_FILE)
 
 
 def _jsonable(value):

@@ -9,11 +9,12 @@ import pytest
 import cnep.pipeline.replay.viewer as L
 from cnep.models import load_checkpoint, read_checkpoint_config
 from cnep.pipeline.cli.main import main
+from cnep.pipeline.demo.figure import FIGURE_FILE
 from cnep.pipeline.demo.free_choice import gate_census, replay_pick
 from cnep.pipeline.demo.generator import CHOICE_KEY, LABEL_KEY
 from cnep.pipeline.demo.measures import online_gates
 from cnep.pipeline.demo.scene import BEHAVIOURS, FREE_CHOICE, SIDES
-from cnep.pipeline.demo.stage import GATE_LR_SCALE, QUICK, RRD_FILE, SUMMARY_FILE
+from cnep.pipeline.demo.stage import GATE_LR_SCALE, QUICK, REPLAYS_RRD, RRD_FILE, SUMMARY_FILE
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.replay.decisions import read_decisions
 from cnep.pipeline.train.constants import SCENE
@@ -143,15 +144,17 @@ def test_the_replayed_free_choice_is_the_one_the_rule_picks(demo_run):
     assert episode["recording"] == paths[replay_pick(traces)].name
     record = {
         Path(r["recording"]).parent.name + "/" + Path(r["recording"]).name: r
-        for r in read_decisions(demo_run / RRD_FILE)["recordings"]
+        for r in read_decisions(demo_run / REPLAYS_RRD)["recordings"]
     }[f"free_choice/{episode['recording']}"]
     np.testing.assert_allclose(record["gates"], traces[replay_pick(traces)], atol=1e-5)  # what Rerun shows
     assert episode["census"] == gate_census(traces)
 
 
 def test_the_rrd_holds_each_replayed_recording(demo_run):
-    files = sorted(demo_run.glob("demo-*.rrd"))
-    assert files[0].name == "demo-01-scene_change-demo_000.rrd"  # the scene change first, one recording per file
+    files = [demo_run / RRD_FILE, *sorted((demo_run / REPLAYS_RRD).parent.glob("*.rrd"))]
+    assert [p.name for p in demo_run.glob("*.rrd")] == [RRD_FILE]  # one file to open: the scene change
+    (view,) = _rrd_recordings(demo_run / RRD_FILE)
+    assert view["frames"] == read_trajectory(demo_run / "trajectories" / "scene_change" / "demo_000.mcap").frames
     recordings = [rec for file in files for rec in _rrd_recordings(file)]
     assert len(recordings) == len(files)
     (choice,) = json.loads((demo_run / SUMMARY_FILE).read_text())["free_choice_replay"]
@@ -162,7 +165,8 @@ def test_the_rrd_holds_each_replayed_recording(demo_run):
     assert len(recordings) == len(replayed)
     decisions = {
         Path(r["recording"]).parent.name + "/" + Path(r["recording"]).name: r
-        for r in read_decisions(demo_run / RRD_FILE)["recordings"]
+        for rrd in (RRD_FILE, REPLAYS_RRD)
+        for r in read_decisions(demo_run / rrd)["recordings"]
     }
     for path in replayed:
         frames = read_trajectory(path).frames
@@ -172,6 +176,13 @@ def test_the_rrd_holds_each_replayed_recording(demo_run):
         assert rec["names"] == [[f"expert {e}" for e in range(4)]]
         experts = decisions[f"{path.parent.name}/{path.name}"]["experts"]
         assert experts == rec["gates"].argmax(1).tolist()
+
+
+def test_the_summary_figure_is_a_png(demo_run):
+    from PIL import Image
+
+    with Image.open(demo_run / FIGURE_FILE) as image:
+        assert image.format == "PNG" and image.width > image.height > 300
 
 
 def test_a_used_output_folder_is_refused(tmp_path):
