@@ -4,8 +4,8 @@ Run on demand (one torch thread, as the pipeline trains; say the machine's load 
     python -m benchmarks.bench_training [--experts 2 4] [--k 4] [--steps 30] [--rounds 3] [--device cuda]
 
 For each number of experts d (CNEPConfig defaults otherwise: widths 128, batch 32, the 4-mode set):
-- `foreach`: one `models.Trainer` step with Adam(foreach=True), the optimiser before this change;
-- `fused`:   the same with the Trainer's fused Adam (today's default);
+- `foreach`: one `models.Trainer` step with Adam(foreach=True), the optimiser the fused one is measured against;
+- `fused`:   the same with the Trainer's fused Adam (the default);
 - `sequential`: k Trainers (seeds 0..k-1) stepped one after another, model-steps/s;
 - `batched`:  the same k runs in one `models.batched.BatchedTrainer`, model-steps/s.
 The variants are interleaved round by round, so each ratio is measured under the same load; the

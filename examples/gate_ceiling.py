@@ -11,7 +11,7 @@ shaped like the queries: one random interior step of a training demonstration an
     flat MLP       [time features, y at that time, y at the end] into an MLP 256 x 256
 All four see the same inputs (time features and normalisation of models.CNEP). Prints each one's mode
 accuracy on the paper queries. The unsupervised CNEP picks modes no better than its gate does here,
-when the gate is given the labels (docs/model.md, "The 4-mode gate's ceiling").
+when the gate is given the labels (docs/concepts.md, "Commitment").
 """
 
 from __future__ import annotations

@@ -74,7 +74,7 @@ ASSIGNMENTS = ("paper", "mixture", "annealed", "bounded")
 # The gate's learning rate as a fraction of the network's (TrainConfig.gate_lr_scale left None), per assignment.
 # The paper's term moves the gate by p (L - mean L) / d and the mixture's by (p - r) / (d n_i): 0.3 was measured
 # for the paper's. The EM assignments train the gate by cross-entropy to the posterior, (p - r) / d, and at 0.3 it
-# picked the 6-mode expert nearest the truth on 66-92% of the queries, at 1.0 on 96-100% (docs/model.md).
+# picked the 6-mode expert nearest the truth on 66-92% of the queries, at 1.0 on 96-100%.
 GATE_LR_SCALES = {"paper": 0.3, "mixture": 0.3, "annealed": 1.0, "bounded": 1.0}
 
 
@@ -88,7 +88,7 @@ class CNEPConfig:
     `assignment` chooses L_rec (models.loss): "paper", the gate-weighted expert NLL of the paper,
     "mixture", the mixture likelihood whose responsibilities come from the targets, or "annealed", the
     experts on the posterior responsibilities and the gate towards them, the posterior annealed from soft
-    to the mixture's over training, or "bounded", the same with looser balancing (docs/model.md).
+    to the mixture's over training, or "bounded", the same with looser balancing (docs/concepts.md).
     """
 
     columns: ColumnRoles = field(default_factory=ColumnRoles)  # which columns it observes, queries with, predicts
@@ -146,7 +146,7 @@ class CNEPConfig:
 
 @dataclass(frozen=True)
 class TrainConfig:
-    """How `fit` trains. Steps and widths follow the spec's CPU recipe (see docs/model.md)."""
+    """How `fit` trains. Steps and widths follow the spec's CPU recipe (see docs/concepts.md)."""
 
     steps: int = 10_000
     batch_size: int = 32

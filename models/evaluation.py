@@ -17,7 +17,7 @@ of two tiny distances can be large while the noise alone picks the "truth". Othe
 discarded. The ground truth is the training demonstration closest to the two conditioning points (as
 the paper states), and the score is the true MSE over the whole generated trajectory (MAE too). The
 authors' notebooks instead chose the demonstration closest to the *generated* trajectory and
-reported a mean absolute error; see docs/evaluation.md.
+reported a mean absolute error; see docs/concepts.md.
 
 Held-out protocol: the same kind of conditioning points taken from demonstrations the model never saw,
 scored against those demonstrations; it measures generalisation rather than mode picking. The same

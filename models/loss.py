@@ -26,7 +26,7 @@ mixture's). Two things happen while training is young (progress < ANNEAL_FRACTIO
   (the mixture's posterior), then stays there (`annealed_sharpness`);
 - the posterior is balanced over the batch (`balanced`: SINKHORN_ITERATIONS Sinkhorn steps giving
   every expert B/d of the batch's mass), so that every expert keeps learning something.
-Measured (docs/model.md, "Commitment"): with the mixture's posterior from the first step, the experts
+Measured: with the mixture's posterior from the first step, the experts
 that lose every sample while the gate is still frozen are never trained again (6 modes: pairs of modes
 share an expert and are averaged where they cross); annealing alone keeps more experts in play but
 still lets one expert take every behaviour that the context already tells apart (the demo: all four
@@ -43,7 +43,7 @@ modes to it), and Baxter's 2 experts on batches of 32 draws of 2 demonstrations,
 and half (each expert kept learning some of the other demonstration). Stopping the bounds at once, as
 "annealed" stops its balancing, let the demo's gate move one behaviour onto another's expert in the
 steps after the stop (one seed of three: 4 behaviours on 3 experts); fading them out did not, on the
-three seeds measured (docs/model.md, "Fading the balancing out").
+three seeds measured (docs/results.md).
 
 The paper prints `+ a_batch L_batch`; the text asks for batch entropy to be maximised and the authors'
 code subtracts it, so we subtract it. Entropies are computed per row with clamped logs: a probability
@@ -89,7 +89,7 @@ class Balancing:
 
 
 # Each EM assignment's balancing: "annealed" to equal shares, stopped when the anneal ends; "bounded" within
-# [0.5, 1.5] x B/d, faded out over the next 0.2 of training (docs/model.md).
+# [0.5, 1.5] x B/d, faded out over the next 0.2 of training (docs/concepts.md).
 BALANCING = {
     "annealed": Balancing(1.0, 1.0, ANNEAL_FRACTION, ANNEAL_FRACTION),
     "bounded": Balancing(0.5, 1.5, ANNEAL_FRACTION, 0.8),
@@ -99,7 +99,7 @@ BALANCING = {
 def settled_fraction(assignment: str) -> float:
     """The fraction of training from which `assignment`'s posterior is its final one: where the EM assignments'
     balancing has ended (`BALANCING`), 0 for "paper" and "mixture". `models.train` keeps no model from before it
-    as the best: a model halfway through the balancing is not yet committed (docs/model.md)."""
+    as the best: a model halfway through the balancing is not yet committed."""
     return BALANCING[assignment].until if assignment in BALANCING else 0.0
 
 
@@ -139,7 +139,7 @@ def balanced(
     = `cap` = 1 (the default) gives Sinkhorn's steps to equal shares, B/d each. The first column step acts
     on the posterior as given (log p - k L, rows not yet normalised): where every column lies on the same
     side of the bounds, as with a sharp posterior, that step equalises them as Sinkhorn's would, and the
-    bounds act from the second step on (what docs/model.md measured)."""
+    bounds act from the second step on (as measured)."""
     B, d = log_r.shape[-2:]
     low, high = math.log(floor * B / d), math.log(cap * B / d)
     for _ in range(iterations):

@@ -1,6 +1,6 @@
 """Training CNEP on a list of trajectories: seeded, vectorised batches, best-model keeping.
 
-The optimiser recipe for a CPU budget of minutes (measured, see docs/model.md): Adam, a linear
+The optimiser recipe for a CPU budget of minutes (measured, see docs/results.md): Adam, a linear
 learning-rate warm-up then cosine decay, and the gate held uniform (zero-initialised, not updated) for
 the first `gate_freeze_fraction` of the steps, so that the experts learn to reconstruct before the
 gate starts to commit, and then learning at `gate_lr_scale` times the learning rate (by default the

@@ -1,4 +1,4 @@
-"""Perception: RGB frames (numpy, any size) -> 1280-d MobileNet-v2 features (numpy). See docs/perception.md."""
+"""Perception: RGB frames (numpy, any size) -> 1280-d MobileNet-v2 features (numpy). See docs/concepts.md."""
 
 from cnep.perception.backends import available_backends
 from cnep.perception.constants import FEATURE_DIM, IMAGE_SIZE

@@ -5,7 +5,7 @@ Each backend is built from the same module and returns a runner: uint8 (N, 224, 
 The ONNX export (seconds) is cached on disk by content (the weights' sha256, opset and torch version),
 see `onnx_model`; ONNX Runtime and OpenVINO both run that graph (or its int8 quantisation). ONNX Runtime
 sessions never spin idle threads: a spinning session on a shared machine burns the cores its neighbours
-need (measured: benchmarks/bench_threads.py); OpenVINO's idle threads sleep (measured: docs/perception.md).
+need (measured: benchmarks/bench_threads.py); OpenVINO's idle threads sleep (measured: docs/results.md).
 """
 
 from __future__ import annotations
@@ -103,7 +103,7 @@ def cuda_device() -> torch.device:
 
 def _cuda(net: nn.Module, threads: int | None) -> Runner:
     """fp32 on this process's GPU with TF32 convolutions off, so the features are the CPU's to a relative error
-    of ~1e-6 (measured on an H100; TF32 ran 1.4x faster at 5e-4 relative error: docs/perception.md)."""
+    of ~1e-6 (measured on an H100; TF32 ran 1.4x faster at 5e-4 relative error)."""
     device = cuda_device()
     net = copy.deepcopy(net).to(device, memory_format=torch.channels_last)
 
@@ -227,7 +227,7 @@ def openvino_config(threads: int | None) -> dict[str, object]:
     One stream with the latency hint runs each batch on all `threads`, as the ONNX Runtime session does;
     threads are not pinned to cores, so on a shared machine they move to a free core rather than wait for
     a busy one; fp32 inference precision, so CPUs with bf16 units do not silently lower it. OpenVINO's
-    idle threads sleep (it has no spinning option to turn off; docs/perception.md measures them).
+    idle threads sleep (it has no spinning option to turn off; benchmarks/bench_threads.py measures them).
     """
     return {
         "INFERENCE_NUM_THREADS": threads or 0,

@@ -1,6 +1,6 @@
 """Calibration of seeded random weights, so that their features tell scenes apart.
 
-Two problems, two documented fixes (measurements in docs/perception.md):
+Two problems, two documented fixes (measurements in docs/results.md):
 
 1. Dead features. A freshly initialised MobileNet-v2 keeps torchvision's running statistics (mean 0,
    variance 1) in every batch norm while its random convolutions shrink the signal layer after layer:
@@ -28,7 +28,7 @@ from torchvision.ops.misc import Conv2dNormActivation
 
 from cnep.perception.errors import PerceptionError
 
-ACTIVATION_BIAS = 2.0  # batch-norm shift before each ReLU6, in standard deviations (measured: docs/perception.md)
+ACTIVATION_BIAS = 2.0  # batch-norm shift before each ReLU6, in standard deviations (measured: docs/results.md)
 
 
 def calibrate_random_network(

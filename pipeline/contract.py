@@ -1,4 +1,4 @@
-"""The contract every `cnep` subcommand keeps, in one place (docs/cli.md explains it for users).
+"""The contract every `cnep` subcommand keeps, in one place (docs/reference/cli-contract.md explains it for users).
 
     exit 0     done
     exit 2     the user can fix it: a missing, damaged or misfit input, an existing output without

@@ -1,6 +1,6 @@
 """The pipeline's thread policy, in one place, and worker processes for CPU-bound jobs.
 
-Measured on the shared 2-core machine (benchmarks/bench_threads.py, docs/perception.md): a small
+Measured on the shared 2-core machine (benchmarks/bench_threads.py, docs/results.md): a small
 network on two threads next to another busy process runs up to 10x slower than on one, because
 each of its many tiny kernels waits for a thread that is not scheduled. So:
 

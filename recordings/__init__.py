@@ -1,6 +1,6 @@
 """The recording layer: MCAP demonstration and trajectory files (numpy only, never torch).
 
-Public API (stable; see docs/recordings.md for the file contract):
+Public API (stable; see docs/reference/mcap-schema.md for the file contract):
 
     records      Episode, Demonstration, Trajectory, Event
     writing      DemonstrationWriter, TrajectoryWriter, write_demonstration, write_trajectory

@@ -35,7 +35,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="the CNEP's reconstruction term: the paper's gate-weighted NLL, the mixture likelihood, "
         "the annealed posterior assignment, or annealed with bounded rather than equal expert "
-        "shares, faded out (default bounded: docs/demo.md)",
+        "shares, faded out (default bounded: docs/concepts.md)",
     )
     parser.add_argument(
         "--precision",

@@ -27,7 +27,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="a few minutes: fewer training steps, one seed, the bimodal and 4-mode sets, 20 queries",
     )
     parser.add_argument(
-        "--seeds", type=int, default=None, help="seeds per cell (default 1; the full run of docs/evaluation.md uses 2)"
+        "--seeds",
+        type=int,
+        default=None,
+        help="seeds per cell (default 1; the paper's tables in docs/results.md use 2)",
     )
     parser.add_argument(
         "--steps",

@@ -148,7 +148,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "over the experts early in training, as sharp as the mixture's from 60%% of the steps on, "
         "the gate trained towards it at full strength, bounded = annealed with each expert's share "
         "kept within 0.5-1.5x an equal one instead of equal, faded out over 60-80%% of the steps; "
-        "the best model is kept from where the balancing ends; docs/model.md "
+        "the best model is kept from where the balancing ends; docs/concepts.md "
         f"(default {_default('assignment')}: commits on shared contexts, keeps the paper's accuracy)",
     )
     m.add_argument(

@@ -102,7 +102,7 @@ def heldout_errors(checkpoint: Path, heldout: list[Path], train_paths: list[Path
     The queries carry the demonstration's own features at each step when the layout has query columns.
     position_rmse_m: root mean squared xyz error (m) over all steps and demonstrations;
     position_rmse_median_m: the median over demonstrations of each one's RMSE (m), which one misread
-    frame does not move (a wrong expert costs ~20 cm on its demonstration, docs/demo.md); gripper_mae_m:
+    frame does not move (a wrong expert costs ~20 cm on its demonstration, docs/results.md); gripper_mae_m:
     mean absolute gripper error (m); behaviour_accuracy: the generated xyz path is nearest (mean
     distance) to a training demonstration of the held-out demonstration's behaviour.
     """

@@ -34,7 +34,7 @@ FRAME_HEIGHT = 120
 # The table is drawn top-down on a canvas, then seen by a camera at the robot's front right that looks
 # obliquely across the table (a homography): what stands nearer the camera looks bigger. The MobileNet
 # features are globally average-pooled, so they keep what is in the frame and how much of it, far
-# more than where it is; perspective turns "where" into "how big" (measured in docs/demo.md).
+# more than where it is; perspective turns "where" into "how big" (measured with the random-weight extractor).
 CANVAS_WIDTH = 320
 CANVAS_HEIGHT = 240
 # Frame pixels of the canvas corners top-left (far left), top-right, bottom-right (near right), bottom-left.

@@ -77,10 +77,10 @@ log = logging.getLogger(__name__)
 CNEP_EXPERTS = 4  # one per behaviour of the scene
 LAYOUT = SCENE  # queries carry no features: the behaviour reaches the experts through the context and the gate
 # The gate learns at the full learning rate here, not at the models' default fraction (0.3): measured with
-# 0.3 (4000 steps, seeds 0 and 1) two behaviours shared an expert (3 distinct of 4), also at 6000 steps (docs/demo.md).
+# 0.3 (4000 steps, seeds 0 and 1) two behaviours shared an expert (3 distinct of 4), also at 6000 steps.
 GATE_LR_SCALE = 1.0
 # The CNEP's reconstruction term (models.config.ASSIGNMENTS), as `cnep train`'s default. Measured on seeds 0-2
-# (docs/demo.md): "bounded" kept purity 1.00 on 4 experts and put 1.00 of the free-choice motions in a slot
+# (docs/results.md): "bounded" kept purity 1.00 on 4 experts and put 1.00 of the free-choice motions in a slot
 # (CNMP 0.55-0.70); the paper's term 0.55-0.75 (purity 0.63 for one behaviour on seed 2).
 ASSIGNMENT = "bounded"
 SUMMARY_FILE = "summary.json"

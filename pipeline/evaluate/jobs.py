@@ -6,7 +6,7 @@ driven in chunks of REPORT_STEPS so that the caller's progress moves while it tr
 model as one `fit` call). Network jobs of one shape and schedule on one set (`unit_key`: the seeds,
 loss ablations and assignments of one network) run as a unit of up to UNIT_NETWORKS, trained as one
 batched computation (models.batched.BatchedTrainer; each network bit-identical to training it alone,
-docs/evaluation.md "Speed" for what it saves). Every job of a (set, seed) builds the same data and the
+pipeline/evaluate/constants.py for what it saves). Every job of a (set, seed) builds the same data and the
 Every job of a (set, seed) builds the same data and the
 same queries from the seed, so all methods are scored on identical queries:
 

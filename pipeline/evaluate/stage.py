@@ -4,7 +4,7 @@ table (conditioned only on points several modes share) and figures, measured.
 Every table is a grid of rows (methods) by columns (synthetic sets). For each (set, seed) the
 baselines (ProMP, GMM-GMR with and without ridge, nearest demonstration) and every network the table
 needs (CNEP variants, the parameter-matched CNMP) are fitted and scored on the same queries under
-every protocol (see pipeline.evaluate.jobs and docs/evaluation.md). A network that several tables
+every protocol (see pipeline.evaluate.jobs and docs/concepts.md). A network that several tables
 use (e.g. the comparison's CNEP is the ablation's CNEP and CNEP-MoE) is trained once.
 
 Each cell is the mean +- std over all queries of all seeds (pooled), MSE and MAE, and the mode

@@ -31,7 +31,7 @@ PROTOCOL_TITLES = {
 }
 PAPER_NOTE = (
     "The paper's numbers are its Tables' MSE (mean ± std), measured by the authors' notebooks, which chose the "
-    "demonstration nearest to the generated trajectory and reported a mean absolute error (docs/evaluation.md); "
+    "demonstration nearest to the generated trajectory and reported a mean absolute error (docs/concepts.md); "
     "they are printed for reference, not as a like-for-like comparison."
 )
 

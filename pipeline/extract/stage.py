@@ -17,7 +17,7 @@ with its share of the cores (pipeline.workers.inference_threads) and the parent'
 worker costs seconds to start, measured by benchmarks/bench_extract.py). Under
 `torchrun` (environment RANK, WORLD_SIZE) rank r extracts every WORLD_SIZE-th file from the r-th on
 (its share; each rank calibrates random weights on the same frames, so all ranks share one weights
-hash); outputs are per file, so nothing is gathered (docs/perception.md).
+hash); outputs are per file, so nothing is gathered (docs/how-to/extract-features.md).
 """
 
 from __future__ import annotations
@@ -57,7 +57,7 @@ log = logging.getLogger(__name__)
 
 SUFFIX = ".mcap"
 # `workers="auto"`: frames per worker process. Measured (benchmarks/bench_extract.py, load 6-7 on 2 cores): a second
-# worker cost 15-18 s to start and paid from ~3700 frames at fp32, never at int8 (docs/perception.md).
+# worker cost 15-18 s to start and paid from ~3700 frames at fp32, never at int8 (docs/results.md).
 WORKER_MIN_FRAMES = 4000
 
 

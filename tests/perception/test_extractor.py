@@ -90,7 +90,7 @@ def test_calibrated_random_features_tell_scenes_apart(calibrated, six_scenes):
 
 
 def test_statistics_re_estimation_alone_separates_scenes_worse(calibrated, six_scenes):
-    # Why calibration also sets an activation bias: without it the network is chaotic (docs/perception.md).
+    # Why calibration also sets an activation bias: without it the network is chaotic (docs/concepts.md).
     extractor = FeatureExtractor("random", backend="eager", threads=1)
     recalibrate_batchnorm(extractor.net, [_pixels(np.concatenate(six_scenes[:2]))])
     with torch.inference_mode():

@@ -1,6 +1,6 @@
 """A team's own data through the whole pipeline: ingest -> extract -> train (tiny) -> replay, per input format.
 
-The commands are the ones docs/bring-your-own-data.md shows (with test-sized settings).
+The commands are the ones docs/how-to/lerobot-dataset.md and docs/how-to/ros-bag.md show (with test-sized settings).
 """
 
 from pathlib import Path

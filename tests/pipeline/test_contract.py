@@ -1,4 +1,4 @@
-"""The CLI contract (pipeline/contract.py, docs/cli.md), one test per row, driven over every subcommand.
+"""The CLI contract (pipeline/contract.py, docs/reference/cli-contract.md), one test per row, over every subcommand.
 
 Rows: a missing input, a damaged input, an existing output, a read-only output folder and an
 interruption each give their exit status (2, 2, 2, 2, 130) and one line on stderr, and leave no

@@ -137,7 +137,7 @@ def test_sets_restrict_every_table():
     assert {j.set_name for j in jobs} == {"multimodal6"}
 
 
-@pytest.mark.slow  # ~45 s on 2 cores: the CI run, four networks in two worker processes
+@pytest.mark.slow  # ~45 s on 2 cores: the CI run, four networks in two worker processes
 def test_quick_command_runs_the_comparison_on_two_sets(tmp_path):
     assert main(["-q", "evaluate", "--quick", "--out", str(tmp_path)]) == 0
     data = json.loads((tmp_path / "comparison.json").read_text())

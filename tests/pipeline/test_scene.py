@@ -213,7 +213,7 @@ def test_gripper_quaternion_round_trip():
 def test_random_weight_features_tell_the_behaviours_apart():
     """A linear read-out of calibrated random MobileNet features, fitted on some scenes, names the behaviour of others.
 
-    Raw feature distances are dominated by lighting and clutter (docs/demo.md); what the model can use
+    Raw feature distances are dominated by lighting and clutter; what the model can use
     is a direction in the standardised features, so this checks a ridge read-out on unseen scenes.
     """
     rng = np.random.default_rng(0)
