@@ -23,6 +23,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from cnep.outputs import write_atomically
 from cnep.perception.constants import BACKEND_MODULES, BACKENDS, CACHE_ENV_VAR, IMAGE_SIZE, ONNX_OPSET
 from cnep.perception.errors import PerceptionError
 
@@ -179,10 +180,8 @@ def write_cache_file(path: Path, data: bytes) -> None:
     file)."""
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-        tmp.write_bytes(data)
-        os.replace(tmp, path)
-    except OSError:  # a read-only cache only costs the export next time
+        write_atomically(path, data)
+    except OSError:  # a read-only or full cache only costs the export next time
         pass
 
 

@@ -10,11 +10,11 @@ name written into the extractor identity.
 from __future__ import annotations
 
 import hashlib
+import io
 import logging
 import os
 import re
 import sys
-import tempfile
 import urllib.error
 import urllib.request
 from dataclasses import dataclass
@@ -23,6 +23,7 @@ from pathlib import Path
 import torch
 from tqdm import tqdm
 
+from cnep.outputs import atomic_file, write_atomically
 from cnep.perception.constants import DOWNLOAD_TIMEOUT_S, IMAGENET_WEIGHT_FILES, OFFLINE_ENV_VAR, WEIGHTS_ENV_VAR
 from cnep.perception.errors import PerceptionError
 from cnep.perception.network import mobilenet_v2_features
@@ -110,7 +111,7 @@ def find_imagenet_weights(download: bool | None = None) -> Path:
 
 def download_weights(url: str, dst: Path, timeout_s: float = DOWNLOAD_TIMEOUT_S) -> Path:
     """Download `url` to `dst` as torchvision does: a progress bar, the sha256 prefix in the file name checked,
-    written to a temporary name in the same folder and renamed when complete. Returns `dst`.
+    written to a temporary name in the same folder and renamed when complete (cnep.outputs). Returns `dst`.
 
     The bar shows on a terminal only, and not when INFO logging is off (`cnep -q`); elsewhere one log line
     before and one after.
@@ -120,16 +121,10 @@ def download_weights(url: str, dst: Path, timeout_s: float = DOWNLOAD_TIMEOUT_S)
         f"put the file there yourself (from a machine with internet access), set {WEIGHTS_ENV_VAR} to "
         f"a copy of it, or choose weights `random` (seeded) explicitly"
     )
-    try:
-        dst.parent.mkdir(parents=True, exist_ok=True)
-        tmp = tempfile.NamedTemporaryFile(dir=dst.parent, prefix=f".{dst.name}.", suffix=".partial", delete=False)  # noqa: SIM115 (closed below)
-    except OSError as exc:
-        raise PerceptionError(
-            f"cannot write ImageNet weights into {dst.parent} ({exc.strerror}); {alternatives}"
-        ) from None
     digest = hashlib.sha256()
     try:
-        with tmp, urllib.request.urlopen(url, timeout=timeout_s) as response:
+        dst.parent.mkdir(parents=True, exist_ok=True)
+        with atomic_file(dst) as tmp, urllib.request.urlopen(url, timeout=timeout_s) as response:
             size = int(response.headers.get("Content-Length") or 0) or None
             log.info(
                 "downloading ImageNet weights %s (%s) into %s",
@@ -145,20 +140,17 @@ def download_weights(url: str, dst: Path, timeout_s: float = DOWNLOAD_TIMEOUT_S)
                     tmp.write(chunk)
                     digest.update(chunk)
                     bar.update(len(chunk))
-        if match and not digest.hexdigest().startswith(match.group(1)):
-            raise PerceptionError(
-                f"the download from {url} is corrupt: its sha256 {digest.hexdigest()[:16]}... does "
-                f"not start with {match.group(1)!r} as its name says; nothing was saved to {dst}; "
-                f"try again, or {alternatives}"
-            )
-        os.replace(tmp.name, dst)
+            if match and not digest.hexdigest().startswith(match.group(1)):
+                raise PerceptionError(
+                    f"the download from {url} is corrupt: its sha256 {digest.hexdigest()[:16]}... does "
+                    f"not start with {match.group(1)!r} as its name says; nothing was saved to {dst}; "
+                    f"try again, or {alternatives}"
+                )
     except (urllib.error.URLError, OSError) as exc:
         reason = getattr(exc, "reason", None) or exc.strerror or exc
         raise PerceptionError(
             f"cannot download ImageNet weights from {url} into {dst} ({reason}); {alternatives}"
         ) from None
-    finally:
-        Path(tmp.name).unlink(missing_ok=True)
     log.info("saved %s (sha256 %s...)", dst, digest.hexdigest()[:12])
     return dst
 
@@ -212,11 +204,14 @@ def load_state_dict(path: Path) -> dict[str, torch.Tensor]:
 
 
 def save_state_dict(state_dict: dict[str, torch.Tensor], path: Path) -> None:
-    """Write a `features` state dict as a torchvision-style file (keys `features.*`), atomically."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp")
-    torch.save({_FEATURES_PREFIX + k: v.detach().clone() for k, v in state_dict.items()}, tmp)
-    tmp.replace(path)
+    """Write a `features` state dict as a torchvision-style file (keys `features.*`), atomically.
+
+    Serialised in memory first: torch.save writing into a full disk fails with its own error, not the OSError
+    that names the file.
+    """
+    buffer = io.BytesIO()
+    torch.save({_FEATURES_PREFIX + k: v.detach().clone() for k, v in state_dict.items()}, buffer)
+    write_atomically(path, buffer.getvalue())
 
 
 def state_dict_sha256(state_dict: dict[str, torch.Tensor]) -> str:

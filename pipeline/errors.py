@@ -17,6 +17,7 @@ _PACKAGE_ERRORS = (
     ("cnep.models.errors", "ConfigError"),
     ("cnep.recordings.errors", "RecordingError"),
     ("cnep.perception.errors", "PerceptionError"),
+    ("cnep.outputs.errors", "OutputError"),
 )
 
 

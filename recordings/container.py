@@ -1,4 +1,4 @@
-"""Low-level MCAP file access: atomic output files, and a strict or salvaging reader of all records.
+"""Low-level MCAP file access: a strict or salvaging reader of all records, and the writer set-up.
 
 Reading loads the whole file and walks it record by record, validating the CRC of every chunk, of
 the data section, of attachments and of the summary, so a flipped byte anywhere is caught. Every
@@ -8,13 +8,10 @@ naming the file and saying whether it is truncated (fix: `cnep repair`) or corru
 
 from __future__ import annotations
 
-import contextlib
 import io
 import os
-import secrets
 import struct
 import zlib
-from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO
@@ -28,6 +25,7 @@ from mcap.records import Attachment, Channel, Chunk, DataEnd, Footer, Header, Me
 from mcap.stream_reader import get_chunk_data_stream
 from mcap.writer import CompressionType, Writer
 
+from cnep.outputs import atomic_file
 from cnep.recordings.constants import (
     CHUNK_SIZE_BYTES,
     COMPRESSION_BY_KIND,
@@ -57,33 +55,26 @@ CORRUPTION_ERRORS: tuple[type[BaseException], ...] = (
 )
 
 
-@contextlib.contextmanager
-def atomic_output(path: str | os.PathLike) -> Iterator[IO[bytes]]:
-    """Open a temporary file next to `path`; rename it to `path` only if the block completes.
+def mcap_library(path: str | os.PathLike) -> str | None:
+    """The `library` of the MCAP file's header (who wrote it), or None if `path` is no MCAP file with a header.
 
-    The file gets the usual permissions (0666 less the umask).
-    On any exception the temporary file is removed and `path` is left as it was.
+    Reads the first record only, so a file cut short after its header still tells who wrote it.
     """
-    target = Path(path)
-    if not target.parent.is_dir():
-        raise RecordingError(f"{target}: output folder {target.parent} does not exist; create it first")
-    tmp = str(target.parent / f".{target.name}.{secrets.token_hex(4)}.tmp")
-    try:  # 0666 less the umask, like any other file the user writes (mkstemp would give 0600)
-        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
-    except OSError as exc:
-        raise RecordingError(
-            f"{target}: cannot write in {target.parent} ({exc.strerror}); choose an output folder you can write to"
-        ) from None
     try:
-        with os.fdopen(fd, "wb") as stream:
-            yield stream
-            stream.flush()
-            os.fsync(stream.fileno())
-        os.replace(tmp, target)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
+        with open(path, "rb") as f:
+            head = f.read(64 * 1024)
+    except OSError:
+        return None
+    if not head.startswith(MCAP_MAGIC) or len(head) < len(MCAP_MAGIC) + _RECORD_HEAD.size:
+        return None
+    opcode, length = _RECORD_HEAD.unpack_from(head, len(MCAP_MAGIC))
+    body = len(MCAP_MAGIC) + _RECORD_HEAD.size
+    if opcode != Opcode.HEADER or body + length > len(head):
+        return None
+    try:
+        return Header.read(ReadDataStream(io.BytesIO(head[body : body + length]))).library
+    except CORRUPTION_ERRORS:
+        return None
 
 
 def refuse_overwrite_input(src: str | os.PathLike, dst: str | os.PathLike) -> None:
@@ -355,7 +346,7 @@ def rewrite_mcap(dst: str | os.PathLike, contents: McapContents) -> Path:
     """
     target = Path(dst)
     kind = contents.metadata.get(METADATA_EPISODE, {}).get("kind", "")
-    with atomic_output(target) as stream:
+    with atomic_file(target) as stream:
         writer = new_writer(stream, COMPRESSION_BY_KIND.get(kind, DEFAULT_COMPRESSION))
         for a in contents.attachments:
             writer.add_attachment(

@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from cnep.outputs import atomic_file
 from cnep.recordings.constants import (
     BLOCK_POSE_QUAT,
     BLOCK_POSE_XYZ,
@@ -47,7 +48,7 @@ from cnep.recordings.constants import (
     TOPIC_POSE,
     TOPIC_TRAJECTORY,
 )
-from cnep.recordings.container import atomic_output, new_writer
+from cnep.recordings.container import new_writer
 from cnep.recordings.errors import RecordingError
 from cnep.recordings.records import Demonstration, Episode, Trajectory
 from cnep.recordings.schemas import (
@@ -96,7 +97,7 @@ class _McapFile:
     def __init__(self, path: str | os.PathLike, kind: str, episode: Episode, attachments: Mapping[str, bytes]):
         self.path = Path(path)
         self._stack = ExitStack()
-        stream = self._stack.enter_context(atomic_output(self.path))
+        stream = self._stack.enter_context(atomic_file(self.path))
         self._schema_ids: dict[str, int] = {}
         self.channels: dict[str, int] = {}
         try:

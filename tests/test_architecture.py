@@ -1,6 +1,7 @@
 """The import rules of docs/architecture.md, read from the source (every import, also inside functions)."""
 
 import ast
+import sys
 from pathlib import Path
 
 import pytest
@@ -38,6 +39,17 @@ def stage_of(path: Path) -> str | None:
 def test_libraries_import_neither_pipeline_nor_each_other(package):
     forbidden = {"pipeline", *LIBRARIES} - {package}
     bad = [f"{p.relative_to(ROOT)}: {m}" for p, m in imports(package) if top(m) in forbidden]
+    assert not bad, bad
+
+
+def test_outputs_imports_no_other_part_of_cnep_and_only_the_standard_library_and_filelock():
+    project = {"pipeline", "outputs", *LIBRARIES}
+    bad = [
+        f"{p.relative_to(ROOT)}: {m}"
+        for p, m in imports("outputs")
+        if (m.startswith("cnep.") and top(m) in project - {"outputs"})
+        or (not m.startswith("cnep.") and top(m) not in sys.stdlib_module_names | {"filelock"})
+    ]
     assert not bad, bad
 
 

@@ -1,4 +1,4 @@
-"""The install maps the four root folders into one `cnep` namespace, and a user's own packages never shadow it."""
+"""The install maps the five root folders into one `cnep` namespace, and a user's own packages never shadow it."""
 
 import importlib
 import subprocess
@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-FOLDERS = ("models", "perception", "pipeline", "recordings")
+FOLDERS = ("models", "outputs", "perception", "pipeline", "recordings")
 STAGES = ("ingest", "extract", "train", "replay", "evaluate", "demo")
 
 

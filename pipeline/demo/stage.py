@@ -46,7 +46,7 @@ from pathlib import Path
 import numpy as np
 
 from cnep.models import TrainConfig
-from cnep.models.checkpoint import atomic_write
+from cnep.outputs import write_atomically
 from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_file_as_folder
 from cnep.pipeline.demo.figure import FIGURE_FILE, Scene, draw_summary
 from cnep.pipeline.demo.free_choice import gate_census, generated_ends, place_outcomes, replay_pick
@@ -197,7 +197,7 @@ def run_demo(config: DemoConfig) -> DemoResult:
         try:
             with _per_file_logs_quiet():
                 result = _run_stages(config, out, size, seconds)
-            atomic_write(out / SUMMARY_FILE, json.dumps(_jsonable(asdict(result)), indent=1).encode())
+            write_atomically(out / SUMMARY_FILE, json.dumps(_jsonable(asdict(result)), indent=1).encode())
         except BaseException:
             if fresh:  # the folder was new or empty: a failed or interrupted demo leaves nothing in it
                 for child in out.iterdir():

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cnep.models.checkpoint import atomic_write
+from cnep.outputs import write_atomically
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.evaluate.jobs import queries
 
@@ -74,4 +74,4 @@ def plot_set(
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", dpi=110)
     plt.close(fig)
-    atomic_write(path, buffer.getvalue())
+    write_atomically(path, buffer.getvalue())

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cnep.models.checkpoint import atomic_write
+from cnep.outputs import write_atomically
 from cnep.pipeline.evaluate.constants import PAPER, SET_TITLES
 
 TITLES = {
@@ -38,7 +38,7 @@ PAPER_NOTE = (
 
 def write_text(path: Path, text: str) -> None:
     """Write a text file atomically (temporary name in the same folder, then rename)."""
-    atomic_write(path, text.encode())
+    write_atomically(path, text.encode())
 
 
 def _pm(mean: float, std: float, digits: int) -> str:

@@ -31,7 +31,7 @@ import uuid
 from pathlib import Path
 
 from cnep.models import ConditioningPolicy
-from cnep.models.checkpoint import atomic_write
+from cnep.outputs import write_atomically
 from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_existing
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.replay.conditioning import DEFAULT_PREDICTION_POINTS, decide
@@ -143,7 +143,7 @@ def replay(
             "policy": {"window": policy.window, "anchors": policy.anchors},
             "recordings": summaries,
         }
-        atomic_write(decisions_path(out), json.dumps(record, indent=1).encode())
+        write_atomically(decisions_path(out), json.dumps(record, indent=1).encode())
         for part, file in zip(done, files):
             os.replace(part, file)
     for s in summaries:

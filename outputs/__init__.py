@@ -1,0 +1,39 @@
+"""How every cnep output is written: one run at a time per output, under temporary names, renamed when complete.
+
+    with output_lock(out_folder, folder=True):       # the run's exclusive lock (cnep.outputs.lock)
+        with atomic_file(out_folder / "a.mcap") as f:  # `.a.mcap.<pid>-<random>.tmp`, renamed when complete
+            f.write(data)
+
+Every package writes its files through `atomic_file` / `atomic_path` / `write_atomically`; the pipeline's
+stages hold `output_lock` on their outputs for the whole run, which also removes the temporary files that
+killed runs left there. This package imports no other part of cnep, so all of them may import it.
+"""
+
+from cnep.outputs.atomic import (
+    TEMPORARY,
+    atomic_file,
+    atomic_path,
+    is_stale_temporary,
+    pid_alive,
+    remove_stale_temporaries,
+    temporary_path,
+    write_atomically,
+)
+from cnep.outputs.errors import OutputError
+from cnep.outputs.lock import FOLDER_LOCK, is_lock_name, lock_path, output_lock
+
+__all__ = [
+    "FOLDER_LOCK",
+    "TEMPORARY",
+    "OutputError",
+    "atomic_file",
+    "atomic_path",
+    "is_lock_name",
+    "is_stale_temporary",
+    "lock_path",
+    "output_lock",
+    "pid_alive",
+    "remove_stale_temporaries",
+    "temporary_path",
+    "write_atomically",
+]

@@ -1,0 +1,134 @@
+"""Files written under a temporary name unique to the run, renamed into place when complete.
+
+The temporary name is `.<name>.<pid>-<random>.tmp` beside the target: hidden, in the same folder (so the
+rename is atomic), and naming the process that writes it, so that a later run can tell the leftovers of
+a killed run (its process is gone) from a file another live process is still writing.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import logging
+import os
+import re
+import secrets
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+from typing import IO
+
+log = logging.getLogger(__name__)
+
+TEMPORARY = re.compile(r"^\.(?P<name>.+)\.(?P<pid>\d+)-[0-9a-f]{6}\.tmp$")
+
+
+def temporary_path(target: Path) -> Path:
+    """A new temporary name for `target`, beside it: `.<name>.<pid>-<6 hex digits>.tmp`."""
+    return target.parent / f".{target.name}.{os.getpid()}-{secrets.token_hex(3)}.tmp"
+
+
+def _named(exc: OSError, target: Path) -> OSError:
+    """`exc` naming `target` when it names no file (a write or fsync on a full disk says only "No space left")."""
+    if exc.filename is not None or exc.errno is None:
+        return exc
+    return OSError(exc.errno, exc.strerror or os.strerror(exc.errno), str(target))
+
+
+@contextlib.contextmanager
+def atomic_file(target: str | os.PathLike) -> Iterator[IO[bytes]]:
+    """A binary stream on a temporary file beside `target`, renamed to `target` when the block completes.
+
+    The file gets 0666 less the umask, is flushed and fsynced before the rename, and is removed on any
+    exception (Ctrl-C and SIGTERM included), leaving `target` as it was. An OSError that names no file (a
+    full disk, a quota) is raised naming `target`. The target's folder must exist.
+    """
+    target = Path(target)
+    tmp = temporary_path(target)
+    try:
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+    except OSError as exc:
+        raise OSError(exc.errno, exc.strerror, str(target)) from None
+    try:
+        with os.fdopen(fd, "wb") as stream:
+            yield stream
+            stream.flush()
+            os.fsync(stream.fileno())
+        os.replace(tmp, target)
+    except OSError as exc:
+        _remove(tmp)
+        raise _named(exc, target) from None
+    except BaseException:
+        _remove(tmp)
+        raise
+
+
+@contextlib.contextmanager
+def atomic_path(target: str | os.PathLike) -> Iterator[Path]:
+    """A temporary path beside `target` for a writer that takes a path (a subprocess, a library's file sink).
+
+    When the block completes the file written there is renamed to `target` (an error if none was written);
+    on any exception it is removed.
+    """
+    target = Path(target)
+    tmp = temporary_path(target)
+    try:
+        yield tmp
+        if not tmp.is_file():
+            raise OSError(errno.ENOENT, "the writer left no file to rename into place", str(target))
+        os.replace(tmp, target)
+    except OSError as exc:
+        _remove(tmp)
+        raise _named(exc, target) from None
+    except BaseException:
+        _remove(tmp)
+        raise
+
+
+def write_atomically(target: str | os.PathLike, data: bytes) -> Path:
+    """Write `data` to `target` through `atomic_file`; returns the target."""
+    with atomic_file(target) as stream:
+        stream.write(data)
+    return Path(target)
+
+
+def _remove(path: Path) -> None:
+    with contextlib.suppress(OSError):
+        path.unlink()
+
+
+def pid_alive(pid: int) -> bool:
+    """True if a process with this id runs on this machine (a process of another user counts)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def is_stale_temporary(path: Path) -> bool:
+    """True for a temporary file (`temporary_path`) whose writing process no longer runs."""
+    match = TEMPORARY.match(path.name)
+    return match is not None and not pid_alive(int(match["pid"]))
+
+
+def remove_stale_temporaries(folder: Path, names: Iterable[str] | None = None, recursive: bool = False) -> int:
+    """Remove the temporary files of runs that no longer run: those of `names` in `folder` (None: of any name),
+    or with `recursive` everywhere under `folder`. Returns how many were removed (a note is logged)."""
+    if not folder.is_dir():
+        return 0
+    wanted = None if names is None else set(names)
+    candidates = folder.rglob(".*.tmp") if recursive else folder.glob(".*.tmp")
+    removed = 0
+    for path in candidates:
+        match = TEMPORARY.match(path.name)
+        if match is None or (wanted is not None and match["name"] not in wanted) or not path.is_file():
+            continue
+        if is_stale_temporary(path):
+            with contextlib.suppress(FileNotFoundError):
+                path.unlink()
+                removed += 1
+    if removed:
+        log.warning("%s: removed %d temporary file(s) left by an interrupted run", folder, removed)
+    return removed

@@ -1,0 +1,135 @@
+"""One run at a time per output: an exclusive lock held for the run, naming its holder to anyone refused.
+
+The lock is an OS-level lock (flock, through the `filelock` library) on a small file: `.<name>.lock` beside
+a file output (a checkpoint folder counts as one: it is renamed into place), `.cnep.lock` inside a folder
+that several files are written into. The operating system releases it when its holder dies, however it
+dies; the file itself says who holds it (process id, host, command, start time), so a refused run can
+name the live one, and a run that finds the file of a dead holder takes it over with a note. The file is
+removed when the run ends.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import json
+import logging
+import os
+import socket
+import sys
+import time
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+
+from cnep.outputs.atomic import remove_stale_temporaries
+from cnep.outputs.errors import OutputError
+
+log = logging.getLogger(__name__)
+
+FOLDER_LOCK = ".cnep.lock"
+_SIGNATURE = b'{"pid": '  # how the lock file's JSON starts (_holder's first key)
+
+
+def is_lock_name(name: str) -> bool:
+    """True for the name of a lock file (`lock_path`)."""
+    return name == FOLDER_LOCK or (name.startswith(".") and name.endswith(".lock"))
+
+
+def lock_path(output: Path, folder: bool) -> Path:
+    """Where the lock of `output` lives: inside it for a folder of outputs, beside it for a file (or checkpoint)."""
+    return output / FOLDER_LOCK if folder else output.parent / f".{output.name}.lock"
+
+
+def _holder() -> dict:
+    return {
+        "pid": os.getpid(),
+        "host": socket.gethostname(),
+        "command": " ".join([os.path.basename(sys.argv[0]) or "python", *sys.argv[1:]])[:300],
+        "started": time.strftime("%Y-%m-%d %H:%M:%S"),
+    }
+
+
+def _read_holder(path: Path) -> dict | None:
+    """The holder a lock file names: {} when it says nothing readable (yet), None when there is no file."""
+    try:
+        text = path.read_text(encoding="utf-8", errors="replace").strip()
+    except FileNotFoundError:
+        return None
+    except OSError:
+        return {}
+    try:
+        holder = json.loads(text)
+    except ValueError:
+        return {}
+    return holder if isinstance(holder, dict) else {}
+
+
+def _refuse_foreign(path: Path) -> None:
+    """OutputError if a file that is no cnep lock file sits where the lock goes (flock would write into it)."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(len(_SIGNATURE))
+    except (FileNotFoundError, IsADirectoryError, NotADirectoryError):
+        if path.is_dir():
+            raise OutputError(f"{path}: a folder is where the output's lock file goes; move it away") from None
+        return
+    if head and head != _SIGNATURE:
+        raise OutputError(
+            f"{path}: this file is where the output's lock file goes and is not a cnep lock file; move it "
+            f"away, or choose another output"
+        )
+
+
+def _describe(holder: dict) -> str:
+    if not holder:
+        return "a process that has not said who it is yet"
+    return (
+        f"pid {holder.get('pid')} on host {holder.get('host')}, `{holder.get('command')}`, "
+        f"since {holder.get('started')}"
+    )
+
+
+@contextlib.contextmanager
+def output_lock(output: str | os.PathLike, folder: bool = False, names: Iterable[str] | None = None) -> Iterator[Path]:
+    """Hold the exclusive lock on `output` for the block; yields the lock file's path.
+
+    folder: `output` is a folder that the run writes files into (it must exist); else a file or a
+    checkpoint folder, whose parent must exist. Another run holding the lock -> OutputError naming it.
+    Once the lock is held, the temporary files of dead runs are removed: everywhere under a folder output,
+    or those of `names` (default: the output's own name) beside a file output.
+    """
+    from filelock import FileLock, Timeout  # a dependency of torch, pinned in pyproject.toml
+
+    output = Path(output)
+    path = lock_path(output, folder)
+    if not path.parent.is_dir():  # filelock would create it, and leave it behind
+        raise OSError(errno.ENOENT, "no such folder", str(path.parent))
+    _refuse_foreign(path)  # before flock opens it: the holder writes into its lock file
+    lock = FileLock(str(path), timeout=0)
+    try:
+        lock.acquire()
+    except Timeout:
+        holder = _read_holder(path) or {}
+        same_host = holder.get("host") == socket.gethostname()
+        stop = f", or stop it (`kill {holder['pid']}`) and run again" if same_host and "pid" in holder else ""
+        raise OutputError(
+            f"{output}: another run is writing this output ({_describe(holder)}); wait for it to finish{stop}"
+        ) from None
+    except OSError as exc:
+        raise OSError(exc.errno, exc.strerror, str(path)) from None
+    try:
+        previous = _read_holder(path)
+        if previous and previous.get("pid") != os.getpid():
+            log.warning(
+                "%s: taking over the lock of a run that ended without releasing it (%s)", output, _describe(previous)
+            )
+        path.write_text(json.dumps(_holder()) + "\n", encoding="utf-8")
+        if folder:
+            remove_stale_temporaries(output, recursive=True)
+        else:
+            remove_stale_temporaries(output.parent, names if names is not None else [output.name])
+        yield path
+    finally:
+        with contextlib.suppress(OSError):
+            path.unlink()  # while still holding it: a waiting run then locks a new file, never this one
+        lock.release()
