@@ -1,8 +1,8 @@
 """Checkpoints as a directory: `config.json` + `model.safetensors` (no pickle).
 
 The normaliser's statistics are buffers of the model, so they are saved with the weights. Each file
-is written to a temporary name and renamed into place, so an interrupted save leaves the previous
-checkpoint intact. `config.json` carries the sha256 of its own content (`config_sha256`, over the
+is written to a temporary name and renamed into place (cnep.outputs), so an interrupted save leaves the
+previous checkpoint intact. `config.json` carries the sha256 of its own content (`config_sha256`, over the
 canonical JSON of every other entry), so an edited config (an expert count, the columns, the extractor
 identity the features must match) is refused instead of silently changing what the model means.
 """
@@ -11,43 +11,25 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
-import tempfile
 from pathlib import Path
 
 from cnep.models.cnep import CNEP
 from cnep.models.config import CNEPConfig
 from cnep.models.errors import ConfigError
+from cnep.outputs import write_atomically
 
 FORMAT_VERSION = 1
 CONFIG_FILE = "config.json"
 WEIGHTS_FILE = "model.safetensors"
 CHECKSUM_KEY = "config_sha256"
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
-def atomic_write(path: Path, data: bytes) -> None:
-    """Write `data` to `path` through a temporary file in the same folder and a rename.
-
-    The file gets the usual permissions (0666 less the umask), not mkstemp's private 0600.
-    """
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        os.fchmod(fd, 0o666 & ~_umask())
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+_JSON_KINDS = {
+    list: "a JSON array",
+    type(None): "JSON null",
+    str: "a JSON string",
+    bool: "a JSON boolean",
+    int: "a JSON number",
+    float: "a JSON number",
+}
 
 
 def save_checkpoint(model: CNEP, directory: str | Path, extra: dict | None = None) -> Path:
@@ -55,13 +37,14 @@ def save_checkpoint(model: CNEP, directory: str | Path, extra: dict | None = Non
     from safetensors.torch import save
 
     directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
     state = {k: v.detach().cpu().contiguous() for k, v in model.state_dict().items()}
-    atomic_write(directory / WEIGHTS_FILE, save(state, metadata={"format_version": str(FORMAT_VERSION)}))
+    write_atomically(directory / WEIGHTS_FILE, save(state, metadata={"format_version": str(FORMAT_VERSION)}))
     config = json.loads(
         json.dumps({"format_version": FORMAT_VERSION, "model": model.config.to_dict(), **(extra or {})})
     )
     config[CHECKSUM_KEY] = config_checksum(config)  # of the config as read back (tuples are lists there)
-    atomic_write(directory / CONFIG_FILE, json.dumps(config, indent=2).encode())
+    write_atomically(directory / CONFIG_FILE, json.dumps(config, indent=2).encode())
     return directory
 
 
@@ -79,6 +62,13 @@ def read_checkpoint_config(directory: str | Path) -> dict:
         raise ConfigError(f"{path}: no checkpoint config here; pass a directory written by `cnep train`.") from None
     except json.JSONDecodeError as exc:
         raise ConfigError(f"{path}: not valid JSON ({exc}).") from None
+    except UnicodeDecodeError:
+        raise ConfigError(f"{path}: not a text file; pass a directory written by `cnep train`.") from None
+    if not isinstance(config, dict):
+        raise ConfigError(
+            f"{path}: holds {_JSON_KINDS.get(type(config), 'a JSON value')}, not the checkpoint's settings (a JSON "
+            f"object); pass a directory written by `cnep train`, or retrain."
+        )
     version = config.get("format_version")
     if version != FORMAT_VERSION:
         raise ConfigError(

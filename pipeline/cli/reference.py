@@ -93,9 +93,9 @@ def main(argv: list[str]) -> None:
     if not argv:
         sys.stdout.write(render())
         return
-    from cnep.models.checkpoint import atomic_write
+    from cnep.outputs import write_atomically
 
-    atomic_write(Path(argv[0]), render().encode())
+    write_atomically(Path(argv[0]), render().encode())
 
 
 if __name__ == "__main__":

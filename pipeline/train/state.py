@@ -19,7 +19,7 @@ from pathlib import Path
 
 import torch
 
-from cnep.models.checkpoint import atomic_write
+from cnep.outputs import write_atomically
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.train.constants import STATE_FILE
 
@@ -60,7 +60,7 @@ def save_state(path: Path, state: dict) -> None:
     """torch.save `state` to `path` atomically."""
     buffer = io.BytesIO()
     torch.save({"state_version": STATE_VERSION, **state}, buffer)
-    atomic_write(path, buffer.getvalue())
+    write_atomically(path, buffer.getvalue())
 
 
 def load_state(path: Path) -> dict:
@@ -98,7 +98,7 @@ def check_same_run(saved: dict, current: dict, path: Path) -> None:
 def write_log(path: Path, history: list[dict]) -> None:
     """The validation history as JSON lines (one object per validation), atomically."""
     lines = [json.dumps({k: _jsonable(v) for k, v in entry.items()}) for entry in history]
-    atomic_write(path, ("\n".join(lines) + "\n" if lines else "").encode())
+    write_atomically(path, ("\n".join(lines) + "\n" if lines else "").encode())
 
 
 def publish(work: Path, out: Path) -> None:
