@@ -3,13 +3,16 @@
     exit 0     done
     exit 2     the user can fix it: a missing, damaged or misfit input, an existing output without
                --force, a folder that cannot be written, a `--keep-going` run that skipped inputs
-    exit 130   interrupted (Ctrl-C)
+    exit 130   interrupted (Ctrl-C, SIGINT)
+    exit 143   terminated (SIGTERM: `kill`, `docker stop`, systemd, Kubernetes, Slurm preemption)
     exit 1     a bug in cnep (anything else); the line says so, `-v` prints the traceback
 
 - Errors are one line on stderr, `cnep <cmd>: error: <path>: <problem>; <fix>` (`error_line`); no
   traceback for anything a user can cause, unless `-v` asks for it (`run_command`).
 - Outputs are never overwritten without `--force` (`refuse_existing`): ingest, extract, repair,
-  replay, train and demo alike. Inputs are never written.
+  replay, train and demo alike; `--force` replaces only what cnep wrote (`pipeline.ownership`), and
+  never an input or a folder holding one (`refuse_inputs`). Inputs are never written.
+- One run at a time per output: each command holds the output's lock for the run (`cnep.outputs`).
 - Nothing is left behind on failure: files are written to a temporary name and renamed when complete,
   and a folder a command created is removed again if it fails or is interrupted before anything
   landed in it (`output_folder`).
@@ -17,6 +20,9 @@
   ends with exit 2 and one line naming what was skipped (`raise_if_skipped`).
 - Files are written with the user's umask (0666 less the umask), like any other tool's.
 - A reader that stops reading (`cnep inspect A B | head -1`) ends the command quietly with exit 0.
+- SIGTERM is handled like Ctrl-C (`Terminated` is a KeyboardInterrupt), so every clean-up that runs on
+  Ctrl-C runs on it too; a block that must end at a safe point (a training step) defers both
+  (`deferred_interrupts`).
 """
 
 from __future__ import annotations
@@ -24,7 +30,9 @@ from __future__ import annotations
 import contextlib
 import errno
 import os
+import signal
 import sys
+import threading
 import traceback
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
@@ -35,6 +43,7 @@ EXIT_OK = 0
 EXIT_BUG = 1
 EXIT_USER = 2
 EXIT_INTERRUPTED = 130
+EXIT_TERMINATED = 128 + signal.SIGTERM  # 143, what a shell reports for a process that SIGTERM ended
 
 # errno -> what the user can do about an OSError on that path.
 _OS_FIXES = {
@@ -42,6 +51,9 @@ _OS_FIXES = {
     errno.EPERM: "choose a path you can write to, or change its permissions",
     errno.EROFS: "the file system is read-only; choose a path on another one",
     errno.ENOSPC: "free some disk space, or choose a path on another disk",
+    errno.EDQUOT: "your disk quota is used up; free some space, or choose a path on another disk",
+    errno.EFBIG: "the file is larger than this file system allows; choose a path on another one",
+    errno.EIO: "the disk reported an input/output error; check it, or choose a path on another disk",
     errno.ENOENT: "check the path",
     errno.EEXIST: "choose another path, or remove it",
     errno.EISDIR: "give a file path, not a folder",
@@ -58,19 +70,66 @@ def error_line(command: str, exc: BaseException) -> str:
     return f"cnep {command}: error: {' '.join(str(exc).split())}"
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised where Ctrl-C raises KeyboardInterrupt, so that whatever cleans up after Ctrl-C does so too."""
+
+
+def interruption(signum: int) -> KeyboardInterrupt:
+    """The exception that signal `signum` (SIGINT or SIGTERM) raises."""
+    return Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
+
+
+def _raise_interruption(signum: int, frame: object) -> None:
+    raise interruption(signum)
+
+
+@contextlib.contextmanager
+def _signals_raise(handler=_raise_interruption) -> Iterator[None]:
+    """SIGTERM (and SIGINT) call `handler` in the block; only the main thread can install handlers."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    saved = {signum: signal.signal(signum, handler) for signum in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for signum, previous in saved.items():
+            signal.signal(signum, previous)
+
+
+@contextlib.contextmanager
+def deferred_interrupts() -> Iterator[Callable[[], int | None]]:
+    """Record SIGINT and SIGTERM in the block instead of raising them; yields a poll of the signal received.
+
+    The block polls at its safe points (between training steps) and ends itself with `interruption(signum)`.
+    A second signal raises at once, so a block stuck between safe points can still be stopped.
+    """
+    received: list[int] = []
+
+    def record(signum: int, frame: object) -> None:
+        if received:
+            raise interruption(signum)
+        received.append(signum)
+
+    with _signals_raise(record):
+        yield lambda: received[0] if received else None
+
+
 def run_command(command: str, run: Callable[[], int | None], verbose: bool = False) -> int:
     """Run one subcommand under the contract; returns its exit status."""
     try:
-        return int(run() or EXIT_OK)
+        with _signals_raise():
+            return int(run() or EXIT_OK)
     except BrokenPipeError:
         _stdout_to_devnull()
         return EXIT_OK
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
+        how = "terminated (SIGTERM)" if isinstance(exc, Terminated) else "interrupted"
         print(
-            f"cnep {command}: interrupted; nothing half-written was kept, run the command again to finish",
+            f"cnep {command}: {how}; nothing half-written was kept, run the command again to finish",
             file=sys.stderr,
         )
-        return EXIT_INTERRUPTED
+        return EXIT_TERMINATED if isinstance(exc, Terminated) else EXIT_INTERRUPTED
     except Exception as exc:  # noqa: BLE001 - the contract: every failure is one line and an exit status
         user = isinstance(exc, (*loaded_user_errors(), OSError))
         if verbose:
@@ -93,19 +152,44 @@ def _stdout_to_devnull() -> None:
         os.dup2(devnull, sys.stdout.fileno())
 
 
-def refuse_existing(paths: Sequence[Path], force: bool, what: str = "output", why: str = "") -> None:
+def refuse_existing(
+    paths: Sequence[Path], force: bool, what: str = "output", why: str = "", kind: Callable[[Path], bool] | None = None
+) -> None:
     """Raise PipelineError if any of `paths` exists and `force` is not set (naming the first and the count).
 
+    With `force`, an existing path must be of `kind` (a `pipeline.ownership.OutputKind`: what the command
+    writes, recognised by content): `--force` replaces what cnep wrote, never a user's own file.
     `why` (e.g. " and was made from other weights") is said after "already exists".
     """
-    if force:
-        return
     existing = [Path(p) for p in paths if os.path.lexists(p)]
-    if existing:
+    if not existing:
+        return
+    if not force:
         more = f" (and {len(existing) - 1} more)" if len(existing) > 1 else ""
         raise PipelineError(
             f"{existing[0]}: the {what} already exists{why}{more}; add --force to replace it, or choose another output"
         )
+    foreign = [p for p in existing if kind is not None and (p.is_symlink() or not kind(p))]
+    if foreign:
+        more = f" (and {len(foreign) - 1} more)" if len(foreign) > 1 else ""
+        raise PipelineError(
+            f"{foreign[0]}: --force replaces only {getattr(kind, 'name', 'what cnep wrote')}, and this is not "
+            f"one{more}; cnep never deletes your own files: move it away, or choose another output"
+        )
+
+
+def refuse_inputs(outputs: Sequence[Path], inputs: Sequence[Path], option: str = "--out") -> None:
+    """Raise PipelineError if an output (a file, or a folder replaced as a whole) is an input or holds one."""
+    resolved = [(Path(i), Path(i).resolve()) for i in inputs]
+    for out in map(Path, outputs):
+        target = out.resolve()
+        for given, source in resolved:
+            if source == target or source.is_relative_to(target):
+                how = "is" if source == target else "holds"
+                raise PipelineError(
+                    f"{out}: this output {how} the input {given}, and cnep never replaces or deletes its inputs; "
+                    f"choose another {option}"
+                )
 
 
 def refuse_file_as_folder(folder: Path, option: str = "--out") -> None:

@@ -60,12 +60,31 @@ def torch_threads(threads: int = SMALL_MODEL_THREADS) -> Iterator[None]:
 @contextmanager
 def single_thread_processes(workers: int) -> Iterator[ProcessPoolExecutor]:
     """A pool of `workers` spawned processes whose BLAS and torch start with one thread each, with
-    SMALL_MODEL_MALLOC's allocator settings."""
+    SMALL_MODEL_MALLOC's allocator settings (`process_pool`: stopped when the block fails)."""
     with (
         environment({**dict.fromkeys(THREAD_VARIABLES, "1"), **SMALL_MODEL_MALLOC}),
-        ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool,
+        process_pool(workers) as pool,
     ):
         yield pool
+
+
+@contextmanager
+def process_pool(workers: int, initializer=None, initargs: tuple = ()) -> Iterator[ProcessPoolExecutor]:
+    """A pool of `workers` spawned processes. When the block fails or is interrupted (Ctrl-C, SIGTERM), the jobs
+    not started are dropped and the workers are stopped and waited for, instead of every queued job running
+    first; a worker stopped while writing leaves only a temporary file, which the output's next run removes."""
+    pool = ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=initializer, initargs=initargs)
+    try:
+        yield pool
+    except BaseException:
+        processes = list((pool._processes or {}).values())  # no public way to stop the workers before Python 3.14
+        pool.shutdown(wait=False, cancel_futures=True)
+        for process in processes:
+            process.terminate()
+        for process in processes:
+            process.join()
+        raise
+    pool.shutdown(wait=True)
 
 
 def thread_environment(threads: int):

@@ -26,9 +26,8 @@ import logging
 import math
 import os
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor, as_completed
+from concurrent.futures import ThreadPoolExecutor, as_completed
 from dataclasses import dataclass
-from multiprocessing import get_context
 from pathlib import Path
 
 import numpy as np
@@ -42,7 +41,7 @@ from cnep.perception.weights import find_imagenet_weights
 from cnep.pipeline.contract import output_folder, raise_if_skipped, refuse_existing
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.progress import progress_bar
-from cnep.pipeline.workers import cpu_cores, inference_threads, thread_environment
+from cnep.pipeline.workers import cpu_cores, inference_threads, process_pool, thread_environment
 from cnep.recordings import (
     DemonstrationReader,
     RecordingError,
@@ -233,9 +232,7 @@ def extract_in_processes(
     done = {}
     with (
         thread_environment(threads),
-        ProcessPoolExecutor(
-            workers, mp_context=get_context("spawn"), initializer=_set_worker_extractor, initargs=(shared, threads)
-        ) as pool,
+        process_pool(workers, initializer=_set_worker_extractor, initargs=(shared, threads)) as pool,
     ):
         futures = {pool.submit(_extract_in_worker, src, dst): (key, src) for key, (src, dst) in zip(keys, pairs)}
         for future in as_completed(futures):
