@@ -28,7 +28,15 @@ class Normaliser(nn.Module):
         rows = np.concatenate([np.asarray(t, dtype=np.float64) for t in trajectories], axis=0)
         if rows.shape[1] != self.loc.numel():
             raise ConfigError(f"Normaliser expects {self.loc.numel()} columns, got trajectories with {rows.shape[1]}.")
-        std = rows.std(axis=0)
+        with np.errstate(over="ignore", invalid="ignore"):  # reported below, naming the column
+            std = rows.std(axis=0)
+        if not np.isfinite(std).all():
+            col = int(np.flatnonzero(~np.isfinite(std))[0])
+            largest = np.abs(rows[:, col]).max()
+            raise ConfigError(
+                f"Column {col} holds values too large to normalise (largest magnitude {largest:.3g}); the "
+                f"trajectories hold a value far outside the others."
+            )
         self.loc.copy_(torch.from_numpy(rows.mean(axis=0)))
         self.scale.copy_(torch.from_numpy(np.where(std > 1e-8 * (1 + np.abs(rows).max(axis=0)), std, 1.0)))
         return self

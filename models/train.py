@@ -33,6 +33,9 @@ from cnep.models.sampler import Batch, TrajectoryStack, sample_batch
 log = logging.getLogger(__name__)
 
 VAL_BATCHES = 8  # fixed validation batches, drawn once
+# A validation error (mean squared, normalised units) above this means training diverged: predicting the training
+# mean scores about 1 there, and an untrained network a few units.
+DIVERGED_ERROR = 1e3
 VAL_BATCH_SIZE = 64
 # `fit` without validation trajectories holds VAL_FRACTION of them out, but only from this many on:
 # below it a held-out fifth would take whole behaviours away (two Baxter demonstrations would train on one).
@@ -105,6 +108,7 @@ class Trainer:
     best_state: dict = field(default_factory=dict)
     best_step: int = 0
     history: list[dict] = field(default_factory=list)
+    diverged: str | None = None  # why training stopped on a validation error that is not finite or far too large
 
     def __post_init__(self) -> None:
         self.cfg = self.cfg.for_assignment(self.model.config.assignment)
@@ -159,7 +163,7 @@ class Trainer:
         self.model.eval()
         error = float(np.mean([wta_error(self.model, b.to(self.device)) for b in self.val_batches]))
         self.model.train()
-        if error < self.best_error and self.step >= self.keep_from:
+        if error < self.best_error and error <= DIVERGED_ERROR and self.step >= self.keep_from:
             self.best_error, self.best_step = error, self.step
             self.best_state = copy.deepcopy(self.model.state_dict())
         return error
@@ -174,6 +178,7 @@ class Trainer:
             "best_state": self.best_state,
             "best_step": self.best_step,
             "history": self.history,
+            "diverged": self.diverged,
         }
 
     def load_state_dict(self, state: dict) -> None:
@@ -182,6 +187,7 @@ class Trainer:
         self.generator.set_state(state["generator"])
         self.step, self.best_error = state["step"], state["best_error"]
         self.best_state, self.history = state["best_state"], state["history"]
+        self.diverged = state.get("diverged")
         if "best_step" in state:
             self.best_step = state["best_step"]
         elif self.history:  # saved before best_step was recorded: every validation could be kept then
@@ -218,12 +224,23 @@ class Trainer:
         terms.update(step=self.step, val_error=self.validate())
         self.history.append(terms)
         log.debug("step %d %s", self.step, terms)
+        if not (
+            math.isfinite(terms["val_error"]) and terms["val_error"] <= DIVERGED_ERROR and math.isfinite(terms["loss"])
+        ):
+            self.diverged = (
+                f"at step {self.step} the training loss is {terms['loss']:.3g} and the validation error "
+                f"{terms['val_error']:.3g} (normalised units, where predicting the training mean scores about 1)"
+            )
+            log.info("stopped at step %d: training diverged", self.step)
+            return True
         if self.should_stop():
             log.info("early stop at step %d: no improvement in %d validations", self.step, self.cfg.patience)
             return True
         return False
 
     def should_stop(self) -> bool:
+        if self.diverged is not None:
+            return True
         p = self.cfg.patience
         if p is None or len(self.history) <= p:
             return False
@@ -269,6 +286,11 @@ def prepare_fit(
 def finish_fit(trainer: Trainer, split: dict) -> tuple[CNEP, list[dict]]:
     """`fit`'s result from a trained Trainer: its best model in eval mode and the history with the split."""
     model = trainer.model
+    if not trainer.best_state:
+        raise ConfigError(
+            f"Training diverged before any validation could be kept ({trainer.diverged}); lower the learning rate "
+            f"(lr {trainer.cfg.lr}), or look for values far outside the others in the trajectories."
+        )
     model.load_state_dict(trainer.best_state)
     model.eval()
     return model, [{**record, **split} for record in trainer.history]

@@ -105,6 +105,17 @@ def gather(procs: Processes, value: Any) -> list[Any]:
     return out
 
 
+def any_rank_signal(procs: Processes, signum: int | None) -> int | None:
+    """The signal any rank received (this rank's own if it has one), so that every rank stops after the same step;
+    one all-reduce of a number per call under torchrun."""
+    if not procs.distributed:
+        return signum
+    on = torch.device("cuda", torch.cuda.current_device()) if dist.get_backend() == "nccl" else torch.device("cpu")
+    flag = torch.tensor([signum or 0], device=on)
+    dist.all_reduce(flag, op=dist.ReduceOp.MAX)
+    return signum or (int(flag.item()) or None)
+
+
 class PlacedModel:
     """The CNEP as `models.Trainer` drives it: run on `device`, through DistributedDataParallel under torchrun.
 

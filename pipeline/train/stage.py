@@ -16,13 +16,17 @@ best step and error), `model.safetensors` and `training_log.jsonl` (one line per
 
 from __future__ import annotations
 
+import hashlib
 import json
 import logging
+import shutil
 import time
 from collections.abc import Callable
+from contextlib import ExitStack
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+import numpy as np
 import torch
 from tqdm import tqdm
 
@@ -31,6 +35,7 @@ from cnep.models.matched import matched_cnmp
 from cnep.models.sampler import TrajectoryStack
 from cnep.models.train import split_validation
 from cnep.pipeline import progress
+from cnep.pipeline.contract import deferred_interrupts, interruption
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.train.constants import (
     DEFAULT_DEVICE,
@@ -45,6 +50,7 @@ from cnep.pipeline.train.data import TrainingSet, find_trajectory_files, load_tr
 from cnep.pipeline.train.parallel import (
     PlacedModel,
     Processes,
+    any_rank_signal,
     from_main,
     gather,
     rank_seed,
@@ -52,7 +58,14 @@ from cnep.pipeline.train.parallel import (
     stop_processes,
 )
 from cnep.pipeline.train.presets import TrainingColumns, resolve_preset
-from cnep.pipeline.train.state import check_same_run, prepare_work_dir, publish, save_state, work_dir, write_log
+from cnep.pipeline.train.state import (
+    check_same_run,
+    prepare_work_dir,
+    publish,
+    save_state,
+    work_dir,
+    write_log,
+)
 from cnep.pipeline.workers import SMALL_MODEL_THREADS, torch_threads
 
 log = logging.getLogger(__name__)
@@ -108,12 +121,24 @@ class StageTrainer(Trainer):
     """
 
     on_step: Callable[[Trainer, dict], None] | None = None
+    interrupted: Callable[[], int | None] | None = None  # the signal to stop on at the end of a step, if any
+    stopped_between_steps: bool = False
 
     def train_step(self) -> dict[str, float]:
         terms = super().train_step()
         if self.on_step is not None:
             self.on_step(self, terms)
         return terms
+
+    def after_step(self, terms: dict) -> bool:
+        """The Trainer's validation and early stop, then a Ctrl-C or SIGTERM received during the step is raised:
+        here, between steps, the state is the one an uninterrupted run has at this step."""
+        stop = super().after_step(terms)
+        signum = self.interrupted() if self.interrupted is not None else None
+        if signum is not None:
+            self.stopped_between_steps = True
+            raise interruption(signum)
+        return stop
 
 
 def train(config: TrainStageConfig) -> Path:
@@ -124,8 +149,8 @@ def train(config: TrainStageConfig) -> Path:
     """
     procs, device = start_processes(config.device)
     try:
-        with torch_threads(SMALL_MODEL_THREADS):
-            out = _train(config, procs, device)
+        with torch_threads(SMALL_MODEL_THREADS), ExitStack() as held:
+            out = _train(config, procs, device, held)
     except BaseException:
         stop_processes(procs, wait=False)  # the other ranks may never reach a barrier
         raise
@@ -133,7 +158,8 @@ def train(config: TrainStageConfig) -> Path:
     return out
 
 
-def _train(config: TrainStageConfig, procs: Processes, device: torch.device) -> Path:
+def _train(config: TrainStageConfig, procs: Processes, device: torch.device, held: ExitStack) -> Path:
+    """The run; rank 0 claims OUT into `held` (its folder and lock, released when the run ends)."""
     data = load_training_set(find_trajectory_files(config.inputs))
     layout = resolve_preset(config.layout, data.width, data.files[0].path)
     model_config = CNEPConfig(
@@ -148,9 +174,12 @@ def _train(config: TrainStageConfig, procs: Processes, device: torch.device) -> 
         model_config = matched_cnmp(model_config)
     train_idx, val_idx = split_validation(list(range(len(data.files))), config.val_fraction, config.training.seed)
     identity = run_identity(config, data, layout, model_config, train_idx, val_idx, procs)
-    saved = from_main(procs, lambda: prepare_work_dir(config.out, config.resume, config.force))
+    inputs = [f.path for f in data.files]
+    saved = from_main(procs, lambda: prepare_work_dir(config.out, config.resume, config.force, inputs, held))
     if saved is not None:
         check_same_run(saved["identity"], identity, work_dir(config.out) / STATE_FILE)
+    if procs.is_main:
+        warn_identical(data, train_idx, val_idx)
 
     rows = [layout.select(f.data) for f in data.files]  # (T_i, model width) each
     train_rows, val_rows = [rows[i] for i in train_idx], [rows[i] for i in val_idx]
@@ -177,23 +206,29 @@ def _train(config: TrainStageConfig, procs: Processes, device: torch.device) -> 
 
     work, cfg = work_dir(config.out), config.training
     clock = time.perf_counter() - elapsed  # training time (s) counts across resumes, reading the files does not
-    with progress_bar(trainer, disabled=config.quiet or not procs.is_main) as bar:
+    with progress_bar(trainer, disabled=config.quiet or not procs.is_main) as bar, deferred_interrupts() as received:
         trainer.on_step = lambda stepped, terms: report_step(bar, stepped, terms, time.perf_counter() - clock)
+        trainer.interrupted = lambda: any_rank_signal(procs, received())
         try:
             while trainer.step < cfg.steps and not trainer.should_stop():
                 trainer.run(progress=False, until=(trainer.step // config.save_every + 1) * config.save_every)
+                if trainer.diverged is not None:
+                    break
                 save_progress(trainer, procs, work, {"identity": identity, "elapsed_s": time.perf_counter() - clock})
         except KeyboardInterrupt:
+            if trainer.stopped_between_steps:  # every rank stopped after the same step: its state resumes exactly
+                save_progress(trainer, procs, work, {"identity": identity, "elapsed_s": time.perf_counter() - clock})
             if procs.is_main:
                 log.warning(
-                    "interrupted at step %d; the state saved every %d steps is in %s: add --resume to the same "
-                    "command to continue",
+                    "interrupted at step %d; the state %s is in %s: add --resume to the same command to continue",
                     trainer.step,
-                    config.save_every,
+                    "of this step" if trainer.stopped_between_steps else f"saved every {config.save_every} steps",
                     work,
                 )
             raise
     elapsed = time.perf_counter() - clock
+    if trainer.diverged is not None and procs.is_main:
+        diverged(trainer, config, saved is None)
 
     if procs.is_main:
         model.load_state_dict(trainer.best_state)
@@ -216,6 +251,44 @@ def _train(config: TrainStageConfig, procs: Processes, device: torch.device) -> 
             config.out,
         )
     return config.out
+
+
+def diverged(trainer: Trainer, config: TrainStageConfig, fresh: bool) -> None:
+    """Training stopped on a validation error that is not finite or far too large (models.train.DIVERGED_ERROR):
+    with weights kept from before, they become the checkpoint, with a warning; without, PipelineError (and a fresh
+    run's work folder, useless now, goes)."""
+    fix = (
+        f"lower --lr (now {config.training.lr:g}), or look for values far outside the others in the inputs "
+        f"(`cnep inspect`)"
+    )
+    if trainer.best_state:
+        log.warning(
+            "training diverged (%s); keeping the best weights, from step %d: %s",
+            trainer.diverged,
+            trainer.best_step,
+            fix,
+        )
+        return
+    if fresh:
+        shutil.rmtree(work_dir(config.out), ignore_errors=True)
+    raise PipelineError(f"{config.out}: training diverged before any weights could be kept ({trainer.diverged}); {fix}")
+
+
+def warn_identical(data: TrainingSet, train_idx: list[int], val_idx: list[int]) -> None:
+    """Warn when every validation demonstration holds the same rows as a training one: the validation error then
+    measures the training set, and early stopping and the best weights cannot see overfitting."""
+    trained = {_rows_digest(data.files[i].data) for i in train_idx}
+    copies = [str(data.files[i].path) for i in val_idx if _rows_digest(data.files[i].data) in trained]
+    if copies and len(copies) == len(val_idx):
+        log.warning(
+            "the validation demonstration(s) %s hold the same rows as training ones: the validation error measures "
+            "the training set; give distinct demonstrations",
+            ", ".join(copies),
+        )
+
+
+def _rows_digest(rows: np.ndarray) -> str:
+    return hashlib.sha256(np.ascontiguousarray(rows).tobytes()).hexdigest()
 
 
 def save_progress(trainer: Trainer, procs: Processes, work: Path, extra: dict) -> None:

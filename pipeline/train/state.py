@@ -1,11 +1,11 @@
 """The train stage's files while it runs: the work folder, the resumable state and the JSON-lines log.
 
-A run works in `.<OUT name>.partial/` beside OUT. Every `save_every` steps rank 0 writes there
-`state.pt` (torch.save of the Trainer's state: model, optimiser, batch generators of every rank, step,
-best weights, history; plus the run's identity) and `training_log.jsonl`, each atomically (temporary
-name + rename), so a kill at any moment leaves the previous state readable. When training ends the
-checkpoint files are written into the work folder, which is then renamed to OUT.
-"""
+A run holds the lock on OUT (`cnep.outputs`) and works in `.<OUT name>.partial/` beside OUT. Every
+`save_every` steps, and when it is interrupted (Ctrl-C, SIGTERM), rank 0 writes there `state.pt`
+(torch.save of the Trainer's state: model, optimiser, batch generators of every rank, step, best
+weights, history; plus the run's identity) and `training_log.jsonl`, each atomically (temporary name +
+rename), so a kill at any moment leaves the previous state readable. When training ends the
+checkpoint files are written into the work folder, which is then renamed to OUT."""
 
 from __future__ import annotations
 
@@ -13,14 +13,17 @@ import io
 import json
 import logging
 import math
-import os
 import shutil
+from collections.abc import Sequence
+from contextlib import ExitStack
 from pathlib import Path
 
 import torch
 
-from cnep.outputs import write_atomically
+from cnep.outputs import output_lock, remove_stale_temporaries, write_atomically
+from cnep.pipeline.contract import output_folder, refuse_existing, refuse_inputs
 from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.ownership import CHECKPOINT, foreign_files
 from cnep.pipeline.train.constants import STATE_FILE
 
 log = logging.getLogger(__name__)
@@ -33,20 +36,40 @@ def work_dir(out: Path) -> Path:
     return out.parent / f".{out.name}.partial"
 
 
-def prepare_work_dir(out: Path, resume: bool, force: bool) -> dict | None:
-    """Check OUT and the work folder for a run; returns the saved state to resume from (None: start at step 0)."""
+def replaced_dir(out: Path) -> Path:
+    """Where the checkpoint that `--force` replaces waits while the new one is renamed into place (`publish`)."""
+    return out.parent / f".{out.name}.replaced"
+
+
+def prepare_work_dir(out: Path, resume: bool, force: bool, inputs: Sequence[Path], held: ExitStack) -> dict | None:
+    """Claim OUT for this run and check OUT and the work folder; returns the saved state to resume from (None: start
+    at step 0).
+
+    Enters into `held`, for the run: the missing folders above OUT (removed again if the run fails before anything
+    lands in them) and the lock on OUT (`cnep.outputs.output_lock`), which refuses a second run into OUT.
+    """
     work = work_dir(out)
+    refuse_inputs([out, work], inputs)
+    held.enter_context(output_folder(out.parent))
+    held.enter_context(output_lock(out))
+    remove_stale_temporaries(work)
+    _recover_replaced(out)
     if out.exists() and not force:
         raise PipelineError(
             f"{out} already exists; choose another --out, or add --force to replace it when the new run completes"
         )
+    refuse_existing([out], force, "checkpoint", kind=CHECKPOINT)
     if not resume:
-        if work.exists():
+        if (work / STATE_FILE).is_file():
             raise PipelineError(
                 f"{work} holds an unfinished run for {out}; add --resume to continue it, or delete "
                 f"that folder to start again"
             )
-        work.mkdir(parents=True)
+        if work.exists():  # stopped before its first save: nothing in it can be resumed
+            log.warning("%s: removing the work folder of a run that stopped before saving anything", work)
+            _remove_work_dir(work)
+        work.mkdir()
+        held.push(_remove_if_failed(out))
         return None
     if not work.is_dir():
         raise PipelineError(f"nothing to resume: {work} does not exist; run without --resume to start training")
@@ -54,6 +77,44 @@ def prepare_work_dir(out: Path, resume: bool, force: bool) -> dict | None:
         log.warning("%s has no saved state yet (stopped before the first save): starting at step 0", work)
         return None
     return load_state(work / STATE_FILE)
+
+
+def _remove_work_dir(work: Path) -> None:
+    """Delete a work folder, which holds only what a training run wrote (refused otherwise)."""
+    foreign = foreign_files(work)
+    if foreign:
+        raise PipelineError(
+            f"{foreign[0]}: the work folder {work} holds a file that training did not write; move it away, or "
+            f"choose another --out"
+        )
+    shutil.rmtree(work)
+
+
+def _recover_replaced(out: Path) -> None:
+    """After a run killed while publishing: put the replaced checkpoint back if OUT is missing, else drop it."""
+    old = replaced_dir(out)
+    if not old.is_dir() or old.is_symlink():
+        return
+    if out.exists():
+        log.warning("%s: removing the checkpoint a finished run replaced", old)
+        shutil.rmtree(old)
+    else:
+        log.warning("%s: a run was stopped while replacing %s; restoring the previous checkpoint", old, out)
+        old.rename(out)
+
+
+def _remove_if_failed(out: Path):
+    """An exit callback: when a fresh run fails (not when it is interrupted, which saves its state), its work folder
+    goes unless it holds a saved state to resume from, so that nothing blocks the next run."""
+
+    def remove(exc_type, exc, tb) -> bool:
+        work = work_dir(out)
+        failed = exc_type is not None and not issubclass(exc_type, KeyboardInterrupt)
+        if failed and work.is_dir() and not (work / STATE_FILE).is_file():
+            _remove_work_dir(work)
+        return False
+
+    return remove
 
 
 def save_state(path: Path, state: dict) -> None:
@@ -103,15 +164,13 @@ def write_log(path: Path, history: list[dict]) -> None:
 
 def publish(work: Path, out: Path) -> None:
     """Rename the finished work folder to `out` (replacing an existing `out`), then drop the resumable state."""
-    old = out.parent / f".{out.name}.replaced"
+    old = replaced_dir(out)
     if out.exists():
         out.rename(old)
     work.rename(out)
     (out / STATE_FILE).unlink(missing_ok=True)
     if old.is_dir() and not old.is_symlink():
         shutil.rmtree(old)
-    elif os.path.lexists(old):  # --force replaced a file
-        old.unlink()
 
 
 def _jsonable(value):

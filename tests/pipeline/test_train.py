@@ -1,5 +1,7 @@
 import hashlib
 import json
+import os
+import signal
 from dataclasses import replace
 from pathlib import Path
 
@@ -12,6 +14,7 @@ from cnep.models import TrainConfig, Trainer, load_checkpoint, read_checkpoint_c
 from cnep.models.loss import settled_fraction
 from cnep.models.sampler import TrajectoryStack
 from cnep.pipeline.cli.main import main
+from cnep.pipeline.contract import Terminated
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.train.constants import LOG_FILE, STATE_FILE
 from cnep.pipeline.train.parallel import rank_seed
@@ -173,9 +176,15 @@ def test_existing_output_is_refused_unless_forced(full_set, tmp_path):
     (out / "keep.txt").write_text("mine")
     with pytest.raises(PipelineError, match="already exists.*--force"):
         train(stage_config(full_set, out, steps=10))
-    assert (out / "keep.txt").read_text() == "mine"
-    train(stage_config(full_set, out, steps=10, force=True))
+    with pytest.raises(PipelineError, match="--force replaces only a checkpoint folder written by `cnep train`"):
+        train(stage_config(full_set, out, steps=10, force=True))  # a folder of the user's own files is never deleted
+    assert (out / "keep.txt").read_text() == "mine" and not work_dir(out).exists()
+    (out / "keep.txt").unlink()
+    train(stage_config(full_set, out, steps=10, force=True))  # an empty folder: nothing to lose
+    before = (out / "config.json").read_bytes()
+    train(stage_config(full_set, out, steps=12, force=True))  # a checkpoint it wrote is replaced
     assert sorted(p.name for p in out.iterdir()) == sorted(["config.json", LOG_FILE, "model.safetensors"])
+    assert (out / "config.json").read_bytes() != before and not any(p.name.startswith(".") for p in tmp_path.iterdir())
 
 
 def interrupt_at(monkeypatch, step: int) -> None:
@@ -218,6 +227,51 @@ def test_resume_after_interruption_gives_the_same_weights(full_set, tmp_path, mo
         for d in (whole, out)
     ]
     assert logs[0] == logs[1]
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])
+def test_a_signal_saves_the_step_it_arrived_in_and_resume_loses_nothing(full_set, tmp_path, monkeypatch, signum):
+    """A polite kill (preemption) in the middle of step 26: the run ends after that step, saving its state, and the
+    resumed run reaches the weights of an uninterrupted one."""
+    whole = train(stage_config(full_set, tmp_path / "whole", steps=40))
+    out = tmp_path / "resumed"
+    original = StageTrainer.train_step
+
+    def train_step(self):
+        if self.step == 25:
+            os.kill(os.getpid(), signum)  # delivered while the step runs
+        return original(self)
+
+    with monkeypatch.context() as patch:
+        patch.setattr(StageTrainer, "train_step", train_step)
+        with pytest.raises(Terminated if signum == signal.SIGTERM else KeyboardInterrupt):
+            train(stage_config(full_set, out, steps=40))
+    assert torch.load(work_dir(out) / STATE_FILE, weights_only=True)["trainer"]["step"] == 26
+    train(stage_config(full_set, out, steps=40, resume=True))
+    expected, got = load_file(whole / "model.safetensors"), load_file(out / "model.safetensors")
+    assert all(torch.equal(expected[key], got[key]) for key in expected)
+
+
+def test_training_that_diverges_stops_with_one_line_and_leaves_nothing(full_set, tmp_path, capsys):
+    code = main(
+        ["-q", "train", *map(str, full_set), "--out", str(tmp_path / "ckpt"), "--layout", "motion"]
+        + ["--steps", "40", "--val-every", "10", "--lr", "1e8", "--encoder-widths", "8", "--expert-widths", "8"]
+    )
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1, err
+    assert "training diverged before any weights could be kept (at step 10" in err[0] and "lower --lr" in err[0]
+    assert [p.name for p in tmp_path.iterdir()] == ["full"]  # the inputs only
+
+
+def test_training_that_diverges_late_keeps_the_best_weights_and_warns(full_set, tmp_path, monkeypatch, caplog):
+    original = StageTrainer.validate
+    monkeypatch.setattr(StageTrainer, "validate", lambda self: float("nan") if self.step == 30 else original(self))
+    config = stage_config(full_set, tmp_path / "ckpt", steps=40, assignment="paper")  # keeps the best from step 0
+    with caplog.at_level("WARNING"):
+        out = train(config)
+    assert "training diverged (at step 30 the training loss is" in caplog.text
+    result = read_checkpoint_config(out)["result"]
+    assert result["best_step"] == 20 and result["steps_run"] == 30 and result["stopped_early"]
 
 
 def test_resume_without_a_run_is_refused(full_set, tmp_path):
