@@ -128,8 +128,9 @@ def run(args: argparse.Namespace) -> int:
     )
     done = ingest(config)
     with_frames = sum(d.has_frames for d in done)
+    skipped = sum(d.skipped for d in done)
     print(
-        f"ingested {len(done)} demonstration(s) into {config.out} "
-        f"({with_frames} with frames, {len(done) - with_frames} motion-only, {sum(d.n_steps for d in done)} steps)"
+        f"ingested {len(done) - skipped} demonstration(s) into {config.out} ({skipped} up to date; "
+        f"{with_frames} with frames, {len(done) - with_frames} motion-only, {sum(d.n_steps for d in done)} steps)"
     )
     return 0

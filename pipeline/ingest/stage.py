@@ -7,22 +7,29 @@ Sources found under SRC (a file or a folder, searched recursively, in sorted ord
 - a ROS 1 `.bag` file or a ROS 2 bag folder (`metadata.yaml`) -> one demonstration (same topics as MCAP);
 - a LeRobot dataset folder (`meta/info.json`, codebase v2.1 or v3.0; SRC itself or a sub-folder) -> one
   demonstration per episode, all episodes read and checked before the first file is written.
-Each is written to OUT/<path relative to SRC>.mcap (atomically); SRC is only read. Every frame is
-checked to decode; existing outputs are refused unless `force` (pipeline.contract).
+Each is written to OUT/<path relative to SRC>.mcap (atomically, under the lock of OUT); SRC is only read.
+Every frame is checked to decode. An output is skipped when it is up to date: complete, newer than its
+source and made with the same options (their digest is in its episode metadata, `ingest_options`), so a
+run stopped half-way finishes when run again; one older than its source is redone; any other existing
+output is refused unless `force`, which replaces only demonstration files cnep wrote (pipeline.contract).
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
 import logging
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 from tqdm.contrib.logging import logging_redirect_tqdm
 
+from cnep.outputs import output_lock
 from cnep.pipeline.contract import output_folder, raise_if_skipped, refuse_existing
 from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.ownership import MCAP
 from cnep.pipeline.progress import progress_bar
-from cnep.recordings import Demonstration, RecordingError, write_demonstration
+from cnep.recordings import FORMAT_VERSION, Demonstration, DemonstrationReader, RecordingError, write_demonstration
 from cnep.recordings.adapters import FrameTiming, demonstration_from_csv, demonstration_from_folder, media_of
 from cnep.recordings.csv_motion import CsvColumns
 from cnep.recordings.lerobot import LerobotMapping, demonstration_from_lerobot, is_lerobot_dataset, plan_lerobot
@@ -35,6 +42,7 @@ log = logging.getLogger(__name__)
 SOURCE_ERRORS = (RecordingError, PipelineError)  # what one bad source can raise (skipped by keep_going)
 
 SUFFIX = ".mcap"
+OPTIONS_KEY = "ingest_options"  # episode metadata: the options_digest of the run that wrote the file
 FILE_KINDS = {".csv": "csv", SUFFIX: "mcap", ".bag": "rosbag"}
 FORMATS = ("auto", "lerobot")  # auto: a LeRobot dataset if SRC has meta/info.json, else files as found
 
@@ -74,6 +82,7 @@ class Ingested:
     n_steps: int
     has_frames: bool
     fps: float
+    skipped: bool = False  # up to date: left as it was
 
 
 def _episode_id(src: Path, path: Path, strip_suffix: bool) -> str:
@@ -157,10 +166,24 @@ def ingest(config: IngestConfig) -> list[Ingested]:
     for source, target in zip(sources, targets):
         if target.resolve() == source.path.resolve():
             raise RecordingError(f"{target}: the output would replace its input; choose another --out folder")
-    refuse_existing(targets, config.force, "demonstration file")
+    options = options_digest(config)
     done, skipped = [], []
-    with output_folder(out), logging_redirect_tqdm():
+    with output_folder(out), output_lock(out, folder=True), logging_redirect_tqdm():
+        current = {t: None if config.force else up_to_date(s, t, options) for s, t in zip(sources, targets)}
+        stale = {t for s, t in zip(sources, targets) if current[t] is None and _older_than_source(t, s)}
+        refuse_existing(
+            [t for t in targets if current[t] is None and t not in stale],
+            config.force,
+            "demonstration file",
+            " and is not this source's demonstration file from these options",
+            kind=MCAP,
+        )
+        refuse_existing(sorted(stale), True, kind=MCAP)  # redone without --force, but only if cnep wrote it
         for source, target in zip(progress_bar(sources, desc="ingest", unit="demo", quiet=config.quiet), targets):
+            if current[target] is not None:
+                log.info("%s is up to date, skipped", target)
+                done.append(current[target])
+                continue
             try:
                 demo = load(source, config)
                 if source.kind != "folder":  # a folder's images are checked (or re-encoded) as they are read
@@ -171,6 +194,7 @@ def ingest(config: IngestConfig) -> list[Ingested]:
                 log.warning("skipped %s: %s", source.path, exc)
                 skipped.append(str(exc))
                 continue
+            demo.episode = replace(demo.episode, extra={**demo.episode.extra, OPTIONS_KEY: options})
             target.parent.mkdir(parents=True, exist_ok=True)  # inside `out`, which we could create
             write_demonstration(target, demo)
             kind = "frames" if demo.has_frames else "motion-only"
@@ -179,6 +203,49 @@ def ingest(config: IngestConfig) -> list[Ingested]:
             done.append(Ingested(source, target, demo.n_steps, demo.has_frames, demo.episode.fps))
     raise_if_skipped(skipped, len(sources), f"were written to {out}")
     return done
+
+
+def options_digest(config: IngestConfig) -> str:
+    """sha256 (16 hex digits) of every option that shapes a demonstration file, stored in its episode metadata."""
+    shaping = {
+        "columns": asdict(config.columns),
+        "timing": asdict(config.timing),
+        "topics": asdict(config.topics),
+        "task": config.task,
+        "format": config.format,
+        "lerobot": asdict(config.lerobot),
+        "format_version": FORMAT_VERSION,
+    }
+    return hashlib.sha256(json.dumps(shaping, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def source_mtime(source: Source) -> float:
+    """When the source last changed: its file's time, or the newest file in its folder (a bag, a dataset: all below)."""
+    path = source.path
+    if path.is_file():
+        return path.stat().st_mtime
+    files = path.iterdir() if source.kind == "folder" else path.rglob("*")
+    return max((f.stat().st_mtime for f in files if f.is_file()), default=path.stat().st_mtime)
+
+
+def _older_than_source(target: Path, source: Source) -> bool:
+    """True if `target` is a file older than its source (a stale output, redone without --force)."""
+    return target.is_file() and target.stat().st_mtime < source_mtime(source)
+
+
+def up_to_date(source: Source, target: Path, options: str) -> Ingested | None:
+    """What `target` holds if it is complete (every CRC valid), newer than `source` and made with these options."""
+    if not target.is_file() or _older_than_source(target, source):
+        return None
+    try:
+        with DemonstrationReader(target) as reader:
+            if reader.episode.extra.get(OPTIONS_KEY) != options:
+                return None
+            demo = reader.read()
+    except RecordingError as exc:  # not a complete demonstration file: refused unless --force, or redone if stale
+        log.debug("%s is not an up-to-date demonstration file: %s", target, exc)
+        return None
+    return Ingested(source, target, demo.n_steps, demo.has_frames, demo.episode.fps, skipped=True)
 
 
 def run(config: IngestConfig) -> Path:

@@ -1,4 +1,5 @@
 import hashlib
+import os
 
 import numpy as np
 import pytest
@@ -12,6 +13,7 @@ from cnep.recordings import RecordingError, read_demonstration
 from cnep.recordings.adapters import FrameTiming, demonstration_from_csv
 from cnep.recordings.csv_motion import CsvColumns
 from cnep.recordings.mcap_source import McapTopics
+from tests.outputs.test_outputs import dead_pid
 from tests.recordings.sources import (
     baxter_csv,
     images,
@@ -334,3 +336,39 @@ def test_a_header_and_one_row_says_so(tmp_path):
     (tmp_path / "a.csv").write_text("\n".join(lines[:2]))
     with pytest.raises(RecordingError, match="found a header and 1 data row; a demonstration needs at least 2"):
         demonstration_from_csv(tmp_path / "a.csv", "a")
+
+
+def test_a_re_run_skips_current_outputs_and_finishes_an_interrupted_one(tmp_path, capsys):
+    src = tmp_path / "src"
+    src.mkdir()
+    for name in ("a", "b", "c"):
+        baxter_csv(src / f"{name}.csv", baxter_times(8))
+    out = tmp_path / "out"
+    assert main(["-q", "ingest", str(src), "--out", str(out)]) == 0
+    written = {p.name: p.stat().st_mtime_ns for p in out.iterdir()}
+    (out / "b.mcap").unlink()  # a run killed before b was renamed into place leaves its temporary file
+    (out / f".b.mcap.{dead_pid()}-abcdef.tmp").write_bytes(b"half")
+    capsys.readouterr()
+    assert main(["-q", "ingest", str(src), "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "ingested 1 demonstration(s) into" in printed and "(2 up to date;" in printed
+    assert sorted(p.name for p in out.iterdir()) == ["a.mcap", "b.mcap", "c.mcap"]  # the temporary file is gone
+    assert all((out / n).stat().st_mtime_ns == written[n] for n in ("a.mcap", "c.mcap"))
+
+    # other options make other files: refused without --force
+    assert main(["-q", "ingest", str(src), "--out", str(out), "--task", "pour"]) == 2
+    assert "is not this source's demonstration file from these options" in capsys.readouterr().err
+    # a source edited since: its output is redone
+    os.utime(src / "a.csv", ns=(written["a.mcap"] + 10**9,) * 2)
+    assert main(["-q", "ingest", str(src), "--out", str(out)]) == 0
+    assert (out / "a.mcap").stat().st_mtime_ns != written["a.mcap"]
+
+
+def test_force_never_replaces_a_file_cnep_did_not_write(tmp_path, capsys):
+    baxter_csv(tmp_path / "a.csv", baxter_times(5))
+    (tmp_path / "out").mkdir()
+    (tmp_path / "out" / "a.mcap").write_text("my own notes")
+    for force in ([], ["--force"]):
+        assert main(["-q", "ingest", str(tmp_path / "a.csv"), "--out", str(tmp_path / "out"), *force]) == 2
+        assert (tmp_path / "out" / "a.mcap").read_text() == "my own notes"
+    assert "--force replaces only an MCAP file written by cnep" in capsys.readouterr().err
