@@ -90,18 +90,22 @@ def _describe(holder: dict) -> str:
 
 
 @contextlib.contextmanager
-def output_lock(output: str | os.PathLike, folder: bool = False, names: Iterable[str] | None = None) -> Iterator[Path]:
+def output_lock(
+    output: str | os.PathLike, folder: bool = False, names: Iterable[str] | None = None, clean: bool = True
+) -> Iterator[Path]:
     """Hold the exclusive lock on `output` for the block; yields the lock file's path.
 
     folder: `output` is a folder that the run writes files into (it must exist); else a file or a
     checkpoint folder, whose parent must exist. Another run holding the lock -> OutputError naming it.
-    Once the lock is held, the temporary files of dead runs are removed: everywhere under a folder output,
-    or those of `names` (default: the output's own name) beside a file output.
+    With `clean`, once the lock is held and again when it is released, the temporary files of dead
+    processes are removed: everywhere under a folder output, or those of `names` (default: the output's
+    own name) beside a file output.
     """
     from filelock import FileLock, Timeout  # a dependency of torch, pinned in pyproject.toml
 
     output = Path(output)
     path = lock_path(output, folder)
+    names = [output.name] if names is None else list(names)
     if not path.parent.is_dir():  # filelock would create it, and leave it behind
         raise OSError(errno.ENOENT, "no such folder", str(path.parent))
     _refuse_foreign(path)  # before flock opens it: the holder writes into its lock file
@@ -124,12 +128,22 @@ def output_lock(output: str | os.PathLike, folder: bool = False, names: Iterable
                 "%s: taking over the lock of a run that ended without releasing it (%s)", output, _describe(previous)
             )
         path.write_text(json.dumps(_holder()) + "\n", encoding="utf-8")
+        if clean:
+            _clean(output, folder, names)
+        yield path
+    finally:
+        try:
+            if clean:  # what workers stopped with the run left (a worker killed while writing)
+                _clean(output, folder, names)
+        finally:
+            with contextlib.suppress(OSError):
+                path.unlink()  # while still holding it: a waiting run then locks a new file, never this one
+            lock.release()
+
+
+def _clean(output: Path, folder: bool, names: list[str]) -> None:
+    with contextlib.suppress(OSError):
         if folder:
             remove_stale_temporaries(output, recursive=True)
         else:
-            remove_stale_temporaries(output.parent, names if names is not None else [output.name])
-        yield path
-    finally:
-        with contextlib.suppress(OSError):
-            path.unlink()  # while still holding it: a waiting run then locks a new file, never this one
-        lock.release()
+            remove_stale_temporaries(output.parent, names)

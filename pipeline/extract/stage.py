@@ -22,6 +22,7 @@ hash); outputs are per file, so nothing is gathered (docs/how-to/extract-feature
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import os
@@ -34,12 +35,14 @@ import numpy as np
 from tqdm import tqdm
 from tqdm.contrib.logging import logging_redirect_tqdm
 
+from cnep.outputs import output_lock
 from cnep.perception import FeatureExtractor, PerceptionError, compatibility_key
 from cnep.perception.constants import CALIBRATION_FRAMES, FEATURE_DIM
 from cnep.perception.frames import decode_image, resize_frames
 from cnep.perception.weights import find_imagenet_weights
-from cnep.pipeline.contract import output_folder, raise_if_skipped, refuse_existing
+from cnep.pipeline.contract import output_folder, raise_if_skipped, refuse_existing, refuse_inputs
 from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.ownership import MCAP, WEIGHTS
 from cnep.pipeline.progress import progress_bar
 from cnep.pipeline.workers import cpu_cores, inference_threads, process_pool, thread_environment
 from cnep.recordings import (
@@ -120,7 +123,8 @@ def extract(config: ExtractConfig) -> list[Extracted]:
     rank, world_size = torchrun_rank()
     pairs = all_pairs[rank::world_size]  # this rank's share; every rank calibrates on all inputs alike
     if config.save_weights is not None:
-        refuse_existing([config.save_weights], config.force, "weights file")
+        refuse_inputs([config.save_weights], [src for src, _ in all_pairs], "--save-weights")
+        refuse_existing([config.save_weights], config.force, "weights file", kind=WEIGHTS)
     built: list[FeatureExtractor] = []
 
     def extractor() -> FeatureExtractor:
@@ -142,18 +146,25 @@ def extract(config: ExtractConfig) -> list[Extracted]:
         log.warning("skipped %s: %s", src, exc)
         skipped.append(str(exc))
 
-    with output_folder(config.out):
+    # Under torchrun every rank writes its share into --out: rank 0 holds the lock for the run, and leaves
+    # temporary files alone (another rank's, on another machine, would look like a dead process's).
+    lock = output_lock(config.out, folder=True, clean=world_size == 1) if rank == 0 else contextlib.nullcontext()
+    with output_folder(config.out), lock:
         for _, dst in pairs:  # nested input folders keep their sub-folders under --out
             dst.parent.mkdir(parents=True, exist_ok=True)
         current = {dst: None if config.force else up_to_date_steps(src, dst, extractor) for src, dst in pairs}
+        stale = {dst for src, dst in pairs if current[dst] is None and not _newer_than(dst, src)}
         refuse_existing(
-            [dst for src, dst in pairs if current[dst] is None and _newer_than(dst, src)],
+            [dst for _, dst in pairs if current[dst] is None and dst not in stale],
             config.force,
             "output",
             " and is not this input's trajectory file from these weights",
+            kind=MCAP,
         )
+        refuse_existing(sorted(stale), True, kind=MCAP)  # redone without --force, but only if cnep wrote it
         if config.save_weights is not None and rank == 0:
-            extractor().save_weights(config.save_weights)
+            with output_lock(config.save_weights):
+                extractor().save_weights(config.save_weights)
             log.info(
                 "saved the extractor weights to %s (reuse them with --weights %s)",
                 config.save_weights,
