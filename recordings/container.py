@@ -106,6 +106,9 @@ class McapContents:
     complete: the footer and closing magic were reached with every CRC valid.
     problem: why reading stopped early (salvage mode), else None.
     chunks_read / chunks_lost: complete valid chunks kept / damaged chunks skipped (salvage mode).
+    partial_messages / partial_lost_bytes / partial_lost_messages: messages recovered from a chunk cut short by
+    the end of the file, how many of its uncompressed bytes could not be, and about how many messages those
+    held (at the recovered ones' mean size) (salvage mode; a prefix of lz4 and zstd data decodes).
     """
 
     path: Path
@@ -121,6 +124,9 @@ class McapContents:
     chunks_read: int = 0
     chunks_lost: int = 0
     bytes_used: int = 0  # offset just after the last record read in full
+    partial_messages: int = 0
+    partial_lost_bytes: int = 0
+    partial_lost_messages: int = 0
 
     def channel_of_topic(self, topic: str) -> Channel | None:
         for ch in self.channels.values():
@@ -213,6 +219,60 @@ def _chunk_at(view: memoryview, body: int, end: int) -> Chunk:
     return Chunk(compression, view[data_at : data_at + dlen], stop, start, ucrc, usize)  # type: ignore[arg-type]
 
 
+def _decoded_prefix(compression: str, data: bytes) -> bytes:
+    """As much of the uncompressed chunk as the first bytes `data` of its compressed form give (whole blocks)."""
+    if compression == "":
+        return data
+    if compression == "zstd":
+        return zstandard.ZstdDecompressor().decompressobj().decompress(data)
+    if compression == "lz4":
+        import lz4.frame  # a dependency of mcap
+
+        return lz4.frame.LZ4FrameDecompressor().decompress(data)
+    return b""
+
+
+def _salvage_cut_chunk(view: memoryview, body: int, out: McapContents) -> None:
+    """Keep the complete records at the start of a chunk that the end of the file cuts: its compressed data is
+    decoded as far as it goes (no CRC covers a part of a chunk: each record is kept only if it parses in full)."""
+    size = len(view)
+    if body + _CHUNK_HEAD.size > size:
+        return
+    _, _, usize, _, clen = _CHUNK_HEAD.unpack_from(view, body)
+    data_at = body + _CHUNK_HEAD.size + clen + _U64.size
+    if data_at > size:
+        return
+    compression = str(view[body + _CHUNK_HEAD.size : body + _CHUNK_HEAD.size + clen], "utf-8", errors="replace")
+    try:
+        prefix = _decoded_prefix(compression, bytes(view[data_at:size]))
+    except Exception:  # noqa: BLE001 - whatever the decoder says about damaged data, nothing is recovered
+        return
+    pos, kept = 0, []
+    while pos + _RECORD_HEAD.size <= len(prefix):
+        opcode, length = _RECORD_HEAD.unpack_from(prefix, pos)
+        start, stop = pos + _RECORD_HEAD.size, pos + _RECORD_HEAD.size + length
+        if stop > len(prefix):
+            break
+        try:
+            if opcode == Opcode.MESSAGE:
+                channel_id, sequence, log_time, publish_time = _MESSAGE_HEAD.unpack_from(prefix, start)
+                kept.append(
+                    Message(channel_id, log_time, prefix[start + _MESSAGE_HEAD.size : stop], publish_time, sequence)
+                )
+            elif opcode == Opcode.SCHEMA:
+                kept.append(Schema.read(ReadDataStream(io.BytesIO(prefix[start:stop]))))
+            elif opcode == Opcode.CHANNEL:
+                kept.append(Channel.read(ReadDataStream(io.BytesIO(prefix[start:stop]))))
+        except CORRUPTION_ERRORS:
+            break
+        pos = stop
+    for record in kept:
+        _keep(out, record)
+    out.partial_messages = sum(isinstance(r, Message) for r in kept)
+    out.partial_lost_bytes = max(0, usize - pos)
+    out.partial_lost_messages = round(out.partial_lost_bytes * out.partial_messages / pos) if pos else 0
+
+
 def _walk(data: bytes, out: McapContents, salvage: bool) -> None:
     """Read the records of `data` into `out`, checking every CRC; raise _Damage where reading stops."""
     size, pos, view = len(data), len(MCAP_MAGIC), memoryview(data)
@@ -224,6 +284,8 @@ def _walk(data: bytes, out: McapContents, salvage: bool) -> None:
         opcode, length = _RECORD_HEAD.unpack_from(data, pos)
         body, end = pos + _RECORD_HEAD.size, pos + _RECORD_HEAD.size + length
         if end > size:
+            if salvage and opcode == Opcode.CHUNK:
+                _salvage_cut_chunk(view, body, out)
             raise _Damage(
                 f"the record at byte {pos} runs past the end of the file ({size} bytes)", truncated=not closed
             )
@@ -304,15 +366,24 @@ def read_mcap(path: str | os.PathLike, salvage: bool = False) -> McapContents:
         _walk(data, out, salvage)
         out.complete = out.chunks_lost == 0 and out.problem is None
     except _Damage as damage:
-        if damage.truncated and not out.messages:
+        if damage.truncated and not salvage and not out.messages:  # would a message by message salvage find any?
+            out = read_mcap(p, salvage=True)
+            out.messages = []
+        if damage.truncated and not out.messages and not out.partial_messages:
             why = (
-                f"truncated: {damage} (the recorder did not finish the file) and no chunk is complete, so "
-                f"nothing can be salvaged; record or export it again"
+                f"truncated: {damage} (the recorder did not finish the file) and no chunk holds a complete "
+                f"message, so nothing can be salvaged; record or export it again"
             )
         elif damage.truncated:
+            cut = (
+                f" and the {out.partial_messages} complete message(s) of the chunk the end cuts (about "
+                f"{out.partial_lost_messages} more of it are lost)"
+                if out.partial_messages
+                else ""
+            )
             why = (
                 f"truncated: {damage} (the recorder did not finish the file); "
-                f"`cnep repair {p} OUT` salvages its {out.chunks_read} complete chunk(s)"
+                f"`cnep repair {p} OUT` salvages its {out.chunks_read} complete chunk(s){cut}"
             )
         else:
             why = f"corrupt: {damage}; the file was damaged after writing"

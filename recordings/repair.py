@@ -1,10 +1,12 @@
-"""Salvage the complete chunks of a truncated or damaged MCAP file into a new, valid file.
+"""Salvage the complete chunks and messages of a truncated or damaged MCAP file into a new, valid file.
 
 A recorder killed before closing leaves a file without summary and footer, often ending inside a
 chunk. Every chunk read in full with a valid CRC is kept; a damaged chunk in the middle is skipped;
-reading stops at the first unreadable record. For cnep files the steps are trimmed to those present
-on every per-step topic (a step cut in half is dropped), the `steps` record is rewritten and a
-`repair` record says where the data came from. The input is never modified.
+of the chunk the end of the file cuts, every complete message in the part that decodes is kept (lz4
+frames and zstd streams decode a prefix, block by block); reading stops at the first unreadable
+record. For cnep files the steps are trimmed to those present on every per-step topic (a step cut in
+half is dropped), the `steps` record is rewritten and a `repair` record says where the data came
+from. The input is never modified.
 """
 
 from __future__ import annotations
@@ -42,6 +44,8 @@ class RepairReport:
     bytes_used: int
     chunks_read: int
     chunks_lost: int
+    partial_messages: int  # messages kept from the chunk the end of the file cuts
+    partial_lost_messages: int  # about how many messages the lost part of that chunk held
     messages: dict[str, int]
     steps: int | None  # cnep files: complete steps kept; None for other MCAP files
     was_complete: bool
@@ -51,11 +55,18 @@ class RepairReport:
         """One line for the CLI."""
         msgs = ", ".join(f"{t} {n}" for t, n in sorted(self.messages.items()))
         steps = f"{self.steps} complete steps; " if self.steps is not None else ""
-        state = "the input was already complete" if self.was_complete else f"lost: {self.problem}"
+        problem = (self.problem or "").split("; `cnep repair")[0]  # the advice to repair is done here
+        state = "the input was already complete" if self.was_complete else f"lost: {problem}"
+        cut = (
+            f" and {self.partial_messages} message(s) of the chunk the end of the file cuts (about "
+            f"{self.partial_lost_messages} more of it lost)"
+            if self.partial_messages
+            else ""
+        )
         return (
-            f"wrote {self.dst}: {steps}{sum(self.messages.values())} messages ({msgs}) "
-            f"from {self.chunks_read} chunk(s), "
-            f"{self.bytes_used} of {self.size} bytes of {self.src} used, "
+            f"wrote {self.dst}: {steps}{sum(self.messages.values())} messages ({msgs}) kept "
+            f"from {self.chunks_read} complete chunk(s){cut}, "
+            f"{self.bytes_used} of {self.size} bytes of {self.src} read in whole records, "
             f"{self.chunks_lost} damaged chunk(s) skipped; {state}"
         )
 
@@ -98,6 +109,7 @@ def repair(src: str | os.PathLike, dst: str | os.PathLike) -> RepairReport:
         "bytes_used": str(contents.bytes_used),
         "chunks_read": str(contents.chunks_read),
         "chunks_lost": str(contents.chunks_lost),
+        "partial_messages": str(contents.partial_messages),
         "problem": contents.problem or "",
     }
     out = rewrite_mcap(dst, contents)
@@ -118,6 +130,8 @@ def repair(src: str | os.PathLike, dst: str | os.PathLike) -> RepairReport:
         bytes_used=contents.bytes_used,
         chunks_read=contents.chunks_read,
         chunks_lost=contents.chunks_lost,
+        partial_messages=contents.partial_messages,
+        partial_lost_messages=contents.partial_lost_messages,
         messages=messages,
         steps=steps,
         was_complete=contents.complete,

@@ -1,10 +1,13 @@
-"""`cnep repair IN OUT`: salvage the complete chunks of a truncated MCAP file into a new valid file."""
+"""`cnep repair IN OUT`: salvage the complete chunks and messages of a truncated MCAP file into a new valid file."""
 
 from __future__ import annotations
 
 import argparse
 
-HELP = "salvage every complete chunk of a truncated or damaged MCAP file into a new, valid file (IN is not modified)"
+HELP = (
+    "salvage every complete chunk and message of a truncated or damaged MCAP file into a new, valid file (IN is not "
+    "modified)"
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -14,19 +17,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="OUT",
         help="where to write the salvaged file (must differ from IN; its folder is created if missing)",
     )
-    parser.add_argument("--force", action="store_true", help="replace OUT if it exists")
+    parser.add_argument("--force", action="store_true", help="replace OUT if it exists (an MCAP file cnep wrote)")
 
 
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
+    from cnep.outputs import output_lock
     from cnep.pipeline.contract import output_folder, refuse_existing
+    from cnep.pipeline.ownership import MCAP
     from cnep.recordings.container import refuse_overwrite_input
     from cnep.recordings.repair import repair
 
     refuse_overwrite_input(args.src, args.dst)
-    refuse_existing([Path(args.dst)], args.force, "repaired file")
-    with output_folder(Path(args.dst).parent, "OUT's folder"):
+    refuse_existing([Path(args.dst)], args.force, "repaired file", kind=MCAP)
+    with output_folder(Path(args.dst).parent, "OUT's folder"), output_lock(Path(args.dst)):
         report = repair(args.src, args.dst)
     print(report.summary())
     return 0

@@ -63,11 +63,35 @@ def test_repair_trims_a_half_written_demonstration_step(tmp_path):
     assert back.frames == demo.frames[: back.n_steps]
 
 
+@pytest.mark.parametrize("kind", ["demonstration", "trajectory"])  # zstd and lz4 chunks
+def test_repair_salvages_the_complete_messages_of_a_single_chunk_cut_in_half(tmp_path, kind):
+    if kind == "demonstration":
+        original = demonstration_factory(steps=60, frames=True, frame_size=96)  # ~0.4 MB: one chunk
+        src = write_demonstration(tmp_path / "d.mcap", original)
+    else:
+        original = trajectory_factory(steps=150, features=True)  # ~0.8 MB: one chunk
+        src = write_trajectory(tmp_path / "t.mcap", original)
+    truncate(src, 0.5)
+    with pytest.raises(RecordingError, match=r"salvages its 0 complete chunk\(s\) and the \d+ complete message"):
+        (read_demonstration if kind == "demonstration" else read_trajectory)(src)
+    report = repair(src, tmp_path / "fixed.mcap")
+    back = (read_demonstration if kind == "demonstration" else read_trajectory)(report.dst)
+    assert report.chunks_read == 0 and report.partial_messages > 0 and report.partial_lost_messages > 0
+    assert 0.2 * original.n_steps < back.n_steps < original.n_steps and report.steps == back.n_steps
+    np.testing.assert_array_equal(back.timestamps_ns, original.timestamps_ns[: back.n_steps])
+    if kind == "demonstration":
+        np.testing.assert_array_equal(back.pose, original.pose[: back.n_steps])
+        assert back.frames == original.frames[: back.n_steps]
+    else:
+        np.testing.assert_array_equal(back.data, original.data[: back.n_steps])
+    assert f"{report.partial_messages} message(s) of the chunk the end of the file cuts" in report.summary()
+
+
 def test_repair_refuses_what_it_cannot_help(tmp_path, long_traj):
     src = write_trajectory(tmp_path / "t.mcap", long_traj)
     with pytest.raises(RecordingError, match="output is the input"):
         repair(src, src)
-    truncate(src, 0.05)  # before the first chunk ends
+    src.write_bytes(src.read_bytes()[:400])  # inside the first block of the first chunk
     with pytest.raises(RecordingError, match="nothing to salvage"):
         repair(src, tmp_path / "fixed.mcap")
     assert not (tmp_path / "fixed.mcap").exists()
