@@ -79,6 +79,43 @@ def motion_at(
     return keep, np.concatenate([xyz, quat], axis=1), interpolate_linear(grip_t, gripper, t)
 
 
+def frame_coverage(table: MotionTable, frame_times_ns: np.ndarray, keep: np.ndarray, source: Path | None) -> str:
+    """When the frames and the motion do not span the same time (a video cut short, or longer than the CSV): a
+    warning naming the files and what is not used, and the note for the metadata ("" when they match)."""
+    t0, period = int(table.timestamps_ns[0]), float(np.median(np.diff(frame_times_ns)))
+    motion_end, frames_end = int(table.timestamps_ns[-1]), int(frame_times_ns[-1])
+    unused_rows = int((table.timestamps_ns > frames_end + period).sum()) + int(
+        (table.timestamps_ns < frame_times_ns[0] - period).sum()
+    )
+    dropped = int((~keep).sum())
+    if not unused_rows and not dropped:
+        return ""
+    span = (
+        f"frames {(frame_times_ns[0] - t0) / NS_PER_S:.3f}-{(frames_end - t0) / NS_PER_S:.3f} s, motion 0.000-"
+        f"{(motion_end - t0) / NS_PER_S:.3f} s (from the first CSV row)"
+    )
+    what = source or table.path.parent
+    if unused_rows:
+        log.warning(
+            "%s: the frames end before the motion does (%s): %d CSV rows of %s without a frame are not used "
+            "(assumed: the video was cut short; check it, or --frame-offset-ms)",
+            what,
+            span,
+            unused_rows,
+            table.path,
+        )
+    if dropped:
+        log.warning(
+            "%s: %d of %d frames lie outside the CSV's time span (%s) and are dropped (assumed: the camera ran "
+            "longer than the motion was recorded)",
+            what,
+            dropped,
+            len(keep),
+            span,
+        )
+    return f"{span}; {unused_rows} CSV rows without a frame unused, {dropped} frames without motion dropped"
+
+
 def demonstration_with_frames(
     episode_id: str,
     table: MotionTable,
@@ -86,8 +123,11 @@ def demonstration_with_frames(
     frame_times_ns: np.ndarray | None,
     task: str,
     extra: dict[str, str],
+    source: Path | None = None,
 ) -> Demonstration:
-    """Frames at `frame_times_ns` (None: one frame per CSV row) with pose/gripper from `table`."""
+    """Frames at `frame_times_ns` (None: one frame per CSV row) with pose/gripper from `table`; `source` names the
+    frames (a video) in warnings."""
+    extra = {**extra, **table.notes}
     if frame_times_ns is None:
         times, pose, gripper, kept = table.timestamps_ns, table.pose, table.gripper, frames
         extra = {**extra, "frame_times": "one frame per CSV row", "interpolation": "none"}
@@ -95,15 +135,13 @@ def demonstration_with_frames(
         keep, pose, gripper = motion_at(
             frame_times_ns, table.timestamps_ns, table.pose, table.timestamps_ns, table.gripper
         )
-        dropped = int((~keep).sum())
-        if dropped:
-            log.info(
-                "%s: %d of %d frames lie outside the CSV's time span and are dropped", table.path, dropped, len(frames)
-            )
         if keep.sum() < 2:
             raise RecordingError(
                 f"{table.path}: fewer than 2 frames fall inside the CSV's time span; check --frame-offset-ms"
             )
+        coverage = frame_coverage(table, frame_times_ns, keep, source)
+        if coverage:
+            extra["coverage"] = coverage
         times, kept = frame_times_ns[keep], [f for f, k in zip(frames, keep) if k]
         extra = {**extra, "interpolation": "pose xyz and gripper linear, quaternion slerp, at frame times"}
     return Demonstration(
@@ -126,7 +164,7 @@ def demonstration_from_csv(
             fps=median_rate(table.timestamps_ns),
             task=task,
             source=str(table.path),
-            extra={"frames": "none"},
+            extra={"frames": "none", **table.notes},
         ),
         timestamps_ns=table.timestamps_ns,
         pose=table.pose,
@@ -171,7 +209,7 @@ def demonstration_from_folder(
             )
         times, how = timing.times_ns(len(frames), first, timing.frame_rate or video_fps)
         extra = {"frame_source": videos[0].name, "frame_times": how}
-        return demonstration_with_frames(episode_id, table, frames, times, task, extra)
+        return demonstration_with_frames(episode_id, table, frames, times, task, extra, videos[0])
     frames = read_images(images)
     extra = {"frame_source": f"{len(images)} numbered images"}
     if len(frames) == len(table.timestamps_ns) and timing.frame_rate is None:

@@ -78,14 +78,22 @@ class LerobotEpisode:
 
 
 def is_lerobot_dataset(path: str | os.PathLike) -> bool:
-    """True for a folder with a `meta/info.json` that states a `codebase_version`."""
+    """True for a folder with a `meta/info.json` that states a `codebase_version`.
+
+    An `info.json` that cannot be read as JSON is a RecordingError naming it: the folder looks like a LeRobot
+    dataset whose description is damaged, and reading it as other files would only mislead.
+    """
     info = Path(path) / "meta" / "info.json"
     if not info.is_file():
         return False
     try:
-        return "codebase_version" in json.loads(info.read_text())
-    except (OSError, ValueError):
-        return False
+        data = json.loads(info.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise RecordingError(
+            f"{info}: cannot read as JSON ({exc}); a LeRobot dataset's meta/info.json must be valid JSON: restore it "
+            f"from the dataset's source"
+        ) from None
+    return isinstance(data, dict) and "codebase_version" in data
 
 
 def _parquet() -> Any:
@@ -252,7 +260,7 @@ def plan_lerobot(root: str | os.PathLike, mapping: LerobotMapping = LerobotMappi
             )
         if len(rows) < 2:
             raise RecordingError(f"{where}: the episode has only 1 frame; a demonstration needs at least 2")
-        times, pose, gripper = motion_of_rows(table.take(rows), columns, mapping.state, where)
+        times, pose, gripper, notes = motion_of_rows(table.take(rows), columns, mapping.state, where)
         if video is not None and not video.is_file():
             raise RecordingError(f"{video}: missing video of camera {camera!r} for episode {index}")
         frames = None
@@ -265,6 +273,7 @@ def plan_lerobot(root: str | os.PathLike, mapping: LerobotMapping = LerobotMappi
             "columns": columns.described,
             "frame_times": "Parquet timestamp" + (" + video offset" if video else ""),
             "interpolation": "none",
+            **notes,
         }
         planned.append(
             LerobotEpisode(root, index, _task(entry), float(info["fps"]), times, pose, gripper, camera, frames, extra)

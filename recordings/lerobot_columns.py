@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from cnep.recordings.errors import RecordingError
+from cnep.recordings.validation import unit_quaternions
 
 NS_PER_S = 1_000_000_000
 # Pose names recognised without --pose: xyz + quaternion xyzw, or xyz + roll/pitch/yaw (radians).
@@ -159,8 +160,8 @@ def _vectors(table: Any, column: str, where: str) -> np.ndarray:
 
 def motion_of_rows(
     table: Any, columns: StateColumns, state: str, where: str
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(timestamps_ns (T,), pose (T, 7), gripper (T,)) of an episode's rows, checked."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, str]]:
+    """(timestamps_ns (T,), pose (T, 7), gripper (T,), notes for the metadata) of an episode's rows, checked."""
     for needed in ("timestamp", state):
         if needed not in table.column_names:
             raise RecordingError(f"{where}: no column {needed!r} (columns: {table.column_names})")
@@ -179,9 +180,7 @@ def motion_of_rows(
         raise RecordingError(f"{where}: 'timestamp' must start at >= 0 s and increase strictly")
     raw = vectors[:, list(columns.pose)]  # (T, 6 or 7)
     quat = raw[:, 3:] if raw.shape[1] == 7 else quaternion_from_rpy(raw[:, 3:])
-    norms = np.linalg.norm(quat, axis=1)
-    if (norms < 1e-6).any():
-        raise RecordingError(f"{where}: row {int(np.argmax(norms < 1e-6))} has a zero quaternion")
-    pose = np.concatenate([raw[:, :3], quat / norms[:, None]], axis=1)  # (T, 7)
+    quat, note = unit_quaternions(quat, where, [f"row {i}" for i in range(len(quat))])
+    pose = np.concatenate([raw[:, :3], quat], axis=1)  # (T, 7)
     gripper = vectors[:, columns.gripper] if columns.gripper is not None else np.zeros(len(times))
-    return times, pose, gripper
+    return times, pose, gripper, {"quaternions": note} if note else {}

@@ -34,6 +34,7 @@ from cnep.recordings.errors import RecordingError
 from cnep.recordings.media import as_jpeg, encode_raw_image
 from cnep.recordings.readers import in_file
 from cnep.recordings.records import Demonstration, Episode
+from cnep.recordings.validation import unit_quaternions
 
 log = logging.getLogger(__name__)
 
@@ -151,7 +152,12 @@ def _decoder(contents: McapContents, topic: str) -> Callable[[bytes], Any]:
         if decode is not None:
             return decode
     name = schema.name if schema is not None else "no schema"
-    raise RecordingError(f"{contents.path}: cannot decode {topic!r} ({ch.message_encoding}, {name})")
+    foxglove = ", ".join(sorted(PROTOBUF_CLASSES))
+    raise RecordingError(
+        f"{contents.path}: {topic!r} holds {ch.message_encoding or 'unnamed'}-encoded messages of schema {name!r}, "
+        f"which cnep does not read: it reads protobuf-encoded Foxglove schemas ({foxglove}) and cdr-encoded ROS 2 "
+        f"messages; record the topic in one of those, or choose another topic with the --*-topic options"
+    )
 
 
 def sorted_series(decoded: list[tuple[int, Any]], where: str) -> tuple[np.ndarray, list]:
@@ -200,15 +206,15 @@ def demonstration_from_series(
     """
     pose_t, pose_v = pose_series
     pose = np.asarray(pose_v, dtype=np.float64)  # (N, 7)
-    norms = np.linalg.norm(pose[:, 3:], axis=1)
-    if (norms < 1e-6).any():
-        raise RecordingError(f"{source}: a pose on {topics.pose!r} has a zero quaternion")
-    pose[:, 3:] /= norms[:, None]
+    labels = [f"the pose on {topics.pose!r} at {t} ns" for t in pose_t.tolist()]
+    pose[:, 3:], note = unit_quaternions(pose[:, 3:], source, labels)
     if gripper_series is not None:
         grip_t, gripper = gripper_series[0], np.asarray(gripper_series[1], dtype=np.float64)
     else:
         grip_t, gripper = pose_t, np.zeros(len(pose_t))
     extra = {"image_topic": topics.image, "pose_topic": topics.pose, "gripper_topic": topics.gripper}
+    if note:
+        extra["quaternions"] = note
     if image_series is not None:
         times, frames = image_series
         extra["interpolation"] = "pose xyz and gripper linear, quaternion slerp, at frame times"

@@ -6,8 +6,13 @@ JPEG images are kept byte for byte; other images and video frames are encoded as
 
 from __future__ import annotations
 
+import contextlib
+import logging
 import os
 import re
+import sys
+import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +24,51 @@ from cnep.recordings.validation import JPEG_MAGIC
 VIDEO_SUFFIXES = frozenset({".mp4", ".avi", ".mov", ".mkv"})
 IMAGE_SUFFIXES = frozenset({".jpg", ".jpeg", ".png", ".bmp"})
 _NUMBER = re.compile(r"(\d+)")
+_FFMPEG_PREFIX = re.compile(r"^\[[^\]]*@ 0x[0-9a-f]+\]\s*")  # `[mov,mp4,m4a,3gp,3g2,mj2 @ 0x5581...] `
+# JPEG start-of-frame markers (they hold the image size); C4, C8 and CC share the range but are not frames.
+_SOF_MARKERS = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
+
+log = logging.getLogger(__name__)
+
+
+@contextlib.contextmanager
+def native_stderr() -> Iterator[list[str]]:
+    """Collect what native code (FFmpeg inside OpenCV) writes to the process's stderr during the block, instead of
+    letting it reach the terminal around cnep's one line; the lines are in the yielded list after the block."""
+    lines: list[str] = []
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as captured:
+        os.dup2(captured.fileno(), 2)
+        try:
+            yield lines
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            captured.seek(0)
+            lines.extend(line for line in captured.read().decode(errors="replace").splitlines() if line.strip())
+
+
+def _ffmpeg_says(lines: list[str]) -> str:
+    """` (FFmpeg: <its last line>)`, or "" when it said nothing."""
+    return f" (FFmpeg: {_FFMPEG_PREFIX.sub('', lines[-1]).strip()})" if lines else ""
+
+
+def jpeg_size(data: bytes) -> tuple[int, int] | None:
+    """(width, height) from a JPEG's start-of-frame marker, without decoding it; None if there is none."""
+    i = 2
+    while i + 4 <= len(data) and data[i] == 0xFF:
+        marker = data[i + 1]
+        if marker == 0xFF:  # fill byte
+            i += 1
+            continue
+        if 0xD0 <= marker <= 0xD9 or marker == 0x01:  # markers without a length
+            i += 2
+            continue
+        if marker in _SOF_MARKERS and i + 9 <= len(data):
+            return int.from_bytes(data[i + 7 : i + 9], "big"), int.from_bytes(data[i + 5 : i + 7], "big")
+        i += 2 + int.from_bytes(data[i + 2 : i + 4], "big")
+    return None
 
 
 def _encode_jpeg(image: object, where: str) -> bytes:
@@ -35,23 +85,39 @@ def read_video(path: str | os.PathLike) -> tuple[list[bytes], float]:
     import cv2
 
     p = Path(path)
-    cap = cv2.VideoCapture(str(p))
-    try:
-        if not cap.isOpened():
-            raise RecordingError(f"{p}: OpenCV cannot open this video")
-        fps = float(cap.get(cv2.CAP_PROP_FPS) or 0.0)
-        frames = []
-        while True:
-            ok, image = cap.read()
-            if not ok:
-                break
-            frames.append(_encode_jpeg(image, f"{p} frame {len(frames)}"))
-    finally:
-        cap.release()
+    with native_stderr() as said:
+        cap = cv2.VideoCapture(str(p))
+        try:
+            opened = cap.isOpened()
+            fps = float(cap.get(cv2.CAP_PROP_FPS) or 0.0) if opened else 0.0
+            stated = int(cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0) if opened else 0
+            frames = []
+            while opened:
+                ok, image = cap.read()
+                if not ok:
+                    break
+                frames.append(_encode_jpeg(image, f"{p} frame {len(frames)}"))
+        finally:
+            cap.release()
+    if not opened:
+        raise RecordingError(
+            f"{p}: cannot open this video{_ffmpeg_says(said)}: it is damaged, cut short before its index was "
+            f"written, or not a video; export it again from the camera's recording"
+        )
     if not frames:
-        raise RecordingError(f"{p}: the video has no readable frames")
+        raise RecordingError(
+            f"{p}: the video has no frames that decode{_ffmpeg_says(said)}; export it again from the camera's recording"
+        )
     if not fps > 0:
         raise RecordingError(f"{p}: the video does not state its frame rate; give it with --frame-rate HZ")
+    if stated > len(frames):
+        log.warning(
+            "%s: the video says it has %d frames but only the first %d decode%s: it is cut short or damaged",
+            p,
+            stated,
+            len(frames),
+            _ffmpeg_says(said),
+        )
     return frames, fps
 
 

@@ -7,6 +7,7 @@ stating the rule, the offending value and the fix.
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Mapping, Sequence
 
 import numpy as np
@@ -20,6 +21,14 @@ from cnep.recordings.constants import (
 from cnep.recordings.errors import RecordingError
 
 JPEG_MAGIC = b"\xff\xd8"
+# A quaternion whose length differs from the recording's typical length by more than this share is not a rotation
+# of the same kind: normalising it would turn it into an unrelated orientation (a 0.55 among unit ones: ~130 degrees).
+QUATERNION_TOLERANCE = 0.1
+# A pose or gripper value further from the recording's median than this many times its spread (`_spread`) is a
+# corrupt value, not motion: it would set the normaliser's scale and flatten every other demonstration.
+OUTLIER_SPREADS = 1000.0
+
+log = logging.getLogger(__name__)
 
 
 def _first_bad(mask: np.ndarray) -> int:
@@ -116,10 +125,11 @@ def check_blocks(blocks: Mapping[str, Sequence[int]] | None, width: int, where: 
 
 def check_matrix(data: object, n_steps: int, where: str) -> np.ndarray:
     """Return the per-step vectors as C-contiguous float32 (T, D) with finite values."""
-    arr = np.ascontiguousarray(np.asarray(data, dtype=np.float32))
+    with np.errstate(over="ignore"):  # a value beyond float32 becomes inf, reported by check_finite
+        arr = np.ascontiguousarray(np.asarray(data, dtype=np.float32))
     if arr.ndim != 2 or arr.shape[0] != n_steps:
         raise RecordingError(f"{where}: data must have shape ({n_steps}, D), got {arr.shape}")
-    check_finite(arr, "data", where)
+    check_finite(arr, "data (float32)", where)
     return arr
 
 
@@ -158,3 +168,62 @@ def check_fps(fps: object, where: str) -> float:
     if not np.isfinite(value) or value <= 0:
         raise RecordingError(f"{where}: fps must be finite and > 0 Hz, got {value}")
     return value
+
+
+def unit_quaternions(
+    quat: np.ndarray, where: str, labels: Sequence[str] | None = None
+) -> tuple[np.ndarray, str | None]:
+    """Unit quaternions (N, 4) from recorded ones (N, 4); returns them and a note for the metadata, or None.
+
+    A zero quaternion, or one whose length is far from the others' (QUATERNION_TOLERANCE), is refused naming
+    its row (`labels[i]`, default `step i`); quaternions that all share one length other than 1 are
+    normalised, with a warning and the note saying so.
+    """
+    label = (lambda i: labels[i]) if labels is not None else (lambda i: f"step {i}")
+    norms = np.linalg.norm(quat, axis=1)  # (N,)
+    if (norms < 1e-6).any():
+        i = _first_bad(norms < 1e-6)
+        raise RecordingError(f"{where}: {label(i)}: the quaternion has zero length; use (0, 0, 0, 1) for no rotation")
+    typical = float(np.median(norms))
+    off = np.abs(norms / typical - 1) > QUATERNION_TOLERANCE
+    if off.any():
+        i = _first_bad(off)
+        raise RecordingError(
+            f"{where}: {label(i)}: the quaternion has length {norms[i]:.3g} where the others have about {typical:.3g}, "
+            f"so it is no rotation of the recording ({int(off.sum())} such); fix or drop that row"
+        )
+    if abs(typical - 1) <= QUATERNION_TOLERANCE:
+        return quat / norms[:, None], None
+    note = f"normalised from lengths {norms.min():.3g}-{norms.max():.3g}"
+    log.warning(
+        "%s: the quaternions have length about %.3g, not 1; %s (assumed: scaled rotations)", where, typical, note
+    )
+    return quat / norms[:, None], note
+
+
+def _spread(values: np.ndarray, floor: float) -> float:
+    """How far the bulk of `values` (T,) spreads: the 10-90 % range, or `floor` if wider, or a tenth of the bulk's
+    magnitude if wider still (a constant column has no range)."""
+    low, high = np.quantile(values, [0.1, 0.9])
+    return max(float(high - low), floor, 0.1 * max(abs(low), abs(high)))
+
+
+def check_outliers(pose: np.ndarray, gripper: np.ndarray, where: str, labels: Sequence[str] | None = None) -> None:
+    """Refuse a pose xyz (m) or gripper value far from the rest of its recording (OUTLIER_SPREADS spreads from the
+    median: a corrupt value, not motion), naming the row (`labels[i]`, default `step i`), the column and the value.
+
+    The spread has a floor of 0.1 m for positions and 1 unit for the gripper, so a robot that waits and then moves
+    fast, or a gripper that closes once, is never refused.
+    """
+    label = (lambda i: labels[i]) if labels is not None else (lambda i: f"step {i}")
+    columns = [("x", pose[:, 0], 0.1), ("y", pose[:, 1], 0.1), ("z", pose[:, 2], 0.1), ("gripper", gripper, 1.0)]
+    for name, values, floor in columns:
+        centre, spread = float(np.median(values)), _spread(values, floor)
+        far = np.abs(values - centre) > OUTLIER_SPREADS * spread
+        if far.any():
+            i = _first_bad(far)
+            low, high = np.quantile(values, [0.1, 0.9])
+            raise RecordingError(
+                f"{where}: {label(i)}: {name} is {values[i]:.6g}, far outside the rest of the recording (10-90 % of "
+                f"its values lie in {low:.4g}..{high:.4g}); a corrupt value, not motion: fix or drop that row"
+            )

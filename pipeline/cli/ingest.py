@@ -29,14 +29,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="skip recordings that fail, write the others, and list the skipped ones at the end (exit 2)",
     )
     parser.add_argument("--task", default="", help="task label stored in each file's episode metadata")
-    g = parser.add_argument_group("CSV (defaults: the Baxter format, Time in ms)")
+    g = parser.add_argument_group(
+        "CSV (columns found by their usual names: t/time/timestamp, x y z or p_x..., qx... or q_x..., gripper; "
+        "the time unit stated, named in the header or inferred from the rate)"
+    )
     g.add_argument(
         "--column",
         action="append",
         type=_key_value,
         default=[],
         metavar="KEY=NAME",
-        help=f"map a key to a CSV column (keys: {COLUMN_KEYS}); gripper= for none; repeatable",
+        help=f"map a key to a CSV column (keys: {COLUMN_KEYS}); time_unit=s|ms|us|ns; gripper= for none; repeatable",
     )
     g.add_argument(
         "--frame-rate", type=float, default=None, metavar="HZ", help="camera rate when frames are not one per CSV row"

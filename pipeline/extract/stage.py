@@ -54,6 +54,7 @@ from cnep.recordings import (
     write_trajectory,
 )
 from cnep.recordings.constants import TOPIC_IMAGE
+from cnep.recordings.readers import in_file
 
 log = logging.getLogger(__name__)
 
@@ -298,7 +299,8 @@ def extract_file(src: Path, dst: Path, extractor: Callable[[], FeatureExtractor]
     demo = read_demonstration(src)
     if demo.frames is None:
         log.info("%s has no frames: writing a motion-only trajectory", src)
-        trajectory = Trajectory.from_demonstration(demo)
+        with in_file(src):  # a record's checks name its episode id: the file is what the user knows
+            trajectory = Trajectory.from_demonstration(demo)
     else:
         extractor().prepare()
         if bar is not None:
@@ -307,7 +309,8 @@ def extract_file(src: Path, dst: Path, extractor: Callable[[], FeatureExtractor]
             bar.total += demo.n_steps
             bar.refresh()
         features = features_of_frames(demo.frames, extractor(), src, bar)  # (T, 1280)
-        trajectory = Trajectory.from_demonstration(demo, features, extractor().identity)
+        with in_file(src):
+            trajectory = Trajectory.from_demonstration(demo, features, extractor().identity)
     write_trajectory(dst, trajectory)
     log.info("%s -> %s (%d steps)", src, dst, demo.n_steps)
     return Extracted(src, dst, demo.n_steps, skipped=False)

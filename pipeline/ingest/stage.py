@@ -35,6 +35,7 @@ from cnep.recordings.csv_motion import CsvColumns
 from cnep.recordings.lerobot import LerobotMapping, demonstration_from_lerobot, is_lerobot_dataset, plan_lerobot
 from cnep.recordings.mcap_source import McapTopics, demonstration_from_mcap
 from cnep.recordings.media import check_decodable
+from cnep.recordings.plausibility import checked
 from cnep.recordings.rosbag import demonstration_from_rosbag, is_ros2_bag
 
 log = logging.getLogger(__name__)
@@ -185,7 +186,7 @@ def ingest(config: IngestConfig) -> list[Ingested]:
                 done.append(current[target])
                 continue
             try:
-                demo = load(source, config)
+                demo = checked(load(source, config), str(source.path))
                 if source.kind != "folder":  # a folder's images are checked (or re-encoded) as they are read
                     check_decodable(demo.frames, str(source.path))
             except SOURCE_ERRORS as exc:

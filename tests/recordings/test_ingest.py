@@ -193,7 +193,7 @@ def test_robot_mcap_missing_topic_names_the_topics(tmp_path):
         (4, 3, "nan", "line 4, column 'p_x' is nan"),
         (4, 3, "abc", "line 4, column 'p_x': 'abc' is not a number"),
         (5, 0, "1", "backwards (or repeats) at line 5"),
-        (1, 10, "grip", "missing CSV columns ['gripper_position']"),
+        (1, 10, "grip", "missing CSV columns (gripper: gripper_position or gripper)"),
     ],
 )
 def test_bad_csv(tmp_path, line, column, value, words):
