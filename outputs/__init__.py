@@ -11,16 +11,18 @@ killed runs left there. This package imports no other part of cnep, so all of th
 
 from cnep.outputs.atomic import (
     TEMPORARY,
+    Staging,
     atomic_file,
     atomic_path,
     is_stale_temporary,
     pid_alive,
     remove_stale_temporaries,
+    staged,
     temporary_path,
     write_atomically,
 )
 from cnep.outputs.errors import OutputError
-from cnep.outputs.lock import FOLDER_LOCK, is_lock_name, lock_path, output_lock
+from cnep.outputs.lock import FOLDER_LOCK, is_lock_name, lock_path, output_lock, remove_stale_locks
 
 __all__ = [
     "FOLDER_LOCK",
@@ -33,7 +35,10 @@ __all__ = [
     "lock_path",
     "output_lock",
     "pid_alive",
+    "Staging",
+    "remove_stale_locks",
     "remove_stale_temporaries",
+    "staged",
     "temporary_path",
     "write_atomically",
 ]

@@ -84,6 +84,52 @@ def atomic_path(target: str | os.PathLike) -> Iterator[Path]:
         raise
 
 
+class Staging:
+    """Files written under temporary names now and renamed into place together later (`staged`)."""
+
+    def __init__(self) -> None:
+        self._staged: list[tuple[Path, Path | None]] = []  # (temporary, target or None: discarded at the end)
+
+    def write(self, target: str | os.PathLike, data: bytes, keep: bool = True) -> Path:
+        """Write `data` under a temporary name beside `target` (0666 less the umask, fsynced); returns that name.
+        With `keep` False the file is an intermediate, removed at the end instead of renamed."""
+        tmp = self.path(target, keep)
+        try:
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+            with os.fdopen(fd, "wb") as stream:
+                stream.write(data)
+                stream.flush()
+                os.fsync(stream.fileno())
+        except OSError as exc:
+            raise _named(exc, Path(target)) from None
+        return tmp
+
+    def path(self, target: str | os.PathLike, keep: bool = True) -> Path:
+        """A temporary name beside `target` for a writer that takes a path (the file must exist at the end); with
+        `keep` False the file is an intermediate, removed at the end instead of renamed."""
+        tmp = temporary_path(Path(target))
+        self._staged.append((tmp, Path(target) if keep else None))
+        return tmp
+
+
+@contextlib.contextmanager
+def staged() -> Iterator[Staging]:
+    """Stage several files (`Staging.write`, `Staging.path`); when the block completes they are renamed into place,
+    in the order staged; on any exception every staged file is removed and no target changes."""
+    staging = Staging()
+    try:
+        yield staging
+        for tmp, target in staging._staged:
+            if target is not None:
+                try:
+                    os.replace(tmp, target)
+                except OSError as exc:
+                    raise _named(exc, target) from None
+    finally:
+        for tmp, _ in staging._staged:
+            _remove(tmp)
+
+
 def write_atomically(target: str | os.PathLike, data: bytes) -> Path:
     """Write `data` to `target` through `atomic_file`; returns the target."""
     with atomic_file(target) as stream:

@@ -1,7 +1,7 @@
 """One run at a time per output: an exclusive lock held for the run, naming its holder to anyone refused.
 
 The lock is an OS-level lock (flock, through the `filelock` library) on a small file: `.<name>.lock` beside
-a file output (a checkpoint folder counts as one: it is renamed into place), `.cnep.lock` inside a folder
+a file output (a checkpoint folder counts as one: it is renamed into place), `.cnep-folder.lock` inside a folder
 that several files are written into. The operating system releases it when its holder dies, however it
 dies; the file itself says who holds it (process id, host, command, start time), so a refused run can
 name the live one, and a run that finds the file of a dead holder takes it over with a note. The file is
@@ -26,7 +26,7 @@ from cnep.outputs.errors import OutputError
 
 log = logging.getLogger(__name__)
 
-FOLDER_LOCK = ".cnep.lock"
+FOLDER_LOCK = ".cnep-folder.lock"  # not `.cnep.lock`: that is the lock beside an output named `cnep`
 _SIGNATURE = b'{"pid": '  # how the lock file's JSON starts (_holder's first key)
 
 
@@ -145,5 +145,32 @@ def _clean(output: Path, folder: bool, names: list[str]) -> None:
     with contextlib.suppress(OSError):
         if folder:
             remove_stale_temporaries(output, recursive=True)
+            remove_stale_locks(output, keep=lock_path(output, folder))
         else:
             remove_stale_temporaries(output.parent, names)
+
+
+def remove_stale_locks(folder: Path, keep: Path | None = None) -> int:
+    """Remove the lock files under `folder` (all depths) that no live run holds, except `keep`: the leftovers of
+    runs into outputs inside it that were killed. Returns how many were removed."""
+    from filelock import FileLock, Timeout
+
+    removed = 0
+    for path in folder.rglob(".*.lock"):
+        if path == keep or not is_lock_name(path.name) or not path.is_file():
+            continue
+        with contextlib.suppress(OutputError):
+            _refuse_foreign(path)
+            lock = FileLock(str(path), timeout=0)
+            try:
+                lock.acquire()
+            except (Timeout, OSError):
+                continue  # held: a live run (an output inside this one, written now)
+            try:
+                path.unlink()
+                removed += 1
+            finally:
+                lock.release()
+    if removed:
+        log.warning("%s: removed %d lock file(s) left by interrupted runs", folder, removed)
+    return removed
