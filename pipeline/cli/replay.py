@@ -61,6 +61,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import shlex
     import time
 
     from cnep.models import ConditioningPolicy
@@ -92,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
         )
     print(
         f"wrote {files[0] if len(files) == 1 else f'{len(files)} .rrd files'} and {decisions_path(args.out)}; "
-        f"open one with `rerun {files[0]}`"
+        f"open one with `rerun {shlex.quote(str(files[0]))}`"
     )
     if server is not None:
         print("serving until Ctrl-C")

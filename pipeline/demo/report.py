@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import shlex
 import shutil
 import sys
 from pathlib import Path
@@ -53,7 +54,9 @@ def format_summary(result: DemoResult) -> str:
     if result.figure is not None:
         lines.append(f"summary figure: {result.figure}")
     lines.append(f"other replayed recordings: {result.out / Path(REPLAYS_RRD).parent}/")
-    lines.append(f"open the view (the scene change): {viewer_command()} {result.out / RRD_FILE}")
+    lines.append(
+        f"open the view (the scene change): {shlex.quote(viewer_command())} {shlex.quote(str(result.out / RRD_FILE))}"
+    )
     lines.append(f"checkpoints: {', '.join(str(p) for p in result.checkpoints.values())}")
     lines.append(f"summary: {result.out / SUMMARY_FILE}")
     lines.append("stage times (s): " + ", ".join(f"{k} {v:.1f}" for k, v in result.seconds.items()))

@@ -46,7 +46,7 @@ from pathlib import Path
 import numpy as np
 
 from cnep.models import TrainConfig
-from cnep.outputs import write_atomically
+from cnep.outputs import output_lock, write_atomically
 from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_file_as_folder
 from cnep.pipeline.demo.figure import FIGURE_FILE, Scene, draw_summary
 from cnep.pipeline.demo.free_choice import gate_census, generated_ends, place_outcomes, replay_pick
@@ -65,6 +65,7 @@ from cnep.pipeline.demo.scene import BEHAVIOURS
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.extract.stage import ExtractConfig, extract
 from cnep.pipeline.ingest.stage import IngestConfig, ingest
+from cnep.pipeline.ownership import cnep_file, foreign_files
 from cnep.pipeline.replay.decisions import decisions_path, read_decisions
 from cnep.pipeline.replay.stage import replay
 from cnep.pipeline.train.constants import SCENE
@@ -183,17 +184,17 @@ def run_demo(config: DemoConfig) -> DemoResult:
     """Run every stage into `config.out` (see the module docstring); returns what was made and measured."""
     out, size = Path(config.out), config.size
     refuse_file_as_folder(out)
-    fresh = not out.exists() or not any(out.iterdir())
-    if not fresh and not config.force:
-        raise PipelineError(
-            f"{out}: the demo writes into a new folder and this one is not empty; give another --out, "
-            f"remove it, or add --force to replace the demo's files in it"
-        )
-    if config.force and not fresh:
-        remove_outputs(out)
     seconds: dict[str, float] = {}
-    with output_folder(out):
+    with output_folder(out), output_lock(out, folder=True) as lock:  # the lock also clears a killed run's leftovers
         check_writable_folder(out)
+        fresh = not any(p != lock for p in out.iterdir())
+        if not fresh and not config.force:
+            raise PipelineError(
+                f"{out}: the demo writes into a new folder and this one is not empty; give another --out, "
+                f"remove it, or add --force to replace the demo's files in it"
+            )
+        if config.force and not fresh:
+            remove_outputs(out)
         try:
             with _per_file_logs_quiet():
                 result = _run_stages(config, out, size, seconds)
@@ -201,14 +202,24 @@ def run_demo(config: DemoConfig) -> DemoResult:
         except BaseException:
             if fresh:  # the folder was new or empty: a failed or interrupted demo leaves nothing in it
                 for child in out.iterdir():
-                    shutil.rmtree(child) if child.is_dir() and not child.is_symlink() else child.unlink()
+                    if child != lock:
+                        shutil.rmtree(child) if child.is_dir() and not child.is_symlink() else child.unlink()
             raise
     return result
 
 
 def remove_outputs(out: Path) -> None:
-    """Delete what an earlier demo wrote into `out` (OUTPUTS), nothing else."""
-    for path in (path for pattern in OUTPUTS for path in out.glob(pattern)):
+    """Delete what an earlier demo wrote into `out` (OUTPUTS), nothing else: refused, before anything goes, if one
+    of them holds a file the demo did not write (pipeline.ownership.cnep_file)."""
+    found = [path for pattern in OUTPUTS for path in out.glob(pattern)]
+    for path in found:
+        foreign = foreign_files(path) if path.is_dir() and not path.is_symlink() else [] if cnep_file(path) else [path]
+        if foreign:
+            raise PipelineError(
+                f"{foreign[0]}: --force deletes only what an earlier demo wrote in {out}, and this is not one; move "
+                f"it away, or give another --out"
+            )
+    for path in found:
         if path.is_dir() and not path.is_symlink():
             shutil.rmtree(path)
         else:

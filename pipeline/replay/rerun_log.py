@@ -9,6 +9,8 @@ streaming to it (a warning when none answers, never a hang) and `serve` hosts a 
 
 from __future__ import annotations
 
+import errno
+import os
 import socket
 import subprocess
 import sys
@@ -68,15 +70,15 @@ def recording_name(index: int, source: Path) -> str:
     return f"{source.stem} ({source.parent.name or '.'}) #{index + 1}"
 
 
-def write_recording(
-    path: Path, recording_id: str, name: str, traj: Trajectory, decisions: Decisions, live: str | None
-) -> None:
-    """One Rerun recording (file sink, plus the live viewer if any) of one replayed trajectory."""
+def write_recording(recording_id: str, name: str, traj: Trajectory, decisions: Decisions, live: str | None) -> bytes:
+    """One Rerun recording of one replayed trajectory: its .rrd bytes (and the same stream to the live viewer, if
+    any). The bytes are written by the caller, so that a full disk is an error naming the file, not Rerun's."""
     import rerun as rr
 
     d = decisions.gates.shape[1]
     rec = rr.RecordingStream(L.APPLICATION_ID, recording_id=recording_id)
-    rec.set_sinks(rr.FileSink(path), *([rr.GrpcSink(live)] if live else []))
+    stream = rec.binary_stream()
+    rec.set_sinks(stream, *([rr.GrpcSink(live)] if live else []))
     rec.send_recording_name(name)
     rec.send_blueprint(L.blueprint(d, camera=traj.frames is not None))
     index = change_index(traj, list(range(traj.n_steps)))
@@ -94,6 +96,7 @@ def write_recording(
         )
     rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
     rec.disconnect()
+    return stream.read(flush=True) or b""
 
 
 def log_camera(rec, index, traj: Trajectory) -> None:
@@ -163,9 +166,14 @@ def log_switches(rec, traj: Trajectory, decisions: Decisions) -> None:
     )
 
 
-def merge_rrd(parts: list[Path], dst: Path) -> None:
-    """Several single-recording .rrd files -> one file holding them all (rerun's own merge)."""
+def merge_rrd(parts: list[Path], dst: Path, target: Path) -> None:
+    """Several single-recording .rrd files -> one file `dst` holding them all (rerun's own merge); `target` is the
+    file `dst` becomes, named in errors (a full disk there is the OSError of any other write)."""
     cmd = [sys.executable, "-m", "rerun_cli", "rrd", "merge", *map(str, parts), "-o", str(dst)]
     done = subprocess.run(cmd, capture_output=True, text=True)
     if done.returncode != 0:
-        raise PipelineError(f"{dst}: `rerun rrd merge` failed ({done.stderr.strip().splitlines()[-1:]})")
+        said = " ".join(done.stderr.strip().splitlines()[-1:])
+        for code in (errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES):
+            if os.strerror(code) in done.stderr:
+                raise OSError(code, os.strerror(code), str(target))
+        raise PipelineError(f"{target}: `rerun rrd merge` failed ({said}); run the replay again without --merge")

@@ -7,7 +7,8 @@ gate, the active expert, the switches, the predicted path per step); `rerun_log`
 next to the camera frames and the end-effector pose (where things go: `viewer`); `decisions` writes
 and reads the decisions file. This module checks the inputs and orchestrates:
 
-- Always writes the `.rrd` (atomically: temporary name in the destination folder, then a rename). A
+- Always writes the `.rrd` (under the lock of `out`; every file under a temporary name, all renamed
+  into place together when the replay completes: cnep.outputs). A
   live viewer gets the same stream only when one answers at `connect` (a TCP probe first; a warning
   when none does, never a hang). Several recordings become one file each beside `out.rrd`
   (`out-01-<folder>-<name>.rrd`, ...: a file of one recording opens on it), or with `merge` several
@@ -27,15 +28,17 @@ import contextlib
 import json
 import logging
 import os
+import shlex
 import uuid
 from pathlib import Path
 
 from cnep.models import ConditioningPolicy
-from cnep.outputs import write_atomically
-from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_existing
+from cnep.outputs import output_lock, staged
+from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_existing, refuse_inputs
 from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.ownership import DECISIONS, MCAP, RRD, OutputKind
 from cnep.pipeline.replay.conditioning import DEFAULT_PREDICTION_POINTS, decide
-from cnep.pipeline.replay.decisions import decision_events, decisions_path, summarise
+from cnep.pipeline.replay.decisions import DECISIONS_SUFFIX, decision_events, decisions_path, summarise
 from cnep.pipeline.replay.rerun_log import (
     DEFAULT_VIEWER_URL,
     merge_rrd,
@@ -45,6 +48,7 @@ from cnep.pipeline.replay.rerun_log import (
     write_recording,
 )
 from cnep.pipeline.train.checkpoint import load_trained
+from cnep.pipeline.workers import torch_threads
 from cnep.recordings import add_events, read_trajectory
 
 log = logging.getLogger(__name__)
@@ -72,8 +76,6 @@ def replay(
     decisions, the event copies) are refused unless `force`; a recording whose features come from
     another extractor than the checkpoint's training data is refused (pipeline.identity).
     """
-    import torch
-
     from cnep.pipeline.progress import progress_bar
 
     checkpoint, out = Path(checkpoint_dir), Path(out_rrd)
@@ -89,8 +91,11 @@ def replay(
             f"copies with events would overwrite each other; replay them in separate runs"
         )
     files = rrd_files(out, paths, merge)
-    outputs = [*files, decisions_path(out), *(Path(events_dir) / name for name in names if events_dir is not None)]
-    refuse_existing(outputs, force, "replay output")
+    merge_all = len(files) < len(paths)
+    events = [Path(events_dir) / name for name in names] if events_dir is not None else []
+    outputs = [*files, decisions_path(out), *events]
+    refuse_inputs(outputs, [*paths, checkpoint], "--out or --events-out")
+    refuse_existing(outputs, force, "replay output", kind=replay_kind)
     trained = load_trained(checkpoint)
     model = trained.model
     trajectories = [read_trajectory(p) for p in paths]
@@ -105,35 +110,41 @@ def replay(
     live = connect if connect and viewer_reachable(connect) else None
     if connect and live is None:
         log.warning(
-            "no Rerun viewer answers at %s; writing %s only (open it with `rerun %s`)", connect, files[0], files[0]
+            "no Rerun viewer answers at %s; writing %s only (open it with `rerun %s`)",
+            connect,
+            files[0],
+            shlex.quote(str(files[0])),
         )
     elif live:
         log.info("streaming live to %s", live)
     run_id = uuid.uuid4().hex[:8]  # a new replay is a new recording in a viewer, not more rows in an old one
-    parts: list[Path] = []
     summaries = []
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)  # one small step at a time: one thread is fastest
-    with contextlib.ExitStack() as made:  # a failure removes the folders made for the outputs, and the parts
+    with contextlib.ExitStack() as held:  # a failure removes the folders made for the outputs, and what was staged
         for folder, option in [(out.parent, "--out"), *([(Path(events_dir), "--events-out")] if events_dir else [])]:
-            made.enter_context(output_folder(folder, option))
+            held.enter_context(output_folder(folder, option))
             check_writable_folder(folder)
-        made.callback(torch.set_num_threads, threads)
-        made.callback(lambda: [part.unlink(missing_ok=True) for part in [*parts, out.parent / f".{out.name}.tmp"]])
+        parts = [files[0].with_name(f"{files[0].name}-{i}") for i in range(len(paths))] if merge_all else []
+        held.enter_context(output_lock(out, names=[p.name for p in (*files, decisions_path(out), *parts)]))
+        if events_dir is not None:
+            held.enter_context(output_lock(Path(events_dir), folder=True))
+        refuse_existing(outputs, force, "replay output", kind=replay_kind)  # again: a run may have ended meanwhile
+        held.enter_context(torch_threads())  # one small step at a time: one thread is fastest
+        staging = held.enter_context(staged())
         bar = progress_bar(total=sum(len(r) for r in rows), quiet=quiet, desc="replay", unit="step", leave=False)
         for i, (path, traj, x) in enumerate(zip(paths, trajectories, rows)):
             decisions = decide(model, x, traj.timestamps_ns, policy, xyz, prediction_points)
             bar.update(len(x))
-            parts.append(out.parent / f".{out.name}.{i}.tmp")
-            write_recording(parts[-1], recording_id(i, traj, run_id), recording_name(i, path), traj, decisions, live)
+            data = write_recording(recording_id(i, traj, run_id), recording_name(i, path), traj, decisions, live)
+            if merge_all:  # one file holding every recording: the parts are merged into it, then dropped
+                parts[i] = staging.write(parts[i], data, keep=False)
+            else:
+                staging.write(files[i], data)
             if events_dir is not None:
                 add_events(path, Path(events_dir) / path.name, decision_events(traj, decisions))
             summaries.append(summarise(path, traj, decisions))
         bar.close()
-        done = parts
-        if len(files) < len(parts):  # one file holding every recording
-            done = [out.parent / f".{out.name}.tmp"]
-            merge_rrd(parts, done[0])
+        if parts:
+            merge_rrd(parts, staging.path(files[0]), files[0])
         for i, summary in enumerate(summaries):
             summary["rrd"] = files[min(i, len(files) - 1)].name
         record = {
@@ -143,9 +154,7 @@ def replay(
             "policy": {"window": policy.window, "anchors": policy.anchors},
             "recordings": summaries,
         }
-        write_atomically(decisions_path(out), json.dumps(record, indent=1).encode())
-        for part, file in zip(done, files):
-            os.replace(part, file)
+        staging.write(decisions_path(out), json.dumps(record, indent=1).encode())
     for s in summaries:
         log.debug(
             "%s: expert %d on %.0f%% of %d steps, %d switch(es)",
@@ -156,6 +165,15 @@ def replay(
             len(s["switches"]),
         )
     return files
+
+
+def _replay_output(path: Path) -> bool:
+    """What --force may replace: a .rrd, a decisions file or a copy with events that a replay wrote."""
+    kind = RRD if path.suffix == ".rrd" else DECISIONS if path.name.endswith(DECISIONS_SUFFIX) else MCAP
+    return kind(path)
+
+
+replay_kind = OutputKind("a replay's .rrd, decisions file or copy with events", _replay_output)
 
 
 def rrd_files(out: Path, paths: list[Path], merge: bool) -> list[Path]:

@@ -175,7 +175,8 @@ def test_a_damaged_input_is_one_line_and_exit_2(world, tmp_path, capsys, command
     assert not (tmp_path / "out").exists() and damaged.read_bytes() == before
 
 
-# --- existing output: exit 2 and the output unchanged without --force; replaced with --force ----------------------
+# --- existing output: exit 2 and the output unchanged without --force; with --force a file the command wrote is
+# --- replaced, a user's own file at that path is refused (exit 2, unchanged) -------------------------------------
 
 EXISTING_OUTPUT = {  # argv, the output path to pre-fill, whether --force is quick enough to try here
     "ingest": lambda w, t: (["ingest", w.csv, "--out", t / "out"], t / "out" / "a.mcap", True),
@@ -204,8 +205,14 @@ def test_an_existing_output_is_never_overwritten_without_force(world, tmp_path, 
     assert existing.read_bytes() == b"precious" and leftovers(tmp_path / "out") == before
     if try_force:
         code, err = run_cli([*argv, "--force"], capsys)
+        assert code == 2 and existing.read_bytes() == b"precious" and leftovers(tmp_path / "out") == before
+        assert_one_line(err, command, str(existing), "--force replaces only", "never deletes your own files")
+        existing.unlink()
+        assert run_cli(argv, capsys)[0] == 0  # now the output is the command's own ...
+        written = leftovers(tmp_path / "out")
+        code, err = run_cli([*argv, "--force"], capsys)  # ... and --force replaces it
         assert code == 0, err
-        assert existing.exists() and (existing.is_dir() or existing.read_bytes() != b"precious")
+        assert leftovers(tmp_path / "out") == written
 
 
 def test_an_output_that_is_a_file_where_a_folder_is_expected_is_one_line(world, tmp_path, capsys):
@@ -265,11 +272,6 @@ def interrupt(*args, **kwargs):
     raise KeyboardInterrupt
 
 
-def part_then_interrupt(path, *args, **kwargs):
-    Path(path).write_bytes(b"half")  # a part file, as Rerun's file sink leaves it
-    raise KeyboardInterrupt
-
-
 INTERRUPTED = {  # argv, and the function replaced by one that interrupts (Ctrl-C in the middle of the work)
     "ingest": lambda w, t: (["ingest", w.csv, "--out", t / "out"], "cnep.recordings.writers", "new_writer"),
     "inspect": lambda w, t: (["inspect", w.demos / "d0.mcap"], "cnep.recordings.inspection", "read_mcap"),
@@ -303,9 +305,7 @@ def test_an_interruption_is_exit_130_and_leaves_nothing_half_written(
     world, tmp_path, capsys, monkeypatch, command, one_thread
 ):
     argv, module, name = INTERRUPTED[command](world, tmp_path)
-    monkeypatch.setattr(
-        importlib.import_module(module), name, part_then_interrupt if name == "write_recording" else interrupt
-    )
+    monkeypatch.setattr(importlib.import_module(module), name, interrupt)
     code, err = run_cli(argv, capsys)
     assert code == 130
     assert_one_line(err, command, "interrupted")
