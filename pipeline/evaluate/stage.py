@@ -27,6 +27,7 @@ from queue import Empty
 import numpy as np
 
 from cnep.models.config import ASSIGNMENTS
+from cnep.outputs import output_lock
 from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_existing
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.evaluate.constants import (
@@ -47,6 +48,7 @@ from cnep.pipeline.evaluate.constants import (
     UNIT_NETWORKS,
 )
 from cnep.pipeline.evaluate.jobs import PROTOCOLS, Job, ModelSpec, run_unit, unit_key
+from cnep.pipeline.ownership import OutputKind, json_with, markdown_titled
 from cnep.pipeline.workers import single_thread_processes
 
 log = logging.getLogger(__name__)
@@ -368,16 +370,14 @@ def evaluate(config: EvaluateConfig) -> dict[str, Path]:
         config.n_queries,
         config.jobs,
     )
-    refuse_existing(
-        [config.out / f"{table}{suffix}" for table in config.tables for suffix in (".md", ".json")],
-        config.force,
-        "table",
-    )
+    tables = [config.out / f"{table}{suffix}" for table in config.tables for suffix in (".md", ".json")]
+    refuse_existing(tables, config.force, "table", kind=TABLE)
     pending = {table: needs(table, config) for table in config.tables}
     done: dict[tuple, dict] = {}  # Job.key -> results
     written = {}
-    with output_folder(config.out):
+    with output_folder(config.out), output_lock(config.out, folder=True):
         check_writable_folder(config.out)
+        refuse_existing(tables, config.force, "table", kind=TABLE)  # again, under the lock
         for job, result in run_jobs(jobs, config.jobs, config.quiet):
             done[job.key] = result
             for table in [t for t, keys in pending.items() if not keys - done.keys()]:
@@ -385,6 +385,18 @@ def evaluate(config: EvaluateConfig) -> dict[str, Path]:
                 written[table] = write_table(table, config, done, time.perf_counter() - start)
                 log.info("%s table written to %s", table, written[table])
     return {table: written[table] for table in config.tables}
+
+
+def _table_file(path: Path) -> bool:
+    """A table `evaluate` wrote: its JSON (with the paper's note) or its Markdown (with a table's title)."""
+    from cnep.pipeline.evaluate.tables import TITLES
+
+    if path.suffix == ".json":
+        return json_with("", ("table", "settings", "paper_note"))(path)
+    return any(markdown_titled("", title)(path) for title in TITLES.values())
+
+
+TABLE = OutputKind("a table written by `cnep evaluate`", _table_file)
 
 
 def write_table(table: str, config: EvaluateConfig, done: dict[tuple, dict], wall: float) -> Path:
