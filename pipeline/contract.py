@@ -74,9 +74,10 @@ class Terminated(KeyboardInterrupt):
     """SIGTERM, raised where Ctrl-C raises KeyboardInterrupt, so that whatever cleans up after Ctrl-C does so too."""
 
 
-def interruption(signum: int) -> KeyboardInterrupt:
-    """The exception that signal `signum` (SIGINT or SIGTERM) raises."""
-    return Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
+def interruption(signum: int, then: str = "") -> KeyboardInterrupt:
+    """The exception that signal `signum` (SIGINT or SIGTERM) raises; `then`, if given, is what the user can do
+    now, said in the one line instead of the default."""
+    return Terminated(then) if signum == signal.SIGTERM else KeyboardInterrupt(then)
 
 
 def _raise_interruption(signum: int, frame: object) -> None:
@@ -125,10 +126,8 @@ def run_command(command: str, run: Callable[[], int | None], verbose: bool = Fal
         return EXIT_OK
     except KeyboardInterrupt as exc:
         how = "terminated (SIGTERM)" if isinstance(exc, Terminated) else "interrupted"
-        print(
-            f"cnep {command}: {how}; nothing half-written was kept, run the command again to finish",
-            file=sys.stderr,
-        )
+        then = str(exc) or "nothing half-written was kept, run the command again to finish"  # a stage may say more
+        print(f"cnep {command}: {how}; {then}", file=sys.stderr)
         return EXIT_TERMINATED if isinstance(exc, Terminated) else EXIT_INTERRUPTED
     except Exception as exc:  # noqa: BLE001 - the contract: every failure is one line and an exit status
         user = isinstance(exc, (*loaded_user_errors(), OSError))

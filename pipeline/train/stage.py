@@ -215,17 +215,18 @@ def _train(config: TrainStageConfig, procs: Processes, device: torch.device, hel
                 if trainer.diverged is not None:
                     break
                 save_progress(trainer, procs, work, {"identity": identity, "elapsed_s": time.perf_counter() - clock})
-        except KeyboardInterrupt:
+        except KeyboardInterrupt as exc:
             if trainer.stopped_between_steps:  # every rank stopped after the same step: its state resumes exactly
                 save_progress(trainer, procs, work, {"identity": identity, "elapsed_s": time.perf_counter() - clock})
-            if procs.is_main:
-                log.warning(
-                    "interrupted at step %d; the state %s is in %s: add --resume to the same command to continue",
-                    trainer.step,
-                    "of this step" if trainer.stopped_between_steps else f"saved every {config.save_every} steps",
-                    work,
-                )
-            raise
+            saved_at = (
+                trainer.step if trainer.stopped_between_steps else trainer.step // config.save_every * config.save_every
+            )
+            then = (
+                f"the state of step {saved_at} is in {work}: add --resume to the same command to continue"
+                if saved_at or saved is not None
+                else "nothing was saved yet; run the command again to start over"
+            )
+            raise type(exc)(then) from None
     elapsed = time.perf_counter() - clock
     if trainer.diverged is not None and procs.is_main:
         diverged(trainer, config, saved is None)
