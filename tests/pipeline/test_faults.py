@@ -1,0 +1,418 @@
+"""Faults lose nothing: kill -9 and SIGTERM at chosen points of every stage, two runs into one output, a full disk.
+
+Each case runs a real `cnep` process paused at one call (tests/pipeline/fault_driver.py), kills it there, and
+checks that every output present is complete and equal to an uninterrupted run's, that a polite kill
+(SIGTERM) ends with exit 143 and one line and leaves no stray file, and that running the command again
+(`--resume` for train) finishes with the uninterrupted run's result and no stray file. A second run into an
+output that a live run holds is refused with one line naming the live process. A full disk (a 2 MB tmpfs,
+skipped where mounting is not permitted) is exit 2 with one line naming the file and the fix, and leaves
+nothing that blocks the next run. The longer soak (random kill times, repeated) is
+`python -m benchmarks.soak_faults`.
+"""
+
+from __future__ import annotations
+
+import os
+import select
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from safetensors.torch import load_file
+
+from cnep.outputs import TEMPORARY, is_lock_name
+from cnep.pipeline.cli.main import main
+from cnep.recordings import read_demonstration, write_demonstration
+from tests.recordings.factories import demonstration_factory
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+
+ROOT = Path(__file__).resolve().parents[2]
+TRAINING = ["--layout", "motion", "--steps", "40", "--val-every", "10", "--save-every", "10", "--warmup-steps", "4"]
+TRAINING += ["--encoder-widths", "8", "--expert-widths", "8", "--batch-size", "4", "--seed", "1"]
+WAIT_S = 240  # a paused process reached its point, or a killed one ended (a loaded 2-core machine is slow)
+
+
+@dataclass(frozen=True)
+class World:
+    """Inputs and the outputs of uninterrupted runs (never written to by the tests)."""
+
+    src: Path  # 4 motion CSVs with the usual column names
+    demos: Path  # ingested
+    trajs: Path  # extracted
+    ckpt: Path  # trained with TRAINING
+    other_ckpt: Path  # 3 experts: another model for the same recordings
+    truncated: Path  # a demonstration cut in its second chunk, for repair
+
+
+@pytest.fixture(scope="module")
+def world(tmp_path_factory) -> World:
+    root = tmp_path_factory.mktemp("faults")
+    (root / "src").mkdir()
+    t = np.arange(40) * 0.05
+    for k in range(4):
+        rows = [[ti, 0.3 + 0.1 * k + 0.2 * ti, 0.1 * np.sin(ti + k), 0.2, 0, 0, 0, 1, 0.01 * k] for ti in t]
+        text = "\n".join(["t,x,y,z,qx,qy,qz,qw,gripper", *(",".join(map(repr, map(float, r))) for r in rows)])
+        (root / "src" / f"demo_{k}.csv").write_text(text + "\n")
+    assert main(["-q", "ingest", str(root / "src"), "--out", str(root / "demos")]) == 0
+    assert main(["-q", "extract", str(root / "demos"), "--out", str(root / "trajs")]) == 0
+    assert main(["-q", "train", str(root / "trajs"), "--out", str(root / "ckpt"), *TRAINING]) == 0
+    other = [*TRAINING, "--experts", "3"]
+    assert main(["-q", "train", str(root / "trajs"), "--out", str(root / "other"), *other]) == 0
+    big = write_demonstration(root / "big.mcap", demonstration_factory(200, frames=True, frame_size=128))
+    (root / "truncated.mcap").write_bytes(big.read_bytes()[: int(big.stat().st_size * 0.7)])
+    return World(root / "src", root / "demos", root / "trajs", root / "ckpt", root / "other", root / "truncated.mcap")
+
+
+class Paused:
+    """A `cnep` process that will pause at the `hit`-th call of `target` (`module:Attr.name`); started at once,
+    `wait()` for it to get there (start several, then wait: they import torch side by side)."""
+
+    def __init__(self, target: str, hit: int, argv: list, tmp: Path):
+        self.target, self.hit = target, hit
+        self.go = tmp / f".go-{time.monotonic_ns()}"
+        env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": str(ROOT)}
+        cmd = [sys.executable, "-m", "tests.pipeline.fault_driver", target, str(hit), str(self.go), "--", "-q"]
+        self.proc = subprocess.Popen(
+            [*cmd, *map(str, argv)], cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+        )
+
+    def wait(self) -> Paused:
+        ready, _, _ = select.select([self.proc.stdout], [], [], WAIT_S)
+        line = self.proc.stdout.readline() if ready else ""
+        if not line.startswith("paused"):
+            self.proc.kill()
+            raise AssertionError(
+                f"never reached {self.target} #{self.hit}: {line!r} {self.proc.communicate()[1][-2000:]}"
+            )
+        return self
+
+    def stop(self, signum: int) -> tuple[int, list[str]]:
+        """Send `signum`, let a deferred signal take effect, wait; (exit status, stderr lines)."""
+        self.wait()
+        self.proc.send_signal(signum)
+        self.go.touch()
+        _, err = self.proc.communicate(timeout=WAIT_S)
+        self.go.unlink()
+        return self.proc.returncode, err.strip().splitlines()
+
+    def release(self) -> tuple[int, list[str]]:
+        """Let it go on to the end; (exit status, stderr lines)."""
+        self.go.touch()
+        _, err = self.proc.communicate(timeout=WAIT_S)
+        self.go.unlink()
+        return self.proc.returncode, err.strip().splitlines()
+
+
+def both(target: str, hit: int, argv, tmp: Path) -> dict[int, tuple[int, list[str]]]:
+    """Run `argv(out)` killed with SIGKILL and with SIGTERM at the same point, side by side, into tmp/kill and
+    tmp/term; {signal: (exit status, stderr lines)}."""
+    runs = {signal.SIGKILL: tmp / "kill", signal.SIGTERM: tmp / "term"}
+    for folder in runs.values():
+        folder.mkdir()
+    started = {signum: Paused(target, hit, argv(folder), folder) for signum, folder in runs.items()}
+    return {signum: run.stop(signum) for signum, run in started.items()}
+
+
+def stray(folder: Path) -> list[str]:
+    """Temporary files and lock files anywhere under `folder`."""
+    found = [p for p in folder.rglob("*") if p.is_file() and (TEMPORARY.match(p.name) or is_lock_name(p.name))]
+    return sorted(str(p.relative_to(folder)) for p in found)
+
+
+def files(folder: Path) -> dict[str, bytes]:
+    """Every file under `folder` (relative path -> bytes), bookkeeping files left out."""
+    if not folder.exists():
+        return {}
+    return {
+        str(p.relative_to(folder)): p.read_bytes()
+        for p in sorted(folder.rglob("*"))
+        if p.is_file() and not TEMPORARY.match(p.name) and not is_lock_name(p.name)
+    }
+
+
+def assert_terminated(status: int, err: list[str], command: str, then: str = "nothing half-written was kept") -> None:
+    assert status == 143 and len(err) == 1, (status, err)
+    assert err[0].startswith(f"cnep {command}: terminated (SIGTERM); {then}"), err
+
+
+def assert_same_weights(a: Path, b: Path) -> None:
+    left, right = load_file(a / "model.safetensors"), load_file(b / "model.safetensors")
+    assert left.keys() == right.keys() and all(torch.equal(left[k], right[k]) for k in left)
+
+
+# --- kill -9 and SIGTERM in every stage ----------------------------------------------------------------------------
+
+
+def test_ingest_killed_in_the_middle_of_a_file(world, tmp_path):
+    stopped = both(
+        "cnep.recordings.writers:DemonstrationWriter.write_step",
+        60,
+        lambda o: ["ingest", world.src, "--out", o / "out"],
+        tmp_path,
+    )  # the second file half written, the first complete
+    reference = files(world.demos)
+    assert_terminated(*stopped[signal.SIGTERM], "ingest")
+    assert stray(tmp_path / "term") == [] and stopped[signal.SIGKILL][0] == -signal.SIGKILL
+    assert len(stray(tmp_path / "kill")) == 2  # the half file's temporary name, the lock
+    for run in ("kill", "term"):
+        out = tmp_path / run / "out"
+        assert files(out).items() <= reference.items() and len(files(out)) == 1
+        assert main(["-q", "ingest", str(world.src), "--out", str(out)]) == 0  # no --force: the complete file stays
+        assert files(out) == reference and stray(out) == []
+
+
+def test_extract_killed_between_files(world, tmp_path):
+    stopped = both(
+        "cnep.recordings.writers:TrajectoryWriter.write_steps",
+        3,
+        lambda o: ["extract", world.demos, "--out", o / "out"],
+        tmp_path,
+    )
+    reference = files(world.trajs)
+    assert_terminated(*stopped[signal.SIGTERM], "extract")
+    assert stray(tmp_path / "term") == [] and stopped[signal.SIGKILL][0] == -signal.SIGKILL
+    for run in ("kill", "term"):
+        out = tmp_path / run / "out"
+        assert files(out).items() <= reference.items() and len(files(out)) == 2
+        assert main(["-q", "extract", str(world.demos), "--out", str(out)]) == 0
+        assert files(out) == reference and stray(out) == []
+
+
+def test_train_killed_anywhere_resumes_to_the_uninterrupted_weights(world, tmp_path):
+    """kill -9 before the first save and after one, SIGTERM (which saves the step it arrived in), and kill -9 while
+    --force replaces a checkpoint (the old one stays whole): each re-run ends with the uninterrupted weights."""
+    cases = {  # name: (step or None for the publish, signal, what the re-run adds)
+        "before-save": (3, signal.SIGKILL, []),  # nothing saved: a plain re-run takes the empty work folder over
+        "after-save": (26, signal.SIGKILL, ["--resume"]),
+        "sigterm": (26, signal.SIGTERM, ["--resume"]),
+        "publish": (None, signal.SIGKILL, ["--resume", "--force"]),
+    }
+    shutil.copytree(world.other_ckpt, tmp_path / "publish" / "ckpt")
+    old = files(tmp_path / "publish" / "ckpt")
+    started = {}
+    for name, (step, _, _) in cases.items():
+        (tmp_path / name).mkdir(exist_ok=True)
+        argv = [
+            "train",
+            world.trajs,
+            "--out",
+            tmp_path / name / "ckpt",
+            *TRAINING,
+            *(["--force"] if step is None else []),
+        ]
+        target = (
+            "cnep.pipeline.train.stage:publish" if step is None else "cnep.pipeline.train.stage:StageTrainer.train_step"
+        )
+        started[name] = (Paused(target, step or 1, argv, tmp_path / name), argv)
+    for name, (run, argv) in started.items():
+        step, signum, again = cases[name]
+        status, err = run.stop(signum)
+        out = tmp_path / name / "ckpt"
+        if name == "publish":
+            assert files(out) == old  # the old checkpoint, whole
+        else:
+            assert not out.exists()
+        if signum == signal.SIGTERM:
+            assert_terminated(
+                status, err, "train", f"the state of step {step} is in {tmp_path / name / '.ckpt.partial'}"
+            )
+            assert stray(tmp_path / name) == []
+        assert main(["-q", *map(str, argv), *again]) == 0, name
+        assert_same_weights(out, world.ckpt)
+        assert [p.name for p in (tmp_path / name).iterdir()] == ["ckpt"]  # no work folder, no lock
+
+
+def test_replay_killed_writes_no_output_and_runs_again(world, tmp_path):
+    def argv(folder):
+        return [
+            "replay",
+            world.ckpt,
+            *sorted(world.trajs.glob("*.mcap"))[:2],
+            "--out",
+            folder / "out" / "r.rrd",
+            "--no-live",
+        ]
+
+    stopped = both("cnep.pipeline.replay.stage:write_recording", 2, argv, tmp_path)
+    assert_terminated(*stopped[signal.SIGTERM], "replay")
+    assert not (tmp_path / "term" / "out").exists()  # made by the run, removed again
+    assert files(tmp_path / "kill" / "out") == {}  # the first recording was staged, never renamed into place
+    for run in ("kill", "term"):
+        assert main(["-q", *map(str, argv(tmp_path / run))]) == 0
+        out = tmp_path / run / "out"
+        assert sorted(files(out)) == ["r-01-trajs-demo_0.rrd", "r-02-trajs-demo_1.rrd", "r.experts.json"]
+        assert stray(out) == []
+
+
+def test_repair_killed_writes_no_output_and_runs_again(world, tmp_path):
+    stopped = both(
+        "cnep.recordings.container:new_writer", 1, lambda o: ["repair", world.truncated, o / "fixed.mcap"], tmp_path
+    )
+    assert_terminated(*stopped[signal.SIGTERM], "repair")
+    assert stray(tmp_path / "term") == []
+    for run in ("kill", "term"):
+        assert files(tmp_path / run) == {}
+        assert main(["-q", "repair", str(world.truncated), str(tmp_path / run / "fixed.mcap")]) == 0
+        assert read_demonstration(tmp_path / run / "fixed.mcap").n_steps > 0 and stray(tmp_path / run) == []
+
+
+def test_demo_killed_leaves_a_folder_a_forced_run_can_take_over(tmp_path, capsys):
+    from cnep.pipeline.demo.stage import remove_outputs
+
+    stopped = both("cnep.pipeline.demo.stage:ingest", 1, lambda o: ["demo", "--quick", "--out", o / "demo"], tmp_path)
+    assert_terminated(*stopped[signal.SIGTERM], "demo")
+    assert not (tmp_path / "term" / "demo").exists()  # a new folder: removed again
+    out = tmp_path / "kill" / "demo"
+    assert (out / "recorded").is_dir() and stray(out) != []
+    capsys.readouterr()
+    assert main(["-q", "demo", "--quick", "--out", str(out)]) == 2  # the lock is taken over; the files need --force
+    assert "is not empty" in capsys.readouterr().err and stray(out) == []
+    remove_outputs(out)  # what --force does first: everything there was the demo's
+    assert list(out.iterdir()) == []
+
+
+def test_evaluate_terminated_writes_no_table(tmp_path):
+    from tests.pipeline.test_contract import QUICK_EVALUATE
+
+    out = tmp_path / "tables"
+    argv = ["evaluate", *QUICK_EVALUATE, "--out", out]
+    status, err = Paused("cnep.pipeline.evaluate.stage:run_jobs", 1, argv, tmp_path).stop(signal.SIGTERM)
+    assert_terminated(status, err, "evaluate")
+    assert not out.exists()
+
+
+# --- two runs into one output: the second is refused naming the first, which finishes ----------------------------
+
+
+def test_a_second_run_into_a_held_output_is_refused_naming_the_first(world, tmp_path, capsys):
+    demos, trajs, rrd, ckpt = tmp_path / "demos", tmp_path / "trajs", tmp_path / "r" / "r.rrd", tmp_path / "ckpt"
+    recordings = sorted(world.trajs.glob("*.mcap"))
+    runs = [  # (the first run, paused while it holds the output; a second run into the same output)
+        (
+            Paused(
+                "cnep.recordings.writers:DemonstrationWriter.write_step",
+                1,
+                ["ingest", world.src, "--out", demos],
+                tmp_path,
+            ),
+            ["ingest", world.src, "--out", demos, "--task", "other"],
+        ),
+        (
+            Paused(
+                "cnep.recordings.writers:TrajectoryWriter.write_steps",
+                1,
+                ["extract", world.demos, "--out", trajs],
+                tmp_path,
+            ),
+            ["extract", world.demos, "--out", trajs, "--force"],
+        ),
+        (
+            Paused(
+                "cnep.pipeline.replay.stage:write_recording",
+                1,
+                ["replay", world.ckpt, *recordings, "--out", rrd, "--no-live"],
+                tmp_path,
+            ),
+            ["replay", world.other_ckpt, *recordings, "--out", rrd, "--no-live", "--force"],
+        ),
+        (
+            Paused(
+                "cnep.pipeline.train.stage:StageTrainer.train_step",
+                15,
+                ["train", world.trajs, "--out", ckpt, *TRAINING],
+                tmp_path,
+            ),
+            ["train", world.trajs, "--out", ckpt, *TRAINING, "--resume"],  # as the refusal of a plain re-run advises
+        ),
+    ]
+    for first, second in runs:
+        first.wait()
+        capsys.readouterr()
+        assert main(["-q", *map(str, second)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and f"another run is writing this output (pid {first.proc.pid} on host" in err[0], err
+        assert f"`kill {first.proc.pid}`" in err[0]
+    for first, _ in runs:
+        assert first.release()[0] == 0
+    assert files(demos) == files(world.demos) and files(trajs) == files(world.trajs)
+    assert_same_weights(ckpt, world.ckpt)
+    assert sorted(files(rrd.parent)) == [f"r-0{i + 1}-trajs-demo_{i}.rrd" for i in range(4)] + ["r.experts.json"]
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == [] and stray(tmp_path) == []
+
+
+# --- a full disk ---------------------------------------------------------------------------------------------------
+
+
+@pytest.fixture
+def full_disk(tmp_path):
+    """A 2 MB tmpfs filled up but for a few kB (needs root and permission to mount; skipped elsewhere)."""
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    if os.geteuid() != 0 or subprocess.run(["mount", "-t", "tmpfs", "-o", "size=2m", "tmpfs", str(disk)]).returncode:
+        pytest.skip("mounting a small tmpfs is not permitted here")
+    try:
+        with open(disk / "filler", "wb") as f:  # fill it, then free a little: the next write of any size fails
+            while True:
+                try:
+                    f.write(b"\0" * 65536)
+                    f.flush()
+                except OSError:
+                    break
+        with open(disk / "filler", "r+b") as f:
+            f.truncate(max(0, (disk / "filler").stat().st_size - 8192))
+        yield disk
+    finally:
+        subprocess.run(["umount", "-l", str(disk)])
+
+
+def assert_disk_full_line(err: list[str], command: str, disk: Path) -> None:
+    assert len(err) == 1 and err[0].startswith(f"cnep {command}: error: {disk}"), err
+    assert "No space left on device; free some disk space, or choose a path on another disk" in err[0], err
+
+
+def test_a_full_disk_is_one_line_naming_the_file_in_every_stage(world, full_disk, capsys):
+    demo = write_demonstration(
+        world.demos.parent / "framed.mcap", demonstration_factory(30, frames=True, frame_size=64)
+    )
+    cases = {
+        "ingest": ["ingest", world.src, "--out", full_disk / "demos"],
+        "extract": [
+            "extract",
+            demo,
+            "--out",
+            full_disk / "trajs",
+            "--weights",
+            "random",
+            "--save-weights",
+            full_disk / "w.pt",
+        ],
+        "repair": ["repair", world.truncated, full_disk / "fixed.mcap"],
+        "train": ["train", world.trajs, "--out", full_disk / "ckpt", *TRAINING],
+        "replay": [
+            "replay",
+            world.ckpt,
+            *sorted(world.trajs.glob("*.mcap")),
+            "--out",
+            full_disk / "r.rrd",
+            "--no-live",
+        ],
+        "demo": ["demo", "--quick", "--out", full_disk / "demo"],
+    }
+    for command, argv in cases.items():
+        capsys.readouterr()
+        assert main(["-q", *map(str, argv)]) == 2, command
+        assert_disk_full_line(capsys.readouterr().err.strip().splitlines(), command, full_disk)
+        assert sorted(p.name for p in full_disk.iterdir()) == ["filler"], command  # nothing half-written, nothing left
+    (full_disk / "filler").unlink()  # space again: nothing from the failed runs blocks the next one
+    for command in ("ingest", "train", "replay"):
+        assert main(["-q", *map(str, cases[command])]) == 0, command
+    assert files(full_disk / "demos") == files(world.demos)
+    assert_same_weights(full_disk / "ckpt", world.ckpt)
