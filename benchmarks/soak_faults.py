@@ -28,9 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
-from cnep.outputs import TEMPORARY, is_lock_name
+from tests.pipeline.fault_driver import files, stray
 
-ROOT = Path(__file__).resolve().parents[1]
 TRAINING = ["--layout", "motion", "--steps", "200", "--val-every", "20", "--save-every", "20", "--warmup-steps", "20"]
 TRAINING += ["--encoder-widths", "32", "--expert-widths", "32", "--batch-size", "8", "--seed", "1"]
 
@@ -43,27 +42,6 @@ def cnep(*argv, check: bool = True) -> subprocess.CompletedProcess:
     if check and done.returncode != 0:
         raise RuntimeError(f"cnep {' '.join(map(str, argv))}: {done.stderr.strip()}")
     return done
-
-
-def files(folder: Path) -> dict[str, bytes]:
-    """Every file under `folder` but temporaries and locks (relative path -> bytes)."""
-    if not folder.exists():
-        return {}
-    return {
-        str(p.relative_to(folder)): p.read_bytes()
-        for p in sorted(folder.rglob("*"))
-        if p.is_file() and not TEMPORARY.match(p.name) and not is_lock_name(p.name)
-    }
-
-
-def stray(folder: Path) -> list[str]:
-    if not folder.exists():
-        return []
-    return sorted(
-        str(p.relative_to(folder))
-        for p in folder.rglob("*")
-        if p.is_file() and (TEMPORARY.match(p.name) or is_lock_name(p.name))
-    )
 
 
 def make_inputs(root: Path) -> dict[str, Path]:

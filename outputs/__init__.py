@@ -4,7 +4,7 @@
         with atomic_file(out_folder / "a.mcap") as f:  # `.a.mcap.<pid>-<random>.tmp`, renamed when complete
             f.write(data)
 
-Every package writes its files through `atomic_file` / `atomic_path` / `write_atomically`; the pipeline's
+Every package writes its files through `atomic_file` / `write_atomically` / `staged`; the pipeline's
 stages hold `output_lock` on their outputs for the whole run, which also removes the temporary files that
 killed runs left there. This package imports no other part of cnep, so all of them may import it.
 """
@@ -13,7 +13,6 @@ from cnep.outputs.atomic import (
     TEMPORARY,
     Staging,
     atomic_file,
-    atomic_path,
     is_stale_temporary,
     pid_alive,
     remove_stale_temporaries,
@@ -29,7 +28,6 @@ __all__ = [
     "TEMPORARY",
     "OutputError",
     "atomic_file",
-    "atomic_path",
     "is_lock_name",
     "is_stale_temporary",
     "lock_path",

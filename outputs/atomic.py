@@ -8,7 +8,6 @@ a killed run (its process is gone) from a file another live process is still wri
 from __future__ import annotations
 
 import contextlib
-import errno
 import logging
 import os
 import re
@@ -34,75 +33,11 @@ def _named(exc: OSError, target: Path) -> OSError:
     return OSError(exc.errno, exc.strerror or os.strerror(exc.errno), str(target))
 
 
-@contextlib.contextmanager
-def atomic_file(target: str | os.PathLike) -> Iterator[IO[bytes]]:
-    """A binary stream on a temporary file beside `target`, renamed to `target` when the block completes.
-
-    The file gets 0666 less the umask, is flushed and fsynced before the rename, and is removed on any
-    exception (Ctrl-C and SIGTERM included), leaving `target` as it was. An OSError that names no file (a
-    full disk, a quota) is raised naming `target`. The target's folder must exist.
-    """
-    target = Path(target)
-    tmp = temporary_path(target)
-    try:
-        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
-    except OSError as exc:
-        raise OSError(exc.errno, exc.strerror, str(target)) from None
-    try:
-        with os.fdopen(fd, "wb") as stream:
-            yield stream
-            stream.flush()
-            os.fsync(stream.fileno())
-        os.replace(tmp, target)
-    except OSError as exc:
-        _remove(tmp)
-        raise _named(exc, target) from None
-    except BaseException:
-        _remove(tmp)
-        raise
-
-
-@contextlib.contextmanager
-def atomic_path(target: str | os.PathLike) -> Iterator[Path]:
-    """A temporary path beside `target` for a writer that takes a path (a subprocess, a library's file sink).
-
-    When the block completes the file written there is renamed to `target` (an error if none was written);
-    on any exception it is removed.
-    """
-    target = Path(target)
-    tmp = temporary_path(target)
-    try:
-        yield tmp
-        if not tmp.is_file():
-            raise OSError(errno.ENOENT, "the writer left no file to rename into place", str(target))
-        os.replace(tmp, target)
-    except OSError as exc:
-        _remove(tmp)
-        raise _named(exc, target) from None
-    except BaseException:
-        _remove(tmp)
-        raise
-
-
 class Staging:
     """Files written under temporary names now and renamed into place together later (`staged`)."""
 
     def __init__(self) -> None:
         self._staged: list[tuple[Path, Path | None]] = []  # (temporary, target or None: discarded at the end)
-
-    def write(self, target: str | os.PathLike, data: bytes, keep: bool = True) -> Path:
-        """Write `data` under a temporary name beside `target` (0666 less the umask, fsynced); returns that name.
-        With `keep` False the file is an intermediate, removed at the end instead of renamed."""
-        tmp = self.path(target, keep)
-        try:
-            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
-            with os.fdopen(fd, "wb") as stream:
-                stream.write(data)
-                stream.flush()
-                os.fsync(stream.fileno())
-        except OSError as exc:
-            raise _named(exc, Path(target)) from None
-        return tmp
 
     def path(self, target: str | os.PathLike, keep: bool = True) -> Path:
         """A temporary name beside `target` for a writer that takes a path (the file must exist at the end); with
@@ -111,11 +46,36 @@ class Staging:
         self._staged.append((tmp, Path(target) if keep else None))
         return tmp
 
+    @contextlib.contextmanager
+    def open(self, target: str | os.PathLike, keep: bool = True) -> Iterator[IO[bytes]]:
+        """A binary stream on a new temporary file beside `target` (0666 less the umask), flushed and fsynced when
+        the block ends. An OSError that names no file (a full disk, a quota) is raised naming `target`."""
+        target = Path(target)
+        tmp = self.path(target, keep)
+        try:
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+        except OSError as exc:  # the folder cannot be written: say so of the file the user asked for
+            raise OSError(exc.errno, exc.strerror, str(target)) from None
+        try:
+            with os.fdopen(fd, "wb") as stream:
+                yield stream
+                stream.flush()
+                os.fsync(stream.fileno())
+        except OSError as exc:
+            raise _named(exc, target) from None
+
+    def write(self, target: str | os.PathLike, data: bytes, keep: bool = True) -> Path:
+        """Write `data` under a temporary name beside `target` (`open`); returns that name."""
+        with self.open(target, keep) as stream:
+            stream.write(data)
+        return self._staged[-1][0]
+
 
 @contextlib.contextmanager
 def staged() -> Iterator[Staging]:
-    """Stage several files (`Staging.write`, `Staging.path`); when the block completes they are renamed into place,
-    in the order staged; on any exception every staged file is removed and no target changes."""
+    """Stage several files (`Staging.open`, `write`, `path`); when the block completes they are renamed into place,
+    in the order staged; on any exception (Ctrl-C and SIGTERM included) every staged file is removed and no
+    target changes. Targets' folders must exist."""
     staging = Staging()
     try:
         yield staging
@@ -128,6 +88,14 @@ def staged() -> Iterator[Staging]:
     finally:
         for tmp, _ in staging._staged:
             _remove(tmp)
+
+
+@contextlib.contextmanager
+def atomic_file(target: str | os.PathLike) -> Iterator[IO[bytes]]:
+    """A binary stream on a temporary file beside `target`, renamed to `target` when the block completes and
+    removed on any exception, leaving `target` as it was (`staged` with one file)."""
+    with staged() as staging, staging.open(target) as stream:
+        yield stream
 
 
 def write_atomically(target: str | os.PathLike, data: bytes) -> Path:

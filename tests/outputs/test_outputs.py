@@ -16,10 +16,10 @@ from cnep.outputs import (
     FOLDER_LOCK,
     OutputError,
     atomic_file,
-    atomic_path,
     lock_path,
     output_lock,
     remove_stale_temporaries,
+    staged,
     temporary_path,
     write_atomically,
 )
@@ -60,13 +60,20 @@ def test_a_full_disk_names_the_file(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
-def test_a_path_writer_must_leave_a_file(tmp_path):
-    with atomic_path(tmp_path / "a.rrd") as tmp:
-        tmp.write_bytes(b"rrd")
-    assert (tmp_path / "a.rrd").read_bytes() == b"rrd"
-    with pytest.raises(OSError, match="left no file"), atomic_path(tmp_path / "b.rrd"):
-        pass
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.rrd"]
+def test_staged_files_appear_together_or_not_at_all(tmp_path):
+    write_atomically(tmp_path / "b.json", b"old")
+    with pytest.raises(KeyboardInterrupt), staged() as staging:
+        staging.write(tmp_path / "a.rrd", b"rrd")
+        staging.write(tmp_path / "b.json", b"new")
+        raise KeyboardInterrupt  # interrupted before the end: nothing changes
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["b.json"] and (tmp_path / "b.json").read_bytes() == b"old"
+    with staged() as staging:
+        part = staging.write(tmp_path / "part", b"p", keep=False)  # an intermediate, for a writer that merges
+        with staging.open(tmp_path / "a.rrd") as stream:
+            stream.write(part.read_bytes() + b"rrd")
+        staging.write(tmp_path / "b.json", b"new")
+        assert sorted(p.name for p in tmp_path.iterdir() if not p.name.startswith(".")) == ["b.json"]
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == {"a.rrd": b"prrd", "b.json": b"new"}
 
 
 def test_only_temporaries_of_dead_processes_are_removed(tmp_path, caplog):

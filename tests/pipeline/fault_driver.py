@@ -1,4 +1,5 @@
-"""Run `cnep ARGS` with one function paused at its N-th call, so that a test can kill the process exactly there.
+"""Run `cnep ARGS` with one function paused at its N-th call, so that a test can kill the process exactly there;
+and what the fault tests and the soak (benchmarks/soak_faults.py) look at in an output folder.
 
     python -m tests.pipeline.fault_driver cnep.pipeline.train.stage:StageTrainer.train_step 26 GO -- -q train ...
 
@@ -13,6 +14,27 @@ import os
 import sys
 import time
 from pathlib import Path
+
+from cnep.outputs import TEMPORARY, is_lock_name
+
+
+def files(folder: Path) -> dict[str, bytes]:
+    """Every file under `folder` (relative path -> bytes), cnep's temporary and lock files left out."""
+    if not folder.exists():
+        return {}
+    return {
+        str(p.relative_to(folder)): p.read_bytes()
+        for p in sorted(folder.rglob("*"))
+        if p.is_file() and not TEMPORARY.match(p.name) and not is_lock_name(p.name)
+    }
+
+
+def stray(folder: Path) -> list[str]:
+    """cnep's temporary and lock files anywhere under `folder` (relative paths)."""
+    if not folder.exists():
+        return []
+    found = [p for p in folder.rglob("*") if p.is_file() and (TEMPORARY.match(p.name) or is_lock_name(p.name))]
+    return sorted(str(p.relative_to(folder)) for p in found)
 
 
 def pause_at(target: str, hit: int, go: Path) -> None:

@@ -27,9 +27,9 @@ import pytest
 import torch
 from safetensors.torch import load_file
 
-from cnep.outputs import TEMPORARY, is_lock_name
 from cnep.pipeline.cli.main import main
 from cnep.recordings import read_demonstration, write_demonstration
+from tests.pipeline.fault_driver import files, stray
 from tests.recordings.factories import demonstration_factory
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -119,23 +119,6 @@ def both(target: str, hit: int, argv, tmp: Path) -> dict[int, tuple[int, list[st
         folder.mkdir()
     started = {signum: Paused(target, hit, argv(folder), folder) for signum, folder in runs.items()}
     return {signum: run.stop(signum) for signum, run in started.items()}
-
-
-def stray(folder: Path) -> list[str]:
-    """Temporary files and lock files anywhere under `folder`."""
-    found = [p for p in folder.rglob("*") if p.is_file() and (TEMPORARY.match(p.name) or is_lock_name(p.name))]
-    return sorted(str(p.relative_to(folder)) for p in found)
-
-
-def files(folder: Path) -> dict[str, bytes]:
-    """Every file under `folder` (relative path -> bytes), bookkeeping files left out."""
-    if not folder.exists():
-        return {}
-    return {
-        str(p.relative_to(folder)): p.read_bytes()
-        for p in sorted(folder.rglob("*"))
-        if p.is_file() and not TEMPORARY.match(p.name) and not is_lock_name(p.name)
-    }
 
 
 def assert_terminated(status: int, err: list[str], command: str, then: str = "nothing half-written was kept") -> None:
