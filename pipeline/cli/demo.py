@@ -27,7 +27,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--force",
         action="store_true",
-        help="use a non-empty --out folder: first delete what an earlier demo wrote there (other files stay)",
+        help="use a non-empty --out folder: first delete what an earlier demo wrote there (refused if its folders "
+        "hold anything else)",
     )
     parser.add_argument(
         "--assignment",

@@ -60,7 +60,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default="cnep-evaluation", help="folder for the Markdown, JSON and PNG outputs")
     parser.add_argument("--jobs", type=int, default=2, help="worker processes, one thread each (0: this process only)")
     parser.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
-    parser.add_argument("--force", action="store_true", help="replace tables already in --out")
+    parser.add_argument(
+        "--force", action="store_true", help="replace tables already in --out (only tables cnep evaluate wrote)"
+    )
 
 
 def run(args: argparse.Namespace) -> int:

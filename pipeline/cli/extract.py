@@ -66,8 +66,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--force",
         action="store_true",
-        help="re-extract outputs that are already up to date, and "
-        "replace existing outputs made otherwise (other weights, or not trajectory files)",
+        help="re-extract outputs that are already up to date, and replace existing outputs made otherwise (other "
+        "weights); only MCAP files cnep wrote, never a file of yours",
     )
     parser.add_argument(
         "--keep-going",

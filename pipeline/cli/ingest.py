@@ -22,7 +22,11 @@ def _key_value(text: str) -> tuple[str, str]:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("src", help="a recording folder, a CSV file or an MCAP file (read only)")
     parser.add_argument("--out", required=True, help="folder for the demonstration files (created if missing)")
-    parser.add_argument("--force", action="store_true", help="replace demonstration files that already exist in --out")
+    parser.add_argument(
+        "--force",
+        action="store_true",
+        help="redo demonstration files that already exist in --out (only MCAP files cnep wrote)",
+    )
     parser.add_argument(
         "--keep-going",
         action="store_true",

@@ -195,7 +195,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     t.add_argument("--device", default=keep, choices=DEVICES, help=f"(default {_default('device')})")
     t.add_argument("--resume", action="store_true", help="continue the interrupted run writing to --out")
-    t.add_argument("--force", action="store_true", help="replace an existing --out folder when training completes")
+    t.add_argument(
+        "--force",
+        action="store_true",
+        help="replace an existing --out checkpoint (one cnep train wrote) when training completes",
+    )
 
 
 def settings(args: argparse.Namespace) -> dict:
