@@ -140,7 +140,17 @@ def discover(src: Path, fmt: str = "auto", lerobot: LerobotMapping = LerobotMapp
 
 
 def load(source: Source, config: IngestConfig) -> Demonstration:
-    """The demonstration of one source."""
+    """The demonstration of one source; a RecordingError names the source (a record's own check names only its
+    episode id)."""
+    try:
+        return _load(source, config)
+    except RecordingError as exc:
+        if str(exc).startswith(str(source.path)) or str(exc).startswith(str(source.path.parent)):
+            raise
+        raise RecordingError(f"{source.path}: {exc}") from None
+
+
+def _load(source: Source, config: IngestConfig) -> Demonstration:
     if source.kind == "folder":
         return demonstration_from_folder(source.path, source.episode_id, config.columns, config.timing, config.task)
     if source.kind == "csv":
