@@ -119,8 +119,8 @@ def output_lock(
         raise OutputError(
             f"{output}: another run is writing this output ({_describe(holder)}); wait for it to finish{stop}"
         ) from None
-    except OSError as exc:
-        raise OSError(exc.errno, exc.strerror, str(path)) from None
+    except OSError as exc:  # the folder cannot be written: name it, not the lock file the user never asked for
+        raise OSError(exc.errno, exc.strerror, str(path.parent)) from None
     try:
         previous = _read_holder(path)
         if previous and previous.get("pid") != os.getpid():
