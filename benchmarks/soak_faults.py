@@ -108,7 +108,13 @@ def main() -> None:
                 "train",
                 lambda o: ["train", trajs, "--out", o / "out", *TRAINING],
                 lambda o: o / "out",
-                lambda o: ["--resume"] if (o / ".out.partial" / "state.pt").exists() else [],
+                lambda o: (
+                    ["--resume"]
+                    if (o / ".out.partial" / "state.pt").exists()
+                    else ["--force"]
+                    if (o / "out").exists()
+                    else []
+                ),
             ),
             "replay": Stage(
                 "replay",
