@@ -58,6 +58,8 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     level = logging.WARNING if args.quiet else logging.DEBUG if args.verbose else logging.INFO
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    if not args.verbose:  # torch's own INFO lines (cache statistics at exit) are not the user's business
+        logging.getLogger("torch").setLevel(logging.WARNING)
     from cnep.pipeline.contract import run_command
 
     return run_command(args.command, lambda: args._run(args), verbose=args.verbose)
