@@ -7,8 +7,9 @@ Run on demand (minutes; say the machine's load when you quote it):
 
 Per stage and round: start `cnep` in a fresh output, kill it after a random delay drawn (seeded) from zero to
 the uninterrupted run's duration, with SIGKILL or SIGTERM (a coin flip); check what it left; run it again
-(`--resume` for train when it left a state, `--force` for the demo) and check the result. Prints one row per
-stage (runs, kills landed before the end, problems) and every problem found; exits 1 if there was one.
+(`--resume` for train when it left a state, `--force` where a complete output exists) and check the result.
+Prints one row per stage (the killed runs' exit statuses: -9, 143 for SIGTERM, -15 or 0 when the signal came
+before cnep started or after it ended) and every problem found; exits 1 if there was one.
 """
 
 from __future__ import annotations
@@ -148,7 +149,7 @@ def main() -> None:
                 shutil.copytree(stage.out(folder), {"ingest": demos, "extract": trajs, "train": ckpt}[name])
         rows = []
         for name in args.stages:
-            stage, landed = stages[name], 0
+            stage, statuses = stages[name], []
             for r in range(args.rounds):
                 folder = root / "soak" / name / str(r)
                 folder.mkdir(parents=True)
@@ -165,7 +166,7 @@ def main() -> None:
                 time.sleep(delay)
                 proc.send_signal(signum)
                 _, err = proc.communicate()
-                landed += proc.returncode in (-signal.SIGKILL, 143)
+                statuses.append(proc.returncode)  # -9, 143, or -15 / 0: the signal came before cnep started / after it
                 where = f"{name} round {r} ({signal.Signals(signum).name} after {delay:.2f} s, exit {proc.returncode})"
                 left = comparable(name, files(stage.out(folder)))
                 if name in ("ingest", "extract") and not left.items() <= stage.reference.items():
@@ -181,15 +182,15 @@ def main() -> None:
                     problems.append(f"{where}: the re-run's result differs from the uninterrupted run's")
                 elif stray(folder) or [p for p in folder.iterdir() if p.name.startswith(".")]:
                     problems.append(f"{where}: stray files after the re-run: {stray(folder)}")
-            rows.append((name, args.rounds, landed, stage.seconds))
+            rows.append((name, statuses, stage.seconds))
     print(
         f"soak of {', '.join(args.stages)}: {args.rounds} round(s) each, seed {args.seed}, load average "
         f"{os.getloadavg()[0]:.2f}"
     )
-    print("| stage | runs killed | kills before the end | uninterrupted run (s) |")
+    print("| stage | runs | exit statuses of the killed runs | uninterrupted run (s) |")
     print("|---|---|---|---|")
-    for name, runs, landed, seconds in rows:
-        print(f"| {name} | {runs} | {landed} | {seconds:.1f} |")
+    for name, statuses, seconds in rows:
+        print(f"| {name} | {len(statuses)} | {' '.join(map(str, statuses))} | {seconds:.1f} |")
     print(f"{len(problems)} problem(s)")
     for problem in problems:
         print(" -", problem)
