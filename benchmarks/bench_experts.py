@@ -150,7 +150,7 @@ def main() -> None:
     )
     print(f"{'d':>3} {'batched ms':>11} {'loop ms':>9} {'loop / batched':>15}")
     for d in args.experts:
-        config = CNEPConfig(n_experts=d)
+        config = CNEPConfig(n_experts=d, assignment="paper")
         model = CNEP(config)
         with torch.no_grad():  # a non-uniform gate, so the gate weights matter to the check
             model.gate.weight.normal_(0, 0.1)

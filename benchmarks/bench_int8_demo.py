@@ -28,9 +28,10 @@ from unittest import mock
 import numpy as np
 
 from cnep.pipeline.demo import stage
+from cnep.pipeline.demo.config import DemoConfig
 from cnep.pipeline.demo.generator import LABEL_KEY
 from cnep.pipeline.demo.scene import BEHAVIOURS
-from cnep.pipeline.demo.stage import SUMMARY_FILE, DemoConfig, run_demo
+from cnep.pipeline.demo.stage import SUMMARY_FILE, run_demo
 from cnep.recordings import read_demonstration, read_trajectory
 
 PRECISIONS = ("fp32", "int8")

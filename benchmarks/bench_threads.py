@@ -52,7 +52,9 @@ def busy_training(parent: int) -> None:
 
 def training_step_fn(seed: int = 0) -> Callable[[], object]:
     data = make_set("multimodal", seed)
-    trainer, _ = prepare_fit(list(data.train), CNEPConfig(n_experts=4), TrainConfig(seed=seed), list(data.val))
+    trainer, _ = prepare_fit(
+        list(data.train), CNEPConfig(n_experts=4, assignment="paper"), TrainConfig(seed=seed), list(data.val)
+    )
     return trainer.train_step
 
 

@@ -3,7 +3,7 @@
 Run on demand (one torch thread, as the pipeline trains; say the machine's load when you quote it):
     python -m benchmarks.bench_training [--experts 2 4] [--k 4] [--steps 30] [--rounds 3] [--device cuda]
 
-For each number of experts d (CNEPConfig defaults otherwise: widths 128, batch 32, the 4-mode set):
+For each number of experts d (the paper's loss, CNEPConfig defaults otherwise: widths 128, batch 32, the 4-mode set):
 - `foreach`: one `models.Trainer` step with Adam(foreach=True), the optimiser the fused one is measured against;
 - `fused`:   the same with the Trainer's fused Adam (the default);
 - `sequential`: k Trainers (seeds 0..k-1) stepped one after another, model-steps/s;
@@ -35,7 +35,10 @@ def trainers(n_experts: int, k: int, device: str = "cpu") -> list[Trainer]:
     for seed in range(k):
         data = make_set(SYNTHETIC_SET, seed)
         trainer, _ = prepare_fit(
-            list(data.train), CNEPConfig(n_experts=n_experts), TrainConfig(seed=seed), list(data.val)
+            list(data.train),
+            CNEPConfig(n_experts=n_experts, assignment="paper"),
+            TrainConfig(seed=seed),
+            list(data.val),
         )
         trainer.model.to(device)  # in place: the optimiser keeps its parameters; batches follow them (Trainer.device)
         out.append(trainer)

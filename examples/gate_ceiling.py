@@ -120,7 +120,7 @@ def main(argv: list[str] | None = None) -> None:
         data, qs = queries(args.set, seed, 50)
         for name, kind in kinds.items():
             torch.manual_seed(seed)
-            cnep = CNEP(CNEPConfig(n_experts=data.n_modes))
+            cnep = CNEP(CNEPConfig(n_experts=data.n_modes, assignment="paper"))
             cnep.normaliser.fit(list(data.train))
             results[name].append(accuracy(kind(cnep), cnep, data, qs["paper"], args.steps, seed))
             print(f"seed {seed} {name:14s} mode accuracy {results[name][-1]:.2f}", flush=True)

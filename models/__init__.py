@@ -11,10 +11,10 @@ import importlib
 _MODULES = {
     "checkpoint": ("load_checkpoint", "read_checkpoint_config", "save_checkpoint"),
     "cnep": ("CNEP", "Prediction"),
-    "config": ("CNEPConfig", "ColumnRoles", "TrainConfig", "authors_coefficients"),
+    "config": ("CNEPConfig", "ColumnRoles", "ConditioningPolicy", "TrainConfig", "authors_coefficients"),
     "errors": ("ConfigError",),
     "matched": ("matched_cnmp", "parameter_count"),
-    "online": ("ConditioningPolicy", "ExpertSwitch", "OnlineConditioner", "OnlineStep"),
+    "online": ("ExpertSwitch", "OnlineConditioner", "OnlineStep"),
     "pid": ("PIDGains", "pid_track"),
     "train": ("Trainer", "build_model", "fit"),
 }

@@ -35,6 +35,7 @@ from cnep.models.cnep import CNEP
 from cnep.models.config import CNEPConfig, TrainConfig
 from cnep.models.errors import ConfigError
 from cnep.models.loss import loss_terms
+from cnep.models.threads import torch_threads
 from cnep.models.train import Trainer, finish_fit, make_optimizer, prepare_fit, set_learning_rate
 
 # What must agree for two networks to stack (the loss weights a_rec, a_batch, a_ind may differ).
@@ -302,8 +303,8 @@ class FitRun:
 
 
 def fit_many(runs: Sequence[FitRun], max_models: int = MAX_MODELS) -> list[tuple[CNEP, list[dict]]]:
-    """`models.fit` for each run (no progress bar), runs of one `batch_key` trained together, up to `max_models` at
-    once.
+    """`models.fit` for each run (no progress bar, on its `threads`), runs of one `batch_key` trained together, up
+    to `max_models` at once.
 
     Returns, in order, what `fit` returns for each run: the best model and its history.
     """
@@ -314,8 +315,9 @@ def fit_many(runs: Sequence[FitRun], max_models: int = MAX_MODELS) -> list[tuple
     for trainers in groups.values():
         for start in range(0, len(trainers), max_models):
             chunk = trainers[start : start + max_models]
-            if len(chunk) == 1:
-                chunk[0].run(progress=False)
-            else:
-                BatchedTrainer(chunk).run()
+            with torch_threads(chunk[0].cfg.threads):  # one count per key: `threads` is part of it
+                if len(chunk) == 1:
+                    chunk[0].run(progress=False)
+                else:
+                    BatchedTrainer(chunk).run()
     return [finish_fit(trainer, split) for trainer, split in prepared]

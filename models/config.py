@@ -12,6 +12,7 @@ import math
 from dataclasses import asdict, dataclass, field, fields, replace
 
 from cnep.models.errors import ConfigError
+from cnep.models.threads import SMALL_MODEL_THREADS
 
 Spans = tuple[tuple[int, int], ...]
 
@@ -59,6 +60,11 @@ class ColumnRoles:
         return len(span_indices(self.predicted))
 
 
+def setting(default: object, help: str) -> object:
+    """A dataclass field with its default and the one line that `cnep` shows for it (`--help`, metadata "help")."""
+    return field(default=default, metadata={"help": help})
+
+
 def authors_coefficients(n_experts: int) -> tuple[float, float, float]:
     """(a_rec, a_batch, a_ind) as the authors rescaled their d=2 sweep: a1*d/2, a2/log2(d), a3/log2(d)."""
     if n_experts == 1:
@@ -74,7 +80,8 @@ ASSIGNMENTS = ("paper", "mixture", "annealed", "bounded")
 # The gate's learning rate as a fraction of the network's (TrainConfig.gate_lr_scale left None), per assignment.
 # The paper's term moves the gate by p (L - mean L) / d and the mixture's by (p - r) / (d n_i): 0.3 was measured
 # for the paper's. The EM assignments train the gate by cross-entropy to the posterior, (p - r) / d, and at 0.3 it
-# picked the 6-mode expert nearest the truth on 66-92% of the queries, at 1.0 on 96-100%.
+# picked the 6-mode expert nearest the truth on 66-92% of the queries, at 1.0 on 96-100%; on the built-in demo,
+# 0.3 let two behaviours share an expert.
 GATE_LR_SCALES = {"paper": 0.3, "mixture": 0.3, "annealed": 1.0, "bounded": 1.0}
 
 
@@ -85,22 +92,34 @@ class CNEPConfig:
     The loss is `a_rec * L_rec - a_batch * L_batch + a_ind * L_ind` (the paper prints `+ a_batch`; the
     authors' code subtracts it, which matches the stated intent of maximising batch entropy).
     Coefficients left as None take the authors' values rescaled with the number of experts.
-    `assignment` chooses L_rec (models.loss): "paper", the gate-weighted expert NLL of the paper,
-    "mixture", the mixture likelihood whose responsibilities come from the targets, or "annealed", the
-    experts on the posterior responsibilities and the gate towards them, the posterior annealed from soft
-    to the mixture's over training, or "bounded", the same with looser balancing (docs/concepts.md).
+    `assignment` chooses L_rec (models.loss): "bounded" (the default), the experts on the posterior
+    responsibilities and the gate towards them, balanced within bounds over the experts while the posterior
+    anneals from soft to the mixture's, so that an expert commits where several behaviours share a context;
+    "annealed", the same with equal balancing; "mixture", the mixture likelihood whose responsibilities come
+    from the targets; "paper", the gate-weighted expert NLL of the paper (what reproduces its tables;
+    docs/concepts.md).
     """
 
     columns: ColumnRoles = field(default_factory=ColumnRoles)  # which columns it observes, queries with, predicts
-    n_experts: int = 2
-    encoder_widths: tuple[int, ...] = (128, 128)  # the last width is the latent size
-    expert_widths: tuple[int, ...] = (128, 128)
+    n_experts: int = setting(2, "number of experts; 1 is a CNMP")
+    encoder_widths: tuple[int, ...] = setting((128, 128), "encoder layer widths (the last is the latent size)")
+    expert_widths: tuple[int, ...] = setting((128, 128), "expert layer widths")
     min_std: float = 1e-3  # floor of the predicted std, in normalised units
     time_frequencies: int = 8  # K: t is fed as [t, sin(pi k t), cos(pi k t) for k = 1..K]
     a_rec: float | None = None
     a_batch: float | None = None
     a_ind: float | None = None
-    assignment: str = "paper"  # one of ASSIGNMENTS: how L_rec assigns a sample's targets to the experts
+    assignment: str = setting(
+        "bounded",
+        "how the loss assigns a context's targets to the experts: paper = the paper's gate-weighted NLL (every "
+        "expert the gate has not ruled out learns every target), mixture = the mixture likelihood (the expert "
+        "that explains the targets learns them; commits where the context cannot tell behaviours apart), "
+        "annealed = the same posterior assignment, soft and balanced over the experts early in training, as "
+        "sharp as the mixture's from 60% of the steps on, the gate trained towards it at full strength, "
+        "bounded = annealed with each expert's share kept within 0.5-1.5x an equal one instead of equal, faded "
+        "out over 60-80% of the steps; the best model is kept from where the balancing ends (bounded commits on "
+        "shared contexts and keeps the paper's accuracy; docs/concepts.md)",
+    )
 
     def __post_init__(self) -> None:
         if self.assignment not in ASSIGNMENTS:
@@ -148,19 +167,20 @@ class CNEPConfig:
 class TrainConfig:
     """How `fit` trains. Steps and widths follow the spec's CPU recipe (see docs/concepts.md)."""
 
-    steps: int = 10_000
-    batch_size: int = 32
-    n_max: int = 10  # observations per sample: n ~ U{1..n_max}
-    m_max: int = 10  # targets per sample: m ~ U{1..m_max}
-    obs_noise: float = 0.0  # std of the noise on training contexts' observed values (normalised units)
-    lr: float = 1e-3
-    warmup_steps: int = 2_000
-    gate_freeze_fraction: float = 0.3  # the gate stays uniform for this fraction of the steps
-    gate_lr_scale: float | None = None  # the gate's learning rate as a fraction of `lr`; None: GATE_LR_SCALES
+    steps: int = setting(10_000, "training steps")
+    batch_size: int = setting(32, "samples per step and process")
+    n_max: int = setting(10, "most observations per sample (n ~ U{1..n_max})")
+    m_max: int = setting(10, "most targets per sample (m ~ U{1..m_max})")
+    obs_noise: float = setting(0.0, "std of the noise added to training contexts' observed values (normalised units)")
+    lr: float = setting(1e-3, "peak learning rate of Adam")
+    warmup_steps: int = setting(2_000, "steps of linear learning-rate warm-up")
+    gate_freeze_fraction: float = setting(0.3, "share of the steps with the gate held uniform")
+    gate_lr_scale: float | None = setting(None, "the gate's learning rate as a fraction of the learning rate")
     grad_clip: float = 10.0
-    val_every: int = 500
-    patience: int | None = None  # validations without improvement before stopping early
-    seed: int = 0
+    val_every: int = setting(500, "steps between validations")
+    patience: int | None = setting(10, "validations without improvement before stopping early")
+    seed: int = setting(0, "seed of the initial weights, the validation split and the batches")
+    threads: int | None = setting(SMALL_MODEL_THREADS, "torch threads per process while training")
 
     def __post_init__(self) -> None:
         for name in ("steps", "batch_size", "n_max", "m_max", "val_every"):
@@ -176,6 +196,9 @@ class TrainConfig:
             raise ConfigError(f"obs_noise must be >= 0 (a standard deviation), got {self.obs_noise}.")
         if not self.lr > 0 or self.warmup_steps < 0:
             raise ConfigError(f"lr must be > 0 and warmup_steps >= 0, got {self.lr} and {self.warmup_steps}.")
+        for name in ("patience", "threads"):
+            if getattr(self, name) is not None and getattr(self, name) < 1:
+                raise ConfigError(f"TrainConfig.{name} must be >= 1 or None, got {getattr(self, name)}.")
 
     def for_assignment(self, assignment: str) -> TrainConfig:
         """This config with `gate_lr_scale` filled in for `assignment` when it was left None."""
@@ -197,3 +220,17 @@ def _known(cls, data: dict) -> dict:
     if unknown:
         raise ConfigError(f"Unknown {cls.__name__} field(s) {unknown}; known fields are {sorted(names)}.")
     return dict(data)
+
+
+@dataclass(frozen=True)
+class ConditioningPolicy:
+    """Which observations condition the model: `anchors` first ones (fixed) + the latest `window`."""
+
+    window: int = setting(10, "latest observations in the conditioning set")
+    anchors: int = setting(1, "first observations kept in the conditioning set for the whole episode (1: the start)")
+
+    def __post_init__(self) -> None:
+        if self.window < 1:
+            raise ConfigError(f"ConditioningPolicy.window must be >= 1 (the current observation), got {self.window}.")
+        if self.anchors < 0:
+            raise ConfigError(f"ConditioningPolicy.anchors must be >= 0, got {self.anchors}.")

@@ -26,21 +26,8 @@ import numpy as np
 import torch
 
 from cnep.models.cnep import CNEP
+from cnep.models.config import ConditioningPolicy
 from cnep.models.errors import ConfigError
-
-
-@dataclass(frozen=True)
-class ConditioningPolicy:
-    """Which observations condition the model: `anchors` first ones (fixed) + the latest `window`."""
-
-    window: int = 10
-    anchors: int = 1
-
-    def __post_init__(self) -> None:
-        if self.window < 1:
-            raise ConfigError(f"ConditioningPolicy.window must be >= 1 (the current observation), got {self.window}.")
-        if self.anchors < 0:
-            raise ConfigError(f"ConditioningPolicy.anchors must be >= 0, got {self.anchors}.")
 
 
 @dataclass(frozen=True)

@@ -29,6 +29,7 @@ from cnep.models.config import CNEPConfig, TrainConfig
 from cnep.models.errors import ConfigError
 from cnep.models.loss import cnep_loss, settled_fraction
 from cnep.models.sampler import Batch, TrajectoryStack, sample_batch
+from cnep.models.threads import torch_threads
 
 log = logging.getLogger(__name__)
 
@@ -261,10 +262,12 @@ def fit(
     trajectory trains and validation uses the training set (logged as a warning). Each history record
     says which: `n_train`, `n_val` and `validation` ("given", "held out" or "training set").
     `models.batched.fit_many` trains several such runs together, each with this function's result.
+    Runs on `train_config.threads` torch threads (one by default: models.threads), restored afterwards.
     """
-    trainer, split = prepare_fit(trajectories, config, train_config, val_trajectories)
-    trainer.run(progress=progress)
-    return finish_fit(trainer, split)
+    with torch_threads(train_config.threads):
+        trainer, split = prepare_fit(trajectories, config, train_config, val_trajectories)
+        trainer.run(progress=progress)
+        return finish_fit(trainer, split)
 
 
 def prepare_fit(

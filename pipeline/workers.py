@@ -4,8 +4,9 @@ Measured on the shared 2-core machine (benchmarks/bench_threads.py, docs/results
 network on two threads next to another busy process runs up to 10x slower than on one, because
 each of its many tiny kernels waits for a thread that is not scheduled. So:
 
-- small-model work (training, the online step, replay, the evaluation's fits) runs SMALL_MODEL_THREADS
-  (one) intra-op thread per process and scales across processes (`single_thread_processes`, torchrun);
+- small-model work (training, the online step, replay, the evaluation's fits) runs
+  models.threads.SMALL_MODEL_THREADS (one) intra-op thread per process (`models.threads.torch_threads`)
+  and scales across processes (`single_thread_processes`, torchrun);
 - the feature extractor (a real CNN, large kernels) takes its share of the cores, `cores // workers`,
   in an ONNX Runtime session whose idle threads sleep instead of spinning (perception.backends), so two
   extractors, or an extractor beside a trainer, do not starve each other;
@@ -21,7 +22,6 @@ from contextlib import contextmanager
 from multiprocessing import get_context
 
 THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
-SMALL_MODEL_THREADS = 1  # intra-op threads of a process that trains or runs a CNEP
 # glibc's malloc settings for small-model worker processes (read at their start; other allocators ignore
 # them). By default glibc gives blocks above its mmap threshold back to the kernel when they are freed, so
 # a batched training step (models.batched: k models' activations, megabytes a step) faults fresh pages in
@@ -42,19 +42,6 @@ def inference_threads(requested: int | None = None, workers: int = 1) -> int:
     if requested is not None:
         return requested
     return max(1, cpu_cores() // max(1, workers))
-
-
-@contextmanager
-def torch_threads(threads: int = SMALL_MODEL_THREADS) -> Iterator[None]:
-    """Run the block with `threads` torch intra-op threads, restoring the previous count after it."""
-    import torch
-
-    before = torch.get_num_threads()
-    torch.set_num_threads(threads)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(before)
 
 
 @contextmanager

@@ -4,6 +4,10 @@ from __future__ import annotations
 
 import argparse
 
+from cnep.models.config import ASSIGNMENTS
+from cnep.pipeline.cli.fields import default_of
+from cnep.pipeline.demo.config import DemoConfig
+
 DEFAULT_OUT = "cnep-demo"
 HELP = (
     "run the whole pipeline on built-in synthetic tabletop demonstrations: generate, ingest, extract, train "
@@ -12,6 +16,7 @@ HELP = (
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    seed, assignment, precision = (default_of(DemoConfig, name) for name in ("seed", "assignment", "precision"))
     parser.add_argument(
         "--out",
         default=None,
@@ -23,7 +28,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="a small, fast variant (for CI): fewer demonstrations, shorter episodes, a few training steps",
     )
-    parser.add_argument("--seed", type=int, default=0, help="seed of every random draw (default 0)")
+    parser.add_argument(
+        "--seed",
+        type=int,
+        default=seed,
+        help=f"seed of every random draw (default {seed})",
+    )
     parser.add_argument(
         "--force",
         action="store_true",
@@ -32,17 +42,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--assignment",
-        choices=("paper", "mixture", "annealed", "bounded"),
-        default=None,
+        choices=ASSIGNMENTS,
+        default=assignment,
         help="the CNEP's reconstruction term: the paper's gate-weighted NLL, the mixture likelihood, "
         "the annealed posterior assignment, or annealed with bounded rather than equal expert "
-        "shares, faded out (default bounded: docs/concepts.md)",
+        f"shares, faded out (default {assignment}: docs/concepts.md)",
     )
     parser.add_argument(
         "--precision",
         choices=("fp32", "int8"),
-        default="fp32",
-        help="feature extraction precision (default fp32; int8 as `cnep extract --precision int8`)",
+        default=precision,
+        help=f"feature extraction precision (default {precision}; int8 as `cnep extract --precision int8`)",
     )
 
 
@@ -51,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from cnep.pipeline.demo.report import format_summary
-    from cnep.pipeline.demo.stage import ASSIGNMENT, DemoConfig, run_demo
+    from cnep.pipeline.demo.stage import run_demo
 
     start = time.perf_counter()
     out = Path(args.out) if args.out is not None else free_folder(Path(DEFAULT_OUT))
@@ -62,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
             seed=args.seed,
             force=args.force,
             quiet=args.quiet,
-            assignment=args.assignment or ASSIGNMENT,
+            assignment=args.assignment,
             precision=args.precision,
         )
     )

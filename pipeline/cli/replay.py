@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import argparse
 
+from cnep.models.config import ConditioningPolicy
+from cnep.pipeline.cli.fields import default_of, help_of
+
 HELP = "replay trajectory files through a trained CNEP: expert probabilities over time, written to a Rerun .rrd"
 
 
@@ -38,15 +41,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     live.add_argument("--no-live", action="store_true", help="write the .rrd only, do not look for a viewer")
     parser.add_argument("--port", type=int, default=9876, help="port of --serve (default 9876)")
-    parser.add_argument(
-        "--window", type=int, default=10, help="latest observations in the conditioning set (default 10)"
-    )
-    parser.add_argument(
-        "--anchors",
-        type=int,
-        default=1,
-        help="first observations kept in the conditioning set for the whole episode (default 1: the start)",
-    )
+    for name in ("window", "anchors"):
+        parser.add_argument(
+            f"--{name}",
+            type=int,
+            default=default_of(ConditioningPolicy, name),
+            help=help_of(ConditioningPolicy, name),
+        )
     parser.add_argument(
         "--events-out",
         metavar="DIR",
@@ -65,7 +66,6 @@ def run(args: argparse.Namespace) -> int:
     import shlex
     import time
 
-    from cnep.models import ConditioningPolicy
     from cnep.pipeline.replay.decisions import decisions_path, read_decisions
     from cnep.pipeline.replay.rerun_log import DEFAULT_VIEWER_URL, serve
     from cnep.pipeline.replay.stage import replay

@@ -2,55 +2,59 @@
 
 Settings come from, in this order of precedence: the command line, then a JSON file given with
 `--config` (keys are the option names with underscores, e.g. `{"steps": 5000, "layout": "motion",
-"encoder_widths": [64, 64]}`), then the defaults below (`None`: the default of `models.TrainConfig`).
+"encoder_widths": [64, 64]}`), then the defaults. Every default and its help text is a field of the
+settings' dataclass (SETTINGS): `TrainStageConfig`, `models.CNEPConfig`, `models.TrainConfig`; this module
+reads them (without importing torch) and keeps no value of its own.
 """
 
 from __future__ import annotations
 
 import argparse
-import contextlib
-import functools
 import json
 
-from cnep.pipeline.train.constants import (
-    DEFAULT_DEVICE,
-    DEFAULT_PATIENCE,
-    DEFAULT_PRESET,
-    DEFAULT_SAVE_EVERY,
-    DEFAULT_VAL_FRACTION,
-    DEVICES,
-    PRESET_NAMES,
-)
+from cnep.models.config import ASSIGNMENTS, GATE_LR_SCALES, CNEPConfig, TrainConfig
+from cnep.pipeline.cli.fields import default_of, field_of, help_of
+from cnep.pipeline.train.config import TrainStageConfig
+from cnep.pipeline.train.constants import DEVICES, PRESET_NAMES
 
 HELP = "train a CNEP on trajectory files (resumable; multi-process with torchrun)"
 
-# Options passed straight to models.TrainConfig: name -> (type, help). Not given: TrainConfig's default.
-TRAIN_OPTIONS = {
-    "steps": (int, "training steps"),
-    "batch_size": (int, "samples per step and process"),
-    "lr": (float, "peak learning rate of Adam"),
-    "warmup_steps": (int, "steps of linear learning-rate warm-up"),
-    "val_every": (int, "steps between validations"),
-    "n_max": (int, "most observations per sample"),
-    "m_max": (int, "most targets per sample"),
-    "gate_freeze_fraction": (float, "share of the steps with the gate held uniform"),
-    "gate_lr_scale": (float, "the gate's learning rate as a fraction of --lr"),
-    "obs_noise": (float, "std of the noise added to training contexts' observed values (normalised units)"),
+# Options given straight to models.TrainConfig, by its field names.
+TRAIN_OPTIONS = (
+    "steps",
+    "batch_size",
+    "lr",
+    "warmup_steps",
+    "val_every",
+    "n_max",
+    "m_max",
+    "gate_freeze_fraction",
+    "gate_lr_scale",
+    "obs_noise",
+    "patience",
+    "seed",
+    "threads",
+)
+# Every setting of the command (its option name with underscores) -> (the dataclass, the field) holding its
+# default and help.
+SETTINGS = {
+    "layout": (TrainStageConfig, "layout"),
+    "experts": (CNEPConfig, "n_experts"),
+    "assignment": (CNEPConfig, "assignment"),
+    "encoder_widths": (CNEPConfig, "encoder_widths"),
+    "expert_widths": (CNEPConfig, "expert_widths"),
+    **{name: (TrainConfig, name) for name in TRAIN_OPTIONS},
+    "val_fraction": (TrainStageConfig, "val_fraction"),
+    "save_every": (TrainStageConfig, "save_every"),
+    "device": (TrainStageConfig, "device"),
 }
+CHOICES = {"layout": PRESET_NAMES, "assignment": ASSIGNMENTS, "device": DEVICES}
+NOTES = {"patience": "0 never stops early"}  # what the command line adds to a field's help
 
-DEFAULTS = {
-    "layout": DEFAULT_PRESET,
-    "experts": 2,
-    "assignment": "bounded",
-    "encoder_widths": (128, 128),
-    "expert_widths": (128, 128),
-    "patience": DEFAULT_PATIENCE,
-    "seed": 0,
-    "val_fraction": DEFAULT_VAL_FRACTION,
-    "save_every": DEFAULT_SAVE_EVERY,
-    "device": DEFAULT_DEVICE,
-    **dict.fromkeys(TRAIN_OPTIONS),
-}
+
+def default(name: str):
+    """The default of setting `name`: its dataclass field's."""
+    return default_of(*SETTINGS[name])
 
 
 def _widths(text: str) -> tuple[int, ...]:
@@ -62,59 +66,33 @@ def _widths(text: str) -> tuple[int, ...]:
         ) from None
 
 
-def _default(name: str) -> str:
-    value = DEFAULTS[name] if DEFAULTS[name] is not None else train_config_defaults().get(name)
-    if value is None and name == "gate_lr_scale":  # None: the assignment's own
-        return "the assignment's: " + ", ".join(
-            f"{scale} for {a}" for a, scale in _config_literal("GATE_LR_SCALES").items()
-        )
-    if value is None:
-        return "models.TrainConfig's default"
-    return ",".join(map(str, value)) if isinstance(value, tuple) else str(value)
+def _kind(name: str):
+    """The type a setting's value has: from its field's annotation (a string: the module defers annotations)."""
+    annotation = str(field_of(*SETTINGS[name]).type)
+    if annotation.startswith("tuple"):
+        return tuple
+    return next(kind for kind in (float, int, str) if kind.__name__ in annotation)
 
 
-@functools.cache
-def _config_tree():
-    """models/config.py parsed, without importing it (torch)."""
-    import ast
-    import importlib.util
-    from pathlib import Path
-
-    spec = importlib.util.find_spec("cnep.models")
-    source = Path(next(iter(spec.submodule_search_locations))) / "config.py"
-    return ast.parse(source.read_text(encoding="utf-8"))
+def _help(name: str) -> str:
+    if name == "gate_lr_scale":  # None: the assignment's own
+        assignments = ", ".join(f"{scale} for {a}" for a, scale in GATE_LR_SCALES.items())
+        return help_of(*SETTINGS[name], default=f"the assignment's: {assignments}")
+    return help_of(*SETTINGS[name], note=NOTES.get(name))
 
 
-def _config_literal(name: str):
-    """The literal value of a module-level constant of models/config.py."""
-    import ast
-
-    node = next(
-        node
-        for node in _config_tree().body
-        if isinstance(node, ast.Assign) and any(isinstance(t, ast.Name) and t.id == name for t in node.targets)
+def _option(group, name: str) -> None:
+    kind = _kind(name)
+    group.add_argument(
+        f"--{name.replace('_', '-')}",
+        type=_widths if kind is tuple else kind,
+        default=argparse.SUPPRESS,  # options not given stay out of args, so --config and the defaults fill them
+        choices=CHOICES.get(name),
+        help=_help(name),
     )
-    return ast.literal_eval(node.value)
-
-
-@functools.cache
-def train_config_defaults() -> dict:
-    """models.TrainConfig's literal field defaults, read from models/config.py without importing it (torch)."""
-    import ast
-
-    body = next(
-        node.body for node in _config_tree().body if isinstance(node, ast.ClassDef) and node.name == "TrainConfig"
-    )
-    found = {}
-    for node in body:
-        if isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name) and node.value is not None:
-            with contextlib.suppress(ValueError):  # not a literal (a factory): --help names TrainConfig's default
-                found[node.target.id] = ast.literal_eval(node.value)
-    return found
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    keep = argparse.SUPPRESS  # options not given stay out of args, so --config and DEFAULTS can fill them
     parser.add_argument("inputs", nargs="+", metavar="TRAJ", help="trajectory files or folders of them (read only)")
     parser.add_argument("--out", required=True, help="checkpoint folder to create (written when training completes)")
     parser.add_argument(
@@ -123,95 +101,35 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="JSON file of settings (option names with underscores); the command line wins",
     )
-    parser.add_argument(
-        "--layout",
-        default=keep,
-        choices=PRESET_NAMES,
-        help="columns observed/queried/predicted: wine-glass = observe features+pose+gripper, query "
-        "features, predict pose+gripper (1288-d files); scene = the same, but queries carry the "
-        "time only; motion = pose+gripper only (8-d files or "
-        "the motion columns of 1288-d files); all = observe and predict every column "
-        f"(default {_default('layout')})",
+    _option(parser, "layout")
+    model = parser.add_argument_group("model")
+    for name in ("experts", "assignment", "encoder_widths", "expert_widths"):
+        _option(model, name)
+    model.add_argument(
+        "--matched-cnmp", action="store_true", help=field_of(TrainStageConfig, "matched_cnmp").metadata["help"]
     )
-    m = parser.add_argument_group("model")
-    m.add_argument(
-        "--experts", type=int, default=keep, help=f"number of experts; 1 is a CNMP (default {_default('experts')})"
-    )
-    m.add_argument(
-        "--assignment",
-        default=keep,
-        choices=("paper", "mixture", "annealed", "bounded"),
-        help="how the loss assigns a context's targets to the experts: paper = the paper's gate-weighted "
-        "NLL (every expert the gate has not ruled out learns every target), mixture = the mixture "
-        "likelihood (the expert that explains the targets learns them; commits where the context "
-        "cannot tell behaviours apart), annealed = the same posterior assignment, soft and balanced "
-        "over the experts early in training, as sharp as the mixture's from 60%% of the steps on, "
-        "the gate trained towards it at full strength, bounded = annealed with each expert's share "
-        "kept within 0.5-1.5x an equal one instead of equal, faded out over 60-80%% of the steps; "
-        "the best model is kept from where the balancing ends; docs/concepts.md "
-        f"(default {_default('assignment')}: commits on shared contexts, keeps the paper's accuracy)",
-    )
-    m.add_argument(
-        "--encoder-widths",
-        type=_widths,
-        default=keep,
-        help=f"encoder layer widths (default {_default('encoder_widths')})",
-    )
-    m.add_argument(
-        "--expert-widths", type=_widths, default=keep, help=f"expert layer widths (default {_default('expert_widths')})"
-    )
-    m.add_argument(
-        "--matched-cnmp",
-        action="store_true",
-        help="train the one-expert CNMP with the parameter count of the CNEP these options describe "
-        "(its expert widened; the comparison the paper makes)",
-    )
-    t = parser.add_argument_group("training")
-    for name, (kind, text) in TRAIN_OPTIONS.items():
-        t.add_argument(
-            f"--{name.replace('_', '-')}", type=kind, default=keep, help=f"{text} (default {_default(name)})"
-        )
-    t.add_argument(
-        "--patience",
-        type=int,
-        default=keep,
-        help=f"validations without improvement before stopping early; 0 never stops early "
-        f"(default {_default('patience')})",
-    )
-    t.add_argument(
-        "--seed",
-        type=int,
-        default=keep,
-        help=f"seed of the initial weights, split and batches (default {_default('seed')})",
-    )
-    t.add_argument(
-        "--val-fraction",
-        type=float,
-        default=keep,
-        help=f"share of the demonstrations held out for validation (default {_default('val_fraction')})",
-    )
-    t.add_argument(
-        "--save-every", type=int, default=keep, help=f"steps between resumable saves (default {_default('save_every')})"
-    )
-    t.add_argument("--device", default=keep, choices=DEVICES, help=f"(default {_default('device')})")
-    t.add_argument("--resume", action="store_true", help="continue the interrupted run writing to --out")
-    t.add_argument(
+    training = parser.add_argument_group("training")
+    for name in (*TRAIN_OPTIONS, "val_fraction", "save_every", "device"):
+        _option(training, name)
+    training.add_argument("--resume", action="store_true", help="continue the interrupted run writing to --out")
+    training.add_argument(
         "--force",
         action="store_true",
         help="replace an existing --out checkpoint (one cnep train wrote) when training completes",
     )
 
 
-def settings(args: argparse.Namespace) -> dict:
-    """DEFAULTS, overridden by the --config file, overridden by the options given on the command line."""
+def settings(args: argparse.Namespace) -> tuple[dict, set[str]]:
+    """The defaults, overridden by the --config file, overridden by the options given on the command line; and
+    the names of the settings given (in the file or on the command line)."""
     from_file = read_settings(args.config) if args.config else {}
-    given = {name: getattr(args, name) for name in DEFAULTS if hasattr(args, name)}
-    return {**DEFAULTS, **from_file, **given}
+    given = {name: getattr(args, name) for name in SETTINGS if hasattr(args, name)}
+    return {**{name: default(name) for name in SETTINGS}, **from_file, **given}, {*from_file, *given}
 
 
 def read_settings(path: str) -> dict:
-    """The settings of a --config JSON file, checked against DEFAULTS' names and types."""
-    from cnep.pipeline.errors import PipelineError  # here, not at module level: it imports torch
+    """The settings of a --config JSON file, checked against SETTINGS' names and types."""
+    from cnep.pipeline.errors import PipelineError
 
     try:
         with open(path, encoding="utf-8") as f:
@@ -220,28 +138,30 @@ def read_settings(path: str) -> dict:
         raise PipelineError(f"{path}: cannot read the --config file ({exc})") from None
     if not isinstance(data, dict):
         raise PipelineError(f"{path}: a --config file holds one JSON object of settings, got {type(data).__name__}")
-    unknown = sorted(set(data) - set(DEFAULTS))
+    unknown = sorted(set(data) - set(SETTINGS))
     if unknown:
-        raise PipelineError(f"{path}: unknown setting(s) {', '.join(unknown)}; known: {', '.join(sorted(DEFAULTS))}")
+        raise PipelineError(f"{path}: unknown setting(s) {', '.join(unknown)}; known: {', '.join(sorted(SETTINGS))}")
     return {name: _checked(path, name, value) for name, value in data.items()}
 
 
 def _checked(path: str, name: str, value):
     from cnep.pipeline.errors import PipelineError
 
-    kind = TRAIN_OPTIONS[name][0] if name in TRAIN_OPTIONS else type(DEFAULTS[name])
+    kind = _kind(name)
+    if value is None and default(name) is None:
+        return value
     if kind is tuple and isinstance(value, list) and all(isinstance(v, int) for v in value):
         return tuple(value)
     if kind is float and isinstance(value, int) and not isinstance(value, bool):
         return float(value)
-    if isinstance(value, kind) and not (isinstance(value, bool) and kind is not bool):
+    if isinstance(value, kind) and not isinstance(value, bool):
         return value
     raise PipelineError(
         f"{path}: setting {name} must be {'a list of integers' if kind is tuple else kind.__name__}, got {value!r}"
     )
 
 
-def fit_warmup(training, warmup_given: bool):
+def fit_warmup(training: TrainConfig, warmup_given: bool) -> TrainConfig:
     """A TrainConfig whose warm-up ends before its last step: scaled like the defaults when not given, else a warning.
 
     With `--steps 1000` and the default 2000 warm-up steps the learning rate would never reach its peak.
@@ -259,8 +179,7 @@ def fit_warmup(training, warmup_given: bool):
             training.steps,
         )
         return training
-    defaults = train_config_defaults()
-    warmup = training.steps * defaults["warmup_steps"] // defaults["steps"]
+    warmup = training.steps * TrainConfig.warmup_steps // TrainConfig.steps
     log.warning(
         "--steps %d is not more than the default warm-up of %d steps: warming up over %d steps instead (the "
         "defaults' share of the steps); set --warmup-steps to choose",
@@ -271,20 +190,14 @@ def fit_warmup(training, warmup_given: bool):
     return dataclasses.replace(training, warmup_steps=warmup)
 
 
-def run(args: argparse.Namespace) -> int:
-    import os
+def stage_config(args: argparse.Namespace) -> TrainStageConfig:
+    """The train stage's settings for the parsed command line (with its --config file)."""
     from pathlib import Path
 
-    from cnep.models import TrainConfig
-    from cnep.pipeline.train.stage import TrainStageConfig, train
-
-    chosen = settings(args)
-    given = {name: chosen[name] for name in TRAIN_OPTIONS if chosen[name] is not None}
-    training = fit_warmup(
-        TrainConfig(patience=chosen["patience"] or None, seed=chosen["seed"], **given),
-        warmup_given="warmup_steps" in given,
-    )
-    config = TrainStageConfig(
+    chosen, given = settings(args)
+    training = {name: chosen[name] for name in TRAIN_OPTIONS}
+    training["patience"] = training["patience"] or None  # 0: never stop early
+    return TrainStageConfig(
         inputs=tuple(Path(p) for p in args.inputs),
         out=Path(args.out),
         layout=chosen["layout"],
@@ -293,7 +206,7 @@ def run(args: argparse.Namespace) -> int:
         encoder_widths=chosen["encoder_widths"],
         expert_widths=chosen["expert_widths"],
         matched_cnmp=args.matched_cnmp,
-        training=training,
+        training=fit_warmup(TrainConfig(**training), warmup_given="warmup_steps" in given),
         val_fraction=chosen["val_fraction"],
         save_every=chosen["save_every"],
         device=chosen["device"],
@@ -301,6 +214,14 @@ def run(args: argparse.Namespace) -> int:
         force=args.force,
         quiet=args.quiet,
     )
+
+
+def run(args: argparse.Namespace) -> int:
+    import os
+
+    config = stage_config(args)
+    from cnep.pipeline.train.stage import train  # torch: after the arguments were checked
+
     out = train(config)
     if os.environ.get("RANK", "0") == "0":  # under torchrun only rank 0 reports
         from cnep.models import read_checkpoint_config

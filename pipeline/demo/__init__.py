@@ -7,4 +7,6 @@ and `free_choice` measure what the summary reports; `report` prints it.
 
 from cnep.pipeline import exports
 
-__getattr__, __all__ = exports(__name__, {"stage": ("DemoConfig", "run_demo"), "report": ("format_summary",)})
+__getattr__, __all__ = exports(
+    __name__, {"config": ("DemoConfig",), "stage": ("run_demo",), "report": ("format_summary",)}
+)

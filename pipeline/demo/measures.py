@@ -19,12 +19,12 @@ from pathlib import Path
 import numpy as np
 
 from cnep.models import CNEP, ConditioningPolicy, Prediction
+from cnep.models.threads import torch_threads
 from cnep.pipeline.demo.free_choice import gate_commitment
 from cnep.pipeline.demo.generator import CHOICE_KEY, CHOICE_STEP_KEY
 from cnep.pipeline.replay.conditioning import decide
 from cnep.pipeline.replay.decisions import read_decisions
 from cnep.pipeline.train.checkpoint import TrainedModel, load_trained
-from cnep.pipeline.workers import torch_threads
 from cnep.recordings import read_demonstration, read_trajectory
 from cnep.recordings.constants import BLOCK_GRIPPER
 

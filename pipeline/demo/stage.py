@@ -46,8 +46,10 @@ from pathlib import Path
 import numpy as np
 
 from cnep.models import TrainConfig
+from cnep.models.threads import torch_threads
 from cnep.outputs import output_lock, write_atomically
 from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_file_as_folder
+from cnep.pipeline.demo.config import DemoConfig, DemoSize
 from cnep.pipeline.demo.figure import FIGURE_FILE, Scene, draw_summary
 from cnep.pipeline.demo.free_choice import gate_census, generated_ends, place_outcomes, replay_pick
 from cnep.pipeline.demo.generator import SPLITS, SWITCH_KEY, DemoSetConfig, generate
@@ -70,20 +72,14 @@ from cnep.pipeline.replay.decisions import decisions_path, read_decisions
 from cnep.pipeline.replay.stage import replay
 from cnep.pipeline.train.constants import SCENE
 from cnep.pipeline.train.stage import TrainStageConfig, train
-from cnep.pipeline.workers import single_thread_processes, torch_threads
+from cnep.pipeline.workers import single_thread_processes
 from cnep.recordings import read_demonstration
 
 log = logging.getLogger(__name__)
 
 CNEP_EXPERTS = 4  # one per behaviour of the scene
 LAYOUT = SCENE  # queries carry no features: the behaviour reaches the experts through the context and the gate
-# The gate learns at the full learning rate here, not at the models' default fraction (0.3): measured with
-# 0.3 (4000 steps, seeds 0 and 1) two behaviours shared an expert (3 distinct of 4), also at 6000 steps.
-GATE_LR_SCALE = 1.0
-# The CNEP's reconstruction term (models.config.ASSIGNMENTS), as `cnep train`'s default. Measured on seeds 0-2
-# (docs/results.md): "bounded" kept purity 1.00 on 4 experts and put 1.00 of the free-choice motions in a slot
-# (CNMP 0.55-0.70); the paper's term 0.55-0.75 (purity 0.63 for one behaviour on seed 2).
-ASSIGNMENT = "bounded"
+CNMP_ASSIGNMENT = "paper"  # one expert: the paper's term is the plain CNMP likelihood, with no balancing schedule
 SUMMARY_FILE = "summary.json"
 RRD_FILE = "demo.rrd"  # the scene change: what `make view` opens
 REPLAYS_RRD = "replays/replay.rrd"  # the other replayed recordings, one file each beside it
@@ -102,66 +98,6 @@ OUTPUTS = (
     SUMMARY_FILE,
     FIGURE_FILE,
 )  # names and glob patterns
-
-
-@dataclass(frozen=True)
-class DemoSize:
-    """How much the demo generates and trains: demonstrations per behaviour, steps per episode, training steps.
-
-    free_choice_per_side / heldout_free_choice_per_side: training / held-out free-choice demonstrations
-    per cup side; warmup_steps: the learning-rate warm-up (the models' default unless a size needs less).
-    """
-
-    per_behaviour: int
-    heldout_per_behaviour: int
-    free_choice_per_side: int
-    heldout_free_choice_per_side: int
-    steps: int
-    train_steps: int
-    val_every: int
-    warmup_steps: int = TrainConfig.warmup_steps
-
-
-FULL = DemoSize(
-    per_behaviour=30,
-    heldout_per_behaviour=5,
-    free_choice_per_side=20,
-    heldout_free_choice_per_side=10,
-    steps=40,
-    train_steps=4000,
-    val_every=250,
-)
-QUICK = DemoSize(
-    per_behaviour=2,
-    heldout_per_behaviour=1,
-    free_choice_per_side=2,
-    heldout_free_choice_per_side=1,
-    steps=16,
-    train_steps=60,
-    val_every=20,
-    warmup_steps=6,
-)
-
-
-@dataclass(frozen=True)
-class DemoConfig:
-    """out: folder for everything (created; must be empty or absent unless `force`, which first deletes what an
-    earlier demo wrote there: OUTPUTS); quick: the small CI variant; seed: all draws; assignment: the CNEP's
-    reconstruction term (ASSIGNMENT; the CNMP has one expert, where both terms agree); precision: the feature
-    extraction's, `fp32` or `int8` (pipeline.extract.stage.ExtractConfig). A failed or interrupted demo leaves
-    a new folder empty."""
-
-    out: Path
-    quick: bool = False
-    seed: int = 0
-    force: bool = False
-    quiet: bool = False
-    assignment: str = ASSIGNMENT
-    precision: str = "fp32"
-
-    @property
-    def size(self) -> DemoSize:
-        return QUICK if self.quick else FULL
 
 
 @dataclass
@@ -300,13 +236,13 @@ def _run_stages(config: DemoConfig, out: Path, size: DemoSize, seconds: dict[str
         steps=size.train_steps,
         warmup_steps=size.warmup_steps,
         val_every=size.val_every,
-        gate_lr_scale=GATE_LR_SCALE,
+        patience=None,  # every step: the demo's sizes were measured training to the end
         seed=config.seed,
     )
     checkpoints = {"CNEP": out / "checkpoints" / "cnep", "CNMP": out / "checkpoints" / "cnmp"}
     networks = {
         "CNEP": {"n_experts": CNEP_EXPERTS, "assignment": config.assignment},
-        "CNMP": {"n_experts": CNEP_EXPERTS, "matched_cnmp": True},
+        "CNMP": {"n_experts": CNEP_EXPERTS, "matched_cnmp": True, "assignment": CNMP_ASSIGNMENT},
     }
     log.info("training the CNEP and the CNMP side by side (%d steps each, one process each)", size.train_steps)
     with single_thread_processes(len(checkpoints)) as pool:  # the workers train quietly; their errors reach us

@@ -128,12 +128,15 @@ def train_models(demos: np.ndarray, config: BaxterConfig) -> dict:
     """A 2-expert CNEP per assignment ("CNEP (paper)", "CNEP (mixture)", "CNEP (annealed)", "CNEP (bounded)") and
     a parameter-matched "CNMP" on (N, T, 2) paths; all seeded."""
     train = TrainConfig(
-        steps=config.steps, warmup_steps=config.steps // 10, val_every=max(1, config.steps // 20), seed=config.seed
+        steps=config.steps,
+        warmup_steps=config.steps // 10,
+        val_every=max(1, config.steps // 20),
+        patience=None,  # every step, as the harness's measured runs
+        seed=config.seed,
     )
     trajectories = list(demos)
     models = {}
-    cnep = CNEPConfig(columns=COLUMNS_XY, n_experts=2)
-    configs = {"CNMP": matched_cnmp(cnep)}
+    configs = {"CNMP": matched_cnmp(CNEPConfig(columns=COLUMNS_XY, n_experts=2, assignment="paper"))}
     configs.update({cnep_name(a): CNEPConfig(columns=COLUMNS_XY, n_experts=2, assignment=a) for a in ASSIGNMENTS})
     for name, cfg in configs.items():
         log.info("training %s on %d demonstrations for %d steps", name, len(demos), config.steps)

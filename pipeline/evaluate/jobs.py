@@ -31,8 +31,8 @@ from typing import Protocol
 
 import numpy as np
 
+from cnep.models.threads import SMALL_MODEL_THREADS
 from cnep.pipeline.evaluate.constants import GMM_COMPONENTS, PROMP_WEIGHTS, REPORT_STEPS, SAMPLES_IN_FIGURE
-from cnep.pipeline.workers import SMALL_MODEL_THREADS
 
 PROTOCOLS = ("paper", "heldout")
 
@@ -143,7 +143,7 @@ def model_config(spec: ModelSpec, cnmp_matches: int):
     from cnep.models import CNEPConfig, matched_cnmp
 
     if spec.n_experts == 1:
-        return matched_cnmp(CNEPConfig(n_experts=cnmp_matches))
+        return matched_cnmp(CNEPConfig(n_experts=cnmp_matches, assignment="paper"))  # the paper's CNMP
     return CNEPConfig(n_experts=spec.n_experts, a_batch=spec.a_batch, a_ind=spec.a_ind, assignment=spec.assignment)
 
 

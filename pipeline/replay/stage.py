@@ -33,6 +33,7 @@ import uuid
 from pathlib import Path
 
 from cnep.models import ConditioningPolicy
+from cnep.models.threads import torch_threads
 from cnep.outputs import output_lock, staged
 from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_existing, refuse_inputs
 from cnep.pipeline.errors import PipelineError
@@ -48,7 +49,6 @@ from cnep.pipeline.replay.rerun_log import (
     write_recording,
 )
 from cnep.pipeline.train.checkpoint import load_trained
-from cnep.pipeline.workers import torch_threads
 from cnep.recordings import add_events, read_trajectory
 
 log = logging.getLogger(__name__)

@@ -1,4 +1,5 @@
-"""Names and defaults of the train stage (stdlib only, so the `cnep train` command can import them at once)."""
+"""Names of the train stage (stdlib only, so the `cnep train` command can import them at once); its defaults are
+TrainStageConfig's (pipeline.train.config)."""
 
 from __future__ import annotations
 
@@ -8,14 +9,8 @@ MOTION = "motion"
 SCENE = "scene"
 ALL = "all"
 PRESET_NAMES = (WINE_GLASS, SCENE, MOTION, ALL)
-DEFAULT_PRESET = SCENE  # the gate must decide the behaviour (wine-glass: the query frame gives it away)
 
 DEVICES = ("cpu", "cuda")
-DEFAULT_DEVICE = "cpu"
-
-DEFAULT_PATIENCE = 10  # validations without improvement before stopping early
-DEFAULT_VAL_FRACTION = 0.2  # share of the demonstrations held out for validation
-DEFAULT_SAVE_EVERY = 500  # steps between resumable saves
 
 # Files in the work folder `.<OUT>.partial/` and in the finished checkpoint folder.
 STATE_FILE = "state.pt"

@@ -23,29 +23,23 @@ import shutil
 import time
 from collections.abc import Callable
 from contextlib import ExitStack
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 from tqdm import tqdm
 
-from cnep.models import CNEPConfig, TrainConfig, Trainer, build_model, save_checkpoint
+from cnep.models import CNEPConfig, Trainer, build_model, save_checkpoint
 from cnep.models.matched import matched_cnmp
 from cnep.models.sampler import TrajectoryStack
+from cnep.models.threads import torch_threads
 from cnep.models.train import split_validation
 from cnep.pipeline import progress
 from cnep.pipeline.contract import deferred_interrupts, interruption
 from cnep.pipeline.errors import PipelineError
-from cnep.pipeline.train.constants import (
-    DEFAULT_DEVICE,
-    DEFAULT_PATIENCE,
-    DEFAULT_PRESET,
-    DEFAULT_SAVE_EVERY,
-    DEFAULT_VAL_FRACTION,
-    LOG_FILE,
-    STATE_FILE,
-)
+from cnep.pipeline.train.config import TrainStageConfig
+from cnep.pipeline.train.constants import LOG_FILE, STATE_FILE
 from cnep.pipeline.train.data import TrainingSet, find_trajectory_files, load_training_set
 from cnep.pipeline.train.parallel import (
     PlacedModel,
@@ -66,48 +60,8 @@ from cnep.pipeline.train.state import (
     work_dir,
     write_log,
 )
-from cnep.pipeline.workers import SMALL_MODEL_THREADS, torch_threads
 
 log = logging.getLogger(__name__)
-
-DEFAULT_TRAINING = TrainConfig(patience=DEFAULT_PATIENCE)  # the models' defaults, with early stopping
-
-
-@dataclass(frozen=True)
-class TrainStageConfig:
-    """inputs: trajectory files or folders (read only); out: checkpoint folder (must not exist unless `force`).
-
-    layout: preset name (wine-glass, scene, motion, all); n_experts, assignment, encoder_widths, expert_widths,
-    time_frequencies: the network and its loss (models.CNEPConfig); matched_cnmp: train instead the one-expert CNMP
-    with that network's parameter count (models.matched_cnmp); training: steps, batch size (per process), lr,
-    schedule, val_every, patience (validations), seed (models.TrainConfig); val_fraction: share of the
-    demonstrations held out for validation (whole demonstrations, at least one); save_every: steps
-    between resumable saves; device: cpu or cuda; resume: continue the unfinished run writing to
-    `out`; force: replace an existing `out` when the run completes.
-    """
-
-    inputs: tuple[Path, ...]
-    out: Path
-    layout: str = DEFAULT_PRESET
-    n_experts: int = 2
-    assignment: str = "paper"
-    encoder_widths: tuple[int, ...] = (128, 128)
-    expert_widths: tuple[int, ...] = (128, 128)
-    time_frequencies: int = 8
-    matched_cnmp: bool = False
-    training: TrainConfig = field(default_factory=lambda: DEFAULT_TRAINING)
-    val_fraction: float = DEFAULT_VAL_FRACTION
-    save_every: int = DEFAULT_SAVE_EVERY
-    device: str = DEFAULT_DEVICE
-    resume: bool = False
-    force: bool = False
-    quiet: bool = False
-
-    def __post_init__(self) -> None:
-        if not 0 < self.val_fraction < 1:
-            raise PipelineError(f"val_fraction must be in (0, 1), got {self.val_fraction}")
-        if self.save_every < 1:
-            raise PipelineError(f"save_every must be >= 1 step, got {self.save_every}")
 
 
 @dataclass
@@ -144,12 +98,13 @@ class StageTrainer(Trainer):
 def train(config: TrainStageConfig) -> Path:
     """Train a CNEP on the trajectory files of `config`; returns the checkpoint folder (config.out).
 
-    Runs on one torch thread per process (pipeline.workers: a small network on two threads of a busy
-    machine runs many times slower); more cores are used by more processes under torchrun.
+    Runs on `training.threads` torch threads per process (one by default, models.threads: a small network
+    on two threads of a busy machine runs many times slower); more cores are used by more processes under
+    torchrun.
     """
     procs, device = start_processes(config.device)
     try:
-        with torch_threads(SMALL_MODEL_THREADS), ExitStack() as held:
+        with torch_threads(config.training.threads), ExitStack() as held:
             out = _train(config, procs, device, held)
     except BaseException:
         stop_processes(procs, wait=False)  # the other ranks may never reach a barrier

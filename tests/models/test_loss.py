@@ -44,7 +44,7 @@ def test_entropy_is_stable_at_zero_and_per_row():
 
 
 def test_total_loss_terms_and_signs_against_a_hand_computation():
-    cfg = CNEPConfig(n_experts=2, a_rec=2.0, a_batch=3.0, a_ind=5.0)
+    cfg = CNEPConfig(n_experts=2, a_rec=2.0, a_batch=3.0, a_ind=5.0, assignment="paper")
     mean = torch.zeros(2, 2, 1, 1)
     std = torch.ones(2, 2, 1, 1)
     target = torch.tensor([[[1.0]], [[0.0]]])  # (B=2, M=1, dy=1)

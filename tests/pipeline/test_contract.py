@@ -504,12 +504,10 @@ def test_train_help_shows_the_actual_defaults():
     import dataclasses
 
     from cnep.models import TrainConfig
-    from cnep.pipeline.cli.train import TRAIN_OPTIONS, train_config_defaults
+    from cnep.pipeline.cli.train import TRAIN_OPTIONS, default
 
     defaults = {f.name: f.default for f in dataclasses.fields(TrainConfig)}
-    assert {name: train_config_defaults()[name] for name in TRAIN_OPTIONS} == {
-        name: defaults[name] for name in TRAIN_OPTIONS
-    }
+    assert {name: default(name) for name in TRAIN_OPTIONS} == {name: defaults[name] for name in TRAIN_OPTIONS}
     done = subprocess.run(
         [sys.executable, "-m", "cnep.pipeline", "train", "--help"], capture_output=True, text=True, cwd=ROOT, timeout=60
     )

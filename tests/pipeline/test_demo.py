@@ -7,14 +7,16 @@ import numpy as np
 import pytest
 
 import cnep.pipeline.replay.viewer as L
-from cnep.models import load_checkpoint, read_checkpoint_config
+from cnep.models import CNEPConfig, load_checkpoint, read_checkpoint_config
+from cnep.models.config import GATE_LR_SCALES
 from cnep.pipeline.cli.main import main
+from cnep.pipeline.demo.config import QUICK
 from cnep.pipeline.demo.figure import FIGURE_FILE
 from cnep.pipeline.demo.free_choice import gate_census, replay_pick
 from cnep.pipeline.demo.generator import CHOICE_KEY, LABEL_KEY
 from cnep.pipeline.demo.measures import online_gates
 from cnep.pipeline.demo.scene import BEHAVIOURS, FREE_CHOICE, SIDES
-from cnep.pipeline.demo.stage import GATE_LR_SCALE, QUICK, REPLAYS_RRD, RRD_FILE, SUMMARY_FILE
+from cnep.pipeline.demo.stage import REPLAYS_RRD, RRD_FILE, SUMMARY_FILE
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.replay.decisions import read_decisions
 from cnep.pipeline.train.constants import SCENE
@@ -86,7 +88,8 @@ def test_both_models_train_the_scene_layout_with_about_the_same_parameters(demo_
         config = read_checkpoint_config(demo_run / "checkpoints" / name)
         layout = config["layout"]
         assert layout["name"] == SCENE and layout["query"] == [] and layout["observed"][0] == "features"
-        assert config["training"]["gate_lr_scale"] == GATE_LR_SCALE
+        assert config["model"]["assignment"] == {"cnep": CNEPConfig().assignment, "cnmp": "paper"}[name]
+        assert config["training"]["gate_lr_scale"] == GATE_LR_SCALES[config["model"]["assignment"]]  # the models'
         sizes[name] = sum(p.numel() for p in load_checkpoint(demo_run / "checkpoints" / name).parameters())
     assert abs(sizes["cnmp"] - sizes["cnep"]) / sizes["cnep"] < 0.01, sizes
 
@@ -187,7 +190,8 @@ def test_the_summary_figure_is_a_png(demo_run):
 
 def test_a_used_output_folder_is_refused(tmp_path):
     (tmp_path / "something").write_text("x")
-    from cnep.pipeline.demo.stage import DemoConfig, run_demo
+    from cnep.pipeline.demo.config import DemoConfig
+    from cnep.pipeline.demo.stage import run_demo
 
     with pytest.raises(PipelineError, match="not empty"):
         run_demo(DemoConfig(out=tmp_path, quick=True, quiet=True))

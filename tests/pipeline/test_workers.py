@@ -35,7 +35,7 @@ def test_inference_threads_share_the_cores_unless_given(monkeypatch):
 def test_torch_threads_is_restored():
     import torch
 
-    from cnep.pipeline.workers import torch_threads
+    from cnep.models.threads import torch_threads
 
     before = torch.get_num_threads()
     with torch_threads(3):

@@ -1,0 +1,61 @@
+"""The train stage's settings (`TrainStageConfig`): the defaults of `cnep train`, and of `train()` from Python.
+
+Importable without torch: the `cnep train` command reads these fields (and the models' `CNEPConfig` and
+`TrainConfig`, whose defaults the network and training fields take) to show its defaults and help.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from cnep.models.config import CNEPConfig, TrainConfig, setting
+from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.train.constants import SCENE
+
+
+@dataclass(frozen=True)
+class TrainStageConfig:
+    """inputs: trajectory files or folders (read only); out: checkpoint folder (must not exist unless `force`).
+
+    layout: preset name (wine-glass, scene, motion, all); n_experts, assignment, encoder_widths, expert_widths,
+    time_frequencies: the network and its loss (models.CNEPConfig, whose defaults these are); matched_cnmp: train
+    instead the one-expert CNMP with that network's parameter count (models.matched_cnmp); training: steps,
+    batch size (per process), lr, schedule, val_every, patience (validations), seed, threads
+    (models.TrainConfig); val_fraction: share of the demonstrations held out for validation (whole
+    demonstrations, at least one); save_every: steps between resumable saves; device: cpu or cuda; resume:
+    continue the unfinished run writing to `out`; force: replace an existing `out` when the run completes.
+    """
+
+    inputs: tuple[Path, ...]
+    out: Path
+    # scene: the gate must decide the behaviour (with wine-glass, the query's frame gives it away).
+    layout: str = setting(
+        SCENE,
+        "columns observed/queried/predicted: wine-glass = observe features+pose+gripper, query features, predict "
+        "pose+gripper (1288-d files); scene = the same, but queries carry the time only; motion = pose+gripper "
+        "only (8-d files or the motion columns of 1288-d files); all = observe and predict every column",
+    )
+    n_experts: int = CNEPConfig.n_experts
+    assignment: str = CNEPConfig.assignment
+    encoder_widths: tuple[int, ...] = CNEPConfig.encoder_widths
+    expert_widths: tuple[int, ...] = CNEPConfig.expert_widths
+    time_frequencies: int = CNEPConfig.time_frequencies
+    matched_cnmp: bool = setting(
+        False,
+        "train the one-expert CNMP with the parameter count of the CNEP these options describe (its expert "
+        "widened; the comparison the paper makes)",
+    )
+    training: TrainConfig = field(default_factory=TrainConfig)
+    val_fraction: float = setting(0.2, "share of the demonstrations held out for validation")
+    save_every: int = setting(500, "steps between resumable saves")
+    device: str = setting("cpu", "where the network trains")
+    resume: bool = False
+    force: bool = False
+    quiet: bool = False
+
+    def __post_init__(self) -> None:
+        if not 0 < self.val_fraction < 1:
+            raise PipelineError(f"val_fraction must be in (0, 1), got {self.val_fraction}")
+        if self.save_every < 1:
+            raise PipelineError(f"save_every must be >= 1 step, got {self.save_every}")

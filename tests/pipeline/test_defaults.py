@@ -1,0 +1,75 @@
+"""One default per setting: `cnep train`, the train stage's config and the models' configs train the same model."""
+
+import subprocess
+import sys
+from dataclasses import fields
+from pathlib import Path
+
+import pytest
+
+from cnep.models.config import CNEPConfig, ConditioningPolicy, TrainConfig
+from cnep.pipeline.cli.main import build_parser
+from cnep.pipeline.cli.train import SETTINGS, stage_config
+from cnep.pipeline.demo.config import DemoConfig
+from cnep.pipeline.train.config import TrainStageConfig
+
+NETWORK = ("n_experts", "assignment", "encoder_widths", "expert_widths", "time_frequencies")
+
+
+def test_cnep_train_without_flags_is_the_stage_config_with_its_defaults():
+    args = build_parser().parse_args(["train", "data", "--out", "ckpt"])
+    assert stage_config(args) == TrainStageConfig(inputs=(Path("data"),), out=Path("ckpt"))
+
+
+def test_the_cli_the_stage_config_and_the_model_configs_agree_on_every_shared_setting():
+    stage = TrainStageConfig(inputs=(), out=Path("ckpt"))
+    model, training = CNEPConfig(), TrainConfig()
+    assert {name: getattr(stage, name) for name in NETWORK} == {name: getattr(model, name) for name in NETWORK}
+    assert stage.training == training
+    assert model.assignment == "bounded" and training.patience == 10 and training.threads == 1
+    args = build_parser().parse_args(["train", "data", "--out", "ckpt"])
+    chosen = stage_config(args)
+    for option, (cls, name) in SETTINGS.items():
+        held = {TrainStageConfig: chosen, CNEPConfig: chosen, TrainConfig: chosen.training}[cls]
+        assert getattr(held, name) == next(f.default for f in fields(cls) if f.name == name), option
+    demo = build_parser().parse_args(["demo"])
+    assert demo.assignment == DemoConfig.assignment == model.assignment and demo.seed == DemoConfig.seed
+    replay = build_parser().parse_args(["replay", "ckpt", "r.mcap"])
+    assert ConditioningPolicy(replay.window, replay.anchors) == ConditioningPolicy()
+
+
+def option_help(text: str, flag: str) -> str:
+    """The help of `flag` in argparse's --help output, on one line."""
+    block, found = [], False
+    for line in text.splitlines():
+        if line.startswith("  -"):
+            found = line.split()[0] == flag
+        elif not line.startswith("   "):
+            found = False
+        if found:
+            block.append(line)
+    return " ".join(" ".join(block).split())
+
+
+@pytest.mark.parametrize("option", sorted(SETTINGS))
+def test_cnep_train_help_shows_each_dataclass_default(option, capsys):
+    cls, name = SETTINGS[option]
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["train", "--help"])
+    shown = option_help(capsys.readouterr().out, f"--{option.replace('_', '-')}")
+    default = next(f.default for f in fields(cls) if f.name == name)
+    expected = (
+        "the assignment's"
+        if default is None
+        else ",".join(map(str, default))
+        if isinstance(default, tuple)
+        else default
+    )
+    assert f"(default {expected}" in shown, shown
+
+
+def test_the_python_defaults_train_the_committing_model_in_a_fresh_interpreter():
+    code = "from cnep.models import CNEPConfig; print(CNEPConfig().assignment)"
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "bounded"
