@@ -12,11 +12,14 @@ from __future__ import annotations
 import hashlib
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from cnep.models.cnep import CNEP
 from cnep.models.config import CNEPConfig
 from cnep.models.errors import ConfigError
 from cnep.outputs import write_atomically
+
+if TYPE_CHECKING:
+    from cnep.models.cnep import CNEP
 
 FORMAT_VERSION = 1
 CONFIG_FILE = "config.json"
@@ -96,6 +99,8 @@ def load_checkpoint(directory: str | Path, device: str = "cpu") -> CNEP:
     """The model saved in `directory`, in eval mode."""
     from safetensors import SafetensorError
     from safetensors.torch import load_file
+
+    from cnep.models.cnep import CNEP  # torch: here, so that reading a checkpoint's config.json needs none
 
     directory = Path(directory)
     model = CNEP(CNEPConfig.from_dict(read_checkpoint_config(directory)["model"]))

@@ -84,6 +84,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
+    from cnep.pipeline.inputs import DEMONSTRATIONS, mcap_files
+
+    for given in (*args.inputs, *args.calibrate_on):  # refused before torch and onnx load with the stage
+        mcap_files(Path(given), DEMONSTRATIONS)
     from cnep.pipeline.extract.stage import ExtractConfig, extract
 
     options = {"batch_size": args.batch_size} if args.batch_size is not None else {}

@@ -45,7 +45,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("-q", "--quiet", action="store_true", help="only warnings and errors, no progress bars")
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging, and the traceback of an error")
-    parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
+    parser.add_argument("--version", action=_Version, nargs=0, help="show the installed version and exit")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name, module in _available_commands():
         p = sub.add_parser(name, help=module.HELP, description=module.HELP)
@@ -63,6 +63,14 @@ def main(argv: list[str] | None = None) -> int:
     from cnep.pipeline.contract import run_command
 
     return run_command(args.command, lambda: args._run(args), verbose=args.verbose)
+
+
+class _Version(argparse.Action):
+    """`--version`: the version is looked up only when asked for (importlib.metadata costs a tenth of a second)."""
+
+    def __call__(self, parser, namespace, values, option_string=None) -> None:
+        print(f"{parser.prog} {_version()}")
+        parser.exit()
 
 
 def _version() -> str:

@@ -66,6 +66,11 @@ def run(args: argparse.Namespace) -> int:
     import shlex
     import time
 
+    from cnep.models.checkpoint import read_checkpoint_config
+    from cnep.pipeline.inputs import TRAJECTORIES, existing_files
+
+    read_checkpoint_config(args.checkpoint)  # refused before torch and rerun load with the stage
+    existing_files(args.recordings, TRAJECTORIES)
     from cnep.pipeline.replay.decisions import decisions_path, read_decisions
     from cnep.pipeline.replay.rerun_log import DEFAULT_VIEWER_URL, serve
     from cnep.pipeline.replay.stage import replay

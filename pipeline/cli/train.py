@@ -219,8 +219,11 @@ def stage_config(args: argparse.Namespace) -> TrainStageConfig:
 def run(args: argparse.Namespace) -> int:
     import os
 
+    from cnep.pipeline.inputs import find_trajectory_files
+
     config = stage_config(args)
-    from cnep.pipeline.train.stage import train  # torch: after the arguments were checked
+    find_trajectory_files(config.inputs)  # a missing input is refused before torch loads with the stage
+    from cnep.pipeline.train.stage import train
 
     out = train(config)
     if os.environ.get("RANK", "0") == "0":  # under torchrun only rank 0 reports

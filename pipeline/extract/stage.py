@@ -42,6 +42,7 @@ from cnep.perception.frames import decode_image, resize_frames
 from cnep.perception.weights import find_imagenet_weights
 from cnep.pipeline.contract import output_folder, raise_if_skipped, refuse_existing, refuse_inputs
 from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.inputs import DEMONSTRATIONS, mcap_files
 from cnep.pipeline.ownership import MCAP, WEIGHTS
 from cnep.pipeline.progress import progress_bar
 from cnep.pipeline.workers import cpu_cores, inference_threads, process_pool, thread_environment
@@ -58,7 +59,6 @@ from cnep.recordings.readers import in_file
 
 log = logging.getLogger(__name__)
 
-SUFFIX = ".mcap"
 # `workers="auto"`: frames per worker process. Measured (benchmarks/bench_extract.py, load 6-7 on 2 cores): a second
 # worker cost 15-18 s to start and paid from ~3700 frames at fp32, never at int8 (docs/results.md).
 WORKER_MIN_FRAMES = 4000
@@ -131,7 +131,7 @@ def extract(config: ExtractConfig) -> list[Extracted]:
     def extractor() -> FeatureExtractor:
         if not built:
             sources = (
-                [src for given in config.calibrate_on for src in demonstration_files(given)]
+                [src for given in config.calibrate_on for src in mcap_files(given, DEMONSTRATIONS)]
                 if config.calibrate_on
                 else [src for src, _ in all_pairs]
             )
@@ -390,7 +390,9 @@ def plan_outputs(inputs: Sequence[Path], out: Path) -> list[tuple[Path, Path]]:
     """(demonstration file, trajectory file) pairs; raises PipelineError for missing inputs and clashing outputs."""
     pairs: list[tuple[Path, Path]] = []
     for given in inputs:
-        pairs += [(p, out / (p.relative_to(given) if given.is_dir() else p.name)) for p in demonstration_files(given)]
+        pairs += [
+            (p, out / (p.relative_to(given) if given.is_dir() else p.name)) for p in mcap_files(given, DEMONSTRATIONS)
+        ]
     sources: dict[Path, Path] = {}
     for src, dst in pairs:
         if dst.resolve() == src.resolve():
@@ -408,18 +410,3 @@ def plan_outputs(inputs: Sequence[Path], out: Path) -> list[tuple[Path, Path]]:
                 f"{dst} is an input and would be overwritten by another input's output; choose another --out folder"
             )
     return pairs
-
-
-def demonstration_files(given: Path) -> list[Path]:
-    """`given` if it is a file, else the `*.mcap` files under folder `given` (recursively, sorted); PipelineError if
-    none."""
-    if given.is_dir():
-        found = sorted(p for p in given.rglob(f"*{SUFFIX}") if p.is_file())
-        if not found:
-            raise PipelineError(
-                f"{given}: no {SUFFIX} files in this folder; give demonstration files made by `cnep ingest`"
-            )
-        return found
-    if given.is_file():
-        return [given]
-    raise PipelineError(f"{given}: no such file or folder; give demonstration files made by `cnep ingest`")

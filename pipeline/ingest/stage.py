@@ -27,6 +27,7 @@ from tqdm.contrib.logging import logging_redirect_tqdm
 from cnep.outputs import output_lock
 from cnep.pipeline.contract import output_folder, raise_if_skipped, refuse_existing
 from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.inputs import SUFFIX
 from cnep.pipeline.ownership import MCAP
 from cnep.pipeline.progress import progress_bar
 from cnep.recordings import FORMAT_VERSION, Demonstration, DemonstrationReader, RecordingError, write_demonstration
@@ -42,7 +43,6 @@ log = logging.getLogger(__name__)
 
 SOURCE_ERRORS = (RecordingError, PipelineError)  # what one bad source can raise (skipped by keep_going)
 
-SUFFIX = ".mcap"
 OPTIONS_KEY = "ingest_options"  # episode metadata: the options_digest of the run that wrote the file
 FILE_KINDS = {".csv": "csv", SUFFIX: "mcap", ".bag": "rosbag"}
 FORMATS = ("auto", "lerobot")  # auto: a LeRobot dataset if SRC has meta/info.json, else files as found

@@ -37,6 +37,7 @@ from cnep.models.threads import torch_threads
 from cnep.outputs import output_lock, staged
 from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_existing, refuse_inputs
 from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.inputs import TRAJECTORIES, existing_files
 from cnep.pipeline.ownership import DECISIONS, MCAP, RRD, OutputKind
 from cnep.pipeline.replay.conditioning import DEFAULT_PREDICTION_POINTS, decide
 from cnep.pipeline.replay.decisions import DECISIONS_SUFFIX, decision_events, decisions_path, summarise
@@ -82,6 +83,7 @@ def replay(
     paths = [Path(p) for p in recording_paths]
     if not paths:
         raise PipelineError("replay needs at least one trajectory file")
+    existing_files(paths, TRAJECTORIES)
     if out.suffix != ".rrd":
         raise PipelineError(f"{out}: the replay output must be a .rrd file")
     names = [p.name for p in paths]

@@ -11,7 +11,6 @@ from pathlib import Path
 import numpy as np
 
 from cnep.pipeline.errors import PipelineError, listed
-from cnep.pipeline.extract.stage import SUFFIX
 from cnep.pipeline.identity import check_identities
 from cnep.recordings import Trajectory, read_trajectory
 
@@ -47,31 +46,6 @@ class TrainingSet:
     files: tuple[TrainingFile, ...]
     width: int
     extractor: dict[str, str]
-
-
-def find_trajectory_files(inputs: Sequence[Path]) -> list[Path]:
-    """Files as given, folders searched recursively for `*.mcap` (sorted); raises PipelineError for missing inputs."""
-    found: list[Path] = []
-    for given in map(Path, inputs):
-        if given.is_dir():
-            inside = sorted(p for p in given.rglob(f"*{SUFFIX}") if p.is_file())
-            if not inside:
-                raise PipelineError(
-                    f"{given}: no {SUFFIX} files in this folder; give trajectory files made by `cnep extract`"
-                )
-            found += inside
-        elif given.is_file():
-            found.append(given)
-        else:
-            raise PipelineError(f"{given}: no such file or folder; give trajectory files made by `cnep extract`")
-    seen: set[Path] = set()
-    unique = [p for p in found if not (p.resolve() in seen or seen.add(p.resolve()))]
-    if len(unique) < 2:
-        raise PipelineError(
-            f"training needs at least 2 trajectory files (one is held out for validation), got "
-            f"{len(unique)} from {', '.join(map(str, inputs))}"
-        )
-    return unique
 
 
 def load_training_set(paths: Sequence[Path]) -> TrainingSet:

@@ -38,9 +38,10 @@ from cnep.models.train import split_validation
 from cnep.pipeline import progress
 from cnep.pipeline.contract import deferred_interrupts, interruption
 from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.inputs import find_trajectory_files
 from cnep.pipeline.train.config import TrainStageConfig
 from cnep.pipeline.train.constants import LOG_FILE, STATE_FILE
-from cnep.pipeline.train.data import TrainingSet, find_trajectory_files, load_training_set
+from cnep.pipeline.train.data import TrainingSet, load_training_set
 from cnep.pipeline.train.parallel import (
     PlacedModel,
     Processes,

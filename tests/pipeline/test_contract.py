@@ -342,6 +342,39 @@ def test_inspect_does_not_import_torch(world):
     assert done.stderr.strip().splitlines()[-1] == "False 0", done.stderr
 
 
+REFUSED_BEFORE_LOADING = {
+    "train": ["train", "does/not/exist", "--out", "x"],
+    "extract": ["extract", "does/not/exist", "--out", "x"],
+    "replay": ["replay", "does/not/exist", "r.mcap", "--out", "x.rrd", "--no-live"],
+    "help": ["train", "--help"],
+}
+
+
+@pytest.mark.parametrize("case", REFUSED_BEFORE_LOADING)
+def test_a_missing_path_is_refused_before_torch_onnx_and_rerun_load(case, tmp_path):
+    code = (
+        "import sys\n"
+        "from cnep.pipeline.cli.main import main\n"
+        "try:\n"
+        "    status = main(sys.argv[1:])\n"
+        "except SystemExit as done:\n"
+        "    status = done.code\n"
+        "loaded = sorted(m for m in ('torch', 'onnx', 'onnxruntime', 'rerun') if m in sys.modules)\n"
+        "print(status, loaded, file=sys.stderr)"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code, *REFUSED_BEFORE_LOADING[case]],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+        timeout=120,
+    )
+    *message, last = done.stderr.strip().splitlines()
+    assert last == ("0 []" if case == "help" else "2 []"), done.stderr
+    assert case == "help" or (len(message) == 1 and "does/not/exist" in message[0]), message
+    assert not (tmp_path / "x").exists()
+
+
 def test_a_reader_that_stops_reading_ends_inspect_quietly(world):
     """`cnep inspect A B | head -1`: no BrokenPipeError traceback, exit 0."""
     files = [str(world.demos / f"d{i}.mcap") for i in range(3)] * 20
