@@ -1,46 +1,60 @@
-# The two set-up commands of the README: `make demo` (main job) and `make test`.
+# The two set-up commands of the README: `make demo` (main job) and `make test`. Each installs what its job
+# needs into .venv/ (the project's extras, pinned by constraints.txt), with pip's own progress, then runs it.
 PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
-STAMP  := $(VENV)/.installed
+BENCH  ?=
+
+# What each job installs besides the core (torch, torchvision, rerun-sdk, mcap, OpenCV, safetensors):
+# the demo extracts features with ONNX Runtime (its fastest fp32 backend here, and its int8 one);
+# the evaluation adds the baselines (movement-primitives, gmr) and matplotlib for its figures;
+# the tests and the linter everything: pytest and ruff, OpenVINO, pyarrow + PyAV (LeRobot), rosbags.
+EXTRAS_demo     := onnx
+EXTRAS_evaluate := onnx,baselines,plots
+EXTRAS_test     := dev,onnx,openvino,baselines,plots,lerobot,ros
 
 .PHONY: demo view test lint docs evaluate bench install clean
 
-$(STAMP): pyproject.toml constraints.txt
+$(BIN)/python:
+	@echo "== creating $(VENV) with $(PYTHON)"
 	$(PYTHON) -m venv $(VENV)
-	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -c constraints.txt -e '.[dev,onnx,openvino,baselines,plots,lerobot,ros]'
-	touch $(STAMP)
+	$(BIN)/python -m pip install --upgrade pip
 
-install: $(STAMP)
+$(VENV)/.installed-%: pyproject.toml constraints.txt | $(BIN)/python
+	@echo "== $*: installing cnep-pipeline[$(EXTRAS_$*)] into $(VENV) (pip's progress follows; the first install downloads torch, a few minutes)"
+	$(BIN)/python -m pip install -c constraints.txt -e '.[$(EXTRAS_$*)]'
+	@touch $@
+
+install: $(VENV)/.installed-test
 
 DEMO_OUT ?= cnep-demo
 
 # The demo writes into $(DEMO_OUT), replacing what an earlier demo wrote there.
-demo: $(STAMP)
+demo: $(VENV)/.installed-demo
 	$(BIN)/cnep demo --out $(DEMO_OUT) --force
 	@echo "Open the view: make view"
 
 # The demo's scene-change recording in the Rerun viewer (installed in .venv, so this works from any shell).
-view: $(STAMP)
+view: $(VENV)/.installed-demo
 	$(BIN)/rerun $(DEMO_OUT)/demo.rrd
 
-evaluate: $(STAMP)
+evaluate: $(VENV)/.installed-evaluate
 	$(BIN)/cnep evaluate
 
-test: $(STAMP)
+test: $(VENV)/.installed-test
 	CI=1 $(BIN)/python -m pytest -q
 
-lint: $(STAMP)
+lint: $(VENV)/.installed-test
 	$(BIN)/ruff format --check .
 	$(BIN)/ruff check .
 
 # The CLI reference page, generated from the parsers (tests/test_docs.py checks it is current).
-docs: $(STAMP)
+docs: $(VENV)/.installed-demo
 	$(BIN)/python -m cnep.pipeline.cli.reference docs/reference/cli.md
 
-bench: $(STAMP)
-	$(BIN)/python -m benchmarks
+# `make bench` lists the benchmarks; `make bench BENCH=replay` runs one, `make bench BENCH=all` every one.
+bench: $(VENV)/.installed-test
+	$(BIN)/python -m benchmarks $(BENCH)
 
 clean:
 	rm -rf $(VENV) build *.egg-info

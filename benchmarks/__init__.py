@@ -1,1 +1,2 @@
-"""Benchmarks run on demand: `python -m benchmarks.bench_<topic>` (never collected by pytest)."""
+"""Benchmarks run on demand: `python -m benchmarks` lists them, `python -m benchmarks NAME` runs one (`all`: every
+one); never collected by pytest."""
