@@ -130,3 +130,18 @@ def test_fit_holds_out_a_reported_fifth_from_ten_trajectories_on(caplog):
         _, history = fit(trajs, CNEPConfig(**SMALL), QUICK, progress=False)
     assert (history[0]["n_train"], history[0]["n_val"], history[0]["validation"]) == (8, 2, "held out")
     assert "validating on 2 of the 10 trajectories" in caplog.text
+
+
+@pytest.mark.parametrize("threads", [1, 2, None])
+def test_fit_trains_on_the_configs_threads_and_restores_the_count(monkeypatch, threads):
+    trajs, _ = two_mode_trajectories(n=4)
+    seen, step = [], Trainer.train_step
+    monkeypatch.setattr(Trainer, "train_step", lambda self: seen.append(torch.get_num_threads()) or step(self))
+    before = torch.get_num_threads()
+    torch.set_num_threads(3)
+    try:
+        fit(trajs, CNEPConfig(**SMALL), dataclasses.replace(QUICK, steps=4, threads=threads), progress=False)
+        assert set(seen) == {3 if threads is None else threads} and torch.get_num_threads() == 3
+    finally:
+        torch.set_num_threads(before)
+    assert TrainConfig().threads == 1  # the stages' count (models.threads.SMALL_MODEL_THREADS)
