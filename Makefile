@@ -6,10 +6,10 @@ BIN    := $(VENV)/bin
 BENCH  ?=
 
 # What each job installs besides the core (torch, torchvision, rerun-sdk, mcap, OpenCV, safetensors):
-# the demo extracts features with ONNX Runtime (its fastest fp32 backend here, and its int8 one);
-# the evaluation adds the baselines (movement-primitives, gmr) and matplotlib for its figures;
+# the demo extracts features with ONNX Runtime (its fastest fp32 backend here, and its int8 one) and draws its
+# summary figure with matplotlib; the evaluation adds the baselines (movement-primitives, gmr);
 # the tests and the linter everything: pytest and ruff, OpenVINO, pyarrow + PyAV (LeRobot), rosbags.
-EXTRAS_demo     := onnx
+EXTRAS_demo     := onnx,plots
 EXTRAS_evaluate := onnx,baselines,plots
 EXTRAS_test     := dev,onnx,openvino,baselines,plots,lerobot,ros
 
