@@ -37,9 +37,10 @@ from cnep.models import CNEPConfig, TrainConfig
 from cnep.models.synthetic import make_set
 from cnep.models.train import prepare_fit
 from cnep.perception import FeatureExtractor, available_backends, resize_frames
-from cnep.perception.backends import onnx_model, session_options
+from cnep.perception.backends import onnx_model
 from cnep.perception.constants import DEFAULT_BATCH_SIZE
 from cnep.pipeline.workers import inference_threads
+from cnep.runtime.sessions import session_options
 
 
 def busy_training(parent: int) -> None:

@@ -13,8 +13,8 @@ from dataclasses import asdict, dataclass, field, fields, replace
 
 from cnep.models.errors import ConfigError
 from cnep.models.threads import SMALL_MODEL_THREADS
-
-Spans = tuple[tuple[int, int], ...]
+from cnep.runtime.conditioning import ConditioningPolicy as ConditioningPolicy  # in the runtime: it needs no torch
+from cnep.runtime.spans import Spans, span_indices
 
 
 def _spans(value, name: str, width: int) -> Spans:
@@ -23,11 +23,6 @@ def _spans(value, name: str, width: int) -> Spans:
         if not 0 <= a < b <= width:
             raise ConfigError(f"Column span {name}=({a}, {b}) must satisfy 0 <= start < stop <= width={width}.")
     return spans
-
-
-def span_indices(spans: Spans) -> list[int]:
-    """The column indices covered by `spans`, in order."""
-    return [i for a, b in spans for i in range(a, b)]
 
 
 @dataclass(frozen=True)
@@ -220,17 +215,3 @@ def _known(cls, data: dict) -> dict:
     if unknown:
         raise ConfigError(f"Unknown {cls.__name__} field(s) {unknown}; known fields are {sorted(names)}.")
     return dict(data)
-
-
-@dataclass(frozen=True)
-class ConditioningPolicy:
-    """Which observations condition the model: `anchors` first ones (fixed) + the latest `window`."""
-
-    window: int = setting(10, "latest observations in the conditioning set")
-    anchors: int = setting(1, "first observations kept in the conditioning set for the whole episode (1: the start)")
-
-    def __post_init__(self) -> None:
-        if self.window < 1:
-            raise ConfigError(f"ConditioningPolicy.window must be >= 1 (the current observation), got {self.window}.")
-        if self.anchors < 0:
-            raise ConfigError(f"ConditioningPolicy.anchors must be >= 0, got {self.anchors}.")

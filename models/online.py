@@ -1,45 +1,34 @@
-"""Online conditioning: re-evaluate the gate at every control step from a sliding conditioning set.
+"""Online conditioning of a torch CNEP: the runtime's conditioner (runtime.conditioning) over the model.
 
-The paper's "online conditioning and on-the-fly adaptation": at each step the current observation
-(a trajectory row: features, pose, gripper at time t) enters the conditioning set, the gate is
-re-evaluated, and the active expert may switch. The authors' code has no such mode; this is ours.
-
-Conditioning policy (`ConditioningPolicy`): the set at step k is
-    the first `anchors` observations of the episode (kept for the whole episode: the start point by
-    default, which fixes where the movement began) + the latest `window` observations after them.
-The encoder's latent is a masked mean of per-observation encodings, so the conditioner keeps a
-running sum of the encodings in the set: one encoder row per step is added, the one leaving the
-window is subtracted. A step costs O(1) (one encoder row, the gate, one query per expert), whatever
-the episode's length.
-
-Time: step k of an episode of `horizon` steps is at t = k / (horizon - 1) (the model's training
-convention), clamped to 1 past the horizon. Query columns (if the model has any) of the predicted
-future steps are held at the current row's values, since future observations are unknown.
+`OnlineConditioner` steps through an episode of known length `horizon`, as the replay does: step k is at
+t = k / (horizon - 1) (the model's training convention), clamped to 1 past the horizon. The conditioning
+logic (anchors + window, the running sum of encodings, the gate, winner-take-all, switches) is
+`runtime.Conditioner`'s, shared with the exported policy; `TorchNetwork` hands it the model's encoder and
+decoder.
 """
 
 from __future__ import annotations
 
-from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
 import torch
+from torch import nn
 
 from cnep.models.cnep import CNEP
-from cnep.models.config import ConditioningPolicy
 from cnep.models.errors import ConfigError
+from cnep.runtime.conditioning import Columns, Conditioner, ConditioningPolicy, ExpertSwitch
 
-
-@dataclass(frozen=True)
-class ExpertSwitch:
-    """The active expert changed at `step`: `from_expert` -> `to_expert`, with the new gate (d,)."""
-
-    step: int
-    t: float  # normalised time in [0, 1]
-    timestamp_ns: int | None
-    from_expert: int
-    to_expert: int
-    gate: np.ndarray
+__all__ = [
+    "ConditioningPolicy",
+    "Decoder",
+    "Encoder",
+    "ExpertSwitch",
+    "OnlineConditioner",
+    "OnlineStep",
+    "TorchNetwork",
+    "model_columns",
+]
 
 
 @dataclass(frozen=True)
@@ -60,6 +49,59 @@ class OnlineStep:
     switch: ExpertSwitch | None
 
 
+class Encoder(nn.Module):
+    """The model's per-observation encoder: [t, normalised observed columns] (N, 1 + obs_dim) -> (N, H)."""
+
+    def __init__(self, model: CNEP) -> None:
+        super().__init__()
+        self.model = model
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        return self.model.encoder(self.model.embed_time(obs))  # (N, H)
+
+
+class Decoder(nn.Module):
+    """The gate and every expert on one latent: r (1, H), queries (M, 1 + query_dim) -> gate (d,), mean and std
+    (d, M, dy), normalised."""
+
+    def __init__(self, model: CNEP) -> None:
+        super().__init__()
+        self.model = model
+
+    def forward(self, r: torch.Tensor, query: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        gate = torch.softmax(self.model.gate(r[0]), dim=-1)  # (d,)
+        mean, std = self.model.decode(r, query[None])  # (1, d, M, dy) each
+        return gate, mean[0], std[0]
+
+
+class TorchNetwork:
+    """A CNEP's `Encoder` and `Decoder` on numpy arrays (runtime.conditioning.Network), in inference mode.
+
+    The same two modules are what `cnep export` writes as ONNX graphs.
+    """
+
+    def __init__(self, model: CNEP) -> None:
+        self.model = model.eval()
+        self.encoder, self.decoder = Encoder(self.model), Decoder(self.model)
+
+    @torch.inference_mode()
+    def encode(self, obs: np.ndarray) -> np.ndarray:
+        """[t, normalised observed columns] (N, 1 + obs_dim) -> encodings (N, H)."""
+        return self.encoder(torch.from_numpy(obs)).numpy()
+
+    @torch.inference_mode()
+    def decode(self, r: np.ndarray, query: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Latent (1, H), queries (M, 1 + query_dim) -> gate (d,), mean and std (d, M, dy), normalised."""
+        gate, mean, std = self.decoder(torch.from_numpy(r), torch.from_numpy(query))
+        return gate.numpy(), mean.numpy(), std.numpy()
+
+
+def model_columns(model: CNEP) -> Columns:
+    """The model's observed, query and predicted columns with its normaliser's statistics."""
+    lay, norm = model.config.columns, model.normaliser
+    return Columns(lay.observed, lay.query, lay.predicted, norm.loc.float().numpy(), norm.scale.float().numpy())
+
+
 class OnlineConditioner:
     """Stateful conditioner for one episode at a time (`reset()` starts a new one).
 
@@ -72,28 +114,25 @@ class OnlineConditioner:
         self.model = model.eval()
         self.horizon = horizon
         self.policy = policy
-        lay = model.config.columns
-        self.width = lay.width
-        norm = model.normaliser
-        # Per-column normalisation of the inputs and outputs, gathered once (not per step).
-        self._obs_cols = model.obs_columns.numpy()
-        self._query_cols = model.query_columns.numpy()
-        self._obs_loc, self._obs_scale = norm.loc[model.obs_columns].float(), norm.scale[model.obs_columns].float()
-        self._q_loc, self._q_scale = norm.loc[model.query_columns].float(), norm.scale[model.query_columns].float()
-        self._out_loc, self._out_scale = norm.loc[model.out_columns].float(), norm.scale[model.out_columns].float()
-        self.reset()
+        self.conditioner = Conditioner(TorchNetwork(model), model_columns(model), policy)
+        self.width = self.conditioner.width
 
     def reset(self) -> None:
         """Forget the conditioning set: the next `step` is step 0 of a new episode."""
-        H = self.model.config.latent_dim
-        self.k = 0  # index of the next step
-        self._sum = torch.zeros(H, dtype=torch.float64)  # running sum of the encodings in the set
-        self._n = 0  # observations in the set
-        self._window: deque[torch.Tensor] = deque()  # encodings (H,) of the sliding part, oldest first
-        self._r: torch.Tensor | None = None  # latent (H,) of the current set
-        self._query = torch.zeros(0)  # current row's normalised query columns (query_dim,)
-        self.gate: np.ndarray | None = None
-        self.expert: int | None = None
+        self.conditioner.reset()
+
+    @property
+    def k(self) -> int:
+        """Index of the next step."""
+        return self.conditioner.k
+
+    @property
+    def gate(self) -> np.ndarray | None:
+        return self.conditioner.gate
+
+    @property
+    def expert(self) -> int | None:
+        return self.conditioner.expert
 
     def time_of(self, k: int | np.ndarray) -> np.ndarray:
         """Normalised time of step(s) k: k / (horizon - 1), clamped to [0, 1]."""
@@ -102,9 +141,8 @@ class OnlineConditioner:
     @property
     def n_conditioning(self) -> int:
         """Number of observations in the current conditioning set."""
-        return self._n
+        return self.conditioner.n_conditioning
 
-    @torch.inference_mode()
     def step(self, row: np.ndarray, timestamp_ns: int | None = None) -> OnlineStep:
         """Take the observation at the next step (a `(width,)` trajectory row) and re-evaluate the gate."""
         row = np.asarray(row, dtype=np.float32)
@@ -112,48 +150,17 @@ class OnlineConditioner:
             raise ConfigError(
                 f"An online observation must be a ({self.width},) row of the model's columns, got shape {row.shape}."
             )
-        k, t = self.k, float(self.time_of(self.k))
-        x = torch.from_numpy(row)
-        obs = (x[self._obs_cols] - self._obs_loc) / self._obs_scale  # (obs_dim,)
-        self._query = (x[self._query_cols] - self._q_loc) / self._q_scale  # (query_dim,)
-        enc = self.model.encoder(self.model.embed_time(torch.cat([torch.tensor([t]), obs])))  # (H,)
-        self._add(k, enc.double())
-        self._r = (self._sum / self._n).float()  # (H,) the masked mean over the set
-        gate = torch.softmax(self.model.gate(self._r), dim=-1).numpy()  # (d,)
-        expert = int(gate.argmax())
-        switch = None
-        if self.expert is not None and expert != self.expert:
-            switch = ExpertSwitch(k, t, timestamp_ns, self.expert, expert, gate)
-        self.gate, self.expert = gate, expert
-        self.k += 1
-        mean, std = self.predict(self.time_of([k + 1]))  # (1, dy) each
+        k = self.k
+        t = float(self.time_of(k))
+        gate, expert, switch, mean, std = self.conditioner.step(row, t, self.time_of([k + 1]), timestamp_ns)
         return OnlineStep(k, t, gate, expert, mean[0], std[0], switch)
 
-    def _add(self, k: int, enc: torch.Tensor) -> None:
-        """Put the encoding of step k into the set by the policy; evict what leaves the window."""
-        self._sum += enc
-        self._n += 1
-        if k < self.policy.anchors:
-            return  # an anchor stays for the whole episode
-        self._window.append(enc)
-        if len(self._window) > self.policy.window:
-            self._sum -= self._window.popleft()
-            self._n -= 1
-
-    @torch.inference_mode()
     def predict(self, query_t: np.ndarray, all_experts: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """Predict at normalised times `query_t` (m,) from the current set, in the data's units.
 
         Returns mean, std (m, dy) of the active expert (winner-take-all, the paper's inference); with
         `all_experts=True`, (d, m, dy) for every expert.
         """
-        if self._r is None:
+        if self.conditioner.n_conditioning == 0:
             raise ConfigError("OnlineConditioner.predict needs at least one observation: call step() first.")
-        qt = torch.as_tensor(np.asarray(query_t), dtype=torch.float32)  # (m,)
-        query = torch.cat([qt[:, None], self._query.expand(len(qt), -1)], dim=-1)  # (m, 1 + query_dim)
-        mean, std = self.model.decode(self._r[None], query[None])  # (1, d, m, dy) each
-        means = mean[0] * self._out_scale + self._out_loc  # (d, m, dy)
-        stds = std[0] * self._out_scale  # (d, m, dy)
-        if all_experts:
-            return means.numpy(), stds.numpy()
-        return means[self.expert].numpy(), stds[self.expert].numpy()
+        return self.conditioner.predict(query_t, all_experts)

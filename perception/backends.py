@@ -26,6 +26,7 @@ from torch import nn
 from cnep.outputs import write_atomically
 from cnep.perception.constants import BACKEND_MODULES, BACKENDS, CACHE_ENV_VAR, IMAGE_SIZE, ONNX_OPSET
 from cnep.perception.errors import PerceptionError
+from cnep.runtime.sessions import onnxruntime_graph, openvino_graph
 
 Runner = Callable[[np.ndarray], np.ndarray]
 INSTALL_HINT = "onnxruntime needs: pip install 'cnep-pipeline[onnx]'; openvino: pip install 'cnep-pipeline[openvino]'"
@@ -185,27 +186,12 @@ def write_cache_file(path: Path, data: bytes) -> None:
         pass
 
 
-def session_options(threads: int | None):
-    """ONNX Runtime options: full graph optimisation, `threads` intra-op threads (None: one per core), no spinning."""
-    import onnxruntime as ort
-
-    options = ort.SessionOptions()
-    options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
-    options.intra_op_num_threads = threads or 0  # 0: one thread per physical core
-    options.inter_op_num_threads = 1
-    options.add_session_config_entry("session.intra_op.allow_spinning", "0")  # idle threads sleep, never spin
-    options.log_severity_level = 3  # errors only: loading an int8 graph warns about every folded constant
-    return options
-
-
 def onnxruntime_runner(model: bytes, threads: int | None) -> Runner:
     """A runner over ONNX graph `model` (input `pixels`, output `features`): fp32 or its int8 quantisation."""
-    import onnxruntime as ort
-
-    session = ort.InferenceSession(model, session_options(threads), providers=onnx_providers())
+    graph = onnxruntime_graph(model, threads, onnx_providers())
 
     def run(pixels: np.ndarray) -> np.ndarray:
-        return session.run(None, {"pixels": pixels})[0]  # (N, 1280) float32
+        return graph({"pixels": pixels})[0]  # (N, 1280) float32
 
     return run
 
@@ -220,32 +206,12 @@ def onnx_providers() -> list:
     return ["CPUExecutionProvider"]
 
 
-def openvino_config(threads: int | None) -> dict[str, object]:
-    """OpenVINO CPU settings: `threads` inference threads (None: one per core) in one stream, unpinned, fp32.
-
-    One stream with the latency hint runs each batch on all `threads`, as the ONNX Runtime session does;
-    threads are not pinned to cores, so on a shared machine they move to a free core rather than wait for
-    a busy one; fp32 inference precision, so CPUs with bf16 units do not silently lower it. OpenVINO's
-    idle threads sleep (it has no spinning option to turn off; benchmarks/bench_threads.py measures them).
-    """
-    return {
-        "INFERENCE_NUM_THREADS": threads or 0,
-        "NUM_STREAMS": 1,
-        "PERFORMANCE_HINT": "LATENCY",
-        "ENABLE_CPU_PINNING": False,
-        "INFERENCE_PRECISION_HINT": "f32",
-    }
-
-
 def openvino_runner(model: bytes, threads: int | None) -> Runner:
     """A runner over ONNX graph `model` (input `pixels`, output `features`) on OpenVINO's CPU plugin: fp32 or int8
     QDQ."""
-    import openvino as ov
-
-    core = ov.Core()
-    request = core.compile_model(core.read_model(model), "CPU", openvino_config(threads)).create_infer_request()
+    graph = openvino_graph(model, threads)
 
     def run(pixels: np.ndarray) -> np.ndarray:
-        return request.infer({"pixels": pixels})["features"]  # (N, 1280) float32, a copy
+        return graph({"pixels": pixels})[0]  # (N, 1280) float32, a copy
 
     return run

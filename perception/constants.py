@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+from cnep.runtime.constants import IMAGE_SIZE  # frames are resized to IMAGE_SIZE x IMAGE_SIZE before the network
+
 ARCHITECTURE = "torchvision.mobilenet_v2.features+global_avg_pool"
 FEATURE_DIM = 1280  # width of one feature vector (channels of the last MobileNet-v2 block)
-IMAGE_SIZE = 224  # frames are resized to IMAGE_SIZE x IMAGE_SIZE pixels before the network
 
 # ImageNet statistics the torchvision weights were trained with (RGB order, on [0, 1] pixels).
 IMAGENET_MEAN = (0.485, 0.456, 0.406)

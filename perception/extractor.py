@@ -177,6 +177,15 @@ class FeatureExtractor:
             raise PerceptionError("precision int8 needs quantise(frames) before the backend is built")
         self._get_runner()
 
+    def onnx_graph(self) -> bytes:
+        """The ONNX graph ONNX Runtime and OpenVINO run for these features (uint8 pixels (N, 224, 224, 3) ->
+        (N, 1280)): the fp32 export, or for precision int8 its quantisation (after `quantise`)."""
+        if self._needs_calibration:
+            raise PerceptionError(f"weights {self.weights_name} need calibrate(frames) before they are exported")
+        if self.needs_quantisation:
+            raise PerceptionError("precision int8 needs quantise(frames) before it is exported")
+        return self._int8_model if self._int8_model is not None else onnx_model(self.net, self._sha256)
+
     def save_weights(self, path: Path) -> None:
         """Save the (possibly calibrated) weights, to reuse them later as weights=`path`."""
         save_state_dict(self.net.features.state_dict(), path)

@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 
 from cnep.perception.constants import IMAGE_SIZE
 from cnep.perception.errors import PerceptionError
+from cnep.runtime.frames import decode_frame, resize_frame
 
 
 def decode_image(data: bytes) -> np.ndarray:
@@ -14,11 +14,10 @@ def decode_image(data: bytes) -> np.ndarray:
 
     Raises PerceptionError when the bytes are not a decodable image; the caller names the file and step.
     """
-    buffer = np.frombuffer(data, dtype=np.uint8)
-    bgr = cv2.imdecode(buffer, cv2.IMREAD_COLOR) if buffer.size else None
-    if bgr is None:
+    frame = decode_frame(data)
+    if frame is None:
         raise PerceptionError(f"cannot decode image ({len(data)} bytes): not a valid JPEG/PNG")
-    return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)  # (H, W, 3)
+    return frame  # (H, W, 3)
 
 
 def check_frames(frames: np.ndarray) -> None:
@@ -38,12 +37,13 @@ def check_frames(frames: np.ndarray) -> None:
 def resize_frames(frames: np.ndarray, size: int = IMAGE_SIZE) -> np.ndarray:
     """Resize (N, H, W, 3) uint8 frames of any size to (N, size, size, 3) uint8 (full frame, no crop).
 
-    INTER_AREA averages the source pixels under each target pixel, which avoids aliasing when shrinking.
+    INTER_AREA averages the source pixels under each target pixel, which avoids aliasing when shrinking; the
+    runtime resizes a robot's frames with the same function (runtime.frames.resize_frame).
     """
     check_frames(frames)
     if frames.shape[1:3] == (size, size):
         return np.ascontiguousarray(frames)
     out = np.empty((len(frames), size, size, 3), dtype=np.uint8)  # (N, size, size, 3)
     for i, frame in enumerate(frames):
-        out[i] = cv2.resize(frame, (size, size), interpolation=cv2.INTER_AREA)
+        resize_frame(frame, out[i])
     return out

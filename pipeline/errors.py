@@ -18,6 +18,7 @@ _PACKAGE_ERRORS = (
     ("cnep.recordings.errors", "RecordingError"),
     ("cnep.perception.errors", "PerceptionError"),
     ("cnep.outputs.errors", "OutputError"),
+    ("cnep.runtime.errors", "PolicyError"),
 )
 
 

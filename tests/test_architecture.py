@@ -8,7 +8,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 LIBRARIES = ("models", "recordings", "perception")
-STAGE_ORDER = ("ingest", "extract", "train", "replay", "evaluate", "demo", "cli")
+STAGE_ORDER = ("ingest", "extract", "train", "replay", "export", "run", "evaluate", "demo", "cli")
 
 
 def imports(package: str) -> list[tuple[Path, str]]:
@@ -49,6 +49,20 @@ def test_outputs_imports_no_other_part_of_cnep_and_only_the_standard_library_and
         for p, m in imports("outputs")
         if (m.startswith("cnep.") and top(m) in project - {"outputs"})
         or (not m.startswith("cnep.") and top(m) not in sys.stdlib_module_names | {"filelock"})
+    ]
+    assert not bad, bad
+
+
+# What the runtime may import besides the standard library and itself: a robot installs it without torch.
+RUNTIME_IMPORTS = {"numpy", "cv2", "onnxruntime", "openvino"}
+
+
+def test_runtime_imports_only_numpy_opencv_onnx_runtimes_and_itself():
+    allowed = RUNTIME_IMPORTS | set(sys.stdlib_module_names)
+    bad = [
+        f"{p.relative_to(ROOT)}: {m}"
+        for p, m in imports("runtime")
+        if not (m == "cnep.runtime" or m.startswith("cnep.runtime.") or m.split(".")[0] in allowed)
     ]
     assert not bad, bad
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-FOLDERS = ("models", "outputs", "perception", "pipeline", "recordings")
+FOLDERS = ("models", "outputs", "perception", "pipeline", "recordings", "runtime")
 STAGES = ("ingest", "extract", "train", "replay", "evaluate", "demo")
 
 
@@ -23,11 +23,11 @@ def test_every_package_folder_is_installed_under_cnep():
 
 
 def test_a_users_own_models_and_pipeline_packages_do_not_shadow_the_library(tmp_path):
-    for name in ("models", "pipeline", "recordings", "perception"):
+    for name in FOLDERS:
         (tmp_path / name).mkdir()
         (tmp_path / name / "__init__.py").write_text(f"raise SystemExit('the user\\'s {name} was imported')\n")
     code = (
-        "import cnep.models, cnep.pipeline, cnep.recordings, cnep.perception\n"
+        "import cnep.models, cnep.pipeline, cnep.recordings, cnep.perception, cnep.runtime\n"
         "from cnep.models import CNEPConfig\n"
         "print(cnep.models.__file__)"
     )

@@ -8,6 +8,7 @@ import torch
 from cnep.models.cnep import CNEP
 from cnep.models.errors import ConfigError
 from cnep.models.online import ConditioningPolicy, OnlineConditioner
+from cnep.runtime import PolicyError
 from tests.models.factories import tiny_config
 
 
@@ -101,9 +102,9 @@ def test_reset_starts_a_new_episode():
 
 def test_bad_inputs_are_refused():
     model, traj = random_model()
-    with pytest.raises(ConfigError, match="window"):
+    with pytest.raises(PolicyError, match="window"):
         ConditioningPolicy(window=0)
-    with pytest.raises(ConfigError, match="anchors"):
+    with pytest.raises(PolicyError, match="anchors"):
         ConditioningPolicy(anchors=-1)
     with pytest.raises(ConfigError, match="horizon"):
         OnlineConditioner(model, horizon=1)

@@ -64,7 +64,7 @@ def test_onnx_export_is_cached_by_weights_hash(monkeypatch, tmp_path):
 
 @pytest.mark.skipif("onnxruntime" not in available_backends(), reason="needs the onnx extra")
 def test_onnxruntime_sessions_do_not_spin():
-    from cnep.perception.backends import session_options
+    from cnep.runtime.sessions import session_options
 
     options = session_options(1)
     assert options.get_session_config_entry("session.intra_op.allow_spinning") == "0"
@@ -126,7 +126,8 @@ def test_auto_runs_int8_on_openvino_and_fp32_on_onnxruntime():
 def test_openvino_runs_the_requested_threads_unpinned():
     import openvino as ov
 
-    from cnep.perception.backends import onnx_model, openvino_config
+    from cnep.perception.backends import onnx_model
+    from cnep.runtime.sessions import openvino_config
 
     extractor = FeatureExtractor("random", threads=1)
     core = ov.Core()

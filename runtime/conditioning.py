@@ -1,0 +1,212 @@
+"""Online conditioning of a CNEP, in numpy, over any network that encodes observations and decodes a latent.
+
+The paper's "online conditioning and on-the-fly adaptation": at each step the current observation (a
+model row: features, pose, gripper at time t) enters the conditioning set, the gate is re-evaluated, and
+the active expert may switch. The authors' code has no such mode; this is ours.
+
+Conditioning policy (`ConditioningPolicy`): the set at step k is
+    the first `anchors` observations of the episode (kept for the whole episode: the start point by
+    default, which fixes where the movement began) + the latest `window` observations after them.
+The encoder's latent is a masked mean of per-observation encodings, so the conditioner keeps a running
+sum of the encodings in the set (float64): one encoder row per step is added, the one leaving the window
+is subtracted. A step costs O(1) (one encoder row, the gate, the queries of every expert), whatever the
+episode's length.
+
+The network is anything with `encode` and `decode` (`Network`): the torch CNEP (models.online) and the
+exported ONNX graphs (runtime.exported) both are, so the logic here exists once for both. Rows are
+normalised here, with the statistics the model was trained with (`Columns`). Query columns (if the layout
+has any) of predicted future steps are held at the current row's values, since future observations are
+unknown.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+
+from cnep.runtime.errors import PolicyError
+from cnep.runtime.spans import Spans, span_indices
+
+
+@dataclass(frozen=True)
+class ConditioningPolicy:
+    """Which observations condition the model: `anchors` first ones (fixed) + the latest `window`."""
+
+    window: int = field(default=10, metadata={"help": "latest observations in the conditioning set"})
+    anchors: int = field(
+        default=1,
+        metadata={"help": "first observations kept in the conditioning set for the whole episode (1: the start)"},
+    )
+
+    def __post_init__(self) -> None:
+        if self.window < 1:
+            raise PolicyError(f"ConditioningPolicy.window must be >= 1 (the current observation), got {self.window}.")
+        if self.anchors < 0:
+            raise PolicyError(f"ConditioningPolicy.anchors must be >= 0, got {self.anchors}.")
+
+
+@dataclass(frozen=True)
+class ExpertSwitch:
+    """The active expert changed at `step`: `from_expert` -> `to_expert`, with the new gate (d,)."""
+
+    step: int
+    t: float  # normalised time in [0, 1]
+    timestamp_ns: int | None
+    from_expert: int
+    to_expert: int
+    gate: np.ndarray
+
+
+class Network(Protocol):
+    """A trained CNEP's networks on normalised float32 arrays (H latent, d experts, dy predicted columns)."""
+
+    def encode(self, obs: np.ndarray) -> np.ndarray:
+        """[t, observed columns] (N, 1 + obs_dim) -> encodings (N, H)."""
+
+    def decode(self, r: np.ndarray, query: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Latent (1, H), queries [t, query columns] (M, 1 + query_dim) -> gate (d,), mean and std (d, M, dy)."""
+
+
+@dataclass(frozen=True)
+class Columns:
+    """Which columns of a `(width,)` model row the network observes, queries with and predicts (spans), and the
+    normaliser's per-column `loc` and `scale` (width,) that map the row to the network's units."""
+
+    observed: Spans
+    query: Spans
+    predicted: Spans
+    loc: np.ndarray
+    scale: np.ndarray
+
+    def __post_init__(self) -> None:
+        loc, scale = np.asarray(self.loc, dtype=np.float32), np.asarray(self.scale, dtype=np.float32)
+        width = loc.shape[0] if loc.ndim == 1 else -1
+        if loc.shape != scale.shape or width < 1 or not (np.isfinite(loc).all() and (scale > 0).all()):
+            raise PolicyError(
+                f"the normaliser needs finite loc and positive scale of one width, got shapes {loc.shape} and "
+                f"{scale.shape}"
+            )
+        for name in ("observed", "query", "predicted"):
+            spans = tuple((int(a), int(b)) for a, b in getattr(self, name))
+            if any(not 0 <= a < b <= width for a, b in spans):
+                raise PolicyError(f"the {name} columns {spans} do not fit a row of {width} columns")
+            object.__setattr__(self, name, spans)
+        object.__setattr__(self, "loc", loc)
+        object.__setattr__(self, "scale", scale)
+
+    @property
+    def width(self) -> int:
+        return int(self.loc.shape[0])
+
+
+class Conditioner:
+    """The conditioning state of one episode (`reset()` starts a new one) over `network`."""
+
+    def __init__(self, network: Network, columns: Columns, policy: ConditioningPolicy = ConditioningPolicy()) -> None:
+        self.network, self.columns, self.policy = network, columns, policy
+        self._obs_cols = np.array(span_indices(columns.observed), dtype=np.intp)
+        self._query_cols = np.array(span_indices(columns.query), dtype=np.intp)
+        out_cols = np.array(span_indices(columns.predicted), dtype=np.intp)
+        self._obs_loc, self._obs_scale = columns.loc[self._obs_cols], columns.scale[self._obs_cols]
+        self._q_loc, self._q_scale = columns.loc[self._query_cols], columns.scale[self._query_cols]
+        self._out_loc, self._out_scale = columns.loc[out_cols], columns.scale[out_cols]
+        # Buffers reused at every step: the encoder's input row and the decoder's queries.
+        self._obs = np.empty((1, 1 + len(self._obs_cols)), dtype=np.float32)  # (1, 1 + obs_dim)
+        self._query_values = np.empty(len(self._query_cols), dtype=np.float32)  # (query_dim,) normalised
+        self._queries = np.empty((0, 1 + len(self._query_cols)), dtype=np.float32)  # (M, 1 + query_dim)
+        self.reset()
+
+    @property
+    def width(self) -> int:
+        """Columns of a model row."""
+        return self.columns.width
+
+    def reset(self) -> None:
+        """Forget the conditioning set: the next `step` is step 0 of a new episode."""
+        self.k = 0  # index of the next step
+        self._sum: np.ndarray | None = None  # (H,) float64 running sum of the encodings in the set
+        self._n = 0  # observations in the set
+        self._ring: np.ndarray | None = None  # (window, H) float64: encodings of the sliding part
+        self._in_ring = 0  # encodings held in the ring; the oldest is at (self._next - self._in_ring) % window
+        self._next = 0  # where the next encoding goes in the ring
+        self._r: np.ndarray | None = None  # (1, H) float32 latent of the current set
+        self.gate: np.ndarray | None = None
+        self.expert: int | None = None
+
+    @property
+    def n_conditioning(self) -> int:
+        """Number of observations in the current conditioning set."""
+        return self._n
+
+    def step(
+        self, row: np.ndarray, t: float, query_t: np.ndarray, timestamp_ns: int | None = None
+    ) -> tuple[np.ndarray, int, ExpertSwitch | None, np.ndarray, np.ndarray]:
+        """Condition on `row` (width,) at phase `t`, re-evaluate the gate, predict at phases `query_t` (M,).
+
+        Returns gate (d,), the active expert, the switch (None unless the expert changed at this step), and the
+        active expert's mean and std (M, dy) in the data's units.
+        """
+        obs = self._obs
+        obs[0, 0] = t
+        np.take(row, self._obs_cols, out=obs[0, 1:])
+        np.subtract(obs[0, 1:], self._obs_loc, out=obs[0, 1:])
+        np.divide(obs[0, 1:], self._obs_scale, out=obs[0, 1:])
+        np.take(row, self._query_cols, out=self._query_values)
+        np.subtract(self._query_values, self._q_loc, out=self._query_values)
+        np.divide(self._query_values, self._q_scale, out=self._query_values)
+        self._add(self.network.encode(obs)[0])  # (H,)
+        self._r = (self._sum / self._n).astype(np.float32)[None]  # (1, H) the masked mean over the set
+        gate, mean, std = self.network.decode(self._r, self._fill_queries(query_t))  # (d,), (d, M, dy) x 2
+        expert = int(gate.argmax())
+        switch = None
+        if self.expert is not None and expert != self.expert:
+            switch = ExpertSwitch(self.k, float(t), timestamp_ns, self.expert, expert, gate)
+        self.gate, self.expert = gate, expert
+        self.k += 1
+        return gate, expert, switch, self._denormalise_mean(mean[expert]), std[expert] * self._out_scale
+
+    def predict(self, query_t: np.ndarray, all_experts: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """Predict at phases `query_t` (m,) from the current set, in the data's units.
+
+        Returns mean, std (m, dy) of the active expert (winner-take-all, the paper's inference); with
+        `all_experts=True`, (d, m, dy) for every expert.
+        """
+        if self._r is None:
+            raise PolicyError("predict needs at least one observation: call step() first.")
+        _, mean, std = self.network.decode(self._r, self._fill_queries(query_t))  # (d, m, dy) each
+        if all_experts:
+            return self._denormalise_mean(mean), std * self._out_scale
+        return self._denormalise_mean(mean[self.expert]), std[self.expert] * self._out_scale
+
+    def _denormalise_mean(self, mean: np.ndarray) -> np.ndarray:
+        return mean * self._out_scale + self._out_loc
+
+    def _fill_queries(self, query_t: np.ndarray) -> np.ndarray:
+        """The (M, 1 + query_dim) queries [t, current query columns] in the reused buffer (grown when M grows)."""
+        query_t = np.asarray(query_t)
+        m = len(query_t)
+        if len(self._queries) != m:
+            self._queries = np.empty((m, self._queries.shape[1]), dtype=np.float32)
+        self._queries[:, 0] = query_t
+        self._queries[:, 1:] = self._query_values
+        return self._queries
+
+    def _add(self, enc: np.ndarray) -> None:
+        """Put the encoding (H,) of step k into the set by the policy; evict what leaves the window."""
+        if self._sum is None:
+            self._sum = np.zeros(enc.shape, dtype=np.float64)
+            self._ring = np.empty((self.policy.window, *enc.shape), dtype=np.float64)
+        self._sum += enc
+        self._n += 1
+        if self.k < self.policy.anchors:
+            return  # an anchor stays for the whole episode
+        window = self.policy.window
+        if self._in_ring == window:  # the oldest of the window leaves the set
+            self._sum -= self._ring[self._next]
+            self._n -= 1
+        else:
+            self._in_ring += 1
+        self._ring[self._next] = enc
+        self._next = (self._next + 1) % window

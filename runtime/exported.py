@@ -1,0 +1,87 @@
+"""An exported policy folder (`cnep export`) loaded as a `Policy`, with ONNX Runtime or OpenVINO, without torch.
+
+    policy = load_policy("policy/")                      # fp32 features, ONNX Runtime
+    policy = load_policy("policy/", precision="int8")    # the int8 feature graph, if the export has one
+
+The graphs' input and output names are fixed here (the exporter imports them): the features graph takes
+`pixels` (N, 224, 224, 3) uint8 and gives `features` (N, 1280); the encoder takes `obs` (N, 1 + obs_dim)
+and gives `encodings` (N, H); the decoder takes `r` (1, H) and `query` (M, 1 + query_dim) and gives
+`gate` (d,), `mean` and `std` (d, M, dy), in the model's normalised units.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from cnep.runtime.conditioning import ConditioningPolicy
+from cnep.runtime.constants import DEFAULT_WAYPOINTS
+from cnep.runtime.errors import PolicyError
+from cnep.runtime.manifest import read_manifest
+from cnep.runtime.policy import Policy
+from cnep.runtime.sessions import Graph, load_graph
+from cnep.runtime.timebase import TimeBase
+
+FEATURES_INPUT, FEATURES_OUTPUT = "pixels", "features"
+ENCODER_INPUT, ENCODER_OUTPUT = "obs", "encodings"
+DECODER_INPUTS, DECODER_OUTPUTS = ("r", "query"), ("gate", "mean", "std")
+
+
+class ExportedNetwork:
+    """The encoder and the decoder (gate + experts) graphs as a `runtime.conditioning.Network`."""
+
+    def __init__(self, encoder: Graph, decoder: Graph) -> None:
+        self._encoder, self._decoder = encoder, decoder
+
+    def encode(self, obs: np.ndarray) -> np.ndarray:
+        """[t, observed columns] (N, 1 + obs_dim) float32 -> encodings (N, H)."""
+        return self._encoder({ENCODER_INPUT: obs})[0]
+
+    def decode(self, r: np.ndarray, query: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Latent (1, H), queries (M, 1 + query_dim) -> gate (d,), mean and std (d, M, dy)."""
+        gate, mean, std = self._decoder({DECODER_INPUTS[0]: r, DECODER_INPUTS[1]: query})
+        return gate, mean, std
+
+
+def load_policy(
+    folder: str | Path,
+    *,
+    precision: str = "fp32",
+    backend: str = "onnxruntime",
+    threads: int | None = None,
+    waypoints: int = DEFAULT_WAYPOINTS,
+    conditioning: ConditioningPolicy | None = None,
+    time_base: TimeBase | None = None,
+    camera: str | None = None,
+) -> Policy:
+    """The policy exported to `folder`, each graph checked against the manifest's sha256.
+
+    precision: the feature graph to run (`fp32`, or `int8` when exported with --int8); backend: `onnxruntime`
+    or `openvino`; threads: intra-op threads per graph (None: one per core); waypoints, conditioning,
+    time_base, camera: as `Policy` takes them (None: the exported ones).
+    """
+    folder = Path(folder)
+    manifest = read_manifest(folder)
+    features = None
+    if manifest.spec.features is not None:
+        if precision not in manifest.features:
+            raise PolicyError(
+                f"{folder}: has no {precision} feature graph (it has {', '.join(sorted(manifest.features))}); "
+                f"export with --int8 for int8 features"
+            )
+        graph = load_graph(str(manifest.verified(folder, manifest.features[precision]["file"])), backend, threads)
+        features = lambda pixels: graph({FEATURES_INPUT: pixels})[0]  # noqa: E731
+    network = ExportedNetwork(
+        load_graph(str(manifest.verified(folder, manifest.graphs["encoder"])), backend, threads),
+        load_graph(str(manifest.verified(folder, manifest.graphs["decoder"])), backend, threads),
+    )
+    return Policy(
+        network,
+        manifest.spec,
+        features,
+        waypoints=waypoints,
+        conditioning=conditioning,
+        time_base=time_base,
+        camera=camera,
+    )

@@ -1,0 +1,203 @@
+"""`Policy`: a trained CNEP in a robot's control loop, with LeRobot's interface.
+
+    policy.reset()                                   # at the start of every episode
+    action = policy.select_action(observation)       # (dy,) the next waypoint
+    result = policy.step(observation)                # waypoints, std, gate, active expert, switch
+
+An observation is a dict (LeRobot's keys): `observation.images.<camera>` an RGB frame (H, W, 3) uint8 of any
+size, `observation.state` the robot's state (8,) (runtime.spec.STATE_NAMES: xyz in m, quaternion xyzw,
+gripper), and optionally `timestamp`, the seconds since the episode began (without it, step k is at
+k * period_s of the time base). Each value may carry LeRobot's leading batch dimension of 1; then the action
+has it too. Anything else (a wrong shape or dtype, a value that is not finite, a time that does not move
+forward) is one PolicyError saying which key and what to do.
+
+One class for both backends: the network (`runtime.conditioning.Network`) and the feature function are the
+torch model and extractor (`cnep.pipeline.export.checkpoint_policy`) or the exported ONNX graphs
+(`runtime.exported.load_policy`); everything else (reading the observation, the time base, the conditioning
+set, the gate, winner-take-all, switches) is this code. Per step it reuses preallocated buffers for the
+resized frame, the model row and the query times.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from cnep.runtime.conditioning import Conditioner, ConditioningPolicy, ExpertSwitch, Network
+from cnep.runtime.constants import DEFAULT_WAYPOINTS, IMAGE_KEY_PREFIX, STATE_KEY, TIMESTAMP_KEY
+from cnep.runtime.errors import PolicyError
+from cnep.runtime.frames import pixel_buffer, resize_frame
+from cnep.runtime.spec import STATE_NAMES, PolicySpec
+from cnep.runtime.timebase import TimeBase
+
+Features = Callable[[np.ndarray], np.ndarray]  # uint8 pixels (1, 224, 224, 3) -> float32 features (1, F)
+
+
+@dataclass(frozen=True)
+class PolicyStep:
+    """One control step's result, in the data's units.
+
+    waypoints, std: (W, dy) the active expert's mean and std at the next W steps (columns `action_names`);
+    times_s: (W,) their seconds since the episode began; gate: (d,) sums to 1; expert: its argmax; switch:
+    set when the active expert changed at this step (never at the first); time_s and t: this step's seconds
+    and phase.
+    """
+
+    step: int
+    time_s: float
+    t: float
+    waypoints: np.ndarray
+    std: np.ndarray
+    times_s: np.ndarray
+    gate: np.ndarray
+    expert: int
+    switch: ExpertSwitch | None
+
+
+class Policy:
+    """A CNEP policy for one episode at a time.
+
+    network, features: the backend (features None for a model that sees no camera); spec: how observations
+    become model rows (runtime.spec); waypoints: future steps predicted per step (W >= 1, spaced by the time
+    base's period); conditioning, time_base: override the spec's; camera: the `observation.images.<camera>`
+    to read (None: the only image in the observation).
+    """
+
+    def __init__(
+        self,
+        network: Network,
+        spec: PolicySpec,
+        features: Features | None = None,
+        *,
+        waypoints: int = DEFAULT_WAYPOINTS,
+        conditioning: ConditioningPolicy | None = None,
+        time_base: TimeBase | None = None,
+        camera: str | None = None,
+    ) -> None:
+        if waypoints < 1:
+            raise PolicyError(f"waypoints must be >= 1 (the next step at least), got {waypoints}")
+        if (features is None) != (spec.features is None):
+            need = "needs the feature network" if features is None else "sees no camera and takes no features"
+            raise PolicyError(f"this policy's model {need}")
+        self.spec, self.camera = spec, camera
+        self.time_base = time_base or spec.time_base
+        if self.time_base is None:
+            raise PolicyError(
+                "the checkpoint carries no time base (it was trained before cnep stored one); give "
+                "time_base=TimeBase(duration_s, period_s): the demonstrations' length and step period in seconds"
+            )
+        self._features = features
+        self._conditioner = Conditioner(network, spec.columns, conditioning or spec.conditioning)
+        self._pixels = pixel_buffer(1)  # (1, 224, 224, 3) uint8
+        self._row = np.zeros(spec.columns.width, dtype=np.float32)  # (width,) the model row of this step
+        self._offsets = self.time_base.period_s * np.arange(1, waypoints + 1)  # (W,) seconds ahead of this step
+        self._query_t = np.empty(waypoints, dtype=np.float64)  # (W,) phases of the waypoints
+        self.reset()
+
+    @property
+    def action_names(self) -> tuple[str, ...]:
+        """Names of the action's (and each waypoint's) columns, e.g. ('x', 'y', 'z', ..., 'gripper')."""
+        return self.spec.action_names
+
+    @property
+    def n_experts(self) -> int:
+        return self.spec.n_experts
+
+    @property
+    def uses_camera(self) -> bool:
+        """True if the model sees the camera (an observation must then carry an image)."""
+        return self._features is not None
+
+    def reset(self) -> None:
+        """Start a new episode: empty the conditioning set; the next observation is step 0 at time 0."""
+        self._conditioner.reset()
+        self._last_time_s: float | None = None
+
+    def select_action(self, observation: Mapping) -> np.ndarray:
+        """The next waypoint (dy,) for `observation`, or (1, dy) when its state came with a batch dimension."""
+        result, batched = self._step(observation)
+        return result.waypoints[:1] if batched else result.waypoints[0]
+
+    def step(self, observation: Mapping) -> PolicyStep:
+        """Take `observation` as the episode's next step: the waypoints, their std, the gate and any switch."""
+        return self._step(observation)[0]
+
+    def _step(self, observation: Mapping) -> tuple[PolicyStep, bool]:
+        if not isinstance(observation, Mapping):
+            raise PolicyError(
+                f"an observation is a dict with {STATE_KEY!r} (and an image {IMAGE_KEY_PREFIX}<camera>), got a "
+                f"{type(observation).__name__}"
+            )
+        state, batched = self._read_state(observation)
+        time_s = self._read_time(observation)
+        if self._features is not None:
+            resize_frame(self._read_image(observation), self._pixels[0])
+            a, b = self.spec.features
+            self._row[a:b] = self._features(self._pixels)[0]
+        for (s0, s1), (r0, r1) in self.spec.state:
+            self._row[r0:r1] = state[s0:s1]
+        tb = self.time_base
+        times = self._offsets + time_s  # (W,)
+        np.clip(times / tb.duration_s, 0.0, 1.0, out=self._query_t)
+        k, t = self._conditioner.k, tb.phase(time_s)
+        gate, expert, switch, mean, std = self._conditioner.step(self._row, t, self._query_t, round(time_s * 1e9))
+        self._last_time_s = time_s
+        return PolicyStep(k, time_s, t, mean, std, times, gate, expert, switch), batched
+
+    def _read_state(self, observation: Mapping) -> tuple[np.ndarray, bool]:
+        if STATE_KEY not in observation:
+            raise PolicyError(
+                f"the observation has no {STATE_KEY!r} (keys: {', '.join(map(str, observation)) or 'none'}); give "
+                f"the robot's state ({len(STATE_NAMES)},): {', '.join(STATE_NAMES)}"
+            )
+        state = np.asarray(observation[STATE_KEY])
+        batched = state.ndim == 2 and state.shape[0] == 1
+        if state.dtype.kind not in "fiu" or state.shape not in ((len(STATE_NAMES),), (1, len(STATE_NAMES))):
+            raise PolicyError(
+                f"{STATE_KEY} must be a ({len(STATE_NAMES)},) array of numbers ({', '.join(STATE_NAMES)}; a leading "
+                f"batch dimension of 1 is allowed), got shape {state.shape} dtype {state.dtype}"
+            )
+        state = state.reshape(-1)
+        if not np.isfinite(state).all():
+            bad = [STATE_NAMES[i] for i in np.flatnonzero(~np.isfinite(state))]
+            raise PolicyError(f"{STATE_KEY} has values that are not finite ({', '.join(bad)}): {state.tolist()}")
+        return state, batched
+
+    def _read_time(self, observation: Mapping) -> float:
+        if TIMESTAMP_KEY not in observation:
+            return self._conditioner.k * self.time_base.period_s
+        try:
+            time_s = float(np.asarray(observation[TIMESTAMP_KEY]).reshape(()))
+        except (TypeError, ValueError):
+            raise PolicyError(
+                f"{TIMESTAMP_KEY} must be one number, the seconds since the episode began, got "
+                f"{observation[TIMESTAMP_KEY]!r}"
+            ) from None
+        if not np.isfinite(time_s) or time_s < 0:
+            raise PolicyError(f"{TIMESTAMP_KEY} must be finite seconds >= 0 since the episode began, got {time_s}")
+        if self._last_time_s is not None and time_s <= self._last_time_s:
+            raise PolicyError(
+                f"{TIMESTAMP_KEY} {time_s} s does not move forward (the previous step was at {self._last_time_s} s); "
+                f"call reset() at the start of a new episode"
+            )
+        return time_s
+
+    def _read_image(self, observation: Mapping) -> np.ndarray:
+        keys = [key for key in observation if isinstance(key, str) and key.startswith(IMAGE_KEY_PREFIX)]
+        key = IMAGE_KEY_PREFIX + self.camera if self.camera is not None else (keys[0] if len(keys) == 1 else None)
+        if key is None or key not in observation:
+            wanted = f"{key!r}" if key else f"one {IMAGE_KEY_PREFIX}<camera> (or camera= to choose)"
+            raise PolicyError(
+                f"this policy sees the camera: the observation needs {wanted}, it has {', '.join(keys) or 'no image'}"
+            )
+        frame = np.asarray(observation[key])
+        if frame.ndim == 4 and frame.shape[0] == 1:
+            frame = frame[0]
+        if frame.dtype != np.uint8 or frame.ndim != 3 or frame.shape[2] != 3 or 0 in frame.shape:
+            raise PolicyError(
+                f"{key} must be an RGB frame (H, W, 3) uint8 (a leading batch dimension of 1 is allowed), got shape "
+                f"{frame.shape} dtype {frame.dtype}; convert float images in [0, 1] with (255 * x).astype(np.uint8)"
+            )
+        return frame

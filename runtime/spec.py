@@ -1,0 +1,124 @@
+"""What a policy needs to know besides its networks: how an observation becomes a model row, and its time base.
+
+A robot's observation is an RGB frame and a state vector (STATE_NAMES: the end effector's xyz in m and its
+quaternion xyzw, then the gripper, as the recordings store them). The model row (`Columns.width` columns)
+takes the frame's features in the `features` span and state entries by `state` (pairs of spans); the
+predicted columns are named after the state entries they are (`action_names`). `cnep export` writes a spec
+into the manifest, and loading a checkpoint builds the same spec, so both backends read observations alike.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from cnep.runtime.conditioning import Columns, ConditioningPolicy
+from cnep.runtime.errors import PolicyError
+from cnep.runtime.spans import span_indices
+from cnep.runtime.timebase import TimeBase
+
+STATE_NAMES = ("x", "y", "z", "qx", "qy", "qz", "qw", "gripper")  # observation.state, in the recordings' order
+
+
+@dataclass(frozen=True)
+class PolicySpec:
+    """How observations become model rows.
+
+    columns: the model row and its normaliser; n_experts: d, the gate's width; features: (start, stop) of the
+    image features in the row, or None for a model that sees no camera; state: ((state_start, state_stop),
+    (row_start, row_stop)) pairs; time_base: seconds -> phase (None: the checkpoint has none, give one);
+    conditioning: anchors + window.
+    """
+
+    columns: Columns
+    n_experts: int
+    features: tuple[int, int] | None
+    state: tuple[tuple[tuple[int, int], tuple[int, int]], ...]
+    time_base: TimeBase | None
+    conditioning: ConditioningPolicy = ConditioningPolicy()
+
+    def __post_init__(self) -> None:
+        width = self.columns.width
+        if int(self.n_experts) < 1:
+            raise PolicyError(f"a policy needs at least one expert, got n_experts={self.n_experts}")
+        object.__setattr__(self, "n_experts", int(self.n_experts))
+        if self.features is not None:
+            a, b = map(int, self.features)
+            if not 0 <= a < b <= width:
+                raise PolicyError(f"the features span ({a}, {b}) does not fit a model row of {width} columns")
+            object.__setattr__(self, "features", (a, b))
+        pairs = tuple(((int(s0), int(s1)), (int(r0), int(r1))) for (s0, s1), (r0, r1) in self.state)
+        for (s0, s1), (r0, r1) in pairs:
+            if not (0 <= s0 < s1 <= len(STATE_NAMES) and 0 <= r0 < r1 <= width and s1 - s0 == r1 - r0):
+                raise PolicyError(
+                    f"the state span ({s0}, {s1}) -> row ({r0}, {r1}) does not map {len(STATE_NAMES)} state "
+                    f"entries onto a row of {width} columns"
+                )
+        object.__setattr__(self, "state", pairs)
+        covered = sorted(span_indices([r for _, r in pairs] + ([self.features] if self.features else [])))
+        if covered != list(range(width)):
+            raise PolicyError(
+                f"the features span {self.features} and state spans {[r for _, r in pairs]} must cover the "
+                f"model row's {width} columns exactly once"
+            )
+
+    @property
+    def action_names(self) -> tuple[str, ...]:
+        """Names of the predicted columns, in order (a state entry's name, or `feature[i]`)."""
+        names = {}
+        for (s0, _), (r0, r1) in self.state:
+            names.update({r0 + i: STATE_NAMES[s0 + i] for i in range(r1 - r0)})
+        if self.features is not None:
+            names.update({c: f"feature[{c - self.features[0]}]" for c in range(*self.features)})
+        return tuple(names[c] for c in span_indices(self.columns.predicted))
+
+    def to_dict(self) -> dict:
+        """JSON-able: the manifest's `spec` entry."""
+        c = self.columns
+        return {
+            "width": c.width,
+            "n_experts": self.n_experts,
+            "observed": [list(s) for s in c.observed],
+            "query": [list(s) for s in c.query],
+            "predicted": [list(s) for s in c.predicted],
+            "normaliser": {"loc": c.loc.tolist(), "scale": c.scale.tolist()},
+            "features": list(self.features) if self.features else None,
+            "state_names": list(STATE_NAMES),
+            "state": [[list(s), list(r)] for s, r in self.state],
+            "action_names": list(self.action_names),
+            "time_base": self.time_base.to_dict() if self.time_base else None,
+            "conditioning": {"window": self.conditioning.window, "anchors": self.conditioning.anchors},
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict) -> PolicySpec:
+        """The spec of `to_dict`; a PolicyError names the entry that is missing or wrong."""
+        try:
+            if tuple(data["state_names"]) != STATE_NAMES:
+                raise PolicyError(
+                    f"the state vector is {data['state_names']}, this runtime reads {list(STATE_NAMES)}; "
+                    f"install the runtime of the cnep-pipeline that exported it"
+                )
+            norm = data["normaliser"]
+            columns = Columns(
+                tuple(map(tuple, data["observed"])),
+                tuple(map(tuple, data["query"])),
+                tuple(map(tuple, data["predicted"])),
+                np.asarray(norm["loc"], dtype=np.float32),
+                np.asarray(norm["scale"], dtype=np.float32),
+            )
+            if columns.width != data["width"]:
+                raise PolicyError(f"the normaliser has {columns.width} columns, the row {data['width']}")
+            return cls(
+                columns=columns,
+                n_experts=data["n_experts"],
+                features=tuple(data["features"]) if data["features"] else None,
+                state=tuple((tuple(s), tuple(r)) for s, r in data["state"]),
+                time_base=TimeBase.from_dict(data["time_base"]) if data["time_base"] else None,
+                conditioning=ConditioningPolicy(**data["conditioning"]),
+            )
+        except (KeyError, TypeError, ValueError) as exc:
+            if isinstance(exc, PolicyError):
+                raise
+            raise PolicyError(f"the policy spec is incomplete or malformed ({type(exc).__name__}: {exc})") from None

@@ -1,0 +1,166 @@
+"""The runtime's Policy on a numpy network: LeRobot's interface, the time base, the conditioning set, input checks."""
+
+import numpy as np
+import pytest
+
+from cnep.runtime import (
+    IMAGE_KEY_PREFIX,
+    STATE_KEY,
+    TIMESTAMP_KEY,
+    Conditioner,
+    ConditioningPolicy,
+    Policy,
+    PolicyError,
+    PolicySpec,
+    TimeBase,
+)
+from tests.runtime.fakes import EXPERTS, FEATURES, WIDTH, camera_network, camera_spec, mean_colour_features
+
+CAMERA = IMAGE_KEY_PREFIX + "front"
+
+
+def observation(k: int, seed: int = 0, time_s: float | None = None) -> dict:
+    rng = np.random.default_rng(seed * 1000 + k)
+    obs = {
+        CAMERA: rng.integers(0, 256, size=(48, 64, 3), dtype=np.uint8),
+        STATE_KEY: rng.normal(size=8).astype(np.float32),
+    }
+    if time_s is not None:
+        obs[TIMESTAMP_KEY] = time_s
+    return obs
+
+
+def make_policy(**options) -> Policy:
+    return Policy(camera_network(), camera_spec(), mean_colour_features, **options)
+
+
+def test_select_action_is_the_first_waypoint_of_the_step_and_keeps_a_batch_dimension():
+    a, b = make_policy(waypoints=4), make_policy(waypoints=4)
+    for k in range(5):
+        obs = observation(k, time_s=0.1 * k)
+        result = a.step(obs)
+        assert result.waypoints.shape == result.std.shape == (4, 4) and result.times_s.shape == (4,)
+        np.testing.assert_allclose(result.times_s, 0.1 * k + 0.1 * np.arange(1, 5))
+        batched = {CAMERA: obs[CAMERA][None], STATE_KEY: obs[STATE_KEY][None], TIMESTAMP_KEY: obs[TIMESTAMP_KEY]}
+        action = b.select_action(batched)
+        assert action.shape == (1, 4)
+        np.testing.assert_array_equal(action[0], result.waypoints[0])
+    assert a.action_names == ("x", "y", "z", "gripper")
+
+
+def test_the_policy_conditions_like_the_conditioner_on_the_rows_it_assembles():
+    """The policy's row: the frame's features, then the state; its phase: seconds / the time base's duration."""
+    spec, network = camera_spec(), camera_network()
+    policy = Policy(network, spec, mean_colour_features, waypoints=3)
+    reference = Conditioner(camera_network(), spec.columns, spec.conditioning)
+    from cnep.runtime.frames import pixel_buffer, resize_frame
+
+    pixels = pixel_buffer(1)
+    for k in range(12):
+        obs = observation(k, time_s=0.25 * k)
+        result = policy.step(obs)
+        row = np.concatenate([mean_colour_features(resize_frame(obs[CAMERA], pixels[0])[None])[0], obs[STATE_KEY]])
+        assert row.shape == (WIDTH,)
+        times = np.clip((0.25 * k + 0.1 * np.arange(1, 4)) / 2.0, 0, 1)
+        gate, expert, switch, mean, std = reference.step(row, min(0.25 * k / 2.0, 1.0), times)
+        np.testing.assert_allclose(result.gate, gate, rtol=1e-6)
+        np.testing.assert_allclose(result.waypoints, mean, rtol=1e-5, atol=1e-6)
+        assert result.expert == expert and (result.switch is None) == (switch is None)
+        assert result.t == pytest.approx(min(0.25 * k / 2.0, 1.0))
+
+
+def test_without_a_timestamp_step_k_is_at_k_periods():
+    a, b = make_policy(), make_policy()
+    for k in range(6):
+        obs = observation(k)
+        ra, rb = a.step(obs), b.step({**obs, TIMESTAMP_KEY: 0.1 * k})
+        assert ra.time_s == pytest.approx(0.1 * k)
+        np.testing.assert_allclose(ra.waypoints, rb.waypoints, rtol=1e-6)
+
+
+def test_reset_starts_a_new_episode():
+    policy = make_policy()
+    first = [policy.step(observation(k, time_s=k * 0.1)).gate for k in range(4)]
+    with pytest.raises(PolicyError, match="does not move forward"):
+        policy.step(observation(0, time_s=0.0))
+    policy.reset()
+    again = [policy.step(observation(k, time_s=k * 0.1)).gate for k in range(4)]
+    np.testing.assert_array_equal(np.array(first), np.array(again))
+
+
+def test_a_switch_is_reported_when_the_active_expert_changes():
+    policy = make_policy(conditioning=ConditioningPolicy(window=1, anchors=0))
+    results = [policy.step(observation(k, seed=3)) for k in range(40)]
+    experts = [r.expert for r in results]
+    changes = [k for k in range(1, 40) if experts[k] != experts[k - 1]]
+    assert changes, "random observations with a window of 1 should move a confident gate"
+    assert [r.step for r in results if r.switch is not None] == changes
+    for k in changes:
+        s = results[k].switch
+        assert (s.from_expert, s.to_expert) == (experts[k - 1], experts[k]) and s.gate.shape == (EXPERTS,)
+        assert s.timestamp_ns == round(results[k].time_s * 1e9)
+
+
+BAD = [
+    ("not a dict", lambda o: [o[STATE_KEY]], "dict"),
+    ("no state", lambda o: {CAMERA: o[CAMERA]}, "no 'observation.state'"),
+    ("state shape", lambda o: {**o, STATE_KEY: np.zeros(7)}, r"\(8,\) array"),
+    ("state dtype", lambda o: {**o, STATE_KEY: np.array(["a"] * 8)}, "dtype"),
+    ("state not finite", lambda o: {**o, STATE_KEY: np.r_[np.zeros(7), np.nan]}, "not finite \\(gripper\\)"),
+    ("no image", lambda o: {STATE_KEY: o[STATE_KEY]}, "sees the camera"),
+    ("float image", lambda o: {**o, CAMERA: o[CAMERA] / 255.0}, "uint8"),
+    ("grey image", lambda o: {**o, CAMERA: o[CAMERA][..., 0]}, r"\(H, W, 3\)"),
+    ("two cameras", lambda o: {**o, IMAGE_KEY_PREFIX + "side": o[CAMERA]}, "camera= to choose"),
+    ("bad time", lambda o: {**o, TIMESTAMP_KEY: float("inf")}, "finite seconds"),
+    ("negative time", lambda o: {**o, TIMESTAMP_KEY: -1.0}, ">= 0"),
+    ("time text", lambda o: {**o, TIMESTAMP_KEY: "soon"}, "one number"),
+]
+
+
+@pytest.mark.parametrize("case", BAD, ids=[c[0] for c in BAD])
+def test_bad_observations_are_one_clear_error(case):
+    _, broken, message = case
+    policy = make_policy()
+    with pytest.raises(PolicyError, match=message):
+        policy.select_action(broken(observation(0, time_s=0.0)))
+
+
+def test_a_named_camera_is_read_among_several():
+    policy = make_policy(camera="front")
+    obs = observation(0)
+    policy.step({**obs, IMAGE_KEY_PREFIX + "side": np.zeros((2, 2, 3), np.uint8)})
+
+
+def test_bad_policies_are_refused():
+    spec = camera_spec()
+    with pytest.raises(PolicyError, match="waypoints"):
+        make_policy(waypoints=0)
+    with pytest.raises(PolicyError, match="needs the feature network"):
+        Policy(camera_network(), spec, None)
+    with pytest.raises(PolicyError, match="no time base"):
+        Policy(camera_network(), camera_spec(time_base=None), mean_colour_features)
+    with pytest.raises(PolicyError, match="cover the model row"):
+        PolicySpec(spec.columns, EXPERTS, (0, FEATURES - 1), spec.state, spec.time_base)
+    policy = Policy(camera_network(), camera_spec(time_base=None), mean_colour_features, time_base=TimeBase(1, 0.5))
+    assert policy.step(observation(1)).times_s.tolist() == [0.5 * w for w in range(1, 11)]
+
+
+def test_the_spec_survives_its_dict_and_refuses_what_it_cannot_read():
+    spec = camera_spec()
+    again = PolicySpec.from_dict(spec.to_dict())
+    assert again.to_dict() == spec.to_dict() and again.action_names == spec.action_names
+    data = spec.to_dict()
+    with pytest.raises(PolicyError, match="state vector"):
+        PolicySpec.from_dict({**data, "state_names": ["x"]})
+    with pytest.raises(PolicyError, match="incomplete"):
+        PolicySpec.from_dict({k: v for k, v in data.items() if k != "normaliser"})
+
+
+def test_the_time_base_maps_seconds_to_the_phase():
+    tb = TimeBase.from_demonstrations([3.9, 4.0, 4.5], [40, 41, 46])
+    assert tb.duration_s == 4.0 and tb.period_s == pytest.approx(0.1)
+    assert tb.phase(2.0) == 0.5 and tb.phase(5.0) == 1.0 and tb.phase(-1.0) == 0.0
+    assert TimeBase.from_dict(tb.to_dict()) == tb
+    for bad in (lambda: TimeBase(0, 0.1), lambda: TimeBase(1, 2), lambda: TimeBase.from_demonstrations([1], [1])):
+        with pytest.raises(PolicyError):
+            bad()
