@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import hashlib
 import logging
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -13,20 +12,22 @@ import numpy as np
 from cnep.pipeline.errors import PipelineError, listed
 from cnep.pipeline.identity import check_identities
 from cnep.recordings import Trajectory, read_trajectory
+from cnep.runtime.manifest import file_sha256
+from cnep.runtime.timebase import TimeBase
 
 log = logging.getLogger(__name__)
-
-HASH_BLOCK = 1 << 20  # bytes read at a time when hashing a file
 
 
 @dataclass(frozen=True)
 class TrainingFile:
-    """One trajectory file trained on: where, its sha256 (hex), episode id, steps and (T, width) data."""
+    """One trajectory file trained on: where, its sha256 (hex), episode id, steps, seconds from its first to its
+    last step, and (T, width) data."""
 
     path: Path
     sha256: str
     episode_id: str
     n_steps: int
+    duration_s: float
     data: np.ndarray
 
     def describe(self) -> dict:
@@ -46,6 +47,12 @@ class TrainingSet:
     files: tuple[TrainingFile, ...]
     width: int
     extractor: dict[str, str]
+
+    def time_base(self) -> TimeBase:
+        """The demonstrations' median duration and step period: how a robot's seconds map to the model's t (of the
+        demonstrations of 2 steps or more: one step has no duration)."""
+        timed = [f for f in self.files if f.n_steps >= 2]
+        return TimeBase.from_demonstrations([f.duration_s for f in timed], [f.n_steps for f in timed])
 
 
 def load_training_set(paths: Sequence[Path]) -> TrainingSet:
@@ -69,20 +76,12 @@ def load_training_set(paths: Sequence[Path]) -> TrainingSet:
     return TrainingSet(files=tuple(files), width=next(iter(widths)), extractor=extractor)
 
 
-def file_sha256(path: Path) -> str:
-    """sha256 of the file's bytes (hex)."""
-    digest = hashlib.sha256()
-    with open(path, "rb") as f:
-        while block := f.read(HASH_BLOCK):
-            digest.update(block)
-    return digest.hexdigest()
-
-
 def _training_file(path: Path, trajectory: Trajectory) -> TrainingFile:
     return TrainingFile(
         path=Path(path),
         sha256=file_sha256(path),
         episode_id=trajectory.episode.episode_id,
         n_steps=trajectory.n_steps,
+        duration_s=float(trajectory.timestamps_ns[-1] - trajectory.timestamps_ns[0]) / 1e9,
         data=trajectory.data,
     )

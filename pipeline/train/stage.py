@@ -10,8 +10,9 @@ resumable state every `save_every` steps; keep the weights with the lowest valid
 early after `patience` validations without improvement. Under torchrun the same call trains with
 DistributedDataParallel (pipeline.train.parallel); only rank 0 writes.
 
-OUT gets `config.json` (model, layout, training settings, extractor identity, files with sha256,
-best step and error), `model.safetensors` and `training_log.jsonl` (one line per validation).
+OUT gets `config.json` (model, layout, training settings, extractor identity, files with sha256, the
+time base: the demonstrations' median duration and step period in seconds, best step and error),
+`model.safetensors` and `training_log.jsonl` (one line per validation).
 """
 
 from __future__ import annotations
@@ -197,7 +198,8 @@ def _train(config: TrainStageConfig, procs: Processes, device: torch.device, hel
             "elapsed_s": round(elapsed, 3),
         }
         extra = {key: value for key, value in identity.items() if key != "model"}  # save_checkpoint writes "model"
-        save_checkpoint(model, work, {**extra, "result": summary, "log": LOG_FILE})
+        time_base = data.time_base().to_dict()  # the robot's seconds -> t (runtime.timebase)
+        save_checkpoint(model, work, {**extra, "time_base": time_base, "result": summary, "log": LOG_FILE})
         publish(work, config.out)
         log.info(
             "best validation error %.4g at step %d; %d steps in %.1f s -> %s",
