@@ -49,3 +49,18 @@ def quick_demo(tmp_path_factory):
         mp.undo()
     assert code == 0
     return out
+
+
+@pytest.fixture(scope="session")
+def policy_world(tmp_path_factory):
+    """A small trained, exported policy and its recordings (tests/policy_world.py), built once per session."""
+    import torch
+
+    from tests.policy_world import build_policy_world
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        return build_policy_world(tmp_path_factory.mktemp("policy"))
+    finally:
+        torch.set_num_threads(before)

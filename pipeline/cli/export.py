@@ -1,0 +1,67 @@
+"""`cnep export CHECKPOINT --out DIR [--extractor FILE] [--int8 --calibration DEMOS...]`: a policy without torch."""
+
+from __future__ import annotations
+
+import argparse
+
+HELP = "export a checkpoint as a policy folder (ONNX graphs + manifest + runtime) that runs without torch"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("checkpoint", help="checkpoint folder written by `cnep train` (read only)")
+    parser.add_argument("--out", required=True, metavar="DIR", help="the policy folder to write (must not exist)")
+    parser.add_argument(
+        "--extractor",
+        metavar="FILE",
+        default=None,
+        help="weights file the training features were made with (`cnep extract --save-weights`, the demo's "
+        "extractor.pt); default: ImageNet weights",
+    )
+    parser.add_argument(
+        "--int8", action="store_true", help="also write the int8 feature graph (quantised on --calibration frames)"
+    )
+    parser.add_argument(
+        "--calibration",
+        nargs="+",
+        metavar="DEMOS",
+        default=(),
+        help="demonstration files or folders whose frames calibrate the int8 graph (e.g. the training demos)",
+    )
+    parser.add_argument("--force", action="store_true", help="replace an existing --out folder")
+
+
+def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from cnep.pipeline.contract import refuse_existing
+    from cnep.pipeline.errors import PipelineError
+
+    checkpoint, out = Path(args.checkpoint), Path(args.out)
+    if not (checkpoint / "config.json").is_file():
+        raise PipelineError(f"{checkpoint}: no checkpoint here (no config.json); give a folder written by `cnep train`")
+    if args.int8 and not args.calibration:
+        raise PipelineError("--int8 quantises on frames of the recordings: add --calibration DEMOS")
+    refuse_existing([out], args.force, what="exported policy")
+
+    from cnep.pipeline.export.stage import ExportConfig, export
+    from cnep.runtime import read_manifest
+
+    export(
+        ExportConfig(
+            checkpoint=checkpoint,
+            out=out,
+            extractor=Path(args.extractor) if args.extractor else None,
+            int8=args.int8,
+            calibration=tuple(Path(p) for p in args.calibration),
+            force=args.force,
+            quiet=args.quiet,
+        )
+    )
+    manifest = read_manifest(out)
+    for name in [*(f["file"] for f in manifest.features.values()), *manifest.graphs.values()]:
+        print(f"{out / name}: {(out / name).stat().st_size / 1e6:.1f} MB")
+    print(
+        f"exported {checkpoint} -> {out}; run it with `cnep run {out} RECORDING... --out run.rrd`, or on a robot "
+        f"without torch: `pip install {out}/runtime` and `cnep.runtime.load_policy('{out}')`"
+    )
+    return 0

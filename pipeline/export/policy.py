@@ -1,0 +1,122 @@
+"""A checkpoint as a `runtime.Policy` on torch: the CNEP of `cnep train` and the extractor its features came from.
+
+    policy = checkpoint_policy("checkpoints/cnep", extractor="extractor.pt")
+
+The spec (how an observation becomes a model row, the normaliser, the time base) is built here from the
+checkpoint's config.json, and `cnep export` writes this same spec into its manifest, so the torch policy
+and the exported one read observations alike. The extractor must be the one the training features came
+from (same weights hash, architecture and preprocessing), else the policy is refused.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from cnep.models import CNEP, load_checkpoint, read_checkpoint_config
+from cnep.models.checkpoint import CONFIG_FILE
+from cnep.models.online import TorchNetwork, model_columns
+from cnep.perception import FeatureExtractor
+from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.extract.stage import check_identities
+from cnep.pipeline.replay.stage import RowMapping
+from cnep.recordings.constants import BLOCK_FEATURES, LAYOUT_MOTION
+from cnep.runtime import DEFAULT_WAYPOINTS, ConditioningPolicy, Policy, PolicySpec, TimeBase
+
+IMAGENET_PREFIX = "imagenet:"  # extractor identities of ImageNet weights name them so (perception.weights)
+
+
+@dataclass(frozen=True)
+class LoadedCheckpoint:
+    """A checkpoint's model, its spec and config, and the extractor (None for a model without a camera)."""
+
+    path: Path
+    model: CNEP
+    spec: PolicySpec
+    config: dict
+    extractor: FeatureExtractor | None
+
+
+def load_for_policy(
+    checkpoint: str | Path, extractor: str | Path | None = None, backend: str = "auto", threads: int | None = None
+) -> LoadedCheckpoint:
+    """Load the checkpoint folder `checkpoint` and, if its model sees the camera, its extractor.
+
+    extractor: the weights file the training features were made with (`cnep extract --save-weights`, the demo's
+    `extractor.pt`); None for ImageNet weights (found as `cnep extract` finds them). backend, threads: the
+    extractor's (perception.FeatureExtractor).
+    """
+    path = Path(checkpoint)
+    model = load_checkpoint(path)
+    config = read_checkpoint_config(path)
+    spec = policy_spec(path, model, config)
+    features = None
+    if spec.features is not None:
+        features = feature_extractor(path, config.get("extractor") or {}, extractor, backend, threads)
+    return LoadedCheckpoint(path, model, spec, config, features)
+
+
+def checkpoint_policy(
+    checkpoint: str | Path,
+    extractor: str | Path | None = None,
+    *,
+    backend: str = "auto",
+    threads: int | None = None,
+    waypoints: int = DEFAULT_WAYPOINTS,
+    conditioning: ConditioningPolicy | None = None,
+    time_base: TimeBase | None = None,
+    camera: str | None = None,
+) -> Policy:
+    """The checkpoint folder `checkpoint` as a Policy on torch (see `load_for_policy` and `runtime.Policy`)."""
+    loaded = load_for_policy(checkpoint, extractor, backend, threads)
+    return Policy(
+        TorchNetwork(loaded.model),
+        loaded.spec,
+        loaded.extractor.features if loaded.extractor is not None else None,
+        waypoints=waypoints,
+        conditioning=conditioning,
+        time_base=time_base,
+        camera=camera,
+    )
+
+
+def policy_spec(checkpoint: Path, model: CNEP, config: dict) -> PolicySpec:
+    """The spec of the checkpoint's model: its row's features block and state blocks, normaliser, time base."""
+    blocks = RowMapping.from_checkpoint(checkpoint, model).blocks
+    state = tuple((LAYOUT_MOTION[name], blocks[name]) for name in LAYOUT_MOTION if name in blocks)
+    time_base = config.get("time_base")
+    try:
+        return PolicySpec(
+            columns=model_columns(model),
+            n_experts=model.n_experts,
+            features=blocks.get(BLOCK_FEATURES),
+            state=state,
+            time_base=TimeBase.from_dict(time_base) if time_base else None,
+        )
+    except ValueError as exc:
+        raise PipelineError(f"{checkpoint / CONFIG_FILE}: cannot be run as a policy: {exc}") from None
+
+
+def feature_extractor(
+    checkpoint: Path, trained: dict[str, str], weights: str | Path | None, backend: str, threads: int | None
+) -> FeatureExtractor:
+    """The extractor of the checkpoint's training features, from `weights` (None: ImageNet), checked against them."""
+    config_file = checkpoint / CONFIG_FILE
+    name = trained.get("weights", "")
+    weights = None if str(weights) == "imagenet" else weights
+    if trained.get("precision", "fp32") != "fp32":
+        raise PipelineError(
+            f"{config_file}: the model was trained on {trained['precision']} features; a policy runs the fp32 "
+            f"extractor (and `cnep export --int8` its int8 graph): train on fp32 features"
+        )
+    if weights is None and not name.startswith(IMAGENET_PREFIX):
+        raise PipelineError(
+            f"{config_file}: the training features were made with weights {name or '(unnamed)'} (sha256 "
+            f"{trained.get('weights_sha256', '?')[:12]}); give that weights file with --extractor (`cnep extract "
+            f"--save-weights` writes one, the demo saves OUT/extractor.pt)"
+        )
+    if weights is not None and not Path(weights).is_file():
+        raise PipelineError(f"{weights}: no such weights file; give the file the training features were made with")
+    extractor = FeatureExtractor("imagenet" if weights is None else weights, backend=backend, threads=threads)
+    check_identities({config_file: trained, Path(weights or extractor.weights_name): extractor.identity})
+    return extractor

@@ -1,0 +1,160 @@
+"""Stage `export`: a checkpoint folder -> a policy folder that runs without torch (cnep.runtime).
+
+    export(ExportConfig(checkpoint=Path("checkpoints/cnep"), out=Path("policy"), extractor=Path("extractor.pt")))
+
+OUT gets
+    manifest.json          runtime.manifest: the spec, the extractor identities, every file's sha256
+    features.onnx          the feature network, uint8 pixels -> features (fp32), if the model sees the camera
+    features-int8.onnx     its int8 quantisation (with `int8`, calibrated on the frames of `calibration`)
+    encoder.onnx           the model's encoder, any number of context points
+    decoder.onnx           its gate and experts, any number of query times
+    runtime/               the runtime's source with a pyproject.toml: `pip install OUT/runtime` installs
+                           cnep.runtime with numpy, onnxruntime and opencv only
+
+The graphs are checked against torch before anything is written; the folder is assembled under a
+temporary name beside OUT and renamed when complete (an existing OUT is replaced only with `force`).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import shutil
+import tempfile
+from dataclasses import dataclass
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+
+import cnep.runtime
+from cnep.models.checkpoint import CHECKSUM_KEY, atomic_write
+from cnep.perception import FeatureExtractor
+from cnep.perception.constants import CALIBRATION_FRAMES
+from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_existing
+from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.export.graphs import model_graphs
+from cnep.pipeline.export.policy import LoadedCheckpoint, load_for_policy
+from cnep.pipeline.extract.inputs import demonstration_files
+from cnep.pipeline.extract.stage import calibration_frames
+from cnep.pipeline.train.state import publish
+from cnep.runtime.constants import (
+    DECODER_FILE,
+    ENCODER_FILE,
+    FEATURES_FILES,
+    MANIFEST_FILE,
+    RUNTIME_FOLDER,
+    RUNTIME_REQUIREMENTS,
+)
+from cnep.runtime.manifest import Manifest, file_sha256
+
+log = logging.getLogger(__name__)
+
+EXPORT_BACKEND = "onnxruntime"  # the export checks its graphs on ONNX Runtime (the `onnx` extra)
+
+
+@dataclass(frozen=True)
+class ExportConfig:
+    """checkpoint: folder written by `cnep train` (read only); out: the policy folder (must not exist unless
+    `force`); extractor: weights file of the training features (None: ImageNet); int8: add the int8 feature
+    graph, calibrated on the frames of the demonstration files or folders `calibration`."""
+
+    checkpoint: Path
+    out: Path
+    extractor: Path | None = None
+    int8: bool = False
+    calibration: tuple[Path, ...] = ()
+    force: bool = False
+    quiet: bool = False
+
+    def __post_init__(self) -> None:
+        if self.int8 and not self.calibration:
+            raise PipelineError(
+                "int8 features are quantised on frames of the recordings: give demonstration files or folders "
+                "with --calibration (e.g. the training demonstrations)"
+            )
+        if self.calibration and not self.int8:
+            raise PipelineError("--calibration calibrates the int8 feature graph: add --int8, or leave it out")
+
+
+def export(config: ExportConfig) -> Path:
+    """Write the exported policy folder `config.out` from `config.checkpoint`; returns `config.out`."""
+    out = Path(config.out)
+    refuse_existing([out], config.force, what="exported policy")
+    calibration = [f for given in config.calibration for f in demonstration_files(Path(given))]
+    loaded = load_for_policy(config.checkpoint, config.extractor, backend=EXPORT_BACKEND, threads=1)
+    with output_folder(out.parent):
+        check_writable_folder(out.parent)
+        work = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".partial", dir=out.parent))
+        try:
+            write_policy(work, loaded, config, calibration)
+            publish(work, out)
+        except BaseException:
+            shutil.rmtree(work, ignore_errors=True)
+            raise
+    log.info("exported %s -> %s", config.checkpoint, out)
+    return out
+
+
+def write_policy(folder: Path, loaded: LoadedCheckpoint, config: ExportConfig, calibration: list[Path]) -> None:
+    """The graphs, the runtime's source and the manifest (last, with every other file's sha256) into `folder`."""
+    features = {}
+    if loaded.extractor is not None:
+        extractors = {"fp32": loaded.extractor}
+        if config.int8:
+            extractors["int8"] = int8_extractor(config, calibration)
+        for precision, extractor in extractors.items():
+            atomic_write(folder / FEATURES_FILES[precision], extractor.onnx_graph())
+            features[precision] = {"file": FEATURES_FILES[precision], "identity": extractor.identity}
+    encoder, decoder = model_graphs(loaded.model)
+    atomic_write(folder / ENCODER_FILE, encoder)
+    atomic_write(folder / DECODER_FILE, decoder)
+    write_runtime(folder / RUNTIME_FOLDER)
+    files = {str(p.relative_to(folder)): file_sha256(p) for p in sorted(folder.rglob("*")) if p.is_file()}
+    manifest = Manifest(
+        spec=loaded.spec,
+        graphs={"encoder": ENCODER_FILE, "decoder": DECODER_FILE},
+        features=features,
+        extractor=dict(loaded.config.get("extractor") or {}),
+        checkpoint={
+            "config_sha256": loaded.config.get(CHECKSUM_KEY) or "",
+            "layout": (loaded.config.get("layout") or {}).get("name", ""),
+        },
+        producer=f"cnep-pipeline {package_version()}",
+        files=files,
+    )
+    atomic_write(folder / MANIFEST_FILE, json.dumps(manifest.to_dict(), indent=1).encode())
+
+
+def int8_extractor(config: ExportConfig, calibration: list[Path]) -> FeatureExtractor:
+    """The training features' extractor at precision int8, quantised on frames spread over `calibration`."""
+    weights = "imagenet" if config.extractor is None else config.extractor
+    extractor = FeatureExtractor(weights, backend=EXPORT_BACKEND, threads=1, precision="int8")
+    extractor.quantise(calibration_frames(calibration, CALIBRATION_FRAMES))
+    return extractor
+
+
+def write_runtime(folder: Path) -> None:
+    """cnep.runtime's source (the code this export was made with) and a pyproject.toml that installs it alone."""
+    source = Path(cnep.runtime.__file__).parent
+    for path in sorted(source.glob("*.py")):
+        atomic_write(folder / "cnep" / "runtime" / path.name, path.read_bytes())
+    atomic_write(folder / "pyproject.toml", runtime_pyproject(package_version()).encode())
+
+
+def runtime_pyproject(release: str) -> str:
+    """The pyproject.toml of the runtime alone: package cnep.runtime, its three requirements, no torch."""
+    requirements = ", ".join(f'"{r}"' for r in RUNTIME_REQUIREMENTS)
+    return (
+        '[build-system]\nrequires = ["setuptools>=68"]\nbuild-backend = "setuptools.build_meta"\n\n'
+        f'[project]\nname = "cnep-runtime"\nversion = "{release}"\n'
+        'description = "The torch-free runtime of cnep-pipeline: run an exported CNEP policy"\n'
+        f'requires-python = ">=3.10"\ndependencies = [{requirements}]\n\n'
+        '[tool.setuptools]\npackages = ["cnep.runtime"]\n'
+    )
+
+
+def package_version() -> str:
+    """The installed cnep-pipeline's version (the runtime package is released with the same one)."""
+    try:
+        return version("cnep-pipeline")
+    except PackageNotFoundError:
+        return "0.0.0"

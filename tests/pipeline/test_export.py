@@ -1,0 +1,116 @@
+"""`cnep export`: the graphs, the manifest and the runtime's source, each checked, and what is refused."""
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cnep.models import load_checkpoint, read_checkpoint_config
+from cnep.models.online import TorchNetwork
+from cnep.pipeline.cli.main import main
+from cnep.recordings import read_demonstration
+from cnep.runtime import STATE_KEY, PolicyError, load_policy, read_manifest
+from cnep.runtime.constants import RUNTIME_REQUIREMENTS
+from cnep.runtime.exported import ENCODER_INPUT
+from cnep.runtime.manifest import file_sha256
+from cnep.runtime.sessions import onnxruntime_graph
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def test_the_folder_holds_what_the_manifest_lists_with_the_checkpoints_spec(policy_world):
+    folder = policy_world.exported
+    manifest = read_manifest(folder)
+    on_disk = {str(p.relative_to(folder)) for p in folder.rglob("*") if p.is_file()} - {"manifest.json"}
+    assert set(manifest.files) == on_disk
+    assert all(file_sha256(folder / name) == sha for name, sha in manifest.files.items())
+    config = read_checkpoint_config(policy_world.checkpoint)
+    assert manifest.spec.time_base.to_dict() == config["time_base"]
+    assert manifest.spec.time_base.duration_s == pytest.approx(1.1)  # 12 steps at 10 Hz
+    assert manifest.extractor == config["extractor"]
+    assert manifest.features["fp32"]["identity"]["weights_sha256"] == config["extractor"]["weights_sha256"]
+    assert manifest.features["int8"]["identity"]["precision"] == "int8"
+    assert manifest.spec.action_names == ("x", "y", "z", "qx", "qy", "qz", "qw", "gripper")
+    np.testing.assert_array_equal(
+        manifest.spec.columns.loc, load_checkpoint(policy_world.checkpoint).normaliser.loc.numpy()
+    )
+    for path in (ROOT / "runtime").glob("*.py"):  # the runtime's own source, as installed with this package
+        assert (folder / "runtime" / "cnep" / "runtime" / path.name).read_bytes() == path.read_bytes()
+    assert all(r in (folder / "runtime" / "pyproject.toml").read_text() for r in RUNTIME_REQUIREMENTS)
+
+
+def test_the_encoder_graph_takes_any_number_of_context_points(policy_world):
+    model = load_checkpoint(policy_world.checkpoint)
+    graph = onnxruntime_graph(str(policy_world.exported / "encoder.onnx"), 1)
+    rng = np.random.default_rng(0)
+    for n in (1, 5, 40):
+        obs = rng.standard_normal((n, 1 + model.config.layout.obs_dim), dtype=np.float32)
+        np.testing.assert_allclose(graph({ENCODER_INPUT: obs})[0], TorchNetwork(model).encode(obs), atol=1e-5)
+
+
+def test_the_runtime_requirements_are_the_packages_bounds():
+    tomllib = pytest.importorskip("tomllib")
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    declared = {*project["dependencies"], *project["optional-dependencies"]["onnx"]}
+    assert set(RUNTIME_REQUIREMENTS) <= declared
+
+
+def test_a_changed_file_or_an_unknown_version_is_refused(policy_world, tmp_path):
+    folder = tmp_path / "policy"
+    shutil.copytree(policy_world.exported, folder)
+    decoder = folder / "decoder.onnx"
+    decoder.write_bytes(decoder.read_bytes()[:-1] + b"\0")
+    with pytest.raises(PolicyError, match="decoder.onnx: sha256 .* changed or damaged"):
+        load_policy(folder)
+    manifest = json.loads((folder / "manifest.json").read_text())
+    (folder / "manifest.json").write_text(json.dumps({**manifest, "format_version": 99}))
+    with pytest.raises(PolicyError, match="format_version 99 is not supported"):
+        load_policy(folder)
+    with pytest.raises(PolicyError, match="this is a checkpoint folder"):
+        load_policy(policy_world.checkpoint)
+    with pytest.raises(PolicyError, match="no int8 feature graph"):
+        export_motion = tmp_path / "motion"
+        main(["-q", "export", str(policy_world.checkpoint), "--out", str(export_motion), "--extractor",
+              str(policy_world.extractor)])  # fmt: skip
+        load_policy(export_motion, precision="int8")
+
+
+def test_a_motion_model_exports_without_a_feature_graph_and_runs_on_the_state_alone(policy_world, tmp_path):
+    assert main(["-q", "export", str(policy_world.motion_checkpoint), "--out", str(tmp_path / "p")]) == 0
+    assert not (tmp_path / "p" / "features.onnx").exists()
+    policy = load_policy(tmp_path / "p", waypoints=3)
+    demo = read_demonstration(policy_world.heldout)
+    state = np.concatenate([demo.pose, demo.gripper[:, None]], axis=1)
+    steps = [policy.step({STATE_KEY: row}) for row in state]
+    assert steps[-1].waypoints.shape == (3, 8) and not policy.uses_camera
+
+
+def test_export_refuses_what_it_cannot_do(policy_world, tmp_path, capsys):
+    def cnep(*argv):
+        capsys.readouterr()
+        code = main(["-q", "export", *map(str, argv)])
+        return code, capsys.readouterr().err.strip()
+
+    code, err = cnep(policy_world.checkpoint, "--out", tmp_path / "p")
+    assert code == 2 and "--extractor" in err and "extractor.pt" in err and not (tmp_path / "p").exists()
+    code, err = cnep(policy_world.checkpoint, "--out", tmp_path / "p", "--extractor", policy_world.heldout)
+    assert code == 2 and str(policy_world.heldout) in err
+    code, err = cnep(policy_world.checkpoint, "--out", tmp_path / "p", "--extractor", policy_world.extractor, "--int8")
+    assert code == 2 and "--calibration" in err
+    (tmp_path / "p").mkdir()
+    code, err = cnep(policy_world.checkpoint, "--out", tmp_path / "p", "--extractor", policy_world.extractor)
+    assert code == 2 and "--force" in err and list((tmp_path / "p").iterdir()) == []
+    code, err = cnep(tmp_path / "nope", "--out", tmp_path / "q")
+    assert code == 2 and str(tmp_path / "nope") in err
+
+
+def test_the_export_replaces_a_folder_only_with_force(policy_world, tmp_path):
+    out = tmp_path / "p"
+    argv = ["-q", "export", str(policy_world.motion_checkpoint), "--out", str(out)]
+    assert main(argv) == 0
+    before = read_manifest(out).files
+    assert main([*argv, "--force"]) == 0
+    assert read_manifest(out).files == before  # the same checkpoint exports to the same bytes
+    assert [p.name for p in tmp_path.iterdir()] == ["p"]  # no work folder left beside it

@@ -1,0 +1,82 @@
+"""The exported policy runs where importing torch fails, and decides as the torch policy does (parity)."""
+
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+
+from cnep.pipeline.export.policy import checkpoint_policy
+from cnep.recordings import read_demonstration
+from cnep.runtime import IMAGE_KEY_PREFIX, STATE_KEY, TIMESTAMP_KEY
+from cnep.runtime.frames import decode_frame
+
+ROOT = Path(__file__).resolve().parents[2]
+BLOCK_TORCH = """
+import sys
+class NoTorch:
+    def find_spec(self, name, path=None, target=None):
+        if name.split(".")[0] in ("torch", "torchvision"):
+            raise ImportError(f"{name} is not installed here")
+sys.meta_path.insert(0, NoTorch())
+"""
+
+
+def run_without_torch(code: str, cwd: Path) -> subprocess.CompletedProcess:
+    """`code` in a fresh interpreter in which every import of torch or torchvision fails."""
+    script = BLOCK_TORCH + textwrap.dedent(code) + "\nassert 'torch' not in sys.modules\n"
+    return subprocess.run([sys.executable, "-c", script], cwd=cwd, capture_output=True, text=True, timeout=300)
+
+
+def observations(path: Path) -> list[dict]:
+    demo = read_demonstration(path)
+    state = np.concatenate([demo.pose, demo.gripper[:, None]], axis=1).astype(np.float32)
+    seconds = (demo.timestamps_ns - demo.timestamps_ns[0]) / 1e9
+    return [
+        {IMAGE_KEY_PREFIX + "rgb": decode_frame(demo.frames[k]), STATE_KEY: state[k], TIMESTAMP_KEY: seconds[k]}
+        for k in range(demo.n_steps)
+    ]
+
+
+def test_the_exported_policy_runs_without_torch_and_matches_the_torch_policy(policy_world, tmp_path):
+    """fp32 parity on a held-out recording: every waypoint's position within 1e-4 m, the same expert at every step."""
+    steps = observations(policy_world.heldout)
+    np.savez(tmp_path / "obs.npz", frames=np.stack([o[IMAGE_KEY_PREFIX + "rgb"] for o in steps]),
+             states=np.stack([o[STATE_KEY] for o in steps]), seconds=[o[TIMESTAMP_KEY] for o in steps])  # fmt: skip
+    done = run_without_torch(
+        f"""
+        import numpy as np
+        from cnep.runtime import load_policy
+        data = np.load("obs.npz")
+        out = {{}}
+        for precision in ("fp32", "int8"):
+            policy = load_policy({str(policy_world.exported)!r}, precision=precision, threads=1)
+            results = [
+                policy.step({{"observation.images.rgb": f, "observation.state": s, "timestamp": t}})
+                for f, s, t in zip(data["frames"], data["states"], data["seconds"])
+            ]
+            out[precision + "_waypoints"] = np.stack([r.waypoints for r in results])
+            out[precision + "_experts"] = np.array([r.expert for r in results])
+            out[precision + "_gates"] = np.stack([r.gate for r in results])
+        np.savez("out.npz", **out)
+        """,
+        tmp_path,
+    )
+    assert done.returncode == 0, done.stderr
+    exported = np.load(tmp_path / "out.npz")
+    policy = checkpoint_policy(policy_world.checkpoint, policy_world.extractor, backend="eager", threads=1)
+    results = [policy.step(o) for o in steps]
+    waypoints = np.stack([r.waypoints for r in results])  # (T, W, dy)
+    np.testing.assert_allclose(exported["fp32_waypoints"][..., :3], waypoints[..., :3], atol=1e-4, rtol=0)
+    np.testing.assert_array_equal(exported["fp32_experts"], [r.expert for r in results])
+    np.testing.assert_allclose(exported["fp32_gates"], np.stack([r.gate for r in results]), atol=1e-4)
+    # int8 features differ from fp32 ones by about 1%: the same shapes, finite, near the fp32 predictions
+    assert np.isfinite(exported["int8_waypoints"]).all()
+    spread = np.ptp(waypoints[..., :3])
+    assert np.abs(exported["int8_waypoints"][..., :3] - waypoints[..., :3]).max() < 0.5 * spread
+
+
+def test_importing_the_runtime_needs_no_torch(tmp_path):
+    done = run_without_torch("import cnep.runtime; from cnep.runtime import load_policy, Policy", tmp_path)
+    assert done.returncode == 0, done.stderr
