@@ -20,6 +20,8 @@ COMMANDS = (
     "extract",
     "train",
     "replay",
+    "export",
+    "run",
     "evaluate",
     "demo",
 )

@@ -20,6 +20,9 @@ GATES = "/gates"  # Scalars, d per step: the gate probabilities, one named, colo
 ACTIVE_EXPERT = "/active_expert"  # StateChange at the first step and at each switch (+ StateConfiguration)
 SWITCH_LOG = "/log/experts"  # TextLog: one line per switch
 WORLD = "/world"
+TIMING = "/timing"  # `cnep run` only: how long each policy step took against the frame period
+STEP_TIME = "/timing/step_ms"  # Scalars per step: the milliseconds the policy's step took
+FRAME_PERIOD = "/timing/frame_period_ms"  # Scalars per step: the recording's frame period, the step's budget
 
 # Expert colours (RGB), cycled when there are more experts than colours.
 PALETTE = (
@@ -51,8 +54,9 @@ def expert_colors(n_experts: int) -> list[tuple[int, int, int]]:
     return [PALETTE[e % len(PALETTE)] for e in range(n_experts)]
 
 
-def blueprint(n_experts: int, camera: bool = True):
-    """The replay layout, a pure function of the number of experts and whether there are camera frames.
+def blueprint(n_experts: int, camera: bool = True, timing: bool = False):
+    """The replay layout, a pure function of the number of experts, whether there are camera frames and whether
+    step times are shown (`cnep run`: a plot of TIMING below the gate).
 
     Left: the camera (only when the recording has frames) above the 3D view (end-effector pose,
     recorded path, the predicted trajectory in the active expert's colour). Right: the gate
@@ -87,8 +91,9 @@ def blueprint(n_experts: int, camera: bool = True):
                     axis_y=rrb.ScalarAxis(range=GATE_AXIS),
                 ),
                 rrb.StateTimelineView(origin=ACTIVE_EXPERT, name="active expert"),
+                *([rrb.TimeSeriesView(origin=TIMING, name="step time (ms)")] if timing else []),
                 rrb.TextLogView(origin=SWITCH_LOG, name="expert switches", columns=log_columns),
-                row_shares=[3, 1, 2],
+                row_shares=[3, 1, 2, 2] if timing else [3, 1, 2],
             ),
             column_shares=[2, 3],
         ),

@@ -1,0 +1,84 @@
+"""`cnep run POLICY RECORDING... (--out FILE.rrd | --connect [URL] | --serve)`: a dry run of the robot loop."""
+
+from __future__ import annotations
+
+import argparse
+
+HELP = "run a policy (exported folder or checkpoint) over demonstration recordings, step by step, into Rerun"
+
+DEFAULT_VIEWER = "rerun+http://127.0.0.1:9876/proxy"  # where a local `rerun` viewer listens
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("policy", help="a folder written by `cnep export` (runs without torch) or `cnep train`")
+    parser.add_argument("recordings", nargs="+", metavar="RECORDING", help="demonstration files with camera frames")
+    sink = parser.add_mutually_exclusive_group(required=True)
+    sink.add_argument(
+        "--out",
+        metavar="FILE.rrd",
+        help="write the run to this .rrd (several recordings: one file each beside it) and the summary to "
+        "<name>.summary.json",
+    )
+    sink.add_argument(
+        "--connect",
+        metavar="URL",
+        nargs="?",
+        const=DEFAULT_VIEWER,
+        help=f"stream live to the viewer at URL (default: the local viewer, {DEFAULT_VIEWER})",
+    )
+    sink.add_argument("--serve", action="store_true", help="host a gRPC server (port --port) for viewers to join")
+    parser.add_argument("--port", type=int, default=9876, help="port of --serve (default 9876)")
+    parser.add_argument(
+        "--fast", action="store_true", help="step as fast as possible instead of at the recording's rate"
+    )
+    parser.add_argument("--extractor", metavar="FILE", help="a checkpoint's feature weights (as `cnep export` takes)")
+    parser.add_argument(
+        "--precision", choices=("fp32", "int8"), default="fp32", help="an exported policy's feature graph"
+    )
+    parser.add_argument(
+        "--backend", choices=("onnxruntime", "openvino"), default="onnxruntime", help="what runs the exported graphs"
+    )
+    parser.add_argument("--threads", type=int, default=None, help="intra-op threads (default: one per core)")
+    parser.add_argument("--waypoints", type=int, default=None, help="future steps predicted per step (default 10)")
+    parser.add_argument("--force", action="store_true", help="replace existing outputs (the .rrd files, the summary)")
+
+
+def run(args: argparse.Namespace) -> int:
+    import time
+    from pathlib import Path
+
+    from cnep.pipeline.run.stage import RunConfig, format_summary, run, summarise, summary_path
+    from cnep.runtime import DEFAULT_WAYPOINTS
+
+    server = None
+    connect = args.connect
+    if args.serve:
+        from cnep.pipeline.replay.stage import serve
+
+        server, connect = serve(args.port)
+        print(f"serving on {connect}: connect a viewer with `rerun {connect}`")
+    config = RunConfig(
+        policy=Path(args.policy),
+        recordings=tuple(Path(p) for p in args.recordings),
+        out=Path(args.out) if args.out else None,
+        connect=connect,
+        extractor=Path(args.extractor) if args.extractor else None,
+        precision=args.precision,
+        backend=args.backend,
+        threads=args.threads,
+        waypoints=args.waypoints or DEFAULT_WAYPOINTS,
+        realtime=not args.fast,
+        force=args.force,
+        quiet=args.quiet,
+    )
+    print(format_summary(summarise(run(config))))
+    if args.out:
+        print(f"wrote {args.out} and {summary_path(args.out)}; open it with `rerun {args.out}`")
+    if server is not None:
+        print("serving until Ctrl-C")
+        try:
+            while True:
+                time.sleep(1.0)
+        except KeyboardInterrupt:
+            pass
+    return 0

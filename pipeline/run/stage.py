@@ -1,0 +1,298 @@
+"""Stage `run`: a dry run of the robot loop, a policy stepped through demonstration recordings into Rerun.
+
+    run(RunConfig(policy=Path("policy"), recordings=(Path("demo_000.mcap"),), out=Path("run.rrd")))
+
+The policy is an exported folder (`cnep export`, run by cnep.runtime: no torch is imported) or a checkpoint
+folder (torch). Each recording's camera frames (decoded from the stored JPEG, not precomputed features),
+pose and gripper are handed to `Policy.step` one step at a time, with the step's seconds since the
+recording began, at the recording's rate (`realtime`) or as fast as possible. Every step goes to Rerun as
+it happens: the frame, the recorded pose and path, the predicted waypoints in the active expert's colour,
+the gate, the active expert, the switches and the time the step took (only `Policy.step` is timed:
+decoding the JPEG and logging are not part of the robot's step). The sinks: a .rrd file (`out`; several
+recordings go to one file each beside it, as `cnep replay` writes them), or a live viewer (`connect`).
+
+The summary (`summarise`): steps, p50 / p99 / max step time, steps over the recording's frame period,
+switches, per recording and in total; written beside `out` as `<out stem>.summary.json`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import os
+import time
+import uuid
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+import cnep.pipeline.replay.layout as L
+from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_existing
+from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.extract.inputs import demonstration_files
+from cnep.recordings import Demonstration, read_demonstration
+from cnep.recordings.constants import TOPIC_IMAGE
+from cnep.recordings.container import atomic_output
+from cnep.runtime import DEFAULT_WAYPOINTS, STATE_KEY, TIMESTAMP_KEY, Policy, PolicyStep, load_policy
+from cnep.runtime.constants import IMAGE_KEY_PREFIX, MANIFEST_FILE
+from cnep.runtime.frames import decode_frame
+
+log = logging.getLogger(__name__)
+
+SUMMARY_SUFFIX = ".summary.json"
+CAMERA_NAME = "rgb"  # the observation key of the recordings' camera: observation.images.rgb
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """What `run` runs and where it writes.
+
+    policy: exported folder or checkpoint folder; recordings: demonstration files or folders (read only); out:
+    the .rrd (None: `connect` only); connect: a live viewer's URL; extractor: weights of a checkpoint's
+    training features (None: ImageNet); precision, backend: the exported folder's feature graph and runner;
+    threads: intra-op threads (None: one per core); waypoints: future steps predicted per step; realtime: pace
+    the steps at the recording's rate (False: as fast as possible); force: replace existing outputs.
+    """
+
+    policy: Path
+    recordings: tuple[Path, ...]
+    out: Path | None = None
+    connect: str | None = None
+    extractor: Path | None = None
+    precision: str = "fp32"
+    backend: str = "onnxruntime"
+    threads: int | None = None
+    waypoints: int = DEFAULT_WAYPOINTS
+    realtime: bool = True
+    force: bool = False
+    quiet: bool = False
+
+    def __post_init__(self) -> None:
+        if not self.recordings:
+            raise PipelineError("run needs at least one demonstration recording")
+        if (self.out is None) == (self.connect is None):
+            raise PipelineError("run writes to exactly one place: an .rrd file (--out) or a live viewer")
+        if self.out is not None and Path(self.out).suffix != ".rrd":
+            raise PipelineError(f"{self.out}: the run's output must be a .rrd file")
+
+
+@dataclass(frozen=True)
+class RecordingRun:
+    """One recording stepped through the policy: step times (s), its frame period (s) and the switches."""
+
+    path: Path
+    step_s: np.ndarray
+    period_s: float
+    switches: int
+
+
+def summary_path(out_rrd: str | os.PathLike) -> Path:
+    """Where `run` writes the summary of `out_rrd`: `<stem>.summary.json` beside it."""
+    out = Path(out_rrd)
+    return out.with_name(out.stem + SUMMARY_SUFFIX)
+
+
+def open_policy(
+    path: Path,
+    *,
+    extractor: Path | None = None,
+    precision: str = "fp32",
+    backend: str = "onnxruntime",
+    threads: int | None = None,
+    waypoints: int = DEFAULT_WAYPOINTS,
+) -> Policy:
+    """The policy in folder `path`: an exported one on cnep.runtime, a checkpoint on torch (imported only then)."""
+    path = Path(path)
+    if (path / MANIFEST_FILE).is_file():
+        if extractor is not None:
+            raise PipelineError(f"{path}: an exported policy carries its feature graph; leave out --extractor")
+        return load_policy(path, precision=precision, backend=backend, threads=threads, waypoints=waypoints)
+    from cnep.models.checkpoint import CONFIG_FILE  # a checkpoint runs on torch: import it now, not before
+    from cnep.pipeline.export.policy import checkpoint_policy
+
+    if not (path / CONFIG_FILE).is_file():
+        raise PipelineError(
+            f"{path}: neither an exported policy ({MANIFEST_FILE}) nor a checkpoint ({CONFIG_FILE}); give a folder "
+            f"written by `cnep export` or `cnep train`"
+        )
+    if precision != "fp32":
+        raise PipelineError(f"{path}: a checkpoint runs fp32 features; export it with --int8 for int8 features")
+    return checkpoint_policy(path, extractor, threads=threads, waypoints=waypoints)
+
+
+def run(config: RunConfig) -> list[RecordingRun]:
+    """Step every recording through the policy into Rerun; returns each recording's step times and switches."""
+    from cnep.pipeline.replay.stage import rrd_files
+
+    paths = [p for given in config.recordings for p in demonstration_files(Path(given))]
+    files = rrd_files(Path(config.out), paths, merge=False) if config.out is not None else []
+    if config.out is not None:
+        refuse_existing([*files, summary_path(config.out)], config.force, "run output")
+    demos = [read_demonstration(p) for p in paths]
+    policy = open_policy(
+        Path(config.policy),
+        extractor=config.extractor,
+        precision=config.precision,
+        backend=config.backend,
+        threads=config.threads,
+        waypoints=config.waypoints,
+    )
+    for path, demo in zip(paths, demos):
+        if policy.uses_camera and demo.frames is None:
+            raise PipelineError(f"{path}: has no {TOPIC_IMAGE} frames, but the policy sees the camera")
+    run_id = uuid.uuid4().hex[:8]
+    runs = []
+    with contextlib.ExitStack() as stack:
+        if config.out is not None:
+            stack.enter_context(output_folder(Path(config.out).parent))
+            check_writable_folder(Path(config.out).parent)
+        if not _is_exported(config.policy):
+            from cnep.pipeline.workers import torch_threads
+
+            stack.enter_context(torch_threads())  # the small model is fastest on one thread
+        for i, (path, demo) in enumerate(zip(paths, demos)):
+            part = files[i].with_name(f".{files[i].name}.tmp") if files else None
+            stack.callback(lambda p=part: p is not None and p.unlink(missing_ok=True))
+            rec = recording_stream(f"{i:05d}-{demo.episode.episode_id}-{run_id}", part, config.connect)
+            rec.send_recording_name(f"{path.stem} ({path.parent.name or '.'}) #{i + 1}")
+            rec.send_blueprint(L.blueprint(policy.n_experts, camera=policy.uses_camera, timing=True))
+            runs.append(run_recording(policy, demo, path, rec, config.realtime))
+            rec.flush(timeout_sec=30.0)
+            rec.disconnect()
+            log.info("%s: %d steps, %d switch(es)", path, demo.n_steps, runs[-1].switches)
+        if config.out is not None:
+            with atomic_output(summary_path(config.out)) as stream:
+                stream.write(json.dumps(summarise(runs), indent=1).encode())
+            for file in files:
+                os.replace(file.with_name(f".{file.name}.tmp"), file)
+    return runs
+
+
+def _is_exported(policy: Path) -> bool:
+    return (Path(policy) / MANIFEST_FILE).is_file()
+
+
+def recording_stream(recording_id: str, path: Path | None, connect: str | None):
+    """A Rerun recording stream writing to file `path`, or streaming to the viewer at `connect`."""
+    import rerun as rr
+
+    rec = rr.RecordingStream(L.APPLICATION_ID, recording_id=recording_id)
+    rec.set_sinks(rr.FileSink(str(path)) if path is not None else rr.GrpcSink(connect))
+    return rec
+
+
+def run_recording(policy: Policy, demo: Demonstration, path: Path, rec, realtime: bool) -> RecordingRun:
+    """Step `demo` through `policy` from a new episode, logging each step to `rec`; returns its step times."""
+    ts = demo.timestamps_ns
+    period_s = float(np.median(np.diff(ts))) / 1e9 if len(ts) > 1 else 0.0
+    state = np.concatenate([demo.pose, demo.gripper[:, None]], axis=1).astype(np.float32)  # (T, 8)
+    log_recording(rec, demo, policy, period_s)
+    step_s = np.empty(demo.n_steps)
+    switches = 0
+    policy.reset()
+    start = time.perf_counter()
+    for k in range(demo.n_steps):
+        since_start = (ts[k] - ts[0]) / 1e9
+        observation = {STATE_KEY: state[k], TIMESTAMP_KEY: since_start}
+        if policy.uses_camera:
+            observation[IMAGE_KEY_PREFIX + CAMERA_NAME] = decode(demo.frames[k], path, k)
+        if realtime:
+            time.sleep(max(0.0, start + since_start - time.perf_counter()))
+        before = time.perf_counter()
+        result = policy.step(observation)
+        step_s[k] = time.perf_counter() - before
+        switches += result.switch is not None
+        log_step(rec, demo, k, result, step_s[k], period_s, policy.n_experts)
+    return RecordingRun(path, step_s, period_s, switches)
+
+
+def decode(jpeg: bytes, path: Path, step: int) -> np.ndarray:
+    frame = decode_frame(jpeg)
+    if frame is None:
+        raise PipelineError(f"{path}: step {step} on {TOPIC_IMAGE}: the frame does not decode; re-ingest it")
+    return frame
+
+
+def log_recording(rec, demo: Demonstration, policy: Policy, period_s: float) -> None:
+    """What holds for the whole recording: the recorded path, the series' names and colours, the frame period."""
+    import rerun as rr
+
+    d = policy.n_experts
+    rec.log(L.EE, rr.TransformAxes3D(axis_length=0.05), static=True)
+    rec.log(L.EE_PATH, rr.LineStrips3D([demo.pose[:, :3]], colors=[L.PATH_COLOR]), static=True)
+    rec.log(L.GATES, rr.SeriesLines(names=L.expert_names(d), colors=L.expert_colors(d)), static=True)
+    rec.log(L.ACTIVE_EXPERT, rr.StateConfiguration(values=L.expert_names(d), colors=L.expert_colors(d)), static=True)
+    rec.log(L.STEP_TIME, rr.SeriesLines(names=["step"]), static=True)
+    rec.log(L.FRAME_PERIOD, rr.SeriesLines(names=["frame period"], colors=[L.PATH_COLOR]), static=True)
+
+
+def log_step(
+    rec, demo: Demonstration, k: int, result: PolicyStep, step_s: float, period_s: float, n_experts: int
+) -> None:
+    """Step k: the frame, the recorded pose, the predicted waypoints, the gate, the expert, a switch, its time
+    beside the frame period."""
+    import rerun as rr
+
+    rec.set_time(L.TIMELINE_FRAME, sequence=k)
+    rec.set_time(L.TIMELINE_TIME, duration=np.timedelta64(int(demo.timestamps_ns[k] - demo.timestamps_ns[0]), "ns"))
+    if demo.frames is not None:
+        rec.log(L.CAMERA, rr.EncodedImage(contents=demo.frames[k], media_type="image/jpeg"))
+    pose = demo.pose[k]
+    rec.log(L.EE, rr.Transform3D(translation=pose[:3], quaternion=pose[3:]))
+    color = L.expert_colors(n_experts)[result.expert]
+    rec.log(L.PREDICTION, rr.LineStrips3D([np.vstack([pose[:3], result.waypoints[:, :3]])], colors=[color]))
+    rec.log(L.GATES, rr.Scalars(result.gate))
+    if k == 0 or result.switch is not None:
+        rec.log(L.ACTIVE_EXPERT, rr.StateChange(state=L.expert_name(result.expert)))
+    if result.switch is not None:
+        s = result.switch
+        gate = ", ".join(f"{p:.2f}" for p in s.gate)
+        text = f"step {k} ({result.time_s:.2f} s): {L.expert_name(s.from_expert)} -> {L.expert_name(s.to_expert)}"
+        rec.log(L.SWITCH_LOG, rr.TextLog(f"{text} (p = {gate})", level="INFO"))
+    rec.log(L.STEP_TIME, rr.Scalars(step_s * 1e3))
+    rec.log(L.FRAME_PERIOD, rr.Scalars(period_s * 1e3))
+
+
+def summarise(runs: list[RecordingRun]) -> dict:
+    """Per recording and in total: steps, p50_ms, p99_ms, max_ms, over_budget (steps longer than the recording's
+    frame period), switches."""
+
+    def stats(step_s: np.ndarray, over: int, switches: int) -> dict:
+        ms = step_s * 1e3
+        return {
+            "steps": len(ms),
+            "p50_ms": round(float(np.percentile(ms, 50)), 4),
+            "p99_ms": round(float(np.percentile(ms, 99)), 4),
+            "max_ms": round(float(ms.max()), 4),
+            "over_budget": int(over),
+            "switches": int(switches),
+        }
+
+    recordings = [
+        {"recording": str(r.path), "frame_period_ms": round(r.period_s * 1e3, 4)}
+        | stats(r.step_s, (r.step_s > r.period_s).sum(), r.switches)
+        for r in runs
+    ]
+    total = stats(
+        np.concatenate([r.step_s for r in runs]),
+        sum(rec["over_budget"] for rec in recordings),
+        sum(r.switches for r in runs),
+    )
+    return {"recordings": recordings, "total": total}
+
+
+def format_summary(summary: dict) -> str:
+    """The summary as a table: one line per recording and the total."""
+    head = (
+        f"{'recording':<40} {'steps':>6} {'p50 ms':>8} {'p99 ms':>8} {'max ms':>8} {'over period':>12} {'switches':>9}"
+    )
+    lines = [head]
+    for rec in [*summary["recordings"], {"recording": "total", **summary["total"]}]:
+        name = rec["recording"] if len(rec["recording"]) <= 40 else "..." + rec["recording"][-37:]
+        lines.append(
+            f"{name:<40} {rec['steps']:>6} {rec['p50_ms']:>8.2f} {rec['p99_ms']:>8.2f} {rec['max_ms']:>8.2f} "
+            f"{rec['over_budget']:>12} {rec['switches']:>9}"
+        )
+    return "\n".join(lines)

@@ -1,0 +1,99 @@
+"""`cnep run`: a policy stepped through demonstration recordings into Rerun, with the step-time summary."""
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cnep.pipeline.cli.main import main
+from cnep.pipeline.run.stage import RunConfig, run, summarise
+from cnep.recordings import write_demonstration
+from tests.recordings.factories import demonstration_factory
+from tests.runtime.test_torch_free import run_without_torch
+
+RERUN = Path(sys.executable).parent / "rerun"
+
+
+@pytest.fixture(autouse=True)
+def rerun_env(tmp_path, monkeypatch):
+    """The rerun CLI (used by verify) writes analytics under HOME unless CI is set."""
+    home = tmp_path / "home"
+    home.mkdir()
+    monkeypatch.setenv("CI", "1")
+    monkeypatch.setenv("HOME", str(home))
+
+
+def rrd_verify(path: Path) -> subprocess.CompletedProcess:
+    exe = str(RERUN) if RERUN.exists() else shutil.which("rerun")
+    return subprocess.run([exe, "rrd", "verify", str(path)], capture_output=True, text=True, timeout=120)
+
+
+def test_run_steps_each_recording_into_an_rrd_and_summarises_the_step_times(policy_world, tmp_path, capsys):
+    recordings = [policy_world.heldout, policy_world.demos / "d0.mcap"]
+    out = tmp_path / "out" / "run.rrd"
+    code = main(["-q", "run", str(policy_world.exported), *map(str, recordings), "--out", str(out), "--fast"])
+    assert code == 0
+    files = sorted((tmp_path / "out").glob("run-*.rrd"))  # one file per recording, in the order given
+    assert len(files) == 2 and files[0].name.endswith("-heldout.rrd") and files[1].name == "run-02-demos-d0.rrd"
+    for file in files:
+        assert rrd_verify(file).returncode == 0
+    summary = json.loads((tmp_path / "out" / "run.summary.json").read_text())
+    assert [r["recording"] for r in summary["recordings"]] == list(map(str, recordings))
+    for entry in [*summary["recordings"], summary["total"]]:
+        assert {"steps", "p50_ms", "p99_ms", "max_ms", "over_budget", "switches"} <= set(entry)
+        assert 0 < entry["p50_ms"] <= entry["p99_ms"] <= entry["max_ms"]
+    assert summary["total"]["steps"] == 24 and summary["recordings"][0]["frame_period_ms"] == pytest.approx(100)
+    printed = capsys.readouterr().out
+    assert "total" in printed and "p99 ms" in printed and str(out) in printed
+    code = main(["-q", "run", str(policy_world.exported), str(policy_world.heldout), "--out", str(out), "--fast"])
+    assert code == 2  # the .rrd exists: refused without --force
+
+
+def test_a_checkpoint_runs_on_torch_with_its_extractor(policy_world, tmp_path):
+    config = RunConfig(
+        policy_world.checkpoint, (policy_world.heldout,), tmp_path / "r.rrd", extractor=policy_world.extractor,
+        threads=1, realtime=False,
+    )  # fmt: skip
+    runs = run(config)
+    assert len(runs) == 1 and len(runs[0].step_s) == 12 and np.all(runs[0].step_s > 0)
+    assert summarise(runs)["total"]["steps"] == 12 and (tmp_path / "r.summary.json").is_file()
+
+
+def test_run_paces_steps_at_the_recordings_rate(policy_world, tmp_path):
+    """12 steps 0.1 s apart take at least 1.1 s at the recording's rate."""
+    import time
+
+    start = time.perf_counter()
+    run(RunConfig(policy_world.exported, (policy_world.heldout,), tmp_path / "r.rrd", threads=1))
+    assert time.perf_counter() - start >= 1.1
+
+
+def test_run_refuses_a_recording_without_frames_for_a_policy_that_sees(policy_world, tmp_path, capsys):
+    write_demonstration(tmp_path / "blind.mcap", demonstration_factory(5, frames=False))
+    capsys.readouterr()
+    code = main(
+        ["-q", "run", str(policy_world.exported), str(tmp_path / "blind.mcap"), "--out", str(tmp_path / "r.rrd")]
+    )
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "blind.mcap" in err and "frames" in err and not (tmp_path / "r.rrd").exists()
+    code = main(["-q", "run", str(tmp_path), str(tmp_path / "blind.mcap"), "--out", str(tmp_path / "r.rrd")])
+    assert code == 2 and "neither an exported policy" in capsys.readouterr().err
+
+
+def test_cnep_run_of_an_exported_policy_needs_no_torch(policy_world, tmp_path):
+    done = run_without_torch(
+        f"""
+        from cnep.pipeline.cli.main import main
+        code = main(["-q", "run", {str(policy_world.exported)!r}, {str(policy_world.heldout)!r}, "--out", "r.rrd",
+                     "--fast", "--threads", "1"])
+        assert code == 0, code
+        """,
+        tmp_path,
+    )
+    assert done.returncode == 0, done.stderr
+    assert json.loads((tmp_path / "r.summary.json").read_text())["total"]["steps"] == 12
