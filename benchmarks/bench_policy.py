@@ -172,7 +172,7 @@ def synthetic_checkpoint(folder: Path) -> tuple[Path, Path, Path]:
 
     from cnep.models import CNEPConfig, build_model, save_checkpoint
     from cnep.perception import FeatureExtractor
-    from cnep.pipeline.train.layouts import resolve_layout
+    from cnep.pipeline.train.presets import resolve_preset
     from cnep.recordings import Demonstration, Episode, write_demonstration
     from cnep.runtime import TimeBase
 
@@ -188,11 +188,11 @@ def synthetic_checkpoint(folder: Path) -> tuple[Path, Path, Path]:
         demos / "d0.mcap",
         Demonstration(Episode("d0", fps=10.0), np.arange(EPISODE) * 100_000_000, states[:, :7], states[:, 7], jpegs),
     )
-    layout = resolve_layout("scene", 1288, demos / "d0.mcap")
+    preset = resolve_preset("scene", 1288, demos / "d0.mcap")
     rows = np.concatenate([extractor(frames), states], axis=1)  # (EPISODE, 1288)
-    model = build_model(CNEPConfig(layout=layout.model, n_experts=4), [rows], seed=0)
+    model = build_model(CNEPConfig(columns=preset.roles, n_experts=4), [rows], seed=0)
     extra = {
-        "layout": layout.to_dict(),
+        "layout": preset.to_dict(),
         "extractor": extractor.identity,
         "time_base": TimeBase(3.9, 0.1).to_dict(),
     }

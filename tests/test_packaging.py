@@ -9,7 +9,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 FOLDERS = ("models", "outputs", "perception", "pipeline", "recordings", "runtime")
-STAGES = ("ingest", "extract", "train", "replay", "evaluate", "demo")
+STAGES = ("ingest", "extract", "train", "replay", "export", "run", "evaluate", "demo")
 
 
 def test_every_package_folder_is_installed_under_cnep():

@@ -6,8 +6,6 @@ import argparse
 
 HELP = "run a policy (exported folder or checkpoint) over demonstration recordings, step by step, into Rerun"
 
-DEFAULT_VIEWER = "rerun+http://127.0.0.1:9876/proxy"  # where a local `rerun` viewer listens
-
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("policy", help="a folder written by `cnep export` (runs without torch) or `cnep train`")
@@ -23,8 +21,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--connect",
         metavar="URL",
         nargs="?",
-        const=DEFAULT_VIEWER,
-        help=f"stream live to the viewer at URL (default: the local viewer, {DEFAULT_VIEWER})",
+        const="",
+        help="stream live to the viewer at URL (without URL: the local viewer, rerun+http://127.0.0.1:9876/proxy)",
     )
     sink.add_argument("--serve", action="store_true", help="host a gRPC server (port --port) for viewers to join")
     parser.add_argument("--port", type=int, default=9876, help="port of --serve (default 9876)")
@@ -47,13 +45,14 @@ def run(args: argparse.Namespace) -> int:
     import time
     from pathlib import Path
 
+    from cnep.pipeline.replay.rerun_log import DEFAULT_VIEWER_URL
     from cnep.pipeline.run.stage import RunConfig, format_summary, run, summarise, summary_path
     from cnep.runtime import DEFAULT_WAYPOINTS
 
     server = None
-    connect = args.connect
+    connect = args.connect or (DEFAULT_VIEWER_URL if args.connect is not None else None)
     if args.serve:
-        from cnep.pipeline.replay.stage import serve
+        from cnep.pipeline.replay.rerun_log import serve
 
         server, connect = serve(args.port)
         print(f"serving on {connect}: connect a viewer with `rerun {connect}`")

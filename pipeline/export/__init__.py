@@ -1,9 +1,9 @@
 """Stage `export`: a checkpoint -> a policy folder that runs without torch (`stage`); a checkpoint as a torch
-`runtime.Policy` (`policy.checkpoint_policy`); the model's ONNX graphs (`graphs`).
+`runtime.Policy` (`policy`); the model's ONNX graphs, checked against torch (`graphs`).
 """
 
-from cnep.pipeline._lazy import stage_attribute
+from cnep.pipeline import exports
 
-
-def __getattr__(name: str) -> object:
-    return stage_attribute(__name__, name)
+__getattr__, __all__ = exports(
+    __name__, {"stage": ("ExportConfig", "export"), "policy": ("checkpoint_policy", "load_for_policy")}
+)

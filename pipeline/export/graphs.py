@@ -53,7 +53,7 @@ def to_onnx(module: nn.Module, example: tuple[torch.Tensor, ...], inputs, output
 def model_graphs(model: CNEP) -> tuple[bytes, bytes]:
     """(encoder, decoder) ONNX graphs of `model`, checked against torch (`check_graphs`)."""
     network = TorchNetwork(model)
-    lay, H = model.config.layout, model.config.latent_dim
+    lay, H = model.config.columns, model.config.latent_dim
     obs = torch.zeros(3, 1 + lay.obs_dim)  # (N, 1 + obs_dim)
     r, query = torch.zeros(1, H), torch.zeros(4, 1 + lay.query_dim)  # (1, H), (M, 1 + query_dim)
     encoder = to_onnx(network.encoder, (obs,), [ENCODER_INPUT], [ENCODER_OUTPUT], {ENCODER_INPUT: {0: "n"}})
@@ -72,7 +72,7 @@ def check_graphs(torch_network: TorchNetwork, onnx_network: ExportedNetwork, mod
     """Max |onnx - torch| over seeded inputs of 1 and 7 rows; a RuntimeError (a bug, not the user's) if over
     CHECK_TOLERANCE."""
     rng = np.random.default_rng(seed)
-    lay, H = model.config.layout, model.config.latent_dim
+    lay, H = model.config.columns, model.config.latent_dim
     worst = 0.0
     for n in (1, 7):
         obs = rng.standard_normal((n, 1 + lay.obs_dim), dtype=np.float32)

@@ -13,14 +13,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from cnep.models import CNEP, load_checkpoint, read_checkpoint_config
 from cnep.models.checkpoint import CONFIG_FILE
 from cnep.models.online import TorchNetwork, model_columns
 from cnep.perception import FeatureExtractor
 from cnep.pipeline.errors import PipelineError
-from cnep.pipeline.extract.stage import check_identities
-from cnep.pipeline.replay.stage import RowMapping
-from cnep.recordings.constants import BLOCK_FEATURES, LAYOUT_MOTION
+from cnep.pipeline.identity import check_identities
+from cnep.pipeline.train.checkpoint import TrainedModel, load_trained
+from cnep.recordings.constants import BLOCK_FEATURES, BLOCKS_MOTION
 from cnep.runtime import DEFAULT_WAYPOINTS, ConditioningPolicy, Policy, PolicySpec, TimeBase
 
 IMAGENET_PREFIX = "imagenet:"  # extractor identities of ImageNet weights name them so (perception.weights)
@@ -28,12 +27,11 @@ IMAGENET_PREFIX = "imagenet:"  # extractor identities of ImageNet weights name t
 
 @dataclass(frozen=True)
 class LoadedCheckpoint:
-    """A checkpoint's model, its spec and config, and the extractor (None for a model without a camera)."""
+    """A checkpoint (its model, columns and config), its spec and its extractor (None for a model without a
+    camera)."""
 
-    path: Path
-    model: CNEP
+    trained: TrainedModel
     spec: PolicySpec
-    config: dict
     extractor: FeatureExtractor | None
 
 
@@ -46,14 +44,12 @@ def load_for_policy(
     `extractor.pt`); None for ImageNet weights (found as `cnep extract` finds them). backend, threads: the
     extractor's (perception.FeatureExtractor).
     """
-    path = Path(checkpoint)
-    model = load_checkpoint(path)
-    config = read_checkpoint_config(path)
-    spec = policy_spec(path, model, config)
+    trained = load_trained(checkpoint)
+    spec = policy_spec(trained)
     features = None
     if spec.features is not None:
-        features = feature_extractor(path, config.get("extractor") or {}, extractor, backend, threads)
-    return LoadedCheckpoint(path, model, spec, config, features)
+        features = feature_extractor(trained.path, trained.config.get("extractor") or {}, extractor, backend, threads)
+    return LoadedCheckpoint(trained, spec, features)
 
 
 def checkpoint_policy(
@@ -70,7 +66,7 @@ def checkpoint_policy(
     """The checkpoint folder `checkpoint` as a Policy on torch (see `load_for_policy` and `runtime.Policy`)."""
     loaded = load_for_policy(checkpoint, extractor, backend, threads)
     return Policy(
-        TorchNetwork(loaded.model),
+        TorchNetwork(loaded.trained.model),
         loaded.spec,
         loaded.extractor.features if loaded.extractor is not None else None,
         waypoints=waypoints,
@@ -80,11 +76,11 @@ def checkpoint_policy(
     )
 
 
-def policy_spec(checkpoint: Path, model: CNEP, config: dict) -> PolicySpec:
+def policy_spec(trained: TrainedModel) -> PolicySpec:
     """The spec of the checkpoint's model: its row's features block and state blocks, normaliser, time base."""
-    blocks = RowMapping.from_checkpoint(checkpoint, model).blocks
-    state = tuple((LAYOUT_MOTION[name], blocks[name]) for name in LAYOUT_MOTION if name in blocks)
-    time_base = config.get("time_base")
+    model, blocks = trained.model, trained.mapping.blocks
+    state = tuple((BLOCKS_MOTION[name], blocks[name]) for name in BLOCKS_MOTION if name in blocks)
+    time_base = trained.config.get("time_base")
     try:
         return PolicySpec(
             columns=model_columns(model),
@@ -94,7 +90,7 @@ def policy_spec(checkpoint: Path, model: CNEP, config: dict) -> PolicySpec:
             time_base=TimeBase.from_dict(time_base) if time_base else None,
         )
     except ValueError as exc:
-        raise PipelineError(f"{checkpoint / CONFIG_FILE}: cannot be run as a policy: {exc}") from None
+        raise PipelineError(f"{trained.path / CONFIG_FILE}: cannot be run as a policy: {exc}") from None
 
 
 def feature_extractor(

@@ -26,7 +26,7 @@ from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
 import cnep.runtime
-from cnep.models.checkpoint import CHECKSUM_KEY, atomic_write
+from cnep.models.checkpoint import atomic_write, config_checksum
 from cnep.perception import FeatureExtractor
 from cnep.perception.constants import CALIBRATION_FRAMES
 from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_existing
@@ -96,6 +96,7 @@ def export(config: ExportConfig) -> Path:
 
 def write_policy(folder: Path, loaded: LoadedCheckpoint, config: ExportConfig, calibration: list[Path]) -> None:
     """The graphs, the runtime's source and the manifest (last, with every other file's sha256) into `folder`."""
+    config_json = loaded.trained.config
     features = {}
     if loaded.extractor is not None:
         extractors = {"fp32": loaded.extractor}
@@ -104,7 +105,7 @@ def write_policy(folder: Path, loaded: LoadedCheckpoint, config: ExportConfig, c
         for precision, extractor in extractors.items():
             atomic_write(folder / FEATURES_FILES[precision], extractor.onnx_graph())
             features[precision] = {"file": FEATURES_FILES[precision], "identity": extractor.identity}
-    encoder, decoder = model_graphs(loaded.model)
+    encoder, decoder = model_graphs(loaded.trained.model)
     atomic_write(folder / ENCODER_FILE, encoder)
     atomic_write(folder / DECODER_FILE, decoder)
     write_runtime(folder / RUNTIME_FOLDER)
@@ -113,10 +114,10 @@ def write_policy(folder: Path, loaded: LoadedCheckpoint, config: ExportConfig, c
         spec=loaded.spec,
         graphs={"encoder": ENCODER_FILE, "decoder": DECODER_FILE},
         features=features,
-        extractor=dict(loaded.config.get("extractor") or {}),
+        extractor=dict(config_json.get("extractor") or {}),
         checkpoint={
-            "config_sha256": loaded.config.get(CHECKSUM_KEY) or "",
-            "layout": (loaded.config.get("layout") or {}).get("name", ""),
+            "config_sha256": config_checksum(config_json),
+            "preset": (config_json.get("layout") or {}).get("name", ""),
         },
         producer=f"cnep-pipeline {package_version()}",
         files=files,

@@ -3,8 +3,9 @@ to a live viewer.
 
 One `log_<source>()` function per source (camera, pose, gate, active expert, switches) sends whole
 columns at once (`send_columns`); where each goes is `pipeline.replay.viewer`. `merge_rrd` puts several
-single-recording files into one with rerun's own merge; `viewer_reachable` probes a viewer before
-streaming to it (a warning when none answers, never a hang) and `serve` hosts a server for viewers.
+single-recording files into one with rerun's own merge, `rrd_files` names the files of several recordings;
+`viewer_reachable` probes a viewer before streaming to it (a warning when none answers, never a hang) and
+`serve` hosts a server for viewers.
 """
 
 from __future__ import annotations
@@ -15,15 +16,18 @@ import socket
 import subprocess
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 from urllib.parse import urlparse
 
 import numpy as np
 
 import cnep.pipeline.replay.viewer as L
-from cnep.models import ExpertSwitch
 from cnep.pipeline.errors import PipelineError
-from cnep.pipeline.replay.conditioning import Decisions
 from cnep.recordings import Trajectory
+from cnep.runtime.conditioning import ExpertSwitch
+
+if TYPE_CHECKING:  # the conditioning runs the torch model; this module (`cnep run` uses it) imports no torch
+    from cnep.pipeline.replay.conditioning import Decisions
 
 DEFAULT_VIEWER_URL = "rerun+http://127.0.0.1:9876/proxy"  # where a local `rerun` viewer listens
 PROBE_TIMEOUT_S = 0.5
@@ -49,6 +53,17 @@ def serve(port: int = 9876):
 
     server = rr.RecordingStream(L.APPLICATION_ID, recording_id="cnep-replay-server")
     return server, server.serve_grpc(grpc_port=port)
+
+
+def rrd_files(out: Path, paths: list[Path], merge: bool) -> list[Path]:
+    """The .rrd files of a replay: `out` for one recording (or all of them, merged), else one per recording beside it,
+    `<out stem>-NN-<folder>-<file stem>.rrd` in the order given (a file holding one recording opens on it)."""
+    if merge or len(paths) == 1:
+        return [out]
+    return [
+        out.with_name(f"{out.stem}-{i + 1:02d}-{path.parent.name}-{path.stem}.rrd".replace(" ", "_"))
+        for i, path in enumerate(paths)
+    ]
 
 
 def switch_text(switch: ExpertSwitch, start_ns: int) -> str:

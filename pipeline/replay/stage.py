@@ -46,6 +46,7 @@ from cnep.pipeline.replay.rerun_log import (
     merge_rrd,
     recording_id,
     recording_name,
+    rrd_files,
     viewer_reachable,
     write_recording,
 )
@@ -177,13 +178,3 @@ def _replay_output(path: Path) -> bool:
 
 replay_kind = OutputKind("a replay's .rrd, decisions file or copy with events", _replay_output)
 
-
-def rrd_files(out: Path, paths: list[Path], merge: bool) -> list[Path]:
-    """The .rrd files of a replay: `out` for one recording (or all of them, merged), else one per recording beside it,
-    `<out stem>-NN-<folder>-<file stem>.rrd` in the order given (a file holding one recording opens on it)."""
-    if merge or len(paths) == 1:
-        return [out]
-    return [
-        out.with_name(f"{out.stem}-{i + 1:02d}-{path.parent.name}-{path.stem}.rrd".replace(" ", "_"))
-        for i, path in enumerate(paths)
-    ]

@@ -2,8 +2,6 @@
 would step it, into Rerun, with a summary of the step times (`stage`).
 """
 
-from cnep.pipeline._lazy import stage_attribute
+from cnep.pipeline import exports
 
-
-def __getattr__(name: str) -> object:
-    return stage_attribute(__name__, name)
+__getattr__, __all__ = exports(__name__, {"stage": ("RunConfig", "open_policy", "run", "summarise", "summary_path")})

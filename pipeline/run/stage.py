@@ -28,10 +28,11 @@ from pathlib import Path
 
 import numpy as np
 
-import cnep.pipeline.replay.layout as L
+import cnep.pipeline.replay.viewer as L
 from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_existing
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.extract.inputs import demonstration_files
+from cnep.pipeline.replay.rerun_log import FLUSH_TIMEOUT_S, recording_name, rrd_files, viewer_reachable
 from cnep.recordings import Demonstration, read_demonstration
 from cnep.recordings.constants import TOPIC_IMAGE
 from cnep.recordings.container import atomic_output
@@ -124,12 +125,14 @@ def open_policy(
 
 def run(config: RunConfig) -> list[RecordingRun]:
     """Step every recording through the policy into Rerun; returns each recording's step times and switches."""
-    from cnep.pipeline.replay.stage import rrd_files
-
     paths = [p for given in config.recordings for p in demonstration_files(Path(given))]
     files = rrd_files(Path(config.out), paths, merge=False) if config.out is not None else []
     if config.out is not None:
         refuse_existing([*files, summary_path(config.out)], config.force, "run output")
+    if config.connect is not None and not viewer_reachable(config.connect):
+        raise PipelineError(
+            f"{config.connect}: no Rerun viewer answers there; start one with `rerun`, or write a file with --out"
+        )
     demos = [read_demonstration(p) for p in paths]
     policy = open_policy(
         Path(config.policy),
@@ -156,10 +159,10 @@ def run(config: RunConfig) -> list[RecordingRun]:
             part = files[i].with_name(f".{files[i].name}.tmp") if files else None
             stack.callback(lambda p=part: p is not None and p.unlink(missing_ok=True))
             rec = recording_stream(f"{i:05d}-{demo.episode.episode_id}-{run_id}", part, config.connect)
-            rec.send_recording_name(f"{path.stem} ({path.parent.name or '.'}) #{i + 1}")
+            rec.send_recording_name(recording_name(i, path))
             rec.send_blueprint(L.blueprint(policy.n_experts, camera=policy.uses_camera, timing=True))
             runs.append(run_recording(policy, demo, path, rec, config.realtime))
-            rec.flush(timeout_sec=30.0)
+            rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
             rec.disconnect()
             log.info("%s: %d steps, %d switch(es)", path, demo.n_steps, runs[-1].switches)
         if config.out is not None:

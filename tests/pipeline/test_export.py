@@ -46,7 +46,7 @@ def test_the_encoder_graph_takes_any_number_of_context_points(policy_world):
     graph = onnxruntime_graph(str(policy_world.exported / "encoder.onnx"), 1)
     rng = np.random.default_rng(0)
     for n in (1, 5, 40):
-        obs = rng.standard_normal((n, 1 + model.config.layout.obs_dim), dtype=np.float32)
+        obs = rng.standard_normal((n, 1 + model.config.columns.obs_dim), dtype=np.float32)
         np.testing.assert_allclose(graph({ENCODER_INPUT: obs})[0], TorchNetwork(model).encode(obs), atol=1e-5)
 
 
