@@ -3,6 +3,8 @@
 import importlib.util
 from pathlib import Path
 
+import numpy as np
+
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
 
@@ -20,3 +22,13 @@ def test_gate_ceiling_classifiers_learn_the_modes(capsys, one_thread):
     assert [name.strip() for name in summary] == ["mean + linear", "mean + MLP", "concat + MLP", "flat MLP"]
     accuracies = [float(rest.split()[0]) for rest in summary.values()]
     assert all(0.8 <= a <= 1 for a in accuracies), accuracies  # chance is 0.25: the contexts carry the modes
+
+
+def test_policy_timebase_compares_the_time_base_with_the_oracle_at_each_speed(policy_world, capsys):
+    rows = load("policy_timebase").main([str(policy_world.exported), str(policy_world.heldout), "--speeds", "1", "1.2"])
+    assert [(r["factor"], r["time_base"]) for r in rows] == [
+        (1.0, "time base"), (1.0, "oracle"), (1.2, "time base"), (1.2, "oracle")
+    ]  # fmt: skip
+    assert rows[0]["rmse_cm"] == rows[1]["rmse_cm"] and rows[0]["same_expert"] == 1.0  # at 1x the two agree
+    assert all(np.isfinite(r["rmse_cm"]) and 0 <= r["same_expert"] <= 1 for r in rows)
+    assert "| 1.20 | oracle |" in capsys.readouterr().out

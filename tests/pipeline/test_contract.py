@@ -136,6 +136,8 @@ MISSING_INPUT = {
     "extract": lambda w, t: ["extract", t / "nope.mcap", "--out", t / "out"],
     "train": lambda w, t: ["train", w.trajs, t / "nope.mcap", "--out", t / "out"],
     "replay": lambda w, t: ["replay", w.ckpt, t / "nope.mcap", "--out", t / "out" / "r.rrd", "--no-live"],
+    "export": lambda w, t: ["export", t / "nope", "--out", t / "out" / "policy"],
+    "run": lambda w, t: ["run", w.ckpt, t / "nope.mcap", "--out", t / "out" / "r.rrd", "--fast"],
 }
 
 
@@ -158,6 +160,11 @@ DAMAGED_INPUT = {
     "replay": lambda w, t: (
         ["replay", w.ckpt, w.truncated_traj, "--out", t / "out" / "r.rrd", "--no-live"],
         w.truncated_traj,
+        "truncated",
+    ),
+    "run": lambda w, t: (
+        ["run", w.ckpt, w.truncated_demo, "--out", t / "out" / "r.rrd", "--fast"],
+        w.truncated_demo,
         "truncated",
     ),
 }
@@ -186,6 +193,12 @@ EXISTING_OUTPUT = {  # argv, the output path to pre-fill, whether --force is qui
     "replay": lambda w, t: (
         ["replay", w.ckpt, w.trajs / "t0.mcap", "--out", t / "out" / "r.rrd", "--no-live"],
         t / "out" / "r.experts.json",
+        True,
+    ),
+    "export": lambda w, t: (["export", w.ckpt, "--out", t / "out" / "policy"], t / "out" / "policy", True),
+    "run": lambda w, t: (
+        ["run", w.ckpt, w.demos / "d0.mcap", "--out", t / "out" / "r.rrd", "--fast"],
+        t / "out" / "r.summary.json",
         True,
     ),
     "evaluate": lambda w, t: (["evaluate", *QUICK_EVALUATE, "--out", t / "out"], t / "out" / "comparison.md", False),
@@ -252,6 +265,8 @@ READ_ONLY_OUTPUT = {
     "extract": lambda w, ro: ["extract", w.demos, "--out", ro],
     "train": lambda w, ro: ["train", w.trajs, "--out", ro / "ckpt", *TINY_TRAINING],
     "replay": lambda w, ro: ["replay", w.ckpt, w.trajs / "t0.mcap", "--out", ro / "r.rrd", "--no-live"],
+    "export": lambda w, ro: ["export", w.ckpt, "--out", ro / "policy"],
+    "run": lambda w, ro: ["run", w.ckpt, w.demos / "d0.mcap", "--out", ro / "r.rrd", "--fast"],
     "evaluate": lambda w, ro: ["evaluate", *QUICK_EVALUATE, "--out", ro / "tables"],
     "demo": lambda w, ro: ["demo", "--quick", "--out", ro / "demo"],
 }
@@ -290,6 +305,16 @@ INTERRUPTED = {  # argv, and the function replaced by one that interrupts (Ctrl-
         ["replay", w.ckpt, w.trajs / "t0.mcap", "--out", t / "out" / "r.rrd", "--no-live"],
         "cnep.pipeline.replay.stage",
         "write_recording",
+    ),
+    "export": lambda w, t: (
+        ["export", w.ckpt, "--out", t / "out" / "policy"],
+        "cnep.pipeline.export.stage",
+        "write_runtime",
+    ),
+    "run": lambda w, t: (
+        ["run", w.ckpt, w.demos / "d0.mcap", "--out", t / "out" / "r.rrd", "--fast"],
+        "cnep.pipeline.run.stage",
+        "run_recording",
     ),
     "evaluate": lambda w, t: (
         ["evaluate", *QUICK_EVALUATE, "--out", t / "out"],
