@@ -131,7 +131,7 @@ class Conditioner:
         self._ring: np.ndarray | None = None  # (window, H) float64: encodings of the sliding part
         self._in_ring = 0  # encodings held in the ring; the oldest is at (self._next - self._in_ring) % window
         self._next = 0  # where the next encoding goes in the ring
-        self._r: np.ndarray | None = None  # (1, H) float32 latent of the current set
+        self._r: np.ndarray | None = None  # (1, H) float32 latent of the current set, the mean of the encodings
         self.gate: np.ndarray | None = None
         self.expert: int | None = None
 
@@ -157,7 +157,7 @@ class Conditioner:
         np.subtract(self._query_values, self._q_loc, out=self._query_values)
         np.divide(self._query_values, self._q_scale, out=self._query_values)
         self._add(self.network.encode(obs)[0])  # (H,)
-        self._r = (self._sum / self._n).astype(np.float32)[None]  # (1, H) the masked mean over the set
+        np.divide(self._sum, self._n, out=self._r[0], casting="same_kind")  # (1, H) the mean over the set
         gate, mean, std = self.network.decode(self._r, self._fill_queries(query_t))  # (d,), (d, M, dy) x 2
         expert = int(gate.argmax())
         switch = None
@@ -173,7 +173,7 @@ class Conditioner:
         Returns mean, std (m, dy) of the active expert (winner-take-all, the paper's inference); with
         `all_experts=True`, (d, m, dy) for every expert.
         """
-        if self._r is None:
+        if self._n == 0:
             raise PolicyError("predict needs at least one observation: call step() first.")
         _, mean, std = self.network.decode(self._r, self._fill_queries(query_t))  # (d, m, dy) each
         if all_experts:
@@ -195,9 +195,10 @@ class Conditioner:
 
     def _add(self, enc: np.ndarray) -> None:
         """Put the encoding (H,) of step k into the set by the policy; evict what leaves the window."""
-        if self._sum is None:
+        if self._sum is None:  # the first step of an episode: H is known now
             self._sum = np.zeros(enc.shape, dtype=np.float64)
             self._ring = np.empty((self.policy.window, *enc.shape), dtype=np.float64)
+            self._r = np.empty((1, *enc.shape), dtype=np.float32)
         self._sum += enc
         self._n += 1
         if self.k < self.policy.anchors:

@@ -139,8 +139,9 @@ class Policy:
         for (s0, s1), (r0, r1) in self.spec.state:
             self._row[r0:r1] = state[s0:s1]
         tb = self.time_base
-        times = self._offsets + time_s  # (W,)
-        np.clip(times / tb.duration_s, 0.0, 1.0, out=self._query_t)
+        times = self._offsets + time_s  # (W,) the waypoints' seconds, handed out with the result
+        np.divide(times, tb.duration_s, out=self._query_t)
+        np.clip(self._query_t, 0.0, 1.0, out=self._query_t)
         k, t = self._conditioner.k, tb.phase(time_s)
         gate, expert, switch, mean, std = self._conditioner.step(self._row, t, self._query_t, round(time_s * 1e9))
         self._last_time_s = time_s
