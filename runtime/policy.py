@@ -5,7 +5,8 @@
     result = policy.step(observation)                # waypoints, std, gate, active expert, switch
 
 An observation is a dict (LeRobot's keys): `observation.images.<camera>` an RGB frame (H, W, 3) uint8 of any
-size, `observation.state` the robot's state (8,) (runtime.spec.STATE_NAMES: xyz in m, quaternion xyzw,
+size (or, as LeRobot's processors hand images, (3, H, W) float in [0, 1]: converted, a copy per step),
+`observation.state` the robot's state (8,) (runtime.spec.STATE_NAMES: xyz in m, quaternion xyzw,
 gripper), and optionally `timestamp`, the seconds since the episode began (without it, step k is at
 k * period_s of the time base). Each value may carry LeRobot's leading batch dimension of 1; then the action
 has it too. Anything else (a wrong shape or dtype, a value that is not finite, a time that does not move
@@ -196,9 +197,18 @@ class Policy:
         frame = np.asarray(observation[key])
         if frame.ndim == 4 and frame.shape[0] == 1:
             frame = frame[0]
+        if frame.dtype.kind == "f" and frame.ndim == 3 and frame.shape[0] == 3:
+            frame = lerobot_image(frame, key)
         if frame.dtype != np.uint8 or frame.ndim != 3 or frame.shape[2] != 3 or 0 in frame.shape:
             raise PolicyError(
-                f"{key} must be an RGB frame (H, W, 3) uint8 (a leading batch dimension of 1 is allowed), got shape "
-                f"{frame.shape} dtype {frame.dtype}; convert float images in [0, 1] with (255 * x).astype(np.uint8)"
+                f"{key} must be an RGB frame (H, W, 3) uint8, or (3, H, W) float in [0, 1] as LeRobot hands images "
+                f"(a leading batch dimension of 1 is allowed), got shape {frame.shape} dtype {frame.dtype}"
             )
         return frame
+
+
+def lerobot_image(image: np.ndarray, key: str) -> np.ndarray:
+    """LeRobot's image (3, H, W) float in [0, 1] as the (H, W, 3) uint8 frame the camera gave (a copy)."""
+    if not (np.isfinite(image).all() and image.min() >= 0.0 and image.max() <= 1.0):
+        raise PolicyError(f"{key}: a float image must hold values in [0, 1], got {image.min()} to {image.max()}")
+    return np.ascontiguousarray((image * 255.0 + 0.5).astype(np.uint8).transpose(1, 2, 0))  # (H, W, 3)

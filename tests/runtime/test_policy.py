@@ -108,7 +108,8 @@ BAD = [
     ("state dtype", lambda o: {**o, STATE_KEY: np.array(["a"] * 8)}, "dtype"),
     ("state not finite", lambda o: {**o, STATE_KEY: np.r_[np.zeros(7), np.nan]}, "not finite \\(gripper\\)"),
     ("no image", lambda o: {STATE_KEY: o[STATE_KEY]}, "sees the camera"),
-    ("float image", lambda o: {**o, CAMERA: o[CAMERA] / 255.0}, "uint8"),
+    ("float image HWC", lambda o: {**o, CAMERA: o[CAMERA] / 255.0}, "uint8"),
+    ("float image out of range", lambda o: {**o, CAMERA: o[CAMERA].transpose(2, 0, 1) * 1.0}, r"in \[0, 1\]"),
     ("grey image", lambda o: {**o, CAMERA: o[CAMERA][..., 0]}, r"\(H, W, 3\)"),
     ("two cameras", lambda o: {**o, IMAGE_KEY_PREFIX + "side": o[CAMERA]}, "camera= to choose"),
     ("bad time", lambda o: {**o, TIMESTAMP_KEY: float("inf")}, "finite seconds"),
@@ -123,6 +124,16 @@ def test_bad_observations_are_one_clear_error(case):
     policy = make_policy()
     with pytest.raises(PolicyError, match=message):
         policy.select_action(broken(observation(0, time_s=0.0)))
+
+
+def test_lerobots_float_images_give_the_uint8_frames_result():
+    """LeRobot hands images as (1, 3, H, W) float in [0, 1] (and states with a batch dimension)."""
+    a, b = make_policy(), make_policy()
+    for k in range(4):
+        obs = observation(k)
+        image = (obs[CAMERA].transpose(2, 0, 1) / 255.0).astype(np.float32)[None]  # (1, 3, H, W)
+        lerobot = {CAMERA: image, STATE_KEY: obs[STATE_KEY][None]}
+        np.testing.assert_array_equal(a.select_action(lerobot)[0], b.select_action(obs))
 
 
 def test_a_named_camera_is_read_among_several():
