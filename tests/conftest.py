@@ -52,8 +52,9 @@ def quick_demo(tmp_path_factory):
 
 
 @pytest.fixture(scope="session")
-def policy_world(tmp_path_factory):
-    """A small trained, exported policy and its recordings (tests/policy_world.py), built once per session."""
+def policy_world(quick_demo, tmp_path_factory):
+    """The quick demo's policy exported, a motion policy and their recordings (tests/policy_world.py), built once
+    per session."""
     import torch
 
     from tests.policy_world import build_policy_world
@@ -61,6 +62,6 @@ def policy_world(tmp_path_factory):
     before = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
-        return build_policy_world(tmp_path_factory.mktemp("policy"))
+        return build_policy_world(quick_demo, tmp_path_factory.mktemp("policy"))
     finally:
         torch.set_num_threads(before)

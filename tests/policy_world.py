@@ -1,9 +1,10 @@
-"""One small trained policy for the runtime, export and run tests, built once per session through the CLI.
+"""The policies of the runtime, export and run tests, built once per session on the quick demo's outputs.
 
-Demonstrations with camera frames -> `cnep extract` (seeded random weights, saved) -> `cnep train` (layout
-`scene`: features, pose and gripper observed, pose and gripper predicted; and a `motion` model) -> `cnep
-export` (fp32 and int8 features). Small enough for CI: 4 demonstrations of 12 steps, 32 x 24 frames, 2
-experts of width 16, 30 training steps.
+The quick demo (tests/conftest.py `quick_demo`) gives a checkpoint of layout `scene` (features, pose and
+gripper observed, pose and gripper predicted; 4 experts of 128 x 128), its extractor's weights and
+demonstrations with camera frames. Added here through the CLI: `cnep export` of that checkpoint with fp32
+and int8 features (the int8 graph calibrated on one training demonstration), and a small `motion` model
+(pose and gripper only) trained on the demo's training trajectories.
 """
 
 from __future__ import annotations
@@ -12,55 +13,32 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from cnep.pipeline.cli.main import main
-from cnep.recordings import write_demonstration
-from tests.recordings.factories import demonstration_factory
 
-STEPS = 12
-TRAINING = [
-    "--steps",
-    "30",
-    "--val-every",
-    "10",
-    "--encoder-widths",
-    "16,16",
-    "--expert-widths",
-    "16,16",
-    "--batch-size",
-    "4",
-    "--experts",
-    "2",
-    "--warmup-steps",
-    "6",
-]
+MOTION_TRAINING = ["--layout", "motion", "--steps", "30", "--val-every", "10", "--warmup-steps", "6"]
+MOTION_TRAINING += ["--encoder-widths", "16,16", "--expert-widths", "16,16", "--batch-size", "4", "--experts", "2"]
 
 
 @dataclass(frozen=True)
 class PolicyWorld:
     """Inputs shared by the tests (never written to)."""
 
-    demos: Path  # folder of 3 training demonstrations with frames
-    heldout: Path  # one more demonstration, never trained on
-    extractor: Path  # the extractor's weights (random, calibrated on the demos)
+    demos: Path  # the demo's training demonstrations (with frames)
+    heldout: Path  # one held-out demonstration, never trained on
+    extractor: Path  # the weights the demo's features were made with
     checkpoint: Path  # layout scene: sees the camera
     motion_checkpoint: Path  # layout motion: pose and gripper only
     exported: Path  # `cnep export checkpoint --int8`: fp32 and int8 feature graphs
 
 
-def build_policy_world(root: Path) -> PolicyWorld:
-    demos = root / "demos"
-    demos.mkdir(parents=True)
-    for i in range(3):
-        demo = demonstration_factory(STEPS, frames=True, seed=i, episode_id=f"d{i}", frame_size=32)
-        write_demonstration(demos / f"d{i}.mcap", demo)
-    heldout = root / "heldout.mcap"
-    write_demonstration(heldout, demonstration_factory(STEPS, frames=True, seed=7, episode_id="h", frame_size=32))
-    extractor = root / "extractor.pt"
-    cli("extract", demos, "--out", root / "trajs", "--weights", "random", "--save-weights", extractor, "--threads", "1")
-    cli("train", root / "trajs", "--out", root / "ckpt", "--layout", "scene", *TRAINING)
-    cli("train", root / "trajs", "--out", root / "motion", "--layout", "motion", *TRAINING)
+def build_policy_world(demo: Path, root: Path) -> PolicyWorld:
+    """The world on the quick demo's outputs in `demo`, what it adds written under `root`."""
+    demos, extractor, checkpoint = demo / "demos" / "train", demo / "extractor.pt", demo / "checkpoints" / "cnep"
+    cli("train", demo / "trajectories" / "train", "--out", root / "motion", *MOTION_TRAINING)
     exported = root / "exported"
-    cli("export", root / "ckpt", "--out", exported, "--extractor", extractor, "--int8", "--calibration", demos)
-    return PolicyWorld(demos, heldout, extractor, root / "ckpt", root / "motion", exported)
+    calibration = sorted(demos.glob("*.mcap"))[0]
+    cli("export", checkpoint, "--out", exported, "--extractor", extractor, "--int8", "--calibration", calibration)
+    heldout = sorted((demo / "demos" / "heldout").glob("*.mcap"))[0]
+    return PolicyWorld(demos, heldout, extractor, checkpoint, root / "motion", exported)
 
 
 def cli(*argv) -> None:

@@ -9,7 +9,12 @@ HELP = "run a policy (exported folder or checkpoint) over demonstration recordin
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("policy", help="a folder written by `cnep export` (runs without torch) or `cnep train`")
-    parser.add_argument("recordings", nargs="+", metavar="RECORDING", help="demonstration files with camera frames")
+    parser.add_argument(
+        "recordings",
+        nargs="+",
+        metavar="RECORDING",
+        help="demonstration files or folders of them (with camera frames for a policy that sees)",
+    )
     sink = parser.add_mutually_exclusive_group(required=True)
     sink.add_argument(
         "--out",
@@ -31,10 +36,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--extractor", metavar="FILE", help="a checkpoint's feature weights (as `cnep export` takes)")
     parser.add_argument(
-        "--precision", choices=("fp32", "int8"), default="fp32", help="an exported policy's feature graph"
+        "--precision",
+        choices=("fp32", "int8"),
+        default="fp32",
+        help="an exported policy's feature graph (default fp32)",
     )
     parser.add_argument(
-        "--backend", choices=("onnxruntime", "openvino"), default="onnxruntime", help="what runs the exported graphs"
+        "--backend",
+        choices=("onnxruntime", "openvino"),
+        default="onnxruntime",
+        help="what runs the exported graphs (default onnxruntime)",
     )
     parser.add_argument("--threads", type=int, default=None, help="intra-op threads (default: one per core)")
     parser.add_argument("--waypoints", type=int, default=None, help="future steps predicted per step (default 10)")

