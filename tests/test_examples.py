@@ -32,3 +32,13 @@ def test_policy_timebase_compares_the_time_base_with_the_oracle_at_each_speed(po
     assert rows[0]["rmse_cm"] == rows[1]["rmse_cm"] and rows[0]["same_expert"] == 1.0  # at 1x the two agree
     assert all(np.isfinite(r["rmse_cm"]) and 0 <= r["same_expert"] <= 1 for r in rows)
     assert "| 1.20 | oracle |" in capsys.readouterr().out
+
+
+def test_policy_parity_finds_the_exported_policy_equal_to_the_torch_one(policy_world, capsys, one_thread):
+    w = policy_world
+    found = load("policy_parity").main(
+        [str(w.checkpoint), str(w.exported), str(w.heldout), "--extractor", str(w.extractor)]
+    )
+    assert set(found) == {"fp32", "int8"} and found["fp32"]["steps"] > 0
+    assert found["fp32"]["xyz_max"] < 1e-4 and found["fp32"]["expert"] == 0 and found["fp32"]["switch"] == 0
+    assert "| fp32 |" in capsys.readouterr().out

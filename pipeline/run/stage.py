@@ -23,6 +23,7 @@ import logging
 import os
 import time
 import uuid
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -190,19 +191,14 @@ def run_recording(policy: Policy, demo: Demonstration, path: Path, rec, realtime
     """Step `demo` through `policy` from a new episode, logging each step to `rec`; returns its step times."""
     ts = demo.timestamps_ns
     period_s = float(np.median(np.diff(ts))) / 1e9 if len(ts) > 1 else 0.0
-    state = np.concatenate([demo.pose, demo.gripper[:, None]], axis=1).astype(np.float32)  # (T, 8)
     log_recording(rec, demo, policy, period_s)
     step_s = np.empty(demo.n_steps)
     switches = 0
     policy.reset()
     start = time.perf_counter()
-    for k in range(demo.n_steps):
-        since_start = (ts[k] - ts[0]) / 1e9
-        observation = {STATE_KEY: state[k], TIMESTAMP_KEY: since_start}
-        if policy.uses_camera:
-            observation[IMAGE_KEY_PREFIX + CAMERA_NAME] = decode(demo.frames[k], path, k)
+    for k, observation in enumerate(observations(demo, path, camera=policy.uses_camera)):
         if realtime:
-            time.sleep(max(0.0, start + since_start - time.perf_counter()))
+            time.sleep(max(0.0, start + observation[TIMESTAMP_KEY] - time.perf_counter()))
         before = time.perf_counter()
         result = policy.step(observation)
         step_s[k] = time.perf_counter() - before
@@ -211,11 +207,19 @@ def run_recording(policy: Policy, demo: Demonstration, path: Path, rec, realtime
     return RecordingRun(path, step_s, period_s, switches)
 
 
-def decode(jpeg: bytes, path: Path, step: int) -> np.ndarray:
-    frame = decode_frame(jpeg)
-    if frame is None:
-        raise PipelineError(f"{path}: step {step} on {TOPIC_IMAGE}: the frame does not decode; re-ingest it")
-    return frame
+def observations(demo: Demonstration, path: Path, camera: bool = True) -> Iterator[dict]:
+    """The recording (read from `path`) step by step as a robot hands it to a policy: the state (8,), the seconds
+    since its first step and, with `camera`, the frame decoded to (H, W, 3) uint8 RGB (one frame at a time)."""
+    ts = demo.timestamps_ns
+    state = np.concatenate([demo.pose, demo.gripper[:, None]], axis=1).astype(np.float32)  # (T, 8)
+    for k in range(demo.n_steps):
+        observation = {STATE_KEY: state[k], TIMESTAMP_KEY: float(ts[k] - ts[0]) / 1e9}
+        if camera:
+            frame = decode_frame(demo.frames[k])
+            if frame is None:
+                raise PipelineError(f"{path}: step {k} on {TOPIC_IMAGE}: the frame does not decode; re-ingest it")
+            observation[IMAGE_KEY_PREFIX + CAMERA_NAME] = frame
+        yield observation
 
 
 def log_recording(rec, demo: Demonstration, policy: Policy, period_s: float) -> None:

@@ -8,11 +8,10 @@ from pathlib import Path
 import numpy as np
 
 from cnep.pipeline.export.policy import checkpoint_policy
+from cnep.pipeline.run.stage import observations
 from cnep.recordings import read_demonstration
 from cnep.runtime import IMAGE_KEY_PREFIX, STATE_KEY, TIMESTAMP_KEY
-from cnep.runtime.frames import decode_frame
 
-ROOT = Path(__file__).resolve().parents[2]
 BLOCK_TORCH = """
 import sys
 class NoTorch:
@@ -29,19 +28,9 @@ def run_without_torch(code: str, cwd: Path) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-c", script], cwd=cwd, capture_output=True, text=True, timeout=300)
 
 
-def observations(path: Path) -> list[dict]:
-    demo = read_demonstration(path)
-    state = np.concatenate([demo.pose, demo.gripper[:, None]], axis=1).astype(np.float32)
-    seconds = (demo.timestamps_ns - demo.timestamps_ns[0]) / 1e9
-    return [
-        {IMAGE_KEY_PREFIX + "rgb": decode_frame(demo.frames[k]), STATE_KEY: state[k], TIMESTAMP_KEY: seconds[k]}
-        for k in range(demo.n_steps)
-    ]
-
-
 def test_the_exported_policy_runs_without_torch_and_matches_the_torch_policy(policy_world, tmp_path):
     """fp32 parity on a held-out recording: every waypoint's position within 1e-4 m, the same expert at every step."""
-    steps = observations(policy_world.heldout)
+    steps = list(observations(read_demonstration(policy_world.heldout), policy_world.heldout))
     np.savez(tmp_path / "obs.npz", frames=np.stack([o[IMAGE_KEY_PREFIX + "rgb"] for o in steps]),
              states=np.stack([o[STATE_KEY] for o in steps]), seconds=[o[TIMESTAMP_KEY] for o in steps])  # fmt: skip
     done = run_without_torch(
