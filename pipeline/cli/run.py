@@ -81,9 +81,14 @@ def run(args: argparse.Namespace) -> int:
         force=args.force,
         quiet=args.quiet,
     )
-    print(format_summary(summarise(run(config))))
+    runs = run(config)
+    print(format_summary(summarise(runs)))
     if args.out:
-        print(f"wrote {args.out} and {summary_path(args.out)}; open it with `rerun {args.out}`")
+        from cnep.pipeline.replay.rerun_log import rrd_files
+
+        files = rrd_files(Path(args.out), [r.path for r in runs], merge=False)
+        wrote = files[0] if len(files) == 1 else f"{len(files)} .rrd files, one per recording, beside {args.out}"
+        print(f"wrote {wrote} and {summary_path(args.out)}; open one with `rerun {files[0]}`")
     if server is not None:
         print("serving until Ctrl-C")
         try:
