@@ -11,8 +11,9 @@ OUT gets
     runtime/               the runtime's source with a pyproject.toml: `pip install OUT/runtime` installs
                            cnep.runtime with numpy, onnxruntime and opencv only
 
-The graphs are checked against torch before anything is written; the folder is assembled under a
-temporary name beside OUT and renamed when complete (an existing OUT is replaced only with `force`).
+The graphs are checked against torch before anything is written; the run holds the lock on OUT
+(cnep.outputs), assembles the folder under a temporary name beside it and renames it when complete. An
+existing OUT is replaced only with `force`, and only if it is a policy folder `cnep export` wrote.
 """
 
 from __future__ import annotations
@@ -20,21 +21,22 @@ from __future__ import annotations
 import json
 import logging
 import shutil
-import tempfile
 from dataclasses import dataclass
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
 import cnep.runtime
-from cnep.models.checkpoint import atomic_write, config_checksum
+from cnep.models.checkpoint import config_checksum
+from cnep.outputs import is_stale_temporary, output_lock, temporary_path
 from cnep.perception import FeatureExtractor
 from cnep.perception.constants import CALIBRATION_FRAMES
-from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_existing
+from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_existing, refuse_inputs
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.export.graphs import model_graphs
 from cnep.pipeline.export.policy import LoadedCheckpoint, load_for_policy
 from cnep.pipeline.extract.inputs import demonstration_files
 from cnep.pipeline.extract.stage import calibration_frames
+from cnep.pipeline.ownership import OutputKind
 from cnep.pipeline.train.state import publish
 from cnep.runtime.constants import (
     DECODER_FILE,
@@ -44,7 +46,8 @@ from cnep.runtime.constants import (
     RUNTIME_FOLDER,
     RUNTIME_REQUIREMENTS,
 )
-from cnep.runtime.manifest import Manifest, file_sha256
+from cnep.runtime.errors import PolicyError
+from cnep.runtime.manifest import Manifest, file_sha256, read_manifest
 
 log = logging.getLogger(__name__)
 
@@ -75,15 +78,36 @@ class ExportConfig:
             raise PipelineError("--calibration calibrates the int8 feature graph: add --int8, or leave it out")
 
 
+def _policy_folder(path: Path) -> bool:
+    """A folder `cnep export` wrote: its manifest lists every file in it (an empty folder too: nothing is lost)."""
+    if not path.is_dir() or path.is_symlink():
+        return False
+    files = {str(p.relative_to(path)) for p in path.rglob("*") if p.is_file() or p.is_symlink()}
+    if not files:
+        return True
+    try:
+        listed = set(read_manifest(path).files)
+    except PolicyError:
+        return False
+    return files <= listed | {MANIFEST_FILE}
+
+
+POLICY_FOLDER = OutputKind("a policy folder written by `cnep export` (its manifest lists every file)", _policy_folder)
+
+
 def export(config: ExportConfig) -> Path:
     """Write the exported policy folder `config.out` from `config.checkpoint`; returns `config.out`."""
     out = Path(config.out)
-    refuse_existing([out], config.force, what="exported policy")
     calibration = [f for given in config.calibration for f in demonstration_files(Path(given))]
+    refuse_inputs([out], [Path(config.checkpoint), *calibration, *([config.extractor] if config.extractor else [])])
+    refuse_existing([out], config.force, "exported policy", kind=POLICY_FOLDER)
     loaded = load_for_policy(config.checkpoint, config.extractor, backend=EXPORT_BACKEND, threads=1)
-    with output_folder(out.parent):
+    with output_folder(out.parent), output_lock(out):
         check_writable_folder(out.parent)
-        work = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".partial", dir=out.parent))
+        refuse_existing([out], config.force, "exported policy", kind=POLICY_FOLDER)  # again, under the lock
+        remove_stale_work(out)
+        work = temporary_path(out)  # the folder is assembled under a temporary name unique to the run
+        work.mkdir()
         try:
             write_policy(work, loaded, config, calibration)
             publish(work, out)
@@ -92,6 +116,14 @@ def export(config: ExportConfig) -> Path:
             raise
     log.info("exported %s -> %s", config.checkpoint, out)
     return out
+
+
+def remove_stale_work(out: Path) -> None:
+    """Remove the work folders that killed exports into `out` left beside it (their process no longer runs)."""
+    for work in out.parent.glob(f".{out.name}.*.tmp"):
+        if work.is_dir() and not work.is_symlink() and is_stale_temporary(work):
+            log.warning("%s: removing the work folder of an export that was stopped", work)
+            shutil.rmtree(work, ignore_errors=True)
 
 
 def write_policy(folder: Path, loaded: LoadedCheckpoint, config: ExportConfig, calibration: list[Path]) -> None:
@@ -103,11 +135,11 @@ def write_policy(folder: Path, loaded: LoadedCheckpoint, config: ExportConfig, c
         if config.int8:
             extractors["int8"] = int8_extractor(config, calibration)
         for precision, extractor in extractors.items():
-            atomic_write(folder / FEATURES_FILES[precision], extractor.onnx_graph())
+            write(folder / FEATURES_FILES[precision], extractor.onnx_graph())
             features[precision] = {"file": FEATURES_FILES[precision], "identity": extractor.identity}
     encoder, decoder = model_graphs(loaded.trained.model)
-    atomic_write(folder / ENCODER_FILE, encoder)
-    atomic_write(folder / DECODER_FILE, decoder)
+    write(folder / ENCODER_FILE, encoder)
+    write(folder / DECODER_FILE, decoder)
     write_runtime(folder / RUNTIME_FOLDER)
     files = {str(p.relative_to(folder)): file_sha256(p) for p in sorted(folder.rglob("*")) if p.is_file()}
     manifest = Manifest(
@@ -122,7 +154,13 @@ def write_policy(folder: Path, loaded: LoadedCheckpoint, config: ExportConfig, c
         producer=f"cnep-pipeline {package_version()}",
         files=files,
     )
-    atomic_write(folder / MANIFEST_FILE, json.dumps(manifest.to_dict(), indent=1).encode())
+    write(folder / MANIFEST_FILE, json.dumps(manifest.to_dict(), indent=1).encode())
+
+
+def write(path: Path, data: bytes) -> None:
+    """A file of the work folder, which is renamed into place only when complete (so no file needs its own rename)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(data)
 
 
 def int8_extractor(config: ExportConfig, calibration: list[Path]) -> FeatureExtractor:
@@ -137,8 +175,8 @@ def write_runtime(folder: Path) -> None:
     """cnep.runtime's source (the code this export was made with) and a pyproject.toml that installs it alone."""
     source = Path(cnep.runtime.__file__).parent
     for path in sorted(source.glob("*.py")):
-        atomic_write(folder / "cnep" / "runtime" / path.name, path.read_bytes())
-    atomic_write(folder / "pyproject.toml", runtime_pyproject(package_version()).encode())
+        write(folder / "cnep" / "runtime" / path.name, path.read_bytes())
+    write(folder / "pyproject.toml", runtime_pyproject(package_version()).encode())
 
 
 def runtime_pyproject(release: str) -> str:

@@ -177,4 +177,3 @@ def _replay_output(path: Path) -> bool:
 
 
 replay_kind = OutputKind("a replay's .rrd, decisions file or copy with events", _replay_output)
-

@@ -8,8 +8,10 @@ pose and gripper are handed to `Policy.step` one step at a time, with the step's
 recording began, at the recording's rate (`realtime`) or as fast as possible. Every step goes to Rerun as
 it happens: the frame, the recorded pose and path, the predicted waypoints in the active expert's colour,
 the gate, the active expert, the switches and the time the step took (only `Policy.step` is timed:
-decoding the JPEG and logging are not part of the robot's step). The sinks: a .rrd file (`out`; several
-recordings go to one file each beside it, as `cnep replay` writes them), or a live viewer (`connect`).
+decoding the JPEG and logging are not part of the robot's step). The sinks: a live viewer (`connect`),
+or a .rrd file (`out`; several recordings go to one file each beside it, as `cnep replay` writes them),
+written with the summary when the run completes, under the lock on `out` (cnep.outputs); `force`
+replaces only .rrd files and run summaries.
 
 The summary (`summarise`): steps, p50 / p99 / max step time, steps over the recording's frame period,
 switches, per recording and in total; written beside `out` as `<out stem>.summary.json`.
@@ -30,13 +32,14 @@ from pathlib import Path
 import numpy as np
 
 import cnep.pipeline.replay.viewer as L
-from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_existing
+from cnep.outputs import output_lock, staged
+from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_existing, refuse_inputs
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.extract.inputs import demonstration_files
+from cnep.pipeline.ownership import RRD, OutputKind, json_with
 from cnep.pipeline.replay.rerun_log import FLUSH_TIMEOUT_S, recording_name, rrd_files, viewer_reachable
 from cnep.recordings import Demonstration, read_demonstration
 from cnep.recordings.constants import TOPIC_IMAGE
-from cnep.recordings.container import atomic_output
 from cnep.runtime import DEFAULT_WAYPOINTS, STATE_KEY, TIMESTAMP_KEY, Policy, PolicyStep, load_policy
 from cnep.runtime.constants import IMAGE_KEY_PREFIX, MANIFEST_FILE
 from cnep.runtime.frames import decode_frame
@@ -128,8 +131,9 @@ def run(config: RunConfig) -> list[RecordingRun]:
     """Step every recording through the policy into Rerun; returns each recording's step times and switches."""
     paths = [p for given in config.recordings for p in demonstration_files(Path(given))]
     files = rrd_files(Path(config.out), paths, merge=False) if config.out is not None else []
-    if config.out is not None:
-        refuse_existing([*files, summary_path(config.out)], config.force, "run output")
+    outputs = [*files, summary_path(config.out)] if config.out is not None else []
+    refuse_inputs(outputs, paths)
+    refuse_existing(outputs, config.force, "run output", kind=RUN_OUTPUT)
     if config.connect is not None and not viewer_reachable(config.connect):
         raise PipelineError(
             f"{config.connect}: no Rerun viewer answers there; start one with `rerun`, or write a file with --out"
@@ -148,43 +152,62 @@ def run(config: RunConfig) -> list[RecordingRun]:
             raise PipelineError(f"{path}: has no {TOPIC_IMAGE} frames, but the policy sees the camera")
     run_id = uuid.uuid4().hex[:8]
     runs = []
-    with contextlib.ExitStack() as stack:
+    with contextlib.ExitStack() as stack:  # a failure removes the folders made for the outputs, and what was staged
         if config.out is not None:
-            stack.enter_context(output_folder(Path(config.out).parent))
-            check_writable_folder(Path(config.out).parent)
+            out = Path(config.out)
+            stack.enter_context(output_folder(out.parent))
+            check_writable_folder(out.parent)
+            stack.enter_context(output_lock(out, names=[p.name for p in outputs]))
+            refuse_existing(outputs, config.force, "run output", kind=RUN_OUTPUT)  # again: a run may have ended
+        staging = stack.enter_context(staged())  # the .rrd files and the summary are renamed into place together
         if not _is_exported(config.policy):
             from cnep.pipeline.workers import torch_threads
 
             stack.enter_context(torch_threads())  # the small model is fastest on one thread
         for i, (path, demo) in enumerate(zip(paths, demos)):
-            part = files[i].with_name(f".{files[i].name}.tmp") if files else None
-            stack.callback(lambda p=part: p is not None and p.unlink(missing_ok=True))
-            rec = recording_stream(f"{i:05d}-{demo.episode.episode_id}-{run_id}", part, config.connect)
-            rec.send_recording_name(recording_name(i, path))
-            rec.send_blueprint(L.blueprint(policy.n_experts, camera=policy.uses_camera, timing=True))
-            runs.append(run_recording(policy, demo, path, rec, config.realtime))
-            rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
-            rec.disconnect()
+            rec, stream = recording_stream(f"{i:05d}-{demo.episode.episode_id}-{run_id}", config.connect)
+            try:
+                rec.send_recording_name(recording_name(i, path))
+                rec.send_blueprint(L.blueprint(policy.n_experts, camera=policy.uses_camera, timing=True))
+                runs.append(run_recording(policy, demo, path, rec, config.realtime))
+                rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
+            finally:
+                rec.disconnect()
+                data = stream.read(flush=True) if stream is not None else None  # drained on failure too: Rerun
+                # warns on stderr about a stream dropped with bytes in it
+            if data is not None:
+                staging.write(files[i], data or b"")
             log.info("%s: %d steps, %d switch(es)", path, demo.n_steps, runs[-1].switches)
         if config.out is not None:
-            with atomic_output(summary_path(config.out)) as stream:
-                stream.write(json.dumps(summarise(runs), indent=1).encode())
-            for file in files:
-                os.replace(file.with_name(f".{file.name}.tmp"), file)
+            staging.write(summary_path(config.out), json.dumps(summarise(runs), indent=1).encode())
     return runs
+
+
+def _run_output(path: Path) -> bool:
+    """What --force may replace: a Rerun .rrd, or a summary this stage wrote."""
+    return RRD(path) if path.suffix == ".rrd" else SUMMARY(path)
+
+
+SUMMARY = json_with("a run's summary", ("recordings", "total"))
+RUN_OUTPUT = OutputKind("a run's .rrd file or summary", _run_output)
 
 
 def _is_exported(policy: Path) -> bool:
     return (Path(policy) / MANIFEST_FILE).is_file()
 
 
-def recording_stream(recording_id: str, path: Path | None, connect: str | None):
-    """A Rerun recording stream writing to file `path`, or streaming to the viewer at `connect`."""
+def recording_stream(recording_id: str, connect: str | None):
+    """A Rerun recording stream, and the binary stream of its .rrd bytes (None when it streams to the viewer at
+    `connect` instead). The bytes are written by the caller, so that a full disk is an error naming the file."""
     import rerun as rr
 
     rec = rr.RecordingStream(L.APPLICATION_ID, recording_id=recording_id)
-    rec.set_sinks(rr.FileSink(str(path)) if path is not None else rr.GrpcSink(connect))
-    return rec
+    if connect is not None:
+        rec.set_sinks(rr.GrpcSink(connect))
+        return rec, None
+    stream = rec.binary_stream()
+    rec.set_sinks(stream)
+    return rec, stream
 
 
 def run_recording(policy: Policy, demo: Demonstration, path: Path, rec, realtime: bool) -> RecordingRun:

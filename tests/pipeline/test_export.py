@@ -114,3 +114,6 @@ def test_the_export_replaces_a_folder_only_with_force(policy_world, tmp_path):
     assert main([*argv, "--force"]) == 0
     assert read_manifest(out).files == before  # the same checkpoint exports to the same bytes
     assert [p.name for p in tmp_path.iterdir()] == ["p"]  # no work folder left beside it
+    (out / "notes.txt").write_text("mine")
+    assert main([*argv, "--force"]) == 2  # --force replaces what cnep export wrote, never a user's own file
+    assert (out / "notes.txt").read_text() == "mine" and read_manifest(out).files == before

@@ -27,6 +27,7 @@ import pytest
 import torch
 from safetensors.torch import load_file
 
+from cnep.outputs import TEMPORARY
 from cnep.pipeline.cli.main import main
 from cnep.recordings import read_demonstration, write_demonstration
 from tests.pipeline.fault_driver import files, stray
@@ -232,6 +233,37 @@ def test_replay_killed_writes_no_output_and_runs_again(world, tmp_path):
         assert main(["-q", *map(str, argv(tmp_path / run))]) == 0
         out = tmp_path / run / "out"
         assert sorted(files(out)) == ["r-01-trajs-demo_0.rrd", "r-02-trajs-demo_1.rrd", "r.experts.json"]
+        assert stray(out) == []
+
+
+def test_export_killed_leaves_no_policy_folder_and_runs_again(world, tmp_path):
+    def argv(folder):
+        return ["export", world.ckpt, "--out", folder / "policy"]
+
+    stopped = both("cnep.pipeline.export.stage:write_runtime", 1, argv, tmp_path)
+    assert_terminated(*stopped[signal.SIGTERM], "export")
+    assert list((tmp_path / "term").iterdir()) == []  # the work folder went with the run
+    left = sorted(p.name for p in (tmp_path / "kill").iterdir())  # the lock and the work folder of the killed run
+    assert len(left) == 2 and TEMPORARY.match(left[0]) and left[1] == ".policy.lock", left
+    for run in ("kill", "term"):
+        assert main(["-q", *map(str, argv(tmp_path / run))]) == 0
+        assert [p.name for p in (tmp_path / run).iterdir()] == ["policy"]  # a killed run's work folder is removed
+    assert files(tmp_path / "kill" / "policy") == files(tmp_path / "term" / "policy")
+
+
+def test_run_killed_writes_no_output_and_runs_again(world, tmp_path):
+    def argv(folder):
+        recordings = sorted(world.demos.glob("*.mcap"))[:2]
+        return ["run", world.ckpt, *recordings, "--out", folder / "out" / "r.rrd", "--fast"]
+
+    stopped = both("cnep.pipeline.run.stage:run_recording", 2, argv, tmp_path)
+    assert_terminated(*stopped[signal.SIGTERM], "run")
+    assert not (tmp_path / "term" / "out").exists()  # made by the run, removed again
+    assert files(tmp_path / "kill" / "out") == {}  # the first recording was staged, never renamed into place
+    for run in ("kill", "term"):
+        assert main(["-q", *map(str, argv(tmp_path / run))]) == 0
+        out = tmp_path / run / "out"
+        assert sorted(files(out)) == ["r-01-demos-demo_0.rrd", "r-02-demos-demo_1.rrd", "r.summary.json"]
         assert stray(out) == []
 
 

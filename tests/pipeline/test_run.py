@@ -53,6 +53,10 @@ def test_run_steps_each_recording_into_an_rrd_and_summarises_the_step_times(poli
     assert "total" in printed and "p99 ms" in printed and str(out) in printed
     code = main(["-q", "run", str(policy_world.exported), str(policy_world.heldout), "--out", str(out), "--fast"])
     assert code == 2  # the .rrd exists: refused without --force
+    summary_file = tmp_path / "out" / "run.summary.json"
+    summary_file.write_text("my notes")
+    argv = ["-q", "run", str(policy_world.exported), str(policy_world.heldout), "--out", str(out), "--fast", "--force"]
+    assert main(argv) == 2 and summary_file.read_text() == "my notes"  # --force replaces only what cnep run wrote
 
 
 def test_a_checkpoint_runs_on_torch_with_its_extractor(policy_world, tmp_path):
