@@ -224,7 +224,7 @@ def synthetic_checkpoint(folder: Path) -> tuple[Path, Path, Path]:
 
 
 def export(checkpoint: Path, extractor: Path, calibration: Path, out: Path) -> None:
-    from cnep.pipeline.export.stage import ExportConfig, export
+    from cnep.pipeline.export import ExportConfig, export
 
     export(ExportConfig(checkpoint, out, extractor=extractor, int8=True, calibration=(calibration,), quiet=True))
 

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from cnep.pipeline.export.policy import checkpoint_policy
-from cnep.pipeline.extract.inputs import demonstration_files
+from cnep.pipeline.inputs import find_demonstration_files
 from cnep.pipeline.run.stage import observations
 from cnep.recordings import read_demonstration
 from cnep.runtime import load_policy, read_manifest
@@ -36,7 +36,7 @@ def main(argv: list[str] | None = None) -> dict[str, dict]:
     exported = {p: load_policy(args.exported, precision=p, threads=1) for p in read_manifest(args.exported).features}
     xyz = [reference.action_names.index(name) for name in ("x", "y", "z")]
     found = {p: {"steps": 0, "xyz": [], "gate": 0.0, "expert": 0, "switch": 0} for p in exported}
-    paths = [p for given in args.recordings for p in demonstration_files(given)]
+    paths = find_demonstration_files(args.recordings)
     for path in paths:
         for policy in (reference, *exported.values()):
             policy.reset()

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cnep.pipeline.extract.inputs import demonstration_files
+from cnep.pipeline.inputs import find_demonstration_files
 from cnep.recordings import Demonstration, read_demonstration
 from cnep.runtime import IMAGE_KEY_PREFIX, STATE_KEY, TIMESTAMP_KEY, Policy, TimeBase, load_policy
 from cnep.runtime.frames import decode_frame
@@ -63,7 +63,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
     parser.add_argument("recordings", nargs="+", type=Path, help="demonstration files or folders with frames")
     parser.add_argument("--speeds", type=float, nargs="+", default=[1.0, 1.2, 0.8], help="duration factors")
     args = parser.parse_args(argv)
-    paths = [p for given in args.recordings for p in demonstration_files(given)]
+    paths = find_demonstration_files(args.recordings)
     demos = [read_demonstration(p) for p in paths]
     policy = load_policy(args.policy, threads=1, waypoints=1)
     xyz = [policy.action_names.index(name) for name in ("x", "y", "z")]

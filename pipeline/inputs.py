@@ -34,6 +34,12 @@ def mcap_files(given: Path, kind: str) -> list[Path]:
     raise PipelineError(f"{given}: no such file or folder; give {kind}")
 
 
+def find_demonstration_files(inputs: Sequence[Path]) -> list[Path]:
+    """Files as given, folders searched recursively for `*.mcap` (sorted), in the order given; PipelineError for a
+    missing input or a folder without MCAP files."""
+    return [path for given in inputs for path in mcap_files(Path(given), DEMONSTRATIONS)]
+
+
 def existing_files(paths: Sequence[Path], kind: str) -> list[Path]:
     """`paths`, each an existing file; PipelineError naming the first that is not (kind: what they are)."""
     for path in map(Path, paths):

@@ -23,4 +23,6 @@ RUNTIME_FOLDER = "runtime"  # `pip install DIR/runtime` installs cnep.runtime wi
 RUNTIME_REQUIREMENTS = ("numpy>=1.24", "onnxruntime>=1.17", "opencv-python-headless>=4.8")
 
 BACKENDS = ("onnxruntime", "openvino")  # what runs the exported graphs; openvino only where it is installed
+DEFAULT_BACKEND = BACKENDS[0]
+DEFAULT_PRECISION = "fp32"  # the feature graph a policy runs (FEATURES_FILES' keys)
 DEFAULT_WAYPOINTS = 10  # future steps a policy predicts per step (select_action returns the first)

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from cnep.runtime.conditioning import ConditioningPolicy
-from cnep.runtime.constants import DEFAULT_WAYPOINTS
+from cnep.runtime.constants import DEFAULT_BACKEND, DEFAULT_PRECISION, DEFAULT_WAYPOINTS
 from cnep.runtime.errors import PolicyError
 from cnep.runtime.manifest import read_manifest
 from cnep.runtime.policy import Policy
@@ -47,8 +47,8 @@ class ExportedNetwork:
 def load_policy(
     folder: str | Path,
     *,
-    precision: str = "fp32",
-    backend: str = "onnxruntime",
+    precision: str = DEFAULT_PRECISION,
+    backend: str = DEFAULT_BACKEND,
     threads: int | None = None,
     waypoints: int = DEFAULT_WAYPOINTS,
     conditioning: ConditioningPolicy | None = None,

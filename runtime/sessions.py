@@ -12,7 +12,7 @@ from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
 
-from cnep.runtime.constants import BACKENDS
+from cnep.runtime.constants import BACKENDS, DEFAULT_BACKEND
 from cnep.runtime.errors import PolicyError
 
 Graph = Callable[[Mapping[str, np.ndarray]], list[np.ndarray]]
@@ -23,7 +23,7 @@ def installed_backends() -> list[str]:
     return [name for name in BACKENDS if importlib.util.find_spec(name) is not None]
 
 
-def load_graph(model: bytes | str, backend: str = "onnxruntime", threads: int | None = None) -> Graph:
+def load_graph(model: bytes | str, backend: str = DEFAULT_BACKEND, threads: int | None = None) -> Graph:
     """Graph `model` (ONNX bytes or a file path) on `backend` (one of BACKENDS)."""
     if backend not in BACKENDS:
         raise PolicyError(f"backend must be one of {', '.join(BACKENDS)}, got {backend!r}")

@@ -33,35 +33,34 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
+    from cnep.models.checkpoint import read_checkpoint_config
     from cnep.pipeline.contract import refuse_existing
-    from cnep.pipeline.errors import PipelineError
+    from cnep.pipeline.export.config import ExportConfig
+    from cnep.pipeline.inputs import existing_files, find_demonstration_files
 
-    checkpoint, out = Path(args.checkpoint), Path(args.out)
-    if not (checkpoint / "config.json").is_file():
-        raise PipelineError(f"{checkpoint}: no checkpoint here (no config.json); give a folder written by `cnep train`")
-    if args.int8 and not args.calibration:
-        raise PipelineError("--int8 quantises on frames of the recordings: add --calibration DEMOS")
-    refuse_existing([out], args.force, what="exported policy")
-
-    from cnep.pipeline.export.stage import ExportConfig, export
+    config = ExportConfig(
+        checkpoint=Path(args.checkpoint),
+        out=Path(args.out),
+        extractor=Path(args.extractor) if args.extractor else None,
+        int8=args.int8,
+        calibration=tuple(Path(p) for p in args.calibration),
+        force=args.force,
+        quiet=args.quiet,
+    )
+    read_checkpoint_config(config.checkpoint)  # the inputs are refused before torch and onnx load with the stage
+    if config.extractor is not None:
+        existing_files([config.extractor], "the weights file the training features were made with")
+    find_demonstration_files(config.calibration)
+    refuse_existing([config.out], config.force, what="exported policy")
+    from cnep.pipeline.export.stage import export
     from cnep.runtime import read_manifest
 
-    export(
-        ExportConfig(
-            checkpoint=checkpoint,
-            out=out,
-            extractor=Path(args.extractor) if args.extractor else None,
-            int8=args.int8,
-            calibration=tuple(Path(p) for p in args.calibration),
-            force=args.force,
-            quiet=args.quiet,
-        )
-    )
+    out = export(config)
     manifest = read_manifest(out)
     for name in [*(f["file"] for f in manifest.features.values()), *manifest.graphs.values()]:
         print(f"{out / name}: {(out / name).stat().st_size / 1e6:.1f} MB")
     print(
-        f"exported {checkpoint} -> {out}; run it with `cnep run {out} RECORDING... --out run.rrd`, or on a robot "
-        f"without torch: `pip install {out}/runtime` and `cnep.runtime.load_policy('{out}')`"
+        f"exported {config.checkpoint} -> {out}; run it with `cnep run {out} RECORDING... --out run.rrd`, or on a "
+        f"robot without torch: `pip install {out}/runtime` and `cnep.runtime.load_policy('{out}')`"
     )
     return 0

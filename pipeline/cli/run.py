@@ -4,6 +4,10 @@ from __future__ import annotations
 
 import argparse
 
+from cnep.pipeline.cli.fields import default_of, help_of
+from cnep.pipeline.run.config import RunConfig
+from cnep.runtime.constants import BACKENDS, FEATURES_FILES
+
 HELP = "run a policy (exported folder or checkpoint) over demonstration recordings, step by step, into Rerun"
 
 
@@ -36,19 +40,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--extractor", metavar="FILE", help="a checkpoint's feature weights (as `cnep export` takes)")
     parser.add_argument(
-        "--precision",
-        choices=("fp32", "int8"),
-        default="fp32",
-        help="an exported policy's feature graph (default fp32)",
+        "--precision", choices=tuple(FEATURES_FILES), default=default_of(RunConfig, "precision"),
+        help=help_of(RunConfig, "precision"),
+    )  # fmt: skip
+    parser.add_argument(
+        "--backend", choices=BACKENDS, default=default_of(RunConfig, "backend"), help=help_of(RunConfig, "backend")
     )
     parser.add_argument(
-        "--backend",
-        choices=("onnxruntime", "openvino"),
-        default="onnxruntime",
-        help="what runs the exported graphs (default onnxruntime)",
+        "--threads", type=int, default=default_of(RunConfig, "threads"),
+        help=help_of(RunConfig, "threads", default="one per core"),
+    )  # fmt: skip
+    parser.add_argument(
+        "--waypoints", type=int, default=default_of(RunConfig, "waypoints"), help=help_of(RunConfig, "waypoints")
     )
-    parser.add_argument("--threads", type=int, default=None, help="intra-op threads (default: one per core)")
-    parser.add_argument("--waypoints", type=int, default=None, help="future steps predicted per step (default 10)")
     parser.add_argument("--force", action="store_true", help="replace existing outputs (the .rrd files, the summary)")
 
 
@@ -56,9 +60,15 @@ def run(args: argparse.Namespace) -> int:
     import time
     from pathlib import Path
 
+    from cnep.pipeline.inputs import existing_files, find_demonstration_files
+    from cnep.pipeline.run.config import policy_kind
+
+    policy_kind(args.policy)  # the paths are refused before torch or rerun load with the stage
+    find_demonstration_files(args.recordings)
+    if args.extractor:
+        existing_files([args.extractor], "the weights file the training features were made with")
     from cnep.pipeline.replay.rerun_log import DEFAULT_VIEWER_URL
-    from cnep.pipeline.run.stage import RunConfig, format_summary, run, summarise, summary_path
-    from cnep.runtime import DEFAULT_WAYPOINTS
+    from cnep.pipeline.run.stage import format_summary, run, summarise, summary_path
 
     server = None
     connect = args.connect or (DEFAULT_VIEWER_URL if args.connect is not None else None)
@@ -76,7 +86,7 @@ def run(args: argparse.Namespace) -> int:
         precision=args.precision,
         backend=args.backend,
         threads=args.threads,
-        waypoints=args.waypoints or DEFAULT_WAYPOINTS,
+        waypoints=args.waypoints,
         realtime=not args.fast,
         force=args.force,
         quiet=args.quiet,

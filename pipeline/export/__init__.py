@@ -5,5 +5,5 @@
 from cnep.pipeline import exports
 
 __getattr__, __all__ = exports(
-    __name__, {"stage": ("ExportConfig", "export"), "policy": ("checkpoint_policy", "load_for_policy")}
+    __name__, {"config": ("ExportConfig",), "stage": ("export",), "policy": ("checkpoint_policy", "load_for_policy")}
 )

@@ -21,7 +21,6 @@ from __future__ import annotations
 import json
 import logging
 import shutil
-from dataclasses import dataclass
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
@@ -31,11 +30,11 @@ from cnep.outputs import is_stale_temporary, output_lock, temporary_path
 from cnep.perception import FeatureExtractor
 from cnep.perception.constants import CALIBRATION_FRAMES
 from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_existing, refuse_inputs
-from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.export.config import ExportConfig
 from cnep.pipeline.export.graphs import model_graphs
 from cnep.pipeline.export.policy import LoadedCheckpoint, load_for_policy
-from cnep.pipeline.extract.inputs import demonstration_files
 from cnep.pipeline.extract.stage import calibration_frames
+from cnep.pipeline.inputs import find_demonstration_files
 from cnep.pipeline.ownership import OutputKind
 from cnep.pipeline.train.state import publish
 from cnep.runtime.constants import (
@@ -52,30 +51,6 @@ from cnep.runtime.manifest import Manifest, file_sha256, read_manifest
 log = logging.getLogger(__name__)
 
 EXPORT_BACKEND = "onnxruntime"  # the export checks its graphs on ONNX Runtime (the `onnx` extra)
-
-
-@dataclass(frozen=True)
-class ExportConfig:
-    """checkpoint: folder written by `cnep train` (read only); out: the policy folder (must not exist unless
-    `force`); extractor: weights file of the training features (None: ImageNet); int8: add the int8 feature
-    graph, calibrated on the frames of the demonstration files or folders `calibration`."""
-
-    checkpoint: Path
-    out: Path
-    extractor: Path | None = None
-    int8: bool = False
-    calibration: tuple[Path, ...] = ()
-    force: bool = False
-    quiet: bool = False
-
-    def __post_init__(self) -> None:
-        if self.int8 and not self.calibration:
-            raise PipelineError(
-                "int8 features are quantised on frames of the recordings: give demonstration files or folders "
-                "with --calibration (e.g. the training demonstrations)"
-            )
-        if self.calibration and not self.int8:
-            raise PipelineError("--calibration calibrates the int8 feature graph: add --int8, or leave it out")
 
 
 def _policy_folder(path: Path) -> bool:
@@ -98,7 +73,7 @@ POLICY_FOLDER = OutputKind("a policy folder written by `cnep export` (its manife
 def export(config: ExportConfig) -> Path:
     """Write the exported policy folder `config.out` from `config.checkpoint`; returns `config.out`."""
     out = Path(config.out)
-    calibration = [f for given in config.calibration for f in demonstration_files(Path(given))]
+    calibration = find_demonstration_files(config.calibration)
     refuse_inputs([out], [Path(config.checkpoint), *calibration, *([config.extractor] if config.extractor else [])])
     refuse_existing([out], config.force, "exported policy", kind=POLICY_FOLDER)
     loaded = load_for_policy(config.checkpoint, config.extractor, backend=EXPORT_BACKEND, threads=1)

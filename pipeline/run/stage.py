@@ -35,52 +35,20 @@ import cnep.pipeline.replay.viewer as L
 from cnep.outputs import output_lock, staged
 from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_existing, refuse_inputs
 from cnep.pipeline.errors import PipelineError
-from cnep.pipeline.extract.inputs import demonstration_files
+from cnep.pipeline.inputs import find_demonstration_files
 from cnep.pipeline.ownership import RRD, OutputKind, json_with
 from cnep.pipeline.replay.rerun_log import FLUSH_TIMEOUT_S, recording_name, rrd_files, viewer_reachable
+from cnep.pipeline.run.config import EXPORTED, RunConfig, policy_kind
 from cnep.recordings import Demonstration, read_demonstration
 from cnep.recordings.constants import TOPIC_IMAGE
-from cnep.runtime import DEFAULT_WAYPOINTS, STATE_KEY, TIMESTAMP_KEY, Policy, PolicyStep, load_policy
-from cnep.runtime.constants import IMAGE_KEY_PREFIX, MANIFEST_FILE
+from cnep.runtime import STATE_KEY, TIMESTAMP_KEY, Policy, PolicyStep, load_policy
+from cnep.runtime.constants import DEFAULT_PRECISION, IMAGE_KEY_PREFIX
 from cnep.runtime.frames import decode_frame
 
 log = logging.getLogger(__name__)
 
 SUMMARY_SUFFIX = ".summary.json"
 CAMERA_NAME = "rgb"  # the observation key of the recordings' camera: observation.images.rgb
-
-
-@dataclass(frozen=True)
-class RunConfig:
-    """What `run` runs and where it writes.
-
-    policy: exported folder or checkpoint folder; recordings: demonstration files or folders (read only); out:
-    the .rrd (None: `connect` only); connect: a live viewer's URL; extractor: weights of a checkpoint's
-    training features (None: ImageNet); precision, backend: the exported folder's feature graph and runner;
-    threads: intra-op threads (None: one per core); waypoints: future steps predicted per step; realtime: pace
-    the steps at the recording's rate (False: as fast as possible); force: replace existing outputs.
-    """
-
-    policy: Path
-    recordings: tuple[Path, ...]
-    out: Path | None = None
-    connect: str | None = None
-    extractor: Path | None = None
-    precision: str = "fp32"
-    backend: str = "onnxruntime"
-    threads: int | None = None
-    waypoints: int = DEFAULT_WAYPOINTS
-    realtime: bool = True
-    force: bool = False
-    quiet: bool = False
-
-    def __post_init__(self) -> None:
-        if not self.recordings:
-            raise PipelineError("run needs at least one demonstration recording")
-        if (self.out is None) == (self.connect is None):
-            raise PipelineError("run writes to exactly one place: an .rrd file (--out) or a live viewer")
-        if self.out is not None and Path(self.out).suffix != ".rrd":
-            raise PipelineError(f"{self.out}: the run's output must be a .rrd file")
 
 
 @dataclass(frozen=True)
@@ -103,33 +71,27 @@ def open_policy(
     path: Path,
     *,
     extractor: Path | None = None,
-    precision: str = "fp32",
-    backend: str = "onnxruntime",
-    threads: int | None = None,
-    waypoints: int = DEFAULT_WAYPOINTS,
+    precision: str = RunConfig.precision,
+    backend: str = RunConfig.backend,
+    threads: int | None = RunConfig.threads,
+    waypoints: int = RunConfig.waypoints,
 ) -> Policy:
     """The policy in folder `path`: an exported one on cnep.runtime, a checkpoint on torch (imported only then)."""
     path = Path(path)
-    if (path / MANIFEST_FILE).is_file():
+    if policy_kind(path) == EXPORTED:
         if extractor is not None:
             raise PipelineError(f"{path}: an exported policy carries its feature graph; leave out --extractor")
         return load_policy(path, precision=precision, backend=backend, threads=threads, waypoints=waypoints)
-    from cnep.models.checkpoint import CONFIG_FILE  # a checkpoint runs on torch: import it now, not before
-    from cnep.pipeline.export.policy import checkpoint_policy
+    from cnep.pipeline.export.policy import checkpoint_policy  # a checkpoint runs on torch: import it now, not before
 
-    if not (path / CONFIG_FILE).is_file():
-        raise PipelineError(
-            f"{path}: neither an exported policy ({MANIFEST_FILE}) nor a checkpoint ({CONFIG_FILE}); give a folder "
-            f"written by `cnep export` or `cnep train`"
-        )
-    if precision != "fp32":
+    if precision != DEFAULT_PRECISION:
         raise PipelineError(f"{path}: a checkpoint runs fp32 features; export it with --int8 for int8 features")
     return checkpoint_policy(path, extractor, threads=threads, waypoints=waypoints)
 
 
 def run(config: RunConfig) -> list[RecordingRun]:
     """Step every recording through the policy into Rerun; returns each recording's step times and switches."""
-    paths = [p for given in config.recordings for p in demonstration_files(Path(given))]
+    paths = find_demonstration_files(config.recordings)
     files = rrd_files(Path(config.out), paths, merge=False) if config.out is not None else []
     outputs = [*files, summary_path(config.out)] if config.out is not None else []
     refuse_inputs(outputs, paths)
@@ -160,8 +122,8 @@ def run(config: RunConfig) -> list[RecordingRun]:
             stack.enter_context(output_lock(out, names=[p.name for p in outputs]))
             refuse_existing(outputs, config.force, "run output", kind=RUN_OUTPUT)  # again: a run may have ended
         staging = stack.enter_context(staged())  # the .rrd files and the summary are renamed into place together
-        if not _is_exported(config.policy):
-            from cnep.pipeline.workers import torch_threads
+        if policy_kind(config.policy) != EXPORTED:
+            from cnep.models.threads import torch_threads
 
             stack.enter_context(torch_threads())  # the small model is fastest on one thread
         for i, (path, demo) in enumerate(zip(paths, demos)):
@@ -190,10 +152,6 @@ def _run_output(path: Path) -> bool:
 
 SUMMARY = json_with("a run's summary", ("recordings", "total"))
 RUN_OUTPUT = OutputKind("a run's .rrd file or summary", _run_output)
-
-
-def _is_exported(policy: Path) -> bool:
-    return (Path(policy) / MANIFEST_FILE).is_file()
 
 
 def recording_stream(recording_id: str, connect: str | None):

@@ -371,6 +371,8 @@ REFUSED_BEFORE_LOADING = {
     "train": ["train", "does/not/exist", "--out", "x"],
     "extract": ["extract", "does/not/exist", "--out", "x"],
     "replay": ["replay", "does/not/exist", "r.mcap", "--out", "x.rrd", "--no-live"],
+    "export": ["export", "does/not/exist", "--out", "x"],
+    "run": ["run", "does/not/exist", "r.mcap", "--out", "x.rrd"],
     "help": ["train", "--help"],
 }
 

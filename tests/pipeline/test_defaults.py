@@ -73,3 +73,12 @@ def test_the_python_defaults_train_the_committing_model_in_a_fresh_interpreter()
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip() == "bounded"
+
+
+def test_cnep_run_takes_its_defaults_from_run_config():
+    from cnep.pipeline.run import RunConfig
+
+    args = build_parser().parse_args(["run", "policy", "r.mcap", "--out", "r.rrd"])
+    config = RunConfig(Path("policy"), (Path("r.mcap"),), out=Path("r.rrd"))
+    names = ("precision", "backend", "threads", "waypoints")
+    assert {n: getattr(args, n) for n in names} == {n: getattr(config, n) for n in names}

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from cnep.pipeline.cli.main import main
-from cnep.pipeline.run.stage import RunConfig, run, summarise
+from cnep.pipeline.run import RunConfig, run, summarise
 from cnep.recordings import read_demonstration, write_demonstration
 from tests.recordings.factories import demonstration_factory
 from tests.runtime.test_torch_free import run_without_torch
