@@ -36,7 +36,7 @@ from cnep.pipeline.export.policy import LoadedCheckpoint, load_for_policy
 from cnep.pipeline.extract.stage import calibration_frames
 from cnep.pipeline.inputs import find_demonstration_files
 from cnep.pipeline.ownership import OutputKind
-from cnep.pipeline.train.state import publish
+from cnep.pipeline.train.state import publish, recover_replaced
 from cnep.runtime.constants import (
     DECODER_FILE,
     ENCODER_FILE,
@@ -79,6 +79,7 @@ def export(config: ExportConfig) -> Path:
     loaded = load_for_policy(config.checkpoint, config.extractor, backend=EXPORT_BACKEND, threads=1)
     with output_folder(out.parent), output_lock(out):
         check_writable_folder(out.parent)
+        recover_replaced(out)
         refuse_existing([out], config.force, "exported policy", kind=POLICY_FOLDER)  # again, under the lock
         remove_stale_work(out)
         work = temporary_path(out)  # the folder is assembled under a temporary name unique to the run

@@ -53,7 +53,7 @@ def prepare_work_dir(out: Path, resume: bool, force: bool, inputs: Sequence[Path
     held.enter_context(output_folder(out.parent))
     held.enter_context(output_lock(out))
     remove_stale_temporaries(work)
-    _recover_replaced(out)
+    recover_replaced(out)
     if out.exists() and not force:
         raise PipelineError(
             f"{out} already exists; choose another --out, or add --force to replace it when the new run completes"
@@ -90,8 +90,10 @@ def _remove_work_dir(work: Path) -> None:
     shutil.rmtree(work)
 
 
-def _recover_replaced(out: Path) -> None:
-    """After a run killed while publishing: put the replaced checkpoint back if OUT is missing, else drop it."""
+def recover_replaced(out: Path) -> None:
+    """After a run killed while publishing (`publish`): put the replaced folder back if OUT is missing, else drop it.
+
+    Call it holding the lock on OUT (train and export do)."""
     old = replaced_dir(out)
     if not old.is_dir() or old.is_symlink():
         return

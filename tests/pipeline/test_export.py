@@ -117,3 +117,17 @@ def test_the_export_replaces_a_folder_only_with_force(policy_world, tmp_path):
     (out / "notes.txt").write_text("mine")
     assert main([*argv, "--force"]) == 2  # --force replaces what cnep export wrote, never a user's own file
     assert (out / "notes.txt").read_text() == "mine" and read_manifest(out).files == before
+
+
+def test_an_export_stopped_while_replacing_a_folder_leaves_it_restored(policy_world, tmp_path):
+    out = tmp_path / "p"
+    argv = ["-q", "export", str(policy_world.motion_checkpoint), "--out", str(out)]
+    assert main(argv) == 0
+    before = read_manifest(out).files
+    out.rename(tmp_path / ".p.replaced")  # killed between moving the old folder aside and renaming the new one in
+    assert main(argv) == 2  # the old folder is back in place, so without --force it is refused
+    assert read_manifest(out).files == before and [p.name for p in tmp_path.iterdir()] == ["p"]
+    out.rename(tmp_path / ".p.replaced")
+    shutil.copytree(tmp_path / ".p.replaced", out)  # killed after the new folder was renamed in
+    assert main([*argv, "--force"]) == 0
+    assert read_manifest(out).files == before and [p.name for p in tmp_path.iterdir()] == ["p"]
