@@ -86,8 +86,9 @@ class Policy:
         self.time_base = time_base or spec.time_base
         if self.time_base is None:
             raise PolicyError(
-                "the checkpoint carries no time base (it was trained before cnep stored one); give "
-                "time_base=TimeBase(duration_s, period_s): the demonstrations' length and step period in seconds"
+                "this policy carries no time base (a checkpoint stores its training demonstrations' length and step "
+                "period); give one: time_base=TimeBase(duration_s, period_s) in seconds, or `--time-base "
+                "DURATION_S,PERIOD_S` to cnep export or cnep run"
             )
         self._features = features
         self._conditioner = Conditioner(network, spec.columns, conditioning or spec.conditioning)

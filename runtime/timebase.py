@@ -47,6 +47,18 @@ class TimeBase:
             )
         return cls(float(np.median(durations)), float(np.median(durations / (counts - 1))))
 
+    @classmethod
+    def parse(cls, text: str) -> TimeBase:
+        """A time base written `DURATION_S,PERIOD_S` (e.g. `3.9,0.1`), as `cnep export --time-base` takes it."""
+        try:
+            duration_s, period_s = (float(part) for part in text.split(","))
+        except ValueError:
+            raise PolicyError(
+                f"a time base is written DURATION_S,PERIOD_S (the episode's length and the step period in seconds, "
+                f"e.g. 3.9,0.1), got {text!r}"
+            ) from None
+        return cls(duration_s, period_s)
+
     def phase(self, seconds: float) -> float:
         """The model's t of `seconds` since the episode began: seconds / duration_s, clamped to [0, 1]."""
         return min(max(seconds / self.duration_s, 0.0), 1.0)

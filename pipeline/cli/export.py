@@ -27,7 +27,30 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=(),
         help="demonstration files or folders whose frames calibrate the int8 graph (e.g. the training demos)",
     )
+    add_time_base(parser, "default: the checkpoint's, from its training demonstrations")
     parser.add_argument("--force", action="store_true", help="replace an existing --out folder")
+
+
+def time_base(text: str):
+    """A `--time-base DURATION_S,PERIOD_S` value as a runtime.TimeBase."""
+    from cnep.runtime.errors import PolicyError
+    from cnep.runtime.timebase import TimeBase
+
+    try:
+        return TimeBase.parse(text)
+    except PolicyError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def add_time_base(parser: argparse.ArgumentParser, default: str) -> None:
+    """The `--time-base` option of `cnep export` and `cnep run`."""
+    parser.add_argument(
+        "--time-base",
+        type=time_base,
+        metavar="DURATION_S,PERIOD_S",
+        help=f"the episode's length and step period in seconds, which map the robot's clock onto the model's "
+        f"phase (t = seconds / DURATION_S); {default}",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -44,6 +67,7 @@ def run(args: argparse.Namespace) -> int:
         extractor=Path(args.extractor) if args.extractor else None,
         int8=args.int8,
         calibration=tuple(Path(p) for p in args.calibration),
+        time_base=args.time_base,
         force=args.force,
         quiet=args.quiet,
     )

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from cnep.pipeline.cli.export import add_time_base
 from cnep.pipeline.cli.fields import default_of, help_of
 from cnep.pipeline.run.config import RunConfig
 from cnep.runtime.constants import BACKENDS, FEATURES_FILES
@@ -53,6 +54,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--waypoints", type=int, default=default_of(RunConfig, "waypoints"), help=help_of(RunConfig, "waypoints")
     )
+    add_time_base(parser, "default: the policy's own")
     parser.add_argument("--force", action="store_true", help="replace existing outputs (the .rrd files, the summary)")
 
 
@@ -87,6 +89,7 @@ def run(args: argparse.Namespace) -> int:
         backend=args.backend,
         threads=args.threads,
         waypoints=args.waypoints,
+        time_base=args.time_base,
         realtime=not args.fast,
         force=args.force,
         quiet=args.quiet,

@@ -10,19 +10,22 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from cnep.pipeline.errors import PipelineError
+from cnep.runtime.timebase import TimeBase
 
 
 @dataclass(frozen=True)
 class ExportConfig:
     """checkpoint: folder written by `cnep train` (read only); out: the policy folder (must not exist unless
     `force`); extractor: weights file of the training features (None: ImageNet); int8: add the int8 feature
-    graph, calibrated on the frames of the demonstration files or folders `calibration`."""
+    graph, calibrated on the frames of the demonstration files or folders `calibration`; time_base: the policy's
+    seconds -> phase (None: the checkpoint's, from its training demonstrations)."""
 
     checkpoint: Path
     out: Path
     extractor: Path | None = None
     int8: bool = False
     calibration: tuple[Path, ...] = ()
+    time_base: TimeBase | None = None
     force: bool = False
     quiet: bool = False
 

@@ -21,15 +21,17 @@ from __future__ import annotations
 import json
 import logging
 import shutil
+from dataclasses import replace
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
 import cnep.runtime
-from cnep.models.checkpoint import config_checksum
+from cnep.models.checkpoint import CONFIG_FILE, config_checksum
 from cnep.outputs import is_stale_temporary, output_lock, temporary_path
 from cnep.perception import FeatureExtractor
 from cnep.perception.constants import CALIBRATION_FRAMES
 from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_existing, refuse_inputs
+from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.export.config import ExportConfig
 from cnep.pipeline.export.graphs import model_graphs
 from cnep.pipeline.export.policy import LoadedCheckpoint, load_for_policy
@@ -47,6 +49,7 @@ from cnep.runtime.constants import (
 )
 from cnep.runtime.errors import PolicyError
 from cnep.runtime.manifest import Manifest, file_sha256, read_manifest
+from cnep.runtime.timebase import TimeBase
 
 log = logging.getLogger(__name__)
 
@@ -76,7 +79,9 @@ def export(config: ExportConfig) -> Path:
     calibration = find_demonstration_files(config.calibration)
     refuse_inputs([out], [Path(config.checkpoint), *calibration, *([config.extractor] if config.extractor else [])])
     refuse_existing([out], config.force, "exported policy", kind=POLICY_FOLDER)
-    loaded = load_for_policy(config.checkpoint, config.extractor, backend=EXPORT_BACKEND, threads=1)
+    loaded = with_time_base(
+        load_for_policy(config.checkpoint, config.extractor, backend=EXPORT_BACKEND, threads=1), config.time_base
+    )
     with output_folder(out.parent), output_lock(out):
         check_writable_folder(out.parent)
         recover_replaced(out)
@@ -92,6 +97,18 @@ def export(config: ExportConfig) -> Path:
             raise
     log.info("exported %s -> %s", config.checkpoint, out)
     return out
+
+
+def with_time_base(loaded: LoadedCheckpoint, time_base: TimeBase | None) -> LoadedCheckpoint:
+    """`loaded` with `time_base` in its spec (None: the checkpoint's); PipelineError when neither gives one."""
+    spec = replace(loaded.spec, time_base=time_base or loaded.spec.time_base)
+    if spec.time_base is None:
+        raise PipelineError(
+            f"{loaded.trained.path / CONFIG_FILE}: the checkpoint carries no time base (its training demonstrations' "
+            f"length and step period in seconds, which map a robot's clock onto the model's phase); give them with "
+            f"--time-base DURATION_S,PERIOD_S"
+        )
+    return replace(loaded, spec=spec)
 
 
 def remove_stale_work(out: Path) -> None:

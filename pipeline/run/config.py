@@ -13,6 +13,7 @@ from cnep.models.checkpoint import CONFIG_FILE
 from cnep.models.config import setting
 from cnep.pipeline.errors import PipelineError
 from cnep.runtime.constants import DEFAULT_BACKEND, DEFAULT_PRECISION, DEFAULT_WAYPOINTS, MANIFEST_FILE
+from cnep.runtime.timebase import TimeBase
 
 EXPORTED, CHECKPOINT = "exported", "checkpoint"
 
@@ -24,7 +25,8 @@ class RunConfig:
     policy: exported folder or checkpoint folder; recordings: demonstration files or folders (read only); out:
     the .rrd (None: `connect` only); connect: a live viewer's URL; extractor: weights of a checkpoint's
     training features (None: ImageNet); precision, backend: the exported folder's feature graph and runner;
-    threads: intra-op threads (None: one per core); waypoints: future steps predicted per step; realtime: pace
+    threads: intra-op threads (None: one per core); waypoints: future steps predicted per step; time_base: seconds ->
+    phase (None: the policy's own); realtime: pace
     the steps at the recording's rate (False: as fast as possible); force: replace existing outputs.
     """
 
@@ -39,6 +41,7 @@ class RunConfig:
     backend: str = setting(DEFAULT_BACKEND, "what runs the exported graphs; openvino where it is installed")
     threads: int | None = setting(None, "intra-op threads of the policy's graphs")
     waypoints: int = setting(DEFAULT_WAYPOINTS, "future steps predicted per step")
+    time_base: TimeBase | None = None
     realtime: bool = True
     force: bool = False
     quiet: bool = False

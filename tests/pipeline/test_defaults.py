@@ -80,5 +80,5 @@ def test_cnep_run_takes_its_defaults_from_run_config():
 
     args = build_parser().parse_args(["run", "policy", "r.mcap", "--out", "r.rrd"])
     config = RunConfig(Path("policy"), (Path("r.mcap"),), out=Path("r.rrd"))
-    names = ("precision", "backend", "threads", "waypoints")
+    names = ("precision", "backend", "threads", "waypoints", "time_base")
     assert {n: getattr(args, n) for n in names} == {n: getattr(config, n) for n in names}

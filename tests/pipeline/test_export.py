@@ -8,10 +8,11 @@ import numpy as np
 import pytest
 
 from cnep.models import load_checkpoint, read_checkpoint_config
+from cnep.models.checkpoint import CHECKSUM_KEY, CONFIG_FILE, config_checksum
 from cnep.models.online import TorchNetwork
 from cnep.pipeline.cli.main import main
 from cnep.recordings import read_demonstration
-from cnep.runtime import STATE_KEY, PolicyError, load_policy, read_manifest
+from cnep.runtime import STATE_KEY, PolicyError, TimeBase, load_policy, read_manifest
 from cnep.runtime.constants import RUNTIME_REQUIREMENTS
 from cnep.runtime.exported import ENCODER_INPUT
 from cnep.runtime.manifest import file_sha256
@@ -131,3 +132,19 @@ def test_an_export_stopped_while_replacing_a_folder_leaves_it_restored(policy_wo
     shutil.copytree(tmp_path / ".p.replaced", out)  # killed after the new folder was renamed in
     assert main([*argv, "--force"]) == 0
     assert read_manifest(out).files == before and [p.name for p in tmp_path.iterdir()] == ["p"]
+
+
+def test_a_checkpoint_without_a_time_base_exports_with_one_given(policy_world, tmp_path, capsys):
+    checkpoint = tmp_path / "ckpt"
+    shutil.copytree(policy_world.motion_checkpoint, checkpoint)
+    config = json.loads((checkpoint / CONFIG_FILE).read_text())
+    del config["time_base"]
+    config[CHECKSUM_KEY] = config_checksum(config)
+    (checkpoint / CONFIG_FILE).write_text(json.dumps(config))
+    out = tmp_path / "p"
+    capsys.readouterr()
+    assert main(["-q", "export", str(checkpoint), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert str(checkpoint / CONFIG_FILE) in err and "--time-base" in err and not out.exists()
+    assert main(["-q", "export", str(checkpoint), "--out", str(out), "--time-base", "3.9,0.1"]) == 0
+    assert read_manifest(out).spec.time_base == TimeBase(3.9, 0.1)

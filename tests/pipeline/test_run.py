@@ -9,9 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cnep.pipeline.cli.main import main
+from cnep.pipeline.cli.main import build_parser, main
 from cnep.pipeline.run import RunConfig, run, summarise
+from cnep.pipeline.run.stage import open_policy
 from cnep.recordings import read_demonstration, write_demonstration
+from cnep.runtime import TimeBase
 from tests.recordings.factories import demonstration_factory
 from tests.runtime.test_torch_free import run_without_torch
 
@@ -68,6 +70,13 @@ def test_a_checkpoint_runs_on_torch_with_its_extractor(policy_world, tmp_path):
     steps = read_demonstration(policy_world.heldout).n_steps
     assert len(runs) == 1 and len(runs[0].step_s) == steps and np.all(runs[0].step_s > 0)
     assert summarise(runs)["total"]["steps"] == steps and (tmp_path / "r.summary.json").is_file()
+
+
+def test_a_time_base_given_to_run_replaces_the_policys(policy_world):
+    args = build_parser().parse_args(["run", "p", "r.mcap", "--out", "r.rrd", "--time-base", "7,0.5"])
+    assert args.time_base == TimeBase(7.0, 0.5)
+    assert open_policy(policy_world.exported, threads=1).time_base != args.time_base
+    assert open_policy(policy_world.exported, threads=1, time_base=args.time_base).time_base == args.time_base
 
 
 def test_run_paces_steps_at_the_recordings_rate(policy_world, tmp_path):

@@ -172,6 +172,15 @@ def test_the_time_base_maps_seconds_to_the_phase():
     assert tb.duration_s == 4.0 and tb.period_s == pytest.approx(0.1)
     assert tb.phase(2.0) == 0.5 and tb.phase(5.0) == 1.0 and tb.phase(-1.0) == 0.0
     assert TimeBase.from_dict(tb.to_dict()) == tb
-    for bad in (lambda: TimeBase(0, 0.1), lambda: TimeBase(1, 2), lambda: TimeBase.from_demonstrations([1], [1])):
+    assert TimeBase.parse("3.9,0.1") == TimeBase(3.9, 0.1)
+    bad_ones = (
+        lambda: TimeBase(0, 0.1),
+        lambda: TimeBase(1, 2),
+        lambda: TimeBase.from_demonstrations([1], [1]),
+        lambda: TimeBase.parse("3.9"),
+        lambda: TimeBase.parse("3.9,x"),
+        lambda: TimeBase.parse("0.1,3.9"),
+    )
+    for bad in bad_ones:
         with pytest.raises(PolicyError):
             bad()
