@@ -100,7 +100,7 @@ def describe(summary: dict) -> str:
         lines.append(
             f"  {model}: held-out position RMSE {100 * row['position_rmse_m']:.2f} cm (median "
             f"{100 * row['position_rmse_median_m']:.2f}), gripper MAE {1000 * row['gripper_mae_m']:.2f} mm, "
-            f"behaviour accuracy {row['behaviour_accuracy']:.2f}; free choice in a slot "
+            f"{row['wrong_behaviour']} of {row['n']} read as the wrong behaviour; free choice in a slot "
             f"{summary['free_choice'][model]['valid']:.2f}"
         )
     for change in summary["scene_change"]:

@@ -23,13 +23,8 @@ def format_summary(result: DemoResult) -> str:
         f"(purity alone is 1.0 when every demonstration goes to one expert)"
     )
     lines.append("")
-    lines.append("held-out demonstrations, conditioned on the first step (t = 0):")
-    lines.append("model  position RMSE (cm)  median per demo (cm)  gripper MAE (mm)  nearest-demo behaviour accuracy")
-    for name, row in result.heldout.items():
-        lines.append(
-            f"{name:<6} {100 * row['position_rmse_m']:>18.2f}  {100 * row['position_rmse_median_m']:>20.2f}  "
-            f"{1000 * row['gripper_mae_m']:>16.2f}  {row['behaviour_accuracy']:>10.2f} (n = {row['n']})"
-        )
+    lines.append(features_line(result.feature_weights))
+    lines.extend(heldout_lines(result.heldout))
     lines.append("")
     for change in result.scene_change:
         moves = ", ".join(f"step {s}: {a} -> {b}" for s, a, b in change["switches"]) or "none"
@@ -61,6 +56,36 @@ def format_summary(result: DemoResult) -> str:
     lines.append(f"summary: {result.out / SUMMARY_FILE}")
     lines.append("stage times (s): " + ", ".join(f"{k} {v:.1f}" for k, v in result.seconds.items()))
     return "\n".join(lines)
+
+
+def heldout_lines(heldout: dict[str, dict]) -> list[str]:
+    """The held-out table (`measures.heldout_errors` per model): how many scenes each model read as the wrong
+    behaviour, apart from the error of those it read right."""
+    lines = [
+        "held-out demonstrations, conditioned on the first step (t = 0); read wrong: the generated motion lies",
+        "nearest a training demonstration of another behaviour (such a motion misses by ~25 cm):",
+        "model  read wrong  position RMSE (cm)  RMSE of those read right (cm)  median per demo (cm)  gripper MAE (mm)",
+    ]
+    for name, row in heldout.items():
+        wrong = f"{row['wrong_behaviour']} of {row['n']}"
+        right = row["position_rmse_read_right_m"]
+        lines.append(
+            f"{name:<6} {wrong:>10}  {100 * row['position_rmse_m']:>18.2f}  "
+            f"{'-' if right is None else f'{100 * right:.2f}':>29}  {100 * row['position_rmse_median_m']:>20.2f}  "
+            f"{1000 * row['gripper_mae_m']:>16.2f}"
+        )
+    return lines
+
+
+def features_line(weights: str) -> str:
+    """Which weights the features came from, from the extractor's weights name (perception.weights.Weights)."""
+    if weights.startswith("random:"):
+        said = "seeded random weights, calibrated on the training frames (not ImageNet's: the demo downloads nothing)"
+    elif weights.startswith("imagenet:"):
+        said = "ImageNet weights"
+    else:
+        said = "the weights of a file"
+    return f"features: MobileNet-v2 with {said} ({weights})"
 
 
 def viewer_command() -> str:

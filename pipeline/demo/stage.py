@@ -73,7 +73,7 @@ from cnep.pipeline.replay.stage import replay
 from cnep.pipeline.train.constants import SCENE
 from cnep.pipeline.train.stage import TrainStageConfig, train
 from cnep.pipeline.workers import single_thread_processes
-from cnep.recordings import read_demonstration
+from cnep.recordings import read_demonstration, read_trajectory
 
 log = logging.getLogger(__name__)
 
@@ -108,7 +108,8 @@ class DemoResult:
     rrd: list[Path]  # one .rrd per replayed recording: RRD_FILE (the scene change) first
     checkpoints: dict[str, Path]
     behaviours: dict[str, dict]  # scene-decided behaviour -> {"n", "expert", "purity", "experts": {expert: count}}
-    heldout: dict[str, dict]  # model -> {"position_rmse_m", "gripper_mae_m", "behaviour_accuracy", "n"}
+    heldout: dict[str, dict]  # model -> measures.heldout_errors: scenes read as the wrong behaviour, position errors
+    feature_weights: str  # the weights the features came from: the extractor's weights name (perception.weights)
     scene_change: list[dict]  # per scene-change recording: label, switch step, expert before/after, switches
     free_choice: dict[str, dict]  # model -> place_outcomes on the held-out free-choice scenes
     free_choice_replay: list[dict]  # per replayed free-choice recording: label, choice, its step, commitment, census
@@ -297,6 +298,7 @@ def _run_stages(config: DemoConfig, out: Path, size: DemoSize, seconds: dict[str
                 name: heldout_errors(ckpt, trajectories["heldout"], decided, labels)
                 for name, ckpt in checkpoints.items()
             },
+            feature_weights=read_trajectory(trajectories["train"][0]).extractor["weights"],
             scene_change=scene_change_switches(out / RRD_FILE, trajectories["scene_change"], labels, switch_steps),
             free_choice={
                 name: place_outcomes(generated_ends(*trained_rows(ckpt, trajectories["free_choice"])))

@@ -120,8 +120,16 @@ def test_summary_covers_behaviours_models_and_the_scene_change(demo_run):
         assert 0 <= row["expert"] < 4
     for model in ("CNEP", "CNMP"):
         row = summary["heldout"][model]
-        assert row["n"] == N_HELDOUT and 0 < row["position_rmse_m"] < 1.0 and 0 <= row["behaviour_accuracy"] <= 1
+        assert row["n"] == N_HELDOUT and 0 < row["position_rmse_m"] < 1.0 and 0 <= row["wrong_behaviour"] <= N_HELDOUT
+        right = row["position_rmse_read_right_m"]  # the RMSE over the scenes read right: all of them, some, none
+        if row["wrong_behaviour"] == 0:
+            assert right == pytest.approx(row["position_rmse_m"])
+        else:
+            assert (right is None) == (row["wrong_behaviour"] == N_HELDOUT)
         assert 0 < row["position_rmse_median_m"] <= row["position_rmse_m"] * np.sqrt(N_HELDOUT)
+    # the training split is extracted with the seeded random weights; the others with those weights saved
+    weights = read_trajectory(demo_run / "trajectories" / "train" / "demo_000.mcap").extractor["weights"]
+    assert summary["feature_weights"] == weights and weights.startswith("random:seed=0+calibrated")
     (change,) = summary["scene_change"]
     assert "->" in change["behaviour"] and 0 < change["change_step"] < QUICK.steps
     for model in ("CNEP", "CNMP"):
@@ -221,3 +229,25 @@ def test_precision_reaches_every_extraction_quantised_on_the_training_frames(tmp
     train = tmp_path / "run" / "demos" / "train"
     assert [c.inputs[0].name for c in configs] == ["train", "heldout", "scene_change", "free_choice"]
     assert {(c.precision, c.calibrate_on) for c in configs} == {("int8", (train,))}
+
+
+def test_the_printed_summary_counts_the_scenes_read_wrong_apart_and_names_the_weights():
+    from cnep.pipeline.demo.report import features_line, heldout_lines
+
+    row = {"n": 20, "position_rmse_m": 0.0864, "position_rmse_median_m": 0.029, "gripper_mae_m": 0.0029}
+    lines = heldout_lines(
+        {
+            "CNEP": {**row, "wrong_behaviour": 2, "position_rmse_read_right_m": 0.0301},
+            "CNMP": {**row, "wrong_behaviour": 20, "position_rmse_read_right_m": None},
+        }
+    )
+    header = lines[2]
+    cnep, cnmp = lines[3].split(), lines[4].split()
+    assert header.startswith("model  read wrong  position RMSE (cm)  RMSE of those read right (cm)")
+    assert cnep[:6] == ["CNEP", "2", "of", "20", "8.64", "3.01"] and cnmp[:6] == ["CNMP", "20", "of", "20", "8.64", "-"]
+    assert all(len(line) <= len(header) for line in lines[3:])  # the columns line up under the header
+    said = features_line("random:seed=3+calibrated:bias=2.0,frames=256")
+    assert "seeded random weights" in said and "(random:seed=3+calibrated:bias=2.0,frames=256)" in said
+    assert "ImageNet weights (imagenet:mobilenet_v2-b0353104.pth)" in features_line(
+        "imagenet:mobilenet_v2-b0353104.pth"
+    )
