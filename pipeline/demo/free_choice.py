@@ -20,6 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from cnep.pipeline.demo.scene import SLOT_XY
+from cnep.pipeline.replay.conditioning import SURE_GATE
 from cnep.pipeline.train.checkpoint import TrainedModel
 
 # A motion ends in a slot when its last xy lies within this distance (m) of the slot's nominal centre. The
@@ -27,7 +28,7 @@ from cnep.pipeline.train.checkpoint import TrainedModel
 # point by 0.6 cm (std) around the slot centre.
 PLACE_TOLERANCE = 0.05
 COMMIT_GATE = 0.9  # the gate has committed once one expert holds at least this probability until the end
-SPLIT_GATE = 0.7  # the gate starts split when no expert holds this probability at step 0
+SPLIT_GATE = SURE_GATE  # the gate starts split when no expert holds this probability at step 0
 
 
 def place_outcomes(ends_xy: np.ndarray, tolerance: float = PLACE_TOLERANCE) -> dict:

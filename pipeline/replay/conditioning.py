@@ -16,6 +16,9 @@ import numpy as np
 from cnep.models import CNEP, ConditioningPolicy, ExpertSwitch, OnlineConditioner
 
 DEFAULT_PREDICTION_POINTS = 25  # points of the predicted remaining trajectory drawn per step
+# The gate is unsure at a step where its active expert holds less than this probability: the replay shows such
+# a step as unsure, not as a commitment to that expert (a first read from an ambiguous first frame often is).
+SURE_GATE = 0.7
 
 
 @dataclass
@@ -31,6 +34,10 @@ class Decisions:
     experts: np.ndarray
     switches: list[ExpertSwitch]
     predictions: np.ndarray | None
+
+    def unsure(self, sure: float = SURE_GATE) -> np.ndarray:
+        """(T,) bool: the active expert holds less than `sure` of the gate at that step."""
+        return self.gates[np.arange(len(self.experts)), self.experts] < sure
 
     def share(self) -> np.ndarray:
         """(d,) fraction of the steps each expert was active."""

@@ -1,7 +1,7 @@
 """The replay in Rerun: one recording stream per replayed trajectory, written to a file and, if one answers,
 to a live viewer.
 
-One `log_<source>()` function per source (camera, pose, gate, active expert, switches) sends whole
+One `log_<source>()` function per source (camera, pose, gate, active expert, first read and switches) sends whole
 columns at once (`send_columns`); where each goes is `pipeline.replay.viewer`. `merge_rrd` puts several
 single-recording files into one with rerun's own merge, `rrd_files` names the files of several recordings;
 `viewer_reachable` probes a viewer before streaming to it (a warning when none answers, never a hang) and
@@ -103,7 +103,7 @@ def write_recording(recording_id: str, name: str, traj: Trajectory, decisions: D
     log_active_expert(rec, traj, decisions, d)
     log_switches(rec, traj, decisions)
     if decisions.predictions is not None:
-        colors = [L.expert_colors(d)[e] for e in decisions.experts]  # the active expert's colour at each step
+        colors = [c for _, c in shown_states(decisions)]  # the active expert's colour, grey where unsure
         rec.send_columns(
             L.PREDICTION,
             indexes=index,
@@ -156,27 +156,54 @@ def change_index(traj: Trajectory, steps: list[int]):
     return [rr.TimeColumn(L.TIMELINE_FRAME, sequence=steps), rr.TimeColumn(L.TIMELINE_TIME, duration=since_start)]
 
 
+def shown_states(decisions: Decisions) -> list[tuple[str, tuple[int, int, int]]]:
+    """(T,) the state the active-expert lane shows at each step and its colour: the active expert, or L.UNSURE where
+    the gate is unsure (`Decisions.unsure`)."""
+    d = decisions.gates.shape[1]
+    return [
+        (L.UNSURE, L.UNSURE_COLOR) if unsure else (L.expert_name(int(e)), L.expert_colors(d)[e])
+        for e, unsure in zip(decisions.experts, decisions.unsure())
+    ]
+
+
 def log_active_expert(rec, traj: Trajectory, decisions: Decisions, d: int) -> None:
-    """The active expert as a colour lane: a StateChange at the first step and at each switch."""
+    """The active expert as a colour lane (`shown_states`): a StateChange at the first step and at each change."""
     import rerun as rr
 
-    rec.log(L.ACTIVE_EXPERT, rr.StateConfiguration(values=L.expert_names(d), colors=L.expert_colors(d)), static=True)
-    steps = [0] + [s.step for s in decisions.switches]
-    states = [L.expert_name(int(decisions.experts[k])) for k in steps]
-    rec.send_columns(L.ACTIVE_EXPERT, indexes=change_index(traj, steps), columns=rr.StateChange.columns(state=states))
+    rec.log(
+        L.ACTIVE_EXPERT,
+        rr.StateConfiguration(values=[*L.expert_names(d), L.UNSURE], colors=[*L.expert_colors(d), L.UNSURE_COLOR]),
+        static=True,
+    )
+    states = [state for state, _ in shown_states(decisions)]
+    steps = [k for k in range(len(states)) if k == 0 or states[k] != states[k - 1]]
+    rec.send_columns(
+        L.ACTIVE_EXPERT,
+        indexes=change_index(traj, steps),
+        columns=rr.StateChange.columns(state=[states[k] for k in steps]),
+    )
+
+
+def first_read_text(gate: np.ndarray, sure: bool) -> str:
+    """The log line of the gate's step-0 read (d,): the expert it is sure of, or that it is unsure and between which
+    experts (those above a tenth, most probable first)."""
+    ranked = [int(e) for e in np.argsort(-gate) if gate[e] >= 0.1] or [int(gate.argmax())]
+    if sure:
+        return f"step 0 (0.00 s): first read {L.expert_name(ranked[0])} (p = {gate[ranked[0]]:.2f})"
+    between = ", ".join(f"{L.expert_name(e)} {gate[e]:.2f}" for e in ranked)
+    return f"step 0 (0.00 s): first read unsure ({between})"
 
 
 def log_switches(rec, traj: Trajectory, decisions: Decisions) -> None:
-    """One TextLog line per switch, at the step of the switch."""
+    """The TextLog: the first read at step 0 (`first_read_text`), then one line per switch, at its step."""
     import rerun as rr
 
-    if not decisions.switches:
-        return
     start = int(traj.timestamps_ns[0])
-    texts = [switch_text(s, start) for s in decisions.switches]
+    texts = [first_read_text(decisions.gates[0], not decisions.unsure()[0])]
+    texts += [switch_text(s, start) for s in decisions.switches]
     rec.send_columns(
         L.SWITCH_LOG,
-        indexes=change_index(traj, [s.step for s in decisions.switches]),
+        indexes=change_index(traj, [0] + [s.step for s in decisions.switches]),
         columns=rr.TextLog.columns(text=texts, level=["INFO"] * len(texts)),
     )
 

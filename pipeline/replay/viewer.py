@@ -16,9 +16,11 @@ CAMERA = "/camera/rgb"  # EncodedImage: the stored JPEG bytes
 EE = "/world/ee"  # Transform3D: end-effector pose per step
 EE_PATH = "/world/ee_path"  # LineStrips3D, static: the whole recorded path
 PREDICTION = "/world/prediction"  # LineStrips3D per step: the active expert's remaining trajectory, in its colour
+# (UNSURE_COLOR where the gate is unsure)
 GATES = "/gates"  # Scalars, d per step: the gate probabilities, one named, coloured series per expert
-ACTIVE_EXPERT = "/active_expert"  # StateChange at the first step and at each switch (+ StateConfiguration)
-SWITCH_LOG = "/log/experts"  # TextLog: one line per switch
+ACTIVE_EXPERT = "/active_expert"  # StateChange at the first step and where the shown state changes: the active
+# expert, or UNSURE where the gate is unsure (+ StateConfiguration)
+SWITCH_LOG = "/log/experts"  # TextLog: the first read (step 0), then one line per switch
 WORLD = "/world"
 TIMING = "/timing"  # `cnep run` only: how long each policy step took against the frame period
 STEP_TIME = "/timing/step_ms"  # Scalars per step: the milliseconds the policy's step took
@@ -38,6 +40,8 @@ PALETTE = (
     (23, 190, 207),
 )
 PATH_COLOR = (200, 200, 200)
+UNSURE = "unsure"  # the active-expert lane's state at steps where the gate is unsure (conditioning.SURE_GATE)
+UNSURE_COLOR = (160, 160, 160)  # that state's colour, and the predicted path's at those steps
 GATE_AXIS = (-0.05, 1.05)  # the gate plot's y range: probabilities of exactly 0 and 1 stay clear of the border
 
 
@@ -59,9 +63,10 @@ def blueprint(n_experts: int, camera: bool = True, timing: bool = False):
     step times are shown (`cnep run`: a plot of TIMING below the gate).
 
     Left: the camera (only when the recording has frames) above the 3D view (end-effector pose,
-    recorded path, the predicted trajectory in the active expert's colour). Right: the gate
-    probabilities over time (one named, coloured series per expert, y in GATE_AXIS), the active
-    expert as a colour lane, and the log of expert switches (its text only: `step 18 (1.80 s): ...`).
+    recorded path, the predicted trajectory in the active expert's colour, grey where the gate is unsure).
+    Right: the gate probabilities over time (one named, coloured series per expert, y in GATE_AXIS), the
+    active expert as a colour lane (`unsure` where the gate is), and the log of the first read and the
+    expert switches (its text only: `step 18 (1.80 s): ...`).
     The recordings list (left panel) and the time panel stay open; the selection panel is collapsed.
     """
     import rerun as rr

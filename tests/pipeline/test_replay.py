@@ -19,8 +19,9 @@ import cnep.pipeline.replay.viewer as L
 from cnep.models import CNEPConfig, ColumnRoles, build_model, save_checkpoint
 from cnep.pipeline.cli.main import main
 from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.replay.conditioning import SURE_GATE
 from cnep.pipeline.replay.decisions import decisions_path, read_decisions
-from cnep.pipeline.replay.rerun_log import serve, viewer_reachable
+from cnep.pipeline.replay.rerun_log import first_read_text, serve, viewer_reachable
 from cnep.pipeline.replay.stage import replay
 from cnep.recordings import Episode, Trajectory, read_events, write_trajectory
 from cnep.recordings.constants import BLOCKS_FULL, BLOCKS_MOTION, MOTION_DIM, STEP_DIM
@@ -146,12 +147,17 @@ def test_the_rrd_holds_one_gate_row_per_step_and_switches_at_argmax_changes(tmp_
     assert len(changes) >= 2, "the test data should make the gate switch"
 
     log_frames, texts = column(out, L.SWITCH_LOG, "TextLog:text")
-    assert log_frames == changes
-    for k, (text,) in zip(changes, texts):
+    assert log_frames == [0] + changes
+    assert texts[0][0].startswith("step 0 (0.00 s): first read ")
+    for k, (text,) in zip(changes, texts[1:]):
         assert text.startswith(f"step {k} ") and f"expert {argmax[k - 1]} -> expert {argmax[k]}" in text
+    # the lane shows the active expert, or "unsure" where it holds less than SURE_GATE, from each change of that on
+    unsure = gates.max(1) < SURE_GATE
+    assert 0 < unsure.sum() < 40, "the test data should make the gate unsure at some steps, sure at others"
+    shown = [L.UNSURE if unsure[k] else f"expert {argmax[k]}" for k in range(40)]
     state_frames, states = column(out, L.ACTIVE_EXPERT, "StateChange:state")
-    assert state_frames == [0] + changes
-    assert states == [[f"expert {argmax[k]}"] for k in [0] + changes]
+    assert state_frames == [k for k in range(40) if k == 0 or shown[k] != shown[k - 1]]
+    assert states == [[shown[k]] for k in state_frames]
 
     image_frames, blobs = column(out, L.CAMERA, "EncodedImage:blob")
     assert image_frames == list(range(40))
@@ -162,8 +168,8 @@ def test_the_rrd_holds_one_gate_row_per_step_and_switches_at_argmax_changes(tmp_
     pred_frames, strips = column(out, L.PREDICTION, "LineStrips3D:strips")
     assert pred_frames == list(range(40)) and len(strips[0][0]) > 1
     _, colors = column(out, L.PREDICTION, "LineStrips3D:colors")  # the active expert's colour, packed RGBA
-    packed = [(r << 24) | (g << 16) | (b << 8) | 255 for r, g, b in L.expert_colors(N_EXPERTS)]
-    assert [c[0] for c in colors] == [packed[e] for e in argmax]
+    packed = [(r << 24) | (g << 16) | (b << 8) | 255 for r, g, b in [*L.expert_colors(N_EXPERTS), L.UNSURE_COLOR]]
+    assert [c[0] for c in colors] == [packed[-1] if u else packed[e] for e, u in zip(argmax, unsure)]
     time_rows = [
         c.to_record_batch().column(L.TIMELINE_TIME).to_pylist() for c in chunks(out, L.GATES) if not c.is_static
     ]
@@ -441,3 +447,10 @@ def test_a_feature_checkpoint_that_names_no_extractor_is_refused(tmp_path):
         r"names no feature extractor",
     ):
         replay(ckpt, [rec], tmp_path / "x.rrd", connect=None, quiet=True)
+
+
+def test_the_first_read_says_when_the_gate_is_unsure_and_between_which_experts():
+    sure = first_read_text(np.array([0.02, 0.95, 0.03, 0.0]), sure=True)
+    assert sure == "step 0 (0.00 s): first read expert 1 (p = 0.95)"
+    unsure = first_read_text(np.array([0.05, 0.28, 0.0, 0.67]), sure=False)
+    assert unsure == "step 0 (0.00 s): first read unsure (expert 3 0.67, expert 1 0.28)"
