@@ -167,6 +167,12 @@ class TrainConfig:
     n_max: int = setting(10, "most observations per sample (n ~ U{1..n_max})")
     m_max: int = setting(10, "most targets per sample (m ~ U{1..m_max})")
     obs_noise: float = setting(0.0, "std of the noise added to training contexts' observed values (normalised units)")
+    # The first steps are the context a robot has before it moves, from which a deployed model reads its behaviour;
+    # 0 keeps the paper's random contexts only (where trajectories share their first steps, those tell nothing).
+    first_steps_fraction: float = setting(
+        0.0, "share of training and validation contexts that are a trajectory's first k ~ U{1..first_steps_max} steps"
+    )
+    first_steps_max: int = setting(4, "most steps in such a first-steps context")
     lr: float = setting(1e-3, "peak learning rate of Adam")
     warmup_steps: int = setting(2_000, "steps of linear learning-rate warm-up")
     gate_freeze_fraction: float = setting(0.3, "share of the steps with the gate held uniform")
@@ -186,6 +192,11 @@ class TrainConfig:
         if self.gate_lr_scale is not None and not self.gate_lr_scale > 0:
             raise ConfigError(
                 f"gate_lr_scale must be > 0 (use gate_freeze_fraction to hold the gate), got {self.gate_lr_scale}."
+            )
+        if not 0 <= self.first_steps_fraction <= 1 or self.first_steps_max < 1:
+            raise ConfigError(
+                f"first_steps_fraction must be in [0, 1] and first_steps_max >= 1, got {self.first_steps_fraction} "
+                f"and {self.first_steps_max}."
             )
         if not self.obs_noise >= 0:
             raise ConfigError(f"obs_noise must be >= 0 (a standard deviation), got {self.obs_noise}.")

@@ -2,8 +2,10 @@
 
 Each sample: a trajectory i, n ~ U{1..min(n_max, T_i)} observation steps and m ~ U{1..min(m_max, T_i)}
 target steps, each set drawn without replacement (the two sets are independent). Time of step k of a
-trajectory of length T is k / (T - 1), so 0 and 1 are both reachable. Training batches may add noise
-to the observed values (`TrainConfig.obs_noise`); the targets always stay clean.
+trajectory of length T is k / (T - 1), so 0 and 1 are both reachable. A share of the samples
+(`TrainConfig.first_steps_fraction`) observe the trajectory's first k ~ U{1..first_steps_max} steps instead: the
+context a robot has before it moves, from which a deployed model reads which behaviour to follow. Training batches may
+add noise to the observed values (`TrainConfig.obs_noise`); the targets always stay clean.
 """
 
 from __future__ import annotations
@@ -66,14 +68,37 @@ def _random_steps(lengths: torch.Tensor, k_max: int, T: int, g: torch.Generator)
     return steps, mask
 
 
+def _first_steps(
+    steps: torch.Tensor, mask: torch.Tensor, lengths: torch.Tensor, fraction: float, k_max: int, g: torch.Generator
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """`steps`, `mask` (B, n) with each sample, at probability `fraction`, replaced by the trajectory's first
+    k ~ U{1..k_max} steps (at most n and its length)."""
+    B, n = steps.shape
+    first = torch.rand(B, generator=g) < fraction  # (B,)
+    k = 1 + (torch.rand(B, generator=g) * k_max).long()  # (B,) ~ U{1..k_max}
+    order = torch.arange(n)  # the first n steps, in order
+    first_mask = order < torch.minimum(k, lengths).unsqueeze(1)  # (B, n)
+    return torch.where(first[:, None], order, steps), torch.where(first[:, None], first_mask, mask)
+
+
 def sample_batch(
-    stack: TrajectoryStack, batch_size: int, n_max: int, m_max: int, g: torch.Generator, obs_noise: float = 0.0
+    stack: TrajectoryStack,
+    batch_size: int,
+    n_max: int,
+    m_max: int,
+    g: torch.Generator,
+    obs_noise: float = 0.0,
+    first_steps: tuple[float, int] = (0.0, 1),
 ) -> Batch:
-    """A batch; `obs_noise` > 0 adds Gaussian noise of that std to the observed values (not the times)."""
+    """A batch; `obs_noise` > 0 adds Gaussian noise of that std to the observed values (not the times);
+    `first_steps` (fraction, k_max): the share of samples that observe their trajectory's first k ~ U{1..k_max} steps
+    (fraction 0 draws nothing for it, so the batches are those drawn without it)."""
     traj = torch.randint(len(stack), (batch_size,), generator=g)  # (B,)
     lengths, T = stack.lengths[traj], stack.observed.shape[1]
     obs_steps, obs_mask = _random_steps(lengths, n_max, T, g)  # (B, n)
     tgt_steps, tgt_mask = _random_steps(lengths, m_max, T, g)  # (B, m)
+    if first_steps[0] > 0:
+        obs_steps, obs_mask = _first_steps(obs_steps, obs_mask, lengths, *first_steps, g)
     rows = traj.unsqueeze(1)  # (B, 1)
     values = stack.observed[rows, obs_steps]  # (B, n, obs_dim)
     if obs_noise:

@@ -124,11 +124,19 @@ class Trainer:
         self.generator = torch.Generator().manual_seed(self.cfg.seed)
         val_gen = torch.Generator().manual_seed(self.cfg.seed + 1)
         self.val_batches = [
-            sample_batch(self.val, VAL_BATCH_SIZE, self.cfg.n_max, self.cfg.m_max, val_gen) for _ in range(VAL_BATCHES)
+            sample_batch(
+                self.val, VAL_BATCH_SIZE, self.cfg.n_max, self.cfg.m_max, val_gen, first_steps=self.first_steps
+            )
+            for _ in range(VAL_BATCHES)
         ]
         self.freeze_steps = int(self.cfg.gate_freeze_fraction * self.cfg.steps)
         # validations before this step are logged but never kept as the best model (models.loss.settled_fraction)
         self.keep_from = int(settled_fraction(self.model.config.assignment) * self.cfg.steps)
+
+    @property
+    def first_steps(self) -> tuple[float, int]:
+        """The sampler's share of first-steps contexts and their most steps (`TrainConfig.first_steps_*`)."""
+        return self.cfg.first_steps_fraction, self.cfg.first_steps_max
 
     @property
     def device(self) -> torch.device:
@@ -138,7 +146,13 @@ class Trainer:
     def next_batch(self) -> Batch:
         """The next training batch from this run's generator, on the model's device."""
         return sample_batch(
-            self.train, self.cfg.batch_size, self.cfg.n_max, self.cfg.m_max, self.generator, self.cfg.obs_noise
+            self.train,
+            self.cfg.batch_size,
+            self.cfg.n_max,
+            self.cfg.m_max,
+            self.generator,
+            self.cfg.obs_noise,
+            self.first_steps,
         ).to(self.device)
 
     def train_step(self) -> dict[str, float]:

@@ -31,6 +31,8 @@ TRAIN_OPTIONS = (
     "gate_freeze_fraction",
     "gate_lr_scale",
     "obs_noise",
+    "first_steps_fraction",
+    "first_steps_max",
     "patience",
     "seed",
     "threads",

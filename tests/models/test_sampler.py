@@ -63,3 +63,32 @@ def test_observation_noise_moves_the_observed_values_only():
         torch.testing.assert_close(getattr(noisy, name), getattr(clean, name))
     shift = (noisy.obs[..., 1:] - clean.obs[..., 1:])[clean.obs_mask]  # (real points, obs_dim)
     assert 0.4 < float(shift.std()) < 0.6 and abs(float(shift.mean())) < 0.1
+
+
+def test_first_steps_contexts_are_a_trajectorys_first_k_steps_in_the_share_asked():
+    stack, lengths = _stack(lengths=(3, 12, 30))
+    b = sample_batch(stack, 2000, 10, 10, torch.Generator().manual_seed(7), first_steps=(0.25, 4))
+    first = 0
+    ks = set()
+    for i in range(2000):
+        mask = b.obs_mask[i]
+        step = b.obs[i, mask, 1]
+        T = lengths[int(b.obs[i, mask, 2][0])]
+        k = len(step)
+        if k <= min(4, T) and torch.equal(step, torch.arange(k, dtype=step.dtype)):
+            first += 1
+            ks.add(k)
+    # a random context is 0, 1, ... by chance only rarely (a 3-step trajectory's contexts most often)
+    assert 0.22 < first / 2000 < 0.32 and ks == {1, 2, 3, 4}
+    clean = sample_batch(stack, 2000, 10, 10, torch.Generator().manual_seed(7))
+    torch.testing.assert_close(b.target, clean.target)  # the targets stay random steps
+    assert (b.obs_mask.sum(1) <= torch.tensor(lengths)[b.obs[:, 0, 2].long()]).all()
+
+
+def test_no_first_steps_draws_the_batches_drawn_without_them():
+    stack, _ = _stack()
+    g, h = torch.Generator().manual_seed(8), torch.Generator().manual_seed(8)
+    for _ in range(3):  # the generator's state after each batch too
+        a = sample_batch(stack, 16, 10, 10, g, first_steps=(0.0, 4))
+        b = sample_batch(stack, 16, 10, 10, h)
+        torch.testing.assert_close(a.obs, b.obs)

@@ -145,3 +145,13 @@ def test_fit_trains_on_the_configs_threads_and_restores_the_count(monkeypatch, t
     finally:
         torch.set_num_threads(before)
     assert TrainConfig().threads == 1  # the stages' count (models.threads.SMALL_MODEL_THREADS)
+
+
+def test_first_steps_contexts_reach_the_training_and_validation_batches():
+    trajs, _ = two_mode_trajectories()
+    cfg = dataclasses.replace(QUICK, first_steps_fraction=1.0, first_steps_max=1)
+    trainer, _ = prepare_fit(trajs, CNEPConfig(**SMALL), cfg)
+    for batch in [trainer.next_batch(), *trainer.val_batches]:  # every context: the first step alone, at t = 0
+        assert (batch.obs_mask.sum(1) == 1).all() and (batch.obs[:, 0, 0] == 0).all()
+    plain, _ = prepare_fit(trajs, CNEPConfig(**SMALL), QUICK)
+    assert (plain.next_batch().obs_mask.sum(1) > 1).any()
