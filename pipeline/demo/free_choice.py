@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from cnep.pipeline.demo.scene import SLOT_XY
-from cnep.pipeline.replay.conditioning import SURE_GATE
+from cnep.pipeline.replay.viewer import SURE_GATE
 from cnep.pipeline.train.checkpoint import TrainedModel
 
 # A motion ends in a slot when its last xy lies within this distance (m) of the slot's nominal centre. The

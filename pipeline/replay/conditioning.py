@@ -14,11 +14,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from cnep.models import CNEP, ConditioningPolicy, ExpertSwitch, OnlineConditioner
+from cnep.pipeline.replay.viewer import SURE_GATE
 
 DEFAULT_PREDICTION_POINTS = 25  # points of the predicted remaining trajectory drawn per step
-# The gate is unsure at a step where its active expert holds less than this probability: the replay shows such
-# a step as unsure, not as a commitment to that expert (a first read from an ambiguous first frame often is).
-SURE_GATE = 0.7
 
 
 @dataclass

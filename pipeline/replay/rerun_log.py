@@ -156,25 +156,31 @@ def change_index(traj: Trajectory, steps: list[int]):
     return [rr.TimeColumn(L.TIMELINE_FRAME, sequence=steps), rr.TimeColumn(L.TIMELINE_TIME, duration=since_start)]
 
 
+def shown_state(gate: np.ndarray, expert: int) -> tuple[str, tuple[int, int, int]]:
+    """The state the active-expert lane shows for a step's gate (d,) and active expert, and its colour: the expert,
+    or L.UNSURE where it holds less than L.SURE_GATE."""
+    if gate[expert] < L.SURE_GATE:
+        return L.UNSURE, L.UNSURE_COLOR
+    return L.expert_name(int(expert)), L.expert_colors(len(gate))[expert]
+
+
 def shown_states(decisions: Decisions) -> list[tuple[str, tuple[int, int, int]]]:
-    """(T,) the state the active-expert lane shows at each step and its colour: the active expert, or L.UNSURE where
-    the gate is unsure (`Decisions.unsure`)."""
-    d = decisions.gates.shape[1]
-    return [
-        (L.UNSURE, L.UNSURE_COLOR) if unsure else (L.expert_name(int(e)), L.expert_colors(d)[e])
-        for e, unsure in zip(decisions.experts, decisions.unsure())
-    ]
+    """(T,) `shown_state` at each step of a replayed recording."""
+    return [shown_state(gate, int(e)) for gate, e in zip(decisions.gates, decisions.experts)]
+
+
+def active_expert_states(d: int):
+    """The active-expert lane's StateConfiguration for `d` experts: each expert in its colour, and L.UNSURE."""
+    import rerun as rr
+
+    return rr.StateConfiguration(values=[*L.expert_names(d), L.UNSURE], colors=[*L.expert_colors(d), L.UNSURE_COLOR])
 
 
 def log_active_expert(rec, traj: Trajectory, decisions: Decisions, d: int) -> None:
     """The active expert as a colour lane (`shown_states`): a StateChange at the first step and at each change."""
     import rerun as rr
 
-    rec.log(
-        L.ACTIVE_EXPERT,
-        rr.StateConfiguration(values=[*L.expert_names(d), L.UNSURE], colors=[*L.expert_colors(d), L.UNSURE_COLOR]),
-        static=True,
-    )
+    rec.log(L.ACTIVE_EXPERT, active_expert_states(d), static=True)
     states = [state for state, _ in shown_states(decisions)]
     steps = [k for k in range(len(states)) if k == 0 or states[k] != states[k - 1]]
     rec.send_columns(

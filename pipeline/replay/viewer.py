@@ -40,7 +40,10 @@ PALETTE = (
     (23, 190, 207),
 )
 PATH_COLOR = (200, 200, 200)
-UNSURE = "unsure"  # the active-expert lane's state at steps where the gate is unsure (conditioning.SURE_GATE)
+# The gate is unsure at a step where its active expert holds less than this probability: the replay and the run
+# show such a step as unsure, not as a commitment to that expert (a first read from an ambiguous first frame often is).
+SURE_GATE = 0.7
+UNSURE = "unsure"  # the active-expert lane's state at steps where the gate is unsure
 UNSURE_COLOR = (160, 160, 160)  # that state's colour, and the predicted path's at those steps
 GATE_AXIS = (-0.05, 1.05)  # the gate plot's y range: probabilities of exactly 0 and 1 stay clear of the border
 

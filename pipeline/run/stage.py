@@ -37,7 +37,15 @@ from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.inputs import find_demonstration_files
 from cnep.pipeline.ownership import RRD, OutputKind, json_with
-from cnep.pipeline.replay.rerun_log import FLUSH_TIMEOUT_S, recording_name, rrd_files, viewer_reachable
+from cnep.pipeline.replay.rerun_log import (
+    FLUSH_TIMEOUT_S,
+    active_expert_states,
+    first_read_text,
+    recording_name,
+    rrd_files,
+    shown_state,
+    viewer_reachable,
+)
 from cnep.pipeline.run.config import EXPORTED, RunConfig, policy_kind
 from cnep.recordings import Demonstration, read_demonstration
 from cnep.recordings.constants import TOPIC_IMAGE
@@ -180,7 +188,7 @@ def run_recording(policy: Policy, demo: Demonstration, path: Path, rec, realtime
     step_s = np.empty(demo.n_steps)
     switches = 0
     policy.reset()
-    start = time.perf_counter()
+    start, shown = time.perf_counter(), None
     for k, observation in enumerate(observations(demo, path, camera=policy.uses_camera)):
         if realtime:
             time.sleep(max(0.0, start + observation[TIMESTAMP_KEY] - time.perf_counter()))
@@ -188,7 +196,7 @@ def run_recording(policy: Policy, demo: Demonstration, path: Path, rec, realtime
         result = policy.step(observation)
         step_s[k] = time.perf_counter() - before
         switches += result.switch is not None
-        log_step(rec, demo, k, result, step_s[k], period_s, policy.n_experts)
+        shown = log_step(rec, demo, k, result, step_s[k], period_s, shown)
     return RecordingRun(path, step_s, period_s, switches)
 
 
@@ -215,16 +223,17 @@ def log_recording(rec, demo: Demonstration, policy: Policy, period_s: float) -> 
     rec.log(L.EE, rr.TransformAxes3D(axis_length=0.05), static=True)
     rec.log(L.EE_PATH, rr.LineStrips3D([demo.pose[:, :3]], colors=[L.PATH_COLOR]), static=True)
     rec.log(L.GATES, rr.SeriesLines(names=L.expert_names(d), colors=L.expert_colors(d)), static=True)
-    rec.log(L.ACTIVE_EXPERT, rr.StateConfiguration(values=L.expert_names(d), colors=L.expert_colors(d)), static=True)
+    rec.log(L.ACTIVE_EXPERT, active_expert_states(d), static=True)
     rec.log(L.STEP_TIME, rr.SeriesLines(names=["step"]), static=True)
     rec.log(L.FRAME_PERIOD, rr.SeriesLines(names=["frame period"], colors=[L.PATH_COLOR]), static=True)
 
 
 def log_step(
-    rec, demo: Demonstration, k: int, result: PolicyStep, step_s: float, period_s: float, n_experts: int
-) -> None:
-    """Step k: the frame, the recorded pose, the predicted waypoints, the gate, the expert, a switch, its time
-    beside the frame period."""
+    rec, demo: Demonstration, k: int, result: PolicyStep, step_s: float, period_s: float, shown: str | None
+) -> str:
+    """Step k: the frame, the recorded pose, the predicted waypoints, the gate, the active expert (`unsure` where
+    the gate is: `shown_state`; logged when it changes from `shown`, the previous step's), the first read or a
+    switch, its time beside the frame period. Returns the active-expert state shown at this step."""
     import rerun as rr
 
     rec.set_time(L.TIMELINE_FRAME, sequence=k)
@@ -233,11 +242,13 @@ def log_step(
         rec.log(L.CAMERA, rr.EncodedImage(contents=demo.frames[k], media_type="image/jpeg"))
     pose = demo.pose[k]
     rec.log(L.EE, rr.Transform3D(translation=pose[:3], quaternion=pose[3:]))
-    color = L.expert_colors(n_experts)[result.expert]
+    state, color = shown_state(result.gate, result.expert)
     rec.log(L.PREDICTION, rr.LineStrips3D([np.vstack([pose[:3], result.waypoints[:, :3]])], colors=[color]))
     rec.log(L.GATES, rr.Scalars(result.gate))
-    if k == 0 or result.switch is not None:
-        rec.log(L.ACTIVE_EXPERT, rr.StateChange(state=L.expert_name(result.expert)))
+    if state != shown:
+        rec.log(L.ACTIVE_EXPERT, rr.StateChange(state=state))
+    if k == 0:
+        rec.log(L.SWITCH_LOG, rr.TextLog(first_read_text(result.gate, state != L.UNSURE), level="INFO"))
     if result.switch is not None:
         s = result.switch
         gate = ", ".join(f"{p:.2f}" for p in s.gate)
@@ -245,6 +256,7 @@ def log_step(
         rec.log(L.SWITCH_LOG, rr.TextLog(f"{text} (p = {gate})", level="INFO"))
     rec.log(L.STEP_TIME, rr.Scalars(step_s * 1e3))
     rec.log(L.FRAME_PERIOD, rr.Scalars(period_s * 1e3))
+    return state
 
 
 def summarise(runs: list[RecordingRun]) -> dict:

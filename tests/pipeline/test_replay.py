@@ -19,10 +19,10 @@ import cnep.pipeline.replay.viewer as L
 from cnep.models import CNEPConfig, ColumnRoles, build_model, save_checkpoint
 from cnep.pipeline.cli.main import main
 from cnep.pipeline.errors import PipelineError
-from cnep.pipeline.replay.conditioning import SURE_GATE
 from cnep.pipeline.replay.decisions import decisions_path, read_decisions
 from cnep.pipeline.replay.rerun_log import first_read_text, serve, viewer_reachable
 from cnep.pipeline.replay.stage import replay
+from cnep.pipeline.replay.viewer import SURE_GATE
 from cnep.recordings import Episode, Trajectory, read_events, write_trajectory
 from cnep.recordings.constants import BLOCKS_FULL, BLOCKS_MOTION, MOTION_DIM, STEP_DIM
 

@@ -9,11 +9,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import cnep.pipeline.replay.viewer as L
 from cnep.pipeline.cli.main import build_parser, main
+from cnep.pipeline.replay.rerun_log import first_read_text
 from cnep.pipeline.run import RunConfig, run, summarise
 from cnep.pipeline.run.stage import open_policy
 from cnep.recordings import read_demonstration, write_demonstration
 from cnep.runtime import TimeBase
+from tests.pipeline.test_replay import column
 from tests.recordings.factories import demonstration_factory
 from tests.runtime.test_torch_free import run_without_torch
 
@@ -53,6 +56,14 @@ def test_run_steps_each_recording_into_an_rrd_and_summarises_the_step_times(poli
     assert summary["recordings"][0]["frame_period_ms"] == pytest.approx(100)  # the demo records at 10 Hz
     printed = capsys.readouterr().out
     assert "total" in printed and "p99 ms" in printed and str(out) in printed
+    # the lane shows the active expert, or "unsure" where it holds less than SURE_GATE; the log opens with the read
+    _, gates = column(files[0], L.GATES, "Scalars:scalars")
+    shown = [L.UNSURE if max(g) < L.SURE_GATE else f"expert {int(np.argmax(g))}" for g in gates]
+    state_frames, states = column(files[0], L.ACTIVE_EXPERT, "StateChange:state")
+    assert state_frames == [k for k in range(len(shown)) if k == 0 or shown[k] != shown[k - 1]]
+    assert states == [[shown[k]] for k in state_frames]
+    _, texts = column(files[0], L.SWITCH_LOG, "TextLog:text")
+    assert texts[0][0] == first_read_text(np.array(gates[0]), shown[0] != L.UNSURE)
     code = main(["-q", "run", str(policy_world.exported), str(policy_world.heldout), "--out", str(out), "--fast"])
     assert code == 2  # the .rrd exists: refused without --force
     summary_file = tmp_path / "out" / "run.summary.json"
