@@ -64,7 +64,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     import shlex
-    import time
 
     from cnep.models.checkpoint import read_checkpoint_config
     from cnep.pipeline.inputs import TRAJECTORIES, existing_files
@@ -72,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
     read_checkpoint_config(args.checkpoint)  # refused before torch and rerun load with the stage
     existing_files(args.recordings, TRAJECTORIES)
     from cnep.pipeline.replay.decisions import decisions_path, read_decisions
-    from cnep.pipeline.replay.rerun_log import DEFAULT_VIEWER_URL, serve
+    from cnep.pipeline.replay.rerun_log import DEFAULT_VIEWER_URL, serve, serve_until_interrupted
     from cnep.pipeline.replay.stage import replay
 
     server = None
@@ -102,10 +101,5 @@ def run(args: argparse.Namespace) -> int:
         f"open one with `rerun {shlex.quote(str(files[0]))}`"
     )
     if server is not None:
-        print("serving until Ctrl-C")
-        try:
-            while True:
-                time.sleep(1.0)
-        except KeyboardInterrupt:
-            pass
+        serve_until_interrupted()
     return 0

@@ -59,7 +59,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import time
+    import shlex
     from pathlib import Path
 
     from cnep.pipeline.inputs import existing_files, find_demonstration_files
@@ -69,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
     find_demonstration_files(args.recordings)
     if args.extractor:
         existing_files([args.extractor], "the weights file the training features were made with")
-    from cnep.pipeline.replay.rerun_log import DEFAULT_VIEWER_URL
+    from cnep.pipeline.replay.rerun_log import DEFAULT_VIEWER_URL, serve_until_interrupted
     from cnep.pipeline.run.stage import format_summary, run, summarise, summary_path
 
     server = None
@@ -101,12 +101,7 @@ def run(args: argparse.Namespace) -> int:
 
         files = rrd_files(Path(args.out), [r.path for r in runs], merge=False)
         wrote = files[0] if len(files) == 1 else f"{len(files)} .rrd files, one per recording, beside {args.out}"
-        print(f"wrote {wrote} and {summary_path(args.out)}; open one with `rerun {files[0]}`")
+        print(f"wrote {wrote} and {summary_path(args.out)}; open one with `rerun {shlex.quote(str(files[0]))}`")
     if server is not None:
-        print("serving until Ctrl-C")
-        try:
-            while True:
-                time.sleep(1.0)
-        except KeyboardInterrupt:
-            pass
+        serve_until_interrupted()
     return 0

@@ -55,6 +55,18 @@ def serve(port: int = 9876):
     return server, server.serve_grpc(grpc_port=port)
 
 
+def serve_until_interrupted() -> None:
+    """Keep a `serve` server's data available to viewers until Ctrl-C (or SIGTERM, which cnep turns into it)."""
+    import time
+
+    print("serving until Ctrl-C")
+    try:
+        while True:
+            time.sleep(1.0)
+    except KeyboardInterrupt:
+        pass
+
+
 def rrd_files(out: Path, paths: list[Path], merge: bool) -> list[Path]:
     """The .rrd files of a replay: `out` for one recording (or all of them, merged), else one per recording beside it,
     `<out stem>-NN-<folder>-<file stem>.rrd` in the order given (a file holding one recording opens on it)."""
