@@ -19,6 +19,28 @@ def no_downloads(monkeypatch):
 
 
 @pytest.fixture
+def hub(tmp_path, monkeypatch):
+    """An empty torch hub cache, downloads allowed, no environment override: its checkpoints folder (not created)."""
+    from cnep.perception.constants import OFFLINE_ENV_VAR, WEIGHTS_ENV_VAR
+
+    monkeypatch.setenv("TORCH_HOME", str(tmp_path / "torch"))
+    monkeypatch.delenv(WEIGHTS_ENV_VAR, raising=False)
+    monkeypatch.delenv(OFFLINE_ENV_VAR, raising=False)
+    return tmp_path / "torch" / "hub" / "checkpoints"
+
+
+@pytest.fixture
+def served(tmp_path):
+    """(server, file name): a seeded MobileNet-v2 state dict served on 127.0.0.1 under a torchvision-style name."""
+    from tests.weights_server import WeightsServer, torchvision_named_weights
+
+    name = torchvision_named_weights(tmp_path / "www")
+    server = WeightsServer(tmp_path / "www")
+    yield server, name
+    server.close()
+
+
+@pytest.fixture
 def one_thread():
     """Tiny models train faster on one torch thread, and it leaves the other core to the rest."""
     import torch
@@ -32,14 +54,20 @@ def one_thread():
 @pytest.fixture(scope="session")
 def quick_demo(tmp_path_factory):
     """`cnep demo --quick` once per test session, its outputs in `<tmp>/cnep-demo` as `make demo` leaves them
-    (the rerun CLI it calls writes analytics under HOME unless CI is set: a temporary HOME, CI=1)."""
+    (the rerun CLI it calls writes analytics under HOME unless CI is set: a temporary HOME, CI=1). Offline with an
+    empty torch hub cache, as a machine without internet access runs it: the features come from seeded random
+    weights (a session fixture runs before the function fixtures that set the environment, so it sets its own)."""
     import torch
 
+    from cnep.perception.constants import OFFLINE_ENV_VAR, WEIGHTS_ENV_VAR
     from cnep.pipeline.cli.main import main
 
     mp = pytest.MonkeyPatch()
     mp.setenv("HOME", str(tmp_path_factory.mktemp("home")))
     mp.setenv("CI", "1")
+    mp.setenv(OFFLINE_ENV_VAR, "1")
+    mp.setenv("TORCH_HOME", str(tmp_path_factory.mktemp("torch")))
+    mp.delenv(WEIGHTS_ENV_VAR, raising=False)
     out = tmp_path_factory.mktemp("demo") / "cnep-demo"
     threads = torch.get_num_threads()
     try:

@@ -16,7 +16,9 @@ HELP = (
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    seed, assignment, precision = (default_of(DemoConfig, name) for name in ("seed", "assignment", "precision"))
+    seed, assignment, precision, weights = (
+        default_of(DemoConfig, name) for name in ("seed", "assignment", "precision", "weights")
+    )
     parser.add_argument(
         "--out",
         default=None,
@@ -54,12 +56,34 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=precision,
         help=f"feature extraction precision (default {precision}; int8 as `cnep extract --precision int8`)",
     )
+    parser.add_argument(
+        "--weights",
+        default=weights,
+        help="the feature network's weights: `auto`, ImageNet's where they can be had (the torch hub cache, "
+        "$CNEP_MOBILENET_WEIGHTS, or a download into the cache) and else seeded random weights calibrated on the "
+        "training frames, with a warning saying why; `imagenet`, the same but an error instead of random weights; "
+        f"`random`; or the path of a MobileNet-v2 state dict (default {weights})",
+    )
+    parser.add_argument(
+        "--offline",
+        action="store_true",
+        help="never download the ImageNet weights (also: environment variable CNEP_OFFLINE=1)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
     import time
     from pathlib import Path
 
+    from cnep.pipeline.demo.config import AUTO_WEIGHTS, IMAGENET_WEIGHTS, RANDOM_WEIGHTS
+    from cnep.pipeline.inputs import existing_files
+
+    if args.weights not in (
+        AUTO_WEIGHTS,
+        IMAGENET_WEIGHTS,
+        RANDOM_WEIGHTS,
+    ):  # refused before torch loads with the stage
+        existing_files([Path(args.weights)], "`auto`, `imagenet`, `random` or a MobileNet-v2 state dict")
     from cnep.pipeline.demo.report import format_summary
     from cnep.pipeline.demo.stage import run_demo
 
@@ -74,6 +98,8 @@ def run(args: argparse.Namespace) -> int:
             quiet=args.quiet,
             assignment=args.assignment,
             precision=args.precision,
+            weights=args.weights,
+            offline=args.offline,
         )
     )
     print(format_summary(result))

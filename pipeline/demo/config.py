@@ -7,6 +7,10 @@ from pathlib import Path
 
 from cnep.models.config import CNEPConfig, TrainConfig
 
+# `weights` by name (anything else is the path of a state dict): `auto` is ImageNet's where they can be had, else
+# seeded random ones (pipeline.demo.weights); the other two are `cnep extract --weights`'s names (perception.weights).
+AUTO_WEIGHTS, IMAGENET_WEIGHTS, RANDOM_WEIGHTS = "auto", "imagenet", "random"
+
 
 @dataclass(frozen=True)
 class DemoSize:
@@ -52,8 +56,10 @@ class DemoConfig:
     """out: folder for everything (created; must be empty or absent unless `force`, which first deletes what an
     earlier demo wrote there: OUTPUTS); quick: the small CI variant; seed: all draws; assignment: the CNEP's
     reconstruction term (models.CNEPConfig's default; the CNMP is trained with the paper's); precision: the feature
-    extraction's, `fp32` or `int8` (pipeline.extract.stage.ExtractConfig). A failed or interrupted demo leaves
-    a new folder empty."""
+    extraction's, `fp32` or `int8` (pipeline.extract.stage.ExtractConfig); weights: the feature network's
+    (pipeline.demo.weights): `auto` (ImageNet weights where they can be had, else seeded random weights, with a
+    warning), `imagenet`, `random` or the path of a MobileNet-v2 state dict; offline: never download ImageNet
+    weights (as the environment variable CNEP_OFFLINE). A failed or interrupted demo leaves a new folder empty."""
 
     out: Path
     quick: bool = False
@@ -65,6 +71,8 @@ class DemoConfig:
     # behaviour on seed 2).
     assignment: str = CNEPConfig.assignment
     precision: str = "fp32"
+    weights: str = AUTO_WEIGHTS
+    offline: bool = False
 
     @property
     def size(self) -> DemoSize:

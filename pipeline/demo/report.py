@@ -23,7 +23,7 @@ def format_summary(result: DemoResult) -> str:
         f"(purity alone is 1.0 when every demonstration goes to one expert)"
     )
     lines.append("")
-    lines.append(features_line(result.feature_weights))
+    lines.append(features_line(result.feature_weights, result.imagenet_unavailable))
     lines.extend(heldout_lines(result.heldout))
     lines.append("")
     for change in result.scene_change:
@@ -77,10 +77,16 @@ def heldout_lines(heldout: dict[str, dict]) -> list[str]:
     return lines
 
 
-def features_line(weights: str) -> str:
-    """Which weights the features came from, from the extractor's weights name (perception.weights.Weights)."""
+def features_line(weights: str, imagenet_unavailable: str | None = None) -> str:
+    """Which weights the features came from, from the extractor's weights name (perception.weights.Weights), and
+    for random ones why ImageNet's were not used (`DemoResult.imagenet_unavailable`; None: random was asked for)."""
     if weights.startswith("random:"):
-        said = "seeded random weights, calibrated on the training frames (not ImageNet's: the demo downloads nothing)"
+        why = (
+            f"ImageNet weights not available: {imagenet_unavailable}"
+            if imagenet_unavailable
+            else "as asked (--weights random)"
+        )
+        said = f"seeded random weights calibrated on the training frames, {why}"
     elif weights.startswith("imagenet:"):
         said = "ImageNet weights"
     else:

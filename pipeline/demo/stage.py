@@ -8,10 +8,11 @@ Stages (each logs its progress; tqdm bars unless quiet), all under OUT:
               demonstrator picks one at random); `free_choice` holds held-out free-choice scenes;
 2. ingest     `demos/...`: the ingest stage reads those robot MCAP files (Foxglove topics) into
               demonstration files, strictly (CRCs, schemas, time order);
-3. extract    `trajectories/...`: MobileNet-v2 features with **seeded random weights** (ImageNet weights
-              cannot be downloaded here), calibrated on the training demonstrations only and saved to
-              `extractor.pt`, which then extracts the held-out and scene-change demonstrations (at
-              `precision` int8, quantised on the training demonstrations' frames for every split);
+3. extract    `trajectories/...`: MobileNet-v2 features with the weights `config.weights` chooses
+              (pipeline.demo.weights, decided before step 1): ImageNet's where they can be had (the torch hub
+              cache or a download), else **seeded random weights**, calibrated on the training demonstrations
+              only; saved to `extractor.pt`, which then extracts the held-out and scene-change demonstrations
+              (at `precision` int8, quantised on the training demonstrations' frames for every split);
 4. train      `checkpoints/cnep` (4 experts) and `checkpoints/cnmp` (1 expert, parameter-matched
               widths) on the training trajectories (layout `scene`: observe features + pose + gripper,
               query with time only, predict pose + gripper), seeded;
@@ -64,6 +65,7 @@ from cnep.pipeline.demo.measures import (
     trained_rows,
 )
 from cnep.pipeline.demo.scene import BEHAVIOURS
+from cnep.pipeline.demo.weights import choose_weights
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.extract.stage import ExtractConfig, extract
 from cnep.pipeline.ingest.stage import IngestConfig, ingest
@@ -110,6 +112,7 @@ class DemoResult:
     behaviours: dict[str, dict]  # scene-decided behaviour -> {"n", "expert", "purity", "experts": {expert: count}}
     heldout: dict[str, dict]  # model -> measures.heldout_errors: scenes read as the wrong behaviour, position errors
     feature_weights: str  # the weights the features came from: the extractor's weights name (perception.weights)
+    imagenet_unavailable: str | None  # why they are not ImageNet's, when `auto` fell back (pipeline.demo.weights)
     scene_change: list[dict]  # per scene-change recording: label, switch step, expert before/after, switches
     free_choice: dict[str, dict]  # model -> place_outcomes on the held-out free-choice scenes
     free_choice_replay: list[dict]  # per replayed free-choice recording: label, choice, its step, commitment, census
@@ -187,6 +190,7 @@ def _run_stages(config: DemoConfig, out: Path, size: DemoSize, seconds: dict[str
         seconds[name] = round(time.perf_counter() - seconds[name], 2)
         log.info("%s done in %.1f s", name, seconds[name])
 
+    chosen = choose_weights(config.weights, config.offline)  # before anything is made: `imagenet` may be refused
     stage("generate", 1)
     made = generate(
         DemoSetConfig(
@@ -214,12 +218,13 @@ def _run_stages(config: DemoConfig, out: Path, size: DemoSize, seconds: dict[str
         "quiet": config.quiet,
         "precision": config.precision,
         "calibrate_on": (out / "demos" / "train",),
+        "offline": config.offline,
     }  # int8: every split quantised on the training frames
     extract(
         ExtractConfig(
             inputs=(out / "demos" / "train",),
             out=out / "trajectories" / "train",
-            weights="random",
+            weights=chosen.weights,  # random weights are calibrated on the training frames, ImageNet's used as given
             save_weights=weights,
             **common,
         )
@@ -299,6 +304,7 @@ def _run_stages(config: DemoConfig, out: Path, size: DemoSize, seconds: dict[str
                 for name, ckpt in checkpoints.items()
             },
             feature_weights=read_trajectory(trajectories["train"][0]).extractor["weights"],
+            imagenet_unavailable=chosen.imagenet_unavailable,
             scene_change=scene_change_switches(out / RRD_FILE, trajectories["scene_change"], labels, switch_steps),
             free_choice={
                 name: place_outcomes(generated_ends(*trained_rows(ckpt, trajectories["free_choice"])))

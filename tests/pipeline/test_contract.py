@@ -2,8 +2,8 @@
 
 Rows: a missing input, a damaged input, an existing output, a read-only output folder and an
 interruption each give their exit status (2, 2, 2, 2, 130) and one line on stderr, and leave no
-output behind (nor change an existing one). `evaluate` and `demo` take no input files, `inspect`
-writes no output, so those cells are not rows of theirs.
+output behind (nor change an existing one). `evaluate` takes no input files, `demo` none but its weights file
+(`--weights PATH`), `inspect` writes no output, so those cells are not rows of theirs.
 """
 
 from __future__ import annotations
@@ -138,6 +138,7 @@ MISSING_INPUT = {
     "replay": lambda w, t: ["replay", w.ckpt, t / "nope.mcap", "--out", t / "out" / "r.rrd", "--no-live"],
     "export": lambda w, t: ["export", t / "nope", "--out", t / "out" / "policy"],
     "run": lambda w, t: ["run", w.ckpt, t / "nope.mcap", "--out", t / "out" / "r.rrd", "--fast"],
+    "demo": lambda w, t: ["demo", "--quick", "--weights", t / "nope.pth", "--out", t / "out"],
 }
 
 
@@ -321,7 +322,11 @@ INTERRUPTED = {  # argv, and the function replaced by one that interrupts (Ctrl-
         "cnep.pipeline.evaluate.stage",
         "run_jobs",
     ),
-    "demo": lambda w, t: (["demo", "--quick", "--out", t / "out"], "cnep.pipeline.demo.stage", "ingest"),
+    "demo": lambda w, t: (  # random weights: no warning that ImageNet weights are missing
+        ["demo", "--quick", "--weights", "random", "--out", t / "out"],
+        "cnep.pipeline.demo.stage",
+        "ingest",
+    ),
 }
 
 
@@ -373,6 +378,7 @@ REFUSED_BEFORE_LOADING = {
     "replay": ["replay", "does/not/exist", "r.mcap", "--out", "x.rrd", "--no-live"],
     "export": ["export", "does/not/exist", "--out", "x"],
     "run": ["run", "does/not/exist", "r.mcap", "--out", "x.rrd"],
+    "demo": ["demo", "--weights", "does/not/exist", "--out", "x"],
     "help": ["train", "--help"],
 }
 

@@ -34,6 +34,11 @@ def test_the_cli_the_stage_config_and_the_model_configs_agree_on_every_shared_se
         assert getattr(held, name) == next(f.default for f in fields(cls) if f.name == name), option
     demo = build_parser().parse_args(["demo"])
     assert demo.assignment == DemoConfig.assignment == model.assignment and demo.seed == DemoConfig.seed
+    assert (demo.weights, demo.offline, demo.precision) == (
+        DemoConfig.weights,
+        DemoConfig.offline,
+        DemoConfig.precision,
+    )
     replay = build_parser().parse_args(["replay", "ckpt", "r.mcap"])
     assert ConditioningPolicy(replay.window, replay.anchors) == ConditioningPolicy()
 

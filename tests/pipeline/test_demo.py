@@ -127,9 +127,11 @@ def test_summary_covers_behaviours_models_and_the_scene_change(demo_run):
         else:
             assert (right is None) == (row["wrong_behaviour"] == N_HELDOUT)
         assert 0 < row["position_rmse_median_m"] <= row["position_rmse_m"] * np.sqrt(N_HELDOUT)
-    # the training split is extracted with the seeded random weights; the others with those weights saved
+    # offline with an empty hub cache (tests/conftest.py): the training split is extracted with seeded random weights,
+    # the others with those weights saved, and the summary says why they are not ImageNet's
     weights = read_trajectory(demo_run / "trajectories" / "train" / "demo_000.mcap").extractor["weights"]
     assert summary["feature_weights"] == weights and weights.startswith("random:seed=0+calibrated")
+    assert summary["imagenet_unavailable"] == "none in the torch hub cache and downloading is off"
     (change,) = summary["scene_change"]
     assert "->" in change["behaviour"] and 0 < change["change_step"] < QUICK.steps
     for model in ("CNEP", "CNMP"):

@@ -282,7 +282,12 @@ def test_repair_killed_writes_no_output_and_runs_again(world, tmp_path):
 def test_demo_killed_leaves_a_folder_a_forced_run_can_take_over(tmp_path, capsys):
     from cnep.pipeline.demo.stage import remove_outputs
 
-    stopped = both("cnep.pipeline.demo.stage:ingest", 1, lambda o: ["demo", "--quick", "--out", o / "demo"], tmp_path)
+    stopped = both(  # random weights: no warning that ImageNet weights are missing
+        "cnep.pipeline.demo.stage:ingest",
+        1,
+        lambda o: ["demo", "--quick", "--weights", "random", "--out", o / "demo"],
+        tmp_path,
+    )
     assert_terminated(*stopped[signal.SIGTERM], "demo")
     assert not (tmp_path / "term" / "demo").exists()  # a new folder: removed again
     out = tmp_path / "kill" / "demo"
