@@ -1,9 +1,12 @@
 """The example scripts run and report what their docstrings promise."""
 
 import importlib.util
+import json
+import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
@@ -11,6 +14,7 @@ EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 def load(name: str):
     spec = importlib.util.spec_from_file_location(name, EXAMPLES / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module  # as `python examples/NAME.py` runs it: dataclasses look their module up
     spec.loader.exec_module(module)
     return module
 
@@ -42,3 +46,49 @@ def test_policy_parity_finds_the_exported_policy_equal_to_the_torch_one(policy_w
     assert set(found) == {"fp32", "int8"} and found["fp32"]["steps"] > 0
     assert found["fp32"]["xyz_max"] < 1e-4 and found["fp32"]["expert"] == 0 and found["fp32"]["switch"] == 0
     assert "| fp32 |" in capsys.readouterr().out
+
+
+def test_first_read_probes_separate_what_is_separable_and_nothing_else():
+    probes = load("first_read").probe_accuracy
+    rng = np.random.default_rng(0)
+    labels = np.repeat(np.array(["a", "b", "c", "d"]), 100)  # (400,)
+    rows = 5 * rng.normal(size=(4, 300))[np.repeat(np.arange(4), 100)] + rng.normal(size=(400, 300))  # (400, 300)
+    train, test = (rows[::2], labels[::2]), {"test": (rows[1::2], labels[1::2])}  # fewer rows than columns
+    assert probes(*train, test) == {"ridge": {"test": 1.0}, "1nn": {"test": 1.0}}
+    shuffled = probes(train[0], rng.permutation(train[1]), test)
+    assert all(0.1 < found["test"] < 0.4 for found in shuffled.values()), shuffled  # chance is 0.25
+
+
+def test_first_read_measures_a_demo_folder_and_its_extra_scenes(quick_demo, tmp_path, capsys, one_thread):
+    out = tmp_path / "first_read.json"
+    found = load("first_read").main([str(quick_demo), "--extra", "2", "--json", str(out)])
+    rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| ") and "---" not in line]
+    assert [row.split(" | ")[0] for row in rows] == ["| seed", "| 0", "| mean (1)"]  # the header, a folder, the mean
+    assert all(len(row.split(" | ")) == len(rows[0].split(" | ")) for row in rows)
+    (f,) = json.loads(out.read_text())
+    assert f == found[0] and f["seed"] == 0 and f["n"] == {"train": 8, "heldout": 4, "extra": 8}  # 2 per behaviour
+    accuracies = [
+        *(f["features"][probe] for probe in ("ridge", "1nn", "side", "slot")),
+        *(f["latent"][model][probe] for model in ("CNEP", "CNMP") for probe in ("ridge", "1nn")),
+        f["gate"],
+        *f["path"].values(),
+    ]
+    assert all(set(a) == {"heldout", "extra"} and all(0 <= v <= 1 for v in a.values()) for a in accuracies)
+    summary = json.loads((quick_demo / "summary.json").read_text())["heldout"]
+    for model, row in summary.items():  # the path read is the demo summary's, scene for scene
+        assert f["path"][model]["heldout"] == pytest.approx(1 - row["wrong_behaviour"] / row["n"])
+    calibration = f["calibration"]
+    assert calibration["reads"] == 12 and calibration["wrong"] == round(4 * (1 - f["gate"]["heldout"])) + round(
+        8 * (1 - f["gate"]["extra"])
+    )
+    shares = [calibration[k] for k in ("p_wrong", "p_right", "confident_wrong", "unsure_wrong", "unsure_right")]
+    assert all(v is None or 0 <= v <= 1 for v in shares)
+    assert (calibration["p_wrong"] is None) == (calibration["wrong"] == 0)
+
+
+def test_first_read_refuses_a_folder_the_demo_did_not_make_before_any_work(quick_demo, tmp_path, capsys):
+    with pytest.raises(SystemExit) as exit:
+        load("first_read").main([str(quick_demo), str(tmp_path)])
+    printed = capsys.readouterr()
+    assert exit.value.code == 2 and printed.out == ""  # nothing measured, not even the header
+    assert f"{tmp_path}: no recorded, demos/train, " in printed.err

@@ -129,32 +129,42 @@ def plan_motion(scene: Scene, slot: str, steps: np.ndarray, rng: np.random.Gener
 
 
 def render(
-    scenes: Sequence[Scene], switch: int, plan: Plan, fps: float, rng: np.random.Generator, episode: Episode
+    scenes: Sequence[Scene],
+    switch: int,
+    plan: Plan,
+    fps: float,
+    rng: np.random.Generator,
+    episode: Episode,
+    rendered: int | None = None,
 ) -> Demonstration:
     """Frames, pose and gripper of a planned demonstration; frames before step `switch` show scenes[0], then
-    scenes[-1]."""
+    scenes[-1]. `rendered`: only the first this many steps (None: every step); the frames draw their sensor
+    noise in step order, so these equal the whole demonstration's first frames."""
     T = int(plan.steps[-1]) + 1
-    states = plan.at(T)  # (T, 5)
+    n = T if rendered is None else min(rendered, T)
+    whole = plan.at(T)  # (T, 5)
+    states = whole[:n]  # (n, 5)
     pose = np.concatenate([states[:, :3], np.stack([gripper_quaternion(y) for y in states[:, 3]])], axis=1)
     grasped, released = plan.steps[3], plan.steps[7]  # end of "close", end of "open"
-    place_xy = states[released, :2]
+    place_xy = whole[released, :2]
     frames = []
-    for k in range(T):
+    for k in range(n):
         scene = scenes[0] if k < switch else scenes[-1]
         cup_xy = scene.cup_xy if k < grasped else None if k < released else place_xy
         frames.append(encode_jpeg(draw_frame(scene, pose[k], states[k, 4], cup_xy, rng)))
-    timestamps = np.round(np.arange(T) * 1e9 / fps).astype(np.int64)
+    timestamps = np.round(np.arange(n) * 1e9 / fps).astype(np.int64)
     return Demonstration(episode, timestamps, pose, states[:, 4] * GRIPPER_OPEN, frames)
 
 
 def make_demonstration(
-    behaviour: int, steps: int, fps: float, rng: np.random.Generator, episode_id: str
+    behaviour: int, steps: int, fps: float, rng: np.random.Generator, episode_id: str, rendered: int | None = None
 ) -> Demonstration:
-    """One demonstration of `behaviour` (index into BEHAVIOURS) with `steps` steps at `fps` Hz."""
+    """One demonstration of `behaviour` (index into BEHAVIOURS) with `steps` steps at `fps` Hz; `rendered`: only
+    its first this many steps (`render`), e.g. 1 for a scene's first frame at a fraction of the cost."""
     scene = sample_scene(behaviour, rng)
     plan = plan_motion(scene, scene.free_slot, phase_steps(steps, rng), rng)
     episode = Episode(episode_id, fps, TASK, SOURCE, {LABEL_KEY: BEHAVIOURS[behaviour]})
-    return render([scene], steps, plan, fps, rng, episode)
+    return render([scene], steps, plan, fps, rng, episode, rendered)
 
 
 def make_scene_change(

@@ -2,13 +2,14 @@
 
 - `expert_purity`: per scene-decided behaviour, the expert most of its demonstrations go to, and how many do;
 - `heldout_errors`: the motion generated from each held-out demonstration's first step against the
-  demonstration (position and gripper errors, the behaviour of the nearest training demonstration);
+  demonstration (position and gripper errors, the behaviour of the nearest training demonstration:
+  `nearest_behaviour`);
 - `scene_change_switches`: the replay's active expert before and after each scene change;
 - `online_gates` and `free_choice_commitment`: the online gate of the free-choice recordings, as the
   replay computes it, and how the replayed one's gate commits (the free-choice rules: `free_choice`).
 
 Recordings are recognised across the stages' folders by `key` (split/file name); the behaviour labels
-come from the recorder (`generator`), never from the models.
+come from the recorder (`generator`, or its files: `recorded_labels`), never from the models.
 """
 
 from __future__ import annotations
@@ -21,11 +22,13 @@ import numpy as np
 from cnep.models import CNEP, ConditioningPolicy, Prediction
 from cnep.models.threads import torch_threads
 from cnep.pipeline.demo.free_choice import gate_commitment
-from cnep.pipeline.demo.generator import CHOICE_KEY, CHOICE_STEP_KEY
+from cnep.pipeline.demo.generator import CHOICE_KEY, CHOICE_STEP_KEY, LABEL_KEY
+from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.inputs import DEMONSTRATIONS, mcap_files
 from cnep.pipeline.replay.conditioning import decide
 from cnep.pipeline.replay.decisions import read_decisions
 from cnep.pipeline.train.checkpoint import TrainedModel, load_trained
-from cnep.recordings import read_demonstration, read_trajectory
+from cnep.recordings import DemonstrationReader, read_demonstration, read_trajectory
 from cnep.recordings.constants import BLOCK_GRIPPER
 
 POLICY = ConditioningPolicy()  # the replay's conditioning (models.online): the first step + the latest 10
@@ -34,6 +37,15 @@ POLICY = ConditioningPolicy()  # the replay's conditioning (models.online): the 
 def key(path: Path) -> str:
     """`split/file name`: how a demonstration is recognised across the stages' folders."""
     return f"{path.parent.name}/{path.name}"
+
+
+def recorded_labels(recorded: Path) -> dict[str, str]:
+    """The recorder's label of every demonstration file under `recorded` (a demo's `recorded/` folder), by `key`."""
+    labels = {}
+    for path in mcap_files(recorded, DEMONSTRATIONS):
+        with DemonstrationReader(path) as reader:
+            labels[key(path)] = reader.episode.extra[LABEL_KEY]
+    return labels
 
 
 def trained_rows(checkpoint: Path, paths: list[Path]) -> tuple[TrainedModel, list[np.ndarray]]:
@@ -88,12 +100,36 @@ def expert_purity(checkpoint: Path, paths: list[Path], labels: dict[str, str]) -
     return table
 
 
-def first_step_prediction(model: CNEP, rows: np.ndarray) -> Prediction:
-    """The model conditioned on a recording's first step (t = 0) and queried at every step (rows: (T, model
-    width)); the queries carry each step's own query columns when the model has any."""
-    t = np.arange(len(rows)) / (len(rows) - 1)
+def first_step_prediction(model: CNEP, rows: np.ndarray, steps: int | None = None) -> Prediction:
+    """The model conditioned on a recording's first step (t = 0) and queried at each of its T steps.
+
+    rows: (T, model width); the queries carry each step's own query columns when the model has any. A model
+    without query columns needs only the first row: rows (1, model width) and `steps` = T.
+    """
+    T = len(rows) if steps is None else steps
+    t = np.arange(T) / (T - 1)
     query = rows[:, model.query_columns.numpy()] if model.config.columns.query_dim else None
+    if query is not None and len(query) != T:
+        raise PipelineError(
+            f"this model's queries carry columns of every step: give all {T} rows of the recording, got {len(rows)}"
+        )
     return model.generate(t[:1], rows[:1, model.obs_columns.numpy()], t, query)
+
+
+def recorded_paths(trained: TrainedModel, rows: list[np.ndarray]) -> list[np.ndarray]:
+    """The recorded xyz path (T, 3) (m) of each recording, from its (T, model width) rows."""
+    out_cols, xyz = trained.model.out_columns.numpy(), trained.mapping.predicted_xyz(trained.model)
+    return [r[:, out_cols][:, xyz] for r in rows]
+
+
+def nearest_behaviour(path: np.ndarray, train_paths: list[np.ndarray], train_labels: list[str]) -> str:
+    """How a generated xyz path (T, 3) reads: the behaviour of the training demonstration of the same length whose
+    recorded path (`recorded_paths`) lies nearest to it (mean distance)."""
+    return min(
+        (np.linalg.norm(d - path, axis=-1).mean(), label)
+        for d, label in zip(train_paths, train_labels)
+        if len(d) == len(path)
+    )[1]
 
 
 def heldout_errors(checkpoint: Path, heldout: list[Path], train_paths: list[Path], labels: dict[str, str]) -> dict:
@@ -114,21 +150,15 @@ def heldout_errors(checkpoint: Path, heldout: list[Path], train_paths: list[Path
     out_cols = model.out_columns.numpy()
     g0, _ = mapping.blocks[BLOCK_GRIPPER]
     gripper = list(out_cols).index(g0)
-    train_xyz = [r[:, out_cols][:, xyz] for r in train_rows]
+    train_xyz = recorded_paths(trained, train_rows)
     train_labels = [labels[key(p)] for p in train_paths]
     sq, grip, hits = [], [], []
     for path, r in zip(heldout, rows):
-        T = len(r)
         mean = first_step_prediction(model, r).mean  # (T, dy)
         truth = r[:, out_cols]  # (T, dy)
         sq.append(((mean[:, xyz] - truth[:, xyz]) ** 2).sum(-1))  # (T,)
         grip.append(np.abs(mean[:, gripper] - truth[:, gripper]))
-        same_length = [
-            (np.linalg.norm(d - mean[:, xyz], axis=-1).mean(), lab)
-            for d, lab in zip(train_xyz, train_labels)
-            if len(d) == T
-        ]
-        hits.append(min(same_length)[1] == labels[key(path)])
+        hits.append(nearest_behaviour(mean[:, xyz], train_xyz, train_labels) == labels[key(path)])
     read_right = [e for e, hit in zip(sq, hits) if hit]
     return {
         "n": len(heldout),

@@ -14,6 +14,7 @@ from cnep.pipeline.demo.generator import (
     SWITCH_KEY,
     DemoSetConfig,
     generate,
+    make_demonstration,
 )
 from cnep.pipeline.demo.scene import (
     BEHAVIOURS,
@@ -117,6 +118,15 @@ def test_same_seed_same_recordings(demo_set, tmp_path):
     assert not np.array_equal(
         read_demonstration(other.files["train"][0]).pose, read_demonstration(demo_set.files["train"][0]).pose
     )
+
+
+def test_a_demonstration_rendered_in_part_is_the_whole_ones_first_steps():
+    whole = make_demonstration(2, STEPS, 10.0, np.random.default_rng(5), "x")
+    first = make_demonstration(2, STEPS, 10.0, np.random.default_rng(5), "x", rendered=3)
+    assert first.n_steps == 3 and first.frames == whole.frames[:3]  # the same frames, sensor noise and all
+    np.testing.assert_array_equal(first.pose, whole.pose[:3])
+    np.testing.assert_array_equal(first.gripper, whole.gripper[:3])
+    np.testing.assert_array_equal(first.timestamps_ns, whole.timestamps_ns[:3])
 
 
 def test_scene_change_moves_the_block_and_the_place_point(demo_set):
