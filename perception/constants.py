@@ -4,8 +4,16 @@ from __future__ import annotations
 
 from cnep.runtime.constants import IMAGE_SIZE  # frames are resized to IMAGE_SIZE x IMAGE_SIZE before the network
 
-ARCHITECTURE = "torchvision.mobilenet_v2.features+global_avg_pool"
 FEATURE_DIM = 1280  # width of one feature vector (channels of the last MobileNet-v2 block)
+FEATURE_GRID = 7  # the last block's map is FEATURE_GRID x FEATURE_GRID cells (224 / 32)
+# How the last block's (1280, 7, 7) map becomes 1280 numbers, and the architecture each pooling writes into the
+# extractor identity. `global`: every channel averaged over the whole map (what ImageNet weights were trained
+# with). `cells`: channel c read at cell c mod 49 only, so the 1280 numbers keep where things are (the pooling of
+# seeded random weights, whose channels carry no meaning of their own; see perception.network).
+ARCHITECTURES = {
+    "global": "torchvision.mobilenet_v2.features+global_avg_pool",
+    "cells": f"torchvision.mobilenet_v2.features+cell_pool_{FEATURE_GRID}x{FEATURE_GRID}",
+}
 
 # ImageNet statistics the torchvision weights were trained with (RGB order, on [0, 1] pixels).
 IMAGENET_MEAN = (0.485, 0.456, 0.406)

@@ -18,7 +18,7 @@ from cnep.perception.backends import (
 )
 from cnep.perception.calibration import ACTIVATION_BIAS, calibrate_random_network
 from cnep.perception.constants import (
-    ARCHITECTURE,
+    ARCHITECTURES,
     CALIBRATION_BATCH,
     COMPATIBILITY_FIELDS,
     CUDA_BATCH_SIZE,
@@ -38,7 +38,8 @@ log = logging.getLogger(__name__)
 
 
 class FeatureExtractor:
-    """MobileNet-v2 features + global average pool, batched, eval + inference mode.
+    """MobileNet-v2 features + pooling (`global`, or `cells` for seeded random weights: perception.network),
+    batched, eval + inference mode.
 
     weights: `imagenet`, a state-dict path, or `random` (seeded by `seed`; call `calibrate` on frames of
     the recordings before extracting, see perception.calibration). backend: `auto` (fastest available
@@ -79,13 +80,13 @@ class FeatureExtractor:
         resolved = resolve_weights(weights, seed)
         features = mobilenet_v2_features()
         features.load_state_dict(resolved.state_dict)
-        self.net = FeatureNet(features).eval()
+        self.net = FeatureNet(features, resolved.pooling).eval()
         self.weights_name = resolved.name
         self.calibrated_on = 0  # frames used to re-estimate batch-norm statistics (0: as loaded)
         self.backend, self.threads, self.precision = backend, threads, precision
         self.batch_size = batch_size or (CUDA_BATCH_SIZE if self._resolved_backend() == "cuda" else DEFAULT_BATCH_SIZE)
         self._runner: Runner | None = None
-        self._sha256 = state_dict_sha256(self.net.features.state_dict())
+        self._sha256 = state_dict_sha256(self.net.features.state_dict())  # the pooling is in the architecture
         self._needs_calibration = resolved.is_random
         self._int8_model: bytes | None = None  # the quantised graph, once `quantise` ran
         self._quantised_on = ""  # "frames=N,sha256=..." of the quantisation's calibration pixels
@@ -124,7 +125,7 @@ class FeatureExtractor:
         batches = [pixels[i : i + CALIBRATION_BATCH] for i in range(0, len(pixels), CALIBRATION_BATCH)]
         calibration = pixels_sha256(batches)
         self._int8_model = quantise_int8(
-            onnx_model(self.net, self._sha256), batches, cache_key=f"{self._sha256}|{calibration}"
+            onnx_model(self.net, self._graph_key), batches, cache_key=f"{self._graph_key}|{calibration}"
         )
         self._quantised_on = f"frames={len(pixels)},sha256={calibration[:16]}"
         self._runner = None
@@ -137,7 +138,7 @@ class FeatureExtractor:
         if self.calibrated_on:
             weights += f"+calibrated:bias={ACTIVATION_BIAS},frames={self.calibrated_on}"
         return {
-            "architecture": ARCHITECTURE,
+            "architecture": ARCHITECTURES[self.net.pooling],
             "feature_dim": str(FEATURE_DIM),
             "weights": weights,
             "weights_sha256": self._sha256,
@@ -184,11 +185,11 @@ class FeatureExtractor:
             raise PerceptionError(f"weights {self.weights_name} need calibrate(frames) before they are exported")
         if self.needs_quantisation:
             raise PerceptionError("precision int8 needs quantise(frames) before it is exported")
-        return self._int8_model if self._int8_model is not None else onnx_model(self.net, self._sha256)
+        return self._int8_model if self._int8_model is not None else onnx_model(self.net, self._graph_key)
 
     def save_weights(self, path: Path) -> None:
         """Save the (possibly calibrated) weights, to reuse them later as weights=`path`."""
-        save_state_dict(self.net.features.state_dict(), path)
+        save_state_dict(self.net.features.state_dict(), path, self.net.pooling)
 
     def __getstate__(self) -> dict:
         """Pickled without its backend (a compiled session does not pickle): the receiver builds its own."""
@@ -199,8 +200,13 @@ class FeatureExtractor:
             run_on = openvino_runner if self._resolved_backend() == "openvino" else onnxruntime_runner
             self._runner = run_on(self._int8_model, self.threads)
         elif self._runner is None:
-            self._runner = build_runner(self._resolved_backend(), self.net, self.threads, cache_key=self._sha256)
+            self._runner = build_runner(self._resolved_backend(), self.net, self.threads, cache_key=self._graph_key)
         return self._runner
+
+    @property
+    def _graph_key(self) -> str:
+        """What the exported graph depends on: the weights and the pooling (cache key of the ONNX exports)."""
+        return f"{self._sha256}|{self.net.pooling}"
 
     def _resolved_backend(self) -> str:
         if self.backend != "auto":

@@ -3,8 +3,10 @@
 `imagenet` is looked up like torchvision does (the torch hub cache) and downloaded there when missing,
 unless downloads are off (`CNEP_OFFLINE`, `cnep extract --offline`).
 
-A `Weights` holds the state dict of MobileNet-v2's `features` block (keys like `0.0.weight`) and the
-name written into the extractor identity.
+A `Weights` holds the state dict of MobileNet-v2's `features` block (keys like `0.0.weight`), the
+name written into the extractor identity and the pooling the network uses with them (perception.network):
+`global` for ImageNet weights and other files, `cells` for seeded random weights and for files saved from
+them (`save_state_dict` writes the pooling into the file under POOLING_KEY).
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ from cnep.perception.errors import PerceptionError
 from cnep.perception.network import mobilenet_v2_features
 
 _FEATURES_PREFIX = "features."  # keys of a full torchvision mobilenet_v2 state dict
+POOLING_KEY = "cnep.pooling"  # the pooling a saved file's weights go with (absent: `global`)
 HASH_PREFIX = re.compile(r"-([a-f0-9]*)\.")  # torchvision file names end in -<first hex digits of the sha256>.pth
 
 log = logging.getLogger(__name__)
@@ -36,10 +39,12 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class Weights:
-    """A `features` state dict and its name (`imagenet:<file>`, `path:<file>` or `random:seed=<n>`)."""
+    """A `features` state dict, its name (`imagenet:<file>`, `path:<file>` or `random:seed=<n>`) and the pooling
+    that goes with it (`global` or `cells`)."""
 
     name: str
     state_dict: dict[str, torch.Tensor]
+    pooling: str = "global"
 
     @property
     def is_random(self) -> bool:
@@ -50,17 +55,17 @@ class Weights:
 def resolve_weights(spec: str | Path, seed: int = 0) -> Weights:
     """Turn `imagenet`, `random` or a state-dict path into Weights; `seed` only matters for `random`."""
     if str(spec) == "random":
-        return Weights(f"random:seed={seed}", random_state_dict(seed))
+        return Weights(f"random:seed={seed}", random_state_dict(seed), pooling="cells")
     if str(spec) == "imagenet":
         path = find_imagenet_weights()
-        return Weights(f"imagenet:{path.name}", load_state_dict(path))
+        return Weights(f"imagenet:{path.name}", *load_weights_file(path))
     path = Path(spec)
     if not path.is_file():
         raise PerceptionError(
             f"weights file {path} does not exist; pass `imagenet`, `random` or the path of a "
             f"MobileNet-v2 state dict (.pth/.pt or .safetensors)"
         )
-    return Weights(f"path:{path.name}", load_state_dict(path))
+    return Weights(f"path:{path.name}", *load_weights_file(path))
 
 
 def imagenet_search_paths() -> list[Path]:
@@ -167,6 +172,11 @@ def load_state_dict(path: Path) -> dict[str, torch.Tensor]:
 
     Returns the `features` part with keys relative to it, checked against the architecture.
     """
+    return load_weights_file(path)[0]
+
+
+def load_weights_file(path: Path) -> tuple[dict[str, torch.Tensor], str]:
+    """`load_state_dict`'s state dict and the pooling stored with it (POOLING_KEY; `global` when absent)."""
     try:
         if path.suffix == ".safetensors":
             from safetensors.torch import load_file
@@ -184,6 +194,9 @@ def load_state_dict(path: Path) -> dict[str, torch.Tensor]:
             f"weights file {path} holds a {type(raw).__name__}, not a state dict; save it with "
             f"torch.save(model.state_dict(), path)"
         )
+    pooling = raw.get(POOLING_KEY, "global")
+    if pooling not in ("global", "cells"):
+        raise PerceptionError(f"weights file {path}: {POOLING_KEY} is {pooling!r}, expected 'global' or 'cells'")
     if any(key.startswith(_FEATURES_PREFIX) for key in raw):
         raw = {k[len(_FEATURES_PREFIX) :]: v for k, v in raw.items() if k.startswith(_FEATURES_PREFIX)}
     reference = mobilenet_v2_features().state_dict()
@@ -200,17 +213,21 @@ def load_state_dict(path: Path) -> dict[str, torch.Tensor]:
                 f"weights file {path}: features.{key} has shape {tuple(shape)}, MobileNet-v2 "
                 f"expects {tuple(tensor.shape)}"
             )
-    return {key: raw[key].to(tensor.dtype) for key, tensor in reference.items()}
+    return {key: raw[key].to(tensor.dtype) for key, tensor in reference.items()}, pooling
 
 
-def save_state_dict(state_dict: dict[str, torch.Tensor], path: Path) -> None:
-    """Write a `features` state dict as a torchvision-style file (keys `features.*`), atomically.
+def save_state_dict(state_dict: dict[str, torch.Tensor], path: Path, pooling: str = "global") -> None:
+    """Write a `features` state dict as a torchvision-style file (keys `features.*`, plus POOLING_KEY unless the
+    pooling is `global`), atomically.
 
     Serialised in memory first: torch.save writing into a full disk fails with its own error, not the OSError
     that names the file.
     """
     buffer = io.BytesIO()
-    torch.save({_FEATURES_PREFIX + k: v.detach().clone() for k, v in state_dict.items()}, buffer)
+    saved: dict[str, object] = {_FEATURES_PREFIX + k: v.detach().clone() for k, v in state_dict.items()}
+    if pooling != "global":
+        saved[POOLING_KEY] = pooling
+    torch.save(saved, buffer)
     write_atomically(path, buffer.getvalue())
 
 

@@ -86,8 +86,9 @@ def test_openvino_features_equal_onnxruntime_ones(precision):
     # Seeded random weights (calibrated on two synthetic scenes), the same ONNX graph on both runtimes.
     # fp32: the same numbers (relative L2 error <= 3.3e-7 measured). int8: each runtime rounds with its own
     # int8 kernels, whose results depend on the processor's instructions (AVX2 alone or VNNI), so the two
-    # agree only as closely as each agrees with fp32. Measured on an AVX2-only AMD EPYC: 2.4e-2 to 2.8e-2
-    # against fp32 on either runtime, 2.9e-2 at most between them.
+    # agree only as closely as each agrees with fp32. Random weights pool by cells, one map location per channel,
+    # so int8's rounding is not averaged away: measured on an AVX2-only AMD EPYC, 4.6e-2 to 4.8e-2 against fp32 on
+    # ONNX Runtime and 1.2e-1 at most on OpenVINO (2.4e-2 to 2.8e-2 on both when pooled globally).
     frames = np.concatenate([scene_frames(k, n=3, seed=k) for k in range(2)])  # (6, 60, 80, 3)
     reference = FeatureExtractor("random", backend="onnxruntime", threads=1)
     reference.calibrate(frames)
@@ -105,7 +106,7 @@ def test_openvino_features_equal_onnxruntime_ones(precision):
         assert error.max() <= 1e-5, error
     else:
         own = max(_relative_l2(features[b], fp32).max() for b in features)  # each runtime's int8 error
-        assert own <= 5e-2 and error.max() <= 1.5 * own, (error, own)
+        assert own <= 0.2 and error.max() <= 1.5 * own, (error, own)
 
 
 @needs_openvino
@@ -119,7 +120,7 @@ def test_auto_runs_int8_on_openvino_and_fp32_on_onnxruntime():
     cpu_default = "cuda" if __import__("torch").cuda.is_available() else "onnxruntime"
     assert (fp32.identity["backend"], int8.identity["backend"]) == (cpu_default, "openvino")
     error = _relative_l2(int8(frames), fp32(frames))
-    assert 1e-3 < error.max() < 5e-2  # int8 kernels ran (not the fp32 graph), at int8's ~2% error
+    assert 1e-3 < error.max() < 0.2  # int8 kernels ran (not the fp32 graph), at int8's error (1.2e-1 measured)
 
 
 @needs_openvino
