@@ -26,7 +26,13 @@ import torch
 from tqdm import tqdm
 
 from cnep.outputs import atomic_file, write_atomically
-from cnep.perception.constants import DOWNLOAD_TIMEOUT_S, IMAGENET_WEIGHT_FILES, OFFLINE_ENV_VAR, WEIGHTS_ENV_VAR
+from cnep.perception.constants import (
+    ARCHITECTURES,
+    DOWNLOAD_TIMEOUT_S,
+    IMAGENET_WEIGHT_FILES,
+    OFFLINE_ENV_VAR,
+    WEIGHTS_ENV_VAR,
+)
 from cnep.perception.errors import PerceptionError
 from cnep.perception.network import mobilenet_v2_features
 
@@ -195,8 +201,10 @@ def load_weights_file(path: Path) -> tuple[dict[str, torch.Tensor], str]:
             f"torch.save(model.state_dict(), path)"
         )
     pooling = raw.get(POOLING_KEY, "global")
-    if pooling not in ("global", "cells"):
-        raise PerceptionError(f"weights file {path}: {POOLING_KEY} is {pooling!r}, expected 'global' or 'cells'")
+    if pooling not in ARCHITECTURES:
+        raise PerceptionError(
+            f"weights file {path}: {POOLING_KEY} is {pooling!r}, expected one of {tuple(ARCHITECTURES)}"
+        )
     if any(key.startswith(_FEATURES_PREFIX) for key in raw):
         raw = {k[len(_FEATURES_PREFIX) :]: v for k, v in raw.items() if k.startswith(_FEATURES_PREFIX)}
     reference = mobilenet_v2_features().state_dict()
