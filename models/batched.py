@@ -34,9 +34,10 @@ from torch import nn
 from cnep.models.cnep import CNEP
 from cnep.models.config import CNEPConfig, TrainConfig
 from cnep.models.errors import ConfigError
-from cnep.models.loss import loss_terms
+from cnep.models.loss import BALANCING, loss_terms
 from cnep.models.threads import torch_threads
-from cnep.models.train import Trainer, finish_fit, make_optimizer, prepare_fit, set_learning_rate
+from cnep.models.sampler import DEMONSTRATION_STEPS
+from cnep.models.train import Trainer, demonstration_nll, finish_fit, make_optimizer, prepare_fit, set_learning_rate
 
 # What must agree for two networks to stack (the loss weights a_rec, a_batch, a_ind may differ).
 ARCHITECTURE_FIELDS = ("columns", "n_experts", "encoder_widths", "expert_widths", "min_std", "time_frequencies")
@@ -53,6 +54,7 @@ def batch_key(trainer: Trainer) -> tuple:
         dataclasses.replace(cfg, seed=0, gate_lr_scale=None),
         min(cfg.n_max, T),
         min(cfg.m_max, T),
+        min(DEMONSTRATION_STEPS, T),
     )
 
 
@@ -207,8 +209,20 @@ class BatchedTrainer:
             for f in ("obs", "obs_mask", "query", "target", "target_mask")
         }
         mean, std, gate = self.net(stacked["obs"], stacked["obs_mask"], stacked["query"])  # (k, B, d, M, dy), (k, B, d)
+        posterior = None
+        if any(a in BALANCING for a in self.assignments):  # each from its own model's demonstrations
+            parts = zip(*(self.trainers[i].demonstration(b) for i, b in zip(self.active, batches)))
+            demonstration = tuple(torch.stack(part) for part in parts)  # (k, B, P, ...) each
+            posterior = demonstration_nll(self.net, stacked["obs"], stacked["obs_mask"], demonstration)
         terms = stacked_loss_terms(
-            mean, std, gate, stacked["target"], stacked["target_mask"], self.assignments, self.step / self.cfg.steps
+            mean,
+            std,
+            gate,
+            stacked["target"],
+            stacked["target_mask"],
+            self.assignments,
+            self.step / self.cfg.steps,
+            posterior,
         )  # name -> (k,)
         a = self.weights
         total = a[:, 0] * terms["rec"] - a[:, 1] * terms["batch_entropy"] + a[:, 2] * terms["ind_entropy"]  # (k,)
@@ -264,14 +278,25 @@ def stacked_loss_terms(
     target_mask: torch.Tensor,
     assignments: Sequence[str],
     progress: float,
+    posterior: tuple[torch.Tensor, torch.Tensor] | None = None,
 ) -> dict[str, torch.Tensor]:
     """`models.loss.loss_terms` of k stacked models (leading dimension k), model j with `assignments[j]` -> name ->
-    (k,)."""
+    (k,); posterior: each model's (nll (k, B, d), values (k, B)) of its samples' demonstrations
+    (`models.train.demonstration_nll`), read by the assignments that use it."""
     groups = {a: [j for j, x in enumerate(assignments) if x == a] for a in dict.fromkeys(assignments)}
     if len(groups) == 1:
-        return loss_terms(mean, std, gate, target, target_mask, assignments[0], progress)
+        return loss_terms(mean, std, gate, target, target_mask, assignments[0], progress, posterior)
     parts = [
-        loss_terms(mean[idx], std[idx], gate[idx], target[idx], target_mask[idx], a, progress)
+        loss_terms(
+            mean[idx],
+            std[idx],
+            gate[idx],
+            target[idx],
+            target_mask[idx],
+            a,
+            progress,
+            None if posterior is None else tuple(x[idx] for x in posterior),
+        )
         for a, idx in groups.items()
     ]
     order = torch.tensor([j for idx in groups.values() for j in idx]).argsort().to(gate.device)

@@ -18,12 +18,16 @@ per-value scale (the gate's gradient, (p_ie - r_ie) / (d n_i), shrinks with n_i)
 `a_rec`'s rescaling with d meaning the same. With one expert both terms are mean_i L_i; they are also
 equal whenever all experts predict the same. The entropy terms are the same for every assignment.
 
-"annealed" is expectation-maximisation on a tempered, balanced posterior: r_ie = softmax_e(log p_ie - k_i L_ie)
-(detached). The experts learn their r-weighted NLL (the mixture's expert gradient once k_i = n_i) and
-the gate learns the cross-entropy to r at full strength (gradient (p_ie - r_ie)/d, n_i times the
-mixture's). Two things happen while training is young (progress < ANNEAL_FRACTION of the steps):
-- the sharpness k_i rises geometrically from 1 (the posterior of one target value's mean NLL) to n_i
-  (the mixture's posterior), then stays there (`annealed_sharpness`);
+"annealed" is expectation-maximisation on a tempered, balanced posterior: r_ie = softmax_e(log p_ie - k_i D_ie)
+(detached), where D_ie is expert e's mean NLL of *the whole demonstration* that sample i was drawn from (every
+step, or DEMONSTRATION_STEPS of a longer one: models.sampler), predicted from sample i's context
+(`models.train.demonstration_nll`). The experts learn their r-weighted NLL of the sample's targets and the gate learns the
+cross-entropy to r at full strength (gradient (p_ie - r_ie)/d). A behaviour is a property of a demonstration:
+where a sample's own few targets cannot tell two behaviours apart (a context and targets from the stretch they
+share), its demonstration can, so every sample of a demonstration goes to the expert that explains that
+demonstration. Two things happen while training is young (progress < ANNEAL_FRACTION of the steps):
+- the sharpness k_i rises geometrically from 1 (the posterior of one value's mean NLL) to the demonstration's
+  number of values (a mixture's posterior of the whole demonstration), then stays there (`annealed_sharpness`);
 - the posterior is balanced over the batch (`balanced`: SINKHORN_ITERATIONS Sinkhorn steps giving
   every expert B/d of the batch's mass), so that every expert keeps learning something.
 Measured: with the mixture's posterior from the first step, the experts
@@ -31,7 +35,11 @@ that lose every sample while the gate is still frozen are never trained again (6
 share an expert and are averaged where they cross); annealing alone keeps more experts in play but
 still lets one expert take every behaviour that the context already tells apart (the demo: all four
 behaviours on one expert); balancing while annealing keeps every expert in use, and once the experts
-differ the free posterior keeps them pure and lets the targets decide where the context cannot.
+differ the free posterior keeps them pure and lets the targets decide where the context cannot. With the posterior
+of each sample's own targets instead of its demonstration's, the demo's experts kept their behaviours while the
+posterior was balanced and then, once it was free, one expert took over the samples that a neighbouring behaviour
+shares with its own, until that behaviour moved to it whole (2 of 10 seeds ended with 4 behaviours on 3 experts;
+holding the gate still did not stop it: the encoder moved instead).
 
 "bounded" is "annealed" with the balancing bounded instead of equal, and faded out instead of stopped
 (`BALANCING`): every expert's share of the batch's mass is kept between 0.5 and 1.5 x B/d, shares in
@@ -126,7 +134,10 @@ def annealed_sharpness(values: torch.Tensor, progress: float) -> torch.Tensor:
 
     progress: the fraction of training done (step / steps), in [0, 1].
     """
-    return values.clamp_min(1.0) ** min(1.0, max(0.0, progress) / ANNEAL_FRACTION)
+    exponent = min(1.0, max(0.0, progress) / ANNEAL_FRACTION)
+    # in float64: a power's last float32 bit can depend on where the element falls in a vectorised loop, and a
+    # model trained in a stack (models.batched) must match the same model trained alone bit for bit
+    return (values.double().clamp_min(1.0) ** exponent).to(values.dtype)
 
 
 def balanced(
@@ -171,10 +182,17 @@ def annealed_posterior(
 
 
 def reconstruction(
-    nll: torch.Tensor, gate: torch.Tensor, values: torch.Tensor, assignment: str, progress: float = 1.0
+    nll: torch.Tensor,
+    gate: torch.Tensor,
+    values: torch.Tensor,
+    assignment: str,
+    progress: float = 1.0,
+    posterior: tuple[torch.Tensor, torch.Tensor] | None = None,
 ) -> torch.Tensor:
     """L_rec of `assignment`: nll (..., B, d) mean NLL per value, gate (..., B, d), values (..., B) target values
-    per sample -> (...); progress: the fraction of training done (only "annealed" and "bounded" depend on it)."""
+    per sample -> (...); progress: the fraction of training done (only "annealed" and "bounded" depend on it);
+    posterior: (nll (..., B, d), values (..., B)) of each sample's whole demonstration, from which "annealed" and
+    "bounded" compute the responsibilities (`models.train.demonstration_nll`; the sample's own targets when None)."""
     d = gate.shape[-1]
     if assignment == "paper":
         return (gate * nll).sum(-1).mean(-1) / d
@@ -184,7 +202,8 @@ def reconstruction(
         return (-torch.logsumexp(log_joint, dim=-1) / n[..., 0]).mean(-1) / d
     if assignment in BALANCING:  # "annealed", "bounded"
         log_p = gate.clamp_min(_TINY).log()  # (B, d)
-        r = annealed_posterior(log_p, nll, values, progress, BALANCING[assignment])  # (B, d), detached
+        decided_by = (nll, values) if posterior is None else posterior
+        r = annealed_posterior(log_p, *decided_by, progress, BALANCING[assignment])  # (B, d), detached
         return ((r * nll).sum(-1) - (r * log_p).sum(-1)).mean(-1) / d
     raise ValueError(f"unknown assignment {assignment!r}")
 
@@ -197,13 +216,14 @@ def loss_terms(
     target_mask: torch.Tensor,
     assignment: str,
     progress: float = 1.0,
+    posterior: tuple[torch.Tensor, torch.Tensor] | None = None,
 ) -> dict[str, torch.Tensor]:
-    """L_rec, L_batch and L_ind as tensors (...): shapes as in `expert_nll`, gate (..., B, d). Leading dimensions
-    are k stacked models (models.batched), each computed exactly as alone."""
+    """L_rec, L_batch and L_ind as tensors (...): shapes as in `expert_nll`, gate (..., B, d); posterior as in
+    `reconstruction`. Leading dimensions are k stacked models (models.batched), each computed exactly as alone."""
     nll = expert_nll(mean, std, target, target_mask)  # (B, d)
     values = target_mask.to(nll.dtype).sum(-1) * mean.shape[-1]  # (B,) target values per sample
     return {
-        "rec": reconstruction(nll, gate, values, assignment, progress),
+        "rec": reconstruction(nll, gate, values, assignment, progress, posterior),
         "batch_entropy": entropy(gate.mean(-2)),
         "ind_entropy": entropy(gate).mean(-1),
     }
@@ -217,9 +237,11 @@ def cnep_loss(
     target_mask: torch.Tensor,
     config: CNEPConfig,
     progress: float = 1.0,
+    posterior: tuple[torch.Tensor, torch.Tensor] | None = None,
 ) -> tuple[torch.Tensor, dict[str, float]]:
     """Total loss and its terms as floats (for logs). Shapes as in `expert_nll`; gate (B, d); progress: the
-    fraction of training done (step / steps; the "annealed" assignment's schedule)."""
-    terms = loss_terms(mean, std, gate, target, target_mask, config.assignment, progress)
+    fraction of training done (step / steps; the "annealed" assignment's schedule); posterior: as in
+    `reconstruction`."""
+    terms = loss_terms(mean, std, gate, target, target_mask, config.assignment, progress, posterior)
     total = config.a_rec * terms["rec"] - config.a_batch * terms["batch_entropy"] + config.a_ind * terms["ind_entropy"]
     return total, {"loss": total.item(), **{name: term.item() for name, term in terms.items()}}

@@ -6,6 +6,10 @@ trajectory of length T is k / (T - 1), so 0 and 1 are both reachable. A share of
 (`TrainConfig.first_steps_fraction`) observe the trajectory's first k ~ U{1..first_steps_max} steps instead: the
 context a robot has before it moves, from which a deployed model reads which behaviour to follow. Training batches may
 add noise to the observed values (`TrainConfig.obs_noise`); the targets always stay clean.
+
+Each sample also names its trajectory (`Batch.trajectory`), so that the loss can read the whole demonstration a
+context came from (`TrajectoryStack.demonstration`: the steps that decide which expert learns the sample,
+models.loss).
 """
 
 from __future__ import annotations
@@ -16,6 +20,10 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
+# The most steps of a demonstration that decide which expert learns a sample of it (`TrajectoryStack.demonstration`),
+# evenly spaced over a longer one: enough to tell behaviours apart, a bounded cost per training step.
+DEMONSTRATION_STEPS = 64
+
 
 @dataclasses.dataclass
 class Batch:
@@ -24,6 +32,7 @@ class Batch:
     query: torch.Tensor  # (B, m_max, 1 + query_dim)
     target: torch.Tensor  # (B, m_max, dy)
     target_mask: torch.Tensor  # (B, m_max) bool
+    trajectory: torch.Tensor  # (B,) long: the stack index of each sample's trajectory
 
     def to(self, device: torch.device) -> Batch:
         """This batch on `device` (itself, not a copy, where it is there already)."""
@@ -53,6 +62,21 @@ class TrajectoryStack:
     def times(self, traj: torch.Tensor, steps: torch.Tensor) -> torch.Tensor:
         """Normalised time of `steps` (B, k) of trajectories `traj` (B,) -> (B, k)."""
         return steps / (self.lengths[traj] - 1).clamp_min(1).unsqueeze(1)
+
+    def demonstration(
+        self, traj: torch.Tensor, most: int = DEMONSTRATION_STEPS
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Trajectories `traj` (B,) as queries and targets: every step of one of at most `most` steps, else `most`
+        steps evenly spaced from its first to its last -> query (B, P, 1 + query_dim), target (B, P, dy), mask (B, P)
+        bool, with P = min(most, longest trajectory)."""
+        lengths = self.lengths[traj].unsqueeze(1)  # (B, 1)
+        P = min(most, self.observed.shape[1])
+        order = torch.arange(P)  # (P,)
+        spread = torch.round(order * (lengths - 1) / max(P - 1, 1)).long()  # (B, P): first to last step
+        steps = torch.where(lengths > P, spread, order)  # (B, P)
+        rows = traj.unsqueeze(1)  # (B, 1)
+        query = torch.cat([self.times(traj, steps).unsqueeze(-1), self.query[rows, steps]], -1)
+        return query, self.predicted[rows, steps], order < lengths
 
 
 def _random_steps(lengths: torch.Tensor, k_max: int, T: int, g: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
@@ -105,4 +129,4 @@ def sample_batch(
         values = values + obs_noise * torch.randn(values.shape, generator=g)
     obs = torch.cat([stack.times(traj, obs_steps).unsqueeze(-1), values], -1)
     query = torch.cat([stack.times(traj, tgt_steps).unsqueeze(-1), stack.query[rows, tgt_steps]], -1)
-    return Batch(obs, obs_mask, query, stack.predicted[rows, tgt_steps], tgt_mask)
+    return Batch(obs, obs_mask, query, stack.predicted[rows, tgt_steps], tgt_mask, traj)

@@ -27,7 +27,7 @@ import torch
 from cnep.models.cnep import CNEP
 from cnep.models.config import CNEPConfig, TrainConfig
 from cnep.models.errors import ConfigError
-from cnep.models.loss import cnep_loss, settled_fraction
+from cnep.models.loss import BALANCING, cnep_loss, expert_nll, settled_fraction
 from cnep.models.sampler import Batch, TrajectoryStack, sample_batch
 from cnep.models.threads import torch_threads
 
@@ -85,6 +85,20 @@ def set_learning_rate(optimizer: torch.optim.Optimizer, step: int, cfg: TrainCon
     """The schedule's learning rate at `step`, times each parameter group's `lr_scale`."""
     for group in optimizer.param_groups:
         group["lr"] = cfg.lr * lr_factor(step, cfg) * group["lr_scale"]
+
+
+@torch.no_grad()
+def demonstration_nll(
+    model, obs: torch.Tensor, obs_mask: torch.Tensor, demonstration: tuple[torch.Tensor, torch.Tensor, torch.Tensor]
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """What the EM assignments' responsibilities are computed from (models.loss): each expert's mean NLL (..., B, d)
+    of the demonstration each sample was drawn from, predicted from the sample's context, and that demonstration's
+    number of values (..., B). model: a CNEP (or k stacked: models.batched, leading dimension k); obs, obs_mask: the
+    batch's contexts; demonstration: (query, target, mask) of `TrajectoryStack.demonstration`, on the same device."""
+    query, target, mask = demonstration
+    mean, std = model.decode(model.encode(obs, obs_mask), query)  # (..., B, d, P, dy)
+    nll = expert_nll(mean, std, target, mask).contiguous()  # (..., B, d): one memory order, alone or stacked
+    return nll, mask.sum(-1).to(mean.dtype) * mean.shape[-1]
 
 
 @torch.no_grad()
@@ -155,12 +169,21 @@ class Trainer:
             self.first_steps,
         ).to(self.device)
 
+    def demonstration(self, batch: Batch) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """(query, target, mask) of the demonstration each sample of `batch` was drawn from, on the model's device."""
+        return tuple(x.to(self.device) for x in self.train.demonstration(batch.trajectory.cpu()))
+
     def train_step(self) -> dict[str, float]:
         batch = self.next_batch()
         set_learning_rate(self.optimizer, self.step, self.cfg)
         mean, std, gate = self.model(batch.obs, batch.obs_mask, batch.query)
+        posterior = (
+            demonstration_nll(self.model, batch.obs, batch.obs_mask, self.demonstration(batch))
+            if self.model.config.assignment in BALANCING
+            else None
+        )
         loss, terms = cnep_loss(
-            mean, std, gate, batch.target, batch.target_mask, self.model.config, self.step / self.cfg.steps
+            mean, std, gate, batch.target, batch.target_mask, self.model.config, self.step / self.cfg.steps, posterior
         )
         self.optimizer.zero_grad(set_to_none=False)
         loss.backward()

@@ -233,6 +233,46 @@ def test_annealed_term_against_a_hand_computation(assignment):
         assert math.isclose(terms["rec"], (rec[0] + rec[1]) / 2 / 2, rel_tol=1e-6)  # mean over samples, then / d
 
 
+@pytest.mark.parametrize("assignment", ["annealed", "bounded"])
+def test_the_demonstrations_decide_the_em_posterior_where_given(assignment):
+    """The experts and the gate learn the responsibilities of each sample's whole demonstration (`posterior`), not of
+    its own targets: the loss equals the hand computation with the demonstrations' NLL and values in the posterior
+    and the samples' own NLL in the weighted term."""
+    cfg = CNEPConfig(n_experts=2, a_rec=1.0, a_batch=0.0, a_ind=0.0, assignment=assignment)
+    mean, std, target, mask, gate, (L0, _), (L1, _) = _two_sample_example()
+    # both samples' targets favour expert 0 (L0, L1); their demonstrations, 40 values each, favour expert 1
+    demo = torch.tensor([[1.5, 1.0], [2.0, 1.2]])
+    values = torch.tensor([40.0, 40.0])
+    for progress in (0.0, 0.7, 1.0):
+        _, terms = cnep_loss(mean, std, gate, target, mask, cfg, progress, (demo, values))
+        r = _hand_posterior(demo.tolist(), [40, 40], gate.tolist(), progress, BALANCING[assignment])
+        rec = [sum(re * (le - math.log(pe)) for re, le, pe in zip(ri, Li, pi)) for ri, Li, pi in zip(r, [L0, L1], gate)]
+        assert math.isclose(terms["rec"], (rec[0] + rec[1]) / 2 / 2, rel_tol=1e-6)
+    logits = gate.log().clone().requires_grad_()
+    cnep_loss(mean, std, torch.softmax(logits, -1), target, mask, cfg, 1.0, (demo, values))[0].backward()
+    assert (logits.grad[:, 1] < 0).all()  # free and sharp: the gate is pulled towards expert 1 on both samples
+
+
+def test_the_trainer_gives_the_em_assignments_the_demonstrations_and_the_papers_term_none(monkeypatch):
+    import cnep.models.train
+    from cnep.models.config import TrainConfig
+    from cnep.models.train import fit
+    from tests.models.factories import two_mode_trajectories
+
+    trajs, _ = two_mode_trajectories(n=4, T=10, seed=0)
+    for assignment, given in (("bounded", True), ("paper", False), ("mixture", False)):
+        posteriors = []
+
+        def spy(*args):
+            posteriors.append(args[7])
+            return cnep_loss(*args)
+
+        monkeypatch.setattr(cnep.models.train, "cnep_loss", spy)
+        config = CNEPConfig(n_experts=2, encoder_widths=(8,), expert_widths=(8,), assignment=assignment)
+        fit(trajs, config, TrainConfig(steps=2, warmup_steps=1, val_every=2), progress=False)
+        assert all((p is not None) == given for p in posteriors) and len(posteriors) == 2
+
+
 def test_annealed_gate_learns_the_posterior_at_full_strength_and_experts_learn_it_as_in_the_mixture():
     mean, std, target, mask, gate, (L0, n0), (L1, n1) = _two_sample_example()
     cfg = CNEPConfig(n_experts=2, a_rec=1.0, a_batch=0.0, a_ind=0.0, assignment="annealed")
@@ -326,10 +366,11 @@ def test_the_trainer_gives_the_loss_the_fraction_of_training_done(monkeypatch):
     from cnep.models.train import fit
     from tests.models.factories import two_mode_trajectories
 
-    seen = []
+    seen, posteriors = [], []
 
     def spy(*args):
-        seen.append(args[-1])
+        seen.append(args[6])  # progress
+        posteriors.append(args[7])  # the demonstrations' NLL and values (models.train.demonstration_nll)
         return cnep_loss(*args)
 
     monkeypatch.setattr(cnep.models.train, "cnep_loss", spy)
@@ -341,3 +382,4 @@ def test_the_trainer_gives_the_loss_the_fraction_of_training_done(monkeypatch):
         progress=False,
     )
     assert seen == [0.0, 0.25, 0.5, 0.75]
+    assert all(nll.shape == (32, 2) and torch.equal(values, torch.full((32,), 10.0)) for nll, values in posteriors)

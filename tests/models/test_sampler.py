@@ -92,3 +92,22 @@ def test_no_first_steps_draws_the_batches_drawn_without_them():
         a = sample_batch(stack, 16, 10, 10, g, first_steps=(0.0, 4))
         b = sample_batch(stack, 16, 10, 10, h)
         torch.testing.assert_close(a.obs, b.obs)
+
+
+def test_a_demonstration_is_every_step_of_a_short_one_and_evenly_spaced_steps_of_a_long_one():
+    stack, lengths = _stack(lengths=(5, 12, 30))  # predicted column 0 of trajectory i holds i
+    traj = torch.tensor([0, 2, 1])
+    query, target, mask = stack.demonstration(traj, most=8)
+    assert query.shape == (3, 8, 2) and target.shape == (3, 8, 2) and mask.shape == (3, 8)
+    assert mask.sum(1).tolist() == [5, 8, 8]
+    steps = (query[..., 0] * torch.tensor([4.0, 29.0, 11.0]).unsqueeze(1)).round()  # time = step / (T - 1)
+    assert steps[0, :5].tolist() == [0, 1, 2, 3, 4]  # all of the 5 steps
+    assert steps[1].tolist() == [0, 4, 8, 12, 17, 21, 25, 29]  # 8 of 30, first to last
+    assert steps[2].tolist() == [0, 2, 3, 5, 6, 8, 9, 11]  # 8 of 12
+    assert (target[..., 0] == traj.unsqueeze(1)).all()  # each sample's own trajectory
+
+
+def test_each_sample_names_its_trajectory():
+    stack, lengths = _stack()
+    b = sample_batch(stack, 100, n_max=10, m_max=10, g=torch.Generator().manual_seed(3))
+    assert torch.equal(b.target[:, 0, 0].long(), b.trajectory)  # predicted column 0 of trajectory i holds i
