@@ -100,7 +100,7 @@ class Balancing:
 # [0.5, 1.5] x B/d, faded out over the next 0.2 of training (docs/concepts.md).
 BALANCING = {
     "annealed": Balancing(1.0, 1.0, ANNEAL_FRACTION, ANNEAL_FRACTION),
-    "bounded": Balancing(0.5, 1.5, ANNEAL_FRACTION, 0.8),
+    "bounded": Balancing(0.75, 1.5, ANNEAL_FRACTION, 0.8),
 }
 
 

@@ -308,8 +308,8 @@ def test_balancing_spreads_the_batch_over_the_experts_while_the_posterior_anneal
 def test_bounded_balancing_keeps_every_experts_share_between_a_floor_and_a_cap():
     # every sample is explained best by expert 0: free, expert 0 takes nearly all of the batch; bounded, no
     # expert takes more than cap * B/d (exactly, once converged) nor less than floor * B/d, each row stays a
-    # distribution, and each sample's next best expert takes its mass
-    bounded = BALANCING["bounded"]
+    # distribution, and each sample's next best expert takes its mass (bounds at which the cap binds here)
+    bounded = dataclasses.replace(BALANCING["bounded"], floor=0.5, cap=1.5)
     floor, cap = bounded.floor, bounded.cap
     nll = torch.tensor([[0.0, 2.0, 3.0, 3.0], [0.1, 1.0, 4.0, 3.0], [0.0, 3.0, 1.0, 3.0], [0.2, 2.0, 2.0, 1.5]])
     log_p = torch.full((4, 4), -math.log(4.0))  # B/d = 1
