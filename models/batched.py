@@ -35,8 +35,8 @@ from cnep.models.cnep import CNEP
 from cnep.models.config import CNEPConfig, TrainConfig
 from cnep.models.errors import ConfigError
 from cnep.models.loss import BALANCING, loss_terms
-from cnep.models.threads import torch_threads
 from cnep.models.sampler import DEMONSTRATION_STEPS
+from cnep.models.threads import torch_threads
 from cnep.models.train import Trainer, demonstration_nll, finish_fit, make_optimizer, prepare_fit, set_learning_rate
 
 # What must agree for two networks to stack (the loss weights a_rec, a_batch, a_ind may differ).

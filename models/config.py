@@ -68,9 +68,10 @@ def authors_coefficients(n_experts: int) -> tuple[float, float, float]:
 
 
 # The reconstruction terms of the loss (models.loss.reconstruction): "paper" = mean_i (1/d) sum_e p_ie L_ie,
-# "mixture" = mean_i (1/(d n_i)) (-log sum_e p_ie exp(-S_ie)), "annealed" = EM on the posterior annealed
-# from soft to the mixture's, balanced over the experts while it anneals, "bounded" = the same with the balancing
-# bounded (every expert's share between 0.5 and 1.5 x B/d) instead of equal, and faded out instead of stopped.
+# "mixture" = mean_i (1/(d n_i)) (-log sum_e p_ie exp(-S_ie)), "annealed" = EM on the posterior of each sample's
+# whole demonstration, annealed from soft to sharp, balanced over the experts while it anneals, "bounded" = the same
+# with the balancing bounded (every expert's share between 0.75 and 1.5 x B/d) instead of equal, and faded out
+# instead of stopped.
 ASSIGNMENTS = ("paper", "mixture", "annealed", "bounded")
 # The gate's learning rate as a fraction of the network's (TrainConfig.gate_lr_scale left None), per assignment.
 # The paper's term moves the gate by p (L - mean L) / d and the mixture's by (p - r) / (d n_i): 0.3 was measured
@@ -109,11 +110,11 @@ class CNEPConfig:
         "how the loss assigns a context's targets to the experts: paper = the paper's gate-weighted NLL (every "
         "expert the gate has not ruled out learns every target), mixture = the mixture likelihood (the expert "
         "that explains the targets learns them; commits where the context cannot tell behaviours apart), "
-        "annealed = the same posterior assignment, soft and balanced over the experts early in training, as "
-        "sharp as the mixture's from 60% of the steps on, the gate trained towards it at full strength, "
-        "bounded = annealed with each expert's share kept within 0.5-1.5x an equal one instead of equal, faded "
-        "out over 60-80% of the steps; the best model is kept from where the balancing ends (bounded commits on "
-        "shared contexts and keeps the paper's accuracy; docs/concepts.md)",
+        "annealed = the expert that explains the sample's whole demonstration learns the sample, soft and balanced "
+        "over the experts early in training, as sharp as a mixture's from 60% of the steps on, the gate trained "
+        "towards it at full strength, bounded = annealed with each expert's share kept within 0.75-1.5x an equal "
+        "one instead of equal, faded out over 60-80% of the steps; the best model is kept from where the "
+        "balancing ends (bounded commits on shared contexts and keeps the paper's accuracy; docs/concepts.md)",
     )
 
     def __post_init__(self) -> None:

@@ -259,18 +259,19 @@ def test_the_trainer_gives_the_em_assignments_the_demonstrations_and_the_papers_
     from cnep.models.train import fit
     from tests.models.factories import two_mode_trajectories
 
+    posteriors = []
+
+    def spy(*args):
+        posteriors.append(args[7])
+        return cnep_loss(*args)
+
+    monkeypatch.setattr(cnep.models.train, "cnep_loss", spy)
     trajs, _ = two_mode_trajectories(n=4, T=10, seed=0)
     for assignment, given in (("bounded", True), ("paper", False), ("mixture", False)):
-        posteriors = []
-
-        def spy(*args):
-            posteriors.append(args[7])
-            return cnep_loss(*args)
-
-        monkeypatch.setattr(cnep.models.train, "cnep_loss", spy)
+        posteriors.clear()
         config = CNEPConfig(n_experts=2, encoder_widths=(8,), expert_widths=(8,), assignment=assignment)
         fit(trajs, config, TrainConfig(steps=2, warmup_steps=1, val_every=2), progress=False)
-        assert all((p is not None) == given for p in posteriors) and len(posteriors) == 2
+        assert len(posteriors) == 2 and all((p is not None) == given for p in posteriors)
 
 
 def test_annealed_gate_learns_the_posterior_at_full_strength_and_experts_learn_it_as_in_the_mixture():
