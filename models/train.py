@@ -97,7 +97,7 @@ def demonstration_nll(
     batch's contexts; demonstration: (query, target, mask) of `TrajectoryStack.demonstration`, on the same device."""
     query, target, mask = demonstration
     mean, std = model.decode(model.encode(obs, obs_mask), query)  # (..., B, d, P, dy)
-    nll = expert_nll(mean, std, target, mask).contiguous()  # (..., B, d): one memory order, alone or stacked
+    nll = expert_nll(mean, std, target, mask)  # (..., B, d)
     return nll, mask.sum(-1).to(mean.dtype) * mean.shape[-1]
 
 
