@@ -203,6 +203,11 @@ class BatchedTrainer:
 
     def train_step(self) -> list[dict[str, float]]:
         """One optimiser step of every active model; returns each one's loss terms (as `Trainer.train_step`)."""
+        for j, i in enumerate(self.active):
+            if self.step in self.trainers[i].split_at:  # on its slices of the stack, as `Trainer.train_step` does
+                self.net.copy_to(j, self.trainers[i].model)
+                state = {name: self.optimizer.state.get(view, {}) for name, view in self.views[j].items()}
+                self.trainers[i].split_idle(self.views[j], state)
         batches = [self.trainers[i].next_batch() for i in self.active]  # each from its own generator
         stacked = {
             f: torch.stack([getattr(b, f) for b in batches])

@@ -3,7 +3,7 @@
     L_e     = mean over targets and output dims of -log N(y | mu_e, sigma_e)        (B, d)
     L_rec   = mean_i (1/d) sum_e p_ie L_ie                                   (assignment "paper")
             = mean_i (1/(d n_i)) (-log sum_e p_ie exp(-S_ie))                (assignment "mixture")
-            = mean_i (1/d) sum_e r_ie (L_ie - log p_ie),  r detached           (assignments "annealed", "bounded")
+            = mean_i (1/d) sum_e (r_ie L_ie - q_ie log p_ie),  r, q detached   (assignments "annealed", "bounded")
     L_batch = H(mean_i p_i)            entropy of the batch-mean gate distribution
     L_ind   = mean_i H(p_i)            mean entropy of each sample's gate distribution
     L_total = a_rec L_rec - a_batch L_batch + a_ind L_ind
@@ -21,11 +21,14 @@ equal whenever all experts predict the same. The entropy terms are the same for 
 "annealed" is expectation-maximisation on a tempered, balanced posterior: r_ie = softmax_e(log p_ie - k_i D_ie)
 (detached), where D_ie is expert e's mean NLL of *the whole demonstration* that sample i was drawn from (every
 step, or DEMONSTRATION_STEPS of a longer one: models.sampler), predicted from sample i's context
-(`models.train.demonstration_nll`). The experts learn their r-weighted NLL of the sample's targets and the gate
-learns the cross-entropy to r at full strength (gradient (p_ie - r_ie)/d). A behaviour is a property of a demonstration:
-where a sample's own few targets cannot tell two behaviours apart (a context and targets from the stretch they
-share), its demonstration can, so every sample of a demonstration goes to the expert that explains that
-demonstration. Two things happen while training is young (progress < ANNEAL_FRACTION of the steps):
+(`models.train.demonstration_nll`). The experts learn their r-weighted NLL of the sample's targets. A behaviour is a
+property of a demonstration: where a sample's own few targets cannot tell two behaviours apart (a context and targets
+from the stretch they share), its demonstration can, so every sample of a demonstration goes to the expert that
+explains that demonstration. The gate learns the cross-entropy, at full strength (gradient (p_ie - q_ie)/d), to q: the
+same posterior computed from the sample's own targets (D_ie replaced by L_ie, k_i by the sample's number of values).
+The gate sees only the context; taught r, it learnt to name each demonstration's expert from any context of it, a
+single first frame included, and was sure of itself more often when it named the wrong one (docs/results.md).
+Two things happen while training is young (progress < ANNEAL_FRACTION of the steps):
 - the sharpness k_i rises geometrically from 1 (the posterior of one value's mean NLL) to the demonstration's
   number of values (a mixture's posterior of the whole demonstration), then stays there (`annealed_sharpness`);
 - the posterior is balanced over the batch (`balanced`: SINKHORN_ITERATIONS Sinkhorn steps giving
@@ -194,7 +197,8 @@ def reconstruction(
     """L_rec of `assignment`: nll (..., B, d) mean NLL per value, gate (..., B, d), values (..., B) target values
     per sample -> (...); progress: the fraction of training done (only "annealed" and "bounded" depend on it);
     posterior: (nll (..., B, d), values (..., B)) of each sample's whole demonstration, from which "annealed" and
-    "bounded" compute the responsibilities (`models.train.demonstration_nll`; the sample's own targets when None)."""
+    "bounded" compute the experts' responsibilities (`models.train.demonstration_nll`; the sample's own targets when
+    None); their gate always learns the responsibilities of the sample's own targets."""
     d = gate.shape[-1]
     if assignment == "paper":
         return (gate * nll).sum(-1).mean(-1) / d
@@ -204,9 +208,10 @@ def reconstruction(
         return (-torch.logsumexp(log_joint, dim=-1) / n[..., 0]).mean(-1) / d
     if assignment in BALANCING:  # "annealed", "bounded"
         log_p = gate.clamp_min(_TINY).log()  # (B, d)
-        decided_by = (nll, values) if posterior is None else posterior
-        r = annealed_posterior(log_p, *decided_by, progress, BALANCING[assignment])  # (B, d), detached
-        return ((r * nll).sum(-1) - (r * log_p).sum(-1)).mean(-1) / d
+        balancing = BALANCING[assignment]
+        own = annealed_posterior(log_p, nll, values, progress, balancing)  # (B, d), detached: what the gate learns
+        r = own if posterior is None else annealed_posterior(log_p, *posterior, progress, balancing)  # the experts'
+        return ((r * nll).sum(-1) - (own * log_p).sum(-1)).mean(-1) / d
     raise ValueError(f"unknown assignment {assignment!r}")
 
 

@@ -63,20 +63,30 @@ class TrajectoryStack:
         """Normalised time of `steps` (B, k) of trajectories `traj` (B,) -> (B, k)."""
         return steps / (self.lengths[traj] - 1).clamp_min(1).unsqueeze(1)
 
-    def demonstration(
-        self, traj: torch.Tensor, most: int = DEMONSTRATION_STEPS
-    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Trajectories `traj` (B,) as queries and targets: every step of one of at most `most` steps, else `most`
-        steps evenly spaced from its first to its last -> query (B, P, 1 + query_dim), target (B, P, dy), mask (B, P)
-        bool, with P = min(most, longest trajectory)."""
+    def spread(self, traj: torch.Tensor, most: int = DEMONSTRATION_STEPS) -> tuple[torch.Tensor, torch.Tensor]:
+        """Every step of each trajectory `traj` (B,) of at most `most` steps, else `most` steps evenly spaced from its
+        first to its last -> steps (B, P) and mask (B, P) bool, with P = min(most, longest trajectory)."""
         lengths = self.lengths[traj].unsqueeze(1)  # (B, 1)
         P = min(most, self.observed.shape[1])
         order = torch.arange(P)  # (P,)
         spread = torch.round(order * (lengths - 1) / max(P - 1, 1)).long()  # (B, P): first to last step
-        steps = torch.where(lengths > P, spread, order)  # (B, P)
+        return torch.where(lengths > P, spread, order), order < lengths
+
+    def demonstration(
+        self, traj: torch.Tensor, most: int = DEMONSTRATION_STEPS
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Trajectories `traj` (B,) at their `spread` steps as queries and targets -> query (B, P, 1 + query_dim),
+        target (B, P, dy), mask (B, P) bool."""
+        steps, mask = self.spread(traj, most)
         rows = traj.unsqueeze(1)  # (B, 1)
         query = torch.cat([self.times(traj, steps).unsqueeze(-1), self.query[rows, steps]], -1)
-        return query, self.predicted[rows, steps], order < lengths
+        return query, self.predicted[rows, steps], mask
+
+    def context(self, traj: torch.Tensor, most: int = DEMONSTRATION_STEPS) -> tuple[torch.Tensor, torch.Tensor]:
+        """Trajectories `traj` (B,) at their `spread` steps as observations -> obs (B, P, 1 + obs_dim), mask (B, P)."""
+        steps, mask = self.spread(traj, most)
+        obs = torch.cat([self.times(traj, steps).unsqueeze(-1), self.observed[traj.unsqueeze(1), steps]], -1)
+        return obs, mask
 
 
 def _random_steps(lengths: torch.Tensor, k_max: int, T: int, g: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:

@@ -29,6 +29,7 @@ from cnep.models.config import CNEPConfig, TrainConfig
 from cnep.models.errors import ConfigError
 from cnep.models.loss import BALANCING, cnep_loss, expert_nll, settled_fraction
 from cnep.models.sampler import Batch, TrajectoryStack, sample_batch
+from cnep.models.split import split_if_idle, split_steps
 from cnep.models.threads import torch_threads
 
 log = logging.getLogger(__name__)
@@ -146,6 +147,12 @@ class Trainer:
         self.freeze_steps = int(self.cfg.gate_freeze_fraction * self.cfg.steps)
         # validations before this step are logged but never kept as the best model (models.loss.settled_fraction)
         self.keep_from = int(settled_fraction(self.model.config.assignment) * self.cfg.steps)
+        assignment = self.model.config.assignment
+        balanced = assignment in BALANCING and self.model.n_experts > 1
+        # the steps at which an idle expert may take a copy of a busy one (models.split)
+        self.split_at = (
+            split_steps(self.cfg.steps, self.freeze_steps, BALANCING[assignment].fade_from) if balanced else frozenset()
+        )
 
     @property
     def first_steps(self) -> tuple[float, int]:
@@ -173,7 +180,25 @@ class Trainer:
         """(query, target, mask) of the demonstration each sample of `batch` was drawn from, on the model's device."""
         return tuple(x.to(self.device) for x in self.train.demonstration(batch.trajectory.cpu()))
 
+    def split_idle(self, params: dict[str, torch.Tensor], state: dict[str, dict]) -> None:
+        """`models.split.split_if_idle` on this model: params, its parameters by name (views of a stack in
+        models.batched, holding the same values as `self.model`); state, their Adam state by name."""
+        done = split_if_idle(self.model, self.train, params, state, self.cfg.seed, self.step)
+        if done is not None:
+            idle, busy, counts = done
+            log.info(
+                "step %d: expert %d is idle (training demonstrations the gate has decided for, by expert: %s); it "
+                "takes a copy of expert %d",
+                self.step,
+                idle,
+                counts,
+                busy,
+            )
+
     def train_step(self) -> dict[str, float]:
+        if self.step in self.split_at:
+            params = dict(self.model.named_parameters())
+            self.split_idle(params, {name: self.optimizer.state.get(p, {}) for name, p in params.items()})
         batch = self.next_batch()
         set_learning_rate(self.optimizer, self.step, self.cfg)
         mean, std, gate = self.model(batch.obs, batch.obs_mask, batch.query)

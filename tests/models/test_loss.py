@@ -234,23 +234,30 @@ def test_annealed_term_against_a_hand_computation(assignment):
 
 
 @pytest.mark.parametrize("assignment", ["annealed", "bounded"])
-def test_the_demonstrations_decide_the_em_posterior_where_given(assignment):
-    """The experts and the gate learn the responsibilities of each sample's whole demonstration (`posterior`), not of
-    its own targets: the loss equals the hand computation with the demonstrations' NLL and values in the posterior
-    and the samples' own NLL in the weighted term."""
+def test_the_demonstrations_decide_which_expert_learns_and_the_samples_what_the_gate_learns(assignment):
+    """Where `posterior` is given, the experts learn the responsibilities of each sample's whole demonstration and the
+    gate those of the sample's own targets: the loss equals the hand computation with the demonstrations' posterior
+    weighing the NLL and the samples' own posterior weighing -log p."""
     cfg = CNEPConfig(n_experts=2, a_rec=1.0, a_batch=0.0, a_ind=0.0, assignment=assignment)
-    mean, std, target, mask, gate, (L0, _), (L1, _) = _two_sample_example()
+    mean, std, target, mask, gate, (L0, n0), (L1, n1) = _two_sample_example()
     # both samples' targets favour expert 0 (L0, L1); their demonstrations, 40 values each, favour expert 1
     demo = torch.tensor([[1.5, 1.0], [2.0, 1.2]])
     values = torch.tensor([40.0, 40.0])
     for progress in (0.0, 0.7, 1.0):
         _, terms = cnep_loss(mean, std, gate, target, mask, cfg, progress, (demo, values))
         r = _hand_posterior(demo.tolist(), [40, 40], gate.tolist(), progress, BALANCING[assignment])
-        rec = [sum(re * (le - math.log(pe)) for re, le, pe in zip(ri, Li, pi)) for ri, Li, pi in zip(r, [L0, L1], gate)]
+        own = _hand_posterior([L0, L1], [n0, n1], gate.tolist(), progress, BALANCING[assignment])
+        rec = [
+            sum(re * le - oe * math.log(pe) for re, oe, le, pe in zip(ri, oi, Li, pi))
+            for ri, oi, Li, pi in zip(r, own, [L0, L1], gate)
+        ]
         assert math.isclose(terms["rec"], (rec[0] + rec[1]) / 2 / 2, rel_tol=1e-6)
     logits = gate.log().clone().requires_grad_()
+    mean = mean.clone().requires_grad_()
     cnep_loss(mean, std, torch.softmax(logits, -1), target, mask, cfg, 1.0, (demo, values))[0].backward()
-    assert (logits.grad[:, 1] < 0).all()  # free and sharp: the gate is pulled towards expert 1 on both samples
+    assert (logits.grad[:, 0] < 0).all()  # free and sharp: the gate is pulled towards expert 0, the targets' own
+    # while expert 1 learns the samples' targets (its mean gets the gradient) and expert 0 nearly nothing
+    assert mean.grad[:, 1].abs().sum() > 100 * mean.grad[:, 0].abs().sum()
 
 
 def test_the_trainer_gives_the_em_assignments_the_demonstrations_and_the_papers_term_none(monkeypatch):
