@@ -7,6 +7,7 @@ itself would give.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -61,3 +62,16 @@ def find_trajectory_files(inputs: Sequence[Path]) -> list[Path]:
             f"{len(unique)} from {', '.join(map(str, inputs))}"
         )
     return unique
+
+
+def coerce_paths(config) -> None:
+    """Give a stage's frozen config its path fields as `Path`s, as the `cnep` command does, where Python code passed
+    strings (`TrainStageConfig(inputs=("trajectories",), out="model")`): fields annotated `Path`, `Path | None` and
+    `tuple[Path, ...]` (a lone string there is one path). Call it first in the config's `__post_init__`."""
+    for f in dataclasses.fields(config):
+        value = getattr(config, f.name)
+        if f.type in ("Path", "Path | None") and isinstance(value, str):
+            object.__setattr__(config, f.name, Path(value))
+        elif f.type == "tuple[Path, ...]":
+            given = (value,) if isinstance(value, (str, Path)) else value
+            object.__setattr__(config, f.name, tuple(Path(v) for v in given))

@@ -6,6 +6,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from cnep.models.config import CNEPConfig, TrainConfig
+from cnep.pipeline.inputs import coerce_paths
 
 # `weights` by name (anything else is the path of a state dict): `auto` is ImageNet's where they can be had, else
 # seeded random ones (pipeline.demo.weights); the other two are `cnep extract --weights`'s names (perception.weights).
@@ -73,6 +74,9 @@ class DemoConfig:
     precision: str = "fp32"
     weights: str = AUTO_WEIGHTS
     offline: bool = False
+
+    def __post_init__(self) -> None:
+        coerce_paths(self)
 
     @property
     def size(self) -> DemoSize:

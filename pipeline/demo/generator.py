@@ -41,6 +41,7 @@ from cnep.pipeline.demo.scene import (
     gripper_quaternion,
     sample_scene,
 )
+from cnep.pipeline.inputs import coerce_paths
 from cnep.pipeline.progress import progress_bar
 from cnep.recordings import Demonstration, Episode, write_demonstration
 
@@ -214,6 +215,9 @@ class DemoSetConfig:
     quiet: bool = False
     free_choice_per_side: int = 0
     heldout_free_choice_per_side: int = 0
+
+    def __post_init__(self) -> None:
+        coerce_paths(self)
 
 
 @dataclass(frozen=True)

@@ -37,6 +37,7 @@ from cnep.models import CNEPConfig, ColumnRoles, TrainConfig, fit, matched_cnmp,
 from cnep.models.config import ASSIGNMENTS
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.ingest.stage import IngestConfig, ingest
+from cnep.pipeline.inputs import coerce_paths
 from cnep.recordings import Demonstration, read_demonstration
 
 log = logging.getLogger(__name__)
@@ -60,6 +61,9 @@ class BaxterConfig:
     samples: int = SAMPLES
     goal: bool = False
     quiet: bool = False
+
+    def __post_init__(self) -> None:
+        coerce_paths(self)
 
 
 @dataclass(frozen=True)

@@ -48,6 +48,7 @@ from cnep.pipeline.evaluate.constants import (
     UNIT_NETWORKS,
 )
 from cnep.pipeline.evaluate.jobs import PROTOCOLS, Job, ModelSpec, run_unit, unit_key
+from cnep.pipeline.inputs import coerce_paths
 from cnep.pipeline.ownership import OutputKind, json_with, markdown_titled
 from cnep.pipeline.workers import single_thread_processes
 
@@ -77,6 +78,7 @@ class EvaluateConfig:
     quiet: bool = False
 
     def __post_init__(self) -> None:
+        coerce_paths(self)
         unknown = [t for t in self.tables if t not in TABLES]
         if unknown or not self.tables:
             raise PipelineError(f"unknown table(s) {unknown or self.tables}; choose from {', '.join(TABLES)} or all")

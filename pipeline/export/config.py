@@ -10,6 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.inputs import coerce_paths
 from cnep.runtime.timebase import TimeBase
 
 
@@ -30,6 +31,7 @@ class ExportConfig:
     quiet: bool = False
 
     def __post_init__(self) -> None:
+        coerce_paths(self)
         if self.int8 and not self.calibration:
             raise PipelineError(
                 "int8 features are quantised on frames of the recordings: give demonstration files or folders "

@@ -42,7 +42,7 @@ from cnep.perception.frames import decode_image, resize_frames
 from cnep.perception.weights import find_imagenet_weights
 from cnep.pipeline.contract import output_folder, raise_if_skipped, refuse_existing, refuse_inputs
 from cnep.pipeline.errors import PipelineError
-from cnep.pipeline.inputs import DEMONSTRATIONS, mcap_files
+from cnep.pipeline.inputs import DEMONSTRATIONS, coerce_paths, mcap_files
 from cnep.pipeline.ownership import MCAP, WEIGHTS
 from cnep.pipeline.progress import progress_bar
 from cnep.pipeline.workers import cpu_cores, inference_threads, process_pool, thread_environment
@@ -100,6 +100,7 @@ class ExtractConfig:
     calibrate_on: tuple[Path, ...] = ()
 
     def __post_init__(self) -> None:
+        coerce_paths(self)
         if self.workers != "auto" and (not isinstance(self.workers, int) or self.workers < 1):
             raise PipelineError(f"--workers must be >= 1, got {self.workers} (or `auto`: as many as the job pays for)")
 

@@ -27,7 +27,7 @@ from tqdm.contrib.logging import logging_redirect_tqdm
 from cnep.outputs import output_lock
 from cnep.pipeline.contract import output_folder, raise_if_skipped, refuse_existing
 from cnep.pipeline.errors import PipelineError
-from cnep.pipeline.inputs import SUFFIX
+from cnep.pipeline.inputs import SUFFIX, coerce_paths
 from cnep.pipeline.ownership import MCAP
 from cnep.pipeline.progress import progress_bar
 from cnep.recordings import FORMAT_VERSION, Demonstration, DemonstrationReader, RecordingError, write_demonstration
@@ -66,6 +66,9 @@ class IngestConfig:
     quiet: bool = False
     format: str = "auto"  # one of FORMATS
     lerobot: LerobotMapping = field(default_factory=LerobotMapping)
+
+    def __post_init__(self) -> None:
+        coerce_paths(self)
 
 
 @dataclass(frozen=True)

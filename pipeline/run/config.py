@@ -12,6 +12,7 @@ from pathlib import Path
 from cnep.models.checkpoint import CONFIG_FILE
 from cnep.models.config import setting
 from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.inputs import coerce_paths
 from cnep.runtime.constants import DEFAULT_BACKEND, DEFAULT_PRECISION, DEFAULT_WAYPOINTS, MANIFEST_FILE
 from cnep.runtime.timebase import TimeBase
 
@@ -47,6 +48,7 @@ class RunConfig:
     quiet: bool = False
 
     def __post_init__(self) -> None:
+        coerce_paths(self)
         if not self.recordings:
             raise PipelineError("run needs at least one demonstration recording")
         if (self.out is None) == (self.connect is None):

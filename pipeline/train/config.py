@@ -11,6 +11,7 @@ from pathlib import Path
 
 from cnep.models.config import CNEPConfig, TrainConfig, setting
 from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.inputs import coerce_paths
 from cnep.pipeline.train.constants import SCENE
 
 
@@ -55,6 +56,7 @@ class TrainStageConfig:
     quiet: bool = False
 
     def __post_init__(self) -> None:
+        coerce_paths(self)
         if not 0 < self.val_fraction < 1:
             raise PipelineError(f"val_fraction must be in (0, 1), got {self.val_fraction}")
         if self.save_every < 1:

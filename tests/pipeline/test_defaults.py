@@ -11,6 +11,8 @@ from cnep.models.config import CNEPConfig, ConditioningPolicy, TrainConfig
 from cnep.pipeline.cli.main import build_parser
 from cnep.pipeline.cli.train import SETTINGS, stage_config
 from cnep.pipeline.demo.config import DemoConfig
+from cnep.pipeline.extract.stage import ExtractConfig
+from cnep.pipeline.ingest.stage import IngestConfig
 from cnep.pipeline.train.config import TrainStageConfig
 
 NETWORK = ("n_experts", "assignment", "encoder_widths", "expert_widths", "time_frequencies")
@@ -87,3 +89,29 @@ def test_cnep_run_takes_its_defaults_from_run_config():
     config = RunConfig(Path("policy"), (Path("r.mcap"),), out=Path("r.rrd"))
     names = ("precision", "backend", "threads", "waypoints", "time_base")
     assert {n: getattr(args, n) for n in names} == {n: getattr(config, n) for n in names}
+
+
+@pytest.mark.parametrize(
+    "make",
+    [
+        lambda: TrainStageConfig(inputs=("trajectories", Path("more")), out="model"),
+        lambda: ExtractConfig(inputs="demos", out="trajectories", calibrate_on=["demos/train"]),
+        lambda: IngestConfig(src="raw", out="demos"),
+        lambda: DemoConfig(out="cnep-demo"),
+    ],
+)
+def test_a_stage_config_made_from_python_with_strings_holds_paths(make):
+    """What the `cnep` command passes as Paths, Python code may pass as strings (a lone string for a tuple of paths
+    is one path): the stages then see the same config."""
+    config = make()
+    checked = 0
+    for f in fields(config):
+        value = getattr(config, f.name)
+        if f.type in ("Path", "Path | None"):
+            assert value is None or isinstance(value, Path), f.name
+            checked += 1
+        if f.type == "tuple[Path, ...]":
+            assert isinstance(value, tuple) and all(isinstance(v, Path) for v in value), f.name
+            assert value == tuple(Path(v) for v in value) and value, f.name
+            checked += 1
+    assert checked >= 1
