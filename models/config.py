@@ -69,9 +69,9 @@ def authors_coefficients(n_experts: int) -> tuple[float, float, float]:
 
 # The reconstruction terms of the loss (models.loss.reconstruction): "paper" = mean_i (1/d) sum_e p_ie L_ie,
 # "mixture" = mean_i (1/(d n_i)) (-log sum_e p_ie exp(-S_ie)), "annealed" = EM on the posterior of each sample's
-# whole demonstration, annealed from soft to sharp, balanced over the experts while it anneals, "bounded" = the same
-# with the balancing bounded (every expert's share between 0.75 and 1.5 x B/d) instead of equal, and faded out
-# instead of stopped.
+# whole demonstration (the gate's: of its own targets), annealed from soft to sharp, balanced over the experts while
+# it anneals (models.split), "bounded" = the same with the balancing bounded (every expert's share between 0.75 and
+# 1.5 x B/d) instead of equal, and faded out instead of stopped.
 ASSIGNMENTS = ("paper", "mixture", "annealed", "bounded")
 # The gate's learning rate as a fraction of the network's (TrainConfig.gate_lr_scale left None), per assignment.
 # The paper's term moves the gate by p (L - mean L) / d and the mixture's by (p - r) / (d n_i): 0.3 was measured
@@ -89,7 +89,8 @@ class CNEPConfig:
     authors' code subtracts it, which matches the stated intent of maximising batch entropy).
     Coefficients left as None take the authors' values rescaled with the number of experts.
     `assignment` chooses L_rec (models.loss): "bounded" (the default), the experts on the posterior
-    responsibilities and the gate towards them, balanced within bounds over the experts while the posterior
+    responsibilities of each sample's demonstration and the gate towards those of its own targets, balanced within
+    bounds over the experts while the posterior
     anneals from soft to the mixture's, so that an expert commits where several behaviours share a context;
     "annealed", the same with equal balancing; "mixture", the mixture likelihood whose responsibilities come
     from the targets; "paper", the gate-weighted expert NLL of the paper (what reproduces its tables;
@@ -111,8 +112,9 @@ class CNEPConfig:
         "expert the gate has not ruled out learns every target), mixture = the mixture likelihood (the expert "
         "that explains the targets learns them; commits where the context cannot tell behaviours apart), "
         "annealed = the expert that explains the sample's whole demonstration learns the sample, soft and balanced "
-        "over the experts early in training, as sharp as a mixture's from 60% of the steps on, the gate trained "
-        "towards it at full strength, bounded = annealed with each expert's share kept within 0.75-1.5x an equal "
+        "over the experts early in training (an idle expert taking a copy of a busy one), as sharp as a mixture's "
+        "from 60% of the steps on, the gate trained at full strength towards the same choice made from the "
+        "sample's own targets, bounded = annealed with each expert's share kept within 0.75-1.5x an equal "
         "one instead of equal, faded out over 60-80% of the steps; the best model is kept from where the "
         "balancing ends (bounded commits on shared contexts and keeps the paper's accuracy; docs/concepts.md)",
     )
