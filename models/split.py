@@ -68,7 +68,7 @@ def split(
             continue
         src, dst = expert_part(name, p, busy, d), expert_part(name, p, idle, d)
         p[dst] = p[src]
-        if not name.startswith("gate."):
+        if not name.startswith("gate.") and p[src].numel() > 1:  # (a lone number has no spread to scale noise by)
             p[dst] += NOISE * p[src].std() * torch.randn(p[src].shape, generator=generator).to(p.device)
         for moment in ("exp_avg", "exp_avg_sq"):
             if moment in state.get(name, {}):

@@ -109,3 +109,13 @@ def test_a_split_in_a_stack_matches_the_same_split_alone(monkeypatch):
         for name, value in alone.state_dict().items():
             assert torch.equal(model.state_dict()[name], value), name
         assert history == alone_history
+
+
+def test_a_copy_of_one_unit_wide_layers_stays_finite():
+    trajs, _ = two_mode_trajectories(n=4, T=10, seed=0)
+    wide = [torch.randn(10, 5, generator=torch.Generator().manual_seed(1)).numpy() + t for t in trajs]
+    model = build_model(dataclasses.replace(tiny_config(n_experts=2), expert_widths=(1, 1)), wide, seed=0)
+    params = dict(model.named_parameters())
+    cnep.models.split.split(params, {}, 1, 0, torch.Generator().manual_seed(0))
+    assert all(torch.isfinite(p).all() for p in model.parameters())
+    assert torch.equal(model.experts.first_b[1:2], model.experts.first_b[0:1])  # copied without noise
