@@ -19,6 +19,9 @@ held-out scene, its models should follow the behaviour the scene calls for. On t
     calibration           over every first read: the gate's largest probability p on wrong and on right reads,
                           the share of wrong reads at p >= CONFIDENT, and the shares of wrong and of right reads
                           that the replay shows unsure (p < SURE_GATE)
+    motion / images       conditioned on every step of a held-out scene whose motion (every column but the image
+                          features) is that of a training demonstration of another behaviour: the share of such
+                          conflicts where the gate names the motion's expert, and where it names the images'
 
 --extra N adds N new scenes per behaviour, drawn by the demo's generator from the demo's seed (its checkpoints
 record it) on a stream the demo never drew from; only their first frame is rendered, and extracted with the
@@ -46,6 +49,7 @@ from cnep.pipeline.demo.generator import SPLITS, make_demonstration
 from cnep.pipeline.demo.measures import (
     expert_purity,
     first_step_prediction,
+    gate_of,
     key,
     nearest_behaviour,
     recorded_labels,
@@ -59,6 +63,7 @@ from cnep.pipeline.inputs import DEMONSTRATIONS, mcap_files
 from cnep.pipeline.replay.viewer import SURE_GATE
 from cnep.pipeline.train.checkpoint import TrainedModel, load_trained
 from cnep.recordings import Trajectory, read_trajectory
+from cnep.recordings.constants import BLOCK_FEATURES
 
 # Small against a standardised row's squared norm (its width): near the least-squares fit of least norm, so the
 # probe finds whatever a linear read of the rows separates.
@@ -259,6 +264,28 @@ def model_reads(models: dict[str, TrainedModel], train: Scenes, sets: dict[str, 
     return found
 
 
+def motion_or_images(trained: TrainedModel, train: Scenes, heldout: Scenes, experts: dict) -> dict:
+    """Whom the CNEP gate follows when a scene's images and its motion disagree: each held-out scene conditioned on
+    all its steps, with the motion (the model's columns outside the image features) of the first training
+    demonstration of each other behaviour -> {"motion", "images": the share of those conflicts where the gate names
+    the motion's behaviour's expert, the images'}."""
+    model, (a, b) = trained.model, trained.mapping.blocks[BLOCK_FEATURES]
+    donors = {}
+    for t, p, label in zip(train.trajectories, train.sources, train.labels):
+        donors.setdefault(label, trained.rows(t, p))
+    named = []  # (expert the gate names, the motion's expert, the images' expert)
+    for t, p, label in zip(heldout.trajectories, heldout.sources, heldout.labels):
+        rows = trained.rows(t, p)
+        for other, motion in donors.items():
+            if other == label:
+                continue
+            T = min(len(rows), len(motion))
+            mixed = np.concatenate([motion[:T, :a], rows[:T, a:b], motion[:T, b:]], axis=1)
+            named.append((int(gate_of(model, mixed).argmax()), experts[other], experts[label]))
+    chosen, motion_expert, images_expert = np.array(named).T
+    return {"motion": float(np.mean(chosen == motion_expert)), "images": float(np.mean(chosen == images_expert))}
+
+
 def check_folder(folder: Path) -> None:
     """Refuse a folder that lacks what `cnep demo` leaves and this reads."""
     needed = (*NEEDED, *(f"checkpoints/{m.lower()}" for m in MODELS))
@@ -283,6 +310,7 @@ def measure(folder: Path, extra: int) -> dict:
         sets["extra"] = extra_scenes(folder, seed, extra, sets["heldout"].trajectories[0])
     behaviours = expert_purity(models["CNEP"].path, decided + heldout, labels)  # as the demo's summary
     experts = {b: row["expert"] for b, row in behaviours.items()}
+    follows = motion_or_images(models["CNEP"], train, sets["heldout"], experts)
     return {
         "demo": str(folder),
         "seed": seed,
@@ -294,6 +322,7 @@ def measure(folder: Path, extra: int) -> dict:
         },
         "features": feature_probes(train, sets),
         **model_reads(models, train, sets, experts),
+        "gate_follows": follows,
         "seconds": round(time.perf_counter() - start, 1),
     }
 
@@ -319,6 +348,7 @@ COLUMNS: dict[str, Callable[[dict], list]] = {
         f["calibration"]["unsure_wrong"],
         f["calibration"]["unsure_right"],
     ],
+    "gate follows motion / images": lambda f: [f["gate_follows"]["motion"], f["gate_follows"]["images"]],
 }
 
 

@@ -84,6 +84,36 @@ def test_first_read_measures_a_demo_folder_and_its_extra_scenes(quick_demo, tmp_
     shares = [calibration[k] for k in ("p_wrong", "p_right", "confident_wrong", "unsure_wrong", "unsure_right")]
     assert all(v is None or 0 <= v <= 1 for v in shares)
     assert (calibration["p_wrong"] is None) == (calibration["wrong"] == 0)
+    assert all(0 <= f["gate_follows"][by] <= 1 for by in ("motion", "images"))
+
+
+def test_first_read_swaps_in_another_behaviours_motion_beside_the_scenes_images(quick_demo, monkeypatch, one_thread):
+    module = load("first_read")
+    labels = module.recorded_labels(quick_demo / "recorded")
+    decided = [
+        p
+        for p in sorted((quick_demo / "trajectories" / "train").glob("*.mcap"))
+        if labels[module.key(p)] in module.BEHAVIOURS
+    ]
+    train = module.read_scenes(decided, labels)
+    heldout = module.read_scenes(sorted((quick_demo / "trajectories" / "heldout").glob("*.mcap")), labels)
+    trained = module.load_trained(quick_demo / "checkpoints" / "cnep")
+    a, b = trained.mapping.blocks["features"]
+    experts = {behaviour: i for i, behaviour in enumerate(module.BEHAVIOURS)}
+
+    def rows(scenes) -> list:  # (model rows, behaviour) of each scene
+        return [(trained.rows(t, p), y) for t, p, y in zip(scenes.trajectories, scenes.sources, scenes.labels)]
+
+    def follower(block, known: list):  # a gate that names the behaviour whose rows `block` shows
+        return lambda model, mixed: np.eye(len(experts))[
+            next(experts[label] for r, label in known if np.array_equal(r[: len(mixed), block], mixed[:, block]))
+        ]
+
+    motion = np.r_[0:a, b : trained.model.config.columns.width]
+    monkeypatch.setattr(module, "gate_of", follower(motion, rows(train)))
+    assert module.motion_or_images(trained, train, heldout, experts) == {"motion": 1.0, "images": 0.0}
+    monkeypatch.setattr(module, "gate_of", follower(slice(a, b), rows(heldout)))
+    assert module.motion_or_images(trained, train, heldout, experts) == {"motion": 0.0, "images": 1.0}
 
 
 def test_first_read_refuses_a_folder_the_demo_did_not_make_before_any_work(quick_demo, tmp_path, capsys):
