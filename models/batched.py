@@ -94,13 +94,14 @@ class StackedCNEP:
     def __len__(self) -> int:
         return len(next(iter(self.params.values())))
 
-    def __call__(self, obs: torch.Tensor, obs_mask: torch.Tensor, query: torch.Tensor):
+    def __call__(self, obs: torch.Tensor, obs_mask: torch.Tensor, query: torch.Tensor, latent: bool = False):
         """obs (k, B, N, 1+obs_dim), obs_mask (k, B, N), query (k, B, M, 1+dq) -> mean, std (k, B, d, M, dy),
-        gate (k, B, d)."""
+        gate (k, B, d); with `latent`, the latent r (k, B, H) too (as CNEP.forward)."""
         r = self.encode(obs, obs_mask)  # (k, B, H)
         logits = StackedLinear.apply(r, self.params["gate.weight"], self.params["gate.bias"])  # (k, B, d)
         mean, std = self.decode(r, query)
-        return mean, std, torch.softmax(logits, dim=-1)
+        gate = torch.softmax(logits, dim=-1)
+        return (mean, std, gate, r) if latent else (mean, std, gate)
 
     def encode(self, obs: torch.Tensor, obs_mask: torch.Tensor) -> torch.Tensor:
         """CNEP.encode for k models: masked mean of the encodings, (k, B, N, 1+obs_dim) -> (k, B, H)."""
@@ -213,12 +214,12 @@ class BatchedTrainer:
             f: torch.stack([getattr(b, f) for b in batches])
             for f in ("obs", "obs_mask", "query", "target", "target_mask")
         }
-        mean, std, gate = self.net(stacked["obs"], stacked["obs_mask"], stacked["query"])  # (k, B, d, M, dy), (k, B, d)
+        mean, std, gate, r = self.net(stacked["obs"], stacked["obs_mask"], stacked["query"], latent=True)
         posterior = None
         if any(a in BALANCING for a in self.assignments):  # each from its own model's demonstrations
             parts = zip(*(self.trainers[i].demonstration(b) for i, b in zip(self.active, batches)))
             demonstration = tuple(torch.stack(part) for part in parts)  # (k, B, P, ...) each
-            posterior = demonstration_nll(self.net, stacked["obs"], stacked["obs_mask"], demonstration)
+            posterior = demonstration_nll(self.net, r, demonstration)
         terms = stacked_loss_terms(
             mean,
             std,

@@ -128,12 +128,12 @@ class CNEP(nn.Module):
         mean, raw = out.split(dy, dim=-1)  # (B, d, M, dy) each
         return mean, self.config.min_std + F.softplus(raw)
 
-    def forward(self, obs: torch.Tensor, obs_mask: torch.Tensor, query: torch.Tensor):
-        """Normalised inputs -> (mean, std (B, d, M, dy), gate (B, d))."""
+    def forward(self, obs: torch.Tensor, obs_mask: torch.Tensor, query: torch.Tensor, latent: bool = False):
+        """Normalised inputs -> (mean, std (B, d, M, dy), gate (B, d)); with `latent`, the latent r (B, H) too."""
         r = self.encode(obs, obs_mask)  # (B, H)
         gate = torch.softmax(self.gate(r), dim=-1)  # (B, d)
         mean, std = self.decode(r, query)
-        return mean, std, gate
+        return (mean, std, gate, r) if latent else (mean, std, gate)
 
     @torch.inference_mode()
     def generate(

@@ -90,14 +90,15 @@ def set_learning_rate(optimizer: torch.optim.Optimizer, step: int, cfg: TrainCon
 
 @torch.no_grad()
 def demonstration_nll(
-    model, obs: torch.Tensor, obs_mask: torch.Tensor, demonstration: tuple[torch.Tensor, torch.Tensor, torch.Tensor]
+    model, r: torch.Tensor, demonstration: tuple[torch.Tensor, torch.Tensor, torch.Tensor]
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """What the EM assignments' responsibilities are computed from (models.loss): each expert's mean NLL (..., B, d)
     of the demonstration each sample was drawn from, predicted from the sample's context, and that demonstration's
-    number of values (..., B). model: a CNEP (or k stacked: models.batched, leading dimension k); obs, obs_mask: the
-    batch's contexts; demonstration: (query, target, mask) of `TrajectoryStack.demonstration`, on the same device."""
+    number of values (..., B). model: a CNEP (or k stacked: models.batched, leading dimension k); r: the latent
+    (..., B, H) of the batch's contexts, as the training step's forward pass returns it (`latent=True`; not
+    differentiated here); demonstration: (query, target, mask) of `TrajectoryStack.demonstration`, on r's device."""
     query, target, mask = demonstration
-    mean, std = model.decode(model.encode(obs, obs_mask), query)  # (..., B, d, P, dy)
+    mean, std = model.decode(r, query)  # (..., B, d, P, dy)
     nll = expert_nll(mean, std, target, mask)  # (..., B, d)
     return nll, mask.sum(-1).to(mean.dtype) * mean.shape[-1]
 
@@ -201,9 +202,9 @@ class Trainer:
             self.split_idle(params, {name: self.optimizer.state.get(p, {}) for name, p in params.items()})
         batch = self.next_batch()
         set_learning_rate(self.optimizer, self.step, self.cfg)
-        mean, std, gate = self.model(batch.obs, batch.obs_mask, batch.query)
+        mean, std, gate, r = self.model(batch.obs, batch.obs_mask, batch.query, latent=True)
         posterior = (
-            demonstration_nll(self.model, batch.obs, batch.obs_mask, self.demonstration(batch))
+            demonstration_nll(self.model, r, self.demonstration(batch))
             if self.model.config.assignment in BALANCING
             else None
         )

@@ -155,3 +155,26 @@ def test_first_steps_contexts_reach_the_training_and_validation_batches():
         assert (batch.obs_mask.sum(1) == 1).all() and (batch.obs[:, 0, 0] == 0).all()
     plain, _ = prepare_fit(trajs, CNEPConfig(**SMALL), QUICK)
     assert (plain.next_batch().obs_mask.sum(1) > 1).any()
+
+
+def test_the_demonstrations_nll_reads_the_latent_of_the_training_steps_forward_pass(monkeypatch):
+    import cnep.models.train as train
+
+    batches, same = [], []
+    next_batch, demonstration_nll = train.Trainer.next_batch, train.demonstration_nll
+
+    def spy_batch(self):
+        batches.append(next_batch(self))
+        return batches[-1]
+
+    def spy_nll(model, r, demonstration):  # r against the batch's contexts encoded afresh, before the step
+        with torch.no_grad():
+            same.append(torch.equal(r, model.encode(batches[-1].obs, batches[-1].obs_mask)))
+        return demonstration_nll(model, r, demonstration)
+
+    monkeypatch.setattr(train.Trainer, "next_batch", spy_batch)
+    monkeypatch.setattr(train, "demonstration_nll", spy_nll)
+    trajs, _ = two_mode_trajectories(n=4, T=10, seed=0)
+    config = CNEPConfig(n_experts=2, assignment="bounded", **SMALL)
+    fit(trajs, config, TrainConfig(steps=3, warmup_steps=1, val_every=3), progress=False)
+    assert same == [True, True, True]
