@@ -37,7 +37,15 @@ from cnep.models.errors import ConfigError
 from cnep.models.loss import BALANCING, loss_terms
 from cnep.models.sampler import DEMONSTRATION_STEPS
 from cnep.models.threads import torch_threads
-from cnep.models.train import Trainer, demonstration_nll, finish_fit, make_optimizer, prepare_fit, set_learning_rate
+from cnep.models.train import (
+    Trainer,
+    decay_observed_only,
+    demonstration_nll,
+    finish_fit,
+    make_optimizer,
+    prepare_fit,
+    set_learning_rate,
+)
 
 # What must agree for two networks to stack (the loss weights a_rec, a_batch, a_ind may differ).
 ARCHITECTURE_FIELDS = ("columns", "n_experts", "encoder_widths", "expert_widths", "min_std", "time_frequencies")
@@ -246,6 +254,8 @@ class BatchedTrainer:
                 view.grad = params[name].grad[j]
         set_learning_rate(self.optimizer, self.step, self.cfg)
         self.optimizer.step()
+        decayed = self.trainers[self.active[0]].decayed  # the same columns for every model of the stack
+        decay_observed_only(params["encoder.0.weight"], decayed, self.optimizer, self.cfg.observed_only_decay)
         self.step += 1
         values = torch.stack([total, terms["rec"], terms["batch_entropy"], terms["ind_entropy"]], 1).tolist()
         usage = gate.detach().mean(-2).tolist()  # (k, d)

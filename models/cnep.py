@@ -106,6 +106,21 @@ class CNEP(nn.Module):
     def n_experts(self) -> int:
         return self.config.n_experts
 
+    def observed_only_inputs(self) -> list[tuple[int, int]]:
+        """Spans (start, stop) of the encoder's inputs that carry a column the model observes but does not predict
+        (such as image features); the inputs are `embed_time`'s: t's 1 + 2K time features, then the observed columns."""
+        predicted = set(span_indices(self.config.columns.predicted))
+        offset = 1 + 2 * self.config.time_frequencies
+        spans: list[tuple[int, int]] = []
+        for i, column in enumerate(span_indices(self.config.columns.observed), start=offset):
+            if column in predicted:
+                continue
+            if spans and spans[-1][1] == i:
+                spans[-1] = (spans[-1][0], i + 1)
+            else:
+                spans.append((i, i + 1))
+        return spans
+
     def embed_time(self, x: torch.Tensor) -> torch.Tensor:
         """(..., 1 + k) with t first -> (..., 1 + 2K + k) with the time's Fourier features."""
         if not len(self.frequencies):

@@ -10,7 +10,7 @@ step where the assignment's posterior has settled on (`models.loss.settled_fract
 Adam runs fused (one kernel over all parameters: 0.5 ms a step instead of 4 ms for the per-tensor
 `foreach` path on the 2-core machine, benchmarks/bench_training.py). `models.batched` trains several
 such runs in one computation through the same helpers (`make_optimizer`, `set_learning_rate`, `next_batch`,
-`after_step`), so each of its models matches a run of this Trainer bit for bit.
+`decay_observed_only`, `after_step`), so each of its models matches a run of this Trainer bit for bit.
 """
 
 from __future__ import annotations
@@ -89,6 +89,18 @@ def set_learning_rate(optimizer: torch.optim.Optimizer, step: int, cfg: TrainCon
 
 
 @torch.no_grad()
+def decay_observed_only(
+    weight: torch.Tensor, spans: Sequence[tuple[int, int]], optimizer: torch.optim.Optimizer, decay: float
+) -> None:
+    """`TrainConfig.observed_only_decay` after an optimiser step: the encoder's first-layer weight (..., width,
+    inputs) on the input `spans` (`CNEP.observed_only_inputs`) shrinks in place by the network's learning rate of the
+    step (`optimizer`'s first group) times `decay`."""
+    factor = 1.0 - optimizer.param_groups[0]["lr"] * decay
+    for a, b in spans:
+        weight[..., a:b].mul_(factor)
+
+
+@torch.no_grad()
 def demonstration_nll(
     model, r: torch.Tensor, demonstration: tuple[torch.Tensor, torch.Tensor, torch.Tensor]
 ) -> tuple[torch.Tensor, torch.Tensor]:
@@ -146,6 +158,7 @@ class Trainer:
             for _ in range(VAL_BATCHES)
         ]
         self.freeze_steps = int(self.cfg.gate_freeze_fraction * self.cfg.steps)
+        self.decayed = self.model.observed_only_inputs() if self.cfg.observed_only_decay else []
         # validations before this step are logged but never kept as the best model (models.loss.settled_fraction)
         self.keep_from = int(settled_fraction(self.model.config.assignment) * self.cfg.steps)
         assignment = self.model.config.assignment
@@ -219,6 +232,7 @@ class Trainer:
                     p.grad.zero_()
         torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.cfg.grad_clip)
         self.optimizer.step()
+        decay_observed_only(self.model.encoder[0].weight, self.decayed, self.optimizer, self.cfg.observed_only_decay)
         self.step += 1
         terms["usage"] = gate.detach().mean(0).tolist()
         return terms

@@ -31,6 +31,7 @@ TRAIN_OPTIONS = (
     "gate_freeze_fraction",
     "gate_lr_scale",
     "obs_noise",
+    "observed_only_decay",
     "first_steps_fraction",
     "first_steps_max",
     "patience",

@@ -4,11 +4,12 @@ import numpy as np
 import pytest
 import torch
 
-from cnep.models.config import GATE_LR_SCALES, CNEPConfig, TrainConfig
+from cnep.models.cnep import CNEP
+from cnep.models.config import GATE_LR_SCALES, CNEPConfig, ColumnRoles, TrainConfig
 from cnep.models.errors import ConfigError
 from cnep.models.sampler import TrajectoryStack
 from cnep.models.train import Trainer, build_model, fit, lr_factor, prepare_fit, split_validation
-from tests.models.factories import two_mode_trajectories
+from tests.models.factories import tiny_config, two_mode_trajectories
 
 SMALL = {"encoder_widths": (32, 32), "expert_widths": (32, 32), "time_frequencies": 4}
 QUICK = TrainConfig(steps=60, warmup_steps=10, val_every=20, batch_size=8)
@@ -178,3 +179,42 @@ def test_the_demonstrations_nll_reads_the_latent_of_the_training_steps_forward_p
     config = CNEPConfig(n_experts=2, assignment="bounded", **SMALL)
     fit(trajs, config, TrainConfig(steps=3, warmup_steps=1, val_every=3), progress=False)
     assert same == [True, True, True]
+
+
+def test_the_observed_only_inputs_are_the_encoder_inputs_of_columns_never_predicted():
+    def inputs(**columns) -> list[tuple[int, int]]:  # after t's 1 + 2 x 2 time features: inputs 0-4
+        return CNEP(CNEPConfig(columns=ColumnRoles(width=6, **columns), time_frequencies=2)).observed_only_inputs()
+
+    assert inputs(observed=((0, 4),), predicted=((2, 6),)) == [(5, 7)]  # columns 0, 1: a camera's features
+    assert inputs(observed=((0, 2), (4, 6)), predicted=((1, 5),)) == [(5, 6), (8, 9)]  # columns 0 and 5
+    assert inputs(observed=((0, 6),), predicted=((0, 6),)) == []  # a model that predicts all it observes
+
+
+def test_observed_only_decay_shrinks_those_weights_by_the_steps_learning_rate_and_nothing_else():
+    trajs = [np.random.default_rng(i).standard_normal((20, 5)).astype(np.float32) for i in range(6)]
+    config = tiny_config(n_experts=2)  # observes columns 0-1, predicts 3-4
+    lr = {}
+
+    def one_step(decay: float) -> dict[str, torch.Tensor]:
+        cfg = TrainConfig(steps=10, warmup_steps=2, val_every=10, batch_size=4, observed_only_decay=decay)
+        trainer, _ = prepare_fit(trajs, config, cfg)
+        trainer.train_step()
+        lr[decay] = trainer.optimizer.param_groups[0]["lr"]
+        return {k: v.clone() for k, v in trainer.model.state_dict().items()}
+
+    plain, decayed = one_step(0.0), one_step(3.0)
+    assert lr[0.0] == lr[3.0] == 5e-4  # the warm-up's first step
+    assert CNEP(config).observed_only_inputs() == [(5, 7)]  # after t's 1 + 2 x 2 time features: columns 0-1
+    expected = plain["encoder.0.weight"].clone()
+    expected[:, 5:7] *= 1.0 - 5e-4 * 3.0
+    assert torch.equal(decayed["encoder.0.weight"], expected)
+    assert not torch.equal(decayed["encoder.0.weight"], plain["encoder.0.weight"])
+    assert all(torch.equal(decayed[k], v) for k, v in plain.items() if k != "encoder.0.weight")
+
+
+def test_observed_only_decay_leaves_a_model_that_predicts_all_it_observes_as_it_was():
+    trajs, _ = two_mode_trajectories(n=8, T=20, seed=0)
+    config = CNEPConfig(n_experts=2, **SMALL)  # observes and predicts the one column
+    plain, _ = fit(trajs, config, dataclasses.replace(QUICK, observed_only_decay=0.0), progress=False)
+    decayed, _ = fit(trajs, config, dataclasses.replace(QUICK, observed_only_decay=3.0), progress=False)
+    assert all(torch.equal(decayed.state_dict()[k], v) for k, v in plain.state_dict().items())
