@@ -213,11 +213,8 @@ class TrainConfig:
             raise ConfigError(f"obs_noise must be >= 0 (a standard deviation), got {self.obs_noise}.")
         if not self.lr > 0 or self.warmup_steps < 0:
             raise ConfigError(f"lr must be > 0 and warmup_steps >= 0, got {self.lr} and {self.warmup_steps}.")
-        if not 0 <= self.observed_only_decay * self.lr < 1:
-            raise ConfigError(
-                f"observed_only_decay must be >= 0 and observed_only_decay x lr below 1 (a weight's shrink per step), "
-                f"got {self.observed_only_decay} and lr {self.lr}."
-            )
+        if not self.observed_only_decay >= 0:
+            raise ConfigError(f"observed_only_decay must be >= 0 (0 turns it off), got {self.observed_only_decay}.")
         for name in ("patience", "threads"):
             if getattr(self, name) is not None and getattr(self, name) < 1:
                 raise ConfigError(f"TrainConfig.{name} must be >= 1 or None, got {getattr(self, name)}.")

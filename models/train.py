@@ -159,6 +159,12 @@ class Trainer:
         ]
         self.freeze_steps = int(self.cfg.gate_freeze_fraction * self.cfg.steps)
         self.decayed = self.model.observed_only_inputs() if self.cfg.observed_only_decay else []
+        if self.decayed and self.cfg.observed_only_decay * self.cfg.lr >= 1:  # would flip those weights' signs
+            raise ConfigError(
+                f"observed_only_decay x lr must be below 1 (the share of the observed-only weights taken off per "
+                f"step), got {self.cfg.observed_only_decay} x {self.cfg.lr}; lower lr or observed_only_decay (0 "
+                f"turns it off)"
+            )
         # validations before this step are logged but never kept as the best model (models.loss.settled_fraction)
         self.keep_from = int(settled_fraction(self.model.config.assignment) * self.cfg.steps)
         assignment = self.model.config.assignment

@@ -127,8 +127,6 @@ def test_train_config_rejects_bad_values():
         TrainConfig(obs_noise=-0.1)
     with pytest.raises(ConfigError, match="observed_only_decay must be >= 0"):
         TrainConfig(observed_only_decay=-1.0)
-    with pytest.raises(ConfigError, match="observed_only_decay x lr below 1"):
-        TrainConfig(observed_only_decay=3.0, lr=0.5)
     with pytest.raises(ConfigError, match="first_steps_fraction must be in"):
         TrainConfig(first_steps_fraction=1.5)
     with pytest.raises(ConfigError, match="first_steps_max >= 1"):

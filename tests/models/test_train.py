@@ -212,6 +212,14 @@ def test_observed_only_decay_shrinks_those_weights_by_the_steps_learning_rate_an
     assert all(torch.equal(decayed[k], v) for k, v in plain.items() if k != "encoder.0.weight")
 
 
+def test_an_observed_only_decay_that_would_flip_weights_is_refused_only_where_it_acts():
+    trajs = [np.random.default_rng(i).standard_normal((20, 5)).astype(np.float32) for i in range(6)]
+    cfg = TrainConfig(steps=10, warmup_steps=2, val_every=10, lr=0.5, observed_only_decay=3.0)
+    with pytest.raises(ConfigError, match=r"observed_only_decay x lr must be below 1 .* 3.0 x 0.5"):
+        prepare_fit(trajs, tiny_config(n_experts=2), cfg)
+    prepare_fit(two_mode_trajectories(n=8, T=20)[0], CNEPConfig(n_experts=2, **SMALL), cfg)  # no such weights
+
+
 def test_observed_only_decay_leaves_a_model_that_predicts_all_it_observes_as_it_was():
     trajs, _ = two_mode_trajectories(n=8, T=20, seed=0)
     config = CNEPConfig(n_experts=2, **SMALL)  # observes and predicts the one column
