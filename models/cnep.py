@@ -106,13 +106,12 @@ class CNEP(nn.Module):
     def n_experts(self) -> int:
         return self.config.n_experts
 
-    def observed_only_inputs(self) -> list[tuple[int, int]]:
-        """Spans (start, stop) of the encoder's inputs that carry a column the model observes but does not predict
-        (such as image features); the inputs are `embed_time`'s: t's 1 + 2K time features, then the observed columns."""
+    def observed_only_columns(self) -> list[tuple[int, int]]:
+        """Spans (start, stop) of a context's values (..., 1 + obs_dim), t first, that carry a column the model
+        observes but does not predict (such as image features)."""
         predicted = set(span_indices(self.config.columns.predicted))
-        offset = 1 + 2 * self.config.time_frequencies
         spans: list[tuple[int, int]] = []
-        for i, column in enumerate(span_indices(self.config.columns.observed), start=offset):
+        for i, column in enumerate(span_indices(self.config.columns.observed), start=1):
             if column in predicted:
                 continue
             if spans and spans[-1][1] == i:
@@ -120,6 +119,12 @@ class CNEP(nn.Module):
             else:
                 spans.append((i, i + 1))
         return spans
+
+    def observed_only_inputs(self) -> list[tuple[int, int]]:
+        """`observed_only_columns` among the encoder's inputs (`embed_time`'s: t's 1 + 2K time features, then the
+        observed columns)."""
+        shift = 2 * self.config.time_frequencies
+        return [(a + shift, b + shift) for a, b in self.observed_only_columns()]
 
     def embed_time(self, x: torch.Tensor) -> torch.Tensor:
         """(..., 1 + k) with t first -> (..., 1 + 2K + k) with the time's Fourier features."""

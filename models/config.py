@@ -178,6 +178,13 @@ class TrainConfig:
         "weight decay of the encoder's weights on the columns it observes but does not predict (such as image "
         "features), per unit of learning rate; 0 turns it off",
     )
+    # The same columns, zeroed at random in training contexts: a scene is then read from many of its numbers at once,
+    # never from the few that alone told its training scenes apart (docs/concepts.md).
+    observed_only_dropout: float = setting(
+        0.5,
+        "share of the values on the columns the encoder observes but does not predict (such as image features) "
+        "zeroed in each training context, the rest scaled by 1 / (1 - share); 0 turns it off",
+    )
     # The first steps are the context a robot has before it moves, from which a deployed model reads its behaviour;
     # 0 keeps the paper's random contexts only (where trajectories share their first steps, those tell nothing).
     first_steps_fraction: float = setting(
@@ -215,6 +222,10 @@ class TrainConfig:
             raise ConfigError(f"lr must be > 0 and warmup_steps >= 0, got {self.lr} and {self.warmup_steps}.")
         if not self.observed_only_decay >= 0:
             raise ConfigError(f"observed_only_decay must be >= 0 (0 turns it off), got {self.observed_only_decay}.")
+        if not 0 <= self.observed_only_dropout < 1:
+            raise ConfigError(
+                f"observed_only_dropout must be in [0, 1) (0 turns it off), got {self.observed_only_dropout}."
+            )
         for name in ("patience", "threads"):
             if getattr(self, name) is not None and getattr(self, name) < 1:
                 raise ConfigError(f"TrainConfig.{name} must be >= 1 or None, got {getattr(self, name)}.")

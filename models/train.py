@@ -39,6 +39,9 @@ VAL_BATCHES = 8  # fixed validation batches, drawn once
 # mean scores about 1 there, and an untrained network a few units.
 DIVERGED_ERROR = 1e3
 VAL_BATCH_SIZE = 64
+# The dropout masks (`TrainConfig.observed_only_dropout`) come from a generator of their own, seeded with the run's
+# seed plus this: the batches are the same with and without them.
+DROPOUT_SEED_OFFSET = 780
 # `fit` without validation trajectories holds VAL_FRACTION of them out, but only from this many on:
 # below it a held-out fifth would take whole behaviours away (two Baxter demonstrations would train on one).
 MIN_TRAJECTORIES_TO_HOLD_OUT = 10
@@ -86,6 +89,17 @@ def set_learning_rate(optimizer: torch.optim.Optimizer, step: int, cfg: TrainCon
     """The schedule's learning rate at `step`, times each parameter group's `lr_scale`."""
     for group in optimizer.param_groups:
         group["lr"] = cfg.lr * lr_factor(step, cfg) * group["lr_scale"]
+
+
+def drop_observed_only(obs: torch.Tensor, spans: Sequence[tuple[int, int]], share: float, g: torch.Generator) -> None:
+    """`TrainConfig.observed_only_dropout` on a batch's contexts (B, n, 1 + obs_dim), in place: each value on the
+    `spans` (`CNEP.observed_only_columns`) is zeroed with probability `share`, the others scaled by 1 / (1 - share)."""
+    width = sum(b - a for a, b in spans)
+    keep = (torch.rand((*obs.shape[:-1], width), generator=g) >= share).float() / (1 - share)
+    at = 0
+    for a, b in spans:
+        obs[..., a:b] *= keep[..., at : at + b - a]
+        at += b - a
 
 
 @torch.no_grad()
@@ -150,6 +164,8 @@ class Trainer:
             self.cfg.lr,
         )
         self.generator = torch.Generator().manual_seed(self.cfg.seed)
+        self.dropout_generator = torch.Generator().manual_seed(self.cfg.seed + DROPOUT_SEED_OFFSET)
+        self.dropped = self.model.observed_only_columns() if self.cfg.observed_only_dropout else []
         val_gen = torch.Generator().manual_seed(self.cfg.seed + 1)
         self.val_batches = [
             sample_batch(
@@ -185,8 +201,8 @@ class Trainer:
         return next(self.model.parameters()).device
 
     def next_batch(self) -> Batch:
-        """The next training batch from this run's generator, on the model's device."""
-        return sample_batch(
+        """The next training batch from this run's generators, on the model's device."""
+        batch = sample_batch(
             self.train,
             self.cfg.batch_size,
             self.cfg.n_max,
@@ -194,7 +210,10 @@ class Trainer:
             self.generator,
             self.cfg.obs_noise,
             self.first_steps,
-        ).to(self.device)
+        )
+        if self.dropped:
+            drop_observed_only(batch.obs, self.dropped, self.cfg.observed_only_dropout, self.dropout_generator)
+        return batch.to(self.device)
 
     def demonstration(self, batch: Batch) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """(query, target, mask) of the demonstration each sample of `batch` was drawn from, on the model's device."""
@@ -257,6 +276,7 @@ class Trainer:
             "model": self.model.state_dict(),
             "optimizer": self.optimizer.state_dict(),
             "generator": self.generator.get_state(),
+            "dropout_generator": self.dropout_generator.get_state(),
             "step": self.step,
             "best_error": self.best_error,
             "best_state": self.best_state,
@@ -269,6 +289,8 @@ class Trainer:
         self.model.load_state_dict(state["model"])
         self.optimizer.load_state_dict(state["optimizer"])
         self.generator.set_state(state["generator"])
+        if "dropout_generator" in state:  # saved without one: it had drawn no mask yet
+            self.dropout_generator.set_state(state["dropout_generator"])
         self.step, self.best_error = state["step"], state["best_error"]
         self.best_state, self.history = state["best_state"], state["history"]
         self.diverged = state.get("diverged")

@@ -32,6 +32,7 @@ TRAIN_OPTIONS = (
     "gate_lr_scale",
     "obs_noise",
     "observed_only_decay",
+    "observed_only_dropout",
     "first_steps_fraction",
     "first_steps_max",
     "patience",

@@ -181,13 +181,36 @@ def test_the_demonstrations_nll_reads_the_latent_of_the_training_steps_forward_p
     assert same == [True, True, True]
 
 
-def test_the_observed_only_inputs_are_the_encoder_inputs_of_columns_never_predicted():
-    def inputs(**columns) -> list[tuple[int, int]]:  # after t's 1 + 2 x 2 time features: inputs 0-4
-        return CNEP(CNEPConfig(columns=ColumnRoles(width=6, **columns), time_frequencies=2)).observed_only_inputs()
+def test_the_observed_only_spans_are_the_context_values_and_encoder_inputs_of_columns_never_predicted():
+    def spans(**columns) -> tuple[list[tuple[int, int]], list[tuple[int, int]]]:
+        model = CNEP(CNEPConfig(columns=ColumnRoles(width=6, **columns), time_frequencies=2))
+        return model.observed_only_columns(), model.observed_only_inputs()
 
-    assert inputs(observed=((0, 4),), predicted=((2, 6),)) == [(5, 7)]  # columns 0, 1: a camera's features
-    assert inputs(observed=((0, 2), (4, 6)), predicted=((1, 5),)) == [(5, 6), (8, 9)]  # columns 0 and 5
-    assert inputs(observed=((0, 6),), predicted=((0, 6),)) == []  # a model that predicts all it observes
+    # a context is t, then the observed columns; the encoder's inputs are t's 1 + 2 x 2 time features, then those
+    assert spans(observed=((0, 4),), predicted=((2, 6),)) == ([(1, 3)], [(5, 7)])  # columns 0, 1: a camera's
+    assert spans(observed=((0, 2), (4, 6)), predicted=((1, 5),)) == ([(1, 2), (4, 5)], [(5, 6), (8, 9)])  # 0 and 5
+    assert spans(observed=((0, 6),), predicted=((0, 6),)) == ([], [])  # a model that predicts all it observes
+
+
+def test_observed_only_dropout_zeroes_or_scales_those_context_values_and_leaves_the_batch_as_it_was():
+    trajs = [np.random.default_rng(i).standard_normal((20, 5)).astype(np.float32) for i in range(6)]
+    columns = ColumnRoles(width=5, observed=((0, 2), (3, 5)), query=((2, 3),), predicted=((3, 5),))
+    config = CNEPConfig(columns=columns, n_experts=2, **SMALL)  # context: t, columns 0-1 (observed only), 3-4
+
+    def batch(share: float):
+        cfg = TrainConfig(steps=10, warmup_steps=2, val_every=10, batch_size=64, observed_only_dropout=share)
+        trainer, _ = prepare_fit(trajs, config, cfg)
+        return trainer.next_batch()
+
+    plain, dropped = batch(0.0), batch(0.25)
+    mask = plain.obs_mask
+    assert torch.equal(dropped.obs[..., [0, 3, 4]], plain.obs[..., [0, 3, 4]])  # t and the predicted columns
+    assert all(torch.equal(getattr(dropped, f), getattr(plain, f)) for f in ("obs_mask", "query", "target"))
+    ratio = dropped.obs[..., 1:3][mask] / plain.obs[..., 1:3][mask]
+    assert torch.allclose(ratio[ratio != 0], torch.tensor(1 / 0.75))  # the kept values, scaled up
+    assert 0.2 < (ratio == 0).float().mean() < 0.3  # about a quarter zeroed, value by value
+    with pytest.raises(ConfigError, match=r"observed_only_dropout must be in \[0, 1\)"):
+        TrainConfig(observed_only_dropout=1.0)
 
 
 def test_observed_only_decay_shrinks_those_weights_by_the_steps_learning_rate_and_nothing_else():
@@ -220,9 +243,10 @@ def test_an_observed_only_decay_that_would_flip_weights_is_refused_only_where_it
     prepare_fit(two_mode_trajectories(n=8, T=20)[0], CNEPConfig(n_experts=2, **SMALL), cfg)  # no such weights
 
 
-def test_observed_only_decay_leaves_a_model_that_predicts_all_it_observes_as_it_was():
+def test_observed_only_decay_and_dropout_leave_a_model_that_predicts_all_it_observes_as_it_was():
     trajs, _ = two_mode_trajectories(n=8, T=20, seed=0)
     config = CNEPConfig(n_experts=2, **SMALL)  # observes and predicts the one column
-    plain, _ = fit(trajs, config, dataclasses.replace(QUICK, observed_only_decay=0.0), progress=False)
+    off = dataclasses.replace(QUICK, observed_only_decay=0.0, observed_only_dropout=0.0)
+    plain, _ = fit(trajs, config, off, progress=False)
     decayed, _ = fit(trajs, config, dataclasses.replace(QUICK, observed_only_decay=3.0), progress=False)
     assert all(torch.equal(decayed.state_dict()[k], v) for k, v in plain.state_dict().items())
