@@ -289,8 +289,7 @@ class Trainer:
         self.model.load_state_dict(state["model"])
         self.optimizer.load_state_dict(state["optimizer"])
         self.generator.set_state(state["generator"])
-        if "dropout_generator" in state:  # saved without one: it had drawn no mask yet
-            self.dropout_generator.set_state(state["dropout_generator"])
+        self.dropout_generator.set_state(state["dropout_generator"])
         self.step, self.best_error = state["step"], state["best_error"]
         self.best_state, self.history = state["best_state"], state["history"]
         self.diverged = state.get("diverged")
