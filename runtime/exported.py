@@ -18,7 +18,7 @@ import numpy as np
 from cnep.runtime.conditioning import ConditioningPolicy
 from cnep.runtime.constants import DEFAULT_BACKEND, DEFAULT_PRECISION, DEFAULT_WAYPOINTS
 from cnep.runtime.errors import PolicyError
-from cnep.runtime.manifest import read_manifest
+from cnep.runtime.manifest import check_closed, read_manifest
 from cnep.runtime.policy import Policy
 from cnep.runtime.sessions import Graph, load_graph
 from cnep.runtime.timebase import TimeBase
@@ -57,12 +57,16 @@ def load_policy(
 ) -> Policy:
     """The policy exported to `folder`, each graph checked against the manifest's sha256.
 
+    Before any graph is opened, the folder is checked to be closed (`runtime.manifest`): the manifest names only
+    plain files inside it, and it holds nothing else but `runtime/` (PolicyError naming the entry otherwise).
+
     precision: the feature graph to run (`fp32`, or `int8` when exported with --int8); backend: `onnxruntime`
     or `openvino`; threads: intra-op threads per graph (None: one per core); waypoints, conditioning,
     time_base, camera: as `Policy` takes them (None: the exported ones).
     """
     folder = Path(folder)
     manifest = read_manifest(folder)
+    check_closed(folder, manifest)
     features = None
     if manifest.spec.features is not None:
         if precision not in manifest.features:

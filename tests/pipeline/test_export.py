@@ -78,6 +78,36 @@ def test_a_changed_file_or_an_unknown_version_is_refused(policy_world, tmp_path)
         load_policy(export_motion, precision="int8")
 
 
+def test_a_folder_that_points_outside_itself_or_holds_an_extra_file_is_refused_by_cnep_run(
+    policy_world, tmp_path, capsys
+):
+    folder = tmp_path / "policy"
+    shutil.copytree(policy_world.exported, folder)
+    (folder / "runtime" / "build").mkdir()  # what `pip install policy/runtime` leaves is ignored: never read
+    (folder / "runtime" / "build" / "stale.py").write_text("")
+    assert load_policy(folder).uses_camera
+    manifest = json.loads((folder / "manifest.json").read_text())
+
+    def run(*argv):
+        capsys.readouterr()
+        code = main(["-q", "run", str(folder), str(policy_world.heldout), "--out", str(tmp_path / "r.rrd"), *argv])
+        return code, capsys.readouterr().err.strip()
+
+    passwd = Path("/etc/passwd")
+    for name in ("../../../../../../etc/passwd", "../outside_encoder.onnx", str(passwd.resolve())):
+        shutil.copy(folder / "encoder.onnx", tmp_path / "outside_encoder.onnx")
+        source = passwd if "passwd" in name else tmp_path / "outside_encoder.onnx"
+        graphs, files = {**manifest["graphs"], "encoder": name}, {**manifest["files"], name: file_sha256(source)}
+        (folder / "manifest.json").write_text(json.dumps({**manifest, "graphs": graphs, "files": files}))
+        code, err = run()
+        assert code == 2 and len(err.splitlines()) == 1 and "not a plain file name inside the folder" in err, err
+    (folder / "manifest.json").write_text(json.dumps(manifest))
+    (folder / "sitecustomize.py").write_text("import os\n")
+    code, err = run()
+    assert code == 2 and f"{folder / 'sitecustomize.py'}: a file that manifest.json does not list" in err
+    assert not (tmp_path / "r.rrd").exists()
+
+
 def test_a_motion_model_exports_without_a_feature_graph_and_runs_on_the_state_alone(policy_world, tmp_path):
     assert main(["-q", "export", str(policy_world.motion_checkpoint), "--out", str(tmp_path / "p")]) == 0
     assert not (tmp_path / "p" / "features.onnx").exists()
