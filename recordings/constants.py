@@ -82,6 +82,13 @@ BLOCKS_BY_WIDTH: Mapping[int, Blocks] = MappingProxyType({STEP_DIM: BLOCKS_FULL,
 # only ~10%, while lz4 writes them ~1.4x faster and reads them about as fast or faster (python -m
 # benchmarks.bench_recordings measures both), so they use lz4; demonstrations use zstd.
 CHUNK_SIZE_BYTES = 1024 * 1024
+# Reading. A chunk that declares more uncompressed bytes than MAX_CHUNK_BYTES is damaged, and so is one past the
+# file's budget: its chunks together inflate to at most INFLATION_GRACE_BYTES + MAX_INFLATION times the file's size
+# (recordings.chunks), so that a small hostile file costs what a file of its size would. Recordings inflate by a
+# few times at most (JPEG frames and float32 columns hardly compress).
+MAX_CHUNK_BYTES = 64 * 1024 * 1024
+MAX_INFLATION = 100
+INFLATION_GRACE_BYTES = 2 * 1024 * 1024
 COMPRESSION_BY_KIND: Mapping[str, str] = MappingProxyType({KIND_DEMONSTRATION: "zstd", KIND_TRAJECTORY: "lz4"})
 DEFAULT_COMPRESSION = "zstd"
 JPEG_QUALITY = 90  # used only when a frame has to be (re-)encoded during ingest

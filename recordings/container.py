@@ -16,43 +16,28 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO
 
-import zstandard
-from google.protobuf.message import DecodeError
 from mcap.data_stream import ReadDataStream
-from mcap.exceptions import McapError
 from mcap.opcode import Opcode
 from mcap.records import Attachment, Channel, Chunk, DataEnd, Footer, Header, Message, Metadata, Schema
-from mcap.stream_reader import get_chunk_data_stream
 from mcap.writer import CompressionType, Writer
 
 from cnep.outputs import atomic_file
+from cnep.recordings.chunks import CORRUPTION_ERRORS, RECORD_HEAD, chunk_records, decoded, inflate
 from cnep.recordings.constants import (
     CHUNK_SIZE_BYTES,
     COMPRESSION_BY_KIND,
     DEFAULT_COMPRESSION,
+    INFLATION_GRACE_BYTES,
     LIBRARY_NAME,
+    MAX_CHUNK_BYTES,
+    MAX_INFLATION,
     METADATA_EPISODE,
 )
 from cnep.recordings.errors import RecordingError
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
-_RECORD_HEAD = struct.Struct("<BQ")  # opcode, body length
-_MESSAGE_HEAD = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time
 _CHUNK_HEAD = struct.Struct("<QQQII")  # start time, end time, uncompressed size, uncompressed CRC, compression length
 _U64 = struct.Struct("<Q")
-
-# Everything the mcap/protobuf/zstd stack raises on damaged bytes.
-CORRUPTION_ERRORS: tuple[type[BaseException], ...] = (
-    McapError,
-    ValueError,  # includes CRCValidationError and UnicodeDecodeError
-    struct.error,
-    EOFError,
-    KeyError,
-    IndexError,
-    zstandard.ZstdError,
-    DecodeError,
-    MemoryError,
-)
 
 
 def mcap_library(path: str | os.PathLike) -> str | None:
@@ -65,10 +50,10 @@ def mcap_library(path: str | os.PathLike) -> str | None:
             head = f.read(64 * 1024)
     except OSError:
         return None
-    if not head.startswith(MCAP_MAGIC) or len(head) < len(MCAP_MAGIC) + _RECORD_HEAD.size:
+    if not head.startswith(MCAP_MAGIC) or len(head) < len(MCAP_MAGIC) + RECORD_HEAD.size:
         return None
-    opcode, length = _RECORD_HEAD.unpack_from(head, len(MCAP_MAGIC))
-    body = len(MCAP_MAGIC) + _RECORD_HEAD.size
+    opcode, length = RECORD_HEAD.unpack_from(head, len(MCAP_MAGIC))
+    body = len(MCAP_MAGIC) + RECORD_HEAD.size
     if opcode != Opcode.HEADER or body + length > len(head):
         return None
     try:
@@ -124,9 +109,15 @@ class McapContents:
     chunks_read: int = 0
     chunks_lost: int = 0
     bytes_used: int = 0  # offset just after the last record read in full
+    inflated: int = 0  # uncompressed bytes of the chunks decompressed so far
     partial_messages: int = 0
     partial_lost_bytes: int = 0
     partial_lost_messages: int = 0
+
+    def chunk_limit(self) -> int:
+        """The most bytes the next chunk may inflate to: MAX_CHUNK_BYTES, and what is left of the file's budget of
+        INFLATION_GRACE_BYTES + MAX_INFLATION times its size for all its chunks together."""
+        return max(0, min(MAX_CHUNK_BYTES, INFLATION_GRACE_BYTES + MAX_INFLATION * self.size - self.inflated))
 
     def channel_of_topic(self, topic: str) -> Channel | None:
         for ch in self.channels.values():
@@ -151,34 +142,6 @@ class McapContents:
         ch = self.channel_of_topic(topic)
         schema = self.schemas.get(ch.schema_id) if ch is not None else None
         return schema.name if schema is not None else ""
-
-
-def chunk_records(chunk: Chunk) -> list[Schema | Channel | Message]:
-    """Schemas, channels and messages of a chunk, after checking its CRC.
-
-    Same result as `mcap.stream_reader.breakup_chunk(chunk, validate_crc=True)`, but message headers
-    are unpacked with one precompiled struct instead of five stream reads each: reading a
-    trajectory is dominated by this loop (one message per step).
-    """
-    stream, size = get_chunk_data_stream(chunk, validate_crc=True)
-    data = stream.read(size)
-    if len(data) != size:
-        raise ValueError(f"chunk holds {len(data)} bytes, its header says {size}")
-    out: list[Schema | Channel | Message] = []
-    pos = 0
-    while pos < size:
-        opcode, length = _RECORD_HEAD.unpack_from(data, pos)
-        body, pos = pos + _RECORD_HEAD.size, pos + _RECORD_HEAD.size + length
-        if pos > size:
-            raise ValueError("a record runs past the end of its chunk")
-        if opcode == Opcode.MESSAGE:
-            channel_id, sequence, log_time, publish_time = _MESSAGE_HEAD.unpack_from(data, body)
-            out.append(Message(channel_id, log_time, data[body + _MESSAGE_HEAD.size : pos], publish_time, sequence))
-        elif opcode == Opcode.SCHEMA:
-            out.append(Schema.read(ReadDataStream(io.BytesIO(data[body:pos]))))
-        elif opcode == Opcode.CHANNEL:
-            out.append(Channel.read(ReadDataStream(io.BytesIO(data[body:pos]))))
-    return out
 
 
 def _describe(exc: BaseException) -> str:
@@ -219,19 +182,6 @@ def _chunk_at(view: memoryview, body: int, end: int) -> Chunk:
     return Chunk(compression, view[data_at : data_at + dlen], stop, start, ucrc, usize)  # type: ignore[arg-type]
 
 
-def _decoded_prefix(compression: str, data: bytes) -> bytes:
-    """As much of the uncompressed chunk as the first bytes `data` of its compressed form give (whole blocks)."""
-    if compression == "":
-        return data
-    if compression == "zstd":
-        return zstandard.ZstdDecompressor().decompressobj().decompress(data)
-    if compression == "lz4":
-        import lz4.frame  # a dependency of mcap
-
-        return lz4.frame.LZ4FrameDecompressor().decompress(data)
-    return b""
-
-
 def _salvage_cut_chunk(view: memoryview, body: int, out: McapContents) -> None:
     """Keep the complete records at the start of a chunk that the end of the file cuts: its compressed data is
     decoded as far as it goes (no CRC covers a part of a chunk: each record is kept only if it parses in full)."""
@@ -243,29 +193,12 @@ def _salvage_cut_chunk(view: memoryview, body: int, out: McapContents) -> None:
     if data_at > size:
         return
     compression = str(view[body + _CHUNK_HEAD.size : body + _CHUNK_HEAD.size + clen], "utf-8", errors="replace")
+    at_most = min(usize, out.chunk_limit())
+    out.inflated += at_most
     try:
-        prefix = _decoded_prefix(compression, bytes(view[data_at:size]))
-    except Exception:  # noqa: BLE001 - whatever the decoder says about damaged data, nothing is recovered
+        kept, pos = chunk_records(decoded(compression, view[data_at:size], at_most), partial=True)
+    except CORRUPTION_ERRORS:  # whatever the decoder says about damaged data, nothing is recovered
         return
-    pos, kept = 0, []
-    while pos + _RECORD_HEAD.size <= len(prefix):
-        opcode, length = _RECORD_HEAD.unpack_from(prefix, pos)
-        start, stop = pos + _RECORD_HEAD.size, pos + _RECORD_HEAD.size + length
-        if stop > len(prefix):
-            break
-        try:
-            if opcode == Opcode.MESSAGE:
-                channel_id, sequence, log_time, publish_time = _MESSAGE_HEAD.unpack_from(prefix, start)
-                kept.append(
-                    Message(channel_id, log_time, prefix[start + _MESSAGE_HEAD.size : stop], publish_time, sequence)
-                )
-            elif opcode == Opcode.SCHEMA:
-                kept.append(Schema.read(ReadDataStream(io.BytesIO(prefix[start:stop]))))
-            elif opcode == Opcode.CHANNEL:
-                kept.append(Channel.read(ReadDataStream(io.BytesIO(prefix[start:stop]))))
-        except CORRUPTION_ERRORS:
-            break
-        pos = stop
     for record in kept:
         _keep(out, record)
     out.partial_messages = sum(isinstance(r, Message) for r in kept)
@@ -279,10 +212,10 @@ def _walk(data: bytes, out: McapContents, salvage: bool) -> None:
     # A file cut short does not end with the closing magic; one damaged in place still does.
     closed = size >= 2 * len(MCAP_MAGIC) and data.endswith(MCAP_MAGIC)
     while True:
-        if pos + _RECORD_HEAD.size > size:
+        if pos + RECORD_HEAD.size > size:
             raise _Damage(f"it ends inside a record at byte {pos} of {size}", truncated=True)
-        opcode, length = _RECORD_HEAD.unpack_from(data, pos)
-        body, end = pos + _RECORD_HEAD.size, pos + _RECORD_HEAD.size + length
+        opcode, length = RECORD_HEAD.unpack_from(data, pos)
+        body, end = pos + RECORD_HEAD.size, pos + RECORD_HEAD.size + length
         if end > size:
             if salvage and opcode == Opcode.CHUNK:
                 _salvage_cut_chunk(view, body, out)
@@ -300,7 +233,10 @@ def _walk(data: bytes, out: McapContents, salvage: bool) -> None:
                 raise _Damage(f"unreadable record at byte {pos} ({_describe(exc)})", truncated=False) from None
             if isinstance(record, Chunk):
                 try:
-                    inner = chunk_records(record)
+                    limit = out.chunk_limit()
+                    out.inflated += record.uncompressed_size if record.uncompressed_size <= limit else 0
+                    args = record.compression, record.data, record.uncompressed_size, record.uncompressed_crc, limit
+                    inner, _ = chunk_records(inflate(*args))
                 except CORRUPTION_ERRORS as exc:
                     if not salvage:
                         raise _Damage(f"damaged chunk at byte {pos} ({_describe(exc)})", truncated=False) from None
