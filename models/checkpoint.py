@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING
 from cnep.models.config import CNEPConfig
 from cnep.models.errors import ConfigError
 from cnep.outputs import write_atomically
+from cnep.runtime.jsonfile import read_json
 
 if TYPE_CHECKING:
     from cnep.models.cnep import CNEP
@@ -60,13 +61,15 @@ def read_checkpoint_config(directory: str | Path) -> dict:
             f"holding {CONFIG_FILE} and {WEIGHTS_FILE})."
         )
     try:
-        config = json.loads(path.read_text())
+        config = read_json(path)
     except FileNotFoundError:
         raise ConfigError(f"{path}: no checkpoint config here; pass a directory written by `cnep train`.") from None
-    except json.JSONDecodeError as exc:
-        raise ConfigError(f"{path}: not valid JSON ({exc}).") from None
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read it ({exc.strerror}).") from None
     except UnicodeDecodeError:
         raise ConfigError(f"{path}: not a text file; pass a directory written by `cnep train`.") from None
+    except ValueError as exc:
+        raise ConfigError(f"{path}: not valid JSON ({exc}).") from None
     if not isinstance(config, dict):
         raise ConfigError(
             f"{path}: holds {_JSON_KINDS.get(type(config), 'a JSON value')}, not the checkpoint's settings (a JSON "

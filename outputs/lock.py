@@ -59,7 +59,7 @@ def _read_holder(path: Path) -> dict | None:
         return {}
     try:
         holder = json.loads(text)
-    except ValueError:
+    except (ValueError, RecursionError):  # a file planted as the lock says nothing a holder would
         return {}
     return holder if isinstance(holder, dict) else {}
 

@@ -23,6 +23,7 @@ from cnep.recordings.container import read_mcap
 from cnep.recordings.errors import RecordingError
 from cnep.recordings.media import first_undecodable
 from cnep.recordings.readers import demonstration_from, trajectory_from
+from cnep.runtime.jsonfile import parse_json
 
 NS_PER_S = 1e9
 
@@ -78,7 +79,7 @@ def inspect_file(path: str | os.PathLike) -> FileReport:
     for ch in contents.channels.values():
         if CHANNEL_KEY_BLOCKS in ch.metadata:
             try:
-                blocks[ch.topic] = json.loads(ch.metadata[CHANNEL_KEY_BLOCKS])
+                blocks[ch.topic] = parse_json(ch.metadata[CHANNEL_KEY_BLOCKS])
             except ValueError:
                 blocks[ch.topic] = ch.metadata[CHANNEL_KEY_BLOCKS]
     check = None

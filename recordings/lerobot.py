@@ -24,7 +24,6 @@ Needs the optional extra `lerobot` (pyarrow, and PyAV for video); both are impor
 
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -36,6 +35,7 @@ from cnep.recordings.errors import RecordingError
 from cnep.recordings.lerobot_columns import NS_PER_S, LerobotMapping, motion_of_rows, resolve_columns
 from cnep.recordings.media import as_jpeg, video_frames_at
 from cnep.recordings.records import Demonstration, Episode
+from cnep.runtime.jsonfile import parse_json, read_json
 
 SUPPORTED_VERSIONS = ("v2.1", "v3.0")
 TOLERANCE_S = 1e-4  # largest gap between a Parquet timestamp and its video frame (LeRobot's default)
@@ -87,7 +87,7 @@ def is_lerobot_dataset(path: str | os.PathLike) -> bool:
     if not info.is_file():
         return False
     try:
-        data = json.loads(info.read_text(encoding="utf-8"))
+        data = read_json(info)
     except (OSError, ValueError) as exc:
         raise RecordingError(
             f"{info}: cannot read as JSON ({exc}); a LeRobot dataset's meta/info.json must be valid JSON: restore it "
@@ -108,7 +108,7 @@ def _parquet() -> Any:
 def _read_info(root: Path) -> dict:
     path = root / "meta" / "info.json"
     try:
-        info = json.loads(path.read_text())
+        info = read_json(path)
     except FileNotFoundError:
         raise RecordingError(f"{root}: not a LeRobot dataset (no meta/info.json)") from None
     except (OSError, ValueError) as exc:
@@ -174,7 +174,7 @@ def _episodes_v21(root: Path) -> list[dict]:
     path = root / "meta" / "episodes.jsonl"
     try:
         lines = [line for line in path.read_text().splitlines() if line.strip()]
-        return sorted((json.loads(line) for line in lines), key=lambda e: e["episode_index"])
+        return sorted((parse_json(line) for line in lines), key=lambda e: e["episode_index"])
     except FileNotFoundError:
         raise RecordingError(f"{root}: a v2.1 dataset needs meta/episodes.jsonl") from None
     except (ValueError, KeyError, TypeError) as exc:

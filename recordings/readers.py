@@ -13,7 +13,6 @@ file kind, NaN/inf, timestamps going backwards, wrong vector width.
 from __future__ import annotations
 
 import contextlib
-import json
 import os
 from collections.abc import Iterator
 from pathlib import Path
@@ -40,6 +39,7 @@ from cnep.recordings.errors import RecordingError
 from cnep.recordings.records import RESERVED_EPISODE_KEYS, Demonstration, Episode, Trajectory
 from cnep.recordings.schemas import decode_gripper, decode_image, decode_pose, vector_payload
 from cnep.recordings.validation import check_blocks, check_format_version
+from cnep.runtime.jsonfile import parse_json
 
 # (kind found, kind expected) -> what to do about it, appended to the error.
 _KIND_FIXES = {
@@ -176,7 +176,7 @@ def channel_blocks(contents: McapContents) -> tuple[dict[str, tuple[int, int]], 
     ch = contents.require_channel(TOPIC_TRAJECTORY)
     try:
         width = int(ch.metadata[CHANNEL_KEY_WIDTH])
-        blocks = json.loads(ch.metadata[CHANNEL_KEY_BLOCKS])
+        blocks = parse_json(ch.metadata[CHANNEL_KEY_BLOCKS])
     except (KeyError, ValueError) as exc:
         raise RecordingError(f"{contents.path}: {TOPIC_TRAJECTORY} channel metadata lacks a valid {exc}") from None
     return check_blocks(blocks, width, str(contents.path)), width

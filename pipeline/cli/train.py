@@ -10,7 +10,6 @@ reads them (without importing torch) and keeps no value of its own.
 from __future__ import annotations
 
 import argparse
-import json
 
 from cnep.models.config import ASSIGNMENTS, GATE_LR_SCALES, CNEPConfig, TrainConfig
 from cnep.pipeline.cli.fields import default_of, field_of, help_of
@@ -134,11 +133,11 @@ def settings(args: argparse.Namespace) -> tuple[dict, set[str]]:
 def read_settings(path: str) -> dict:
     """The settings of a --config JSON file, checked against SETTINGS' names and types."""
     from cnep.pipeline.errors import PipelineError
+    from cnep.runtime.jsonfile import read_json
 
     try:
-        with open(path, encoding="utf-8") as f:
-            data = json.load(f)
-    except (OSError, json.JSONDecodeError) as exc:
+        data = read_json(path)
+    except (OSError, ValueError) as exc:
         raise PipelineError(f"{path}: cannot read the --config file ({exc})") from None
     if not isinstance(data, dict):
         raise PipelineError(f"{path}: a --config file holds one JSON object of settings, got {type(data).__name__}")

@@ -9,7 +9,6 @@ Per recording: `experts` (T,), `gates` (T, d), `share` (d,), `majority_expert`, 
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 
@@ -18,6 +17,7 @@ import numpy as np
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.replay.conditioning import Decisions
 from cnep.recordings import Event, Trajectory
+from cnep.runtime.jsonfile import read_json
 
 DECISIONS_SUFFIX = ".experts.json"
 
@@ -33,8 +33,8 @@ def read_decisions(out_rrd: str | os.PathLike) -> dict:
     (d,), `majority_expert`, `switches` [{step, timestamp_ns, from, to, gate}]."""
     path = decisions_path(out_rrd)
     try:
-        return json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as exc:
+        return read_json(path)
+    except (OSError, ValueError) as exc:
         raise PipelineError(f"{path}: cannot read the replay decisions ({exc}); run `cnep replay` again") from None
 
 
