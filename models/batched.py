@@ -31,10 +31,11 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from cnep.models.assignments import Assignment
 from cnep.models.cnep import CNEP
 from cnep.models.config import CNEPConfig, TrainConfig
 from cnep.models.errors import ConfigError
-from cnep.models.loss import BALANCING, loss_terms
+from cnep.models.loss import loss_terms
 from cnep.models.sampler import DEMONSTRATION_STEPS
 from cnep.models.threads import torch_threads
 from cnep.models.train import (
@@ -185,7 +186,7 @@ class BatchedTrainer:
         old_state = self.optimizer.state if self.optimizer is not None else {}
         self.active = active
         configs = [self.trainers[i].model.config for i in active]
-        self.assignments = [c.assignment for c in configs]
+        self.assignments = [c.assigned for c in configs]
         self.weights = torch.tensor([[c.a_rec, c.a_batch, c.a_ind] for c in configs], device=self.trainers[0].device)
         self.net = StackedCNEP([self.trainers[i].model for i in active])
         self.views = [{name: p[j].detach() for name, p in self.net.params.items()} for j in range(len(active))]
@@ -224,7 +225,7 @@ class BatchedTrainer:
         }
         mean, std, gate, r = self.net(stacked["obs"], stacked["obs_mask"], stacked["query"], latent=True)
         posterior = None
-        if any(a in BALANCING for a in self.assignments):  # each from its own model's demonstrations
+        if any(a.uses_demonstration for a in self.assignments):  # each from its own model's demonstrations
             parts = zip(*(self.trainers[i].demonstration(b) for i, b in zip(self.active, batches)))
             demonstration = tuple(torch.stack(part) for part in parts)  # (k, B, P, ...) each
             posterior = demonstration_nll(self.net, r, demonstration)
@@ -292,7 +293,7 @@ def stacked_loss_terms(
     gate: torch.Tensor,
     target: torch.Tensor,
     target_mask: torch.Tensor,
-    assignments: Sequence[str],
+    assignments: Sequence[Assignment],
     progress: float,
     posterior: tuple[torch.Tensor, torch.Tensor] | None = None,
 ) -> dict[str, torch.Tensor]:

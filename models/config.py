@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass, field, fields, replace
 
+from cnep.models.assignments import ASSIGNMENTS, Assignment, assignment_named
 from cnep.models.errors import ConfigError
 from cnep.models.threads import SMALL_MODEL_THREADS
 from cnep.runtime.conditioning import ConditioningPolicy as ConditioningPolicy  # in the runtime: it needs no torch
@@ -55,9 +56,13 @@ class ColumnRoles:
         return len(span_indices(self.predicted))
 
 
-def setting(default: object, help: str) -> object:
-    """A dataclass field with its default and the one line that `cnep` shows for it (`--help`, metadata "help")."""
-    return field(default=default, metadata={"help": help})
+def setting(default: object, help: str, *, option: str | None = None, choices: tuple[str, ...] | None = None) -> object:
+    """A dataclass field with its default and the one line that `cnep` shows for it (`--help`, metadata "help").
+
+    The command line (pipeline.cli.fields) offers it as `--NAME` (`option`: another name) within `choices`.
+    """
+    metadata = {"help": help, "option": option, "choices": choices}
+    return field(default=default, metadata={k: v for k, v in metadata.items() if v is not None})
 
 
 def authors_coefficients(n_experts: int) -> tuple[float, float, float]:
@@ -67,20 +72,6 @@ def authors_coefficients(n_experts: int) -> tuple[float, float, float]:
     return 16.81 * n_experts / 2, 10.672 / math.log2(n_experts), 7.553 / math.log2(n_experts)
 
 
-# The reconstruction terms of the loss (models.loss.reconstruction): "paper" = mean_i (1/d) sum_e p_ie L_ie,
-# "mixture" = mean_i (1/(d n_i)) (-log sum_e p_ie exp(-S_ie)), "annealed" = EM on the posterior of each sample's
-# whole demonstration (the gate's: of its own targets), annealed from soft to sharp, balanced over the experts while
-# it anneals (models.split), "bounded" = the same with the balancing bounded (every expert's share between 0.75 and
-# 1.5 x B/d) instead of equal, and faded out instead of stopped.
-ASSIGNMENTS = ("paper", "mixture", "annealed", "bounded")
-# The gate's learning rate as a fraction of the network's (TrainConfig.gate_lr_scale left None), per assignment.
-# The paper's term moves the gate by p (L - mean L) / d and the mixture's by (p - r) / (d n_i): 0.3 was measured
-# for the paper's. The EM assignments train the gate by cross-entropy to the posterior, (p - r) / d, and at 0.3 it
-# picked the 6-mode expert nearest the truth on 66-92% of the queries, at 1.0 on 96-100%; on the built-in demo,
-# 0.3 let two behaviours share an expert.
-GATE_LR_SCALES = {"paper": 0.3, "mixture": 0.3, "annealed": 1.0, "bounded": 1.0}
-
-
 @dataclass(frozen=True)
 class CNEPConfig:
     """The network and its loss. `n_experts=1` is a CNMP.
@@ -88,17 +79,12 @@ class CNEPConfig:
     The loss is `a_rec * L_rec - a_batch * L_batch + a_ind * L_ind` (the paper prints `+ a_batch`; the
     authors' code subtracts it, which matches the stated intent of maximising batch entropy).
     Coefficients left as None take the authors' values rescaled with the number of experts.
-    `assignment` chooses L_rec (models.loss): "bounded" (the default), the experts on the posterior
-    responsibilities of each sample's demonstration and the gate towards those of its own targets, balanced within
-    bounds over the experts while the posterior
-    anneals from soft to the mixture's, so that an expert commits where several behaviours share a context;
-    "annealed", the same with equal balancing; "mixture", the mixture likelihood whose responsibilities come
-    from the targets; "paper", the gate-weighted expert NLL of the paper (what reproduces its tables;
-    docs/concepts.md).
+    `assignment` names how L_rec assigns targets to the experts (`assigned`: its definition in models.assignments);
+    "paper" reproduces the paper's tables, "bounded" (the default) commits where behaviours share a context.
     """
 
     columns: ColumnRoles = field(default_factory=ColumnRoles)  # which columns it observes, queries with, predicts
-    n_experts: int = setting(2, "number of experts; 1 is a CNMP")
+    n_experts: int = setting(2, "number of experts; 1 is a CNMP", option="experts")
     encoder_widths: tuple[int, ...] = setting((128, 128), "encoder layer widths (the last is the latent size)")
     expert_widths: tuple[int, ...] = setting((128, 128), "expert layer widths")
     min_std: float = 1e-3  # floor of the predicted std, in normalised units
@@ -108,20 +94,14 @@ class CNEPConfig:
     a_ind: float | None = None
     assignment: str = setting(
         "bounded",
-        "how the loss assigns a context's targets to the experts: paper = the paper's gate-weighted NLL (every "
-        "expert the gate has not ruled out learns every target), mixture = the mixture likelihood (the expert "
-        "that explains the targets learns them; commits where the context cannot tell behaviours apart), "
-        "annealed = the expert that explains the sample's whole demonstration learns the sample, soft and balanced "
-        "over the experts early in training (an idle expert taking a copy of a busy one), as sharp as a mixture's "
-        "from 60% of the steps on, the gate trained at full strength towards the same choice made from the "
-        "sample's own targets, bounded = annealed with each expert's share kept within 0.75-1.5x an equal "
-        "one instead of equal, faded out over 60-80% of the steps; the best model is kept from where the "
-        "balancing ends (bounded commits on shared contexts and keeps the paper's accuracy; docs/concepts.md)",
+        "how the loss assigns a context's targets to the experts: "
+        + ", ".join(f"{a.name} = {a.summary}" for a in ASSIGNMENTS.values())
+        + " (docs/concepts.md)",
+        choices=tuple(ASSIGNMENTS),
     )
 
     def __post_init__(self) -> None:
-        if self.assignment not in ASSIGNMENTS:
-            raise ConfigError(f"assignment must be one of {', '.join(ASSIGNMENTS)}, got {self.assignment!r}.")
+        assignment_named(self.assignment)
         if isinstance(self.columns, dict):
             object.__setattr__(self, "columns", ColumnRoles(**self.columns))
         object.__setattr__(self, "encoder_widths", tuple(int(w) for w in self.encoder_widths))
@@ -147,6 +127,11 @@ class CNEPConfig:
     @property
     def latent_dim(self) -> int:
         return self.encoder_widths[-1]
+
+    @property
+    def assigned(self) -> Assignment:
+        """The definition of `assignment` (models.assignments): its loss term, gate scale and balancing."""
+        return ASSIGNMENTS[self.assignment]
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -230,11 +215,11 @@ class TrainConfig:
             if getattr(self, name) is not None and getattr(self, name) < 1:
                 raise ConfigError(f"TrainConfig.{name} must be >= 1 or None, got {getattr(self, name)}.")
 
-    def for_assignment(self, assignment: str) -> TrainConfig:
-        """This config with `gate_lr_scale` filled in for `assignment` when it was left None."""
+    def for_assignment(self, assignment: Assignment) -> TrainConfig:
+        """This config with `gate_lr_scale` filled in with `assignment`'s when it was left None."""
         if self.gate_lr_scale is not None:
             return self
-        return replace(self, gate_lr_scale=GATE_LR_SCALES[assignment])
+        return replace(self, gate_lr_scale=assignment.gate_lr_scale)
 
     def to_dict(self) -> dict:
         return asdict(self)

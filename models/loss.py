@@ -45,7 +45,7 @@ shares with its own, until that behaviour moved to it whole (2 of 10 seeds ended
 holding the gate still did not stop it: the encoder moved instead).
 
 "bounded" is "annealed" with the balancing bounded instead of equal, and faded out instead of stopped
-(`BALANCING`): every expert's share of the batch's mass is kept between 0.75 and 1.5 x B/d, shares in
+(models.assignments): every expert's share of the batch's mass is kept between 0.75 and 1.5 x B/d, shares in
 between are the posterior's own, and from ANNEAL_FRACTION to 0.8 of training the balanced posterior
 gives way to the free one geometrically (r proportional to r_balanced^(1-s) r_free^s, s rising
 linearly from 0 to 1). Equal shares force d equal parts where the behaviours do not come in d equal
@@ -66,54 +66,23 @@ that underflows to 0 contributes 0 and never renormalises other rows.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import torch
 
+from cnep.models.assignments import (
+    ANNEAL_FRACTION,
+    ASSIGNMENTS,
+    GATE_WEIGHTED,
+    MIXTURE,
+    POSTERIOR,
+    Assignment,
+    Balancing,
+)
 from cnep.models.config import CNEPConfig
 
 _TINY = 1e-12
 _HALF_LOG_2PI = 0.5 * math.log(2 * math.pi)
-ANNEAL_FRACTION = 0.6  # "annealed": the posterior reaches the mixture's sharpness at this fraction of training
-SINKHORN_ITERATIONS = 3  # "annealed", "bounded": balancing steps of the posterior over the batch while it anneals
-
-
-@dataclass(frozen=True)
-class Balancing:
-    """How an EM assignment balances its posterior over the batch, by the fraction of training done (progress).
-
-    floor, cap: bounds on each expert's share of the batch's mass, as multiples of B/d (`balanced`);
-    fade_from, until: fully balanced before `fade_from`, free from `until`; in between the log posterior is
-    (1 - s) * balanced + s * free, s rising linearly from 0 to 1 (`free_weight`).
-    """
-
-    floor: float
-    cap: float
-    fade_from: float
-    until: float
-
-    def free_weight(self, progress: float) -> float:
-        """s at `progress`: 0 while fully balanced, 1 once free."""
-        if progress < self.fade_from:
-            return 0.0
-        if progress >= self.until:
-            return 1.0
-        return (progress - self.fade_from) / (self.until - self.fade_from)
-
-
-# Each EM assignment's balancing: "annealed" to equal shares, stopped when the anneal ends; "bounded" within
-# [0.75, 1.5] x B/d, faded out over the next 0.2 of training (docs/concepts.md).
-BALANCING = {
-    "annealed": Balancing(1.0, 1.0, ANNEAL_FRACTION, ANNEAL_FRACTION),
-    "bounded": Balancing(0.75, 1.5, ANNEAL_FRACTION, 0.8),
-}
-
-
-def settled_fraction(assignment: str) -> float:
-    """The fraction of training from which `assignment`'s posterior is its final one: where the EM assignments'
-    balancing has ended (`BALANCING`), 0 for "paper" and "mixture". `models.train` keeps no model from before it
-    as the best: a model halfway through the balancing is not yet committed."""
-    return BALANCING[assignment].until if assignment in BALANCING else 0.0
+SINKHORN_ITERATIONS = 3  # the EM assignments: balancing steps of the posterior over the batch while it anneals
 
 
 def entropy(p: torch.Tensor) -> torch.Tensor:
@@ -173,7 +142,7 @@ def annealed_posterior(
     nll: torch.Tensor,
     values: torch.Tensor,
     progress: float,
-    balancing: Balancing = BALANCING["annealed"],
+    balancing: Balancing = ASSIGNMENTS["annealed"].balancing,
 ) -> torch.Tensor:
     """The "annealed" responsibilities r (B, d), detached: softmax_e(log p_ie - k_i L_ie), balanced over the
     batch (`balanced` within the `balancing` bounds) as its schedule says. log_p, nll (B, d); values (B,)."""
@@ -186,33 +155,53 @@ def annealed_posterior(
     return torch.softmax(log_r, dim=-1)
 
 
+def gate_weighted(nll: torch.Tensor, gate: torch.Tensor, values: torch.Tensor, **_) -> torch.Tensor:
+    """The paper's L_rec: mean_i (1/d) sum_e p_ie L_ie; shapes as in `reconstruction`."""
+    return (gate * nll).sum(-1).mean(-1) / gate.shape[-1]
+
+
+def mixture(nll: torch.Tensor, gate: torch.Tensor, values: torch.Tensor, **_) -> torch.Tensor:
+    """The mixture's L_rec: mean_i (1/(d n_i)) (-log sum_e p_ie exp(-S_ie)); shapes as in `reconstruction`."""
+    n = values.clamp_min(1.0).unsqueeze(-1)  # (B, 1)
+    log_joint = gate.clamp_min(_TINY).log() - n * nll  # (B, d): log p_ie - S_ie
+    return (-torch.logsumexp(log_joint, dim=-1) / n[..., 0]).mean(-1) / gate.shape[-1]
+
+
+def posterior_em(
+    nll: torch.Tensor,
+    gate: torch.Tensor,
+    values: torch.Tensor,
+    *,
+    balancing: Balancing,
+    progress: float,
+    posterior: tuple[torch.Tensor, torch.Tensor] | None,
+) -> torch.Tensor:
+    """The EM assignments' L_rec: mean_i (1/d) sum_e (r_ie L_ie - q_ie log p_ie); shapes as in `reconstruction`."""
+    log_p = gate.clamp_min(_TINY).log()  # (B, d)
+    own = annealed_posterior(log_p, nll, values, progress, balancing)  # (B, d), detached: what the gate learns
+    r = own if posterior is None else annealed_posterior(log_p, *posterior, progress, balancing)  # the experts'
+    return ((r * nll).sum(-1) - (own * log_p).sum(-1)).mean(-1) / gate.shape[-1]
+
+
+# Each reconstruction term (models.assignments.Assignment.term) by name.
+RECONSTRUCTIONS = {GATE_WEIGHTED: gate_weighted, MIXTURE: mixture, POSTERIOR: posterior_em}
+
+
 def reconstruction(
     nll: torch.Tensor,
     gate: torch.Tensor,
     values: torch.Tensor,
-    assignment: str,
+    assignment: Assignment,
     progress: float = 1.0,
     posterior: tuple[torch.Tensor, torch.Tensor] | None = None,
 ) -> torch.Tensor:
     """L_rec of `assignment`: nll (..., B, d) mean NLL per value, gate (..., B, d), values (..., B) target values
-    per sample -> (...); progress: the fraction of training done (only "annealed" and "bounded" depend on it);
-    posterior: (nll (..., B, d), values (..., B)) of each sample's whole demonstration, from which "annealed" and
-    "bounded" compute the experts' responsibilities (`models.train.demonstration_nll`; the sample's own targets when
-    None); their gate always learns the responsibilities of the sample's own targets."""
-    d = gate.shape[-1]
-    if assignment == "paper":
-        return (gate * nll).sum(-1).mean(-1) / d
-    if assignment == "mixture":
-        n = values.clamp_min(1.0).unsqueeze(-1)  # (B, 1)
-        log_joint = gate.clamp_min(_TINY).log() - n * nll  # (B, d): log p_ie - S_ie
-        return (-torch.logsumexp(log_joint, dim=-1) / n[..., 0]).mean(-1) / d
-    if assignment in BALANCING:  # "annealed", "bounded"
-        log_p = gate.clamp_min(_TINY).log()  # (B, d)
-        balancing = BALANCING[assignment]
-        own = annealed_posterior(log_p, nll, values, progress, balancing)  # (B, d), detached: what the gate learns
-        r = own if posterior is None else annealed_posterior(log_p, *posterior, progress, balancing)  # the experts'
-        return ((r * nll).sum(-1) - (own * log_p).sum(-1)).mean(-1) / d
-    raise ValueError(f"unknown assignment {assignment!r}")
+    per sample -> (...); progress: the fraction of training done (only the EM assignments depend on it);
+    posterior: (nll (..., B, d), values (..., B)) of each sample's whole demonstration, from which the EM
+    assignments compute the experts' responsibilities (`models.train.demonstration_nll`; the sample's own targets
+    when None); their gate always learns the responsibilities of the sample's own targets."""
+    term = RECONSTRUCTIONS[assignment.term]
+    return term(nll, gate, values, balancing=assignment.balancing, progress=progress, posterior=posterior)
 
 
 def loss_terms(
@@ -221,7 +210,7 @@ def loss_terms(
     gate: torch.Tensor,
     target: torch.Tensor,
     target_mask: torch.Tensor,
-    assignment: str,
+    assignment: Assignment,
     progress: float = 1.0,
     posterior: tuple[torch.Tensor, torch.Tensor] | None = None,
 ) -> dict[str, torch.Tensor]:
@@ -249,6 +238,6 @@ def cnep_loss(
     """Total loss and its terms as floats (for logs). Shapes as in `expert_nll`; gate (B, d); progress: the
     fraction of training done (step / steps; the "annealed" assignment's schedule); posterior: as in
     `reconstruction`."""
-    terms = loss_terms(mean, std, gate, target, target_mask, config.assignment, progress, posterior)
+    terms = loss_terms(mean, std, gate, target, target_mask, config.assigned, progress, posterior)
     total = config.a_rec * terms["rec"] - config.a_batch * terms["batch_entropy"] + config.a_ind * terms["ind_entropy"]
     return total, {"loss": total.item(), **{name: term.item() for name, term in terms.items()}}

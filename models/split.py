@@ -1,6 +1,6 @@
 """The EM assignments' split step: an idle expert takes a copy of a busy one while the posterior is balanced.
 
-The balanced posterior (models.loss.BALANCING) keeps every expert's share of each batch, but an expert can keep its
+The balanced posterior (models.assignments) keeps every expert's share of each batch, but an expert can keep its
 share by learning a little of every behaviour while two behaviours share another expert; once the posterior is free it
 loses even that (the demo: 4 behaviours on 3 experts on 3 of 10 seeds). At SPLIT_CHECKS, from the gate's unfreezing
 to the start of the balancing's fade, each training demonstration, conditioned on itself, is counted for the expert

@@ -4,8 +4,8 @@ The optimiser recipe for a CPU budget of minutes (measured, see docs/results.md)
 learning-rate warm-up then cosine decay, and the gate held uniform (zero-initialised, not updated) for
 the first `gate_freeze_fraction` of the steps, so that the experts learn to reconstruct before the
 gate starts to commit, and then learning at `gate_lr_scale` times the learning rate (by default the
-assignment's own: `models.config.GATE_LR_SCALES`). The best model by validation error is kept, from the
-step where the assignment's posterior has settled on (`models.loss.settled_fraction`).
+assignment's own: `models.assignments`). The best model by validation error is kept, from the step where the
+assignment's posterior has settled on (`Assignment.settled_fraction`).
 
 Adam runs fused (one kernel over all parameters: 0.5 ms a step instead of 4 ms for the per-tensor
 `foreach` path on the 2-core machine, benchmarks/bench_training.py). `models.batched` trains several
@@ -27,7 +27,7 @@ import torch
 from cnep.models.cnep import CNEP
 from cnep.models.config import CNEPConfig, TrainConfig
 from cnep.models.errors import ConfigError
-from cnep.models.loss import BALANCING, cnep_loss, expert_nll, settled_fraction
+from cnep.models.loss import cnep_loss, expert_nll
 from cnep.models.sampler import Batch, TrajectoryStack, sample_batch
 from cnep.models.split import split_if_idle, split_steps
 from cnep.models.threads import torch_threads
@@ -154,7 +154,7 @@ class Trainer:
     diverged: str | None = None  # why training stopped on a validation error that is not finite or far too large
 
     def __post_init__(self) -> None:
-        self.cfg = self.cfg.for_assignment(self.model.config.assignment)
+        self.cfg = self.cfg.for_assignment(self.model.config.assigned)
         gate = {id(p) for p in self.model.gate.parameters()}
         self.optimizer = make_optimizer(
             [
@@ -181,13 +181,13 @@ class Trainer:
                 f"step), got {self.cfg.observed_only_decay} x {self.cfg.lr}; lower lr or observed_only_decay (0 "
                 f"turns it off)"
             )
-        # validations before this step are logged but never kept as the best model (models.loss.settled_fraction)
-        self.keep_from = int(settled_fraction(self.model.config.assignment) * self.cfg.steps)
-        assignment = self.model.config.assignment
-        balanced = assignment in BALANCING and self.model.n_experts > 1
+        assignment = self.model.config.assigned
+        # validations before this step are logged but never kept as the best model (Assignment.settled_fraction)
+        self.keep_from = int(assignment.settled_fraction * self.cfg.steps)
+        balanced = assignment.balancing is not None and self.model.n_experts > 1
         # the steps at which an idle expert may take a copy of a busy one (models.split)
         self.split_at = (
-            split_steps(self.cfg.steps, self.freeze_steps, BALANCING[assignment].fade_from) if balanced else frozenset()
+            split_steps(self.cfg.steps, self.freeze_steps, assignment.balancing.fade_from) if balanced else frozenset()
         )
 
     @property
@@ -243,7 +243,7 @@ class Trainer:
         mean, std, gate, r = self.model(batch.obs, batch.obs_mask, batch.query, latent=True)
         posterior = (
             demonstration_nll(self.model, r, self.demonstration(batch))
-            if self.model.config.assignment in BALANCING
+            if self.model.config.assigned.uses_demonstration
             else None
         )
         loss, terms = cnep_loss(

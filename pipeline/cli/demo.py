@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from cnep.models.config import ASSIGNMENTS
-from cnep.pipeline.cli.fields import default_of
+from cnep.pipeline.cli.fields import add_options, build, options
 from cnep.pipeline.demo.config import DemoConfig
 
 DEFAULT_OUT = "cnep-demo"
@@ -16,59 +15,22 @@ HELP = (
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    seed, assignment, precision, weights = (
-        default_of(DemoConfig, name) for name in ("seed", "assignment", "precision", "weights")
-    )
     parser.add_argument(
         "--out",
         default=None,
         help=f"new or empty folder for everything (default: the first of "
         f"{DEFAULT_OUT}, {DEFAULT_OUT}-2, ... that is new or empty)",
     )
-    parser.add_argument(
-        "--quick",
-        action="store_true",
-        help="a small, fast variant (for CI): fewer demonstrations, shorter episodes, a few training steps",
-    )
-    parser.add_argument(
-        "--seed",
-        type=int,
-        default=seed,
-        help=f"seed of every random draw (default {seed})",
-    )
-    parser.add_argument(
-        "--force",
-        action="store_true",
-        help="use a non-empty --out folder: first delete what an earlier demo wrote there (refused if its folders "
-        "hold anything else)",
-    )
-    parser.add_argument(
-        "--assignment",
-        choices=ASSIGNMENTS,
-        default=assignment,
-        help="the CNEP's reconstruction term: the paper's gate-weighted NLL, the mixture likelihood, "
-        "the annealed posterior assignment, or annealed with bounded rather than equal expert "
-        f"shares, faded out (default {assignment}: docs/concepts.md)",
-    )
-    parser.add_argument(
-        "--precision",
-        choices=("fp32", "int8"),
-        default=precision,
-        help=f"feature extraction precision (default {precision}; int8 as `cnep extract --precision int8`)",
-    )
-    parser.add_argument(
-        "--weights",
-        default=weights,
-        help="the feature network's weights: `auto`, ImageNet's where they can be had (the torch hub cache, "
-        "$CNEP_MOBILENET_WEIGHTS, or a download into the cache) and else seeded random weights calibrated on the "
-        "training frames, with a warning saying why; `imagenet`, the same but an error instead of random weights; "
-        f"`random`; or the path of a MobileNet-v2 state dict (default {weights})",
-    )
-    parser.add_argument(
-        "--offline",
-        action="store_true",
-        help="never download the ImageNet weights (also: environment variable CNEP_OFFLINE=1)",
-    )
+    add_options(parser, options(DemoConfig))  # DemoConfig's fields and those of the CNEP's config it holds
+
+
+def demo_config(args: argparse.Namespace) -> DemoConfig:
+    """The demo's settings for the parsed command line: the options given, the others DemoConfig's defaults."""
+    from pathlib import Path
+
+    out = Path(args.out) if args.out is not None else free_folder(Path(DEFAULT_OUT))
+    given = {option.name: getattr(args, option.name) for option in options(DemoConfig) if hasattr(args, option.name)}
+    return build(DemoConfig, given, out=out, quiet=args.quiet)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -78,30 +40,14 @@ def run(args: argparse.Namespace) -> int:
     from cnep.pipeline.demo.config import AUTO_WEIGHTS, IMAGENET_WEIGHTS, RANDOM_WEIGHTS
     from cnep.pipeline.inputs import existing_files
 
-    if args.weights not in (
-        AUTO_WEIGHTS,
-        IMAGENET_WEIGHTS,
-        RANDOM_WEIGHTS,
-    ):  # refused before torch loads with the stage
-        existing_files([Path(args.weights)], "`auto`, `imagenet`, `random` or a MobileNet-v2 state dict")
+    config = demo_config(args)
+    if config.weights not in (AUTO_WEIGHTS, IMAGENET_WEIGHTS, RANDOM_WEIGHTS):  # refused before torch loads
+        existing_files([Path(config.weights)], "`auto`, `imagenet`, `random` or a MobileNet-v2 state dict")
     from cnep.pipeline.demo.report import format_summary
     from cnep.pipeline.demo.stage import run_demo
 
     start = time.perf_counter()
-    out = Path(args.out) if args.out is not None else free_folder(Path(DEFAULT_OUT))
-    result = run_demo(
-        DemoConfig(
-            out=out,
-            quick=args.quick,
-            seed=args.seed,
-            force=args.force,
-            quiet=args.quiet,
-            assignment=args.assignment,
-            precision=args.precision,
-            weights=args.weights,
-            offline=args.offline,
-        )
-    )
+    result = run_demo(config)
     print(format_summary(result))
     print(f"cnep demo: done in {time.perf_counter() - start:.1f} s")
     return 0

@@ -2,15 +2,17 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 
-from cnep.models.config import CNEPConfig, TrainConfig
+from cnep.models.config import CNEPConfig, TrainConfig, setting
 from cnep.pipeline.inputs import coerce_paths
 
 # `weights` by name (anything else is the path of a state dict): `auto` is ImageNet's where they can be had, else
 # seeded random ones (pipeline.demo.weights); the other two are `cnep extract --weights`'s names (perception.weights).
 AUTO_WEIGHTS, IMAGENET_WEIGHTS, RANDOM_WEIGHTS = "auto", "imagenet", "random"
+CNEP_EXPERTS = 4  # the CNEP's default: one expert per behaviour of the scene
 
 
 @dataclass(frozen=True)
@@ -55,25 +57,37 @@ QUICK = DemoSize(
 @dataclass(frozen=True)
 class DemoConfig:
     """out: folder for everything (created; must be empty or absent unless `force`, which first deletes what an
-    earlier demo wrote there: OUTPUTS); quick: the small CI variant; seed: all draws; assignment: the CNEP's
-    reconstruction term (models.CNEPConfig's default; the CNMP is trained with the paper's); precision: the feature
-    extraction's, `fp32` or `int8` (pipeline.extract.stage.ExtractConfig); weights: the feature network's
-    (pipeline.demo.weights): `auto` (ImageNet weights where they can be had, else seeded random weights, with a
-    warning), `imagenet`, `random` or the path of a MobileNet-v2 state dict; offline: never download ImageNet
-    weights (as the environment variable CNEP_OFFLINE). A failed or interrupted demo leaves a new folder empty."""
+    earlier demo wrote there: OUTPUTS); quick: the small CI variant; seed: all draws; model: the CNEP's network and
+    loss (models.CNEPConfig; the CNMP is the one-expert network of its parameter count, trained with the paper's
+    term); precision: the feature extraction's, `fp32` or `int8` (pipeline.extract.stage.ExtractConfig); weights:
+    the feature network's (pipeline.demo.weights): `auto` (ImageNet weights where they can be had, else seeded
+    random weights, with a warning), `imagenet`, `random` or the path of a MobileNet-v2 state dict; offline: never
+    download ImageNet weights (as the environment variable CNEP_OFFLINE). The training follows the size
+    (`FULL`, `QUICK`). A failed or interrupted demo leaves a new folder empty."""
 
     out: Path
-    quick: bool = False
-    seed: int = 0
-    force: bool = False
+    quick: bool = setting(
+        False, "a small, fast variant (for CI): fewer demonstrations, shorter episodes, a few training steps"
+    )
+    seed: int = setting(0, "seed of every random draw")
+    force: bool = setting(
+        False,
+        "use a non-empty --out folder: first delete what an earlier demo wrote there (refused if its folders hold "
+        "anything else)",
+    )
     quiet: bool = False
-    # The models' default, bounded: measured on seeds 0-2 (docs/results.md) it kept purity 1.00 on 4 experts and put
-    # 1.00 of the free-choice motions in a slot (CNMP 0.55-0.70); the paper's term 0.55-0.75 (purity 0.63 for one
-    # behaviour on seed 2).
-    assignment: str = CNEPConfig.assignment
-    precision: str = "fp32"
-    weights: str = AUTO_WEIGHTS
-    offline: bool = False
+    model: CNEPConfig = field(default_factory=partial(CNEPConfig, n_experts=CNEP_EXPERTS))
+    precision: str = setting(
+        "fp32", "feature extraction precision (int8 as `cnep extract --precision int8`)", choices=("fp32", "int8")
+    )
+    weights: str = setting(
+        AUTO_WEIGHTS,
+        "the feature network's weights: `auto`, ImageNet's where they can be had (the torch hub cache, "
+        "$CNEP_MOBILENET_WEIGHTS, or a download into the cache) and else seeded random weights calibrated on the "
+        "training frames, with a warning saying why; `imagenet`, the same but an error instead of random weights; "
+        "`random`; or the path of a MobileNet-v2 state dict",
+    )
+    offline: bool = setting(False, "never download the ImageNet weights (also: environment variable CNEP_OFFLINE=1)")
 
     def __post_init__(self) -> None:
         coerce_paths(self)

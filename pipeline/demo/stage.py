@@ -41,7 +41,7 @@ import shutil
 import time
 from concurrent.futures import as_completed
 from contextlib import contextmanager
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -79,7 +79,6 @@ from cnep.recordings import read_demonstration, read_trajectory
 
 log = logging.getLogger(__name__)
 
-CNEP_EXPERTS = 4  # one per behaviour of the scene
 LAYOUT = SCENE  # queries carry no features: the behaviour reaches the experts through the context and the gate
 CNMP_ASSIGNMENT = "paper"  # one expert: the paper's term is the plain CNMP likelihood, with no balancing schedule
 SUMMARY_FILE = "summary.json"
@@ -247,8 +246,8 @@ def _run_stages(config: DemoConfig, out: Path, size: DemoSize, seconds: dict[str
     )
     checkpoints = {"CNEP": out / "checkpoints" / "cnep", "CNMP": out / "checkpoints" / "cnmp"}
     networks = {
-        "CNEP": {"n_experts": CNEP_EXPERTS, "assignment": config.assignment},
-        "CNMP": {"n_experts": CNEP_EXPERTS, "matched_cnmp": True, "assignment": CNMP_ASSIGNMENT},
+        "CNEP": {"model": config.model},
+        "CNMP": {"model": replace(config.model, assignment=CNMP_ASSIGNMENT), "matched_cnmp": True},
     }
     log.info("training the CNEP and the CNMP side by side (%d steps each, one process each)", size.train_steps)
     with single_thread_processes(len(checkpoints)) as pool:  # the workers train quietly; their errors reach us

@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from cnep.models import CNEPConfig, ColumnRoles, TrainConfig, fit, matched_cnmp, pid_track
-from cnep.models.config import ASSIGNMENTS
+from cnep.models.assignments import ASSIGNMENTS
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.ingest.stage import IngestConfig, ingest
 from cnep.pipeline.inputs import coerce_paths

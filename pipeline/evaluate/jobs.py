@@ -31,6 +31,7 @@ from typing import Protocol
 
 import numpy as np
 
+from cnep.models.config import CNEPConfig
 from cnep.models.threads import SMALL_MODEL_THREADS
 from cnep.pipeline.evaluate.constants import GMM_COMPONENTS, PROMP_WEIGHTS, REPORT_STEPS, SAMPLES_IN_FIGURE
 
@@ -45,19 +46,26 @@ class Progress(Protocol):
 
 @dataclass(frozen=True)
 class ModelSpec:
-    """One trained network: CNEP with `n_experts` (1 = the parameter-matched CNMP) and its loss weights."""
+    """One trained network: its model config (one expert: the CNMP with the parameter count of a CNEP of
+    `Job.cnmp_matches` experts)."""
 
-    n_experts: int
-    a_batch: float | None = None  # None: the authors' rescaled value
-    a_ind: float | None = None
-    assignment: str = "paper"  # models.CNEPConfig.assignment (a CNMP's loss is the same under both)
+    model: CNEPConfig
+
+    @classmethod
+    def of(cls, n_experts: int, **loss: object) -> ModelSpec:
+        """The paper's CNEP with `n_experts` and `loss`'s changes to it (a_batch, a_ind, assignment)."""
+        return cls(CNEPConfig(n_experts=n_experts, **{"assignment": "paper", **loss}))
+
+    @property
+    def n_experts(self) -> int:
+        return self.model.n_experts
 
     @property
     def key(self) -> str:
         if self.n_experts == 1:
             return "cnmp"
-        tags = [f"d{self.n_experts}"] + [f"{n}0" for n in ("a_batch", "a_ind") if getattr(self, n) == 0]
-        tags += [] if self.assignment == "paper" else [self.assignment]
+        tags = [f"d{self.n_experts}"] + [f"{n}0" for n in ("a_batch", "a_ind") if getattr(self.model, n) == 0]
+        tags += [] if self.model.assignment == "paper" else [self.model.assignment]
         return "cnep-" + "-".join(tags)
 
 
@@ -139,12 +147,12 @@ def baselines(set_name: str, seed: int) -> dict:
     }
 
 
-def model_config(spec: ModelSpec, cnmp_matches: int):
-    from cnep.models import CNEPConfig, matched_cnmp
+def model_config(spec: ModelSpec, cnmp_matches: int) -> CNEPConfig:
+    from cnep.models import matched_cnmp
 
     if spec.n_experts == 1:
         return matched_cnmp(CNEPConfig(n_experts=cnmp_matches, assignment="paper"))  # the paper's CNMP
-    return CNEPConfig(n_experts=spec.n_experts, a_batch=spec.a_batch, a_ind=spec.a_ind, assignment=spec.assignment)
+    return spec.model
 
 
 def unit_key(job: Job) -> tuple | None:

@@ -26,7 +26,7 @@ from queue import Empty
 
 import numpy as np
 
-from cnep.models.config import ASSIGNMENTS
+from cnep.models.assignments import ASSIGNMENTS
 from cnep.outputs import output_lock
 from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_existing
 from cnep.pipeline.errors import PipelineError
@@ -126,29 +126,29 @@ class Row:
 
 def table_rows(table: str, set_name: str) -> list[Row]:
     d = CNEP_EXPERTS[set_name]
-    cnep = ModelSpec(d)
+    cnep = ModelSpec.of(d)
     nearest = Row("Nearest demo", None, "Nearest demo")
     if table == "comparison":
         baselines = [Row(name, None, name) for name in ("ProMP", "GMM-GMR", "GMM-GMR (no ridge)")]
-        return baselines + [Row("CNMP", ModelSpec(1), "cnmp"), Row("CNEP", cnep, cnep.key), nearest]
+        return baselines + [Row("CNMP", ModelSpec.of(1), "cnmp"), Row("CNEP", cnep, cnep.key), nearest]
     if table == "ablation":
         variants = {
-            "CNEP-Uni": ModelSpec(d, a_batch=0.0),
-            "CNEP-UnSpec": ModelSpec(d, a_ind=0.0),
-            "CNEP-Rec": ModelSpec(d, a_batch=0.0, a_ind=0.0),
+            "CNEP-Uni": ModelSpec.of(d, a_batch=0.0),
+            "CNEP-UnSpec": ModelSpec.of(d, a_ind=0.0),
+            "CNEP-Rec": ModelSpec.of(d, a_batch=0.0, a_ind=0.0),
         }
         rows = [Row(label, spec, spec.key) for label, spec in variants.items()]
         return rows + [Row("CNEP-MoE", cnep, cnep.key + "+moe"), Row("CNEP", cnep, cnep.key), nearest]
     if table == "commitment":
-        rows = [Row(name, None, name) for name in ("ProMP", "GMM-GMR")] + [Row("CNMP", ModelSpec(1), "cnmp")]
+        rows = [Row(name, None, name) for name in ("ProMP", "GMM-GMR")] + [Row("CNMP", ModelSpec.of(1), "cnmp")]
         for assignment in ASSIGNMENTS:
-            spec = ModelSpec(d, assignment=assignment)
+            spec = ModelSpec.of(d, assignment=assignment)
             rows += [
                 Row(f"CNEP ({assignment})", spec, spec.key),
                 Row(f"CNEP-MoE ({assignment})", spec, spec.key + "+moe"),
             ]
         return rows + [nearest]
-    return [Row(f"CNEP-{k}", ModelSpec(k), ModelSpec(k).key) for k in EXPERT_COUNTS] + [nearest]
+    return [Row(f"CNEP-{k}", ModelSpec.of(k), ModelSpec.of(k).key) for k in EXPERT_COUNTS] + [nearest]
 
 
 def plan(config: EvaluateConfig) -> list[Job]:

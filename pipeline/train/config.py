@@ -1,7 +1,7 @@
 """The train stage's settings (`TrainStageConfig`): the defaults of `cnep train`, and of `train()` from Python.
 
-Importable without torch: the `cnep train` command reads these fields (and the models' `CNEPConfig` and
-`TrainConfig`, whose defaults the network and training fields take) to show its defaults and help.
+Importable without torch: the `cnep train` command walks these fields and those of the configs they hold
+(`models.CNEPConfig`, `models.TrainConfig`) to offer its options with their defaults and help.
 """
 
 from __future__ import annotations
@@ -12,20 +12,20 @@ from pathlib import Path
 from cnep.models.config import CNEPConfig, TrainConfig, setting
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.inputs import coerce_paths
-from cnep.pipeline.train.constants import SCENE
+from cnep.pipeline.train.constants import DEVICES, PRESET_NAMES, SCENE
 
 
 @dataclass(frozen=True)
 class TrainStageConfig:
     """inputs: trajectory files or folders (read only); out: checkpoint folder (must not exist unless `force`).
 
-    layout: preset name (wine-glass, scene, motion, all); n_experts, assignment, encoder_widths, expert_widths,
-    time_frequencies: the network and its loss (models.CNEPConfig, whose defaults these are); matched_cnmp: train
-    instead the one-expert CNMP with that network's parameter count (models.matched_cnmp); training: steps,
-    batch size (per process), lr, schedule, val_every, patience (validations), seed, threads
-    (models.TrainConfig); val_fraction: share of the demonstrations held out for validation (whole
-    demonstrations, at least one); save_every: steps between resumable saves; device: cpu or cuda; resume:
-    continue the unfinished run writing to `out`; force: replace an existing `out` when the run completes.
+    layout: preset name (wine-glass, scene, motion, all), which gives the model its columns; model: the network
+    and its loss (models.CNEPConfig; its `columns` are the layout's); matched_cnmp: train instead the one-expert
+    CNMP with that network's parameter count (models.matched_cnmp); training: steps, batch size (per process), lr,
+    schedule, val_every, patience (validations), seed, threads (models.TrainConfig); val_fraction: share of the
+    demonstrations held out for validation (whole demonstrations, at least one); save_every: steps between
+    resumable saves; device: cpu or cuda; resume: continue the unfinished run writing to `out`; force: replace
+    an existing `out` when the run completes.
     """
 
     inputs: tuple[Path, ...]
@@ -36,12 +36,9 @@ class TrainStageConfig:
         "columns observed/queried/predicted: wine-glass = observe features+pose+gripper, query features, predict "
         "pose+gripper (1288-d files); scene = the same, but queries carry the time only; motion = pose+gripper "
         "only (8-d files or the motion columns of 1288-d files); all = observe and predict every column",
+        choices=PRESET_NAMES,
     )
-    n_experts: int = CNEPConfig.n_experts
-    assignment: str = CNEPConfig.assignment
-    encoder_widths: tuple[int, ...] = CNEPConfig.encoder_widths
-    expert_widths: tuple[int, ...] = CNEPConfig.expert_widths
-    time_frequencies: int = CNEPConfig.time_frequencies
+    model: CNEPConfig = field(default_factory=CNEPConfig)
     matched_cnmp: bool = setting(
         False,
         "train the one-expert CNMP with the parameter count of the CNEP these options describe (its expert "
@@ -50,9 +47,9 @@ class TrainStageConfig:
     training: TrainConfig = field(default_factory=TrainConfig)
     val_fraction: float = setting(0.2, "share of the demonstrations held out for validation")
     save_every: int = setting(500, "steps between resumable saves")
-    device: str = setting("cpu", "where the network trains")
-    resume: bool = False
-    force: bool = False
+    device: str = setting("cpu", "where the network trains", choices=DEVICES)
+    resume: bool = setting(False, "continue the interrupted run writing to --out")
+    force: bool = setting(False, "replace an existing --out checkpoint (one cnep train wrote) when training completes")
     quiet: bool = False
 
     def __post_init__(self) -> None:

@@ -24,7 +24,7 @@ import shutil
 import time
 from collections.abc import Callable
 from contextlib import ExitStack
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -119,14 +119,7 @@ def _train(config: TrainStageConfig, procs: Processes, device: torch.device, hel
     """The run; rank 0 claims OUT into `held` (its folder and lock, released when the run ends)."""
     data = load_training_set(find_trajectory_files(config.inputs))
     layout = resolve_preset(config.layout, data.width, data.files[0].path)
-    model_config = CNEPConfig(
-        columns=layout.roles,
-        n_experts=config.n_experts,
-        assignment=config.assignment,
-        encoder_widths=config.encoder_widths,
-        expert_widths=config.expert_widths,
-        time_frequencies=config.time_frequencies,
-    )
+    model_config = replace(config.model, columns=layout.roles)
     if config.matched_cnmp:
         model_config = matched_cnmp(model_config)
     train_idx, val_idx = split_validation(list(range(len(data.files))), config.val_fraction, config.training.seed)
@@ -274,7 +267,7 @@ def run_identity(
         "layout": layout.to_dict(),
         "model": model_config.to_dict(),
         "training": {
-            **asdict(config.training.for_assignment(model_config.assignment)),
+            **asdict(config.training.for_assignment(model_config.assigned)),
             "val_fraction": config.val_fraction,
             "world_size": procs.world_size,
             "batch_size_total": config.training.batch_size * procs.world_size,

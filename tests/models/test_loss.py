@@ -4,10 +4,9 @@ import math
 import pytest
 import torch
 
+from cnep.models.assignments import ANNEAL_FRACTION, ASSIGNMENTS
 from cnep.models.config import CNEPConfig
 from cnep.models.loss import (
-    ANNEAL_FRACTION,
-    BALANCING,
     SINKHORN_ITERATIONS,
     annealed_posterior,
     annealed_sharpness,
@@ -15,7 +14,6 @@ from cnep.models.loss import (
     cnep_loss,
     entropy,
     expert_nll,
-    settled_fraction,
 )
 
 
@@ -193,7 +191,7 @@ def _two_sample_example():
     return mean, std, target, mask, gate, (L0, 2), (L1, 1)
 
 
-def _hand_posterior(Ls, ns, ps, progress, balancing=BALANCING["annealed"]):
+def _hand_posterior(Ls, ns, ps, progress, balancing=ASSIGNMENTS["annealed"].balancing):
     """The "annealed" responsibilities by hand: per sample p_e exp(-k L_e) with k = n ** min(1, progress / 0.6);
     balanced: 3 rounds of scaling each expert's column into [floor, cap] * B/d (equal shares B/d for "annealed")
     and each row to 1; free: rows to 1; between the balancing's fade_from and until, the rows of
@@ -228,7 +226,7 @@ def test_annealed_term_against_a_hand_computation(assignment):
     # balanced and soft, balanced and sharper, "bounded" halfway through its fade, free and as sharp as the mixture
     for progress in (0.0, 0.3, 0.7, 1.0):
         _, terms = cnep_loss(mean, std, gate, target, mask, cfg, progress)
-        r = _hand_posterior([L0, L1], [n0, n1], p, progress, BALANCING[assignment])
+        r = _hand_posterior([L0, L1], [n0, n1], p, progress, ASSIGNMENTS[assignment].balancing)
         rec = [sum(re * (le - math.log(pe)) for re, le, pe in zip(ri, Li, pi)) for ri, Li, pi in zip(r, [L0, L1], p)]
         assert math.isclose(terms["rec"], (rec[0] + rec[1]) / 2 / 2, rel_tol=1e-6)  # mean over samples, then / d
 
@@ -245,8 +243,8 @@ def test_the_demonstrations_decide_which_expert_learns_and_the_samples_what_the_
     values = torch.tensor([40.0, 40.0])
     for progress in (0.0, 0.7, 1.0):
         _, terms = cnep_loss(mean, std, gate, target, mask, cfg, progress, (demo, values))
-        r = _hand_posterior(demo.tolist(), [40, 40], gate.tolist(), progress, BALANCING[assignment])
-        own = _hand_posterior([L0, L1], [n0, n1], gate.tolist(), progress, BALANCING[assignment])
+        r = _hand_posterior(demo.tolist(), [40, 40], gate.tolist(), progress, ASSIGNMENTS[assignment].balancing)
+        own = _hand_posterior([L0, L1], [n0, n1], gate.tolist(), progress, ASSIGNMENTS[assignment].balancing)
         rec = [
             sum(re * le - oe * math.log(pe) for re, oe, le, pe in zip(ri, oi, Li, pi))
             for ri, oi, Li, pi in zip(r, own, [L0, L1], gate)
@@ -317,7 +315,7 @@ def test_bounded_balancing_keeps_every_experts_share_between_a_floor_and_a_cap()
     # every sample is explained best by expert 0: free, expert 0 takes nearly all of the batch; bounded, no
     # expert takes more than cap * B/d (exactly, once converged) nor less than floor * B/d, each row stays a
     # distribution, and each sample's next best expert takes its mass (bounds at which the cap binds here)
-    bounded = dataclasses.replace(BALANCING["bounded"], floor=0.5, cap=1.5)
+    bounded = dataclasses.replace(ASSIGNMENTS["bounded"].balancing, floor=0.5, cap=1.5)
     floor, cap = bounded.floor, bounded.cap
     nll = torch.tensor([[0.0, 2.0, 3.0, 3.0], [0.1, 1.0, 4.0, 3.0], [0.0, 3.0, 1.0, 3.0], [0.2, 2.0, 2.0, 1.5]])
     log_p = torch.full((4, 4), -math.log(4.0))  # B/d = 1
@@ -334,16 +332,19 @@ def test_bounded_balancing_keeps_every_experts_share_between_a_floor_and_a_cap()
 
 
 def test_bounded_balancing_fades_out_where_annealed_balancing_stops():
-    bounded, annealed = BALANCING["bounded"], BALANCING["annealed"]
+    bounded, annealed = ASSIGNMENTS["bounded"].balancing, ASSIGNMENTS["annealed"].balancing
     assert [bounded.free_weight(p) for p in (0.0, 0.59, 0.6, 0.7, 0.8, 1.0)] == pytest.approx([0, 0, 0, 0.5, 1, 1])
     assert [annealed.free_weight(p) for p in (0.0, 0.59, 0.6, 1.0)] == [0, 0, 1, 1]
     # the best model is kept only once the posterior is the final one
-    assert settled_fraction("bounded") == bounded.until and settled_fraction("annealed") == ANNEAL_FRACTION
-    assert settled_fraction("paper") == settled_fraction("mixture") == 0.0
+    assert (
+        ASSIGNMENTS["bounded"].settled_fraction == bounded.until
+        and ASSIGNMENTS["annealed"].settled_fraction == ANNEAL_FRACTION
+    )
+    assert ASSIGNMENTS["paper"].settled_fraction == ASSIGNMENTS["mixture"].settled_fraction == 0.0
 
 
 def test_bounded_balancing_leaves_shares_between_the_floor_and_the_cap_to_the_posterior():
-    floor, cap = BALANCING["bounded"].floor, BALANCING["bounded"].cap
+    floor, cap = ASSIGNMENTS["bounded"].balancing.floor, ASSIGNMENTS["bounded"].balancing.cap
     log_r = torch.log_softmax(torch.tensor([[2.0, 0.0, 0.0], [0.0, 2.0, 0.0], [0.0, 0.0, 2.0], [1.0, 0.0, 1.0]]), -1)
     shares = log_r.exp().sum(0)  # about 1.42, 1.16, 1.42 of 4 samples: inside [floor, cap] * B/d = [0.67, 2.0]
     assert (shares > floor * 4 / 3).all() and (shares < cap * 4 / 3).all()
@@ -354,7 +355,7 @@ def test_bounded_balancing_leaves_shares_between_the_floor_and_the_cap_to_the_po
 @pytest.mark.parametrize("assignment", ["annealed", "bounded"])
 def test_balancing_of_stacked_models_is_each_models_own(assignment):
     log_r = torch.randn(3, 5, 4, generator=torch.Generator().manual_seed(0))  # k = 3 stacked models, B = 5, d = 4
-    bounds = BALANCING[assignment].floor, BALANCING[assignment].cap
+    bounds = ASSIGNMENTS[assignment].balancing.floor, ASSIGNMENTS[assignment].balancing.cap
     stacked = balanced(log_r, SINKHORN_ITERATIONS, *bounds)
     for i in range(3):
         assert torch.equal(stacked[i], balanced(log_r[i], SINKHORN_ITERATIONS, *bounds))

@@ -4,8 +4,9 @@ import numpy as np
 import pytest
 import torch
 
+from cnep.models.assignments import ASSIGNMENTS
 from cnep.models.cnep import CNEP
-from cnep.models.config import GATE_LR_SCALES, CNEPConfig, ColumnRoles, TrainConfig
+from cnep.models.config import CNEPConfig, ColumnRoles, TrainConfig
 from cnep.models.errors import ConfigError
 from cnep.models.sampler import TrajectoryStack
 from cnep.models.train import Trainer, build_model, fit, lr_factor, prepare_fit, split_validation
@@ -67,9 +68,9 @@ def test_the_gates_learning_rate_defaults_to_its_assignments(assignment):
     before = model.gate.weight.detach().clone()
     trainer = Trainer(model, TrajectoryStack(trajs, model), TrajectoryStack(trajs[:4], model), cfg)
     trainer.train_step()
-    assert trainer.cfg.gate_lr_scale == GATE_LR_SCALES[assignment]
+    assert trainer.cfg.gate_lr_scale == ASSIGNMENTS[assignment].gate_lr_scale
     assert float((model.gate.weight.detach() - before).abs().max()) == pytest.approx(
-        1e-3 * GATE_LR_SCALES[assignment], rel=1e-3
+        1e-3 * ASSIGNMENTS[assignment].gate_lr_scale, rel=1e-3
     )
 
 

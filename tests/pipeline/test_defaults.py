@@ -8,14 +8,13 @@ from pathlib import Path
 import pytest
 
 from cnep.models.config import CNEPConfig, ConditioningPolicy, TrainConfig
+from cnep.pipeline.cli.demo import demo_config
 from cnep.pipeline.cli.main import build_parser
-from cnep.pipeline.cli.train import SETTINGS, stage_config
-from cnep.pipeline.demo.config import DemoConfig
+from cnep.pipeline.cli.train import settings_of, stage_config
+from cnep.pipeline.demo.config import CNEP_EXPERTS, DemoConfig
 from cnep.pipeline.extract.stage import ExtractConfig
 from cnep.pipeline.ingest.stage import IngestConfig
 from cnep.pipeline.train.config import TrainStageConfig
-
-NETWORK = ("n_experts", "assignment", "encoder_widths", "expert_widths", "time_frequencies")
 
 
 def test_cnep_train_without_flags_is_the_stage_config_with_its_defaults():
@@ -26,23 +25,28 @@ def test_cnep_train_without_flags_is_the_stage_config_with_its_defaults():
 def test_the_cli_the_stage_config_and_the_model_configs_agree_on_every_shared_setting():
     stage = TrainStageConfig(inputs=(), out=Path("ckpt"))
     model, training = CNEPConfig(), TrainConfig()
-    assert {name: getattr(stage, name) for name in NETWORK} == {name: getattr(model, name) for name in NETWORK}
-    assert stage.training == training
+    assert stage.model == model and stage.training == training  # held, not copied
     assert model.assignment == "bounded" and training.patience == 10 and training.threads == 1
     args = build_parser().parse_args(["train", "data", "--out", "ckpt"])
     chosen = stage_config(args)
-    for option, (cls, name) in SETTINGS.items():
-        held = {TrainStageConfig: chosen, CNEPConfig: chosen, TrainConfig: chosen.training}[cls]
-        assert getattr(held, name) == next(f.default for f in fields(cls) if f.name == name), option
-    demo = build_parser().parse_args(["demo"])
-    assert demo.assignment == DemoConfig.assignment == model.assignment and demo.seed == DemoConfig.seed
-    assert (demo.weights, demo.offline, demo.precision) == (
-        DemoConfig.weights,
-        DemoConfig.offline,
-        DemoConfig.precision,
-    )
+    held = {TrainStageConfig: chosen, CNEPConfig: chosen.model, TrainConfig: chosen.training}
+    for option in settings_of().values():
+        owner = next(cls for cls in held if option.field in fields(cls))
+        assert getattr(held[owner], option.field.name) == option.field.default, option.name
+    demo = demo_config(build_parser().parse_args(["demo", "--out", "d"]))
+    assert demo == DemoConfig(out=Path("d")) and demo.model.assignment == model.assignment
+    assert demo.model.n_experts == CNEP_EXPERTS and demo.seed == 0
     replay = build_parser().parse_args(["replay", "ckpt", "r.mcap"])
     assert ConditioningPolicy(replay.window, replay.anchors) == ConditioningPolicy()
+
+
+def test_nested_options_reach_the_config_they_belong_to():
+    args = build_parser().parse_args(["train", "d", "--out", "c", "--experts", "3", "--steps", "50", "--force"])
+    config = stage_config(args)
+    assert (config.model.n_experts, config.training.steps, config.force) == (3, 50, True)
+    assert config.model == CNEPConfig(n_experts=3)  # the loss weights follow the number of experts
+    demo = demo_config(build_parser().parse_args(["demo", "--out", "d", "--assignment", "paper", "--experts", "6"]))
+    assert demo.model == CNEPConfig(n_experts=6, assignment="paper") and not demo.quick
 
 
 def option_help(text: str, flag: str) -> str:
@@ -58,13 +62,12 @@ def option_help(text: str, flag: str) -> str:
     return " ".join(" ".join(block).split())
 
 
-@pytest.mark.parametrize("option", sorted(SETTINGS))
+@pytest.mark.parametrize("option", sorted(name for name, o in settings_of().items() if not o.is_flag))
 def test_cnep_train_help_shows_each_dataclass_default(option, capsys):
-    cls, name = SETTINGS[option]
     with pytest.raises(SystemExit):
         build_parser().parse_args(["train", "--help"])
     shown = option_help(capsys.readouterr().out, f"--{option.replace('_', '-')}")
-    default = next(f.default for f in fields(cls) if f.name == name)
+    default = settings_of()[option].field.default
     expected = (
         "the assignment's"
         if default is None

@@ -8,7 +8,7 @@ import pytest
 
 import cnep.pipeline.replay.viewer as L
 from cnep.models import CNEPConfig, load_checkpoint, read_checkpoint_config
-from cnep.models.config import GATE_LR_SCALES
+from cnep.models.assignments import ASSIGNMENTS
 from cnep.pipeline.cli.main import main
 from cnep.pipeline.demo.config import QUICK
 from cnep.pipeline.demo.figure import FIGURE_FILE
@@ -89,7 +89,9 @@ def test_both_models_train_the_scene_layout_with_about_the_same_parameters(demo_
         layout = config["layout"]
         assert layout["name"] == SCENE and layout["query"] == [] and layout["observed"][0] == "features"
         assert config["model"]["assignment"] == {"cnep": CNEPConfig().assignment, "cnmp": "paper"}[name]
-        assert config["training"]["gate_lr_scale"] == GATE_LR_SCALES[config["model"]["assignment"]]  # the models'
+        assert (
+            config["training"]["gate_lr_scale"] == ASSIGNMENTS[config["model"]["assignment"]].gate_lr_scale
+        )  # the models'
         sizes[name] = sum(p.numel() for p in load_checkpoint(demo_run / "checkpoints" / name).parameters())
     assert abs(sizes["cnmp"] - sizes["cnep"]) / sizes["cnep"] < 0.01, sizes
 

@@ -49,7 +49,7 @@ def test_rows_of_each_table():
         "Nearest demo",
     ]
     ablation = {r.label: r for r in table_rows("ablation", "multimodal")}
-    assert ablation["CNEP-Rec"].spec == ModelSpec(4, a_batch=0.0, a_ind=0.0)
+    assert ablation["CNEP-Rec"].spec == ModelSpec.of(4, a_batch=0.0, a_ind=0.0)
     assert ablation["CNEP-MoE"].spec == ablation["CNEP"].spec and ablation["CNEP-MoE"].method.endswith("+moe")
     assert [r.spec.n_experts for r in table_rows("experts", "multimodal6") if r.spec] == [2, 4, 8]
     commitment = {r.label: r for r in table_rows("commitment", "multimodal6")}
@@ -67,8 +67,8 @@ def test_rows_of_each_table():
         "CNEP-MoE (bounded)",
         "Nearest demo",
     ]
-    assert commitment["CNEP (mixture)"].spec == ModelSpec(8, assignment="mixture")
-    assert commitment["CNEP-MoE (paper)"].spec == commitment["CNEP (paper)"].spec == ModelSpec(8)
+    assert commitment["CNEP (mixture)"].spec == ModelSpec.of(8, assignment="mixture")
+    assert commitment["CNEP-MoE (paper)"].spec == commitment["CNEP (paper)"].spec == ModelSpec.of(8)
 
 
 def test_pooled_equals_statistics_over_all_queries():
@@ -168,7 +168,7 @@ def test_a_network_job_reports_its_steps_and_trains_as_fit(torch_threads):
     from cnep.pipeline.evaluate.constants import REPORT_STEPS
     from cnep.pipeline.evaluate.jobs import Job, model_config, run_job
 
-    job = Job("bimodal", 1, ModelSpec(2, assignment="bounded"), steps=REPORT_STEPS + 30, n_queries=3)
+    job = Job("bimodal", 1, ModelSpec.of(2, assignment="bounded"), steps=REPORT_STEPS + 30, n_queries=3)
     reports = _Reports()
     result = run_job(job, reports)["cnep-d2-bounded"]
     assert reports.steps == [REPORT_STEPS, 30] and result["steps"] == job.steps
@@ -181,7 +181,7 @@ def test_a_network_job_reports_its_steps_and_trains_as_fit(torch_threads):
         progress=False,
     )
     assert result["val_curve"] == [(h["step"], h["val_error"]) for h in history]
-    # the kept model's: the best from where the posterior settles (models.loss.settled_fraction) on
+    # the kept model's: the best from where the posterior settles (Assignment.settled_fraction) on
     assert result["best_val_error"] == min(h["val_error"] for h in history if h["step"] >= 0.8 * job.steps)
 
 
@@ -190,13 +190,13 @@ def test_units_group_one_network_shape_on_one_set():
     from cnep.pipeline.evaluate.jobs import Job
     from cnep.pipeline.evaluate.stage import units
 
-    jobs = [Job("bimodal", seed, ModelSpec(2, a_ind=a_ind), 40, 3) for seed in range(3) for a_ind in (None, 0.0)]
+    jobs = [Job("bimodal", seed, ModelSpec.of(2, a_ind=a_ind), 40, 3) for seed in range(3) for a_ind in (None, 0.0)]
     jobs += [
         Job("bimodal", 0, None, 40, 3),
         Job("bimodal", 1, None, 40, 3),
-        Job("bimodal", 0, ModelSpec(1), 40, 3),
-        Job("multimodal", 0, ModelSpec(2), 40, 3),
-        Job("bimodal", 0, ModelSpec(4), 40, 3),
+        Job("bimodal", 0, ModelSpec.of(1), 40, 3),
+        Job("multimodal", 0, ModelSpec.of(2), 40, 3),
+        Job("bimodal", 0, ModelSpec.of(4), 40, 3),
     ]
     got = units(jobs)
     assert sorted(len(u) for u in got) == [1] * 5 + [UNIT_NETWORKS] * (6 // UNIT_NETWORKS)
@@ -209,7 +209,7 @@ def test_units_group_one_network_shape_on_one_set():
 def test_a_unit_trains_each_network_as_alone(torch_threads):
     from cnep.pipeline.evaluate.jobs import Job, run_job, run_unit
 
-    unit = (Job("bimodal", 0, ModelSpec(2), 60, 3), Job("bimodal", 1, ModelSpec(2, assignment="annealed"), 60, 3))
+    unit = (Job("bimodal", 0, ModelSpec.of(2), 60, 3), Job("bimodal", 1, ModelSpec.of(2, assignment="annealed"), 60, 3))
     reports = _Reports()
     together = run_unit(unit, reports)
     assert sum(reports.steps) == 120
@@ -229,7 +229,7 @@ def test_an_early_stop_credits_the_steps_it_skipped(monkeypatch, torch_threads):
     # patience 2 stops at step 3
     monkeypatch.setattr(Trainer, "validate", lambda self: validate(self) + self.step)
     reports = _Reports()
-    result = run_job(Job("bimodal", 0, ModelSpec(1), steps=150, n_queries=3, patience=2), reports)["cnmp"]
+    result = run_job(Job("bimodal", 0, ModelSpec.of(1), steps=150, n_queries=3, patience=2), reports)["cnmp"]
     assert result["steps"] == 3 and [step for step, _ in result["val_curve"]] == [1, 2, 3]
     assert sum(reports.steps) == 150 and reports.steps[-1] == 147
 
@@ -239,8 +239,8 @@ def test_progress_counts_training_steps_in_whole_lines(capsys, torch_threads):
     from cnep.pipeline.evaluate.stage import run_jobs
 
     jobs = [
-        Job("bimodal", 0, ModelSpec(2), steps=40, n_queries=3),
-        Job("bimodal", 0, ModelSpec(1), steps=40, n_queries=3),
+        Job("bimodal", 0, ModelSpec.of(2), steps=40, n_queries=3),
+        Job("bimodal", 0, ModelSpec.of(1), steps=40, n_queries=3),
     ]
     assert [job for job, _ in run_jobs(jobs, workers=1, quiet=False)] != []
     lines = capsys.readouterr().err.splitlines()

@@ -10,8 +10,8 @@ import pytest
 import torch
 from safetensors.torch import load_file
 
-from cnep.models import TrainConfig, Trainer, load_checkpoint, read_checkpoint_config
-from cnep.models.loss import settled_fraction
+from cnep.models import CNEPConfig, TrainConfig, Trainer, load_checkpoint, read_checkpoint_config
+from cnep.models.assignments import ASSIGNMENTS
 from cnep.models.sampler import TrajectoryStack
 from cnep.pipeline.cli.main import main
 from cnep.pipeline.contract import Terminated
@@ -49,10 +49,11 @@ def full_set(tmp_path) -> list[Path]:
     return write_set(tmp_path / "full")
 
 
-def stage_config(inputs, out, steps=30, **overrides) -> TrainStageConfig:
+def stage_config(inputs, out, steps=30, assignment="bounded", **overrides) -> TrainStageConfig:
     training = TrainConfig(steps=steps, batch_size=8, warmup_steps=5, val_every=10, patience=None, seed=3)
+    model = CNEPConfig(assignment=assignment, **TINY)
     return TrainStageConfig(
-        inputs=tuple(inputs), out=out, training=training, save_every=10, quiet=True, **{**TINY, **overrides}
+        inputs=tuple(inputs), out=out, model=model, training=training, save_every=10, quiet=True, **overrides
     )
 
 
@@ -95,7 +96,9 @@ def test_cli_trains_a_checkpoint_that_loads_and_generates(full_set, tmp_path, ca
     assert [entry["step"] for entry in log] == [10, 20, 30]
     assert {"loss", "rec", "batch_entropy", "ind_entropy", "usage", "val_error"} <= set(log[0])
     assert config["model"]["assignment"] == "bounded" and config["training"]["gate_lr_scale"] == 1.0  # the defaults
-    settled = [e for e in log if e["step"] >= settled_fraction("bounded") * 30]  # the best model is kept from there
+    settled = [
+        e for e in log if e["step"] >= ASSIGNMENTS["bounded"].settled_fraction * 30
+    ]  # the best model is kept from there
     best = min(settled, key=lambda e: e["val_error"])
     assert config["result"]["best_step"] == best["step"] and config["result"]["best_val_error"] == best["val_error"]
 

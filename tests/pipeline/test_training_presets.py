@@ -5,7 +5,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cnep.models import TrainConfig, load_checkpoint, read_checkpoint_config
+from cnep.models import CNEPConfig, TrainConfig, load_checkpoint, read_checkpoint_config
 from cnep.models.online import ConditioningPolicy
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.replay.conditioning import decide
@@ -48,10 +48,7 @@ def test_a_scene_checkpoint_generates_and_replays_online(tmp_path):
             inputs=tuple(paths),
             out=tmp_path / "ckpt",
             layout=SCENE,
-            n_experts=3,
-            encoder_widths=(16, 16),
-            expert_widths=(16, 16),
-            time_frequencies=2,
+            model=CNEPConfig(n_experts=3, encoder_widths=(16, 16), expert_widths=(16, 16), time_frequencies=2),
             training=training,
             quiet=True,
         )
