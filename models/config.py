@@ -157,7 +157,7 @@ class TrainConfig:
     obs_noise: float = setting(0.0, "std of the noise added to training contexts' observed values (normalised units)")
     # Columns a model observes but never predicts (a camera's 1280 features) reach only the latent, where a few
     # hundred training scenes can each be told apart by their clutter and lighting; decaying those weights keeps what
-    # the scenes share (on the demo: a misread scene and a split behaviour less over ten seeds, docs/results.md).
+    # the scenes share (docs/results.md).
     observed_only_decay: float = setting(
         3.0,
         "weight decay of the encoder's weights on the columns it observes but does not predict (such as image "

@@ -1,40 +1,15 @@
-"""The paper's evaluation protocol and a held-out one, on trajectories `(T, dy)`.
+"""The evaluation's three protocols on trajectories `(T, dy)`: which queries each draws, and how a method scores.
 
-Paper protocol (Table "MSE over generated trajectories when conditioned from intermediate points"):
-each query conditions on an intermediate point where two modes come close (plus noise) and on the end
-point (t = 1) of a demonstration of one of those two modes. Only pairs of modes whose end points
-differ (by `SEPARATION` of the data's range) are used: where two modes also end at the same place
-(modes 2 and 3 of the 4-mode set), the two conditioning points cannot tell them apart and the
-"right" mode is a coin flip (measured: 8 of 50 such queries had the nearest demonstrations of both
-modes within a factor 4 in squared distance). A third mode can still pass through the crossing and
-share the end point of one of the pair (mode 2 at the crossings of modes 1 and 3 of the 4-mode set),
-so every drawn query must also be decisive: the nearest demonstration of any other mode is at least
-`DECISIVE` times farther (squared distance at the two conditioning steps) than the nearest of the
-ground truth's mode, and the points are at least `DECISIVE` times likelier to come from the latter
-under the protocol's own noise (Gaussian, std `NOISE` of the range). The second condition matters
-where demonstrations of two modes both pass within a fraction of the noise of both points: the ratio
-of two tiny distances can be large while the noise alone picks the "truth". Other draws are
-discarded. The ground truth is the training demonstration closest to the two conditioning points (as
-the paper states), and the score is the true MSE over the whole generated trajectory (MAE too). The
-authors' notebooks instead chose the demonstration closest to the *generated* trajectory and
-reported a mean absolute error; see docs/concepts.md.
+- paper (`paper_queries`, `score`): the paper's table "MSE over generated trajectories when conditioned from
+  intermediate points": an intermediate point where two modes come close and the end point of a demonstration of
+  one of them; scored by the true MSE (and MAE) against the ground truth and by mode accuracy;
+- held-out (`heldout_queries`): the same kind of points from demonstrations the model never saw, scored against
+  them: generalisation rather than mode picking;
+- commitment (`shared_queries`, `commitment`): one point that two or more modes share and nothing else, so any one
+  of those modes is right and their average wrong.
 
-Held-out protocol: the same kind of conditioning points taken from demonstrations the model never saw,
-scored against those demonstrations; it measures generalisation rather than mode picking. The same
-rule keeps only decisive queries: the unseen demonstration's points must name its own mode among the
-pool's demonstrations.
-
-Mode accuracy: the generated trajectory is nearest (MSE) to a training demonstration of the ground
-truth's mode.
-
-Commitment protocol: each query conditions on one point that two or more modes share and nothing
-else: a crossing of two modes' mean trajectories, or a start (or end) where modes start (end)
-together. The context cannot tell those modes apart, so the right answer is any one of them, and the
-wrong answer is their average. Each generated trajectory is scored against the nearest training
-demonstration of any mode: its MSE, its maximum deviation over the horizon (both minimised over the
-demonstrations), and whether it is *valid*: within the set's band (`BAND_SIGMAS` within-mode standard
-deviations, see `within_mode_band`) of one demonstration at every step, that demonstration itself
-passing within the band of the conditioning point.
+Every drawn paper or held-out query must be decisive (`_decisive`); other draws are discarded. How these differ from
+the authors' notebooks: docs/concepts.md.
 """
 
 from __future__ import annotations
@@ -87,7 +62,10 @@ def _separable_partners(demos: np.ndarray, modes: np.ndarray) -> dict[int, np.nd
 
 def _decisive(pool: np.ndarray, pool_modes: np.ndarray, steps: np.ndarray, obs_y: np.ndarray, mode: int) -> bool:
     """Whether points `obs_y` at `steps` name `mode`: its nearest demonstration is `DECISIVE` times nearer
-    (squared distance) than any other mode's, and `DECISIVE` times likelier under the protocol's noise."""
+    (squared distance) than any other mode's, and `DECISIVE` times likelier under the protocol's noise (Gaussian,
+    std `NOISE` of the range). The first rules out a third mode passing through a crossing and sharing the end
+    point of one of the pair; the second, demonstrations of two modes both passing within a fraction of the noise
+    of both points (the ratio of two tiny distances can be large while the noise alone picks the truth)."""
     dist = ((pool[:, steps] - obs_y) ** 2).sum((1, 2))  # (N,)
     others = dist[pool_modes != mode]
     if others.size == 0:
@@ -111,7 +89,15 @@ def _draw(draw: Callable[[], Query | None], n: int, what: str) -> list[Query]:
 
 
 def paper_queries(demos: np.ndarray, modes: np.ndarray, n: int = 50, seed: int = 0) -> list[Query]:
-    """`n` queries on a demonstration pool `(N, T, dy)` with mode labels `(N,)`."""
+    """`n` queries on a demonstration pool `(N, T, dy)` with mode labels `(N,)`.
+
+    Each conditions on an intermediate point where two modes come close (plus noise) and on the end point (t = 1)
+    of a demonstration of one of those two modes. Only pairs of modes whose end points differ (by `SEPARATION` of
+    the data's range) are used: where two modes also end at the same place (modes 2 and 3 of the 4-mode set), the
+    two points cannot tell them apart and the "right" mode is a coin flip. The ground truth is the training
+    demonstration closest to the two conditioning points (as the paper states); the authors' notebooks instead
+    chose the one closest to the *generated* trajectory.
+    """
     rng = np.random.default_rng(seed)
     T, span = demos.shape[1], np.ptp(demos)
     partners = _separable_partners(demos, modes)
@@ -140,7 +126,8 @@ def paper_queries(demos: np.ndarray, modes: np.ndarray, n: int = 50, seed: int =
 def heldout_queries(
     pool: np.ndarray, pool_modes: np.ndarray, unseen: np.ndarray, unseen_modes: np.ndarray, n: int = 50, seed: int = 0
 ) -> list[Query]:
-    """Conditioning points (near a crossing of the demo's mode with another, and the end) of unseen demos."""
+    """Conditioning points (near a crossing of the demo's mode with another, and the end) of unseen demos, kept
+    only where they name the unseen demonstration's own mode among the pool's demonstrations (`_decisive`)."""
     rng = np.random.default_rng(seed)
     T = unseen.shape[1]
     partners = _separable_partners(pool, pool_modes)
@@ -163,7 +150,8 @@ def heldout_queries(
 
 
 def score(generate: Generate, queries: list[Query], pool: np.ndarray, pool_modes: np.ndarray) -> dict[str, float]:
-    """MSE and MAE (mean and std over queries) and mode accuracy of one method."""
+    """MSE and MAE over the whole generated trajectory against each query's truth (mean and std over queries) and
+    mode accuracy (the generated trajectory is nearest, in MSE, to a training demonstration of the truth's mode)."""
     T = pool.shape[1]
     mse, mae, hits = [], [], []
     for q in queries:
@@ -233,8 +221,10 @@ def commitment_scores(
 ) -> dict[str, np.ndarray]:
     """Per query: generated `(Q, T, dy)` against the pool `(N, T, dy)`.
 
-    Returns "mse" and "max_deviation" (each minimised over the demonstrations), "valid" (bool) and
-    "mode" (the mode of the demonstration nearest in max deviation; -1 for a non-finite trajectory).
+    Returns "mse" and "max_deviation" (each minimised over the demonstrations), "valid" (bool: within the band,
+    `within_mode_band`, of one demonstration at every step, that demonstration itself passing within the band of
+    the conditioning point) and "mode" (the mode of the demonstration nearest in max deviation; -1 for a
+    non-finite trajectory).
     """
     band = within_mode_band(pool, pool_modes)
     T = pool.shape[1]

@@ -1,66 +1,23 @@
 """The CNEP loss: a reconstruction term, batch entropy (maximised), individual entropy (minimised).
 
     L_e     = mean over targets and output dims of -log N(y | mu_e, sigma_e)        (B, d)
-    L_rec   = mean_i (1/d) sum_e p_ie L_ie                                   (assignment "paper")
-            = mean_i (1/(d n_i)) (-log sum_e p_ie exp(-S_ie))                (assignment "mixture")
-            = mean_i (1/d) sum_e (r_ie L_ie - q_ie log p_ie),  r, q detached   (assignments "annealed", "bounded")
+    L_rec   = mean_i (1/d) sum_e p_ie L_ie                                   (term GATE_WEIGHTED: "paper")
+            = mean_i (1/(d n_i)) (-log sum_e p_ie exp(-S_ie))                (term MIXTURE: "mixture")
+            = mean_i (1/d) sum_e (r_ie L_ie - q_ie log p_ie), r, q detached   (term POSTERIOR: "annealed", "bounded")
     L_batch = H(mean_i p_i)            entropy of the batch-mean gate distribution
     L_ind   = mean_i H(p_i)            mean entropy of each sample's gate distribution
     L_total = a_rec L_rec - a_batch L_batch + a_ind L_ind
 
-with n_i the number of target values of sample i (targets x output dims) and S_ie = n_i L_ie the
-summed NLL of its targets under expert e. The paper's term trains every expert the gate has not ruled
-out on every target of the context (a context that several behaviours share teaches each expert their
-average); the mixture likelihood weighs expert e's NLL by its posterior responsibility
-r_ie = p_ie exp(-S_ie) / sum_k p_ik exp(-S_ik), so the targets decide which expert learns them, and the
-gate (the prior) is pulled towards r_i. Dividing by n_i keeps the experts' gradients on the paper's
-per-value scale (the gate's gradient, (p_ie - r_ie) / (d n_i), shrinks with n_i); dividing by d keeps
-`a_rec`'s rescaling with d meaning the same. With one expert both terms are mean_i L_i; they are also
-equal whenever all experts predict the same. The entropy terms are the same for every assignment.
-
-"annealed" is expectation-maximisation on a tempered, balanced posterior: r_ie = softmax_e(log p_ie - k_i D_ie)
-(detached), where D_ie is expert e's mean NLL of *the whole demonstration* that sample i was drawn from (every
-step, or DEMONSTRATION_STEPS of a longer one: models.sampler), predicted from sample i's context
-(`models.train.demonstration_nll`). The experts learn their r-weighted NLL of the sample's targets. A behaviour is a
-property of a demonstration: where a sample's own few targets cannot tell two behaviours apart (a context and targets
-from the stretch they share), its demonstration can, so every sample of a demonstration goes to the expert that
-explains that demonstration. The gate learns the cross-entropy, at full strength (gradient (p_ie - q_ie)/d), to q: the
-same posterior computed from the sample's own targets (D_ie replaced by L_ie, k_i by the sample's number of values).
-The gate sees only the context; taught r, it learnt to name each demonstration's expert from any context of it, a
-single first frame included, and was sure of itself more often when it named the wrong one (docs/results.md).
-Two things happen while training is young (progress < ANNEAL_FRACTION of the steps):
-- the sharpness k_i rises geometrically from 1 (the posterior of one value's mean NLL) to the demonstration's
-  number of values (a mixture's posterior of the whole demonstration), then stays there (`annealed_sharpness`);
-- the posterior is balanced over the batch (`balanced`: SINKHORN_ITERATIONS Sinkhorn steps giving
-  every expert B/d of the batch's mass), so that every expert keeps learning something.
-Measured: with the mixture's posterior from the first step, the experts
-that lose every sample while the gate is still frozen are never trained again (6 modes: pairs of modes
-share an expert and are averaged where they cross); annealing alone keeps more experts in play but
-still lets one expert take every behaviour that the context already tells apart (the demo: all four
-behaviours on one expert); balancing while annealing keeps every expert in use, and once the experts
-differ the free posterior keeps them pure and lets the targets decide where the context cannot. With the posterior
-of each sample's own targets instead of its demonstration's, the demo's experts kept their behaviours while the
-posterior was balanced and then, once it was free, one expert took over the samples that a neighbouring behaviour
-shares with its own, until that behaviour moved to it whole (2 of 10 seeds ended with 4 behaviours on 3 experts;
-holding the gate still did not stop it: the encoder moved instead).
-
-"bounded" is "annealed" with the balancing bounded instead of equal, and faded out instead of stopped
-(models.assignments): every expert's share of the batch's mass is kept between 0.75 and 1.5 x B/d, shares in
-between are the posterior's own, and from ANNEAL_FRACTION to 0.8 of training the balanced posterior
-gives way to the free one geometrically (r proportional to r_balanced^(1-s) r_free^s, s rising
-linearly from 0 to 1). Equal shares force d equal parts where the behaviours do not come in d equal
-parts: 8 experts on 6 modes (a spare expert took the samples two modes share and the gate sent both
-modes to it), and Baxter's 2 experts on batches of 32 draws of 2 demonstrations, which are rarely half
-and half (each expert kept learning some of the other demonstration). Stopping the bounds at once, as
-"annealed" stops its balancing, let the demo's gate move one behaviour onto another's expert in the
-steps after the stop (one seed of three: 4 behaviours on 3 experts); fading them out did not, on the
-three seeds measured (docs/results.md). The floor is 0.75 rather than 0.5: with the demonstrations' posterior and a
-floor of 0.5, one of the demo's ten seeds trained a fourth expert on part of one behaviour only, which it lost once
-the posterior was free (4 behaviours on 3 experts); at 0.75 that seed kept four.
-
-The paper prints `+ a_batch L_batch`; the text asks for batch entropy to be maximised and the authors'
-code subtracts it, so we subtract it. Entropies are computed per row with clamped logs: a probability
-that underflows to 0 contributes 0 and never renormalises other rows.
+n_i: the target values of sample i (targets x output dims); S_ie = n_i L_ie. The mixture's responsibilities
+r_ie = p_ie exp(-S_ie) / sum_k p_ik exp(-S_ik) let the targets decide which expert learns them. The posterior term is
+expectation-maximisation: r_ie = softmax_e(log p_ie - k_i D_ie), D_ie expert e's mean NLL of the whole demonstration
+sample i was drawn from (`models.train.demonstration_nll`), k_i rising from 1 to that demonstration's number of values
+(`annealed_sharpness`), balanced over the batch as the assignment's `Balancing` says (`balanced`); the gate learns q,
+the same posterior from the sample's own targets. Dividing by n_i and d keeps the gradients on the paper's per-value
+scale and `a_rec`'s rescaling with d meaning the same; with one expert every term is mean_i L_i. The paper prints
+`+ a_batch L_batch`, but its text and the authors' code maximise batch entropy, so it is subtracted. Entropies use
+clamped logs per row: a probability that underflows to 0 contributes 0. Which assignment to choose, and why each
+works as it does: docs/concepts.md.
 """
 
 from __future__ import annotations
@@ -124,7 +81,7 @@ def balanced(
     = `cap` = 1 (the default) gives Sinkhorn's steps to equal shares, B/d each. The first column step acts
     on the posterior as given (log p - k L, rows not yet normalised): where every column lies on the same
     side of the bounds, as with a sharp posterior, that step equalises them as Sinkhorn's would, and the
-    bounds act from the second step on (as measured)."""
+    bounds act from the second step on."""
     B, d = log_r.shape[-2:]
     low, high = math.log(floor * B / d), math.log(cap * B / d)
     for _ in range(iterations):

@@ -2,7 +2,7 @@
 
 The balanced posterior (models.assignments) keeps every expert's share of each batch, but an expert can keep its
 share by learning a little of every behaviour while two behaviours share another expert; once the posterior is free it
-loses even that (the demo: 4 behaviours on 3 experts on 3 of 10 seeds). At SPLIT_CHECKS, from the gate's unfreezing
+loses even that, and the model ends with one expert unused. At SPLIT_CHECKS, from the gate's unfreezing
 to the start of the balancing's fade, each training demonstration, conditioned on itself, is counted for the expert
 its gate has decided for (`owners`). When the expert counted least has below IDLE_SHARE of an equal share and the
 one counted most above BUSY_SHARE, the idle expert becomes a copy of the busy one (`split`): its decoder weights with

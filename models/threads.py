@@ -1,6 +1,6 @@
-"""How many threads torch runs a small network on: one per process, measured fastest on a busy machine.
+"""How many threads torch runs a small network on: one per process, the fastest on a busy machine.
 
-A small network on two threads next to another busy process runs up to 10x slower than on one, because
+A small network on two threads next to another busy process runs many times slower than on one, because
 each of its many tiny kernels waits for a thread that is not scheduled (benchmarks/bench_threads.py).
 More cores are used by more processes (pipeline.workers), not by more threads.
 """

@@ -1,14 +1,14 @@
 """Training CNEP on a list of trajectories: seeded, vectorised batches, best-model keeping.
 
-The optimiser recipe for a CPU budget of minutes (measured, see docs/results.md): Adam, a linear
+The optimiser recipe for a CPU budget of minutes (docs/concepts.md): Adam, a linear
 learning-rate warm-up then cosine decay, and the gate held uniform (zero-initialised, not updated) for
 the first `gate_freeze_fraction` of the steps, so that the experts learn to reconstruct before the
 gate starts to commit, and then learning at `gate_lr_scale` times the learning rate (by default the
 assignment's own: `models.assignments`). The best model by validation error is kept, from the step where the
 assignment's posterior has settled on (`Assignment.settled_fraction`).
 
-Adam runs fused (one kernel over all parameters: 0.5 ms a step instead of 4 ms for the per-tensor
-`foreach` path on the 2-core machine, benchmarks/bench_training.py). `models.batched` trains several
+Adam runs fused (one kernel over all parameters, faster than the per-tensor `foreach` path for a network this
+small: benchmarks/bench_training.py). `models.batched` trains several
 such runs in one computation through the same helpers (`make_optimizer`, `set_learning_rate`, `next_batch`,
 `decay_observed_only`, `after_step`), so each of its models matches a run of this Trainer bit for bit.
 """

@@ -5,7 +5,7 @@ Each backend is built from the same module and returns a runner: uint8 (N, 224, 
 The ONNX export (seconds) is cached on disk by content (the weights' sha256, opset and torch version),
 see `onnx_model`; ONNX Runtime and OpenVINO both run that graph (or its int8 quantisation). ONNX Runtime
 sessions never spin idle threads: a spinning session on a shared machine burns the cores its neighbours
-need (measured: benchmarks/bench_threads.py); OpenVINO's idle threads sleep (measured: docs/results.md).
+need (benchmarks/bench_threads.py); OpenVINO's idle threads sleep.
 """
 
 from __future__ import annotations
@@ -104,8 +104,8 @@ def cuda_device() -> torch.device:
 
 
 def _cuda(net: nn.Module, threads: int | None) -> Runner:
-    """fp32 on this process's GPU with TF32 convolutions off, so the features are the CPU's to a relative error
-    of ~1e-6 (measured on an H100; TF32 ran 1.4x faster at 5e-4 relative error)."""
+    """fp32 on this process's GPU with TF32 convolutions off, so the features are the CPU's to float32 rounding
+    (TF32 is faster but far less exact: benchmarks/bench_perception.py)."""
     device = cuda_device()
     net = copy.deepcopy(net).to(device, memory_format=torch.channels_last)
 
@@ -119,7 +119,7 @@ def _cuda(net: nn.Module, threads: int | None) -> Runner:
 def _torchscript(net: nn.Module, threads: int | None) -> Runner:
     net = copy.deepcopy(net).to(memory_format=torch.channels_last)
     with warnings.catch_warnings():
-        # torch 2.9+ flags TorchScript as deprecated; it remains the fastest torch-only CPU path measured here.
+        # torch 2.9+ flags TorchScript as deprecated; it remains the fastest torch-only CPU path here.
         warnings.filterwarnings("ignore", category=DeprecationWarning)
         warnings.filterwarnings("ignore", message=".*deprecated.*")
         with torch.inference_mode():

@@ -39,14 +39,15 @@ DOWNLOAD_TIMEOUT_S = 30.0  # seconds without data before a download gives up
 CALIBRATION_FRAMES = 256  # frames used to re-estimate the statistics (spread over the inputs)
 CALIBRATION_BATCH = 32  # frames per forward pass while re-estimating
 
-DEFAULT_BATCH_SIZE = 4  # frames per forward pass: small batches stay in cache (measured fastest, see docs)
-# Frames per forward pass on a GPU: one H100 ran 0.9k frames/s at batch 4, 7.2k at 64, 8.3k at 256 (docs/results.md).
+DEFAULT_BATCH_SIZE = 4  # frames per forward pass: small batches stay in cache, the fastest on a CPU
+# Frames per forward pass on a GPU: a GPU wants large batches, and most of the gain comes by this one
+# (docs/results.md).
 CUDA_BATCH_SIZE = 64
-# Fastest first: a CUDA device when torch sees one, then as measured by `python -m benchmarks.bench_perception`
-# on the 2-core machines. OpenVINO (the `openvino` extra) ties ONNX Runtime on fp32 (0.87-1.07x,
-# benchmarks/bench_threads.py), so `auto` keeps ONNX Runtime.
+# Fastest first: a CUDA device when torch sees one, then as `python -m benchmarks.bench_perception` ranks them on
+# a CPU. OpenVINO (the `openvino` extra) ties ONNX Runtime on fp32 (benchmarks/bench_threads.py), so `auto` keeps
+# ONNX Runtime.
 BACKENDS = ("cuda", "onnxruntime", "openvino", "torchscript", "eager")
-# Backends that run the int8 graph, fastest first: OpenVINO ran it 1.2-2.1x ONNX Runtime (docs/results.md).
+# Backends that run the int8 graph, fastest first (docs/results.md).
 INT8_BACKENDS = ("openvino", "onnxruntime")
 # The Python modules each optional backend needs (the ONNX export, then the runtime).
 BACKEND_MODULES = {"onnxruntime": ("onnx", "onnxruntime"), "openvino": ("onnx", "openvino")}

@@ -2,8 +2,7 @@
 
 Weights are quantised per output channel (int8, symmetric); activations per tensor (uint8), their
 ranges calibrated (min-max) on frames of the recordings. uint8 activations ("U8S8"): with int8 ones
-(S8S8) the graph ran slower than fp32 on this AMD CPU (0.7-0.9x), with uint8 1.4-1.8x, at the
-same feature error (cosine 0.99986 against fp32; measured 2026-11-22, see docs/results.md). The
+(S8S8) the graph ran slower than fp32 on an AMD CPU, with uint8 faster, at the same feature error. The
 result is an ONNX graph with QuantizeLinear/DequantizeLinear pairs around each convolution, which
 ONNX Runtime, or OpenVINO reading the same graph (perception.backends.openvino_runner), fuses into
 int8 kernels. Its identity (precision, the calibration frames' sha256) goes into the extractor's

@@ -1,8 +1,6 @@
 """The pipeline's thread policy, in one place, and worker processes for CPU-bound jobs.
 
-Measured on the shared 2-core machine (benchmarks/bench_threads.py, docs/results.md): a small
-network on two threads next to another busy process runs up to 10x slower than on one, because
-each of its many tiny kernels waits for a thread that is not scheduled. So:
+A small network runs fastest on one thread of a busy machine (models.threads says why). So:
 
 - small-model work (training, the online step, replay, the evaluation's fits) runs
   models.threads.SMALL_MODEL_THREADS (one) intra-op thread per process (`models.threads.torch_threads`)
@@ -25,10 +23,8 @@ THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"
 # glibc's malloc settings for small-model worker processes (read at their start; other allocators ignore
 # them). By default glibc gives blocks above its mmap threshold back to the kernel when they are freed, so
 # a batched training step (models.batched: k models' activations, megabytes a step) faults fresh pages in
-# every step. `python -m benchmarks.bench_allocator`, k = 4, load 2.7-3.4: d = 4, 1,666-3,688 minor faults a
-# step, 8-96 with these, and 4 batched 1.06x / 1.11x the model-steps per CPU-second of 4 one after another,
-# 1.34x / 1.37x with these; d = 2, 593-813 faults against 6-24, ratios within the noise (1.04-1.34x
-# against 1.13-1.42x over 3 rounds). One model alone faults a few pages a step either way.
+# every step; with these thresholds they stay mapped, the faults all but vanish and batching pays more
+# (`python -m benchmarks.bench_allocator` measures both). One model alone faults a few pages a step either way.
 SMALL_MODEL_MALLOC = {"MALLOC_MMAP_THRESHOLD_": str(256 << 20), "MALLOC_TRIM_THRESHOLD_": str(512 << 20)}
 
 

@@ -78,9 +78,9 @@ BLOCKS_MOTION: Blocks = MappingProxyType(
 # The only column blocks a trajectory file may carry, by width.
 BLOCKS_BY_WIDTH: Mapping[int, Blocks] = MappingProxyType({STEP_DIM: BLOCKS_FULL, MOTION_DIM: BLOCKS_MOTION})
 
-# Writing. Chunk compression by file kind: trajectories are float32 vectors that zstd shrinks by
-# only ~10%, while lz4 writes them ~1.4x faster and reads them about as fast or faster (python -m
-# benchmarks.bench_recordings measures both), so they use lz4; demonstrations use zstd.
+# Writing. Chunk compression by file kind: trajectories are float32 vectors that zstd hardly shrinks, while lz4
+# writes them faster and reads them as fast (python -m benchmarks.bench_recordings measures both), so they use lz4;
+# demonstrations use zstd.
 CHUNK_SIZE_BYTES = 1024 * 1024
 # Reading. A chunk that declares more uncompressed bytes than MAX_CHUNK_BYTES is damaged, and so is one past the
 # file's budget: its chunks together inflate to at most INFLATION_GRACE_BYTES + MAX_INFLATION times the file's size

@@ -159,7 +159,7 @@ class _Damage(Exception):
 
 # Records parsed from the top level of the file. Index, statistics and summary-offset records only
 # repeat what the data section holds, so they are skipped unparsed (a message index costs two reads
-# per message in the mcap library: ~30% of reading a trajectory).
+# per message in the mcap library, a large part of reading a trajectory).
 _TOP_LEVEL = {
     Opcode.HEADER: Header.read,
     Opcode.SCHEMA: Schema.read,

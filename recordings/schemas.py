@@ -7,7 +7,7 @@ time (no protoc needed):
     syntax = "proto3"; package cnep;
     message FeatureVector { google.protobuf.Timestamp timestamp = 1; repeated float data = 2; }
 
-Its packed floats are written and read with numpy directly (the protobuf runtime would cost ~20x).
+Its packed floats are written and read with numpy directly (the protobuf runtime is many times slower).
 """
 
 from __future__ import annotations

@@ -4,10 +4,10 @@ Each demonstration is one sample of dimension T * dy. With fewer demonstrations 
 dimensions the EM covariances are singular; `ridge` adds `ridge * range**2 * I` to every covariance
 after each M-step (EM with a covariance floor, like scikit-learn's `reg_covar`), where `range` is the
 peak-to-peak range of the training data. `ridge=0` is the library's plain EM (what the authors ran).
-Plain EM often leaves empty components (prior ~1e-17, mean 0, covariance 0); when the library's
-conditional puts its weight on them (measured: all of it, where the ridge version gives them < 1e-15),
-its prediction is 0 at every unobserved step. Such outputs and non-finite ones are returned as NaN,
-which the evaluation counts as failures.
+Plain EM often leaves empty components (prior near 0, mean 0, covariance 0); when the library's
+conditional puts its weight on them (with a ridge it hardly does), its prediction is 0 at every
+unobserved step. Such outputs and non-finite ones are returned as NaN, which the evaluation counts as
+failures.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from cnep.models.baselines.base import check_demos, require, resample
 RIDGE = 1e-3  # default covariance ridge, as a fraction of the squared data range
 EM_ITERATIONS = 100
 EM_TOLERANCE = 1e-6  # stop when the means move less than this (relative to the data range)
-EMPTY = 1e-12  # a component with a smaller prior holds no demonstration (plain EM leaves ~1e-17)
+EMPTY = 1e-12  # a component with a smaller prior holds no demonstration (plain EM leaves them far below)
 EMPTY_WEIGHT = 1e-3  # a conditional giving empty components more weight than this is a failure
 
 

@@ -138,7 +138,7 @@ def heldout_errors(checkpoint: Path, heldout: list[Path], train_paths: list[Path
     The queries carry the demonstration's own features at each step when the layout has query columns.
     Two kinds of error: a demonstration is *read as the wrong behaviour* when the generated xyz path lies nearest
     (mean distance) to a training demonstration of another behaviour (`wrong_behaviour`, a count; such a path
-    costs ~25 cm, docs/results.md), and the error of the paths read right.
+    costs most of the whole motion), and the error of the paths read right.
     position_rmse_m: root mean squared xyz error (m) over all steps and demonstrations; position_rmse_read_right_m:
     the same over the demonstrations read right (None when there are none); position_rmse_median_m: the median
     over demonstrations of each one's RMSE (m); gripper_mae_m: mean absolute gripper error (m).

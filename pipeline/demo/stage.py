@@ -2,33 +2,20 @@
 
 Stages (each logs its progress; tqdm bars unless quiet), all under OUT:
 
-1. generate   `recorded/{train,heldout,scene_change,free_choice}/demo_NNN.mcap`: the synthetic robot
-              recorder (pipeline.demo.generator), Foxglove-schema MCAP with camera, pose and gripper;
-              the training set mixes scene-decided and free-choice demonstrations (both slots free, the
-              demonstrator picks one at random); `free_choice` holds held-out free-choice scenes;
-2. ingest     `demos/...`: the ingest stage reads those robot MCAP files (Foxglove topics) into
-              demonstration files, strictly (CRCs, schemas, time order);
+1. generate   `recorded/{train,heldout,scene_change,free_choice}/demo_NNN.mcap`: seeded robot recordings
+              (pipeline.demo.generator), scene-decided and free-choice demonstrations (both slots free);
+2. ingest     `demos/...`: those Foxglove-schema MCAP files read strictly into demonstration files;
 3. extract    `trajectories/...`: MobileNet-v2 features with the weights `config.weights` chooses
-              (pipeline.demo.weights, decided before step 1): ImageNet's where they can be had (the torch hub
-              cache or a download), else **seeded random weights**, calibrated on the training demonstrations
-              only; saved to `extractor.pt`, which then extracts the held-out and scene-change demonstrations
-              (at `precision` int8, quantised on the training demonstrations' frames for every split);
-4. train      `checkpoints/cnep` (4 experts) and `checkpoints/cnmp` (1 expert, parameter-matched
-              widths) on the training trajectories (layout `scene`: observe features + pose + gripper,
-              query with time only, predict pose + gripper), seeded;
+              (pipeline.demo.weights: ImageNet's where they can be had, else seeded random weights calibrated on
+              the training demonstrations), saved to `extractor.pt` for the other splits;
+4. train      `checkpoints/cnep` (`config.model`) and `checkpoints/cnmp` (one expert, parameter-matched), layout
+              `scene` (queries carry the time only), seeded;
 5. replay     `demo.rrd` (+ `demo.experts.json`), the one file to open: the scene-change recording through the
-              CNEP, step by step; `replays/replay-NN-<split>-<name>.rrd` (+ `replays/replay.experts.json`): the
-              held-out recordings and one held-out free-choice recording, picked from every held-out
-              free-choice episode's online gate by `pipeline.demo.free_choice.replay_pick` (one whose gate
-              starts split and commits, when the model has one);
-6. summary    `summary.json` (measured by pipeline.demo.measures, printed by pipeline.demo.report): per
-              scene-decided behaviour the expert that took it and how purely, the error of the generated
-              motion on held-out demonstrations (CNEP vs CNMP), the scene change's switches, where motions
-              generated for held-out free-choice scenes end (in a slot or between; CNEP vs CNMP), how many
-              free-choice gates start split and commit, and how the replayed one's gate starts, when it
-              commits and on which behaviour's expert; `summary.png` (pipeline.demo.figure, when matplotlib
-              is installed): the gate over time and the predicted paths of the scene change, a held-out
-              scene and the replayed free choice.
+              CNEP; `replays/`: the held-out recordings and one held-out free-choice recording
+              (`pipeline.demo.free_choice.replay_pick`);
+6. summary    `summary.json` (pipeline.demo.measures, printed by pipeline.demo.report): which expert took which
+              behaviour, held-out errors, the scene change's switches, where free-choice motions end, how their
+              gates commit; `summary.png` (pipeline.demo.figure, when matplotlib is installed).
 
 The behaviour labels live in each file's episode metadata and are read only for the summary.
 """

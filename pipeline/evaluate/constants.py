@@ -24,14 +24,14 @@ EXPERT_COUNTS = (2, 4, 8)
 PROMP_WEIGHTS = {"unimodal": 10, "bimodal": 30, "multimodal": 8, "multimodal6": 8}
 GMM_COMPONENTS = {"unimodal": 10, "bimodal": 20, "multimodal": 6, "multimodal6": 12}
 
-# Budgets. Full: every set of the table; quick: what CI runs (a few minutes on 2 cores).
+# Budgets. Full: every set of the table; quick: what CI runs.
 # Training steps per set (`--steps` sets one value for all): 4 and 6 modes need the models.TrainConfig
-# default of 10,000 (docs/concepts.md); 4,000 reach < 0.001 MSE on the unimodal and bimodal sets.
+# default (docs/concepts.md); the unimodal and bimodal sets are learnt in fewer.
 STEPS = {"unimodal": 4_000, "bimodal": 4_000, "multimodal": 10_000, "multimodal6": 10_000}
 # Early stopping (models.TrainConfig.patience): a network stops after this many validations (every 500 steps)
-# without a lower validation error; the model kept is its best, as without the stop. Measured on the 10,000-step
-# schedule (measured): the best validation comes at 5000-5500 steps on 4 modes and no later one
-# beat it, so a stop keeps the model the full schedule would have kept.
+# without a lower validation error; the model kept is its best, as without the stop. On the full schedule the
+# best validation comes about halfway on 4 modes and no later one beats it, so a stop keeps the model the full
+# schedule would have kept.
 PATIENCE = 4
 SEEDS = 1  # the default `cnep evaluate` (comparison); the full run uses --seeds 2
 QUERIES = 50
@@ -39,12 +39,12 @@ QUICK_STEPS = 1_500
 QUICK_SEEDS = 1
 QUICK_QUERIES = 20
 JOBS = 2  # worker processes (one thread each)
-# Networks of one shape and schedule on one set trained as one batched computation (pipeline.evaluate.jobs): on
-# this CPU 3-4 give most of what batching gives (measured), and units stay short enough to keep
-# the workers evenly loaded.
+# Networks of one shape and schedule on one set trained as one batched computation (pipeline.evaluate.jobs): a few
+# give most of what batching gives (benchmarks/bench_training.py), and units stay short enough to keep the workers
+# evenly loaded.
 UNIT_NETWORKS = 3
-# A network job reports its progress every this many training steps (0.5-2 s of one core idle; the bar
-# moves at least every ~20 s even when the machine is 10x oversubscribed).
+# A network job reports its progress every this many training steps: seconds apart, so the bar moves even on an
+# oversubscribed machine.
 REPORT_STEPS = 100
 
 SAMPLES_IN_FIGURE = 3  # paper queries drawn per data set in the figures (first seed)

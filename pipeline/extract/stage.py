@@ -59,8 +59,8 @@ from cnep.recordings.readers import in_file
 
 log = logging.getLogger(__name__)
 
-# `workers="auto"`: frames per worker process. Measured (benchmarks/bench_extract.py, load 6-7 on 2 cores): a second
-# worker cost 15-18 s to start and paid from ~3700 frames at fp32, never at int8 (docs/results.md).
+# `workers="auto"`: frames per worker process. A second worker costs seconds to start and pays only on a job this
+# large at fp32, never at int8 (benchmarks/bench_extract.py, docs/results.md).
 WORKER_MIN_FRAMES = 4000
 
 

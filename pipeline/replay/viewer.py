@@ -1,6 +1,6 @@
 """Where the replay puts things in Rerun: timelines, entity paths, expert names and colours, the blueprint.
 
-Import `rerun` lazily (it costs ~0.7 s): only `blueprint()` needs it, and imports it when called.
+Import `rerun` lazily (it is slow to import): only `blueprint()` needs it, and imports it when called.
 """
 
 from __future__ import annotations

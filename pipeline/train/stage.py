@@ -100,9 +100,8 @@ class StageTrainer(Trainer):
 def train(config: TrainStageConfig) -> Path:
     """Train a CNEP on the trajectory files of `config`; returns the checkpoint folder (config.out).
 
-    Runs on `training.threads` torch threads per process (one by default, models.threads: a small network
-    on two threads of a busy machine runs many times slower); more cores are used by more processes under
-    torchrun.
+    Runs on `training.threads` torch threads per process (one by default: models.threads says why); more
+    cores are used by more processes under torchrun.
     """
     procs, device = start_processes(config.device)
     try:
