@@ -91,6 +91,21 @@ def read_checkpoint_config(directory: str | Path) -> dict:
     return config
 
 
+def checkpoint_model_config(directory: str | Path) -> CNEPConfig:
+    """The model settings (`model`) of the checkpoint's config.json; ConfigError naming the file if they are missing or
+    malformed."""
+    path = Path(directory) / CONFIG_FILE
+    model = read_checkpoint_config(directory).get("model")
+    if not isinstance(model, dict):
+        raise ConfigError(f"{path}: no model settings (a JSON object `model`); retrain with `cnep train`.")
+    try:
+        return CNEPConfig.from_dict(model)
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: {exc}") from None
+    except (TypeError, ValueError, KeyError, AttributeError, OverflowError) as exc:
+        raise ConfigError(f"{path}: malformed model settings ({exc}); retrain with `cnep train`.") from None
+
+
 def config_checksum(config: dict) -> str:
     """sha256 (hex) of the canonical JSON of `config` (keys sorted, compact), its own checksum entry left out."""
     entries = {key: value for key, value in config.items() if key != CHECKSUM_KEY}
@@ -106,7 +121,7 @@ def load_checkpoint(directory: str | Path, device: str = "cpu") -> CNEP:
     from cnep.models.cnep import CNEP  # torch: here, so that reading a checkpoint's config.json needs none
 
     directory = Path(directory)
-    model = CNEP(CNEPConfig.from_dict(read_checkpoint_config(directory)["model"]))
+    model = CNEP(checkpoint_model_config(directory))
     path = directory / WEIGHTS_FILE
     try:
         state = load_file(path, device=device)

@@ -50,7 +50,10 @@ def decoded(compression: str, data: bytes | memoryview, at_most: int) -> bytes:
     if compression == "lz4":
         import lz4.frame  # a dependency of mcap
 
-        return lz4.frame.LZ4FrameDecompressor().decompress(data, max_length=at_most)
+        try:
+            return lz4.frame.LZ4FrameDecompressor().decompress(data, max_length=at_most)
+        except RuntimeError as exc:  # lz4 says "LZ4F_decompress failed" of damaged data with this type alone
+            raise ValueError(f"lz4: {exc}") from None
     raise ValueError(f"unknown chunk compression {compression[:40]!r}")
 
 

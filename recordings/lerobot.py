@@ -113,15 +113,22 @@ def _read_info(root: Path) -> dict:
         raise RecordingError(f"{root}: not a LeRobot dataset (no meta/info.json)") from None
     except (OSError, ValueError) as exc:
         raise RecordingError(f"{path}: cannot read as JSON ({exc})") from None
+    if not isinstance(info, dict):
+        raise RecordingError(f"{path}: holds no JSON object; a LeRobot dataset's meta/info.json describes it")
     version = info.get("codebase_version")
     if version not in SUPPORTED_VERSIONS:
         raise RecordingError(
             f"{path}: codebase_version {version!r} is not supported (supported: "
             f"{', '.join(SUPPORTED_VERSIONS)}); convert the dataset with LeRobot's conversion scripts"
         )
-    for key in ("fps", "features", "data_path"):
+    for key, kind in (("fps", (int, float)), ("features", dict), ("data_path", str)):
         if key not in info:
             raise RecordingError(f"{path}: no {key!r} entry; is this a LeRobot {version} dataset?")
+        if not isinstance(info[key], kind) or isinstance(info[key], bool):
+            raise RecordingError(f"{path}: {key!r} is {str(info[key])[:60]!r}, not what LeRobot {version} writes there")
+    odd = [name for name, feature in info["features"].items() if not isinstance(feature, dict)]
+    if odd:
+        raise RecordingError(f"{path}: feature {odd[0][:60]!r} is no JSON object; is this a LeRobot {version} dataset?")
     return info
 
 

@@ -83,7 +83,7 @@ class Manifest:
             )
         except PolicyError as exc:
             raise PolicyError(f"{path}: {exc}") from None
-        except (KeyError, TypeError, ValueError, AttributeError) as exc:
+        except (KeyError, TypeError, ValueError, AttributeError, OverflowError) as exc:
             raise PolicyError(f"{path}: the manifest lacks or mangles {exc}; export the checkpoint again") from None
 
     def check_names(self, path: Path) -> None:

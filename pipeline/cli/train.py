@@ -86,7 +86,7 @@ def _checked(path: str, name: str, value):
         return value
     if kind is tuple and isinstance(value, list) and all(isinstance(v, int) for v in value):
         return tuple(value)
-    if kind is float and isinstance(value, int) and not isinstance(value, bool):
+    if kind is float and isinstance(value, int) and not isinstance(value, bool) and abs(value) < 2**1023:
         return float(value)
     if isinstance(value, kind) and not isinstance(value, bool):
         return value
