@@ -8,6 +8,13 @@ IMAGE_KEY_PREFIX = "observation.images."
 STATE_KEY = "observation.state"
 TIMESTAMP_KEY = "timestamp"
 
+# What an observation may carry: a timestamp under a day (a clock's time of day or epoch seconds is refused), the
+# end effector within a kilometre of the robot's origin on each axis, and a quaternion whose length is 1 within the
+# recordings' tolerance (normalised; further off, or zero, it is no orientation and is refused).
+MAX_TIME_S = 86_400.0
+MAX_POSITION_M = 1_000.0
+QUATERNION_TOLERANCE = 0.1
+
 IMAGE_SIZE = 224  # frames are resized to IMAGE_SIZE x IMAGE_SIZE pixels before the feature network
 
 # The exported folder (`cnep export`): a manifest, the ONNX graphs and the runtime's own installable source.

@@ -9,8 +9,10 @@ size (or, as LeRobot's processors hand images, (3, H, W) float in [0, 1]: conver
 `observation.state` the robot's state (8,) (runtime.spec.STATE_NAMES: xyz in m, quaternion xyzw,
 gripper), and optionally `timestamp`, the seconds since the episode began (without it, step k is at
 k * period_s of the time base). Each value may carry LeRobot's leading batch dimension of 1; then the action
-has it too. Anything else (a wrong shape or dtype, a value that is not finite, a time that does not move
-forward) is one PolicyError saying which key and what to do.
+has it too. Anything else is one PolicyError saying which key and what to do: a wrong type, shape or dtype, a value
+that is not finite, a time that does not move forward or lies a day or more after the episode's start
+(MAX_TIME_S), a position beyond MAX_POSITION_M metres on an axis, a zero quaternion or one whose length is not 1
+within QUATERNION_TOLERANCE (one within it is normalised). Only the state entries the model reads are checked.
 
 One class for both backends: the network (`runtime.conditioning.Network`) and the feature function are the
 torch model and extractor (`cnep.pipeline.export.checkpoint_policy`) or the exported ONNX graphs
@@ -27,13 +29,24 @@ from dataclasses import dataclass
 import numpy as np
 
 from cnep.runtime.conditioning import Conditioner, ConditioningPolicy, ExpertSwitch, Network
-from cnep.runtime.constants import DEFAULT_WAYPOINTS, IMAGE_KEY_PREFIX, STATE_KEY, TIMESTAMP_KEY
+from cnep.runtime.constants import (
+    DEFAULT_WAYPOINTS,
+    IMAGE_KEY_PREFIX,
+    MAX_POSITION_M,
+    MAX_TIME_S,
+    QUATERNION_TOLERANCE,
+    STATE_KEY,
+    TIMESTAMP_KEY,
+)
 from cnep.runtime.errors import PolicyError
 from cnep.runtime.frames import pixel_buffer, resize_frame
+from cnep.runtime.spans import span_indices
 from cnep.runtime.spec import STATE_NAMES, PolicySpec
 from cnep.runtime.timebase import TimeBase
 
 Features = Callable[[np.ndarray], np.ndarray]  # uint8 pixels (1, 224, 224, 3) -> float32 features (1, F)
+POSITION = [STATE_NAMES.index(name) for name in ("x", "y", "z")]  # where the state holds the position (m)
+QUATERNION = [STATE_NAMES.index(name) for name in ("qx", "qy", "qz", "qw")]  # and the orientation
 
 
 @dataclass(frozen=True)
@@ -91,6 +104,9 @@ class Policy:
                 "DURATION_S,PERIOD_S` to cnep export or cnep run"
             )
         self._features = features
+        used = span_indices([s for s, _ in spec.state])
+        self._position = [i for i in POSITION if i in used]  # the state's xyz entries the model reads
+        self._quaternion = any(i in used for i in QUATERNION)
         self._conditioner = Conditioner(network, spec.columns, conditioning or spec.conditioning)
         self._pixels = pixel_buffer(1)  # (1, 224, 224, 3) uint8
         self._row = np.zeros(spec.columns.width, dtype=np.float32)  # (width,) the model row of this step
@@ -162,24 +178,45 @@ class Policy:
                 f"{STATE_KEY} must be a ({len(STATE_NAMES)},) array of numbers ({', '.join(STATE_NAMES)}; a leading "
                 f"batch dimension of 1 is allowed), got shape {state.shape} dtype {state.dtype}"
             )
-        state = state.reshape(-1)
+        state = state.reshape(-1).astype(np.float64)  # a copy: the quaternion may be normalised
         if not np.isfinite(state).all():
             bad = [STATE_NAMES[i] for i in np.flatnonzero(~np.isfinite(state))]
             raise PolicyError(f"{STATE_KEY} has values that are not finite ({', '.join(bad)}): {state.tolist()}")
+        far = [i for i in self._position if abs(state[i]) > MAX_POSITION_M]
+        if far:
+            raise PolicyError(
+                f"{STATE_KEY}: {STATE_NAMES[far[0]]} = {state[far[0]]:g} m is beyond the {MAX_POSITION_M:g} m a "
+                f"position may lie from the robot's origin; give the end effector's position in metres"
+            )
+        if self._quaternion:
+            quat = state[QUATERNION]  # (4,) xyzw
+            norm = float(np.linalg.norm(quat))
+            if abs(norm - 1.0) > QUATERNION_TOLERANCE:
+                raise PolicyError(
+                    f"{STATE_KEY}: the quaternion (qx, qy, qz, qw) = {quat.tolist()} has length {norm:.3g}, not 1 "
+                    f"(within {QUATERNION_TOLERANCE}), so it is no orientation; give a unit quaternion xyzw "
+                    f"((0, 0, 0, 1) for no rotation)"
+                )
+            state[QUATERNION] = quat / norm
         return state, batched
 
     def _read_time(self, observation: Mapping) -> float:
         if TIMESTAMP_KEY not in observation:
             return self._conditioner.k * self.time_base.period_s
-        try:
-            time_s = float(np.asarray(observation[TIMESTAMP_KEY]).reshape(()))
-        except (TypeError, ValueError):
+        value = np.asarray(observation[TIMESTAMP_KEY])
+        if value.dtype.kind not in "fiu" or value.size != 1:
             raise PolicyError(
                 f"{TIMESTAMP_KEY} must be one number, the seconds since the episode began, got "
-                f"{observation[TIMESTAMP_KEY]!r}"
-            ) from None
+                f"{str(observation[TIMESTAMP_KEY])[:80]!r} ({type(observation[TIMESTAMP_KEY]).__name__})"
+            )
+        time_s = float(value.reshape(()))
         if not np.isfinite(time_s) or time_s < 0:
             raise PolicyError(f"{TIMESTAMP_KEY} must be finite seconds >= 0 since the episode began, got {time_s}")
+        if time_s >= MAX_TIME_S:
+            raise PolicyError(
+                f"{TIMESTAMP_KEY} {time_s:g} s is a day or more after the episode began (a clock's time?); give the "
+                f"seconds since the episode began, under {MAX_TIME_S:g}"
+            )
         if self._last_time_s is not None and time_s <= self._last_time_s:
             raise PolicyError(
                 f"{TIMESTAMP_KEY} {time_s} s does not move forward (the previous step was at {self._last_time_s} s); "

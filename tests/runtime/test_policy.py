@@ -6,7 +6,9 @@ import pytest
 from cnep.runtime import (
     IMAGE_KEY_PREFIX,
     STATE_KEY,
+    STATE_NAMES,
     TIMESTAMP_KEY,
+    Columns,
     Conditioner,
     ConditioningPolicy,
     Policy,
@@ -14,16 +16,39 @@ from cnep.runtime import (
     PolicySpec,
     TimeBase,
 )
-from tests.runtime.fakes import EXPERTS, FEATURES, WIDTH, camera_network, camera_spec, mean_colour_features
+from tests.runtime.fakes import (
+    EXPERTS,
+    FEATURES,
+    TIME_BASE,
+    WIDTH,
+    LinearNetwork,
+    camera_network,
+    camera_spec,
+    mean_colour_features,
+)
 
 CAMERA = IMAGE_KEY_PREFIX + "front"
+
+
+def state(rng: np.random.Generator) -> np.ndarray:
+    """(8,) float32: x y z (m), a unit quaternion xyzw, the gripper."""
+    quat = rng.normal(size=4)
+    return np.r_[rng.normal(size=3), quat / np.linalg.norm(quat), rng.normal()].astype(np.float32)
+
+
+def with_state(obs: dict, **values: float) -> dict:
+    """`obs` with state entries (by STATE_NAMES) set to `values`."""
+    changed = np.array(obs[STATE_KEY], dtype=np.float64)
+    for name, value in values.items():
+        changed[STATE_NAMES.index(name)] = value
+    return {**obs, STATE_KEY: changed}
 
 
 def observation(k: int, seed: int = 0, time_s: float | None = None) -> dict:
     rng = np.random.default_rng(seed * 1000 + k)
     obs = {
         CAMERA: rng.integers(0, 256, size=(48, 64, 3), dtype=np.uint8),
-        STATE_KEY: rng.normal(size=8).astype(np.float32),
+        STATE_KEY: state(rng),
     }
     if time_s is not None:
         obs[TIMESTAMP_KEY] = time_s
@@ -115,6 +140,15 @@ BAD = [
     ("bad time", lambda o: {**o, TIMESTAMP_KEY: float("inf")}, "finite seconds"),
     ("negative time", lambda o: {**o, TIMESTAMP_KEY: -1.0}, ">= 0"),
     ("time text", lambda o: {**o, TIMESTAMP_KEY: "soon"}, "one number"),
+    ("time a number as text", lambda o: {**o, TIMESTAMP_KEY: "1.5"}, "timestamp must be one number.*'1.5' \\(str\\)"),
+    ("time true", lambda o: {**o, TIMESTAMP_KEY: True}, "one number"),
+    ("time 1e300", lambda o: {**o, TIMESTAMP_KEY: 1e300}, "timestamp 1e\\+300 s is a day or more after"),
+    ("time a clock's", lambda o: {**o, TIMESTAMP_KEY: 1.7e9}, "a day or more after the episode began"),
+    ("state true and false", lambda o: {**o, STATE_KEY: np.ones(8, dtype=bool)}, "dtype bool"),
+    ("x 1e30", lambda o: with_state(o, x=1e30), "observation.state: x = 1e\\+30 m is beyond the 1000 m"),
+    ("z -2 km", lambda o: with_state(o, z=-2000.0), "z = -2000 m is beyond"),
+    ("zero quaternion", lambda o: with_state(o, qx=0, qy=0, qz=0, qw=0), "has length 0, not 1.*no orientation"),
+    ("quaternion of length 2", lambda o: with_state(o, qx=0, qy=0, qz=0, qw=2), "has length 2, not 1"),
 ]
 
 
@@ -184,3 +218,25 @@ def test_the_time_base_maps_seconds_to_the_phase():
     for bad in bad_ones:
         with pytest.raises(PolicyError):
             bad()
+
+
+def test_a_quaternion_slightly_off_unit_length_is_normalised_and_the_state_left_as_given():
+    a, b = make_policy(), make_policy()
+    for k in range(3):
+        obs = observation(k, time_s=0.1 * k)
+        given = np.array(obs[STATE_KEY])
+        given[3:7] *= 1.05  # within the tolerance: a robot's rounding
+        np.testing.assert_allclose(
+            a.step(obs).waypoints, b.step({**obs, STATE_KEY: given}).waypoints, rtol=1e-5, atol=1e-6
+        )
+        assert np.linalg.norm(given[3:7]) == pytest.approx(1.05, rel=1e-6)  # the caller's array is not changed
+
+
+def test_the_bounds_apply_to_the_state_entries_the_model_reads_only():
+    columns = Columns(observed=((0, 4),), query=(), predicted=((0, 3),), loc=np.zeros(4), scale=np.ones(4))
+    xyz_gripper = (((0, 3), (0, 3)), ((7, 8), (3, 4)))  # no orientation: x y z and the gripper
+    policy = Policy(LinearNetwork(4, 0, 3), PolicySpec(columns, EXPERTS, None, xyz_gripper, TIME_BASE))
+    unrotated = {STATE_KEY: np.r_[0.1, 0.2, 0.3, 0.0, 0.0, 0.0, 0.0, 1.0]}  # a zero quaternion, never read
+    assert policy.step(unrotated).waypoints.shape == (10, 3)
+    with pytest.raises(PolicyError, match="x = 1e\\+30 m"):
+        policy.step(with_state(unrotated, x=1e30))
