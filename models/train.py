@@ -38,6 +38,9 @@ VAL_BATCHES = 8  # fixed validation batches, drawn once
 # A validation error (mean squared, normalised units) above this means training diverged: predicting the training
 # mean scores about 1 there, and an untrained network a few units.
 DIVERGED_ERROR = 1e3
+# A run learned something when its best validation error is below this share of what predicting the training mean
+# scores; within it, the model does no better than a constant (Trainer.not_learned).
+LEARNED_RATIO = 0.95
 VAL_BATCH_SIZE = 64
 # The dropout masks (`TrainConfig.observed_only_dropout`) come from a generator of their own, seeded with the run's
 # seed plus this: the batches are the same with and without them.
@@ -138,6 +141,14 @@ def wta_error(model: CNEP, batch: Batch) -> float:
     return float(((chosen - batch.target) ** 2 * w).sum() / (w.sum() * chosen.shape[-1]))
 
 
+@torch.no_grad()
+def mean_prediction_error(batch: Batch) -> float:
+    """Mean squared error (normalised units) of predicting the training mean on the targets: the normaliser's `loc`
+    is the training rows' mean, so that prediction is 0. The error a model that learned nothing stays at."""
+    w = batch.target_mask.unsqueeze(-1).to(batch.target.dtype)  # (B, M, 1)
+    return float((batch.target**2 * w).sum() / (w.sum() * batch.target.shape[-1]))
+
+
 @dataclass
 class Trainer:
     """One training run; `state_dict` / `load_state_dict` make it resumable step for step."""
@@ -173,6 +184,7 @@ class Trainer:
             )
             for _ in range(VAL_BATCHES)
         ]
+        self.mean_error = float(np.mean([mean_prediction_error(b) for b in self.val_batches]))
         self.freeze_steps = int(self.cfg.gate_freeze_fraction * self.cfg.steps)
         self.decayed = self.model.observed_only_inputs() if self.cfg.observed_only_decay else []
         if self.decayed and self.cfg.observed_only_decay * self.cfg.lr >= 1:  # would flip those weights' signs
@@ -318,6 +330,26 @@ class Trainer:
                 break
         bar.close()
 
+    def not_learned(self) -> str | None:
+        """Why the run learned nothing, naming the likely causes and the numbers, when its best validation error is
+        no better than predicting the training mean (`mean_error`); None when it is better."""
+        if self.best_error < LEARNED_RATIO * self.mean_error:
+            return None
+        lr, default = self.cfg.lr, TrainConfig.__dataclass_fields__["lr"].default
+        if lr > default:
+            cause = f"the learning rate, {lr / default:.4g} times the default (lr {lr:g}; the default is {default:g})"
+        elif lr < default:
+            cause = f"the learning rate, below the default (lr {lr:g}; the default is {default:g}), or too few steps"
+        else:
+            cause = f"too few steps ({self.step})"
+        best = f"{self.best_error:.4g}" if self.best_state else "none kept"
+        return (
+            f"the model learned nothing: its best validation error ({best}) is no better than predicting the training "
+            f"mean ({self.mean_error:.4g}, normalised units; {LEARNED_RATIO:g} of it is the bar); likely cause: "
+            f"{cause}; else the data: what the model predicts may not follow from what it observes (its layout, "
+            f"its recordings)"
+        )
+
     def validation_due(self) -> bool:
         """Whether the step just taken is a validation step (every `val_every` steps and the last one)."""
         return self.step % self.cfg.val_every == 0 or self.step == self.cfg.steps
@@ -398,6 +430,8 @@ def finish_fit(trainer: Trainer, split: dict) -> tuple[CNEP, list[dict]]:
             f"Training diverged before any validation could be kept ({trainer.diverged}); lower the learning rate "
             f"(lr {trainer.cfg.lr}), or look for values far outside the others in the trajectories."
         )
+    if (why := trainer.not_learned()) is not None:
+        log.warning("fit: %s", why)
     model.load_state_dict(trainer.best_state)
     model.eval()
     return model, [{**record, **split} for record in trainer.history]

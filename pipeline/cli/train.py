@@ -149,6 +149,7 @@ def run(args: argparse.Namespace) -> int:
         result = read_checkpoint_config(out)["result"]
         print(
             f"trained {result['steps_run']} steps in {result['elapsed_s']:.1f} s; best validation error "
-            f"{result['best_val_error']:.4g} (normalised units) at step {result['best_step']} -> {out}"
+            f"{result['best_val_error']:.4g} (normalised units; predicting the training mean scores "
+            f"{result['mean_prediction_error']:.4g}) at step {result['best_step']} -> {out}"
         )
     return 0

@@ -182,9 +182,15 @@ def _train(config: TrainStageConfig, procs: Processes, device: torch.device, hel
 
     if procs.is_main:
         model.load_state_dict(trainer.best_state)
+        not_learned = trainer.not_learned()
+        if not_learned is not None:
+            log.warning("%s", not_learned)
         summary = {
             "best_step": trainer.best_step,
             "best_val_error": trainer.best_error,
+            "mean_prediction_error": trainer.mean_error,  # what predicting the training mean scores
+            "learned": not_learned is None,
+            **({"warning": not_learned} if not_learned else {}),
             "steps_run": trainer.step,
             "stopped_early": trainer.step < cfg.steps,
             "elapsed_s": round(elapsed, 3),

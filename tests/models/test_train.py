@@ -9,7 +9,17 @@ from cnep.models.cnep import CNEP
 from cnep.models.config import CNEPConfig, ColumnRoles, TrainConfig
 from cnep.models.errors import ConfigError
 from cnep.models.sampler import TrajectoryStack
-from cnep.models.train import Trainer, build_model, fit, lr_factor, prepare_fit, split_validation
+from cnep.models.synthetic import make_set
+from cnep.models.train import (
+    LEARNED_RATIO,
+    Trainer,
+    build_model,
+    finish_fit,
+    fit,
+    lr_factor,
+    prepare_fit,
+    split_validation,
+)
 from tests.models.factories import tiny_config, two_mode_trajectories
 
 SMALL = {"encoder_widths": (32, 32), "expert_widths": (32, 32), "time_frequencies": 4}
@@ -251,3 +261,21 @@ def test_observed_only_decay_and_dropout_leave_a_model_that_predicts_all_it_obse
     plain, _ = fit(trajs, config, off, progress=False)
     decayed, _ = fit(trajs, config, dataclasses.replace(QUICK, observed_only_decay=3.0), progress=False)
     assert all(torch.equal(decayed.state_dict()[k], v) for k, v in plain.state_dict().items())
+
+
+def test_a_run_no_better_than_predicting_the_training_mean_warns_naming_the_cause_and_the_numbers(caplog):
+    data = make_set("unimodal", seed=0)
+    columns = ColumnRoles(width=1, observed=((0, 1),), query=(), predicted=((0, 1),))
+    config = CNEPConfig(columns=columns, n_experts=2, encoder_widths=(16, 16), expert_widths=(16, 16))
+    for lr, learns in ((0.01, True), (1.0, False)):
+        caplog.clear()
+        training = TrainConfig(steps=150, batch_size=8, warmup_steps=10, val_every=50, patience=None, seed=0, lr=lr)
+        trainer, _ = prepare_fit(list(data.train[:16]), config, training, list(data.val))
+        trainer.run(progress=False)
+        with caplog.at_level("WARNING"):
+            finish_fit(trainer, {})
+        assert (trainer.best_error < LEARNED_RATIO * trainer.mean_error) == learns
+        assert ("learned nothing" in caplog.text) != learns, caplog.text
+    numbers = f"best validation error ({trainer.best_error:.4g}) is no better than predicting the training mean "
+    assert f"{numbers}({trainer.mean_error:.4g}, normalised units" in caplog.text
+    assert "likely cause: the learning rate, 1000 times the default (lr 1; the default is 0.001)" in caplog.text

@@ -13,6 +13,7 @@ from safetensors.torch import load_file
 from cnep.models import CNEPConfig, TrainConfig, Trainer, load_checkpoint, read_checkpoint_config
 from cnep.models.assignments import ASSIGNMENTS
 from cnep.models.sampler import TrajectoryStack
+from cnep.models.train import LEARNED_RATIO
 from cnep.pipeline.cli.main import main
 from cnep.pipeline.contract import Terminated
 from cnep.pipeline.errors import PipelineError
@@ -375,3 +376,17 @@ def test_cuda_training_is_seeded_and_its_checkpoint_runs_on_the_cpu(full_set, tm
     model = load_checkpoint(tmp_path / "a")  # weights saved from the GPU load on the CPU
     traj = read_trajectory(full_set[1])
     assert np.isfinite(model.generate(np.array([0.0, 0.5]), traj.data[[0, 13]], np.linspace(0, 1, 5)).mean).all()
+
+
+def test_training_that_learns_nothing_warns_and_records_it_in_the_config(full_set, tmp_path, caplog):
+    out = tmp_path / "ckpt"
+    with caplog.at_level("WARNING"):
+        code = main(
+            ["-q", "train", *map(str, full_set), "--out", str(out), "--layout", "motion", "--lr", "1"]
+            + ["--steps", "40", "--val-every", "10", "--encoder-widths", "8", "--expert-widths", "8"]
+        )
+    err = caplog.text
+    assert code == 0 and "the model learned nothing" in err and "1000 times the default (lr 1;" in err, err
+    result = read_checkpoint_config(out)["result"]
+    assert not result["learned"] and result["warning"] in err
+    assert result["best_val_error"] >= LEARNED_RATIO * result["mean_prediction_error"] > 0
