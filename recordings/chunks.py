@@ -63,7 +63,7 @@ def inflate(compression: str, data: bytes | memoryview, declared: int, crc: int,
     more or fewer bytes, or the CRC differs."""
     if declared > MAX_CHUNK_BYTES:
         raise ValueError(
-            f"the chunk declares {declared} bytes uncompressed, more than the {MAX_CHUNK_BYTES} a chunk may"
+            f"the chunk declares {declared} bytes uncompressed, more than the {MAX_CHUNK_BYTES} a chunk may hold"
         )
     if declared > limit:
         raise ValueError(

@@ -23,7 +23,10 @@ def bomb() -> bytes:
 CASES = {
     "declares 2 GiB": (lambda: chunk_record(2 << 30, bomb()), "declares 2147483648 bytes uncompressed, more than"),
     "declares 1 KiB, inflates to 2 GiB": (lambda: chunk_record(1024, bomb()), "inflates to more than the 1024 bytes"),
-    "declares 2^64-1": (lambda: chunk_record(2**64 - 1, bomb()), "declares 18446744073709551615 bytes uncompressed"),
+    "declares 2^64-1": (
+        lambda: chunk_record(2**64 - 1, bomb()),
+        "declares 18446744073709551615 bytes uncompressed, more than the 67108864 a chunk may hold",
+    ),
     "lz4 past its size": (lambda: chunk_record(10, lz4.frame.compress(bytes(4096)), "lz4"), "inflates to more than"),
     "short of its size": (lambda: chunk_record(4096, zstd_zeros(100)), "inflates to 100 bytes, not the 4096 bytes"),
     "unknown compression": (lambda: chunk_record(3, b"abc", "bz2"), "unknown chunk compression 'bz2'"),
