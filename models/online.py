@@ -2,7 +2,7 @@
 
 `OnlineConditioner` steps through an episode of known length `horizon`, as the replay does: step k is at
 t = k / (horizon - 1) (the model's training convention), clamped to 1 past the horizon. The conditioning
-logic (anchors + window, the running sum of encodings, the gate, winner-take-all, switches) is
+logic (anchors + window, the running sum of encodings, the gate, the active expert, switches) is
 `runtime.Conditioner`'s, shared with the exported policy; `TorchNetwork` hands it the model's encoder and
 decoder.
 """
@@ -35,7 +35,8 @@ __all__ = [
 class OnlineStep:
     """The result of one control step, in the data's own units.
 
-    gate (d,) sums to 1; expert = argmax of the gate; next_mean / next_std (dy,) the active expert's
+    gate (d,) sums to 1; expert: the active expert (the policy's rule: the gate's leader, kept unless another
+    leads by `switch_margin`); next_mean / next_std (dy,) the active expert's
     prediction at the next step's time;
     switch is set when the active expert changed at this step (never at the first step).
     """
@@ -117,9 +118,10 @@ class OnlineConditioner:
         self.conditioner = Conditioner(TorchNetwork(model), model_columns(model), policy)
         self.width = self.conditioner.width
 
-    def reset(self) -> None:
-        """Forget the conditioning set: the next `step` is step 0 of a new episode."""
-        self.conditioner.reset()
+    def reset(self, seed: int | None = None) -> None:
+        """Forget the conditioning set: the next `step` is step 0 of a new episode (seed: its draws, as
+        `runtime.Conditioner.reset` takes it)."""
+        self.conditioner.reset(seed)
 
     @property
     def k(self) -> int:

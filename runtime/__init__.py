@@ -15,10 +15,11 @@ import importlib
 # Module -> the public names it defines. A name's module is imported when the name is first used (PEP 562), so
 # `cnep.runtime.spans` (which the models' config reads) loads neither OpenCV nor ONNX Runtime.
 _MODULES = {
-    "conditioning": ("Columns", "Conditioner", "ConditioningPolicy", "ExpertSwitch", "Network"),
+    "conditioning": ("Columns", "Conditioner", "ConditioningPolicy", "ExpertSwitch", "Network", "hand_over"),
     "constants": ("DEFAULT_WAYPOINTS", "IMAGE_KEY_PREFIX", "STATE_KEY", "TIMESTAMP_KEY"),
     "errors": ("PolicyError",),
     "exported": ("ExportedNetwork", "load_policy"),
+    "gripper": ("GripperCommand",),
     "manifest": ("Manifest", "read_manifest"),
     "policy": ("Policy", "PolicyStep"),
     "spec": ("STATE_NAMES", "PolicySpec"),

@@ -12,6 +12,14 @@ sum of the encodings in the set (float64): one encoder row per step is added, th
 is subtracted. A step costs O(1) (one encoder row, the gate, the queries of every expert), whatever the
 episode's length.
 
+Which expert is active: at step 0, the gate's argmax (`first_expert="argmax"`, winner-take-all) or an expert
+drawn from the gate's probabilities with the episode's seeded generator (`first_expert="sample"`: where the
+demonstrations split between behaviours, episodes split alike). After it, the gate's leader takes over
+when it leads the active expert by at least `switch_margin`, or when the active expert's probability has
+fallen by at least `switch_margin` over the last `switch_window` steps (0 margin: the argmax at every step).
+A gate that wavers near a tie keeps its expert; a change in the scene, which moves the gate steadily from
+one expert to another, switches where the two cross, as the argmax would.
+
 The network is anything with `encode` and `decode` (`Network`): the torch CNEP (models.online) and the
 exported ONNX graphs (runtime.exported) both are, so the logic here exists once for both. Rows are
 normalised here, with the statistics the model was trained with (`Columns`). Query columns (if the layout
@@ -21,7 +29,9 @@ unknown.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from collections import deque
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field
 from typing import Protocol
 
 import numpy as np
@@ -29,15 +39,41 @@ import numpy as np
 from cnep.runtime.errors import PolicyError
 from cnep.runtime.spans import Spans, span_indices
 
+FIRST_EXPERTS = ("argmax", "sample")  # how the first active expert of an episode is chosen
+
 
 @dataclass(frozen=True)
 class ConditioningPolicy:
-    """Which observations condition the model: `anchors` first ones (fixed) + the latest `window`."""
+    """Which observations condition the model (`anchors` first ones, fixed, + the latest `window`) and which
+    expert is active (the first by `first_expert`, then kept unless the evidence moves: `switch_margin`,
+    `switch_window`)."""
 
     window: int = field(default=10, metadata={"help": "latest observations in the conditioning set"})
     anchors: int = field(
         default=1,
         metadata={"help": "first observations kept in the conditioning set for the whole episode (1: the start)"},
+    )
+    first_expert: str = field(
+        default="argmax",
+        metadata={
+            "help": "the first active expert of an episode: argmax (the gate's winner) or sample (drawn from the "
+            "gate's probabilities with the episode's seed: episodes split as the demonstrations do)"
+        },
+    )
+    switch_margin: float = field(
+        default=0.3,
+        metadata={
+            "help": "the gate's leader takes over from the active expert when it leads it by at least this much "
+            "probability, or when the active expert's probability fell by this much over the last switch-window "
+            "steps (0: the gate's argmax at every step)"
+        },
+    )
+    switch_window: int = field(
+        default=3,
+        metadata={
+            "help": "steps over which a fall of the active expert's probability by the switch margin hands over to "
+            "the leader without the margin (0: the margin alone)"
+        },
     )
 
     def __post_init__(self) -> None:
@@ -45,6 +81,18 @@ class ConditioningPolicy:
             raise PolicyError(f"ConditioningPolicy.window must be >= 1 (the current observation), got {self.window}.")
         if self.anchors < 0:
             raise PolicyError(f"ConditioningPolicy.anchors must be >= 0, got {self.anchors}.")
+        if self.first_expert not in FIRST_EXPERTS:
+            raise PolicyError(
+                f"ConditioningPolicy.first_expert must be one of {', '.join(FIRST_EXPERTS)}, got {self.first_expert!r}."
+            )
+        if not 0.0 <= self.switch_margin < 1.0:
+            raise PolicyError(f"ConditioningPolicy.switch_margin must be in [0, 1), got {self.switch_margin}.")
+        if self.switch_window < 0:
+            raise PolicyError(f"ConditioningPolicy.switch_window must be >= 0, got {self.switch_window}.")
+
+    def to_dict(self) -> dict:
+        """JSON-able: the manifest's `spec.conditioning`."""
+        return asdict(self)
 
 
 @dataclass(frozen=True)
@@ -57,6 +105,20 @@ class ExpertSwitch:
     from_expert: int
     to_expert: int
     gate: np.ndarray
+
+
+def hand_over(policy: ConditioningPolicy, recent: Sequence[np.ndarray], active: int) -> int:
+    """The active expert after the gate `recent[-1]` (d,), `active` before it: the gate's leader where it leads
+    `active` by `policy.switch_margin`, or where `active`'s probability fell by that much since `recent[0]`, the
+    gate `policy.switch_window` steps earlier (`recent`: the latest gates, oldest first; fewer at an episode's
+    start); else `active`."""
+    gate = recent[-1]
+    leader = int(gate.argmax())
+    if leader == active:
+        return active
+    margin = policy.switch_margin
+    fell = len(recent) > policy.switch_window > 0 and recent[-1 - policy.switch_window][active] - gate[active] >= margin
+    return leader if gate[leader] - gate[active] >= margin or fell else active
 
 
 class Network(Protocol):
@@ -123,8 +185,14 @@ class Conditioner:
         """Columns of a model row."""
         return self.columns.width
 
-    def reset(self) -> None:
-        """Forget the conditioning set: the next `step` is step 0 of a new episode."""
+    def reset(self, seed: int | None = None) -> None:
+        """Forget the conditioning set: the next `step` is step 0 of a new episode.
+
+        seed: the generator of the episode's draws (`first_expert="sample"`): the same seed, the same draw; None
+        continues the conditioner's generator (seeded 0 when it is made, so a run of episodes is reproducible).
+        """
+        if seed is not None or not hasattr(self, "_rng"):
+            self._rng = np.random.default_rng(0 if seed is None else seed)
         self.k = 0  # index of the next step
         self._sum: np.ndarray | None = None  # (H,) float64 running sum of the encodings in the set
         self._n = 0  # observations in the set
@@ -134,6 +202,7 @@ class Conditioner:
         self._r: np.ndarray | None = None  # (1, H) float32 latent of the current set, the mean of the encodings
         self.gate: np.ndarray | None = None
         self.expert: int | None = None
+        self._gates: deque[np.ndarray] = deque(maxlen=self.policy.switch_window + 1)  # the latest gates (d,)
 
     @property
     def n_conditioning(self) -> int:
@@ -159,13 +228,24 @@ class Conditioner:
         self._add(self.network.encode(obs)[0])  # (H,)
         np.divide(self._sum, self._n, out=self._r[0], casting="same_kind")  # (1, H) the mean over the set
         gate, mean, std = self.network.decode(self._r, self._fill_queries(query_t))  # (d,), (d, M, dy) x 2
-        expert = int(gate.argmax())
+        self._gates.append(gate)
+        expert = self._active(gate)
         switch = None
         if self.expert is not None and expert != self.expert:
             switch = ExpertSwitch(self.k, float(t), timestamp_ns, self.expert, expert, gate)
         self.gate, self.expert = gate, expert
         self.k += 1
         return gate, expert, switch, self._denormalise_mean(mean[expert]), std[expert] * self._out_scale
+
+    def _active(self, gate: np.ndarray) -> int:
+        """The active expert after this step's gate (d,): the first by the policy, then `hand_over`'s."""
+        if self.expert is not None:
+            return hand_over(self.policy, self._gates, self.expert)
+        if self.policy.first_expert == "argmax":
+            return int(gate.argmax())
+        cumulative = np.cumsum(gate, dtype=np.float64)
+        drawn = int(np.searchsorted(cumulative, self._rng.random() * cumulative[-1], side="right"))
+        return min(drawn, len(gate) - 1)
 
     def predict(self, query_t: np.ndarray, all_experts: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """Predict at phases `query_t` (m,) from the current set, in the data's units.

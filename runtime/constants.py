@@ -20,7 +20,8 @@ IMAGE_SIZE = 224  # frames are resized to IMAGE_SIZE x IMAGE_SIZE pixels before 
 # The exported folder (`cnep export`): a manifest, the ONNX graphs and the runtime's own installable source.
 MANIFEST_FILE = "manifest.json"
 MANIFEST_FORMAT = "cnep-policy"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # what `cnep export` writes
+READ_VERSIONS = (1, 2)  # what the runtime loads: 1 lacks the gripper command and the active expert's rule
 FEATURES_FILES = {"fp32": "features.onnx", "int8": "features-int8.onnx"}  # uint8 pixels -> features, per precision
 ENCODER_FILE = "encoder.onnx"  # [t, normalised observed columns] (N, 1 + obs_dim) -> encodings (N, H)
 DECODER_FILE = "decoder.onnx"  # latent (1, H), queries (M, 1 + query_dim) -> gate (d,), mean and std (d, M, dy)

@@ -18,6 +18,7 @@ import numpy as np
 from cnep.runtime.conditioning import ConditioningPolicy
 from cnep.runtime.constants import DEFAULT_BACKEND, DEFAULT_PRECISION, DEFAULT_WAYPOINTS
 from cnep.runtime.errors import PolicyError
+from cnep.runtime.gripper import GripperCommand
 from cnep.runtime.manifest import check_closed, read_manifest
 from cnep.runtime.policy import Policy
 from cnep.runtime.sessions import Graph, load_graph
@@ -53,6 +54,7 @@ def load_policy(
     waypoints: int = DEFAULT_WAYPOINTS,
     conditioning: ConditioningPolicy | None = None,
     time_base: TimeBase | None = None,
+    gripper: GripperCommand | None = None,
     camera: str | None = None,
 ) -> Policy:
     """The policy exported to `folder`, each graph checked against the manifest's sha256.
@@ -62,7 +64,7 @@ def load_policy(
 
     precision: the feature graph to run (`fp32`, or `int8` when exported with --int8); backend: `onnxruntime`
     or `openvino`; threads: intra-op threads per graph (None: one per core); waypoints, conditioning,
-    time_base, camera: as `Policy` takes them (None: the exported ones).
+    time_base, gripper, camera: as `Policy` takes them (None: the exported ones).
     """
     folder = Path(folder)
     manifest = read_manifest(folder)
@@ -87,5 +89,6 @@ def load_policy(
         waypoints=waypoints,
         conditioning=conditioning,
         time_base=time_base,
+        gripper=gripper,
         camera=camera,
     )

@@ -1,8 +1,9 @@
 """The manifest of an exported policy folder (`manifest.json`): what each file is, and the policy's spec.
 
-    format            "cnep-policy"; format_version: FORMAT_VERSION (unknown versions are refused)
+    format            "cnep-policy"; format_version: FORMAT_VERSION (READ_VERSIONS are read, others refused)
     producer          the cnep-pipeline that exported it
-    spec              runtime.spec.PolicySpec.to_dict(): model row, normaliser, state mapping, time base
+    spec              runtime.spec.PolicySpec.to_dict(): model row, normaliser, state mapping, time base,
+                      conditioning, gripper command
     extractor         identity of the features the model was trained on ({} for a model without a camera)
     features          precision -> {"file": ONNX graph, "identity": the identity of the features it makes}
     graphs            {"encoder": ENCODER_FILE, "decoder": DECODER_FILE}
@@ -23,7 +24,7 @@ import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from cnep.runtime.constants import FORMAT_VERSION, MANIFEST_FILE, MANIFEST_FORMAT, RUNTIME_FOLDER
+from cnep.runtime.constants import FORMAT_VERSION, MANIFEST_FILE, MANIFEST_FORMAT, READ_VERSIONS, RUNTIME_FOLDER
 from cnep.runtime.errors import PolicyError
 from cnep.runtime.jsonfile import read_json
 from cnep.runtime.spec import PolicySpec
@@ -64,11 +65,11 @@ class Manifest:
         if not isinstance(data, dict) or data.get("format") != MANIFEST_FORMAT:
             raise PolicyError(f"{path}: not a cnep policy manifest (no format {MANIFEST_FORMAT!r}); run `cnep export`")
         version = data.get("format_version")
-        if version != FORMAT_VERSION:
+        if version not in READ_VERSIONS or isinstance(version, bool):
             raise PolicyError(
                 f"{path}: policy format_version {version!r} is not supported by this runtime (supports "
-                f"{FORMAT_VERSION}); export the checkpoint again with this cnep-pipeline, or install the runtime "
-                f"that came with the export (pip install {path.parent}/runtime)"
+                f"{', '.join(map(str, READ_VERSIONS))}); export the checkpoint again with this cnep-pipeline, or "
+                f"install the runtime that came with the export (pip install {path.parent}/runtime)"
             )
         try:
             spec = PolicySpec.from_dict(data["spec"])

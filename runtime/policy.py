@@ -1,8 +1,8 @@
 """`Policy`: a trained CNEP in a robot's control loop, with LeRobot's interface.
 
-    policy.reset()                                   # at the start of every episode
-    action = policy.select_action(observation)       # (dy,) the next waypoint
-    result = policy.step(observation)                # waypoints, std, gate, active expert, switch
+    policy.reset()                                   # at the start of every episode (reset(seed=...): its draws)
+    action = policy.select_action(observation)       # (dy,) the next waypoint, the gripper as its command
+    result = policy.step(observation)                # waypoints, std, gate, active expert, switch, gripper command
 
 An observation is a dict (LeRobot's keys): `observation.images.<camera>` an RGB frame (H, W, 3) uint8 of any
 size (or, as LeRobot's processors hand images, (3, H, W) float in [0, 1]: converted, a copy per step),
@@ -17,8 +17,8 @@ within QUATERNION_TOLERANCE (one within it is normalised). Only the state entrie
 One class for both backends: the network (`runtime.conditioning.Network`) and the feature function are the
 torch model and extractor (`cnep.pipeline.export.checkpoint_policy`) or the exported ONNX graphs
 (`runtime.exported.load_policy`); everything else (reading the observation, the time base, the conditioning
-set, the gate, winner-take-all, switches) is this code. Per step it reuses preallocated buffers for the
-resized frame, the model row and the query times.
+set, the gate, the active expert, switches, the gripper command) is this code. Per step it reuses
+preallocated buffers for the resized frame, the model row and the query times.
 """
 
 from __future__ import annotations
@@ -40,8 +40,9 @@ from cnep.runtime.constants import (
 )
 from cnep.runtime.errors import PolicyError
 from cnep.runtime.frames import pixel_buffer, resize_frame
+from cnep.runtime.gripper import GripperCommand
 from cnep.runtime.spans import span_indices
-from cnep.runtime.spec import STATE_NAMES, PolicySpec
+from cnep.runtime.spec import GRIPPER, STATE_NAMES, PolicySpec
 from cnep.runtime.timebase import TimeBase
 
 Features = Callable[[np.ndarray], np.ndarray]  # uint8 pixels (1, 224, 224, 3) -> float32 features (1, F)
@@ -53,10 +54,12 @@ QUATERNION = [STATE_NAMES.index(name) for name in ("qx", "qy", "qz", "qw")]  # a
 class PolicyStep:
     """One control step's result, in the data's units.
 
-    waypoints, std: (W, dy) the active expert's mean and std at the next W steps (columns `action_names`);
-    times_s: (W,) their seconds since the episode began; gate: (d,) sums to 1; expert: its argmax; switch:
-    set when the active expert changed at this step (never at the first); time_s and t: this step's seconds
-    and phase.
+    waypoints, std: (W, dy) the active expert's mean and std at the next W steps (columns `action_names`; the
+    gripper as predicted, a continuous value); times_s: (W,) their seconds since the episode began; gate: (d,)
+    sums to 1; expert: the active expert (runtime.conditioning: the gate's leader, kept unless another leads by
+    the policy's margin); switch: set when the active expert changed at this step (never at the first); time_s
+    and t: this step's seconds and phase; gripper: the command for the next step, one of the gripper's two
+    values (runtime.gripper), None when the policy has no gripper command.
     """
 
     step: int
@@ -68,6 +71,7 @@ class PolicyStep:
     gate: np.ndarray
     expert: int
     switch: ExpertSwitch | None
+    gripper: float | None = None
 
 
 class Policy:
@@ -75,8 +79,8 @@ class Policy:
 
     network, features: the backend (features None for a model that sees no camera); spec: how observations
     become model rows (runtime.spec); waypoints: future steps predicted per step (W >= 1, spaced by the time
-    base's period); conditioning, time_base: override the spec's; camera: the `observation.images.<camera>`
-    to read (None: the only image in the observation).
+    base's period); conditioning, time_base, gripper: override the spec's; camera: the
+    `observation.images.<camera>` to read (None: the only image in the observation).
     """
 
     def __init__(
@@ -88,6 +92,7 @@ class Policy:
         waypoints: int = DEFAULT_WAYPOINTS,
         conditioning: ConditioningPolicy | None = None,
         time_base: TimeBase | None = None,
+        gripper: GripperCommand | None = None,
         camera: str | None = None,
     ) -> None:
         if waypoints < 1:
@@ -103,6 +108,10 @@ class Policy:
                 "period); give one: time_base=TimeBase(duration_s, period_s) in seconds, or `--time-base "
                 "DURATION_S,PERIOD_S` to cnep export or cnep run"
             )
+        self.gripper = gripper or spec.gripper
+        # The gripper's column in the predicted ones, if the model predicts it and a command is known.
+        names = spec.action_names
+        self._gripper_col = names.index(GRIPPER) if self.gripper is not None and GRIPPER in names else None
         self._features = features
         used = span_indices([s for s, _ in spec.state])
         self._position = [i for i in POSITION if i in used]  # the state's xyz entries the model reads
@@ -128,15 +137,24 @@ class Policy:
         """True if the model sees the camera (an observation must then carry an image)."""
         return self._features is not None
 
-    def reset(self) -> None:
-        """Start a new episode: empty the conditioning set; the next observation is step 0 at time 0."""
-        self._conditioner.reset()
+    def reset(self, seed: int | None = None) -> None:
+        """Start a new episode: empty the conditioning set; the next observation is step 0 at time 0.
+
+        seed: the episode's draws (`ConditioningPolicy.first_expert="sample"`): the same seed gives the same first
+        expert for the same observations; None continues the policy's generator (seeded 0 when it is made).
+        """
+        self._conditioner.reset(seed)
         self._last_time_s: float | None = None
+        self._command: float | None = None  # the gripper command of the last step
 
     def select_action(self, observation: Mapping) -> np.ndarray:
-        """The next waypoint (dy,) for `observation`, or (1, dy) when its state came with a batch dimension."""
+        """The next waypoint (dy,) for `observation`, or (1, dy) when its state came with a batch dimension; its
+        gripper column holds the gripper command (`PolicyStep.gripper`) where the policy has one."""
         result, batched = self._step(observation)
-        return result.waypoints[:1] if batched else result.waypoints[0]
+        action = result.waypoints[:1].copy() if batched else result.waypoints[0].copy()
+        if result.gripper is not None:
+            action[..., self._gripper_col] = result.gripper
+        return action
 
     def step(self, observation: Mapping) -> PolicyStep:
         """Take `observation` as the episode's next step: the waypoints, their std, the gate and any switch."""
@@ -163,7 +181,19 @@ class Policy:
         k, t = self._conditioner.k, tb.phase(time_s)
         gate, expert, switch, mean, std = self._conditioner.step(self._row, t, self._query_t, round(time_s * 1e9))
         self._last_time_s = time_s
-        return PolicyStep(k, time_s, t, mean, std, times, gate, expert, switch), batched
+        command = self._gripper_command(state, mean)
+        return PolicyStep(k, time_s, t, mean, std, times, gate, expert, switch, command), batched
+
+    def _gripper_command(self, state: np.ndarray, mean: np.ndarray) -> float | None:
+        """The command for the first waypoint's predicted gripper (mean (W, dy)), from the last command, or at the
+        episode's first step from the gripper's observed state."""
+        if self._gripper_col is None:
+            return None
+        previous = self._command
+        if previous is None:
+            previous = self.gripper.nearest(float(state[STATE_NAMES.index(GRIPPER)]))
+        self._command = self.gripper.command(float(mean[0, self._gripper_col]), previous)
+        return self._command
 
     def _read_state(self, observation: Mapping) -> tuple[np.ndarray, bool]:
         if STATE_KEY not in observation:

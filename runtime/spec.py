@@ -15,10 +15,12 @@ import numpy as np
 
 from cnep.runtime.conditioning import Columns, ConditioningPolicy
 from cnep.runtime.errors import PolicyError
+from cnep.runtime.gripper import GripperCommand
 from cnep.runtime.spans import span_indices
 from cnep.runtime.timebase import TimeBase
 
 STATE_NAMES = ("x", "y", "z", "qx", "qy", "qz", "qw", "gripper")  # observation.state, in the recordings' order
+GRIPPER = STATE_NAMES[-1]
 
 
 @dataclass(frozen=True)
@@ -28,7 +30,8 @@ class PolicySpec:
     columns: the model row and its normaliser; n_experts: d, the gate's width; features: (start, stop) of the
     image features in the row, or None for a model that sees no camera; state: ((state_start, state_stop),
     (row_start, row_stop)) pairs; time_base: seconds -> phase (None: the checkpoint has none, give one);
-    conditioning: anchors + window.
+    conditioning: the conditioning set and the active expert's rule; gripper: the two-state gripper's command from
+    the predicted gripper (None: the prediction is the action).
     """
 
     columns: Columns
@@ -37,6 +40,7 @@ class PolicySpec:
     state: tuple[tuple[tuple[int, int], tuple[int, int]], ...]
     time_base: TimeBase | None
     conditioning: ConditioningPolicy = ConditioningPolicy()
+    gripper: GripperCommand | None = None
 
     def __post_init__(self) -> None:
         width = self.columns.width
@@ -88,12 +92,14 @@ class PolicySpec:
             "state": [[list(s), list(r)] for s, r in self.state],
             "action_names": list(self.action_names),
             "time_base": self.time_base.to_dict() if self.time_base else None,
-            "conditioning": {"window": self.conditioning.window, "anchors": self.conditioning.anchors},
+            "conditioning": self.conditioning.to_dict(),
+            "gripper": self.gripper.to_dict() if self.gripper else None,
         }
 
     @classmethod
     def from_dict(cls, data: dict) -> PolicySpec:
-        """The spec of `to_dict`; a PolicyError names the entry that is missing or wrong."""
+        """The spec of `to_dict` (`gripper` may be absent: a format 1 manifest has none); a PolicyError names the
+        entry that is missing or wrong."""
         try:
             if tuple(data["state_names"]) != STATE_NAMES:
                 raise PolicyError(
@@ -117,6 +123,7 @@ class PolicySpec:
                 state=tuple((tuple(s), tuple(r)) for s, r in data["state"]),
                 time_base=TimeBase.from_dict(data["time_base"]) if data["time_base"] else None,
                 conditioning=ConditioningPolicy(**data["conditioning"]),
+                gripper=GripperCommand.from_dict(data["gripper"]) if data.get("gripper") else None,
             )
         except (KeyError, TypeError, ValueError) as exc:
             if isinstance(exc, PolicyError):

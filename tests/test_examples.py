@@ -122,3 +122,12 @@ def test_first_read_refuses_a_folder_the_demo_did_not_make_before_any_work(quick
     printed = capsys.readouterr()
     assert exit.value.code == 2 and printed.out == ""  # nothing measured, not even the header
     assert f"{tmp_path}: no recorded, demos/train, " in printed.err
+
+
+def test_switch_margin_applies_each_rule_to_the_demos_gates(quick_demo, capsys, one_thread):
+    rows = load("switch_margin").main([str(quick_demo), "--scene-changes", "0"])
+    argmax = rows[0]
+    assert (argmax["margin"], argmax["window"], argmax["later"]) == (0.0, 0, 0)
+    assert len(rows) == len(load("switch_margin").RULES) and "| 0.3 | 3 |" in capsys.readouterr().out
+    for row in rows:  # a rule only hands over to the gate's leader: never more switches than the argmax
+        assert sum(row["free_choice"]) <= sum(argmax["free_choice"]) and sum(row["heldout"]) <= sum(argmax["heldout"])

@@ -6,7 +6,15 @@ import argparse
 
 from cnep.models.config import ConditioningPolicy
 from cnep.pipeline.cli.fields import default_of, help_of
+from cnep.runtime.conditioning import FIRST_EXPERTS
 
+CONDITIONING = (
+    ("window", int),
+    ("anchors", int),
+    ("first_expert", str),
+    ("switch_margin", float),
+    ("switch_window", int),
+)
 HELP = "replay trajectory files through a trained CNEP: expert probabilities over time, written to a Rerun .rrd"
 
 
@@ -41,10 +49,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     live.add_argument("--no-live", action="store_true", help="write the .rrd only, do not look for a viewer")
     parser.add_argument("--port", type=int, default=9876, help="port of --serve (default 9876)")
-    for name in ("window", "anchors"):
+    for name, kind in CONDITIONING:
         parser.add_argument(
-            f"--{name}",
-            type=int,
+            f"--{name.replace('_', '-')}",
+            type=kind,
+            choices=FIRST_EXPERTS if name == "first_expert" else None,
             default=default_of(ConditioningPolicy, name),
             help=help_of(ConditioningPolicy, name),
         )
@@ -83,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
         args.checkpoint,
         args.recordings,
         args.out,
-        policy=ConditioningPolicy(args.window, args.anchors),
+        policy=ConditioningPolicy(**{name: getattr(args, name) for name, _ in CONDITIONING}),
         connect=connect,
         events_dir=args.events_out,
         merge=args.merge,

@@ -19,8 +19,8 @@ from cnep.perception import FeatureExtractor
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.identity import check_identities
 from cnep.pipeline.train.checkpoint import TrainedModel, load_trained
-from cnep.recordings.constants import BLOCK_FEATURES, BLOCKS_MOTION
-from cnep.runtime import DEFAULT_WAYPOINTS, ConditioningPolicy, Policy, PolicySpec, TimeBase
+from cnep.recordings.constants import BLOCK_FEATURES, BLOCK_GRIPPER, BLOCKS_MOTION
+from cnep.runtime import DEFAULT_WAYPOINTS, ConditioningPolicy, GripperCommand, Policy, PolicySpec, TimeBase
 
 IMAGENET_PREFIX = "imagenet:"  # extractor identities of ImageNet weights name them so (perception.weights)
 
@@ -61,6 +61,7 @@ def checkpoint_policy(
     waypoints: int = DEFAULT_WAYPOINTS,
     conditioning: ConditioningPolicy | None = None,
     time_base: TimeBase | None = None,
+    gripper: GripperCommand | None = None,
     camera: str | None = None,
 ) -> Policy:
     """The checkpoint folder `checkpoint` as a Policy on torch (see `load_for_policy` and `runtime.Policy`)."""
@@ -72,15 +73,17 @@ def checkpoint_policy(
         waypoints=waypoints,
         conditioning=conditioning,
         time_base=time_base,
+        gripper=gripper,
         camera=camera,
     )
 
 
 def policy_spec(trained: TrainedModel) -> PolicySpec:
-    """The spec of the checkpoint's model: its row's features block and state blocks, normaliser, time base."""
+    """The spec of the checkpoint's model: its row's features block and state blocks, normaliser, time base and
+    gripper command (a checkpoint without one, or a model without the gripper block, has none)."""
     model, blocks = trained.model, trained.mapping.blocks
     state = tuple((BLOCKS_MOTION[name], blocks[name]) for name in BLOCKS_MOTION if name in blocks)
-    time_base = trained.config.get("time_base")
+    time_base, gripper = trained.config.get("time_base"), trained.config.get("gripper")
     try:
         return PolicySpec(
             columns=model_columns(model),
@@ -88,6 +91,7 @@ def policy_spec(trained: TrainedModel) -> PolicySpec:
             features=blocks.get(BLOCK_FEATURES),
             state=state,
             time_base=TimeBase.from_dict(time_base) if time_base else None,
+            gripper=GripperCommand.from_dict(gripper) if gripper and BLOCK_GRIPPER in blocks else None,
         )
     except ValueError as exc:
         raise PipelineError(f"{trained.path / CONFIG_FILE}: cannot be run as a policy: {exc}") from None

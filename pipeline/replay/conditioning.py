@@ -23,7 +23,8 @@ DEFAULT_PREDICTION_POINTS = 25  # points of the predicted remaining trajectory d
 class Decisions:
     """What the gate decided at each step of one recording.
 
-    gates (T, d), each row sums to 1; experts (T,) argmax per step; switches: one per argmax change;
+    gates (T, d), each row sums to 1; experts (T,) the active expert per step (the policy's rule); switches: one
+    per change of the active expert;
     predictions (T, P, 3) the active expert's predicted remaining path (xyz) from each step, or None
     when the model does not predict the pose.
     """

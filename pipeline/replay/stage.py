@@ -154,7 +154,7 @@ def replay(
             "checkpoint": str(checkpoint),
             "rrd": [file.name for file in files],
             "n_experts": model.n_experts,
-            "policy": {"window": policy.window, "anchors": policy.anchors},
+            "policy": policy.to_dict(),
             "recordings": summaries,
         }
         staging.write(decisions_path(out), json.dumps(record, indent=1).encode())

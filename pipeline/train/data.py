@@ -12,6 +12,8 @@ import numpy as np
 from cnep.pipeline.errors import PipelineError, listed
 from cnep.pipeline.identity import check_identities
 from cnep.recordings import Trajectory, read_trajectory
+from cnep.recordings.constants import BLOCK_GRIPPER
+from cnep.runtime.gripper import GripperCommand
 from cnep.runtime.manifest import file_sha256
 from cnep.runtime.timebase import TimeBase
 
@@ -21,7 +23,7 @@ log = logging.getLogger(__name__)
 @dataclass(frozen=True)
 class TrainingFile:
     """One trajectory file trained on: where, its sha256 (hex), episode id, steps, seconds from its first to its
-    last step, and (T, width) data."""
+    last step, (T, width) data, and its gripper block's columns (the recording's unit; None without one)."""
 
     path: Path
     sha256: str
@@ -29,6 +31,7 @@ class TrainingFile:
     n_steps: int
     duration_s: float
     data: np.ndarray
+    gripper: np.ndarray | None = None
 
     def describe(self) -> dict:
         """JSON-able entry for config.json (the data itself is left out)."""
@@ -53,6 +56,13 @@ class TrainingSet:
         demonstrations of 2 steps or more: one step has no duration)."""
         timed = [f for f in self.files if f.n_steps >= 2]
         return TimeBase.from_demonstrations([f.duration_s for f in timed], [f.n_steps for f in timed])
+
+    def gripper_command(self) -> GripperCommand | None:
+        """The two-state gripper's command chosen from the demonstrations' gripper values (runtime.gripper); None
+        when the files have no gripper block."""
+        if any(f.gripper is None for f in self.files):
+            return None
+        return GripperCommand.from_demonstrations(np.concatenate([f.gripper.reshape(-1) for f in self.files]))
 
 
 def load_training_set(paths: Sequence[Path]) -> TrainingSet:
@@ -84,4 +94,7 @@ def _training_file(path: Path, trajectory: Trajectory) -> TrainingFile:
         n_steps=trajectory.n_steps,
         duration_s=float(trajectory.timestamps_ns[-1] - trajectory.timestamps_ns[0]) / 1e9,
         data=trajectory.data,
+        gripper=trajectory.data[:, slice(*trajectory.blocks[BLOCK_GRIPPER])]
+        if BLOCK_GRIPPER in trajectory.blocks
+        else None,
     )

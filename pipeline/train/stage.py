@@ -197,7 +197,9 @@ def _train(config: TrainStageConfig, procs: Processes, device: torch.device, hel
         }
         extra = {key: value for key, value in identity.items() if key != "model"}  # save_checkpoint writes "model"
         time_base = data.time_base().to_dict()  # the robot's seconds -> t (runtime.timebase)
-        save_checkpoint(model, work, {**extra, "time_base": time_base, "result": summary, "log": LOG_FILE})
+        gripper = data.gripper_command()  # the predicted gripper -> a two-state gripper's command (runtime.gripper)
+        policy = {"time_base": time_base, "gripper": gripper.to_dict() if gripper else None}
+        save_checkpoint(model, work, {**extra, **policy, "result": summary, "log": LOG_FILE})
         publish(work, config.out)
         log.info(
             "best validation error %.4g at step %d; %d steps in %.1f s -> %s",

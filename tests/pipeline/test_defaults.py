@@ -37,7 +37,9 @@ def test_the_cli_the_stage_config_and_the_model_configs_agree_on_every_shared_se
     assert demo == DemoConfig(out=Path("d")) and demo.model.assignment == model.assignment
     assert demo.model.n_experts == CNEP_EXPERTS and demo.seed == 0
     replay = build_parser().parse_args(["replay", "ckpt", "r.mcap"])
-    assert ConditioningPolicy(replay.window, replay.anchors) == ConditioningPolicy()
+    assert ConditioningPolicy(**{f.name: getattr(replay, f.name) for f in fields(ConditioningPolicy)}) == (
+        ConditioningPolicy()
+    )
 
 
 def test_nested_options_reach_the_config_they_belong_to():

@@ -11,10 +11,20 @@ from cnep.models import load_checkpoint, read_checkpoint_config
 from cnep.models.checkpoint import CHECKSUM_KEY, CONFIG_FILE, config_checksum
 from cnep.models.online import TorchNetwork
 from cnep.pipeline.cli.main import main
-from cnep.recordings import read_demonstration
-from cnep.runtime import STATE_KEY, PolicyError, TimeBase, load_policy, read_manifest
+from cnep.recordings import read_demonstration, read_trajectory
+from cnep.recordings.constants import BLOCK_GRIPPER
+from cnep.runtime import (
+    STATE_KEY,
+    ConditioningPolicy,
+    GripperCommand,
+    PolicyError,
+    TimeBase,
+    load_policy,
+    read_manifest,
+)
 from cnep.runtime.constants import RUNTIME_REQUIREMENTS
 from cnep.runtime.exported import ENCODER_INPUT
+from cnep.runtime.frames import decode_frame
 from cnep.runtime.manifest import file_sha256
 from cnep.runtime.sessions import onnxruntime_graph
 
@@ -34,6 +44,14 @@ def test_the_folder_holds_what_the_manifest_lists_with_the_checkpoints_spec(poli
     assert manifest.features["fp32"]["identity"]["weights_sha256"] == config["extractor"]["weights_sha256"]
     assert manifest.features["int8"]["identity"]["precision"] == "int8"
     assert manifest.spec.action_names == ("x", "y", "z", "qx", "qy", "qz", "qw", "gripper")
+    trained = [read_trajectory(f["path"]) for f in config["files"]]  # every file cnep train was given
+    values = np.concatenate([t.data[:, slice(*t.blocks[BLOCK_GRIPPER])].ravel() for t in trained])
+    assert (
+        manifest.spec.gripper
+        == GripperCommand.from_demonstrations(values)
+        == GripperCommand.from_dict(config["gripper"])
+    )
+    assert manifest.spec.gripper.high - manifest.spec.gripper.low > 0.5 * (values.max() - values.min())
     np.testing.assert_array_equal(
         manifest.spec.columns.loc, load_checkpoint(policy_world.checkpoint).normaliser.loc.numpy()
     )
@@ -106,6 +124,21 @@ def test_a_folder_that_points_outside_itself_or_holds_an_extra_file_is_refused_b
     code, err = run()
     assert code == 2 and f"{folder / 'sitecustomize.py'}: a file that manifest.json does not list" in err
     assert not (tmp_path / "r.rrd").exists()
+
+
+def test_a_format_1_folder_loads_without_a_gripper_command(policy_world, tmp_path):
+    folder = tmp_path / "policy"
+    shutil.copytree(policy_world.exported, folder)
+    manifest = json.loads((folder / "manifest.json").read_text())
+    assert manifest["format_version"] == 2 and manifest["spec"]["gripper"] is not None
+    del manifest["spec"]["gripper"]
+    manifest["spec"]["conditioning"] = {"window": 10, "anchors": 1}  # what format 1 holds
+    (folder / "manifest.json").write_text(json.dumps({**manifest, "format_version": 1}))
+    policy, demo = load_policy(folder), read_demonstration(policy_world.heldout)
+    step = policy.step({"observation.images.front": decode_frame(demo.frames[0]),
+                        STATE_KEY: np.r_[demo.pose[0], demo.gripper[0]]})  # fmt: skip
+    assert policy.gripper is None and step.gripper is None
+    assert policy.spec.conditioning == ConditioningPolicy()
 
 
 def test_a_motion_model_exports_without_a_feature_graph_and_runs_on_the_state_alone(policy_world, tmp_path):

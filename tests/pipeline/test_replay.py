@@ -16,7 +16,7 @@ import pytest
 import torch
 
 import cnep.pipeline.replay.viewer as L
-from cnep.models import CNEPConfig, ColumnRoles, build_model, save_checkpoint
+from cnep.models import CNEPConfig, ColumnRoles, ConditioningPolicy, build_model, save_checkpoint
 from cnep.pipeline.cli.main import main
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.replay.decisions import decisions_path, read_decisions
@@ -133,7 +133,8 @@ def rrd_verify(path: Path) -> subprocess.CompletedProcess:
 def test_the_rrd_holds_one_gate_row_per_step_and_switches_at_argmax_changes(tmp_path, checkpoint):
     traj = trajectory(steps=40)
     rec = write_trajectory(tmp_path / "ep.mcap", traj)
-    (out,) = replay(checkpoint, [rec], tmp_path / "out" / "replay.rrd", connect=None, quiet=True)
+    argmax_policy = ConditioningPolicy(switch_margin=0.0)  # the active expert is the argmax at every step
+    (out,) = replay(checkpoint, [rec], tmp_path / "out" / "replay.rrd", policy=argmax_policy, connect=None, quiet=True)
     assert out == tmp_path / "out" / "replay.rrd" and out.exists()
     assert sorted(p.name for p in out.parent.iterdir()) == ["replay.experts.json", "replay.rrd"]  # no temporaries left
 
@@ -183,6 +184,24 @@ def test_the_rrd_holds_one_gate_row_per_step_and_switches_at_argmax_changes(tmp_
     assert [s["step"] for s in decisions[0]["switches"]] == changes
     np.testing.assert_allclose(decisions[0]["gates"], gates, atol=1e-5)
     assert rrd_verify(out).returncode == 0, rrd_verify(out).stderr
+
+
+def test_the_default_policy_keeps_its_expert_unless_the_leader_leads_by_the_margin_or_it_fell(tmp_path, checkpoint):
+    rec = write_trajectory(tmp_path / "ep.mcap", trajectory(steps=40))
+    (out,) = replay(checkpoint, [rec], tmp_path / "kept.rrd", connect=None, quiet=True)
+    (plain,) = replay(checkpoint, [rec], tmp_path / "argmax.rrd", policy=ConditioningPolicy(switch_margin=0.0),
+                      connect=None, quiet=True)  # fmt: skip
+    kept, argmax = read_decisions(out)["recordings"][0], read_decisions(plain)["recordings"][0]
+    gates, experts = np.array(kept["gates"]), np.array(kept["experts"])
+    policy = ConditioningPolicy()
+    np.testing.assert_allclose(gates, argmax["gates"])  # the rule changes the active expert, never the gate
+    assert experts[0] == gates[0].argmax() and len(kept["switches"]) <= len(argmax["switches"])
+    assert [s["step"] for s in kept["switches"]] == (np.flatnonzero(experts[1:] != experts[:-1]) + 1).tolist()
+    for k in range(1, 40):
+        lead = gates[k].max() - gates[k, experts[k - 1]]
+        fell = k >= policy.switch_window and gates[k - policy.switch_window, experts[k - 1]] - gates[k, experts[k - 1]]
+        moved = lead >= policy.switch_margin or fell >= policy.switch_margin
+        assert experts[k] == (gates[k].argmax() if moved else experts[k - 1]), k
 
 
 def test_several_recordings_become_one_file_each_in_the_order_given(tmp_path, checkpoint):
@@ -401,13 +420,16 @@ def test_cli_replay_prints_the_expert_of_each_recording(tmp_path, checkpoint, ca
             "3",
             "--anchors",
             "0",
+            "--switch-margin",
+            "0.25",
         ]
     )
     assert code == 0
     printed = capsys.readouterr().out
     majority = read_decisions(tmp_path / "c.rrd")["recordings"][0]["majority_expert"]
     assert f"ep.mcap: expert {majority} " in printed and "c.experts.json" in printed
-    assert read_decisions(tmp_path / "c.rrd")["policy"] == {"window": 3, "anchors": 0}
+    policy = {"window": 3, "anchors": 0, "first_expert": "argmax", "switch_margin": 0.25, "switch_window": 3}
+    assert read_decisions(tmp_path / "c.rrd")["policy"] == policy
 
 
 def test_cli_replay_reports_a_misfit_as_one_line(tmp_path, capsys):

@@ -60,3 +60,20 @@ def mean_colour_features(pixels: np.ndarray) -> np.ndarray:
     """(1, 224, 224, 3) uint8 -> (1, FEATURES): the mean of each colour channel and its square, scaled."""
     mean = pixels.reshape(len(pixels), -1, 3).mean(1) / 255.0  # (1, 3)
     return np.concatenate([mean, mean**2], axis=1).astype(np.float32)
+
+
+class ScriptedNetwork(LinearNetwork):
+    """LinearNetwork whose gate at the k-th decode is `gates[k]` (the last one after the script) and whose last
+    predicted column is `last[k]`, normalised (every expert, every query)."""
+
+    def __init__(self, gates, last=None, obs_dim: int = WIDTH, out_dim: int = 4) -> None:
+        super().__init__(obs_dim, 0, out_dim)
+        self.gates, self.last, self.decoded = np.asarray(gates, dtype=np.float32), last, 0
+
+    def decode(self, r: np.ndarray, query: np.ndarray):
+        _, mean, std = super().decode(r, query)
+        k = self.decoded
+        self.decoded += 1
+        if self.last is not None:
+            mean[:, :, -1] = self.last[min(k, len(self.last) - 1)]
+        return self.gates[min(k, len(self.gates) - 1)].copy(), mean, std

@@ -22,6 +22,7 @@ from tests.runtime.fakes import (
     TIME_BASE,
     WIDTH,
     LinearNetwork,
+    ScriptedNetwork,
     camera_network,
     camera_spec,
     mean_colour_features,
@@ -111,6 +112,27 @@ def test_reset_starts_a_new_episode():
     policy.reset()
     again = [policy.step(observation(k, time_s=k * 0.1)).gate for k in range(4)]
     np.testing.assert_array_equal(np.array(first), np.array(again))
+
+
+def test_reset_with_a_seed_repeats_the_sampled_first_expert():
+    sample = ConditioningPolicy(first_expert="sample", switch_margin=0.5)
+
+    def firsts(policy: Policy, seeds) -> list[int]:
+        found = []
+        for seed in seeds:
+            policy.reset(seed)
+            found.append(policy.step(observation(0)).expert)
+        return found
+
+    policy = Policy(ScriptedNetwork([[0.4, 0.35, 0.25]]), camera_spec(), mean_colour_features, conditioning=sample)
+    drawn = firsts(policy, range(40))
+    assert len(set(drawn)) == EXPERTS  # the draws follow the gate, not its argmax
+    assert firsts(policy, range(40)) == drawn  # the same seeds, the same draws
+    unseeded = [Policy(ScriptedNetwork([[0.4, 0.35, 0.25]]), camera_spec(), mean_colour_features, conditioning=sample)]
+    unseeded.append(
+        Policy(ScriptedNetwork([[0.4, 0.35, 0.25]]), camera_spec(), mean_colour_features, conditioning=sample)
+    )
+    assert firsts(unseeded[0], [None] * 20) == firsts(unseeded[1], [None] * 20)  # one generator, seeded when made
 
 
 def test_a_switch_is_reported_when_the_active_expert_changes():
