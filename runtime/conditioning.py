@@ -109,9 +109,9 @@ class ExpertSwitch:
 
 def hand_over(policy: ConditioningPolicy, recent: Sequence[np.ndarray], active: int) -> int:
     """The active expert after the gate `recent[-1]` (d,), `active` before it: the gate's leader where it leads
-    `active` by `policy.switch_margin`, or where `active`'s probability fell by that much since `recent[0]`, the
-    gate `policy.switch_window` steps earlier (`recent`: the latest gates, oldest first; fewer at an episode's
-    start); else `active`."""
+    `active` by `policy.switch_margin`, or where `active`'s probability fell by that much since the gate
+    `policy.switch_window` steps earlier, `recent[-1 - switch_window]` (`recent`: the latest gates, oldest first;
+    fewer at an episode's start, where only the margin counts); else `active`."""
     gate = recent[-1]
     leader = int(gate.argmax())
     if leader == active:
@@ -178,6 +178,7 @@ class Conditioner:
         self._obs = np.empty((1, 1 + len(self._obs_cols)), dtype=np.float32)  # (1, 1 + obs_dim)
         self._query_values = np.empty(len(self._query_cols), dtype=np.float32)  # (query_dim,) normalised
         self._queries = np.empty((0, 1 + len(self._query_cols)), dtype=np.float32)  # (M, 1 + query_dim)
+        self._rng = np.random.default_rng(0)  # the draws of `first_expert="sample"`; reset(seed) replaces it
         self.reset()
 
     @property
@@ -191,8 +192,8 @@ class Conditioner:
         seed: the generator of the episode's draws (`first_expert="sample"`): the same seed, the same draw; None
         continues the conditioner's generator (seeded 0 when it is made, so a run of episodes is reproducible).
         """
-        if seed is not None or not hasattr(self, "_rng"):
-            self._rng = np.random.default_rng(0 if seed is None else seed)
+        if seed is not None:
+            self._rng = np.random.default_rng(seed)
         self.k = 0  # index of the next step
         self._sum: np.ndarray | None = None  # (H,) float64 running sum of the encodings in the set
         self._n = 0  # observations in the set

@@ -56,10 +56,10 @@ class PolicyStep:
 
     waypoints, std: (W, dy) the active expert's mean and std at the next W steps (columns `action_names`; the
     gripper as predicted, a continuous value); times_s: (W,) their seconds since the episode began; gate: (d,)
-    sums to 1; expert: the active expert (runtime.conditioning: the gate's leader, kept unless another leads by
-    the policy's margin); switch: set when the active expert changed at this step (never at the first); time_s
-    and t: this step's seconds and phase; gripper: the command for the next step, one of the gripper's two
-    values (runtime.gripper), None when the policy has no gripper command.
+    sums to 1; expert: the active expert (the policy's rule: runtime.conditioning.hand_over); switch: set when
+    the active expert changed at this step (never at the first); time_s and t: this step's seconds and phase;
+    gripper: the command for the next step, one of the gripper's two values (runtime.gripper), None when the
+    policy has no gripper command.
     """
 
     step: int
