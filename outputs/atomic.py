@@ -72,10 +72,10 @@ class Staging:
 
 
 @contextlib.contextmanager
-def staged() -> Iterator[Staging]:
+def staged(record: bool = False) -> Iterator[Staging]:
     """Stage several files (`Staging.open`, `write`, `path`); when the block completes they are renamed into place,
-    in the order staged; on any exception (Ctrl-C and SIGTERM included) every staged file is removed and no
-    target changes. Targets' folders must exist."""
+    in the order staged, and with `record` added to their folders' records (`cnep.outputs.record`); on any exception
+    (Ctrl-C and SIGTERM included) every staged file is removed and no target changes. Targets' folders must exist."""
     staging = Staging()
     try:
         yield staging
@@ -85,6 +85,10 @@ def staged() -> Iterator[Staging]:
                     os.replace(tmp, target)
                 except OSError as exc:
                     raise _named(exc, target) from None
+        if record:
+            from cnep.outputs.record import record_written
+
+            record_written(target for _, target in staging._staged if target is not None)
     finally:
         for tmp, _ in staging._staged:
             _remove(tmp)

@@ -10,8 +10,9 @@
 - Errors are one line on stderr, `cnep <cmd>: error: <path>: <problem>; <fix>` (`error_line`); no
   traceback for anything a user can cause, unless `-v` asks for it (`run_command`).
 - Outputs are never overwritten without `--force` (`refuse_existing`): ingest, extract, repair,
-  replay, train and demo alike; `--force` replaces only what cnep wrote (`pipeline.ownership`), and
-  never an input or a folder holding one (`refuse_inputs`). Inputs are never written.
+  replay, train, export, run, evaluate and demo alike; `--force` replaces only what a cnep command recorded
+  writing (`pipeline.ownership`, `cnep.outputs.record`), and never an input or a folder holding one
+  (`refuse_inputs`). Inputs are never written.
 - One run at a time per output: each command holds the output's lock for the run (`cnep.outputs`).
 - Nothing is left behind on failure: files are written to a temporary name and renamed when complete,
   and a folder a command created is removed again if it fails or is interrupted before anything
@@ -37,7 +38,9 @@ import traceback
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
+from cnep.outputs import RECORD_FILE
 from cnep.pipeline.errors import PipelineError, loaded_user_errors
+from cnep.pipeline.ownership import OutputKind, not_written
 
 EXIT_OK = 0
 EXIT_BUG = 1
@@ -152,12 +155,13 @@ def _stdout_to_devnull() -> None:
 
 
 def refuse_existing(
-    paths: Sequence[Path], force: bool, what: str = "output", why: str = "", kind: Callable[[Path], bool] | None = None
+    paths: Sequence[Path], force: bool, what: str = "output", why: str = "", kind: OutputKind | None = None
 ) -> None:
     """Raise PipelineError if any of `paths` exists and `force` is not set (naming the first and the count).
 
-    With `force`, an existing path must be of `kind` (a `pipeline.ownership.OutputKind`: what the command
-    writes, recognised by content): `--force` replaces what cnep wrote, never a user's own file.
+    With `force`, an existing path must be cnep's to replace (`pipeline.ownership.not_written`: named by its
+    folder's record, or, in a folder without one, of `kind` in a folder holding nothing else); the line names
+    the first file that is not. `--force` replaces what cnep wrote, never a user's own file.
     `why` (e.g. " and was made from other weights") is said after "already exists".
     """
     existing = [Path(p) for p in paths if os.path.lexists(p)]
@@ -168,12 +172,22 @@ def refuse_existing(
         raise PipelineError(
             f"{existing[0]}: the {what} already exists{why}{more}; add --force to replace it, or choose another output"
         )
-    foreign = [p for p in existing if kind is not None and (p.is_symlink() or not kind(p))]
-    if foreign:
-        more = f" (and {len(foreign) - 1} more)" if len(foreign) > 1 else ""
+    if kind is None:
+        return
+    for path in existing:
+        foreign = not_written(path, kind)
+        if not foreign:
+            continue
+        first, more = foreign[0], f" (and {len(foreign) - 1} more)" if len(foreign) > 1 else ""
+        if path.is_dir():
+            said = f"replaces the folder {path} only when a cnep command recorded writing every file in it"
+        elif first == path:
+            said = f"replaces only what a cnep command recorded writing (its folder's {RECORD_FILE})"
+        else:  # an unrecorded folder (older outputs) that holds more than cnep's kind of file
+            said = f"cannot tell {path.name} is cnep's: {path.parent} holds no record of cnep's files, and holds this"
         raise PipelineError(
-            f"{foreign[0]}: --force replaces only {getattr(kind, 'name', 'what cnep wrote')}, and this is not "
-            f"one{more}; cnep never deletes your own files: move it away, or choose another output"
+            f"{first}: --force {said}, and this file is not cnep's{more}; cnep never deletes your own files: move it "
+            f"away, or choose another output"
         )
 
 

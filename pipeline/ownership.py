@@ -1,11 +1,16 @@
-"""What cnep may replace or delete: only files it wrote itself, recognised by their content, never by name alone.
+"""What cnep may replace or delete: only files a cnep command recorded writing, never a file by its kind alone.
 
-`--force` in every command replaces an existing output only when it is of the kind the command writes
-(`OutputKind`): an MCAP file whose header names cnep's recording layer, a checkpoint folder holding only a
-checkpoint's files, a Rerun `.rrd`, a JSON or Markdown file with the keys or title cnep writes, a weights
-file as `--save-weights` writes it. A user's own file at that path is refused with one line
-(`pipeline.contract.refuse_existing`), and so is an output that is an input or contains one
-(`pipeline.contract.refuse_inputs`).
+Every command that writes outputs names them in the record of the folder it writes them into
+(`cnep.outputs.record`: `.cnep-record.json`, each file with its size and sha256). `--force` replaces an
+existing output only when its folder's record names it, unchanged; a folder replaced as a whole (a
+checkpoint, the demo's folder) only when every file in it, at every depth, is so named. Anything else
+is refused with one line naming it (`pipeline.contract.refuse_existing`), and so is an output that is an
+input or contains one (`pipeline.contract.refuse_inputs`).
+
+A folder with no record, written before records existed, is judged by the kind of file the command
+writes (`OutputKind.test`: an MCAP file whose header names cnep's recording layer, a checkpoint's files,
+a Rerun `.rrd`, ...), and only where every file in it is of that kind: a folder that holds anything
+else is refused.
 """
 
 from __future__ import annotations
@@ -15,9 +20,10 @@ import os
 import zipfile
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
-from cnep.outputs import TEMPORARY, is_lock_name
+from cnep.outputs import RECORD_FILE, TEMPORARY, is_lock_name, is_recorded, read_record
 
 CHECKPOINT_FILES = ("config.json", "model.safetensors", "training_log.jsonl")
 RRD_MAGIC = b"RRF"  # every Rerun .rrd starts with it (RRF2 in rerun 0.41)
@@ -25,10 +31,13 @@ RRD_MAGIC = b"RRF"  # every Rerun .rrd starts with it (RRF2 in rerun 0.41)
 
 @dataclass(frozen=True)
 class OutputKind:
-    """A kind of output: what it is called in messages, and a test of a path's content."""
+    """A kind of output: what it is called in messages, and a test of an unrecorded file's content (`test`, for
+    outputs written before records existed). `folder`, for a folder whose own files are its record (an exported
+    policy's manifest), lists the files in it that record does not vouch for."""
 
     name: str
     test: Callable[[Path], bool]
+    folder: Callable[[Path], list[Path]] | None = None
 
     def __call__(self, path: Path) -> bool:
         return self.test(Path(path))
@@ -67,8 +76,9 @@ def _torch_file(path: Path) -> bool:
 
 
 def _bookkeeping(path: Path) -> bool:
-    """A temporary file or lock file of cnep's output layer."""
-    return path.is_file() and (TEMPORARY.match(path.name) is not None or is_lock_name(path.name))
+    """A temporary file, lock file or record of cnep's output layer."""
+    name = path.name
+    return path.is_file() and (TEMPORARY.match(name) is not None or is_lock_name(name) or name == RECORD_FILE)
 
 
 def checkpoint_config(path: Path) -> bool:
@@ -76,19 +86,14 @@ def checkpoint_config(path: Path) -> bool:
     return _json_object(path, ("format_version", "model"))
 
 
-def _checkpoint_folder(path: Path) -> bool:
-    """A folder holding a checkpoint's files only (an empty folder too: replacing it loses nothing)."""
-    if not path.is_dir() or path.is_symlink():
-        return False
-    entries = list(path.iterdir())
-    if entries and not checkpoint_config(path / "config.json"):
-        return False
-    return all(entry.name in CHECKPOINT_FILES or _bookkeeping(entry) for entry in entries)
+def _checkpoint_file(path: Path) -> bool:
+    """One of a checkpoint's files, beside the checkpoint's config.json."""
+    return path.name in CHECKPOINT_FILES and checkpoint_config(path.parent / "config.json")
 
 
 MCAP = OutputKind("an MCAP file written by cnep", _cnep_mcap)
 CHECKPOINT = OutputKind(
-    f"a checkpoint folder written by `cnep train` (holding only {', '.join(CHECKPOINT_FILES)})", _checkpoint_folder
+    f"a checkpoint folder written by `cnep train` (only {', '.join(CHECKPOINT_FILES)})", _checkpoint_file
 )
 RRD = OutputKind("a Rerun .rrd file", _rrd)
 DECISIONS = OutputKind("a replay's decisions file", lambda p: _json_object(p, ("checkpoint", "recordings")))
@@ -114,25 +119,8 @@ def markdown_titled(name: str, title: str) -> OutputKind:
     return OutputKind(name, test)
 
 
-def cnep_file(path: Path) -> bool:
-    """True for any file one of cnep's commands writes (by content, per suffix), and cnep's temporaries and locks."""
-    path = Path(path)
-    if _bookkeeping(path):
-        return True
-    if path.suffix == ".mcap":
-        return _cnep_mcap(path)
-    if path.suffix == ".rrd":
-        return _rrd(path)
-    if path.suffix in (".json", ".jsonl"):
-        return path.is_file() and (path.suffix == ".jsonl" or _json_object(path))
-    if path.suffix in (".pt", ".safetensors"):
-        return path.is_file()
-    if path.suffix == ".png":  # the demo's and the evaluation's figures: matplotlib signs its PNG files
-        return _png_by_matplotlib(path)
-    return False
-
-
-def _png_by_matplotlib(path: Path) -> bool:
+def png_by_matplotlib(path: Path) -> bool:
+    """A PNG file that matplotlib wrote (it signs its files)."""
     try:
         with open(path, "rb") as f:
             head = f.read(512)
@@ -141,12 +129,38 @@ def _png_by_matplotlib(path: Path) -> bool:
     return head.startswith(b"\x89PNG") and b"Matplotlib" in head
 
 
-def foreign_files(folder: Path) -> list[Path]:
-    """Files (and links) under `folder` that cnep did not write (`cnep_file`), sorted."""
+def foreign_files(root: Path, unrecorded: Callable[[Path], bool]) -> list[Path]:
+    """What under the folder `root` (all depths) no cnep command recorded writing, sorted: files and links that the
+    record of their folder does not name unchanged; in a folder without a record, those `unrecorded` rejects."""
     found = []
-    for root, dirs, files in os.walk(folder):
-        for name in [*files, *(d for d in dirs if os.path.islink(os.path.join(root, d)))]:
-            path = Path(root) / name
-            if path.is_symlink() or not cnep_file(path):
+    for folder, dirs, files in os.walk(root):
+        record = read_record(Path(folder))
+        written = partial(is_recorded, record=record) if record is not None else unrecorded
+        for name in [*files, *(d for d in dirs if os.path.islink(os.path.join(folder, d)))]:
+            path = Path(folder) / name
+            if path.is_symlink() or not (_bookkeeping(path) or written(path)):
                 found.append(path)
     return sorted(found)
+
+
+def not_written(path: Path, kind: OutputKind) -> list[Path]:
+    """The files that make the existing output `path` not cnep's to replace (empty: `--force` may replace it).
+
+    A folder: what in it cnep did not write (`kind.folder`, else `foreign_files`). A file: itself, unless its
+    folder's record names it unchanged; in a folder without a record, itself unless it is of `kind`, and then
+    the folder's other files not of `kind` (an unrecorded folder is cnep's only when it holds nothing else)."""
+    path = Path(path)
+    if path.is_symlink():
+        return [path]
+    if path.is_dir():
+        return kind.folder(path) if kind.folder is not None else foreign_files(path, kind.test)
+    record = read_record(path.parent)
+    if record is not None:
+        return [] if is_recorded(path, record) else [path]
+    if not kind(path):
+        return [path]
+    return [
+        p
+        for p in sorted(path.parent.iterdir())
+        if p.is_symlink() or (p.is_file() and not _bookkeeping(p) and not kind(p))
+    ]

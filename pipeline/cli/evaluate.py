@@ -61,7 +61,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--jobs", type=int, default=2, help="worker processes, one thread each (0: this process only)")
     parser.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     parser.add_argument(
-        "--force", action="store_true", help="replace tables already in --out (only tables cnep evaluate wrote)"
+        "--force",
+        action="store_true",
+        help="replace tables and figures already in --out (only those cnep evaluate recorded writing)",
     )
 
 

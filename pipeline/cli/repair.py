@@ -17,13 +17,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="OUT",
         help="where to write the salvaged file (must differ from IN; its folder is created if missing)",
     )
-    parser.add_argument("--force", action="store_true", help="replace OUT if it exists (an MCAP file cnep wrote)")
+    parser.add_argument(
+        "--force", action="store_true", help="replace OUT if it exists (only a file cnep recorded writing)"
+    )
 
 
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from cnep.outputs import output_lock
+    from cnep.outputs import output_lock, record_written
     from cnep.pipeline.contract import output_folder, refuse_existing
     from cnep.pipeline.ownership import MCAP
     from cnep.recordings.container import refuse_overwrite_input
@@ -33,5 +35,6 @@ def run(args: argparse.Namespace) -> int:
     refuse_existing([Path(args.dst)], args.force, "repaired file", kind=MCAP)
     with output_folder(Path(args.dst).parent, "OUT's folder"), output_lock(Path(args.dst)):
         report = repair(args.src, args.dst)
+        record_written([args.dst])
     print(report.summary())
     return 0

@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from cnep.outputs import record_written
 from cnep.pipeline.demo.scene import (
     BEHAVIOURS,
     FREE_CHOICE,
@@ -268,6 +269,7 @@ def generate(config: DemoSetConfig) -> DemoSet:
                 path = Path(config.out) / f"{episode_id}.mcap"
                 path.parent.mkdir(parents=True, exist_ok=True)
                 write_demonstration(path, demo)
+                record_written([path])
                 files[split].append(path)
                 labels[path] = demo.episode.extra[LABEL_KEY]
                 bar.update(1)

@@ -35,7 +35,7 @@ import numpy as np
 
 from cnep.models import TrainConfig
 from cnep.models.threads import torch_threads
-from cnep.outputs import output_lock, write_atomically
+from cnep.outputs import is_lock_name, output_lock, record_written, write_atomically
 from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_file_as_folder
 from cnep.pipeline.demo.config import DemoConfig, DemoSize
 from cnep.pipeline.demo.figure import FIGURE_FILE, Scene, draw_summary
@@ -56,7 +56,16 @@ from cnep.pipeline.demo.weights import choose_weights
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.extract.stage import ExtractConfig, extract
 from cnep.pipeline.ingest.stage import IngestConfig, ingest
-from cnep.pipeline.ownership import cnep_file, foreign_files
+from cnep.pipeline.ownership import (
+    CHECKPOINT,
+    DECISIONS,
+    MCAP,
+    RRD,
+    WEIGHTS,
+    foreign_files,
+    json_with,
+    png_by_matplotlib,
+)
 from cnep.pipeline.replay.decisions import decisions_path, read_decisions
 from cnep.pipeline.replay.stage import replay
 from cnep.pipeline.train.constants import SCENE
@@ -73,19 +82,7 @@ RRD_FILE = "demo.rrd"  # the scene change: what `make view` opens
 REPLAYS_RRD = "replays/replay.rrd"  # the other replayed recordings, one file each beside it
 PER_FILE_LOGGERS = ("cnep.pipeline.ingest", "cnep.pipeline.extract")
 EXTRACTOR_FILE = "extractor.pt"
-# Everything a demo writes into its folder (what --force replaces).
-OUTPUTS = (
-    "recorded",
-    "demos",
-    "trajectories",
-    "checkpoints",
-    EXTRACTOR_FILE,
-    RRD_FILE,
-    decisions_path(RRD_FILE).name,
-    Path(REPLAYS_RRD).parent.name,
-    SUMMARY_FILE,
-    FIGURE_FILE,
-)  # names and glob patterns
+CHECKPOINT_NAMES = ("cnep", "cnmp")  # checkpoints/<name>: the CNEP and the matched CNMP
 
 
 @dataclass
@@ -125,6 +122,7 @@ def run_demo(config: DemoConfig) -> DemoResult:
             with _per_file_logs_quiet():
                 result = _run_stages(config, out, size, seconds)
             write_atomically(out / SUMMARY_FILE, json.dumps(_jsonable(asdict(result)), indent=1).encode())
+            record_written([out / SUMMARY_FILE])
         except BaseException:
             if fresh:  # the folder was new or empty: a failed or interrupted demo leaves nothing in it
                 for child in out.iterdir():
@@ -135,21 +133,41 @@ def run_demo(config: DemoConfig) -> DemoResult:
 
 
 def remove_outputs(out: Path) -> None:
-    """Delete what an earlier demo wrote into `out` (OUTPUTS), nothing else: refused, before anything goes, if one
-    of them holds a file the demo did not write (pipeline.ownership.cnep_file)."""
-    found = [path for pattern in OUTPUTS for path in out.glob(pattern)]
-    for path in found:
-        foreign = foreign_files(path) if path.is_dir() and not path.is_symlink() else [] if cnep_file(path) else [path]
-        if foreign:
-            raise PipelineError(
-                f"{foreign[0]}: --force deletes only what an earlier demo wrote in {out}, and this is not one; move "
-                f"it away, or give another --out"
-            )
-    for path in found:
+    """Delete what an earlier demo wrote into `out`: refused, before anything goes, if the folder holds anything a
+    cnep command did not record writing (pipeline.ownership), at any depth; the run's lock stays."""
+    foreign = foreign_files(out, _demo_file(out))
+    if foreign:
+        raise PipelineError(
+            f"{foreign[0]}: --force deletes only what an earlier demo recorded writing in {out}, and this is not one; "
+            f"cnep never deletes your own files: move it away, or give another --out"
+        )
+    for path in out.iterdir():
         if path.is_dir() and not path.is_symlink():
             shutil.rmtree(path)
-        else:
+        elif not is_lock_name(path.name):
             path.unlink()
+
+
+def _demo_file(out: Path):
+    """For a demo folder written before records existed: is this file one the demo writes, by place and kind?"""
+
+    def test(path: Path) -> bool:
+        parts = path.relative_to(out).parts
+        if parts[0] in ("recorded", "demos", "trajectories"):
+            return path.suffix == ".mcap" and MCAP(path)
+        if parts[0] == "checkpoints":
+            return len(parts) == 3 and parts[1] in CHECKPOINT_NAMES and CHECKPOINT(path)
+        if parts[0] == Path(REPLAYS_RRD).parent.name:
+            return len(parts) == 2 and (RRD(path) if path.suffix == ".rrd" else DECISIONS(path))
+        tops = {EXTRACTOR_FILE: WEIGHTS, RRD_FILE: RRD, decisions_path(RRD_FILE).name: DECISIONS, SUMMARY_FILE: SUMMARY}
+        if len(parts) == 1 and parts[0] in tops:
+            return tops[parts[0]](path)
+        return parts == (FIGURE_FILE,) and png_by_matplotlib(path)
+
+    return test
+
+
+SUMMARY = json_with("the demo's summary", ("out", "rrd", "checkpoints"))
 
 
 @contextmanager
@@ -231,7 +249,7 @@ def _run_stages(config: DemoConfig, out: Path, size: DemoSize, seconds: dict[str
         patience=None,  # every step: the demo's sizes were measured training to the end
         seed=config.seed,
     )
-    checkpoints = {"CNEP": out / "checkpoints" / "cnep", "CNMP": out / "checkpoints" / "cnmp"}
+    checkpoints = {"CNEP": out / "checkpoints" / CHECKPOINT_NAMES[0], "CNMP": out / "checkpoints" / CHECKPOINT_NAMES[1]}
     networks = {
         "CNEP": {"model": config.model},
         "CNMP": {"model": replace(config.model, assignment=CNMP_ASSIGNMENT), "matched_cnmp": True},

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cnep.outputs import write_atomically
+from cnep.outputs import record_written, write_atomically
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.evaluate.jobs import queries
 
@@ -76,3 +76,4 @@ def plot_set(
     plt.close(fig)
     path.parent.mkdir(parents=True, exist_ok=True)
     write_atomically(path, buffer.getvalue())
+    record_written([path])

@@ -49,7 +49,7 @@ from cnep.pipeline.evaluate.constants import (
 )
 from cnep.pipeline.evaluate.jobs import PROTOCOLS, Job, ModelSpec, run_unit, unit_key
 from cnep.pipeline.inputs import coerce_paths
-from cnep.pipeline.ownership import OutputKind, json_with, markdown_titled
+from cnep.pipeline.ownership import OutputKind, json_with, markdown_titled, png_by_matplotlib
 from cnep.pipeline.workers import single_thread_processes
 
 log = logging.getLogger(__name__)
@@ -373,13 +373,17 @@ def evaluate(config: EvaluateConfig) -> dict[str, Path]:
         config.jobs,
     )
     tables = [config.out / f"{table}{suffix}" for table in config.tables for suffix in (".md", ".json")]
-    refuse_existing(tables, config.force, "table", kind=TABLE)
+    if config.figures:
+        tables += [
+            figure_path(config, table, set_name) for table in config.tables for set_name in config.table_sets(table)
+        ]
+    refuse_existing(tables, config.force, "table or figure", kind=TABLE)
     pending = {table: needs(table, config) for table in config.tables}
     done: dict[tuple, dict] = {}  # Job.key -> results
     written = {}
     with output_folder(config.out), output_lock(config.out, folder=True):
         check_writable_folder(config.out)
-        refuse_existing(tables, config.force, "table", kind=TABLE)  # again, under the lock
+        refuse_existing(tables, config.force, "table or figure", kind=TABLE)  # again, under the lock
         for job, result in run_jobs(jobs, config.jobs, config.quiet):
             done[job.key] = result
             for table in [t for t, keys in pending.items() if not keys - done.keys()]:
@@ -389,10 +393,17 @@ def evaluate(config: EvaluateConfig) -> dict[str, Path]:
     return {table: written[table] for table in config.tables}
 
 
+def figure_path(config: EvaluateConfig, table: str, set_name: str) -> Path:
+    """Where the figure of `table` on `set_name` goes."""
+    return config.out / "figures" / f"{table}-{set_name}.png"
+
+
 def _table_file(path: Path) -> bool:
-    """A table `evaluate` wrote: its JSON (with the paper's note) or its Markdown (with a table's title)."""
+    """A table `evaluate` wrote: its JSON (with the paper's note), its Markdown (with a table's title), a figure."""
     from cnep.pipeline.evaluate.tables import TITLES
 
+    if path.suffix == ".png":
+        return png_by_matplotlib(path)
     if path.suffix == ".json":
         return json_with("", ("table", "settings", "paper_note"))(path)
     return any(markdown_titled("", title)(path) for title in TITLES.values())
@@ -416,7 +427,7 @@ def write_table(table: str, config: EvaluateConfig, done: dict[tuple, dict], wal
 
         for set_name in config.table_sets(table):
             plot_set(
-                config.out / "figures" / f"{table}-{set_name}.png",
+                figure_path(config, table, set_name),
                 set_name,
                 config.n_queries,
                 examples(table, done, set_name),

@@ -56,21 +56,24 @@ log = logging.getLogger(__name__)
 EXPORT_BACKEND = "onnxruntime"  # the export checks its graphs on ONNX Runtime (the `onnx` extra)
 
 
-def _policy_folder(path: Path) -> bool:
-    """A folder `cnep export` wrote: its manifest lists every file in it (an empty folder too: nothing is lost)."""
-    if not path.is_dir() or path.is_symlink():
-        return False
-    files = {str(p.relative_to(path)) for p in path.rglob("*") if p.is_file() or p.is_symlink()}
-    if not files:
-        return True
+def _not_in_manifest(folder: Path) -> list[Path]:
+    """The files and links in a policy folder that its manifest (the folder's record: every file with its sha256)
+    does not name unchanged; all of them when it has no readable manifest. An empty folder holds none."""
+    found = sorted(p for p in folder.rglob("*") if p.is_file() or p.is_symlink())
     try:
-        listed = set(read_manifest(path).files)
+        listed = read_manifest(folder).files
     except PolicyError:
-        return False
-    return files <= listed | {MANIFEST_FILE}
+        return [p for p in found if p.name != MANIFEST_FILE or p.parent != folder] or found
+    return [
+        p
+        for p in found
+        if p != folder / MANIFEST_FILE and (p.is_symlink() or listed.get(str(p.relative_to(folder))) != file_sha256(p))
+    ]
 
 
-POLICY_FOLDER = OutputKind("a policy folder written by `cnep export` (its manifest lists every file)", _policy_folder)
+POLICY_FOLDER = OutputKind(
+    "a policy folder written by `cnep export` (its manifest names every file)", lambda p: False, _not_in_manifest
+)
 
 
 def export(config: ExportConfig) -> Path:

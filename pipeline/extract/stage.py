@@ -35,7 +35,7 @@ import numpy as np
 from tqdm import tqdm
 from tqdm.contrib.logging import logging_redirect_tqdm
 
-from cnep.outputs import output_lock
+from cnep.outputs import output_lock, record_written
 from cnep.perception import FeatureExtractor, PerceptionError, compatibility_key
 from cnep.perception.constants import CALIBRATION_FRAMES, FEATURE_DIM
 from cnep.perception.frames import decode_image, resize_frames
@@ -167,6 +167,7 @@ def extract(config: ExtractConfig) -> list[Extracted]:
         if config.save_weights is not None and rank == 0:
             with output_lock(config.save_weights):
                 extractor().save_weights(config.save_weights)
+                record_written([config.save_weights])
             log.info(
                 "saved the extractor weights to %s (reuse them with --weights %s)",
                 config.save_weights,
@@ -313,6 +314,7 @@ def extract_file(src: Path, dst: Path, extractor: Callable[[], FeatureExtractor]
         with in_file(src):
             trajectory = Trajectory.from_demonstration(demo, features, extractor().identity)
     write_trajectory(dst, trajectory)
+    record_written([dst])
     log.info("%s -> %s (%d steps)", src, dst, demo.n_steps)
     return Extracted(src, dst, demo.n_steps, skipped=False)
 

@@ -24,7 +24,7 @@ from pathlib import Path
 
 from tqdm.contrib.logging import logging_redirect_tqdm
 
-from cnep.outputs import output_lock
+from cnep.outputs import output_lock, record_written
 from cnep.pipeline.contract import output_folder, raise_if_skipped, refuse_existing
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.inputs import SUFFIX, coerce_paths
@@ -211,6 +211,7 @@ def ingest(config: IngestConfig) -> list[Ingested]:
             demo.episode = replace(demo.episode, extra={**demo.episode.extra, OPTIONS_KEY: options})
             target.parent.mkdir(parents=True, exist_ok=True)  # inside `out`, which we could create
             write_demonstration(target, demo)
+            record_written([target])
             kind = "frames" if demo.has_frames else "motion-only"
             origin = source.path if source.plan is None else f"{source.path} ({source.episode_id})"
             log.info("%s -> %s: %d steps, %s, %.1f Hz", origin, target, demo.n_steps, kind, demo.episode.fps)

@@ -34,7 +34,7 @@ from pathlib import Path
 
 from cnep.models import ConditioningPolicy
 from cnep.models.threads import torch_threads
-from cnep.outputs import output_lock, staged
+from cnep.outputs import output_lock, record_written, staged
 from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_existing, refuse_inputs
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.inputs import TRAJECTORIES, existing_files
@@ -132,7 +132,7 @@ def replay(
             held.enter_context(output_lock(Path(events_dir), folder=True))
         refuse_existing(outputs, force, "replay output", kind=replay_kind)  # again: a run may have ended meanwhile
         held.enter_context(torch_threads())  # one small step at a time: one thread is fastest
-        staging = held.enter_context(staged())
+        staging = held.enter_context(staged(record=True))
         bar = progress_bar(total=sum(len(r) for r in rows), quiet=quiet, desc="replay", unit="step", leave=False)
         for i, (path, traj, x) in enumerate(zip(paths, trajectories, rows)):
             decisions = decide(model, x, traj.timestamps_ns, policy, xyz, prediction_points)
@@ -143,7 +143,7 @@ def replay(
             else:
                 staging.write(files[i], data)
             if events_dir is not None:
-                add_events(path, Path(events_dir) / path.name, decision_events(traj, decisions))
+                record_written([add_events(path, Path(events_dir) / path.name, decision_events(traj, decisions))])
             summaries.append(summarise(path, traj, decisions))
         bar.close()
         if parts:

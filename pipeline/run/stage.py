@@ -133,7 +133,9 @@ def run(config: RunConfig) -> list[RecordingRun]:
             check_writable_folder(out.parent)
             stack.enter_context(output_lock(out, names=[p.name for p in outputs]))
             refuse_existing(outputs, config.force, "run output", kind=RUN_OUTPUT)  # again: a run may have ended
-        staging = stack.enter_context(staged())  # the .rrd files and the summary are renamed into place together
+        staging = stack.enter_context(
+            staged(record=True)
+        )  # the .rrd files and the summary are renamed into place together
         if policy_kind(config.policy) != EXPORTED:
             from cnep.models.threads import torch_threads
 

@@ -49,7 +49,11 @@ class TrainStageConfig:
     save_every: int = setting(500, "steps between resumable saves")
     device: str = setting("cpu", "where the network trains", choices=DEVICES)
     resume: bool = setting(False, "continue the interrupted run writing to --out")
-    force: bool = setting(False, "replace an existing --out checkpoint (one cnep train wrote) when training completes")
+    force: bool = setting(
+        False,
+        "replace an existing --out checkpoint (one cnep train recorded writing, holding nothing else) when training "
+        "completes",
+    )
     quiet: bool = False
 
     def __post_init__(self) -> None:

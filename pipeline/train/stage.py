@@ -36,10 +36,12 @@ from cnep.models.matched import matched_cnmp
 from cnep.models.sampler import TrajectoryStack
 from cnep.models.threads import torch_threads
 from cnep.models.train import split_validation
+from cnep.outputs import record_written
 from cnep.pipeline import progress
 from cnep.pipeline.contract import deferred_interrupts, interruption
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.inputs import find_trajectory_files
+from cnep.pipeline.ownership import CHECKPOINT_FILES
 from cnep.pipeline.train.config import TrainStageConfig
 from cnep.pipeline.train.constants import LOG_FILE, STATE_FILE
 from cnep.pipeline.train.data import TrainingSet, load_training_set
@@ -200,6 +202,7 @@ def _train(config: TrainStageConfig, procs: Processes, device: torch.device, hel
         gripper = data.gripper_command()  # the predicted gripper -> a two-state gripper's command (runtime.gripper)
         policy = {"time_base": time_base, "gripper": gripper.to_dict() if gripper else None}
         save_checkpoint(model, work, {**extra, **policy, "result": summary, "log": LOG_FILE})
+        record_written([work / n for n in CHECKPOINT_FILES if (work / n).is_file()], forget=[work / STATE_FILE])
         publish(work, config.out)
         log.info(
             "best validation error %.4g at step %d; %d steps in %.1f s -> %s",

@@ -20,10 +20,10 @@ from pathlib import Path
 
 import torch
 
-from cnep.outputs import output_lock, remove_stale_temporaries, write_atomically
+from cnep.outputs import output_lock, record_written, remove_stale_temporaries, write_atomically
 from cnep.pipeline.contract import output_folder, refuse_existing, refuse_inputs
 from cnep.pipeline.errors import PipelineError
-from cnep.pipeline.ownership import CHECKPOINT, foreign_files
+from cnep.pipeline.ownership import CHECKPOINT, CHECKPOINT_FILES, foreign_files
 from cnep.pipeline.train.constants import STATE_FILE
 
 log = logging.getLogger(__name__)
@@ -81,7 +81,7 @@ def prepare_work_dir(out: Path, resume: bool, force: bool, inputs: Sequence[Path
 
 def _remove_work_dir(work: Path) -> None:
     """Delete a work folder, which holds only what a training run wrote (refused otherwise)."""
-    foreign = foreign_files(work)
+    foreign = foreign_files(work, lambda path: path.name in (STATE_FILE, *CHECKPOINT_FILES))
     if foreign:
         raise PipelineError(
             f"{foreign[0]}: the work folder {work} holds a file that training did not write; move it away, or "
@@ -124,6 +124,7 @@ def save_state(path: Path, state: dict) -> None:
     buffer = io.BytesIO()
     torch.save({"state_version": STATE_VERSION, **state}, buffer)
     write_atomically(path, buffer.getvalue())
+    record_written([path])
 
 
 def load_state(path: Path) -> dict:
@@ -162,6 +163,7 @@ def write_log(path: Path, history: list[dict]) -> None:
     """The validation history as JSON lines (one object per validation), atomically."""
     lines = [json.dumps({k: _jsonable(v) for k, v in entry.items()}) for entry in history]
     write_atomically(path, ("\n".join(lines) + "\n" if lines else "").encode())
+    record_written([path])
 
 
 def publish(work: Path, out: Path) -> None:

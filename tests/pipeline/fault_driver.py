@@ -15,17 +15,17 @@ import sys
 import time
 from pathlib import Path
 
-from cnep.outputs import TEMPORARY, is_lock_name
+from cnep.outputs import RECORD_FILE, TEMPORARY, is_lock_name
 
 
 def files(folder: Path) -> dict[str, bytes]:
-    """Every file under `folder` (relative path -> bytes), cnep's temporary and lock files left out."""
+    """Every file under `folder` (relative path -> bytes), cnep's temporary and lock files and records left out."""
     if not folder.exists():
         return {}
     return {
         str(p.relative_to(folder)): p.read_bytes()
         for p in sorted(folder.rglob("*"))
-        if p.is_file() and not TEMPORARY.match(p.name) and not is_lock_name(p.name)
+        if p.is_file() and not TEMPORARY.match(p.name) and not is_lock_name(p.name) and p.name != RECORD_FILE
     }
 
 

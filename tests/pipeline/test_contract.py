@@ -22,6 +22,7 @@ import numpy as np
 import pytest
 
 from cnep.models.checkpoint import CHECKSUM_KEY, config_checksum
+from cnep.outputs import RECORD_FILE
 from cnep.pipeline.cli.main import main
 from cnep.recordings import Trajectory, write_demonstration, write_trajectory
 from tests.recordings.factories import demonstration_factory
@@ -475,11 +476,11 @@ def test_ingest_keep_going_writes_the_good_sources_and_names_the_bad_one(world, 
     shutil.copy(world.short_csv, src / "c.csv")
     code, err = run_cli(["ingest", src, "--out", tmp_path / "strict"], capsys)
     assert code == 2 and str(src / "c.csv") in assert_one_line(err, "ingest")  # without --keep-going: stops at c
-    assert sorted(p.name for p in (tmp_path / "strict").iterdir()) == ["a.mcap", "b.mcap"]  # complete files only
+    assert sorted(p.name for p in (tmp_path / "strict").iterdir()) == [RECORD_FILE, "a.mcap", "b.mcap"]  # complete only
     code, err = run_cli(["ingest", src, "--out", tmp_path / "out", "--keep-going"], capsys)
     assert code == 2
     assert_one_line(err[-1:], "ingest", "1 of 4 input(s) skipped, the other 3 were written to", str(src / "c.csv"))
-    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["a.mcap", "b.mcap", "d.mcap"]
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == [RECORD_FILE, "a.mcap", "b.mcap", "d.mcap"]
 
 
 def test_extract_keep_going_extracts_the_good_files_and_names_the_bad_one(world, tmp_path, capsys):
@@ -489,7 +490,7 @@ def test_extract_keep_going_extracts_the_good_files_and_names_the_bad_one(world,
     code, err = run_cli(["extract", inputs, "--out", tmp_path / "out", "--keep-going"], capsys)
     assert code == 2
     assert_one_line(err[-1:], "extract", "1 of 4 input(s) skipped", str(inputs / "e.mcap"), "truncated")
-    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["d0.mcap", "d1.mcap", "d2.mcap"]
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == [RECORD_FILE, "d0.mcap", "d1.mcap", "d2.mcap"]
 
 
 # --- messages that used to mislead --------------------------------------------------------------------------------

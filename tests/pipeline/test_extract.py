@@ -4,6 +4,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cnep.outputs import RECORD_FILE
 from cnep.perception import FeatureExtractor, PerceptionError, decode_image
 from cnep.perception.constants import WEIGHTS_ENV_VAR
 from cnep.pipeline.cli.main import main
@@ -96,7 +97,7 @@ def test_corrupt_frame_after_calibration_leaves_other_outputs(demos, tmp_path):
     out = tmp_path / "out"
     with pytest.raises(PerceptionError, match=r"z-broken\.mcap: step 5"):
         extract(_config([*demos, broken], out, weights=str(weights)))
-    assert sorted(p.name for p in out.iterdir()) == ["demo-0.mcap", "demo-1.mcap"]
+    assert sorted(p.name for p in out.iterdir()) == [RECORD_FILE, "demo-0.mcap", "demo-1.mcap"]
 
 
 def test_saved_weights_reproduce_the_features(demos, tmp_path):
@@ -179,7 +180,7 @@ def test_cli_extracts_and_reports(demos, tmp_path, capsys):
     )
     assert code == 0
     assert "extracted 2 trajectory file(s)" in capsys.readouterr().out
-    assert sorted(p.name for p in out.iterdir()) == ["demo-0.mcap", "demo-1.mcap"]
+    assert sorted(p.name for p in out.iterdir()) == [RECORD_FILE, "demo-0.mcap", "demo-1.mcap"]
 
 
 def test_cli_without_imagenet_weights_is_a_one_line_error(demos, tmp_path, monkeypatch, capsys):

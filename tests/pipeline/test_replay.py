@@ -17,6 +17,7 @@ import torch
 
 import cnep.pipeline.replay.viewer as L
 from cnep.models import CNEPConfig, ColumnRoles, ConditioningPolicy, build_model, save_checkpoint
+from cnep.outputs import RECORD_FILE
 from cnep.pipeline.cli.main import main
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.replay.decisions import decisions_path, read_decisions
@@ -136,7 +137,11 @@ def test_the_rrd_holds_one_gate_row_per_step_and_switches_at_argmax_changes(tmp_
     argmax_policy = ConditioningPolicy(switch_margin=0.0)  # the active expert is the argmax at every step
     (out,) = replay(checkpoint, [rec], tmp_path / "out" / "replay.rrd", policy=argmax_policy, connect=None, quiet=True)
     assert out == tmp_path / "out" / "replay.rrd" and out.exists()
-    assert sorted(p.name for p in out.parent.iterdir()) == ["replay.experts.json", "replay.rrd"]  # no temporaries left
+    assert sorted(p.name for p in out.parent.iterdir()) == [
+        RECORD_FILE,
+        "replay.experts.json",
+        "replay.rrd",
+    ]  # no temporaries left
 
     frames, gates = column(out, L.GATES, "Scalars:scalars")
     assert frames == list(range(40))

@@ -14,6 +14,7 @@ from cnep.models import CNEPConfig, TrainConfig, Trainer, load_checkpoint, read_
 from cnep.models.assignments import ASSIGNMENTS
 from cnep.models.sampler import TrajectoryStack
 from cnep.models.train import LEARNED_RATIO
+from cnep.outputs import RECORD_FILE
 from cnep.pipeline.cli.main import main
 from cnep.pipeline.contract import Terminated
 from cnep.pipeline.errors import PipelineError
@@ -84,7 +85,7 @@ def test_cli_trains_a_checkpoint_that_loads_and_generates(full_set, tmp_path, ca
         ]
     )
     assert code == 0 and "best validation error" in capsys.readouterr().out
-    assert sorted(p.name for p in out.iterdir()) == sorted(["config.json", LOG_FILE, "model.safetensors"])
+    assert sorted(p.name for p in out.iterdir()) == sorted([RECORD_FILE, "config.json", LOG_FILE, "model.safetensors"])
     assert not work_dir(out).exists()
     config = read_checkpoint_config(out)
     assert config["layout"]["name"] == "scene" and config["layout"]["columns"] == [[0, 1288]]  # the default
@@ -180,14 +181,17 @@ def test_existing_output_is_refused_unless_forced(full_set, tmp_path):
     (out / "keep.txt").write_text("mine")
     with pytest.raises(PipelineError, match="already exists.*--force"):
         train(stage_config(full_set, out, steps=10))
-    with pytest.raises(PipelineError, match="--force replaces only a checkpoint folder written by `cnep train`"):
+    with pytest.raises(
+        PipelineError,
+        match="keep.txt: --force replaces the folder .* only when a cnep command recorded writing every file in it",
+    ):
         train(stage_config(full_set, out, steps=10, force=True))  # a folder of the user's own files is never deleted
     assert (out / "keep.txt").read_text() == "mine" and not work_dir(out).exists()
     (out / "keep.txt").unlink()
     train(stage_config(full_set, out, steps=10, force=True))  # an empty folder: nothing to lose
     before = (out / "config.json").read_bytes()
     train(stage_config(full_set, out, steps=12, force=True))  # a checkpoint it wrote is replaced
-    assert sorted(p.name for p in out.iterdir()) == sorted(["config.json", LOG_FILE, "model.safetensors"])
+    assert sorted(p.name for p in out.iterdir()) == sorted([RECORD_FILE, "config.json", LOG_FILE, "model.safetensors"])
     assert (out / "config.json").read_bytes() != before and not any(p.name.startswith(".") for p in tmp_path.iterdir())
 
 

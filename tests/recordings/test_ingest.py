@@ -6,6 +6,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from cnep.outputs import RECORD_FILE
 from cnep.pipeline.cli.main import main
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.ingest.stage import IngestConfig, ingest
@@ -352,7 +353,12 @@ def test_a_re_run_skips_current_outputs_and_finishes_an_interrupted_one(tmp_path
     assert main(["-q", "ingest", str(src), "--out", str(out)]) == 0
     printed = capsys.readouterr().out
     assert "ingested 1 demonstration(s) into" in printed and "(2 up to date;" in printed
-    assert sorted(p.name for p in out.iterdir()) == ["a.mcap", "b.mcap", "c.mcap"]  # the temporary file is gone
+    assert sorted(p.name for p in out.iterdir()) == [
+        RECORD_FILE,
+        "a.mcap",
+        "b.mcap",
+        "c.mcap",
+    ]  # the temporary file is gone
     assert all((out / n).stat().st_mtime_ns == written[n] for n in ("a.mcap", "c.mcap"))
 
     # other options make other files: refused without --force
@@ -371,4 +377,4 @@ def test_force_never_replaces_a_file_cnep_did_not_write(tmp_path, capsys):
     for force in ([], ["--force"]):
         assert main(["-q", "ingest", str(tmp_path / "a.csv"), "--out", str(tmp_path / "out"), *force]) == 2
         assert (tmp_path / "out" / "a.mcap").read_text() == "my own notes"
-    assert "--force replaces only an MCAP file written by cnep" in capsys.readouterr().err
+    assert "a.mcap: --force replaces only what a cnep command recorded writing" in capsys.readouterr().err
