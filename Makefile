@@ -8,12 +8,15 @@ BENCH  ?=
 # What each job installs besides the core (torch, torchvision, rerun-sdk, mcap, OpenCV, safetensors):
 # the demo extracts features with ONNX Runtime (its fastest fp32 backend here, and its int8 one) and draws its
 # summary figure with matplotlib; the evaluation adds the baselines (movement-primitives, gmr);
-# the tests and the linter everything: pytest and ruff, OpenVINO, pyarrow + PyAV (LeRobot), rosbags.
+# the tests and the linter everything: pytest and ruff, OpenVINO, pyarrow + PyAV (LeRobot), rosbags, MuJoCo +
+# Gymnasium (the simulator); `make sim`, the closed loop in the simulator, ONNX Runtime (the exported policies) and
+# MuJoCo + Gymnasium.
 EXTRAS_demo     := onnx,plots
 EXTRAS_evaluate := onnx,baselines,plots
-EXTRAS_test     := dev,onnx,openvino,baselines,plots,lerobot,ros
+EXTRAS_test     := dev,onnx,openvino,baselines,plots,lerobot,ros,sim
+EXTRAS_sim      := onnx,sim
 
-.PHONY: demo view test lint docs evaluate bench install clean
+.PHONY: demo view sim test lint docs evaluate bench install clean
 
 $(BIN)/python:
 	@echo "== creating $(VENV) with $(PYTHON)"
@@ -37,6 +40,12 @@ demo: $(VENV)/.installed-demo
 # The demo's scene-change recording in the Rerun viewer (installed in .venv, so this works from any shell).
 view: $(VENV)/.installed-demo
 	$(BIN)/rerun $(DEMO_OUT)/demo.rrd
+
+SIM_OUT ?= cnep-sim
+
+# The closed loop in the simulator, from nothing to the table (docs/how-to/evaluate-in-closed-loop.md).
+sim: $(VENV)/.installed-sim
+	$(BIN)/cnep sim obstacle --out $(SIM_OUT)
 
 evaluate: $(VENV)/.installed-evaluate
 	$(BIN)/cnep evaluate

@@ -19,6 +19,7 @@ _PACKAGE_ERRORS = (
     ("cnep.perception.errors", "PerceptionError"),
     ("cnep.outputs.errors", "OutputError"),
     ("cnep.runtime.errors", "PolicyError"),
+    ("cnep.sim.errors", "SimError"),
 )
 
 

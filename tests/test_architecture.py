@@ -8,7 +8,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 LIBRARIES = ("models", "recordings", "perception")
-STAGE_ORDER = ("ingest", "extract", "train", "replay", "export", "run", "evaluate", "demo", "cli")
+STAGE_ORDER = ("ingest", "extract", "train", "replay", "export", "run", "evaluate", "demo", "sim", "cli")
 
 
 def imports(package: str) -> list[tuple[Path, str]]:
@@ -63,6 +63,20 @@ def test_runtime_imports_only_numpy_opencv_onnx_runtimes_and_itself():
         f"{p.relative_to(ROOT)}: {m}"
         for p, m in imports("runtime")
         if not (m == "cnep.runtime" or m.startswith("cnep.runtime.") or m.split(".")[0] in allowed)
+    ]
+    assert not bad, bad
+
+
+# What the simulator may import besides the standard library and itself: its extra, numpy and the runtime it runs.
+SIM_IMPORTS = {"numpy", "mujoco", "gymnasium"}
+
+
+def test_sim_imports_only_numpy_mujoco_gymnasium_the_runtime_and_itself():
+    allowed = SIM_IMPORTS | set(sys.stdlib_module_names)
+    bad = [
+        f"{p.relative_to(ROOT)}: {m}"
+        for p, m in imports("sim")
+        if not (top(m) in ("sim", "runtime") and m.startswith("cnep.") or m.split(".")[0] in allowed)
     ]
     assert not bad, bad
 

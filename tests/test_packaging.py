@@ -1,4 +1,4 @@
-"""The install maps the five root folders into one `cnep` namespace, and a user's own packages never shadow it."""
+"""The install maps the seven root folders into one `cnep` namespace, and a user's own packages never shadow it."""
 
 import importlib
 import subprocess
@@ -8,8 +8,8 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-FOLDERS = ("models", "outputs", "perception", "pipeline", "recordings", "runtime")
-STAGES = ("ingest", "extract", "train", "replay", "export", "run", "evaluate", "demo")
+FOLDERS = ("models", "outputs", "perception", "pipeline", "recordings", "runtime", "sim")
+STAGES = ("ingest", "extract", "train", "replay", "export", "run", "evaluate", "demo", "sim")
 
 
 def test_every_package_folder_is_installed_under_cnep():

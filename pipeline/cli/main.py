@@ -24,6 +24,7 @@ COMMANDS = (
     "run",
     "evaluate",
     "demo",
+    "sim",
 )
 
 

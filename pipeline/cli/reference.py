@@ -44,9 +44,14 @@ def render(parser: argparse.ArgumentParser | None = None) -> str:
 
 
 def _subcommands(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
+    """Name -> parser of every subcommand; one with subcommands of its own (`sim`) is listed as theirs (`sim eval`)."""
     for action in parser._actions:
         if isinstance(action, argparse._SubParsersAction):
-            return dict(action.choices)
+            found = {}
+            for name, sub in action.choices.items():
+                nested = _subcommands(sub)
+                found.update({f"{name} {n}": p for n, p in nested.items()} if nested else {name: sub})
+            return found
     return {}
 
 

@@ -119,7 +119,7 @@ def run_demo(config: DemoConfig) -> DemoResult:
         if config.force and not fresh:
             remove_outputs(out)
         try:
-            with _per_file_logs_quiet():
+            with quiet_per_file_logs():
                 result = _run_stages(config, out, size, seconds)
             write_atomically(out / SUMMARY_FILE, json.dumps(_jsonable(asdict(result)), indent=1).encode())
             record_written([out / SUMMARY_FILE])
@@ -171,7 +171,7 @@ SUMMARY = json_with("the demo's summary", ("out", "rrd", "checkpoints"))
 
 
 @contextmanager
-def _per_file_logs_quiet():
+def quiet_per_file_logs():
     """The stages log one line per file; in the demo their progress bars say enough (kept with -v)."""
     loggers = [logging.getLogger(name) for name in PER_FILE_LOGGERS]
     levels = [lg.level for lg in loggers]

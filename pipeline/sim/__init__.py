@@ -1,0 +1,15 @@
+"""Stage `sim`: policies in closed loop in the simulator (cnep.sim, the `sim` extra): `run_sim` from nothing to the
+table (`cnep sim obstacle`), `run_eval` for a given policy (`cnep sim eval`), `evaluate_policy` the loop itself.
+"""
+
+from cnep.pipeline import exports
+
+__getattr__, __all__ = exports(
+    __name__,
+    {
+        "config": ("EvalConfig", "LoopSettings", "SimConfig"),
+        "evaluate": ("run_eval",),
+        "loop": ("evaluate_policy",),
+        "stage": ("run_sim",),
+    },
+)

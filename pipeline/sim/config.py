@@ -1,0 +1,91 @@
+"""The closed loop's settings: `SimConfig` (`cnep sim obstacle`: from nothing to the table) and `EvalConfig`
+(`cnep sim eval`: one given policy). Importable without torch, MuJoCo or rerun: the CLI builds them (and so checks
+its options) before the stage loads.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from cnep.models.config import setting
+from cnep.pipeline.demo.config import AUTO_WEIGHTS
+from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.inputs import coerce_paths
+
+OBSTACLE = "obstacle"
+TASKS = (OBSTACLE,)
+PLANNED, ONLINE = "planned", "online"  # cnep.sim.episode's protocols, named here without importing MuJoCo
+PROTOCOLS = (PLANNED, ONLINE)
+MODELS = ("CNEP", "CNMP")
+
+
+@dataclass(frozen=True)
+class LoopSettings:
+    """What every closed-loop evaluation takes: the task variant, the episodes and the recordings of them."""
+
+    cue: bool = setting(False, "the variant where a tile on one side of the box shows the side to pass")
+    episodes: int = setting(20, "closed-loop episodes per policy and protocol")
+    episode_seed: int = setting(0, "seed of the first episode (episode i is reset with seed + i)")
+    protocols: tuple[str, ...] = setting(
+        PROTOCOLS,
+        "planned = the motion planned from the first observation alone and executed by the controller; online = "
+        "conditioning on every new frame and pose",
+    )
+    record: int = setting(2, "episodes per policy and protocol written as Rerun recordings (the first ones)")
+
+    def check(self) -> None:
+        """PipelineError for a setting out of range."""
+        unknown = [p for p in self.protocols if p not in PROTOCOLS]
+        if unknown or not self.protocols:
+            raise PipelineError(f"protocols must be among {', '.join(PROTOCOLS)}, got {', '.join(self.protocols)}")
+        if self.episodes < 1 or self.record < 0:
+            raise PipelineError(f"episodes must be >= 1 and record >= 0, got {self.episodes} and {self.record}")
+
+
+@dataclass(frozen=True, kw_only=True)
+class SimConfig(LoopSettings):
+    """`cnep sim obstacle`: out, a new or empty folder for everything; demonstrations generated with `seed`, the
+    features' `weights` (`auto`: ImageNet's where they can be had, else seeded random ones: pipeline.demo.weights),
+    one CNEP and one matched CNMP per training seed, each exported and run in closed loop."""
+
+    out: Path
+    task: str = setting(OBSTACLE, "the task")
+    demonstrations: int = setting(40, "demonstrations generated (half pass left, half right)")
+    seed: int = setting(0, "seed of the demonstrations (and of the feature network's random weights)")
+    train_seeds: tuple[int, ...] = setting((0,), "training seeds: one CNEP and one matched CNMP trained per seed")
+    train_steps: int = setting(3000, "training steps of each model")
+    experts: int = setting(2, "the CNEP's experts (the CNMP: one, parameter-matched)")
+    weights: str = setting(AUTO_WEIGHTS, "the feature network's weights, as `cnep demo --weights` takes them")
+    offline: bool = False
+    quiet: bool = False
+
+    def __post_init__(self) -> None:
+        coerce_paths(self)
+        self.check()
+        if self.task not in TASKS:
+            raise PipelineError(f"task must be one of {', '.join(TASKS)}, got {self.task!r}")
+        if self.demonstrations < 2 or self.train_steps < 1 or self.experts < 2 or not self.train_seeds:
+            raise PipelineError(
+                f"need >= 2 demonstrations, >= 1 training step, >= 2 experts and a training seed, got "
+                f"{self.demonstrations}, {self.train_steps}, {self.experts} and {self.train_seeds}"
+            )
+
+
+@dataclass(frozen=True, kw_only=True)
+class EvalConfig(LoopSettings):
+    """`cnep sim eval`: policy, a folder written by `cnep export` or `cnep train`; out, a new or empty folder for
+    the summary and the recordings (None: the table only); extractor: a checkpoint's feature weights."""
+
+    policy: Path
+    out: Path | None = None
+    task: str = setting(OBSTACLE, "the task")
+    episodes: int = setting(50, "closed-loop episodes per protocol")
+    extractor: Path | None = None
+    quiet: bool = False
+
+    def __post_init__(self) -> None:
+        coerce_paths(self)
+        self.check()
+        if self.task not in TASKS:
+            raise PipelineError(f"task must be one of {', '.join(TASKS)}, got {self.task!r}")

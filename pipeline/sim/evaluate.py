@@ -1,0 +1,48 @@
+"""`cnep sim eval POLICY`: one given policy (an exported folder or a checkpoint) in closed loop; the table on screen,
+and with `out` a folder holding `summary.json` (per protocol the rates and every episode's row) and the recordings
+of the first episodes."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict
+from pathlib import Path
+
+from cnep.outputs import output_lock, write_atomically
+from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_file_as_folder
+from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.sim.config import EvalConfig
+from cnep.pipeline.sim.loop import evaluate_policy
+from cnep.pipeline.sim.stage import SUMMARY_FILE
+from cnep.pipeline.sim.summary import format_table
+from cnep.sim import require_extra
+
+
+def run_eval(config: EvalConfig) -> dict:
+    """Evaluate `config.policy` (module docstring); returns the summary written to OUT/summary.json."""
+    require_extra()
+    label = Path(config.policy).name
+    if config.out is None:
+        results = {label: _evaluate(config, label, None)}
+        return _summary(config, results)
+    out = Path(config.out)
+    refuse_file_as_folder(out)
+    with output_folder(out), output_lock(out, folder=True) as lock:
+        check_writable_folder(out)
+        if any(p != lock for p in out.iterdir()):
+            raise PipelineError(f"{out}: `cnep sim eval --out` writes into a new folder and this one is not empty")
+        results = {label: _evaluate(config, label, out)}
+        summary = _summary(config, results)
+        write_atomically(out / SUMMARY_FILE, json.dumps(summary, indent=1).encode())
+    return summary
+
+
+def _evaluate(config: EvalConfig, label: str, out: Path | None) -> dict:
+    return evaluate_policy(
+        config.policy, config, label=label, extractor=config.extractor, recordings=out, quiet=config.quiet
+    )
+
+
+def _summary(config: EvalConfig, results: dict) -> dict:
+    settings = {k: str(v) if isinstance(v, Path) else v for k, v in asdict(config).items() if k != "quiet"}
+    return {"settings": settings, "results": next(iter(results.values())), "table": format_table(results)}

@@ -1,0 +1,77 @@
+"""The simulator's demonstrations as a user's robot would write them: per demonstration a folder of PNG frames and a
+pose CSV (`t,x,y,z,qx,qy,qz,qw,gripper`, seconds and metres), which `cnep ingest` takes as it takes a user's
+(docs/how-to/own-csv-and-video.md).
+
+The scripted demonstrator (cnep.sim.demonstrator) drives the environment itself: the frames and poses are what the
+camera saw and the robot reported while it moved, not the plan. Sides are balanced: half the demonstrations pass
+left, half right, in a seeded order (in the cue variant, the cue's side decides, drawn per demonstration).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from cnep.outputs import temporary_path
+from cnep.pipeline.progress import progress_bar
+from cnep.runtime import STATE_KEY, STATE_NAMES
+from cnep.sim import IMAGE_KEY, ObstacleEnv, demonstration_path, draw_demonstration
+from cnep.sim import scene as S
+
+CSV_FILE = "poses.csv"
+CSV_HEADER = ("t", *STATE_NAMES)
+DEMO_SEED_OFFSET = 1_000_000  # demonstration starts are drawn from seeds above this; evaluation episodes from below
+
+
+@dataclass(frozen=True)
+class Generated:
+    """folders: one per demonstration (sorted); sides: each one's side; successes: how many reached the goal
+    without touching the box."""
+
+    folders: list[Path]
+    sides: list[str]
+    successes: int
+
+
+def generate_demonstrations(out: Path, n: int, seed: int, cue: bool = False, quiet: bool = False) -> Generated:
+    """Write `n` demonstrations into out/demo_NNN/ (frames + CSV), seeded by `seed`."""
+    rng = np.random.default_rng(seed)
+    sides = [("left", "right")[i % 2] for i in range(n)]
+    rng.shuffle(sides)
+    env = ObstacleEnv(cue=cue, max_steps=S.DEMO_STEPS[1] + 1)
+    folders, successes, taken = [], 0, []
+    try:
+        for i in progress_bar(range(n), desc="generate", unit="demo", quiet=quiet):
+            options = {"cue_side": sides[i]} if cue else None
+            observation, info = env.reset(seed=DEMO_SEED_OFFSET + seed * 10_000 + i, options=options)
+            path = demonstration_path(draw_demonstration(rng, sides[i]), info["start"])
+            steps = [observation]
+            for waypoint in path:
+                action = np.array([*waypoint, *observation[STATE_KEY][3:7], S.FINGER_OPEN], dtype=np.float32)
+                observation, _, _, _, info = env.step(action)
+                steps.append(observation)
+            successes += bool(info["distance_to_goal"] < S.GOAL_TOLERANCE and not info["collision"])
+            folder = out / f"demo_{i:03d}"
+            _write(folder, steps)
+            folders.append(folder)
+            taken.append(sides[i])
+    finally:
+        env.close()
+    return Generated(folders, taken, successes)
+
+
+def _write(folder: Path, steps: list[dict]) -> None:
+    """One demonstration's frames and CSV, written under a temporary name and renamed when complete."""
+    work = temporary_path(folder)
+    work.mkdir(parents=True)
+    rows = []
+    for k, observation in enumerate(steps):
+        _, png = cv2.imencode(".png", cv2.cvtColor(observation[IMAGE_KEY], cv2.COLOR_RGB2BGR))
+        (work / f"frame_{k:03d}.png").write_bytes(png.tobytes())
+        rows.append([f"{k * S.CONTROL_PERIOD_S:.3f}", *(f"{v:.4f}" for v in observation[STATE_KEY])])
+    lines = [",".join(CSV_HEADER), *(",".join(row) for row in rows)]
+    (work / CSV_FILE).write_text("\n".join(lines) + "\n")
+    work.rename(folder)

@@ -1,0 +1,188 @@
+"""`cnep sim obstacle`: from nothing to the closed-loop table, through the stages a user runs.
+
+Stages (each logs its progress), all under OUT:
+
+1. generate   `recorded/demo_NNN/` frames (PNG) + `poses.csv`: the scripted demonstrator driving the simulator
+              (pipeline.sim.generate), as a user's robot would record them;
+2. ingest     `demos/`: `cnep ingest` of those folders;
+3. extract    `trajectories/`: MobileNet-v2 features with the weights `config.weights` chooses (pipeline.demo.weights:
+              ImageNet's where they can be had, else seeded random ones calibrated on these frames), saved to
+              `extractor.pt`;
+4. train      `checkpoints/{cnep,cnmp}-seedN`: per training seed the CNEP and the parameter-matched CNMP, side by
+              side (layout `scene`: observe features + pose + gripper, query with time, predict pose + gripper);
+5. export     `policies/{cnep,cnmp}-seedN`: each checkpoint as a torch-free policy folder (`cnep export`);
+6. closed loop `episodes/*.rrd` (the first `record` episodes of each policy and protocol) and `summary.json`: every
+              exported policy in closed loop (cnep.runtime.load_policy) by each protocol (pipeline.sim.loop);
+              `episode.png` (pipeline.sim.figure, with matplotlib): the first CNEP's first episode of the last
+              protocol.
+
+A failed or interrupted run leaves the folder as empty as it found it.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import shutil
+import time
+from concurrent.futures import as_completed
+from dataclasses import asdict, replace
+from pathlib import Path
+
+from cnep.models import TrainConfig
+from cnep.outputs import output_lock, write_atomically
+from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_file_as_folder
+from cnep.pipeline.demo.stage import CNMP_ASSIGNMENT, LAYOUT, quiet_per_file_logs
+from cnep.pipeline.demo.weights import choose_weights
+from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.export.config import ExportConfig
+from cnep.pipeline.export.stage import export
+from cnep.pipeline.extract.stage import ExtractConfig, extract
+from cnep.pipeline.ingest.stage import IngestConfig, ingest
+from cnep.pipeline.sim.config import LoopSettings, SimConfig
+from cnep.pipeline.sim.figure import FIGURE_FILE
+from cnep.pipeline.sim.generate import generate_demonstrations
+from cnep.pipeline.sim.loop import evaluate_policy
+from cnep.pipeline.sim.summary import format_table
+from cnep.pipeline.train.stage import TrainStageConfig, train
+from cnep.pipeline.workers import single_thread_processes
+from cnep.recordings import read_trajectory
+from cnep.sim import require_extra
+
+log = logging.getLogger(__name__)
+
+SUMMARY_FILE = "summary.json"
+EXTRACTOR_FILE = "extractor.pt"
+STAGES = ("generate", "ingest", "extract", "train", "export", "closed loop")
+
+
+def run_sim(config: SimConfig) -> dict:
+    """Run every stage into `config.out` (module docstring); returns the summary (also OUT/summary.json)."""
+    require_extra()
+    out = Path(config.out)
+    refuse_file_as_folder(out)
+    with output_folder(out), output_lock(out, folder=True) as lock:
+        check_writable_folder(out)
+        if any(p != lock for p in out.iterdir()):
+            raise PipelineError(f"{out}: `cnep sim obstacle` writes into a new folder and this one is not empty")
+        try:
+            with quiet_per_file_logs():
+                summary = _run_stages(config, out)
+            write_atomically(out / SUMMARY_FILE, json.dumps(summary, indent=1).encode())
+        except BaseException:
+            for child in out.iterdir():
+                if child != lock:
+                    shutil.rmtree(child) if child.is_dir() and not child.is_symlink() else child.unlink()
+            raise
+    return summary
+
+
+def _run_stages(config: SimConfig, out: Path) -> dict:
+    seconds: dict[str, float] = {}
+    clock = time.perf_counter()
+
+    def stage(number: int) -> None:
+        nonlocal clock
+        if number > 1:
+            seconds[STAGES[number - 2]] = round(time.perf_counter() - clock, 1)
+            log.info("%s done in %.1f s", STAGES[number - 2], seconds[STAGES[number - 2]])
+        clock = time.perf_counter()
+        if number <= len(STAGES):
+            log.info("[%d/%d] %s", number, len(STAGES), STAGES[number - 1])
+
+    chosen = choose_weights(config.weights, config.offline)  # before anything is made: `imagenet` may be refused
+    stage(1)
+    made = generate_demonstrations(out / "recorded", config.demonstrations, config.seed, config.cue, config.quiet)
+    stage(2)
+    ingest(IngestConfig(src=out / "recorded", out=out / "demos", quiet=config.quiet))
+    stage(3)
+    extract(
+        ExtractConfig(
+            inputs=(out / "demos",),
+            out=out / "trajectories",
+            weights=chosen.weights,
+            save_weights=out / EXTRACTOR_FILE,
+            seed=config.seed,
+            quiet=config.quiet,
+            offline=config.offline,
+        )
+    )
+    stage(4)
+    checkpoints = _train(config, out)
+    stage(5)
+    policies = {}
+    for label, checkpoint in checkpoints.items():
+        policies[label] = out / "policies" / checkpoint.name
+        export(ExportConfig(checkpoint, policies[label], extractor=out / EXTRACTOR_FILE, quiet=True))
+        log.info("exported %s", policies[label])
+    stage(6)
+    (out / "episodes").mkdir()
+    settings = LoopSettings(config.cue, config.episodes, config.episode_seed, config.protocols, config.record)
+    results = {
+        label: evaluate_policy(
+            path, settings, label=label, recordings=out / "episodes", quiet=config.quiet,
+            figure=out / FIGURE_FILE if label == next(iter(policies)) else None,
+        )
+        for label, path in policies.items()
+    }  # fmt: skip
+    stage(len(STAGES) + 1)
+    return {
+        "task": config.task,
+        "cue": config.cue,
+        "settings": {k: v for k, v in asdict(config).items() if k not in ("out", "quiet")},
+        "features": read_trajectory(next((out / "trajectories").glob("*.mcap"))).extractor["weights"],
+        "imagenet_unavailable": chosen.imagenet_unavailable,
+        "demonstrations": {
+            "n": len(made.folders),
+            "left": made.sides.count("left"),
+            "right": made.sides.count("right"),
+            "clean": made.successes,
+        },
+        "models": _by_model(results),
+        "table": format_table(results),
+        "seconds": seconds,
+    }
+
+
+def _train(config: SimConfig, out: Path) -> dict[str, Path]:
+    """Train the CNEP and the matched CNMP for every training seed, two processes at a time; label -> checkpoint."""
+    networks = {
+        "CNEP": {"n_experts": config.experts},
+        "CNMP": {"n_experts": config.experts, "matched_cnmp": True, "assignment": CNMP_ASSIGNMENT},
+    }
+    jobs = {
+        f"{model}-seed{seed}": (out / "checkpoints" / f"{model.lower()}-seed{seed}", seed, network)
+        for seed in config.train_seeds
+        for model, network in networks.items()
+    }
+    log.info("training %d models, two at a time (%d steps each)", len(jobs), config.train_steps)
+    start = time.perf_counter()
+    with single_thread_processes(2) as pool:
+        futures = {
+            pool.submit(
+                train,
+                TrainStageConfig(
+                    inputs=(out / "trajectories",),
+                    out=path,
+                    layout=LAYOUT,
+                    training=replace(TrainConfig(), steps=config.train_steps, warmup_steps=config.train_steps // 6,
+                                     val_every=max(1, config.train_steps // 12), patience=None, seed=seed),
+                    quiet=True,
+                    **network,
+                ),
+            ): label
+            for label, (path, seed, network) in jobs.items()
+        }  # fmt: skip
+        for future in as_completed(futures):
+            future.result()
+            log.info("%s trained (%.0f s into the stage)", futures[future], time.perf_counter() - start)
+    return {label: path for label, (path, _, _) in jobs.items()}
+
+
+def _by_model(results: dict[str, dict]) -> dict[str, dict[str, dict]]:
+    """label `MODEL-seedN` -> {MODEL: {N: protocol -> rates}}."""
+    models: dict[str, dict[str, dict]] = {}
+    for label, protocols in results.items():
+        model, seed = label.split("-seed")
+        models.setdefault(model, {})[seed] = protocols
+    return models

@@ -1,0 +1,54 @@
+"""The scripted demonstrator of the obstacle task: start to goal past the box on one side, with natural variation.
+
+A demonstration (`DemoDraw`, drawn by `draw_demonstration` from a generator) has a side, a number of steps (its
+speed), the detour's lateral reach at the box and the shape of the bump (scene.DEMO_STEPS, DETOUR, DETOUR_SHAPE,
+DETOUR_PEAK). Its path (`demonstration_path`) runs from the start to the goal with a minimum-jerk timing; the lateral
+offset is a bump that reaches the detour at the peak's progress: x = start_x (1 - s) + sign * detour * bump(s).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from cnep.sim import scene as S
+
+SIDE_SIGN = {"left": -1.0, "right": 1.0}  # facing the goal (+y): left is -x
+
+
+@dataclass(frozen=True)
+class DemoDraw:
+    """One demonstration's choices: side ("left" / "right"), steps (control steps from start to goal), detour (m),
+    shape (the bump's exponent), peak (the progress in (0, 1) where the detour is widest)."""
+
+    side: str
+    steps: int
+    detour: float
+    shape: float
+    peak: float
+
+
+def draw_demonstration(rng: np.random.Generator, side: str | None = None) -> DemoDraw:
+    """A demonstration's choices drawn from `rng`; `side` None: left or right with equal chance."""
+    side = side if side is not None else ("left", "right")[int(rng.integers(2))]
+    lo, hi = S.DEMO_STEPS
+    return DemoDraw(
+        side=side,
+        steps=int(rng.integers(lo, hi + 1)),
+        detour=float(rng.uniform(*S.DETOUR)),
+        shape=float(rng.uniform(*S.DETOUR_SHAPE)),
+        peak=float(rng.uniform(*S.DETOUR_PEAK)),
+    )
+
+
+def demonstration_path(draw: DemoDraw, start: np.ndarray) -> np.ndarray:
+    """The waypoints (draw.steps, 3) in m after `start` (x, y): waypoint k is where the end effector goes at step
+    k + 1; the last is the goal."""
+    tau = np.arange(1, draw.steps + 1) / draw.steps
+    s = 10 * tau**3 - 15 * tau**4 + 6 * tau**5  # minimum-jerk progress, 0 -> 1
+    warped = np.where(s < draw.peak, 0.5 * s / draw.peak, 0.5 + 0.5 * (s - draw.peak) / (1 - draw.peak))
+    bump = np.sin(np.pi * warped) ** draw.shape  # 0 at the ends, 1 at the peak
+    x = start[0] * (1 - s) + S.GOAL_XY[0] * s + SIDE_SIGN[draw.side] * draw.detour * bump
+    y = start[1] * (1 - s) + S.GOAL_XY[1] * s
+    return np.stack([x, y, np.full_like(x, S.EE_HEIGHT)], axis=1)

@@ -1,0 +1,40 @@
+"""Headless rendering: MuJoCo's OpenGL backend chosen before `mujoco` is imported, and the one renderer reused.
+
+MUJOCO_GL, when unset, becomes `egl` (GPU or Mesa's software rasteriser); `osmesa` is the other headless choice.
+When neither can make a context, `SimError` names the system package to install.
+"""
+
+from __future__ import annotations
+
+import os
+
+import mujoco
+import numpy as np
+
+from cnep.sim import scene as S
+from cnep.sim.errors import SimError
+
+BACKENDS = {"egl": "libegl1 (and libgl1-mesa-dri for software rendering)", "osmesa": "libosmesa6"}
+
+
+class Camera:
+    """The scene's fixed camera: one `mujoco.Renderer` of the frame's size, reused for every frame."""
+
+    def __init__(self, model: mujoco.MjModel) -> None:
+        try:
+            self._renderer = mujoco.Renderer(model, S.IMAGE_HEIGHT, S.IMAGE_WIDTH)
+        except Exception as exc:  # the GL backends raise several kinds of error
+            backend = os.environ.get("MUJOCO_GL", "egl")
+            package = BACKENDS.get(backend, "the OpenGL library MUJOCO_GL names")
+            raise SimError(
+                f"MuJoCo cannot render headless with MUJOCO_GL={backend} ({exc}); install {package}, or set "
+                f"MUJOCO_GL to {' or '.join(b for b in BACKENDS if b != backend)}"
+            ) from None
+
+    def frame(self, data: mujoco.MjData) -> np.ndarray:
+        """The camera's view of `data`: (IMAGE_HEIGHT, IMAGE_WIDTH, 3) uint8 RGB, a new array."""
+        self._renderer.update_scene(data, camera=S.CAMERA)
+        return self._renderer.render()
+
+    def close(self) -> None:
+        self._renderer.close()

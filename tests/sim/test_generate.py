@@ -1,0 +1,28 @@
+"""The simulator's demonstrations are what a user's robot writes (frames + pose CSV), and `cnep ingest` takes them."""
+
+import importlib.util
+
+import pytest
+
+import cnep.sim
+
+if not all(importlib.util.find_spec(name) for name in cnep.sim.EXTRA):
+    pytest.skip("the sim extra is not installed", allow_module_level=True)
+
+from cnep.pipeline.ingest.stage import IngestConfig, ingest  # noqa: E402
+from cnep.pipeline.sim.generate import CSV_FILE, generate_demonstrations  # noqa: E402
+from cnep.recordings import read_demonstration  # noqa: E402
+from cnep.sim import scene as S  # noqa: E402
+
+
+def test_generated_demonstrations_are_balanced_clean_and_ingested_as_a_users_recordings(tmp_path):
+    made = generate_demonstrations(tmp_path / "recorded", 2, seed=3, quiet=True)
+    assert sorted(made.sides) == ["left", "right"] and made.successes == 2
+    folder = made.folders[0]
+    frames = sorted(folder.glob("frame_*.png"))
+    rows = (folder / CSV_FILE).read_text().splitlines()
+    assert rows[0] == "t,x,y,z,qx,qy,qz,qw,gripper" and len(rows) == len(frames) + 1
+    ingest(IngestConfig(src=tmp_path / "recorded", out=tmp_path / "demos", quiet=True))
+    demo = read_demonstration(tmp_path / "demos" / f"{folder.name}.mcap")
+    assert demo.frames is not None and len(demo.frames) == len(frames)
+    assert abs(demo.pose[-1, 1] - S.GOAL_Y) < S.GOAL_TOLERANCE
