@@ -17,6 +17,7 @@ OBSTACLE = "obstacle"
 TASKS = (OBSTACLE,)
 PLANNED, ONLINE = "planned", "online"  # cnep.sim.episode's protocols, named here without importing MuJoCo
 PROTOCOLS = (PLANNED, ONLINE)
+BOTH = "both"
 MODELS = ("CNEP", "CNMP")
 
 
@@ -27,18 +28,23 @@ class LoopSettings:
     cue: bool = setting(False, "the variant where a tile on one side of the box shows the side to pass")
     episodes: int = setting(20, "closed-loop episodes per policy and protocol")
     episode_seed: int = setting(0, "seed of the first episode (episode i is reset with seed + i)")
-    protocols: tuple[str, ...] = setting(
-        PROTOCOLS,
+    protocol: str = setting(
+        BOTH,
         "planned = the motion planned from the first observation alone and executed by the controller; online = "
-        "conditioning on every new frame and pose",
+        "conditioning on every new frame and pose; both = each in turn",
+        choices=(BOTH, *PROTOCOLS),
     )
     record: int = setting(2, "episodes per policy and protocol written as Rerun recordings (the first ones)")
 
+    @property
+    def protocols(self) -> tuple[str, ...]:
+        """The protocols to run, in order."""
+        return PROTOCOLS if self.protocol == BOTH else (self.protocol,)
+
     def check(self) -> None:
         """PipelineError for a setting out of range."""
-        unknown = [p for p in self.protocols if p not in PROTOCOLS]
-        if unknown or not self.protocols:
-            raise PipelineError(f"protocols must be among {', '.join(PROTOCOLS)}, got {', '.join(self.protocols)}")
+        if self.protocol not in (BOTH, *PROTOCOLS):
+            raise PipelineError(f"protocol must be one of {BOTH}, {', '.join(PROTOCOLS)}, got {self.protocol!r}")
         if self.episodes < 1 or self.record < 0:
             raise PipelineError(f"episodes must be >= 1 and record >= 0, got {self.episodes} and {self.record}")
 
@@ -50,14 +56,14 @@ class SimConfig(LoopSettings):
     one CNEP and one matched CNMP per training seed, each exported and run in closed loop."""
 
     out: Path
-    task: str = setting(OBSTACLE, "the task")
+    task: str = setting(OBSTACLE, "the task", choices=TASKS)
     demonstrations: int = setting(40, "demonstrations generated (half pass left, half right)")
     seed: int = setting(0, "seed of the demonstrations (and of the feature network's random weights)")
     train_seeds: tuple[int, ...] = setting((0,), "training seeds: one CNEP and one matched CNMP trained per seed")
     train_steps: int = setting(3000, "training steps of each model")
     experts: int = setting(2, "the CNEP's experts (the CNMP: one, parameter-matched)")
     weights: str = setting(AUTO_WEIGHTS, "the feature network's weights, as `cnep demo --weights` takes them")
-    offline: bool = False
+    offline: bool = setting(False, "never download the ImageNet weights (also: environment variable CNEP_OFFLINE=1)")
     quiet: bool = False
 
     def __post_init__(self) -> None:
@@ -79,7 +85,7 @@ class EvalConfig(LoopSettings):
 
     policy: Path
     out: Path | None = None
-    task: str = setting(OBSTACLE, "the task")
+    task: str = setting(OBSTACLE, "the task", choices=TASKS)
     episodes: int = setting(50, "closed-loop episodes per protocol")
     extractor: Path | None = None
     quiet: bool = False

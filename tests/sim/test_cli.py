@@ -2,30 +2,36 @@
 
 import builtins
 import importlib.util
+from pathlib import Path
 
 import pytest
 
 from cnep.pipeline.cli.main import build_parser, main
+from cnep.pipeline.cli.sim import config_of
 from cnep.pipeline.sim.config import PROTOCOLS, EvalConfig, SimConfig
 
 
-def test_obstacle_arguments_and_their_defaults():
+def test_obstacle_arguments_become_its_settings_and_the_others_keep_their_defaults():
     args = build_parser().parse_args(["sim", "obstacle", "--out", "x", "--train-seeds", "0,1,2", "--cue"])
-    assert args.train_seeds == (0, 1, 2) and args.cue and args.out == "x"
-    assert args.episodes == SimConfig.episodes and args.train_steps == SimConfig.train_steps
-    assert args.protocols == PROTOCOLS
+    config = config_of(SimConfig, args, out=args.out)
+    assert config.train_seeds == (0, 1, 2) and config.cue and config.out == Path("x")
+    assert config.episodes == SimConfig.episodes and config.train_steps == SimConfig.train_steps
+    assert config.protocols == PROTOCOLS
 
 
-def test_eval_arguments_and_their_defaults():
-    args = build_parser().parse_args(["sim", "eval", "policy", "--protocols", "online", "--episodes", "3"])
-    assert (args.policy, args.protocols, args.episodes) == ("policy", ("online",), 3)
-    assert build_parser().parse_args(["sim", "eval", "p"]).episodes == EvalConfig.episodes
+def test_eval_arguments_become_its_settings():
+    args = build_parser().parse_args(["sim", "eval", "policy", "--protocol", "online", "--episodes", "3"])
+    config = config_of(EvalConfig, args, policy=args.policy)
+    assert (config.policy, config.protocols, config.episodes) == (Path("policy"), ("online",), 3)
+    args = build_parser().parse_args(["sim", "eval", "p"])
+    assert config_of(EvalConfig, args, policy=args.policy).episodes == EvalConfig.episodes == 50
 
 
-def test_an_unknown_protocol_is_one_line(capsys, tmp_path):
-    assert main(["sim", "eval", str(tmp_path), "--protocols", "offline"]) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "protocols must be among planned, online" in err[0]
+def test_an_unknown_protocol_is_refused(capsys, tmp_path):
+    with pytest.raises(SystemExit) as exit_:
+        main(["sim", "eval", str(tmp_path), "--protocol", "offline"])
+    assert exit_.value.code == 2
+    assert "invalid choice: 'offline'" in capsys.readouterr().err
 
 
 def test_without_the_sim_extra_the_command_says_how_to_install_it(monkeypatch, capsys, tmp_path):
