@@ -6,7 +6,9 @@
 
 The policy is a `cnep.runtime.Policy` (`step(observation) -> PolicyStep`: waypoints (W, dy) named by
 `action_names`, the gate and the active expert), loaded with waypoints >= the episode's steps for PLANNED.
-An action is the state with the predicted columns replaced by the waypoint's.
+An action is the state with the predicted columns replaced by the waypoint's, the gripper by the policy's gripper
+command where it has one (`Policy.gripper`: a threshold with hysteresis, applied to each planned waypoint in turn).
+`Policy.reset(seed)` starts each episode with the episode's seed (the draw of `first_expert="sample"`).
 """
 
 from __future__ import annotations
@@ -17,9 +19,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cnep.runtime import STATE_KEY, STATE_NAMES, TIMESTAMP_KEY, Policy, PolicyStep
+from cnep.runtime.spec import GRIPPER
 from cnep.sim import scene as S
 from cnep.sim.env import IMAGE_KEY, ObstacleEnv
 
+GRIPPER_INDEX = STATE_NAMES.index(GRIPPER)
 PLANNED, ONLINE = "planned", "online"
 PROTOCOLS = (PLANNED, ONLINE)
 
@@ -65,13 +69,14 @@ def run_episode(
     if protocol not in PROTOCOLS:
         raise ValueError(f"protocol must be one of {', '.join(PROTOCOLS)}, got {protocol!r}")
     observation, info = env.reset(seed=seed)
-    policy.reset()
+    policy.reset(seed=seed)
     columns = [STATE_NAMES.index(name) for name in policy.action_names]
     xyz = [policy.action_names.index(name) for name in STATE_NAMES[:3]]
     trace: dict[str, list] = {k: [] for k in ("states", "box", "frames", "gates", "experts", "predicted")}
     times: dict[str, list] = {"policy_s": [], "render_s": [env.timings["render_s"]], "physics_s": []}
     plan: PolicyStep | None = None
     contact_step = None
+    command = policy.gripper.nearest(float(observation[STATE_KEY][GRIPPER_INDEX])) if policy.gripper else None
     for k in range(env.max_steps):
         _keep(trace, env, observation, record_frames)
         if protocol == ONLINE or plan is None:
@@ -84,6 +89,9 @@ def run_episode(
         waypoint = plan.waypoints[0 if protocol == ONLINE else min(k, len(plan.waypoints) - 1)]
         action = observation[STATE_KEY].copy()
         action[columns] = waypoint
+        if policy.gripper is not None and GRIPPER in policy.action_names:
+            command = policy.gripper.command(float(action[GRIPPER_INDEX]), command)
+            action[GRIPPER_INDEX] = command
         observation, _, terminated, truncated, info = env.step(action)
         times["render_s"].append(env.timings["render_s"])
         times["physics_s"].append(env.timings["physics_s"])

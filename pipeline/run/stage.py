@@ -49,7 +49,7 @@ from cnep.pipeline.replay.rerun_log import (
 from cnep.pipeline.run.config import EXPORTED, RunConfig, policy_kind
 from cnep.recordings import Demonstration, read_demonstration
 from cnep.recordings.constants import TOPIC_IMAGE
-from cnep.runtime import STATE_KEY, TIMESTAMP_KEY, Policy, PolicyStep, TimeBase, load_policy
+from cnep.runtime import STATE_KEY, TIMESTAMP_KEY, ConditioningPolicy, Policy, PolicyStep, TimeBase, load_policy
 from cnep.runtime.constants import DEFAULT_PRECISION, IMAGE_KEY_PREFIX
 from cnep.runtime.frames import decode_frame
 
@@ -84,20 +84,25 @@ def open_policy(
     threads: int | None = RunConfig.threads,
     waypoints: int = RunConfig.waypoints,
     time_base: TimeBase | None = None,
+    conditioning: ConditioningPolicy | None = None,
 ) -> Policy:
-    """The policy in folder `path`: an exported one on cnep.runtime, a checkpoint on torch (imported only then)."""
+    """The policy in folder `path`: an exported one on cnep.runtime, a checkpoint on torch (imported only then);
+    conditioning: instead of the policy's own."""
     path = Path(path)
     if policy_kind(path) == EXPORTED:
         if extractor is not None:
             raise PipelineError(f"{path}: an exported policy carries its feature graph; leave out --extractor")
         return load_policy(
-            path, precision=precision, backend=backend, threads=threads, waypoints=waypoints, time_base=time_base
-        )
+            path, precision=precision, backend=backend, threads=threads, waypoints=waypoints, time_base=time_base,
+            conditioning=conditioning,
+        )  # fmt: skip
     from cnep.pipeline.export.policy import checkpoint_policy  # a checkpoint runs on torch: import it now, not before
 
     if precision != DEFAULT_PRECISION:
         raise PipelineError(f"{path}: a checkpoint runs fp32 features; export it with --int8 for int8 features")
-    return checkpoint_policy(path, extractor, threads=threads, waypoints=waypoints, time_base=time_base)
+    return checkpoint_policy(
+        path, extractor, threads=threads, waypoints=waypoints, time_base=time_base, conditioning=conditioning
+    )
 
 
 def run(config: RunConfig) -> list[RecordingRun]:

@@ -12,6 +12,7 @@ from cnep.models.config import setting
 from cnep.pipeline.demo.config import AUTO_WEIGHTS
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.inputs import coerce_paths
+from cnep.runtime.conditioning import FIRST_EXPERTS, ConditioningPolicy
 
 OBSTACLE = "obstacle"
 TASKS = (OBSTACLE,)
@@ -35,6 +36,12 @@ class LoopSettings:
         choices=(BOTH, *PROTOCOLS),
     )
     record: int = setting(2, "episodes per policy and protocol written as Rerun recordings (the first ones)")
+    first_expert: str = setting(
+        ConditioningPolicy.first_expert,
+        "the first active expert of an episode: argmax (the gate's winner, every episode alike) or sample (drawn "
+        "from the gate with the episode's seed: episodes split between behaviours as the demonstrations do)",
+        choices=FIRST_EXPERTS,
+    )
 
     @property
     def protocols(self) -> tuple[str, ...]:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import importlib.util
 import logging
+from dataclasses import replace
 from pathlib import Path
 
 from cnep.pipeline.progress import progress_bar
@@ -18,6 +19,7 @@ from cnep.pipeline.sim.config import LoopSettings
 from cnep.pipeline.sim.figure import draw_episode
 from cnep.pipeline.sim.rerun_log import write_episode
 from cnep.pipeline.sim.summary import episode_row, rates
+from cnep.runtime import Policy
 from cnep.sim import ObstacleEnv, run_episode
 from cnep.sim import scene as S
 
@@ -39,9 +41,7 @@ def evaluate_policy(
     """Protocol -> rates (pipeline.sim.summary.rates) of the policy in `policy_path` (exported or checkpoint);
     recordings: the folder for `<label>-<protocol>-seed<N>.rrd` (None: none written); figure: the PNG of the last
     protocol's first episode (pipeline.sim.figure; None, or matplotlib missing: none drawn)."""
-    policy = open_policy(
-        policy_path, extractor=extractor, threads=POLICY_THREADS, waypoints=S.MAX_STEPS
-    )  # a plan covers a whole episode
+    policy = _policy(policy_path, extractor, settings.first_expert)
     env = ObstacleEnv(cue=settings.cue)
     results = {}
     try:
@@ -63,6 +63,18 @@ def evaluate_policy(
     finally:
         env.close()
     return results
+
+
+def _policy(path: Path, extractor: Path | None, first_expert: str) -> Policy:
+    """The policy in `path`, its waypoints covering a whole episode (a plan), its first expert chosen by
+    `first_expert`; the rest of its conditioning its own."""
+    policy = open_policy(path, extractor=extractor, threads=POLICY_THREADS, waypoints=S.MAX_STEPS)
+    if policy.spec.conditioning.first_expert == first_expert:
+        return policy
+    conditioning = replace(policy.spec.conditioning, first_expert=first_expert)
+    return open_policy(
+        path, extractor=extractor, threads=POLICY_THREADS, waypoints=S.MAX_STEPS, conditioning=conditioning
+    )
 
 
 def _plots() -> bool:

@@ -117,7 +117,9 @@ def _run_stages(config: SimConfig, out: Path) -> dict:
         log.info("exported %s", policies[label])
     stage(6)
     (out / "episodes").mkdir()
-    settings = LoopSettings(config.cue, config.episodes, config.episode_seed, config.protocol, config.record)
+    settings = LoopSettings(
+        config.cue, config.episodes, config.episode_seed, config.protocol, config.record, config.first_expert
+    )
     results = {
         label: evaluate_policy(
             path, settings, label=label, recordings=out / "episodes", quiet=config.quiet,

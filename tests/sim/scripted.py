@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from cnep.runtime import Columns, Policy, PolicySpec, TimeBase
+from cnep.runtime import Columns, ConditioningPolicy, Policy, PolicySpec, TimeBase
 from cnep.sim import DemoDraw, demonstration_path
 from cnep.sim import scene as S
 
@@ -32,8 +32,11 @@ class ScriptedNetwork:
         return self.gate, mean, np.full_like(mean, 0.01)
 
 
-def scripted_policy(gate: tuple[float, float] = (0.9, 0.1), waypoints: int = S.MAX_STEPS) -> Policy:
+def scripted_policy(
+    gate: tuple[float, float] = (0.9, 0.1), waypoints: int = S.MAX_STEPS, first_expert: str = "argmax"
+) -> Policy:
     """The scripted policy (motion only: it sees no camera) with a fixed `gate` over (left, right)."""
     columns = Columns(((0, 8),), (), ((0, 8),), np.zeros(8, np.float32), np.ones(8, np.float32))
     spec = PolicySpec(columns, 2, None, (((0, 8), (0, 8)),), TimeBase(STEPS * S.CONTROL_PERIOD_S, S.CONTROL_PERIOD_S))
-    return Policy(ScriptedNetwork(gate), spec, waypoints=waypoints)
+    conditioning = ConditioningPolicy(first_expert=first_expert)
+    return Policy(ScriptedNetwork(gate), spec, waypoints=waypoints, conditioning=conditioning)

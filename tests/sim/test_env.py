@@ -79,3 +79,11 @@ def test_a_closed_loop_episode_succeeds_and_the_same_seed_repeats_it_exactly(env
     np.testing.assert_array_equal(first.box, again.box)
     assert (first.clearance_m, first.distance_to_goal_m) == (again.clearance_m, again.distance_to_goal_m)
     assert not np.array_equal(first.states[0], other.states[0])  # another seed, another start
+
+
+def test_with_the_split_option_episodes_take_both_sides_each_keeping_one_and_a_seed_repeats_its_side(env):
+    policy = scripted_policy(gate=(0.5, 0.5), first_expert="sample")
+    episodes = [run_episode(env, policy, seed=seed, protocol=ONLINE) for seed in range(6)]
+    assert {ep.side for ep in episodes} == {"left", "right"}
+    assert all(ep.switches == 0 and ep.success for ep in episodes)
+    assert run_episode(env, policy, seed=3, protocol=ONLINE).side == episodes[3].side
