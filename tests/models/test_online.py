@@ -33,9 +33,9 @@ def expected_set(k: int, policy: ConditioningPolicy) -> list[int]:
 @pytest.mark.parametrize(
     "policy",
     [
-        ConditioningPolicy(window=4, anchors=1),
-        ConditioningPolicy(window=7, anchors=0),
-        ConditioningPolicy(window=1, anchors=3),
+        ConditioningPolicy(window=4, anchors=1, switch_margin=0.0),  # the active expert is the gate's argmax,
+        ConditioningPolicy(window=7, anchors=0, switch_margin=0.0),  # as the model's own generate picks it
+        ConditioningPolicy(window=1, anchors=3, switch_margin=0.0),
     ],
 )
 def test_incremental_conditioning_equals_conditioning_on_the_whole_set(policy):
