@@ -33,6 +33,18 @@ def _named(exc: OSError, target: Path) -> OSError:
     return OSError(exc.errno, exc.strerror or os.strerror(exc.errno), str(target))
 
 
+@contextlib.contextmanager
+def naming(target: str | os.PathLike) -> Iterator[None]:
+    """An OSError in the block that names no file (a write on a full disk, over a quota) is raised naming `target`."""
+    try:
+        yield
+    except OSError as exc:
+        named = _named(exc, Path(target))
+        if named is exc:
+            raise
+        raise named from None
+
+
 class Staging:
     """Files written under temporary names now and renamed into place together later (`staged`)."""
 

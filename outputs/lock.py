@@ -21,7 +21,7 @@ import time
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
-from cnep.outputs.atomic import remove_stale_temporaries
+from cnep.outputs.atomic import naming, remove_stale_temporaries
 from cnep.outputs.errors import OutputError
 
 log = logging.getLogger(__name__)
@@ -127,7 +127,8 @@ def output_lock(
             log.warning(
                 "%s: taking over the lock of a run that ended without releasing it (%s)", output, _describe(previous)
             )
-        path.write_text(json.dumps(_holder()) + "\n", encoding="utf-8")
+        with naming(output):  # a full disk: say so of the output the user asked for, not of the lock file
+            path.write_text(json.dumps(_holder()) + "\n", encoding="utf-8")
         if clean:
             _clean(output, folder, names)
         yield path

@@ -23,7 +23,9 @@
 - A reader that stops reading (`cnep inspect A B | head -1`) ends the command quietly with exit 0.
 - SIGTERM is handled like Ctrl-C (`Terminated` is a KeyboardInterrupt), so every clean-up that runs on
   Ctrl-C runs on it too; a block that must end at a safe point (a training step) defers both
-  (`deferred_interrupts`).
+  (`deferred_interrupts`). Both are handled from the first line of the `cnep` command (`handle_signals`) to
+  its last: once the command has finished, a signal during the interpreter's exit ends it at once, with one
+  line saying its outputs are complete.
 """
 
 from __future__ import annotations
@@ -83,8 +85,42 @@ def interruption(signum: int, then: str = "") -> KeyboardInterrupt:
     return Terminated(then) if signum == signal.SIGTERM else KeyboardInterrupt(then)
 
 
+_finished: list[tuple[str, int]] = []  # (command, exit status) once the command has finished: the process is exiting
+
+
 def _raise_interruption(signum: int, frame: object) -> None:
+    if _finished:  # the work is done, the interpreter is tearing down (atexit, threads): end now, with a line
+        _end_at_once(signum, *_finished[-1])
     raise interruption(signum)
+
+
+def _end_at_once(signum: int, command: str, status: int) -> None:
+    """A signal once the command has finished: one line (unless its failure's line is out already) and exit now."""
+    how = "terminated (SIGTERM)" if signum == signal.SIGTERM else "interrupted"
+    with contextlib.suppress(Exception):
+        sys.stdout.flush()
+        if status == EXIT_OK:
+            print(f"cnep {command}: {how} while exiting; it had finished, its outputs are complete", file=sys.stderr)
+        sys.stderr.flush()
+    os._exit(EXIT_TERMINATED if signum == signal.SIGTERM else EXIT_INTERRUPTED)
+
+
+def handle_signals() -> Callable[[str, int], None]:
+    """SIGINT and SIGTERM raise `interruption` from now on (the first line of the `cnep` command), in the main thread;
+    returns `finished(command, status)`, which makes them end the process at once from then on (its last lines)."""
+    if threading.current_thread() is threading.main_thread():
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(signum, _raise_interruption)
+    _finished.clear()
+    return lambda command, status: _finished.append((command, status))
+
+
+def interrupted_line(command: str, exc: KeyboardInterrupt) -> int:
+    """Print the one line of an interrupted command (SIGINT or SIGTERM: `exc`); returns its exit status."""
+    how = "terminated (SIGTERM)" if isinstance(exc, Terminated) else "interrupted"
+    then = str(exc) or "nothing half-written was kept, run the command again to finish"  # a stage may say more
+    print(f"{f'cnep {command}'.strip()}: {how}; {then}", file=sys.stderr)
+    return EXIT_TERMINATED if isinstance(exc, Terminated) else EXIT_INTERRUPTED
 
 
 @contextlib.contextmanager
@@ -128,10 +164,7 @@ def run_command(command: str, run: Callable[[], int | None], verbose: bool = Fal
         _stdout_to_devnull()
         return EXIT_OK
     except KeyboardInterrupt as exc:
-        how = "terminated (SIGTERM)" if isinstance(exc, Terminated) else "interrupted"
-        then = str(exc) or "nothing half-written was kept, run the command again to finish"  # a stage may say more
-        print(f"cnep {command}: {how}; {then}", file=sys.stderr)
-        return EXIT_TERMINATED if isinstance(exc, Terminated) else EXIT_INTERRUPTED
+        return interrupted_line(command, exc)
     except Exception as exc:  # noqa: BLE001 - the contract: every failure is one line and an exit status
         user = isinstance(exc, (*loaded_user_errors(), OSError))
         if verbose:

@@ -10,7 +10,9 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import signal
 import sys
+import threading
 
 # Subcommand name -> module under pipeline.cli (kept in pipeline order).
 COMMANDS = (
@@ -58,14 +60,32 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    level = logging.WARNING if args.quiet else logging.DEBUG if args.verbose else logging.INFO
-    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
-    if not args.verbose:  # torch's own INFO lines (cache statistics at exit) are not the user's business
-        logging.getLogger("torch").setLevel(logging.WARNING)
-    from cnep.pipeline.contract import run_command
+    """The `cnep` command on `argv` (None: the process's command line); returns the exit status.
 
-    return run_command(args.command, lambda: args._run(args), verbose=args.verbose)
+    SIGINT and SIGTERM are handled from here on (pipeline.contract): with argv None, to the process's end (a
+    signal after the command finished ends it at once with one line); with argv given, until this returns.
+    """
+    from cnep.pipeline.contract import handle_signals, interrupted_line, run_command
+
+    saved = {signum: signal.getsignal(signum) for signum in (signal.SIGINT, signal.SIGTERM)}
+    finished = handle_signals()
+    try:
+        try:
+            args = build_parser().parse_args(argv)
+        except KeyboardInterrupt as exc:
+            return interrupted_line("", exc)
+        level = logging.WARNING if args.quiet else logging.DEBUG if args.verbose else logging.INFO
+        logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+        if not args.verbose:  # torch's own INFO lines (cache statistics at exit) are not the user's business
+            logging.getLogger("torch").setLevel(logging.WARNING)
+        status = run_command(args.command, lambda: args._run(args), verbose=args.verbose)
+        if argv is None:
+            finished(args.command, status)
+        return status
+    finally:
+        if argv is not None and threading.current_thread() is threading.main_thread():  # called in-process
+            for signum, handler in saved.items():
+                signal.signal(signum, handler)
 
 
 class _Version(argparse.Action):

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import cnep.runtime
 from cnep.models.checkpoint import CONFIG_FILE, config_checksum
-from cnep.outputs import is_stale_temporary, output_lock, temporary_path
+from cnep.outputs import is_stale_temporary, naming, output_lock, temporary_path
 from cnep.perception import FeatureExtractor
 from cnep.perception.constants import CALIBRATION_FRAMES
 from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_existing, refuse_inputs
@@ -93,7 +93,8 @@ def export(config: ExportConfig) -> Path:
         work = temporary_path(out)  # the folder is assembled under a temporary name unique to the run
         work.mkdir()
         try:
-            write_policy(work, loaded, config, calibration)
+            with naming(out):  # a full disk: said of the folder the user asked for, not of the work folder
+                write_policy(work, loaded, config, calibration)
             publish(work, out)
         except BaseException:
             shutil.rmtree(work, ignore_errors=True)

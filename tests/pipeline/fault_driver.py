@@ -4,11 +4,13 @@ and what the fault tests and the soak (benchmarks/soak_faults.py) look at in an 
     python -m tests.pipeline.fault_driver cnep.pipeline.train.stage:StageTrainer.train_step 26 GO -- -q train ...
 
 When the N-th call begins it prints `paused <pid>` and waits until the file GO exists (a test sends its
-signal first, then creates GO to let a deferred signal take effect), then makes the call.
+signal first, then creates GO to let a deferred signal take effect), then makes the call. The target `atexit`
+pauses in an exit handler instead, once the command has finished.
 """
 
 from __future__ import annotations
 
+import atexit
 import importlib
 import os
 import sys
@@ -58,10 +60,21 @@ def pause_at(target: str, hit: int, go: Path) -> None:
     setattr(owner, name, paused)
 
 
+def pause_at_exit(hit: int, go: Path) -> None:
+    """An exit handler that pauses like `pause_at` (`hit` is ignored: it runs once)."""
+    print(f"paused {os.getpid()}", flush=True)
+    while not go.exists():
+        time.sleep(0.02)
+
+
 if __name__ == "__main__":
     target, hit, go, separator, *argv = sys.argv[1:]
     assert separator == "--", sys.argv
-    pause_at(target, int(hit), Path(go))
+    if target == "atexit":  # a slow exit: the interpreter's exit handlers, after the command has finished
+        atexit.register(pause_at_exit, int(hit), Path(go))
+    else:
+        pause_at(target, int(hit), Path(go))
     from cnep.pipeline.cli.main import main
 
-    sys.exit(main(argv))
+    sys.argv = ["cnep", *argv]
+    sys.exit(main())  # as the `cnep` command runs it: argv from the command line

@@ -12,6 +12,7 @@ nothing that blocks the next run. The longer soak (random kill times, repeated) 
 
 from __future__ import annotations
 
+import contextlib
 import os
 import select
 import shutil
@@ -19,6 +20,7 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -88,6 +90,8 @@ class Paused:
     def wait(self) -> Paused:
         ready, _, _ = select.select([self.proc.stdout], [], [], WAIT_S)
         line = self.proc.stdout.readline() if ready else ""
+        while line and not line.startswith("paused"):  # what the command printed before it paused is skipped
+            line = self.proc.stdout.readline()
         if not line.startswith("paused"):
             self.proc.kill()
             raise AssertionError(
@@ -371,26 +375,33 @@ def test_a_second_run_into_a_held_output_is_refused_naming_the_first(world, tmp_
 # --- a full disk ---------------------------------------------------------------------------------------------------
 
 
-@pytest.fixture
-def full_disk(tmp_path):
-    """A 2 MB tmpfs filled up but for a few kB (needs root and permission to mount; skipped elsewhere)."""
-    disk = tmp_path / "disk"
-    disk.mkdir()
-    if os.geteuid() != 0 or subprocess.run(["mount", "-t", "tmpfs", "-o", "size=2m", "tmpfs", str(disk)]).returncode:
+@contextlib.contextmanager
+def small_disk(folder: Path, free: int) -> Iterator[Path]:
+    """`folder` as a 2 MB tmpfs filled up but for about `free` bytes (needs root and permission to mount; the test is
+    skipped elsewhere)."""
+    folder.mkdir()
+    if os.geteuid() != 0 or subprocess.run(["mount", "-t", "tmpfs", "-o", "size=2m", "tmpfs", str(folder)]).returncode:
         pytest.skip("mounting a small tmpfs is not permitted here")
     try:
-        with open(disk / "filler", "wb") as f:  # fill it, then free a little: the next write of any size fails
+        with open(folder / "filler", "wb") as f:  # fill it, then free a little: the next write of any size fails
             while True:
                 try:
                     f.write(b"\0" * 65536)
                     f.flush()
                 except OSError:
                     break
-        with open(disk / "filler", "r+b") as f:
-            f.truncate(max(0, (disk / "filler").stat().st_size - 8192))
-        yield disk
+        with open(folder / "filler", "r+b") as f:
+            f.truncate(max(0, (folder / "filler").stat().st_size - free))
+        yield folder
     finally:
-        subprocess.run(["umount", "-l", str(disk)])
+        subprocess.run(["umount", "-l", str(folder)])
+
+
+@pytest.fixture
+def full_disk(tmp_path):
+    """A 2 MB tmpfs filled up but for a few kB."""
+    with small_disk(tmp_path / "disk", 8192) as disk:
+        yield disk
 
 
 def assert_disk_full_line(err: list[str], command: str, disk: Path) -> None:
@@ -436,3 +447,68 @@ def test_a_full_disk_is_one_line_naming_the_file_in_every_stage(world, full_disk
         assert main(["-q", *map(str, cases[command])]) == 0, command
     assert files(full_disk / "demos") == files(world.demos)
     assert_same_weights(full_disk / "ckpt", world.ckpt)
+
+
+@pytest.mark.parametrize("free", [0, 64 * 1024, 1000 * 1024])
+def test_a_full_disk_names_its_file_in_every_command(world, tmp_path, capsys, free):
+    """With no space left, 64 kB or 1000 kB (some outputs fit, others do not): done, or exit 2 with one line that
+    names a file on that disk; nothing half-written either way."""
+    from tests.pipeline.test_contract import QUICK_EVALUATE
+
+    with small_disk(tmp_path / "disk", free) as disk:
+        cases = {
+            "ingest": ["ingest", world.src, "--out", disk / "demos"],
+            "extract": ["extract", world.demos, "--out", disk / "trajs"],
+            "repair": ["repair", world.truncated, disk / "fixed.mcap"],
+            "train": ["train", world.trajs, "--out", disk / "ckpt", *TRAINING],
+            "replay": ["replay", world.ckpt, world.trajs / "demo_0.mcap", "--out", disk / "r.rrd", "--no-live"],
+            "export": ["export", world.ckpt, "--out", disk / "policy"],
+            "run": ["run", world.ckpt, world.demos / "demo_0.mcap", "--out", disk / "run.rrd", "--fast"],
+            "evaluate": ["evaluate", *QUICK_EVALUATE, "--out", disk / "tables"],
+            "demo": ["demo", "--quick", "--weights", "random", "--out", disk / "demo"],
+        }
+        for command, argv in cases.items():
+            capsys.readouterr()
+            code = main(["-q", *map(str, argv)])
+            err = capsys.readouterr().err.strip().splitlines()
+            assert code == 2 or (free and code == 0), (command, code, err)
+            if code == 2:
+                assert_disk_full_line(err, command, disk)
+            assert stray(disk) == [], command
+            for path in disk.iterdir():  # the next command gets the same space
+                if path.name != "filler":
+                    shutil.rmtree(path) if path.is_dir() else path.unlink()
+
+
+# --- signals from the command's first line to its last -------------------------------------------------------------
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])
+def test_a_signal_before_the_command_starts_is_one_line(world, tmp_path, signum):
+    argv = ["export", world.ckpt, "--out", tmp_path / "policy"]
+    status, err = Paused("cnep.pipeline.cli.main:build_parser", 1, argv, tmp_path).stop(signum)
+    how = "terminated (SIGTERM)" if signum == signal.SIGTERM else "interrupted"
+    assert status == (143 if signum == signal.SIGTERM else 130) and len(err) == 1, (status, err)
+    assert err[0].startswith(f"cnep: {how}; nothing half-written was kept"), err
+    assert not (tmp_path / "policy").exists()
+
+
+@pytest.mark.parametrize("command", ["export", "run"])
+def test_a_signal_once_the_command_finished_is_one_line_and_the_outputs_are_complete(world, tmp_path, command):
+    """The interpreter's exit (exit handlers, threads) can take a while after the command: a signal there ends it at
+    once with one line, where the default action ended it without a word."""
+    from cnep.runtime.manifest import read_manifest
+
+    argv = {
+        "export": ["export", world.ckpt, "--out", tmp_path / "policy"],
+        "run": ["run", world.ckpt, world.demos / "demo_0.mcap", "--out", tmp_path / "r.rrd", "--fast"],
+    }[command]
+    status, err = Paused("atexit", 1, argv, tmp_path).stop(signal.SIGTERM)
+    assert status == 143 and err == [
+        f"cnep {command}: terminated (SIGTERM) while exiting; it had finished, its outputs are complete"
+    ], (status, err)
+    if command == "export":
+        assert read_manifest(tmp_path / "policy").files
+    else:
+        assert (tmp_path / "r.rrd").is_file() and (tmp_path / "r.summary.json").is_file()
+    assert stray(tmp_path) == []
