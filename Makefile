@@ -46,6 +46,7 @@ SIM_OUT ?= cnep-sim
 # The closed loop in the simulator, from nothing to the table (docs/how-to/evaluate-in-closed-loop.md).
 sim: $(VENV)/.installed-sim
 	$(BIN)/cnep sim obstacle --out $(SIM_OUT)
+	@echo "Open an episode: $(BIN)/rerun $(SIM_OUT)/episodes/CNEP-seed0-online-seed0.rrd"
 
 evaluate: $(VENV)/.installed-evaluate
 	$(BIN)/cnep evaluate

@@ -1,6 +1,6 @@
 """`cnep sim eval POLICY`: one given policy (an exported folder or a checkpoint) in closed loop; the table on screen,
-and with `out` a folder holding `summary.json` (per protocol the rates and every episode's row) and the recordings
-of the first episodes."""
+and with `out` a folder holding `summary.json` (per protocol the rates and every episode's row), the recordings
+of the first episodes and `episode.png` (pipeline.sim.figure)."""
 
 from __future__ import annotations
 
@@ -12,6 +12,7 @@ from cnep.outputs import output_lock, write_atomically
 from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_file_as_folder
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.sim.config import EvalConfig
+from cnep.pipeline.sim.figure import FIGURE_FILE
 from cnep.pipeline.sim.loop import evaluate_policy
 from cnep.pipeline.sim.stage import SUMMARY_FILE
 from cnep.pipeline.sim.summary import format_table
@@ -38,8 +39,15 @@ def run_eval(config: EvalConfig) -> dict:
 
 
 def _evaluate(config: EvalConfig, label: str, out: Path | None) -> dict:
+    figure = out / FIGURE_FILE if out is not None else None
     return evaluate_policy(
-        config.policy, config, label=label, extractor=config.extractor, recordings=out, quiet=config.quiet
+        config.policy,
+        config,
+        label=label,
+        extractor=config.extractor,
+        recordings=out,
+        figure=figure,
+        quiet=config.quiet,
     )
 
 
