@@ -23,6 +23,7 @@ from cnep.recordings.errors import RecordingError
 from cnep.recordings.events import add_events, read_events
 from cnep.recordings.readers import DemonstrationReader, TrajectoryReader, read_demonstration, read_trajectory
 from cnep.recordings.records import Demonstration, Episode, Event, Trajectory
+from cnep.recordings.summary import FileSummary, read_summary
 from cnep.recordings.writers import DemonstrationWriter, TrajectoryWriter, write_demonstration, write_trajectory
 
 __all__ = [
@@ -37,6 +38,7 @@ __all__ = [
     "DemonstrationWriter",
     "Episode",
     "Event",
+    "FileSummary",
     "RecordingError",
     "Trajectory",
     "TrajectoryReader",
@@ -45,6 +47,7 @@ __all__ = [
     "constants",
     "read_demonstration",
     "read_events",
+    "read_summary",
     "read_trajectory",
     "write_demonstration",
     "write_trajectory",

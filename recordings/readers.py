@@ -148,8 +148,9 @@ def demonstration_from(contents: McapContents) -> Demonstration:
         )
 
 
-def trajectory_from(contents: McapContents) -> Trajectory:
-    """Build and validate the `Trajectory` held in already-read `contents`."""
+def trajectory_from(contents: McapContents, frames: bool = True) -> Trajectory:
+    """Build and validate the `Trajectory` held in already-read `contents`; `frames=False` leaves its camera frames
+    unread (`Trajectory.frames` None), for readers of the columns only."""
     path = contents.path
     episode = read_episode(contents, KIND_TRAJECTORY)
     with in_file(path):
@@ -167,7 +168,7 @@ def trajectory_from(contents: McapContents) -> Trajectory:
             data=data,
             blocks=blocks,
             extractor=contents.metadata.get(METADATA_EXTRACTOR, {}),
-            frames=_frames(contents, ts),
+            frames=_frames(contents, ts) if frames else None,
         )
 
 
@@ -187,9 +188,9 @@ def read_demonstration(path: str | os.PathLike) -> Demonstration:
     return demonstration_from(read_mcap(path))
 
 
-def read_trajectory(path: str | os.PathLike) -> Trajectory:
-    """Read and validate the trajectory file at `path`."""
-    return trajectory_from(read_mcap(path))
+def read_trajectory(path: str | os.PathLike, frames: bool = True) -> Trajectory:
+    """Read and validate the trajectory file at `path`; `frames=False`: without its camera frames."""
+    return trajectory_from(read_mcap(path), frames)
 
 
 class _Reader:
