@@ -56,7 +56,7 @@ MAX_MODELS = 8  # models per batched computation in `fit_many`
 def batch_key(trainer: Trainer) -> tuple:
     """Trainers with equal keys can train together: network shape, schedule (all but the seed and the gate's
     learning rate), batch shape."""
-    T = trainer.train.observed.shape[1]
+    T = trainer.train.longest
     cfg = trainer.cfg
     return (
         tuple(getattr(trainer.model.config, f) for f in ARCHITECTURE_FIELDS),

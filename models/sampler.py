@@ -1,4 +1,4 @@
-"""Random conditioning batches drawn from a padded stack of trajectories, without Python loops.
+"""Random conditioning batches gathered from trajectories packed row after row, without Python loops.
 
 Each sample: a trajectory i, n ~ U{1..min(n_max, T_i)} observation steps and m ~ U{1..min(m_max, T_i)}
 target steps, each set drawn without replacement (the two sets are independent). Time of step k of a
@@ -10,6 +10,11 @@ add noise to the observed values (`TrainConfig.obs_noise`); the targets always s
 Each sample also names its trajectory (`Batch.trajectory`), so that the loss can read the whole demonstration a
 context came from (`TrajectoryStack.demonstration`: the steps that decide which expert learns the sample,
 models.loss).
+
+The trajectories' rows stay as they were given, (R, width) float32 one trajectory after another (a memory-mapped
+file for `pipeline.train`'s data sets: `TrajectoryStack.from_rows`); a batch reads only the rows it draws and
+normalises them then, as a padded copy normalised in advance would: a step past a trajectory's end (drawn where it is
+shorter than the batch's most steps, and masked) reads as a row of zeros.
 """
 
 from __future__ import annotations
@@ -40,21 +45,46 @@ class Batch:
 
 
 class TrajectoryStack:
-    """Normalised trajectories padded to one tensor, split into observed / query / predicted columns."""
+    """Trajectories packed into one array of rows, read by (trajectory, step) and normalised by the model's normaliser.
+
+    rows: (R, width) float32 (an array or a memory map); starts, lengths: (N,) long, trajectory i's rows are
+    rows[starts[i]:starts[i] + lengths[i]]; `longest`: the most steps of one.
+    """
 
     def __init__(self, trajectories: Sequence[np.ndarray], model) -> None:
         lengths = [len(t) for t in trajectories]
-        T, C = max(lengths), model.config.columns.width
-        data = torch.zeros(len(trajectories), T, C)
-        for i, traj in enumerate(trajectories):
-            data[i, : len(traj)] = torch.as_tensor(np.asarray(traj, dtype=np.float32))
-        idx = torch.arange(C)
-        with torch.no_grad():
-            data = model.normaliser.normalise(data, idx)
-        self.lengths = torch.tensor(lengths)  # (N,)
-        self.observed = data[..., model.obs_columns].contiguous()  # (N, T, obs_dim)
-        self.query = data[..., model.query_columns].contiguous()  # (N, T, query_dim)
-        self.predicted = data[..., model.out_columns].contiguous()  # (N, T, dy)
+        rows = np.concatenate([np.asarray(t, dtype=np.float32) for t in trajectories])  # (R, width)
+        starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+        self._set(rows, starts, lengths, model)
+
+    @classmethod
+    def from_rows(cls, rows: np.ndarray, starts: Sequence[int], lengths: Sequence[int], model) -> TrajectoryStack:
+        """The stack of the trajectories at `starts` (rows) of `lengths` in (R, width) float32 `rows`, kept as given."""
+        stack = cls.__new__(cls)
+        stack._set(rows, starts, lengths, model)
+        return stack
+
+    def _set(self, rows: np.ndarray, starts: Sequence[int], lengths: Sequence[int], model) -> None:
+        self.rows = rows  # (R, width)
+        self.starts = torch.as_tensor(np.asarray(starts, dtype=np.int64))  # (N,)
+        self.lengths = torch.as_tensor(np.asarray(lengths, dtype=np.int64))  # (N,)
+        self.longest = int(self.lengths.max())
+        self.loc = model.normaliser.loc.detach().cpu().clone()  # (width,)
+        self.scale = model.normaliser.scale.detach().cpu().clone()  # (width,)
+        layout = model.config.columns
+        self.observed, self.query, self.predicted = layout.observed, layout.query, layout.predicted  # column spans
+
+    def values(self, traj: torch.Tensor, steps: torch.Tensor, spans: Sequence[tuple[int, int]]) -> torch.Tensor:
+        """Normalised values on column `spans` of trajectories `traj` (B,) at `steps` (B, k) -> (B, k, width of
+        spans); a step at or past a trajectory's end reads as a row of zeros."""
+        B, k = steps.shape
+        valid = steps < self.lengths[traj].unsqueeze(1)  # (B, k)
+        flat = (self.starts[traj].unsqueeze(1) + torch.where(valid, steps, 0)).reshape(-1).numpy()  # (B * k,)
+        raw = np.concatenate([self.rows[flat, a:b] for a, b in spans] or [np.empty((B * k, 0), np.float32)], axis=1)
+        x = torch.from_numpy(np.ascontiguousarray(raw, dtype=np.float32)).reshape(B, k, -1)  # (B, k, w)
+        x = x.masked_fill(~valid.unsqueeze(-1), 0.0)
+        columns = torch.cat([torch.arange(a, b) for a, b in spans]) if spans else torch.zeros(0, dtype=torch.long)
+        return (x - self.loc[columns]) / self.scale[columns]
 
     def __len__(self) -> int:
         return len(self.lengths)
@@ -67,7 +97,7 @@ class TrajectoryStack:
         """Every step of each trajectory `traj` (B,) of at most `most` steps, else `most` steps evenly spaced from its
         first to its last -> steps (B, P) and mask (B, P) bool, with P = min(most, longest trajectory)."""
         lengths = self.lengths[traj].unsqueeze(1)  # (B, 1)
-        P = min(most, self.observed.shape[1])
+        P = min(most, self.longest)
         order = torch.arange(P)  # (P,)
         spread = torch.round(order * (lengths - 1) / max(P - 1, 1)).long()  # (B, P): first to last step
         return torch.where(lengths > P, spread, order), order < lengths
@@ -78,14 +108,13 @@ class TrajectoryStack:
         """Trajectories `traj` (B,) at their `spread` steps as queries and targets -> query (B, P, 1 + query_dim),
         target (B, P, dy), mask (B, P) bool."""
         steps, mask = self.spread(traj, most)
-        rows = traj.unsqueeze(1)  # (B, 1)
-        query = torch.cat([self.times(traj, steps).unsqueeze(-1), self.query[rows, steps]], -1)
-        return query, self.predicted[rows, steps], mask
+        query = torch.cat([self.times(traj, steps).unsqueeze(-1), self.values(traj, steps, self.query)], -1)
+        return query, self.values(traj, steps, self.predicted), mask
 
     def context(self, traj: torch.Tensor, most: int = DEMONSTRATION_STEPS) -> tuple[torch.Tensor, torch.Tensor]:
         """Trajectories `traj` (B,) at their `spread` steps as observations -> obs (B, P, 1 + obs_dim), mask (B, P)."""
         steps, mask = self.spread(traj, most)
-        obs = torch.cat([self.times(traj, steps).unsqueeze(-1), self.observed[traj.unsqueeze(1), steps]], -1)
+        obs = torch.cat([self.times(traj, steps).unsqueeze(-1), self.values(traj, steps, self.observed)], -1)
         return obs, mask
 
 
@@ -128,15 +157,14 @@ def sample_batch(
     `first_steps` (fraction, k_max): the share of samples that observe their trajectory's first k ~ U{1..k_max} steps
     (fraction 0 draws nothing for it, so the batches are those drawn without it)."""
     traj = torch.randint(len(stack), (batch_size,), generator=g)  # (B,)
-    lengths, T = stack.lengths[traj], stack.observed.shape[1]
+    lengths, T = stack.lengths[traj], stack.longest
     obs_steps, obs_mask = _random_steps(lengths, n_max, T, g)  # (B, n)
     tgt_steps, tgt_mask = _random_steps(lengths, m_max, T, g)  # (B, m)
     if first_steps[0] > 0:
         obs_steps, obs_mask = _first_steps(obs_steps, obs_mask, lengths, *first_steps, g)
-    rows = traj.unsqueeze(1)  # (B, 1)
-    values = stack.observed[rows, obs_steps]  # (B, n, obs_dim)
+    values = stack.values(traj, obs_steps, stack.observed)  # (B, n, obs_dim)
     if obs_noise:
         values = values + obs_noise * torch.randn(values.shape, generator=g)
     obs = torch.cat([stack.times(traj, obs_steps).unsqueeze(-1), values], -1)
-    query = torch.cat([stack.times(traj, tgt_steps).unsqueeze(-1), stack.query[rows, tgt_steps]], -1)
-    return Batch(obs, obs_mask, query, stack.predicted[rows, tgt_steps], tgt_mask, traj)
+    query = torch.cat([stack.times(traj, tgt_steps).unsqueeze(-1), stack.values(traj, tgt_steps, stack.query)], -1)
+    return Batch(obs, obs_mask, query, stack.values(traj, tgt_steps, stack.predicted), tgt_mask, traj)

@@ -28,6 +28,7 @@ from cnep.models.cnep import CNEP
 from cnep.models.config import CNEPConfig, TrainConfig
 from cnep.models.errors import ConfigError
 from cnep.models.loss import cnep_loss, expert_nll
+from cnep.models.normaliser import Moments
 from cnep.models.sampler import Batch, TrajectoryStack, sample_batch
 from cnep.models.split import split_if_idle, split_steps
 from cnep.models.threads import torch_threads
@@ -51,15 +52,19 @@ MIN_TRAJECTORIES_TO_HOLD_OUT = 10
 VAL_FRACTION = 0.2
 
 
-def build_model(config: CNEPConfig, train: Sequence[np.ndarray], seed: int) -> CNEP:
-    """A freshly initialised model (seeded) whose normaliser is fitted on `train`."""
+def build_model(config: CNEPConfig, train: Sequence[np.ndarray] | Moments, seed: int) -> CNEP:
+    """A freshly initialised model (seeded) whose normaliser is fitted on `train`: (T_i, width) trajectories, or
+    their `Moments`."""
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(seed)
         model = CNEP(config)
     with torch.no_grad():  # the gate starts uniform: zero weights, zero bias
         model.gate.weight.zero_()
         model.gate.bias.zero_()
-    model.normaliser.fit(train)
+    if isinstance(train, Moments):
+        model.normaliser.fit_moments(train)
+    else:
+        model.normaliser.fit(train)
     return model
 
 
@@ -274,10 +279,16 @@ class Trainer:
         terms["usage"] = gate.detach().mean(0).tolist()
         return terms
 
-    def validate(self) -> float:
+    def validation_error(self) -> float:
+        """The winner-take-all error over the fixed validation batches (normalised units)."""
         self.model.eval()
         error = float(np.mean([wta_error(self.model, b.to(self.device)) for b in self.val_batches]))
         self.model.train()
+        return error
+
+    def validate(self) -> float:
+        """`validation_error`, keeping the weights when it is the best so far (from `keep_from` on)."""
+        error = self.validation_error()
         if error < self.best_error and error <= DIVERGED_ERROR and self.step >= self.keep_from:
             self.best_error, self.best_step = error, self.step
             self.best_state = copy.deepcopy(self.model.state_dict())

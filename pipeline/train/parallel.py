@@ -3,15 +3,18 @@
 Under `torchrun --nproc_per_node=N` (environment RANK, WORLD_SIZE, LOCAL_RANK, MASTER_ADDR/PORT) each
 process joins a process group (gloo on CPU, nccl on CUDA), wraps the model in
 DistributedDataParallel (gradients averaged over ranks at every step) and draws its own batches from
-a generator seeded by its rank. Every rank holds the whole (small) training set; validation batches,
-and hence best-model keeping and early stopping, are the same on every rank. Only rank 0 writes.
+a generator seeded by its rank, out of its own share of the demonstrations (`share`: every world-size-th
+one of the training, and of the validation, demonstrations, from its rank on: a pure function of the file
+list, the same on every rank without coordination). Each rank reads and holds only its share; the
+normaliser's statistics and the validation error are combined over the ranks, so best-model keeping and
+early stopping agree on every rank. Only rank 0 writes the checkpoint.
 """
 
 from __future__ import annotations
 
 import logging
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -68,9 +71,36 @@ def stop_processes(procs: Processes, wait: bool) -> None:
         dist.destroy_process_group()
 
 
+def barrier(procs: Processes) -> None:
+    """Wait until every rank got here (nothing without torchrun)."""
+    if procs.distributed:
+        dist.barrier()
+
+
 def rank_seed(seed: int, rank: int) -> int:
     """Seed of rank `rank`'s batch generator: rank 0 keeps `seed` (a 1-process run is the plain run)."""
     return seed if rank == 0 else int(np.random.SeedSequence([seed, rank]).generate_state(1)[0])
+
+
+def share(indices: Sequence[int], procs: Processes) -> list[int]:
+    """Rank `procs.rank`'s share of `indices`: every world-size-th from its rank on; all of them where there are
+    fewer than ranks (each rank then validates, or trains, on every one: `disjoint` says which)."""
+    return list(indices[procs.rank :: procs.world_size]) if disjoint(indices, procs) else list(indices)
+
+
+def disjoint(indices: Sequence[int], procs: Processes) -> bool:
+    """Whether the ranks' shares of `indices` (`share`) are disjoint: there are at least as many as ranks."""
+    return len(indices) >= procs.world_size
+
+
+def mean_over_ranks(procs: Processes, value: float) -> float:
+    """The mean of `value` over the ranks (itself without torchrun); one all-reduce in float64."""
+    if not procs.distributed:
+        return value
+    on = torch.device("cuda", torch.cuda.current_device()) if dist.get_backend() == "nccl" else torch.device("cpu")
+    total = torch.tensor([value], dtype=torch.float64, device=on)
+    dist.all_reduce(total)
+    return float(total.item()) / procs.world_size
 
 
 def from_main(procs: Processes, work: Callable[[], Any]) -> Any:

@@ -2,13 +2,16 @@
 
     train(TrainStageConfig(inputs=(folder,), out=Path("ckpt"))) -> Path("ckpt")
 
-Steps: find and read the trajectory files (one width, one feature extractor, else an error naming
-the files); pick the model's columns by layout preset (pipeline.train.presets); split whole
-demonstrations into training and validation; fit the normaliser on the training demonstrations;
+Steps: find the trajectory files and read their summaries (one width, one feature extractor, else an
+error naming the files); pick the model's columns by layout preset (pipeline.train.presets); split whole
+demonstrations into training and validation; pack the model's columns of this process's share of them
+into one memory-mapped file in the work folder (pipeline.train.packed: each file read once, its frames
+left unread); fit the normaliser on the training demonstrations from running moments;
 train with `models.Trainer` (time normalised per demonstration to [0, 1] by its sampler), saving a
 resumable state every `save_every` steps; keep the weights with the lowest validation error; stop
 early after `patience` validations without improvement. Under torchrun the same call trains with
-DistributedDataParallel (pipeline.train.parallel); only rank 0 writes.
+DistributedDataParallel (pipeline.train.parallel), each rank on its share of the demonstrations; only
+rank 0 writes the checkpoint.
 
 OUT gets `config.json` (model, layout, training settings, extractor identity, files with sha256, the
 time base: the demonstrations' median duration and step period in seconds, best step and error),
@@ -17,7 +20,7 @@ time base: the demonstrations' median duration and step period in seconds, best 
 
 from __future__ import annotations
 
-import hashlib
+import contextlib
 import json
 import logging
 import shutil
@@ -33,6 +36,7 @@ from tqdm import tqdm
 
 from cnep.models import CNEPConfig, Trainer, build_model, save_checkpoint
 from cnep.models.matched import matched_cnmp
+from cnep.models.normaliser import Moments
 from cnep.models.sampler import TrajectoryStack
 from cnep.models.threads import torch_threads
 from cnep.models.train import split_validation
@@ -45,13 +49,18 @@ from cnep.pipeline.ownership import CHECKPOINT_FILES
 from cnep.pipeline.train.config import TrainStageConfig
 from cnep.pipeline.train.constants import LOG_FILE, STATE_FILE
 from cnep.pipeline.train.data import TrainingSet, load_training_set
+from cnep.pipeline.train.packed import PackedColumns, pack_columns
 from cnep.pipeline.train.parallel import (
     PlacedModel,
     Processes,
     any_rank_signal,
+    barrier,
+    disjoint,
     from_main,
     gather,
+    mean_over_ranks,
     rank_seed,
+    share,
     start_processes,
     stop_processes,
 )
@@ -64,6 +73,8 @@ from cnep.pipeline.train.state import (
     work_dir,
     write_log,
 )
+from cnep.recordings.constants import BLOCK_GRIPPER
+from cnep.runtime.gripper import GripperCommand
 
 log = logging.getLogger(__name__)
 
@@ -79,6 +90,7 @@ class StageTrainer(Trainer):
     """
 
     on_step: Callable[[Trainer, dict], None] | None = None
+    ranks: Processes | None = None  # validating on disjoint shares: the error is the mean over these ranks
     interrupted: Callable[[], int | None] | None = None  # the signal to stop on at the end of a step, if any
     stopped_between_steps: bool = False
 
@@ -87,6 +99,10 @@ class StageTrainer(Trainer):
         if self.on_step is not None:
             self.on_step(self, terms)
         return terms
+
+    def validation_error(self) -> float:
+        error = super().validation_error()
+        return error if self.ranks is None else mean_over_ranks(self.ranks, error)
 
     def after_step(self, terms: dict) -> bool:
         """The Trainer's validation and early stop, then a Ctrl-C or SIGTERM received during the step is raised:
@@ -124,19 +140,26 @@ def _train(config: TrainStageConfig, procs: Processes, device: torch.device, hel
     if config.matched_cnmp:
         model_config = matched_cnmp(model_config)
     train_idx, val_idx = split_validation(list(range(len(data.files))), config.val_fraction, config.training.seed)
-    identity = run_identity(config, data, layout, model_config, train_idx, val_idx, procs)
     inputs = [f.path for f in data.files]
     saved = from_main(procs, lambda: prepare_work_dir(config.out, config.resume, config.force, inputs, held))
+    my_train, my_val = share(train_idx, procs), share(val_idx, procs)
+    packed = pack_columns(data, my_train + my_val, layout, pack_base(config.out, procs))
+    hashes = {i: h for part in gather(procs, packed_hashes(packed)) for i, h in part.items()}  # (sha256, rows)
+    gripper = gripper_command(packed, layout, procs)
+    sha256 = [hashes[i][0] for i in range(len(inputs))]
+    identity = run_identity(config, data, sha256, layout, model_config, train_idx, procs)
     if saved is not None:
         check_same_run(saved["identity"], identity, work_dir(config.out) / STATE_FILE)
     if procs.is_main:
-        warn_identical(data, train_idx, val_idx)
+        warn_identical(data, [hashes[i][1] for i in range(len(inputs))], train_idx, val_idx)
 
-    rows = [layout.select(f.data) for f in data.files]  # (T_i, model width) each
-    train_rows, val_rows = [rows[i] for i in train_idx], [rows[i] for i in val_idx]
-    model = build_model(model_config, train_rows, config.training.seed)  # normaliser fitted on training demos
-    train_stack, val_stack = TrajectoryStack(train_rows, model), TrajectoryStack(val_rows, model)
+    moments = gather(procs, packed.moments(my_train))  # each rank's training share, in rank order
+    fitted_on = Moments.total(moments) if disjoint(train_idx, procs) else moments[0]
+    model = build_model(model_config, fitted_on, config.training.seed)  # normaliser fitted on training demos
+    train_stack = TrajectoryStack.from_rows(packed.rows, *packed.span(my_train), model)
+    val_stack = TrajectoryStack.from_rows(packed.rows, *packed.span(my_val), model)
     trainer = StageTrainer(PlacedModel(model, device, procs), train_stack, val_stack, config.training)
+    trainer.ranks = procs if procs.distributed and disjoint(val_idx, procs) else None
     trainer.generator.manual_seed(rank_seed(config.training.seed, procs.rank))
     elapsed = 0.0
     if saved is not None:
@@ -179,6 +202,8 @@ def _train(config: TrainStageConfig, procs: Processes, device: torch.device, hel
             )
             raise type(exc)(then) from None
     elapsed = time.perf_counter() - clock
+    remove_pack(packed, config.out, procs)
+    barrier(procs)  # every rank's pack is gone before rank 0 renames the work folder into the checkpoint
     if trainer.diverged is not None and procs.is_main:
         diverged(trainer, config, saved is None)
 
@@ -199,7 +224,6 @@ def _train(config: TrainStageConfig, procs: Processes, device: torch.device, hel
         }
         extra = {key: value for key, value in identity.items() if key != "model"}  # save_checkpoint writes "model"
         time_base = data.time_base().to_dict()  # the robot's seconds -> t (runtime.timebase)
-        gripper = data.gripper_command()  # the predicted gripper -> a two-state gripper's command (runtime.gripper)
         policy = {"time_base": time_base, "gripper": gripper.to_dict() if gripper else None}
         save_checkpoint(model, work, {**extra, **policy, "result": summary, "log": LOG_FILE})
         record_written([work / n for n in CHECKPOINT_FILES if (work / n).is_file()], forget=[work / STATE_FILE])
@@ -236,21 +260,54 @@ def diverged(trainer: Trainer, config: TrainStageConfig, fresh: bool) -> None:
     raise PipelineError(f"{config.out}: training diverged before any weights could be kept ({trainer.diverged}); {fix}")
 
 
-def warn_identical(data: TrainingSet, train_idx: list[int], val_idx: list[int]) -> None:
-    """Warn when every validation demonstration holds the same rows as a training one: the validation error then
-    measures the training set, and early stopping and the best weights cannot see overfitting."""
-    trained = {_rows_digest(data.files[i].data) for i in train_idx}
-    copies = [str(data.files[i].path) for i in val_idx if _rows_digest(data.files[i].data) in trained]
+def pack_base(out: Path, procs: Processes) -> Path:
+    """Where this rank packs its share's columns (`pipeline.train.packed`): the work folder (made on a machine
+    whose file system rank 0's is not), named by rank and world size, so that a resume with the same ranks finds it."""
+    work = work_dir(out)
+    work.mkdir(parents=True, exist_ok=True)
+    return work / f"columns-{procs.rank}-of-{procs.world_size}"
+
+
+def packed_hashes(packed: PackedColumns) -> dict[int, tuple[str, str]]:
+    """Training-set index -> (the file's sha256, its packed rows' sha256) of the files this rank packed."""
+    return {i: (h, d) for i, h, d in zip(packed.indices, packed.sha256, packed.digests)}
+
+
+def gripper_command(packed: PackedColumns, layout: TrainingColumns, procs: Processes) -> GripperCommand | None:
+    """The two-state gripper's command chosen from every file's gripper values (runtime.gripper), gathered from the
+    ranks' packs; None when the model has no gripper column. All ranks must call this."""
+    span = layout.blocks.get(BLOCK_GRIPPER)
+    if span is None:
+        return None
+    values = {i: v for part in gather(procs, packed.columns(packed.indices, span)) for i, v in part.items()}
+    return GripperCommand.from_demonstrations(np.concatenate([values[i] for i in sorted(values)]))
+
+
+def remove_pack(packed: PackedColumns, out: Path, procs: Processes) -> None:
+    """Delete this rank's pack once training ended (its memory map stays readable until the process ends), and on a
+    machine other than rank 0's, the work folder it made for it if nothing else is in it."""
+    base = pack_base(out, procs)
+    files = (base.with_suffix(".npy"), base.with_suffix(".json"))
+    for path in files:
+        path.unlink(missing_ok=True)
+    record_written([], forget=files)
+    if not procs.is_main:
+        with contextlib.suppress(OSError):
+            base.parent.rmdir()
+
+
+def warn_identical(data: TrainingSet, digests: list[str], train_idx: list[int], val_idx: list[int]) -> None:
+    """Warn when every validation demonstration holds the same rows as a training one (`digests`: each file's packed
+    rows' sha256): the validation error then measures the training set, and early stopping and the best weights
+    cannot see overfitting."""
+    trained = {digests[i] for i in train_idx}
+    copies = [str(data.files[i].path) for i in val_idx if digests[i] in trained]
     if copies and len(copies) == len(val_idx):
         log.warning(
             "the validation demonstration(s) %s hold the same rows as training ones: the validation error measures "
             "the training set; give distinct demonstrations",
             ", ".join(copies),
         )
-
-
-def _rows_digest(rows: np.ndarray) -> str:
-    return hashlib.sha256(np.ascontiguousarray(rows).tobytes()).hexdigest()
 
 
 def save_progress(trainer: Trainer, procs: Processes, work: Path, extra: dict) -> None:
@@ -264,14 +321,18 @@ def save_progress(trainer: Trainer, procs: Processes, work: Path, extra: dict) -
 def run_identity(
     config: TrainStageConfig,
     data: TrainingSet,
+    sha256: list[str],
     layout: TrainingColumns,
     model_config: CNEPConfig,
     train_idx: list[int],
-    val_idx: list[int],
     procs: Processes,
 ) -> dict:
-    """What makes a run: saved in config.json and compared on --resume (JSON-able, as JSON reads it back)."""
-    files = [dict(f.describe(), split="train" if i in train_idx else "validation") for i, f in enumerate(data.files)]
+    """What makes a run: saved in config.json and compared on --resume (JSON-able, as JSON reads it back); `sha256`:
+    each file's."""
+    trained = set(train_idx)
+    files = [
+        dict(f.describe(sha256[i]), split="train" if i in trained else "validation") for i, f in enumerate(data.files)
+    ]
     identity = {
         "stage": "train",
         "layout": layout.to_dict(),

@@ -111,3 +111,29 @@ def test_each_sample_names_its_trajectory():
     stack, lengths = _stack()
     b = sample_batch(stack, 100, n_max=10, m_max=10, g=torch.Generator().manual_seed(3))
     assert torch.equal(b.target[:, 0, 0].long(), b.trajectory)  # predicted column 0 of trajectory i holds i
+
+
+def test_a_stack_of_packed_rows_in_a_memory_map_draws_the_same_batches(tmp_path):
+    lengths = (5, 12, 30)
+    cfg = tiny_config(n_experts=2)
+    model = CNEP(cfg)
+    rng = np.random.default_rng(0)
+    trajs = [rng.standard_normal((T, cfg.columns.width)).astype(np.float32) for T in lengths]
+    model.normaliser.fit(trajs)
+    np.save(tmp_path / "rows.npy", np.concatenate(trajs))
+    packed = TrajectoryStack.from_rows(np.load(tmp_path / "rows.npy", mmap_mode="r"), [0, 5, 17], lengths, model)
+    listed = TrajectoryStack(trajs, model)
+    a = sample_batch(listed, 32, n_max=10, m_max=40, g=torch.Generator().manual_seed(2), obs_noise=0.1)
+    b = sample_batch(packed, 32, n_max=10, m_max=40, g=torch.Generator().manual_seed(2), obs_noise=0.1)
+    for field in ("obs", "obs_mask", "query", "target", "target_mask", "trajectory"):
+        assert torch.equal(getattr(a, field), getattr(b, field)), field
+    every = torch.arange(3)
+    assert all(torch.equal(x, y) for x, y in zip(listed.demonstration(every), packed.demonstration(every)))
+
+
+def test_steps_past_a_trajectory_end_read_as_zero_rows_normalised():
+    stack, lengths = _stack()
+    stack.loc, stack.scale = torch.tensor([1.0, 2.0, 3.0]), torch.tensor([2.0, 4.0, 8.0])
+    values = stack.values(torch.tensor([0]), torch.tensor([[4, 5, 29]]), ((0, 3),))  # trajectory 0 has 5 steps
+    assert torch.equal(values[0, 0], (torch.tensor([4.0, 0.0, 0.0]) - stack.loc) / stack.scale)
+    assert torch.equal(values[0, 1:], (-stack.loc / stack.scale).expand(2, 3))

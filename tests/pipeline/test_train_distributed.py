@@ -14,7 +14,7 @@ from torch import distributed as dist
 from cnep.models import load_checkpoint, read_checkpoint_config
 from cnep.pipeline.cli.main import main
 from cnep.pipeline.train import stage
-from cnep.pipeline.train.parallel import Processes
+from cnep.pipeline.train.parallel import PlacedModel, Processes
 from cnep.recordings import read_trajectory
 from tests.pipeline.test_train import stage_config, write_set
 
@@ -91,7 +91,7 @@ def test_two_process_torchrun_trains_a_loadable_checkpoint(tmp_path):
 def test_training_frees_its_ddp_wrapper_before_the_interpreter_exits(tmp_path, monkeypatch):
     """A wrapper left in a reference cycle is collected at interpreter exit, where gloo's threads abort the process.
 
-    Rank 0 of a real gloo group of one process, told it is one of two so that the model is wrapped in
+    Rank 0 of a real gloo group of one process, whose model is told it is one of two so that it is wrapped in
     DistributedDataParallel; the cyclic garbage collector is off, so only reference counts free it.
     """
     wrappers = []
@@ -102,7 +102,8 @@ def test_training_frees_its_ddp_wrapper_before_the_interpreter_exits(tmp_path, m
             wrappers.append(weakref.ref(self))
 
     dist.init_process_group("gloo", init_method=f"file://{tmp_path / 'store'}", rank=0, world_size=1)
-    monkeypatch.setattr(stage, "start_processes", lambda device: (Processes(rank=0, world_size=2), torch.device("cpu")))
+    two = Processes(rank=0, world_size=2)
+    monkeypatch.setattr(stage, "PlacedModel", lambda model, device, procs: PlacedModel(model, device, two))
     monkeypatch.setattr(torch.nn.parallel, "DistributedDataParallel", Recorded)
     was_enabled = gc.isenabled()
     gc.disable()
