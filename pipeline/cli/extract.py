@@ -53,6 +53,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "torchrun each rank extracts its share of the files",
     )
     parser.add_argument(
+        "--shard",
+        type=_shard,
+        default=(0, 1),
+        metavar="I/N",
+        help="extract only the I-th of N shares of the inputs (0 <= I < N; every N-th file by output path), so "
+        "that N jobs (a Slurm job array, a Kubernetes indexed job) split one data set into one --out; each "
+        "calibrates random weights on every input alike (default 0/1: every file)",
+    )
+    parser.add_argument(
         "--calibrate-on",
         nargs="+",
         metavar="DEMO",
@@ -106,6 +115,7 @@ def run(args: argparse.Namespace) -> int:
         workers=args.workers,
         precision=args.precision,
         calibrate_on=tuple(Path(p) for p in args.calibrate_on),
+        shard=args.shard,
         **options,
     )
     done = extract(config)
@@ -125,3 +135,15 @@ def _workers(text: str) -> int | str:
         return int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a whole number or `auto`, got {text!r}") from None
+
+
+def _shard(text: str) -> tuple[int, int]:
+    """`--shard I/N`: two whole numbers, 0 <= I < N."""
+    index, _, count = text.partition("/")
+    try:
+        shard = int(index), int(count)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected I/N (two whole numbers, as 0/4), got {text!r}") from None
+    if not 0 <= shard[0] < shard[1]:
+        raise argparse.ArgumentTypeError(f"expected 0 <= I < N, got {text!r}")
+    return shard

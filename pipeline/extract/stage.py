@@ -11,13 +11,17 @@ With `weights="random"` the network is first calibrated on frames sampled evenly
 (perception.calibration), so every file of one run shares one extractor; save it with
 `save_weights` to extract more files later with identical features.
 
-Scale-out: `workers` > 1 extracts the files in that many spawned processes on this machine, each
+Scale-out: `shard=(i, n)` (`cnep extract --shard I/N`) extracts the i-th of n shares of the inputs (`shard_of`:
+every n-th file by output path from the i-th on), so that n jobs of any scheduler (a Slurm job array, a
+Kubernetes indexed job, a loop over machines) split one data set into one --out folder; each calibrates random
+weights on the frames of every input alike, so all shards share one extractor identity.
+`workers` > 1 extracts the files in that many spawned processes on this machine, each
 with its share of the cores (pipeline.workers.inference_threads) and the parent's extractor;
 `workers="auto"` takes one per core but only as many as the job pays for (`auto_workers`: a spawned
 worker costs seconds to start, measured by benchmarks/bench_extract.py). Under
-`torchrun` (environment RANK, WORLD_SIZE) rank r extracts every WORLD_SIZE-th file from the r-th on
-(its share; each rank calibrates random weights on the same frames, so all ranks share one weights
-hash); outputs are per file, so nothing is gathered (docs/how-to/extract-features.md).
+`torchrun` (environment RANK, WORLD_SIZE) rank r extracts every WORLD_SIZE-th file of its shard from the r-th on
+(each rank calibrates random weights on the same frames, so all ranks share one weights hash); outputs are per
+file, so nothing is gathered (docs/how-to/extract-features.md, docs/how-to/cluster.md).
 """
 
 from __future__ import annotations
@@ -47,14 +51,13 @@ from cnep.pipeline.ownership import MCAP, WEIGHTS
 from cnep.pipeline.progress import progress_bar
 from cnep.pipeline.workers import cpu_cores, inference_threads, process_pool, thread_environment
 from cnep.recordings import (
-    DemonstrationReader,
     RecordingError,
     Trajectory,
-    TrajectoryReader,
     read_demonstration,
+    read_summary,
     write_trajectory,
 )
-from cnep.recordings.constants import TOPIC_IMAGE
+from cnep.recordings.constants import KIND_DEMONSTRATION, KIND_TRAJECTORY, TOPIC_IMAGE
 from cnep.recordings.readers import in_file
 
 log = logging.getLogger(__name__)
@@ -78,7 +81,8 @@ class ExtractConfig:
     skip inputs that fail and report them at the end; workers: processes extracting files side by side,
     or `auto` (`auto_workers`); precision: `fp32` or `int8` (quantised on frames sampled evenly over all
     inputs, like the random weights' calibration; perception.quantisation); offline: never download the
-    ImageNet weights; calibrate_on: demonstration files or folders whose frames calibrate random weights
+    ImageNet weights; shard: (i, n), extract only the i-th of n shares of the inputs (`shard_of`);
+    calibrate_on: demonstration files or folders whose frames calibrate random weights
     and quantise int8, instead of the inputs (so that later runs over other files share the first run's
     int8 identity).
     """
@@ -98,9 +102,13 @@ class ExtractConfig:
     workers: int | str = 1
     precision: str = "fp32"
     calibrate_on: tuple[Path, ...] = ()
+    shard: tuple[int, int] = (0, 1)
 
     def __post_init__(self) -> None:
         coerce_paths(self)
+        index, count = self.shard
+        if not 0 <= index < count:
+            raise PipelineError(f"--shard I/N needs 0 <= I < N, got {index}/{count}")
         if self.workers != "auto" and (not isinstance(self.workers, int) or self.workers < 1):
             raise PipelineError(f"--workers must be >= 1, got {self.workers} (or `auto`: as many as the job pays for)")
 
@@ -123,7 +131,8 @@ def extract(config: ExtractConfig) -> list[Extracted]:
     """
     all_pairs = plan_outputs(config.inputs, config.out)
     rank, world_size = torchrun_rank()
-    pairs = all_pairs[rank::world_size]  # this rank's share; every rank calibrates on all inputs alike
+    pairs = shard_of(all_pairs, *config.shard)[rank::world_size]  # this job's share; all calibrate on every input
+    first = rank == 0 and config.shard[0] == 0  # the one job that saves the weights
     if config.save_weights is not None:
         refuse_inputs([config.save_weights], [src for src, _ in all_pairs], "--save-weights")
         refuse_existing([config.save_weights], config.force, "weights file", kind=WEIGHTS)
@@ -149,9 +158,11 @@ def extract(config: ExtractConfig) -> list[Extracted]:
         skipped.append(str(exc))
 
     # Under torchrun every rank writes its share into --out: rank 0 holds the lock for the run, and leaves
-    # temporary files alone (another rank's, on another machine, would look like a dead process's).
-    lock = output_lock(config.out, folder=True, clean=world_size == 1) if rank == 0 else contextlib.nullcontext()
-    with output_folder(config.out), lock:
+    # temporary files alone (another rank's, on another machine, would look like a dead process's). Shards run
+    # side by side into one --out: none holds the folder's lock, each writes only its own files.
+    alone = world_size == 1 and config.shard[1] == 1
+    lock = output_lock(config.out, folder=True, clean=alone) if rank == 0 and config.shard[1] == 1 else None
+    with output_folder(config.out), lock or contextlib.nullcontext():
         for _, dst in pairs:  # nested input folders keep their sub-folders under --out
             dst.parent.mkdir(parents=True, exist_ok=True)
         current = {dst: None if config.force else up_to_date_steps(src, dst, extractor) for src, dst in pairs}
@@ -164,7 +175,7 @@ def extract(config: ExtractConfig) -> list[Extracted]:
             kind=MCAP,
         )
         refuse_existing(sorted(stale), True, kind=MCAP)  # redone without --force, but only if cnep wrote it
-        if config.save_weights is not None and rank == 0:
+        if config.save_weights is not None and first:
             with output_lock(config.save_weights):
                 extractor().save_weights(config.save_weights)
                 record_written([config.save_weights])
@@ -204,6 +215,15 @@ def _newer_than(dst: Path, src: Path) -> bool:
     return os.path.lexists(dst) and (not dst.is_file() or dst.stat().st_mtime >= src.stat().st_mtime)
 
 
+def shard_of(pairs: Sequence[tuple[Path, Path]], index: int, count: int) -> list[tuple[Path, Path]]:
+    """Shard `index` of `count` of the planned (input, output) pairs, in plan order: every count-th by output path
+    from the index-th on. A pure function of the inputs (whatever order they are given in), so every job derives its
+    own share alone; the shards are disjoint and cover the inputs."""
+    by_output = sorted(range(len(pairs)), key=lambda k: str(pairs[k][1]))
+    mine = set(by_output[index::count])
+    return [pair for k, pair in enumerate(pairs) if k in mine]
+
+
 def torchrun_rank() -> tuple[int, int]:
     """(rank, world size) when torchrun started this process (environment RANK and WORLD_SIZE), else (0, 1)."""
     world_size = int(os.environ.get("WORLD_SIZE", "1"))
@@ -215,8 +235,8 @@ def auto_workers(sources: Sequence[Path]) -> int:
     frames to extract (at least 1), so that a small job never pays for starting processes."""
     frames = 0
     for src in sources:
-        with DemonstrationReader(src) as reader:
-            frames += reader.n_steps if reader.has_frames else 0
+        summary = read_summary(src, KIND_DEMONSTRATION)
+        frames += summary.n_steps if summary.has_frames else 0
     workers = max(1, min(cpu_cores(), len(sources), frames // WORKER_MIN_FRAMES))
     log.info(
         "--workers auto: %d worker(s) for %d file(s), %d frames on %d cores", workers, len(sources), frames, cpu_cores()
@@ -241,7 +261,7 @@ def extract_in_processes(
     """
     workers = min(workers, len(pairs))
     threads = inference_threads(config.threads, workers)
-    with_frames = any(read_demonstration(src).frames is not None for src, _ in pairs)
+    with_frames = any(read_summary(src, KIND_DEMONSTRATION).has_frames for src, _ in pairs)
     shared = extractor() if with_frames else None  # motion-only inputs need no network
     done = {}
     with (
@@ -354,39 +374,44 @@ def decode_batch(frames: Sequence[bytes], start: int, size: int, src: Path) -> n
 def calibration_frames(sources: Sequence[Path], count: int) -> np.ndarray:
     """Up to `count` frames spread evenly over the demonstrations in `sources` (sorted by path): (N, 224, 224, 3) uint8.
 
-    Sorting makes the calibration, hence the weights hash, independent of the order inputs were given in.
+    Sorting makes the calibration, hence the weights hash, independent of the order inputs were given in. Which
+    files have frames, and how many, comes from their summaries; then one file at a time is read for its share.
     """
     with_frames = []
     for src in sorted(sources):
-        demo = read_demonstration(src)
-        if demo.frames is not None:
-            with_frames.append((src, demo.frames))
+        summary = read_summary(src, KIND_DEMONSTRATION)
+        if summary.has_frames:
+            with_frames.append((src, summary.n_steps))
     if not with_frames:
         raise PipelineError(
             "random weights are calibrated on the recordings' frames, but no input has frames; "
             "give demonstrations with a camera topic, or use --weights imagenet or a weights file"
         )
     per_file = math.ceil(count / len(with_frames))
-    frames = []
-    for src, jpegs in with_frames:
-        for step in np.linspace(0, len(jpegs) - 1, min(per_file, len(jpegs))).round().astype(int):
+    frames: list[np.ndarray] = []
+    for src, steps in with_frames:
+        if len(frames) >= count:
+            break
+        jpegs = read_demonstration(src).frames or []
+        for step in np.linspace(0, steps - 1, min(per_file, steps)).round().astype(int):
             frames.append(decode_batch(jpegs, int(step), 1, src))  # (1, 224, 224, 3)
     return np.concatenate(frames[:count])  # (N, 224, 224, 3)
 
 
 def up_to_date_steps(src: Path, dst: Path, extractor: Callable[[], FeatureExtractor]) -> int | None:
-    """Step count of `dst` if it is newer than `src` and its features come from an extractor compatible with ours."""
+    """Step count of `dst` if it is newer than `src` and its features come from an extractor compatible with ours,
+    read from its summary alone (`recordings.read_summary`)."""
     if not dst.is_file() or dst.stat().st_mtime < src.stat().st_mtime:
         return None
     try:
-        with TrajectoryReader(dst) as reader:
-            if not reader.extractor:  # motion-only: its source had no frames, and the source did not change
-                return reader.n_steps
-            same = compatibility_key(reader.extractor) == compatibility_key(extractor().identity)
-            return reader.n_steps if same else None
+        summary = read_summary(dst, KIND_TRAJECTORY)  # its metadata only: a few small reads, whatever its size
     except RecordingError as exc:  # not a readable trajectory: refused unless --force, or redone if stale
         log.debug("%s is not an up-to-date trajectory file: %s", dst, exc)
         return None
+    if not summary.extractor:  # motion-only: its source had no frames, and the source did not change
+        return summary.n_steps
+    same = compatibility_key(summary.extractor) == compatibility_key(extractor().identity)
+    return summary.n_steps if same else None
 
 
 def plan_outputs(inputs: Sequence[Path], out: Path) -> list[tuple[Path, Path]]:

@@ -9,7 +9,7 @@ from cnep.perception import FeatureExtractor, PerceptionError, decode_image
 from cnep.perception.constants import WEIGHTS_ENV_VAR
 from cnep.pipeline.cli.main import main
 from cnep.pipeline.errors import PipelineError
-from cnep.pipeline.extract.stage import ExtractConfig, calibration_frames, extract, plan_outputs
+from cnep.pipeline.extract.stage import ExtractConfig, calibration_frames, extract, plan_outputs, shard_of
 from cnep.pipeline.identity import check_identities, check_same_extractor
 from cnep.recordings import read_trajectory, write_demonstration
 from tests.recordings.factories import demonstration_factory
@@ -221,6 +221,53 @@ def test_torchrun_ranks_extract_disjoint_shares_with_one_identity(demos, tmp_pat
     assert [item.source for item in outputs[0]] == [demos[0]]
     assert [item.source for item in outputs[1]] == [demos[1]]
     assert check_same_extractor(sorted((tmp_path / "out").glob("*.mcap")))  # both ranks calibrated alike
+
+
+def test_two_shards_write_the_files_of_one_unsharded_run_byte_for_byte(tmp_path):
+    folder = tmp_path / "demos"
+    folder.mkdir()
+    demos = [
+        write_demonstration(folder / f"demo-{k}.mcap", demonstration_factory(4, seed=k, episode_id=f"demo-{k}"))
+        for k in range(5)
+    ]
+    whole = extract(_config(demos, tmp_path / "whole"))
+    shards = [
+        main(["-q", "extract", str(folder), "--out", str(tmp_path / "sharded"), "--weights", "random",
+              "--backend", "eager", "--threads", "1", "--shard", f"{i}/2"])
+        for i in (0, 1)
+    ]  # fmt: skip
+    assert shards == [0, 0]
+    written = sorted(p.name for p in (tmp_path / "sharded").iterdir())
+    assert written == [item.output.name for item in whole]
+    for item in whole:
+        assert (tmp_path / "sharded" / item.output.name).read_bytes() == item.output.read_bytes()
+
+
+def test_shards_are_disjoint_cover_the_inputs_and_ignore_their_order(tmp_path):
+    pairs = [(tmp_path / f"in-{k}.mcap", tmp_path / "out" / f"{k:02d}.mcap") for k in range(7)]
+    shards = [shard_of(pairs, i, 3) for i in range(3)]
+    assert sorted(pair for part in shards for pair in part) == sorted(pairs)
+    assert [len(part) for part in shards] == [3, 2, 2]
+    assert [sorted(shard_of(pairs[::-1], i, 3)) for i in range(3)] == [sorted(part) for part in shards]
+
+
+@pytest.mark.parametrize("shard", ["2/2", "-1/2", "1", "a/b"])
+def test_a_shard_outside_its_count_is_refused(demos, tmp_path, shard, capsys):
+    with pytest.raises(SystemExit) as stopped:  # argparse's one line, exit 2
+        main(["extract", str(demos[0]), "--out", str(tmp_path / "out"), f"--shard={shard}"])
+    assert stopped.value.code == 2 and "--shard" in capsys.readouterr().err
+
+
+def test_calibration_reads_only_the_files_it_samples_from(demos, tmp_path, monkeypatch):
+    from cnep.pipeline.extract import stage
+
+    read = []
+    original = stage.read_demonstration
+    monkeypatch.setattr(stage, "read_demonstration", lambda path: read.append(path) or original(path))
+    frames = calibration_frames(demos, 3)  # 2 from the first file, 1 from the second: both are read, one at a time
+    assert frames.shape == (3, 224, 224, 3) and read == sorted(demos)
+    read.clear()
+    assert calibration_frames(demos, 1).shape == (1, 224, 224, 3) and read == [sorted(demos)[0]]
 
 
 def test_workers_must_be_positive(demos, tmp_path):
