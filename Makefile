@@ -13,7 +13,7 @@ BENCH  ?=
 # MuJoCo + Gymnasium.
 EXTRAS_demo     := onnx,plots
 EXTRAS_evaluate := onnx,baselines,plots
-EXTRAS_test     := dev,onnx,openvino,baselines,plots,lerobot,ros,sim
+EXTRAS_test     := dev,onnx,openvino,baselines,plots,lerobot,ros,sim,dask
 EXTRAS_sim      := onnx,sim
 
 .PHONY: demo view sim test lint docs evaluate bench install clean

@@ -39,6 +39,8 @@ QUICK_STEPS = 1_500
 QUICK_SEEDS = 1
 QUICK_QUERIES = 20
 JOBS = 2  # worker processes (one thread each)
+LOCAL = "local"  # the executor of `jobs` worker processes on this machine
+EXECUTORS = (LOCAL, "dask", "ray")  # where the fits run (pipeline.evaluate.executors)
 # Networks of one shape and schedule on one set trained as one batched computation (pipeline.evaluate.jobs): a few
 # give most of what batching gives (benchmarks/bench_training.py), and units stay short enough to keep the workers
 # evenly loaded.

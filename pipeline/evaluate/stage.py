@@ -33,8 +33,10 @@ from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.evaluate.constants import (
     CNEP_EXPERTS,
     DEFAULT_OUT,
+    EXECUTORS,
     EXPERT_COUNTS,
     JOBS,
+    LOCAL,
     PATIENCE,
     QUERIES,
     QUICK_QUERIES,
@@ -47,6 +49,7 @@ from cnep.pipeline.evaluate.constants import (
     TABLES,
     UNIT_NETWORKS,
 )
+from cnep.pipeline.evaluate.executors import run_on_cluster
 from cnep.pipeline.evaluate.jobs import PROTOCOLS, Job, ModelSpec, run_unit, unit_key
 from cnep.pipeline.inputs import coerce_paths
 from cnep.pipeline.ownership import OutputKind, json_with, markdown_titled, png_by_matplotlib
@@ -61,7 +64,9 @@ class EvaluateConfig:
 
     sets: restrict the tables' columns (None: every set of each table, or QUICK_SETS with `quick`);
     patience: validations without improvement before a network stops early (None: every network trains all
-    its steps); jobs: worker processes (0 runs everything in this process); force: replace tables already in `out`.
+    its steps); jobs: worker processes (0 runs everything in this process); force: replace tables already in `out`;
+    executor: `local` (the process pool of `jobs`), `dask` or `ray` (pipeline.evaluate.executors), at `address`
+    (None: a cluster of `jobs` processes on this machine).
     """
 
     tables: tuple[str, ...] = ("comparison",)
@@ -76,9 +81,15 @@ class EvaluateConfig:
     figures: bool = True
     force: bool = False
     quiet: bool = False
+    executor: str = LOCAL
+    address: str | None = None
 
     def __post_init__(self) -> None:
         coerce_paths(self)
+        if self.executor not in EXECUTORS:
+            raise PipelineError(f"unknown executor {self.executor!r}; choose one of {', '.join(EXECUTORS)}")
+        if self.address is not None and self.executor == LOCAL:
+            raise PipelineError(f"--executor local takes no address, got {self.address!r}; name dask or ray with it")
         unknown = [t for t in self.tables if t not in TABLES]
         if unknown or not self.tables:
             raise PipelineError(f"unknown table(s) {unknown or self.tables}; choose from {', '.join(TABLES)} or all")
@@ -210,9 +221,11 @@ class _BarFeed:
         self.put = bar.update
 
 
-def run_jobs(jobs: Sequence[Job], workers: int, quiet: bool) -> Iterator[tuple[Job, dict]]:
+def run_jobs(
+    jobs: Sequence[Job], workers: int, quiet: bool, executor: str = LOCAL, address: str | None = None
+) -> Iterator[tuple[Job, dict]]:
     """Yield (job, result) as jobs finish, in `units` of work run by `workers` spawned processes with one thread each
-    (or here when 0).
+    (or here when 0), or on a Dask or Ray cluster (`executor`, `address`: pipeline.evaluate.executors).
 
     The bar counts training steps (every network's planned steps; an early stop credits the rest), so it
     moves while networks train and its time left is an estimate from the steps' rate; the fits done and
@@ -231,6 +244,13 @@ def run_jobs(jobs: Sequence[Job], workers: int, quiet: bool) -> Iterator[tuple[J
         bar.set_postfix_str(f"{finished}/{len(jobs)} fits, last {job.label}")
 
     try:
+        if executor != LOCAL:
+            for unit, results in run_on_cluster(units(jobs), executor, address, workers):
+                bar.update(sum(job.steps for job in unit if job.spec is not None))
+                for job, result in zip(unit, results):
+                    done(job)
+                    yield job, result
+            return
         if workers == 0:
             for unit in units(jobs):
                 for job, result in zip(unit, run_unit(unit, _BarFeed(bar))):
@@ -384,7 +404,7 @@ def evaluate(config: EvaluateConfig) -> dict[str, Path]:
     with output_folder(config.out), output_lock(config.out, folder=True):
         check_writable_folder(config.out)
         refuse_existing(tables, config.force, "table or figure", kind=TABLE)  # again, under the lock
-        for job, result in run_jobs(jobs, config.jobs, config.quiet):
+        for job, result in run_jobs(jobs, config.jobs, config.quiet, config.executor, config.address):
             done[job.key] = result
             for table in [t for t, keys in pending.items() if not keys - done.keys()]:
                 del pending[table]

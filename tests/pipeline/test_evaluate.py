@@ -8,6 +8,7 @@ import torch
 
 import cnep.models.baselines.gmm as gmm_module
 from cnep.pipeline.cli.main import main
+from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.evaluate.constants import PAPER, QUICK_QUERIES, QUICK_SETS, QUICK_STEPS, TABLES
 from cnep.pipeline.evaluate.jobs import ModelSpec
 from cnep.pipeline.evaluate.stage import EvaluateConfig, evaluate, plan, pooled, table_rows
@@ -263,3 +264,29 @@ def test_unimodal_has_no_commitment_queries_and_still_scores(tmp_path, monkeypat
     evaluate(config)
     data = json.loads((tmp_path / "comparison.json").read_text())
     assert data["results"]["paper"]["CNEP"]["unimodal"]["failures"] == 0
+
+
+@pytest.mark.slow  # starts a Dask cluster of one worker process
+def test_a_dask_cluster_gives_the_results_of_the_local_pool(torch_threads):
+    pytest.importorskip("distributed")
+    from cnep.pipeline.evaluate.jobs import Job
+    from cnep.pipeline.evaluate.stage import run_jobs
+
+    jobs = [Job("bimodal", 0, ModelSpec(2), 30, 3), Job("bimodal", 0, ModelSpec(1), 30, 3)]
+    local = {job.key: result for job, result in run_jobs(jobs, workers=0, quiet=True)}
+    on_dask = {job.key: result for job, result in run_jobs(jobs, workers=1, quiet=True, executor="dask")}
+    assert on_dask.keys() == local.keys()
+    for key, result in local.items():
+        for method, row in result.items():
+            assert (
+                on_dask[key][method]["paper"] == row["paper"] and on_dask[key][method]["val_curve"] == row["val_curve"]
+            )
+
+
+def test_an_executor_is_local_dask_or_ray_and_only_a_cluster_takes_an_address(tmp_path, capsys):
+    with pytest.raises(PipelineError, match="unknown executor 'spark'"):
+        EvaluateConfig(executor="spark")
+    with pytest.raises(PipelineError, match="--executor local takes no address"):
+        EvaluateConfig(address="tcp://host:8786")
+    assert main(["evaluate", "--executor", "dask", "a", "b", "--out", str(tmp_path)]) == 2
+    assert "--executor takes local, dask [ADDRESS] or ray [ADDRESS]" in capsys.readouterr().err

@@ -1,0 +1,77 @@
+"""Where `cnep evaluate` runs its units of work besides this machine's process pool: a Dask or Ray cluster.
+
+    for unit, results in run_on_cluster(units, "dask", "tcp://scheduler:8786", workers=2): ...
+
+A unit (`pipeline.evaluate.jobs.run_unit`) is self-contained: its jobs name the set, the seed and the model, and it
+builds its data, seeds and threads itself, so any engine that can call a Python function on another machine runs it
+and returns the same numbers as the local pool. The engines are optional extras (`pip install
+'cnep-pipeline[dask]'` or `[ray]`), imported only when asked for. Without an address each starts a cluster on this
+machine of `workers` one-thread processes (Dask's `LocalCluster`, Ray's local instance); with one, it joins the
+user's cluster, whose workers need cnep installed. The engines report a unit when it is done (the progress bar moves
+by whole units), not step by step as the local pool does.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Iterator, Sequence
+
+from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.evaluate.constants import EXECUTORS
+from cnep.pipeline.evaluate.jobs import Job, run_unit
+from cnep.pipeline.workers import SMALL_MODEL_MALLOC, THREAD_VARIABLES, environment
+
+Unit = tuple[Job, ...]
+
+
+def run_on_cluster(units: Sequence[Unit], executor: str, address: str | None, workers: int) -> Iterator[tuple]:
+    """Yield (unit, its results: `run_unit`'s list) as the units finish on `executor` ("dask" or "ray"), at `address`
+    (None: a cluster of `workers` processes started on this machine, stopped at the end)."""
+    one_thread = environment({**dict.fromkeys(THREAD_VARIABLES, "1"), **SMALL_MODEL_MALLOC})  # inherited by workers
+    with one_thread:
+        if executor == "dask":
+            yield from _on_dask(units, address, max(1, workers))
+        elif executor == "ray":
+            yield from _on_ray(units, address, max(1, workers))
+        else:
+            raise PipelineError(f"unknown executor {executor!r}; choose one of {', '.join(EXECUTORS)}")
+
+
+def _missing(executor: str, module: str) -> PipelineError:
+    return PipelineError(
+        f"--executor {executor} needs the {module} package: pip install 'cnep-pipeline[{executor}]' (on every "
+        f"machine of the cluster too)"
+    )
+
+
+def _on_dask(units: Sequence[Unit], address: str | None, workers: int) -> Iterator[tuple]:
+    try:
+        from distributed import Client, LocalCluster, as_completed
+    except ImportError:
+        raise _missing("dask", "dask[distributed]") from None
+    with contextlib.ExitStack() as held:
+        if address is None:
+            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
+            held.enter_context(cluster)
+            address = cluster.scheduler_address
+        client = held.enter_context(Client(address))
+        futures = {client.submit(run_unit, unit, pure=False): unit for unit in units}
+        for future in as_completed(futures):
+            yield futures[future], future.result()
+
+
+def _on_ray(units: Sequence[Unit], address: str | None, workers: int) -> Iterator[tuple]:
+    try:
+        import ray
+    except ImportError:
+        raise _missing("ray", "ray") from None
+    local = {"num_cpus": workers, "include_dashboard": False} if address is None else {}
+    ray.init(address=address, **local)
+    try:
+        remote = ray.remote(num_cpus=1)(run_unit)
+        pending = {remote.remote(unit): unit for unit in units}
+        while pending:
+            (ready,), _ = ray.wait(list(pending), num_returns=1)
+            yield pending.pop(ready), ray.get(ready)
+    finally:
+        ray.shutdown()
