@@ -110,6 +110,7 @@ INPUTS = {
     "docs/how-to/lerobot-dataset.md": lerobot_dataset,
     "docs/how-to/ros-bag.md": ros_bags,
     "docs/how-to/extract-features.md": demonstration_folders,
+    "docs/how-to/cluster.md": demonstration_folders,
     "docs/how-to/train.md": trajectory_folder,
     "docs/how-to/repair-a-recording.md": truncated_recording,
 }
