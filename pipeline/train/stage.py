@@ -159,7 +159,9 @@ def _train(config: TrainStageConfig, procs: Processes, device: torch.device, hel
     train_stack = TrajectoryStack.from_rows(packed.rows, *packed.span(my_train), model)
     val_stack = TrajectoryStack.from_rows(packed.rows, *packed.span(my_val), model)
     trainer = StageTrainer(PlacedModel(model, device, procs), train_stack, val_stack, config.training)
-    trainer.ranks = procs if procs.distributed and disjoint(val_idx, procs) else None
+    if procs.distributed and disjoint(val_idx, procs):  # validation errors are means over the ranks' shares
+        trainer.ranks = procs
+        trainer.mean_error = mean_over_ranks(procs, trainer.mean_error)
     trainer.generator.manual_seed(rank_seed(config.training.seed, procs.rank))
     elapsed = 0.0
     if saved is not None:

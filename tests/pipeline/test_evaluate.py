@@ -272,7 +272,7 @@ def test_a_dask_cluster_gives_the_results_of_the_local_pool(torch_threads):
     from cnep.pipeline.evaluate.jobs import Job
     from cnep.pipeline.evaluate.stage import run_jobs
 
-    jobs = [Job("bimodal", 0, ModelSpec(2), 30, 3), Job("bimodal", 0, ModelSpec(1), 30, 3)]
+    jobs = [Job("bimodal", 0, ModelSpec.of(2), 30, 3), Job("bimodal", 0, ModelSpec.of(1), 30, 3)]
     local = {job.key: result for job, result in run_jobs(jobs, workers=0, quiet=True)}
     on_dask = {job.key: result for job, result in run_jobs(jobs, workers=1, quiet=True, executor="dask")}
     assert on_dask.keys() == local.keys()
