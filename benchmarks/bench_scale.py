@@ -47,7 +47,6 @@ EXTRACTOR = {
     "backend": "onnxruntime",
 }
 STARTED = re.compile(r"training on \d+ demonstrations")
-PACKAGES = ("models", "recordings", "perception", "outputs", "runtime", "pipeline")
 MIB = 1 << 20
 
 
@@ -120,11 +119,13 @@ def timed_run(command: list[str], env: dict, skip_root: bool = False) -> SimpleN
 
 
 def checkout_path(checkout: Path, scratch: Path) -> str:
-    """A folder whose `cnep` package is the checkout's (its library folders linked), for PYTHONPATH."""
+    """A folder whose `cnep` package is the checkout's (its library folders, those at its root with an __init__.py,
+    linked), for PYTHONPATH."""
     package = scratch / "before" / "cnep"
     package.mkdir(parents=True)
-    for name in PACKAGES:
-        (package / name).symlink_to(checkout.resolve() / name)
+    for init in checkout.resolve().glob("*/__init__.py"):
+        if init.parent.name not in ("tests", "benchmarks", "examples"):
+            (package / init.parent.name).symlink_to(init.parent)
     return str(package.parent)
 
 

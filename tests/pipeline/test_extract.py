@@ -237,7 +237,7 @@ def test_two_shards_write_the_files_of_one_unsharded_run_byte_for_byte(tmp_path)
         for i in (0, 1)
     ]  # fmt: skip
     assert shards == [0, 0]
-    written = sorted(p.name for p in (tmp_path / "sharded").iterdir())
+    written = sorted(p.name for p in (tmp_path / "sharded").glob("*.mcap"))
     assert written == [item.output.name for item in whole]
     for item in whole:
         assert (tmp_path / "sharded" / item.output.name).read_bytes() == item.output.read_bytes()
