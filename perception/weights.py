@@ -15,6 +15,7 @@ import hashlib
 import io
 import logging
 import os
+import pickle
 import re
 import sys
 import urllib.error
@@ -181,6 +182,17 @@ def load_state_dict(path: Path) -> dict[str, torch.Tensor]:
     return load_weights_file(path)[0]
 
 
+def torch_load_problem(exc: Exception) -> str:
+    """What went wrong in `torch.load(..., weights_only=True)`, for a user: a refused pickle says what it would have
+    loaded and that cnep loads tensors only, without torch's advice to load it with `weights_only=False`."""
+    text = str(exc)
+    if not (isinstance(exc, pickle.UnpicklingError) and text.startswith("Weights only load failed")):
+        return text
+    said = [line.strip() for line in text.splitlines()[1:] if line.strip() and "weights_only" not in line]
+    what = f" ({said[0].rstrip('.')})" if said else ""
+    return f"it holds pickled Python objects beyond tensors{what}, which could run code, and cnep loads tensors only"
+
+
 def load_weights_file(path: Path) -> tuple[dict[str, torch.Tensor], str]:
     """`load_state_dict`'s state dict and the pooling stored with it (POOLING_KEY; `global` when absent)."""
     try:
@@ -192,7 +204,7 @@ def load_weights_file(path: Path) -> tuple[dict[str, torch.Tensor], str]:
             raw = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # pickle, zip and safetensors errors have no common base class
         raise PerceptionError(
-            f"cannot load weights file {path}: {exc}; expected a state dict saved with "
+            f"cannot load weights file {path}: {torch_load_problem(exc)}; expected a state dict saved with "
             f"torch.save(model.state_dict(), path)"
         ) from exc
     if not isinstance(raw, dict):

@@ -164,8 +164,10 @@ def run_command(command: str, run: Callable[[], int | None], verbose: bool = Fal
         _stdout_to_devnull()
         return EXIT_OK
     except KeyboardInterrupt as exc:
+        _discard_bars()
         return interrupted_line(command, exc)
     except Exception as exc:  # noqa: BLE001 - the contract: every failure is one line and an exit status
+        _discard_bars()
         user = isinstance(exc, (*loaded_user_errors(), OSError))
         if verbose:
             traceback.print_exc()
@@ -178,6 +180,12 @@ def run_command(command: str, run: Callable[[], int | None], verbose: bool = Fal
             file=sys.stderr,
         )
         return EXIT_BUG
+
+
+def _discard_bars() -> None:
+    """Progress bars still open when a command fails go without a last line (only if a stage made one)."""
+    if "cnep.pipeline.progress" in sys.modules:
+        sys.modules["cnep.pipeline.progress"].discard_bars()
 
 
 def _stdout_to_devnull() -> None:
@@ -201,6 +209,12 @@ def refuse_existing(
     if not existing:
         return
     if not force:
+        foreign = not_written(existing[0], kind) if kind is not None else []
+        if foreign:  # --force would refuse it too: say so, and suggest only what works
+            raise PipelineError(
+                f"{existing[0]}: the {what} already exists{why}, and --force would not replace it either "
+                f"({foreign[0]} is not a file cnep recorded writing); choose another output, or move it away"
+            )
         more = f" (and {len(existing) - 1} more)" if len(existing) > 1 else ""
         raise PipelineError(
             f"{existing[0]}: the {what} already exists{why}{more}; add --force to replace it, or choose another output"

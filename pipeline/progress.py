@@ -47,6 +47,30 @@ class _Lines:
         self.last = time.monotonic()
 
 
+def _discard(bar: tqdm) -> None:
+    """Close `bar` without its last line (cleared on a terminal): the error line that follows stands alone."""
+    lines = getattr(bar.fp, "_wrapped", bar.fp) if hasattr(bar, "fp") else None
+    if isinstance(lines, _Lines):
+        lines.current = lines.written  # nothing left to write
+    bar.leave = False
+    bar.close()
+
+
+def discard_bars() -> None:
+    """Close every live bar without its last line (a stage failed, its error line follows)."""
+    for bar in list(tqdm._instances):
+        _discard(bar)
+
+
+class _Bar(tqdm):
+    """A tqdm bar that, left by an exception, closes without its last line."""
+
+    def __exit__(self, exc_type, exc_value, traceback):
+        if exc_type is not None:
+            _discard(self)
+        return super().__exit__(exc_type, exc_value, traceback)
+
+
 def progress_bar(
     iterable: Iterable | None = None,
     *,
@@ -66,10 +90,10 @@ def progress_bar(
     if open_ended:
         options["bar_format"] = OPEN_ENDED_FORMAT
     if quiet:
-        return tqdm(iterable, total=total, disable=True)
+        return _Bar(iterable, total=total, disable=True)
     if stream.isatty():
-        return tqdm(iterable, total=total, desc=desc, unit=unit, file=stream, dynamic_ncols=True, **options)
-    return tqdm(
+        return _Bar(iterable, total=total, desc=desc, unit=unit, file=stream, dynamic_ncols=True, **options)
+    return _Bar(
         iterable,
         total=total,
         desc=desc,

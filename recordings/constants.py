@@ -80,8 +80,10 @@ BLOCKS_BY_WIDTH: Mapping[int, Blocks] = MappingProxyType({STEP_DIM: BLOCKS_FULL,
 
 # Writing. Chunk compression by file kind: trajectories are float32 vectors that zstd hardly shrinks, while lz4
 # writes them faster and reads them as fast (python -m benchmarks.bench_recordings measures both), so they use lz4;
-# demonstrations use zstd.
-CHUNK_SIZE_BYTES = 1024 * 1024
+# demonstrations use zstd. A chunk closes once it holds CHUNK_SIZE_BYTES of messages (uncompressed): a file cut short
+# (a recorder killed, a disk full) loses only its last chunk to `cnep repair`, a few seconds of motion or a frame or
+# two, where one large chunk would lose a whole short recording.
+CHUNK_SIZE_BYTES = 16 * 1024
 # Reading. A chunk that declares more uncompressed bytes than MAX_CHUNK_BYTES is damaged, and so is one past the
 # file's budget: its chunks together inflate to at most INFLATION_GRACE_BYTES + MAX_INFLATION times the file's size
 # (recordings.chunks), so that a small hostile file costs what a file of its size would. Recordings inflate by a

@@ -29,6 +29,8 @@ _FFMPEG_PREFIX = re.compile(r"^\[[^\]]*@ 0x[0-9a-f]+\]\s*")  # `[mov,mp4,m4a,3gp
 _SOF_MARKERS = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
 
 log = logging.getLogger(__name__)
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+_said_16_bit: list[str] = []  # the first 16-bit image reduced in this process (the warning is said once)
 
 
 @contextlib.contextmanager
@@ -147,7 +149,20 @@ def as_jpeg(data: bytes, where: str) -> bytes:
     image = cv2.imdecode(np.frombuffer(bytes(data), np.uint8), cv2.IMREAD_COLOR)
     if image is None:
         raise RecordingError(f"{where}: OpenCV cannot decode this image")
+    if _png_bit_depth(data) == 16 and not _said_16_bit:
+        _said_16_bit.append(where)
+        log.warning(
+            "%s: a 16-bit PNG image, reduced to 8 bits per channel (frames are stored as JPEG, and the feature "
+            "network reads 8 bits); every 16-bit image is, and this is said once",
+            where,
+        )
     return _encode_jpeg(image, where)
+
+
+def _png_bit_depth(data: bytes) -> int | None:
+    """The bit depth a PNG's header declares (its IHDR chunk), None for data that is not PNG."""
+    head = bytes(data[:25])
+    return head[24] if len(head) == 25 and head[:8] == PNG_MAGIC and head[12:16] == b"IHDR" else None
 
 
 def read_images(paths: list[Path]) -> list[bytes]:

@@ -10,9 +10,12 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import re
 import signal
 import sys
 import threading
+
+NUMBERS = re.compile(r"^-\d*\.?\d+(e[-+]?\d+)?(,[-+]?\d*\.?\d+(e[-+]?\d+)?)*$", re.IGNORECASE)  # -1, -.5, -1,0.05
 
 # Subcommand name -> module under pipeline.cli (kept in pipeline order).
 COMMANDS = (
@@ -43,8 +46,17 @@ def _available_commands() -> list[tuple[str, object]]:
     return found
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse, with a value that starts with a minus sign and lists numbers (`--time-base -1,0.05`) read as a value,
+    as `-1` already is, rather than as an unknown option (the subcommands' parsers are of this class too)."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self._negative_number_matcher = NUMBERS
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="cnep",
         description="Learn multimodal movement primitives (CNEP) from recorded demonstrations.",
     )

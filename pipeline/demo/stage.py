@@ -112,9 +112,14 @@ def run_demo(config: DemoConfig) -> DemoResult:
         check_writable_folder(out)
         fresh = not any(p != lock for p in out.iterdir())
         if not fresh and not config.force:
+            foreign = foreign_files(out, _demo_file(out))  # --force would refuse those: it is suggested only without
             raise PipelineError(
-                f"{out}: the demo writes into a new folder and this one is not empty; give another --out, "
-                f"remove it, or add --force to replace the demo's files in it"
+                f"{out}: the demo writes into a new folder and this one is not empty; give another --out, remove it"
+                + (
+                    f" (--force would not: {foreign[0]} is not a file a demo recorded writing)"
+                    if foreign
+                    else ", or add --force to replace the demo's files in it"
+                )
             )
         if config.force and not fresh:
             remove_outputs(out)

@@ -21,9 +21,10 @@ from pathlib import Path
 import torch
 
 from cnep.outputs import output_lock, record_written, remove_stale_temporaries, write_atomically
+from cnep.perception.weights import torch_load_problem
 from cnep.pipeline.contract import output_folder, refuse_existing, refuse_inputs
 from cnep.pipeline.errors import PipelineError
-from cnep.pipeline.ownership import CHECKPOINT, CHECKPOINT_FILES, foreign_files
+from cnep.pipeline.ownership import CHECKPOINT, CHECKPOINT_FILES, foreign_files, not_written
 from cnep.pipeline.train.constants import STATE_FILE
 
 log = logging.getLogger(__name__)
@@ -54,7 +55,7 @@ def prepare_work_dir(out: Path, resume: bool, force: bool, inputs: Sequence[Path
     held.enter_context(output_lock(out))
     remove_stale_temporaries(work)
     recover_replaced(out)
-    if out.exists() and not force:
+    if out.exists() and not force and not not_written(out, CHECKPOINT):  # else refuse_existing says why not --force
         raise PipelineError(
             f"{out} already exists; choose another --out, or add --force to replace it when the new run completes"
         )
@@ -133,7 +134,7 @@ def load_state(path: Path) -> dict:
         state = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # torch raises many types for a damaged file; all mean the same to the user
         raise PipelineError(
-            f"{path}: cannot read the saved training state ({exc}); delete {path.parent} and "
+            f"{path}: cannot read the saved training state ({torch_load_problem(exc)}); delete {path.parent} and "
             f"train again without --resume"
         ) from None
     if state.get("state_version") != STATE_VERSION:

@@ -76,6 +76,15 @@ class World:
     short_csv: Path  # a header and one data row
 
 
+def inside_first_chunk(path: Path) -> float:
+    """The fraction of the file `path` that ends in the middle of its first chunk."""
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as f:
+        first = make_reader(f).get_summary().chunk_indexes[0]
+    return (first.chunk_start_offset + first.chunk_length / 2) / path.stat().st_size
+
+
 def cut(src: Path, dst: Path, keep: float) -> Path:
     data = src.read_bytes()
     dst.write_bytes(data[: int(len(data) * keep)])
@@ -103,7 +112,7 @@ def world(tmp_path_factory) -> World:
         ckpt=root / "ckpt",
         truncated_demo=cut(big, root / "bad" / "truncated-demo.mcap", 0.9),
         truncated_traj=cut(root / "trajs" / "t0.mcap", root / "bad" / "truncated-traj.mcap", 0.6),
-        empty_chunks=cut(big, root / "bad" / "no-chunk.mcap", 0.05),
+        empty_chunks=cut(big, root / "bad" / "no-chunk.mcap", inside_first_chunk(big)),
         short_csv=short,
     )
 

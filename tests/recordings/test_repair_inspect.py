@@ -10,7 +10,7 @@ from tests.recordings.factories import demonstration_factory, trajectory_factory
 
 @pytest.fixture(scope="module")
 def long_traj():
-    return trajectory_factory(steps=700, features=True)  # ~3.6 MB: several 1 MiB chunks
+    return trajectory_factory(steps=700, features=True)  # ~3.6 MB: many chunks
 
 
 def truncate(path, fraction):
@@ -64,7 +64,8 @@ def test_repair_trims_a_half_written_demonstration_step(tmp_path):
 
 
 @pytest.mark.parametrize("kind", ["demonstration", "trajectory"])  # zstd and lz4 chunks
-def test_repair_salvages_the_complete_messages_of_a_single_chunk_cut_in_half(tmp_path, kind):
+def test_repair_salvages_the_complete_messages_of_a_single_chunk_cut_in_half(tmp_path, kind, monkeypatch):
+    monkeypatch.setattr("cnep.recordings.container.CHUNK_SIZE_BYTES", 1 << 20)  # as other tools write: large chunks
     if kind == "demonstration":
         original = demonstration_factory(steps=60, frames=True, frame_size=96)  # ~0.4 MB: one chunk
         src = write_demonstration(tmp_path / "d.mcap", original)
@@ -137,3 +138,25 @@ def test_cli_inspect_and_repair(tmp_path, capsys, long_traj):
     assert main(["repair", str(tmp_path / "empty.mcap"), str(tmp_path / "x.mcap")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err[-1].startswith("cnep repair: error:") and "empty file" in err[-1]
+
+
+def test_a_motion_only_recording_cut_in_half_loses_only_the_chunk_the_cut_falls_in(tmp_path):
+    """Chunks of a bounded size (CHUNK_SIZE_BYTES): a short recording is several chunks, and a file cut anywhere keeps
+    every chunk before the cut."""
+    from mcap.reader import make_reader
+
+    demo = demonstration_factory(453, frames=False, seed=0)  # motion only: pose and gripper, ~55 kB
+    src = write_demonstration(tmp_path / "m.mcap", demo)
+    with open(src, "rb") as f:
+        chunks = make_reader(f).get_summary().chunk_indexes
+    assert len(chunks) >= 4  # not one chunk for the whole recording
+    half = len(src.read_bytes()) // 2
+    (tmp_path / "cut.mcap").write_bytes(src.read_bytes()[:half])
+    assert main(["-q", "repair", str(tmp_path / "cut.mcap"), str(tmp_path / "fixed.mcap")]) == 0
+    back = read_demonstration(tmp_path / "fixed.mcap")
+    before_cut = [c for c in chunks if c.chunk_start_offset + c.chunk_length <= half]  # complete before the cut
+    last = max((c.message_end_time for c in before_cut), default=-1)
+    steps = int(np.sum(demo.timestamps_ns <= last))  # the steps with a message in a complete chunk
+    assert before_cut and back.n_steps >= steps - 1 > 0  # all of them (the last may have its gripper after the cut)
+    np.testing.assert_array_equal(back.pose[: back.n_steps], demo.pose[: back.n_steps])
+    assert back.n_steps < demo.n_steps
