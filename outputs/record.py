@@ -42,7 +42,7 @@ def read_record(folder: Path) -> dict[str, dict] | None:
     """The files `folder`'s record names ({name: entry}); None when the folder has no readable record."""
     try:
         data = json.loads((Path(folder) / RECORD_FILE).read_text(encoding="utf-8"))
-    except (OSError, ValueError):
+    except (OSError, ValueError, RecursionError):  # RecursionError: a planted record nested too deep to parse
         return None
     if not isinstance(data, dict) or data.get("format_version") != RECORD_VERSION:
         return None

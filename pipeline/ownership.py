@@ -15,7 +15,6 @@ else is refused.
 
 from __future__ import annotations
 
-import json
 import os
 import zipfile
 from collections.abc import Callable, Iterable
@@ -23,6 +22,7 @@ from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
 
+from cnep.runtime.jsonfile import read_json
 from cnep.outputs import RECORD_FILE, TEMPORARY, is_lock_name, is_recorded, read_record
 
 CHECKPOINT_FILES = ("config.json", "model.safetensors", "training_log.jsonl")
@@ -52,7 +52,7 @@ def _cnep_mcap(path: Path) -> bool:
 
 def _json_object(path: Path, keys: Iterable[str] = ()) -> bool:
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
+        data = read_json(path)
     except (OSError, ValueError):
         return False
     return isinstance(data, dict) and all(key in data for key in keys)

@@ -216,3 +216,16 @@ def test_a_demo_folder_is_all_recorded_and_nothing_else_is_deleted(quick_demo, t
             shutil.rmtree(path.parent) if path.parent.name == "mine" else path.unlink()
     remove_outputs(copy)
     assert [p.name for p in copy.iterdir()] == []
+
+
+def test_deeply_nested_json_is_a_users_file_not_a_crash(tmp_path):
+    """A record or an output-like JSON nested thousands of levels deep is read with a limit: not cnep's, no
+    RecursionError."""
+    from cnep.pipeline.ownership import json_with
+
+    deep = "[" * 5000 + "]" * 5000
+    (tmp_path / RECORD_FILE).write_text(deep)
+    (tmp_path / "summary.json").write_text(deep)
+    assert read_record(tmp_path) is None
+    assert not json_with("a summary", ())(tmp_path / "summary.json")
+    assert foreign_files(tmp_path, json_with("a summary", ())) == [tmp_path / "summary.json"]
