@@ -24,6 +24,7 @@ from pathlib import Path
 
 from cnep.runtime.jsonfile import read_json
 from cnep.outputs import RECORD_FILE, TEMPORARY, is_lock_name, is_recorded, read_record
+from cnep.runtime.jsonfile import read_json
 
 CHECKPOINT_FILES = ("config.json", "model.safetensors", "training_log.jsonl")
 RRD_MAGIC = b"RRF"  # every Rerun .rrd starts with it (RRF2 in rerun 0.41)
