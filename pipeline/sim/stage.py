@@ -29,7 +29,7 @@ from concurrent.futures import as_completed
 from dataclasses import asdict, replace
 from pathlib import Path
 
-from cnep.models import TrainConfig
+from cnep.models import CNEPConfig, TrainConfig
 from cnep.outputs import output_lock, write_atomically
 from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_file_as_folder
 from cnep.pipeline.demo.stage import CNMP_ASSIGNMENT, LAYOUT, quiet_per_file_logs
@@ -148,9 +148,10 @@ def _run_stages(config: SimConfig, out: Path) -> dict:
 
 def _train(config: SimConfig, out: Path) -> dict[str, Path]:
     """Train the CNEP and the matched CNMP for every training seed, two processes at a time; label -> checkpoint."""
+    model = CNEPConfig(n_experts=config.experts)
     networks = {
-        "CNEP": {"n_experts": config.experts},
-        "CNMP": {"n_experts": config.experts, "matched_cnmp": True, "assignment": CNMP_ASSIGNMENT},
+        "CNEP": {"model": model},
+        "CNMP": {"model": replace(model, assignment=CNMP_ASSIGNMENT), "matched_cnmp": True},
     }
     jobs = {
         f"{model}-seed{seed}": (out / "checkpoints" / f"{model.lower()}-seed{seed}", seed, network)
