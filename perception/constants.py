@@ -34,6 +34,9 @@ IMAGENET_WEIGHT_FILES = {
 # environment variable is set to anything but "", "0", "false" or "no" (or `cnep extract --offline` is given).
 OFFLINE_ENV_VAR = "CNEP_OFFLINE"
 DOWNLOAD_TIMEOUT_S = 30.0  # seconds without data before a download gives up
+CONNECT_TIMEOUT_S = (
+    5.0  # seconds for the download's server (or proxy) to accept a connection, all its addresses together
+)
 
 # Batch-norm re-estimation for seeded random weights (see docs/concepts.md).
 CALIBRATION_FRAMES = 256  # frames used to re-estimate the statistics (spread over the inputs)

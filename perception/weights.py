@@ -17,8 +17,11 @@ import logging
 import os
 import pickle
 import re
+import socket
 import sys
+import time
 import urllib.error
+import urllib.parse
 import urllib.request
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,6 +32,7 @@ from tqdm import tqdm
 from cnep.outputs import atomic_file, write_atomically
 from cnep.perception.constants import (
     ARCHITECTURES,
+    CONNECT_TIMEOUT_S,
     DOWNLOAD_TIMEOUT_S,
     IMAGENET_WEIGHT_FILES,
     OFFLINE_ENV_VAR,
@@ -131,9 +135,13 @@ def download_weights(url: str, dst: Path, timeout_s: float = DOWNLOAD_TIMEOUT_S)
     match = HASH_PREFIX.search(dst.name)
     alternatives = (
         f"put the file there yourself (from a machine with internet access), set {WEIGHTS_ENV_VAR} to "
-        f"a copy of it, or choose weights `random` (seeded) explicitly"
+        f"a copy of it, or choose weights `random` (seeded; `--weights random`) explicitly; `--offline` (or "
+        f"{OFFLINE_ENV_VAR}=1) never tries the download"
     )
     digest = hashlib.sha256()
+    unreachable = connection_refused(url)  # seconds, where urllib would wait for the read timeout per address
+    if unreachable is not None:
+        raise PerceptionError(f"cannot download ImageNet weights from {url} into {dst} ({unreachable}); {alternatives}")
     try:
         dst.parent.mkdir(parents=True, exist_ok=True)
         with atomic_file(dst) as tmp, urllib.request.urlopen(url, timeout=timeout_s) as response:
@@ -165,6 +173,32 @@ def download_weights(url: str, dst: Path, timeout_s: float = DOWNLOAD_TIMEOUT_S)
         ) from None
     log.info("saved %s (sha256 %s...)", dst, digest.hexdigest()[:12])
     return dst
+
+
+def connection_refused(url: str, timeout_s: float = CONNECT_TIMEOUT_S) -> str | None:
+    """Why no connection to `url`'s server (or the proxy the environment names for it) opens within `timeout_s`
+    seconds, trying its addresses in turn; None when one opens. A machine without network fails here in seconds."""
+    parsed = urllib.parse.urlsplit(url)
+    proxy = urllib.request.getproxies().get(parsed.scheme)
+    target = urllib.parse.urlsplit(proxy if proxy and not urllib.request.proxy_bypass(parsed.hostname or "") else url)
+    host, port = target.hostname or "", target.port or (443 if target.scheme == "https" else 80)
+    deadline = time.monotonic() + timeout_s
+    try:
+        addresses = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
+    except OSError as exc:
+        return f"{host}: {exc.strerror or exc}"
+    for family, kind, protocol, _, address in addresses:
+        left = deadline - time.monotonic()
+        if left <= 0:
+            break
+        try:
+            with socket.socket(family, kind, protocol) as probe:
+                probe.settimeout(left)
+                probe.connect(address)
+            return None
+        except OSError:
+            continue
+    return f"no connection to {host} port {port} within {timeout_s:.0f} s: no network here?"
 
 
 def random_state_dict(seed: int) -> dict[str, torch.Tensor]:

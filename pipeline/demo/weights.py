@@ -14,7 +14,7 @@ import os
 from dataclasses import dataclass
 
 from cnep.perception import PerceptionError, find_imagenet_weights, resolve_weights
-from cnep.perception.constants import DOWNLOAD_TIMEOUT_S, WEIGHTS_ENV_VAR
+from cnep.perception.constants import CONNECT_TIMEOUT_S, WEIGHTS_ENV_VAR
 from cnep.perception.weights import hub_checkpoints
 from cnep.perception.weights import offline as offline_by_environment
 from cnep.pipeline.demo.config import AUTO_WEIGHTS, IMAGENET_WEIGHTS, RANDOM_WEIGHTS
@@ -43,12 +43,11 @@ def choose_weights(spec: str, offline: bool = False) -> WeightsChoice:
     download = not (offline or offline_by_environment())
     explicit = os.environ.get(WEIGHTS_ENV_VAR)  # a file named there is used, never downloaded
     if download and not explicit:
-        # urllib waits up to the timeout for each of the server's addresses where packets are dropped: say so first.
         log.info(
-            "looking for ImageNet weights in %s, else downloading them there (without internet access this can take "
-            "%.0f s or more to fail; --offline skips it)",
+            "looking for ImageNet weights in %s, else downloading them there (without a network this gives up within "
+            "%.0f s; --offline skips it)",
             hub_checkpoints(),
-            DOWNLOAD_TIMEOUT_S,
+            CONNECT_TIMEOUT_S,
         )
     try:
         found = find_imagenet_weights(download=download)

@@ -1,5 +1,8 @@
 """ImageNet weights are downloaded into the torch hub cache like torchvision does, from a local HTTP server here."""
 
+import socket
+import time
+
 import pytest
 
 import cnep.perception.weights as weights_module
@@ -41,7 +44,7 @@ def test_without_network_the_error_names_url_cache_and_alternatives(hub, monkeyp
     message = str(info.value)
     assert url in message and str(hub / "mobilenet_v2-b0353104.pth") in message
     assert WEIGHTS_ENV_VAR in message and "random" in message
-    assert not any(hub.iterdir())
+    assert not hub.exists() or not any(hub.iterdir())
 
 
 def test_offline_refuses_without_a_request(hub, served, monkeypatch, tmp_path, capsys):
@@ -55,3 +58,41 @@ def test_offline_refuses_without_a_request(hub, served, monkeypatch, tmp_path, c
     with pytest.raises(PerceptionError, match="downloading is off"):
         resolve_weights("imagenet")
     assert server.requests == [] and not hub.exists()
+
+
+class DroppedPackets:
+    """A socket whose connect waits for its whole timeout and gives up, as where a firewall drops packets."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        self.timeout = None
+
+    def settimeout(self, seconds) -> None:
+        self.timeout = seconds
+
+    def connect(self, address) -> None:
+        time.sleep(self.timeout)
+        raise TimeoutError("timed out")
+
+    def close(self) -> None:
+        pass
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        pass
+
+
+def test_without_a_connection_the_download_gives_up_in_seconds(hub, monkeypatch):
+    only_weights_file(monkeypatch, "mobilenet_v2-b0353104.pth", "https://weights.invalid/mobilenet_v2-b0353104.pth")
+    addresses = [(socket.AF_INET, socket.SOCK_STREAM, 6, "", (f"192.0.2.{k}", 443)) for k in (1, 2, 3)]
+    monkeypatch.setattr(socket, "getaddrinfo", lambda *args, **kwargs: addresses)
+    monkeypatch.setattr(socket, "socket", DroppedPackets)
+    monkeypatch.setattr(weights_module.connection_refused, "__defaults__", (0.5,))
+    start = time.monotonic()
+    with pytest.raises(PerceptionError) as info:
+        resolve_weights("imagenet")
+    assert time.monotonic() - start < 2  # every address together, not the read timeout per address
+    message = str(info.value)
+    assert "no connection to weights.invalid port 443 within" in message
+    assert "--weights random" in message and "--offline" in message and WEIGHTS_ENV_VAR in message
