@@ -24,7 +24,11 @@ $(BIN)/python:
 	$(BIN)/python -m pip install --upgrade pip
 
 $(VENV)/.installed-%: pyproject.toml constraints.txt | $(BIN)/python
-	@echo "== $*: installing cnep-pipeline[$(EXTRAS_$*)] into $(VENV) (pip's progress follows; the first install downloads torch, a few minutes)"
+	@echo "== $*: installing cnep-pipeline[$(EXTRAS_$*)] and its dependencies into $(VENV) (torch among them)."
+	@echo "   The first install fetches torch with its CUDA libraries (.venv grows to about 7 GB) and takes about"
+	@echo "   3 minutes; pip's progress follows, but its last step, 'Installing collected packages', prints nothing"
+	@echo "   for a minute or two while it unpacks."
+	@echo "   A CPU-only machine can skip the CUDA libraries: see 'CPU only' in docs/getting-started.md."
 	$(BIN)/python -m pip install -c constraints.txt -e '.[$(EXTRAS_$*)]'
 	@touch $@
 
@@ -37,9 +41,10 @@ demo: $(VENV)/.installed-demo
 	$(BIN)/cnep demo --out $(DEMO_OUT) --force
 	@echo "Open the view: make view"
 
-# The demo's scene-change recording in the Rerun viewer (installed in .venv, so this works from any shell).
+# The demo's scene-change recording in the Rerun viewer where there is a display, else in Rerun's web viewer served
+# here, with the address to open (installed in .venv, so this works from any shell).
 view: $(VENV)/.installed-demo
-	$(BIN)/rerun $(DEMO_OUT)/demo.rrd
+	$(BIN)/cnep view $(DEMO_OUT)/demo.rrd
 
 SIM_OUT ?= cnep-sim
 

@@ -243,8 +243,9 @@ class Trainer:
         if done is not None:
             idle, busy, counts = done
             log.info(
-                "step %d: expert %d is idle (training demonstrations the gate has decided for, by expert: %s); it "
-                "takes a copy of expert %d",
+                "step %d: expert %d is hardly used (training demonstrations the gate gives each expert: %s); it "
+                "restarts as a copy of expert %d, the most used, so that the two can share that expert's "
+                "demonstrations",
                 self.step,
                 idle,
                 counts,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -96,13 +97,22 @@ class FeatureExtractor:
         """True for random weights whose batch-norm statistics were not re-estimated yet."""
         return self._needs_calibration
 
-    def calibrate(self, frames: np.ndarray) -> None:
-        """Calibrate random weights on (N, H, W, 3) uint8 frames, N >= 2 (perception.calibration); changes the hash."""
+    def calibrate(self, frames: np.ndarray, done: Callable[[int], object] | None = None) -> None:
+        """Calibrate random weights on (N, H, W, 3) uint8 frames, N >= 2 (perception.calibration); changes the hash.
+
+        done: called with the number of frames of each batch once it has gone through the network (a bar's update).
+        """
         if not self.weights_name.startswith("random:"):
             raise PerceptionError(f"calibrate() is for seeded random weights; {self.weights_name} are used as given")
         pixels = resize_frames(frames)  # (N, 224, 224, 3)
-        batches = (pixels[i : i + CALIBRATION_BATCH] for i in range(0, len(pixels), CALIBRATION_BATCH))
-        self.calibrated_on = calibrate_random_network(self.net, batches)
+
+        def batches() -> Iterator[np.ndarray]:
+            for i in range(0, len(pixels), CALIBRATION_BATCH):
+                yield pixels[i : i + CALIBRATION_BATCH]  # (B, 224, 224, 3)
+                if done is not None:  # the network asked for the next batch: this one went through
+                    done(len(pixels[i : i + CALIBRATION_BATCH]))
+
+        self.calibrated_on = calibrate_random_network(self.net, batches())
         self._sha256 = state_dict_sha256(self.net.features.state_dict())
         self._needs_calibration = False
         self._int8_model = None  # quantised from the old weights: quantise again

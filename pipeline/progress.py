@@ -1,23 +1,28 @@
-"""One progress bar per stage that reads well in any terminal.
+"""One progress bar per stage that reads well in any terminal, and bars fed by worker processes.
 
 On a terminal (stderr is a TTY) it is a tqdm bar redrawn in place. Elsewhere (CI logs, `| tee`, a file)
-there are no carriage returns: the bar's text is written as a whole line at most every
-`LINE_INTERVAL_S` seconds while it runs, and once when it closes. With `quiet` (`cnep -q`) nothing.
+there are no carriage returns: the bar's text is written as a whole line when it starts (what is about to
+happen, and how much), at most every `LINE_INTERVAL_S` seconds while it runs, and once when it closes.
+With `quiet` (`cnep -q`) nothing.
+
+A worker process (a spawned pool's) reports through a `RemoteBar`: a label and a queue (a multiprocessing
+Manager's) on which it puts its count and figures at most every REPORT_INTERVAL_S; the parent moves one bar per
+label with `follow_reports`.
 """
 
 from __future__ import annotations
 
 import sys
 import time
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from queue import Empty
 from typing import Any, TextIO
 
 from tqdm import tqdm
 
-LINE_INTERVAL_S = 10.0  # seconds between progress lines when stderr is not a terminal
-# For a total that grows while the stage runs (extract learns each file's frame count when it opens it):
-# the count and the rate, no percentage or time left that would be wrong.
-OPEN_ENDED_FORMAT = "{desc}: {n_fmt} {unit} [{elapsed}, {rate_fmt}{postfix}]"
+LINE_INTERVAL_S = 5.0  # seconds between progress lines when stderr is not a terminal (never silent for ~10 s)
+REPORT_INTERVAL_S = 0.5  # seconds between a worker's reports to its parent's bar
 
 
 class _Lines:
@@ -26,7 +31,7 @@ class _Lines:
     def __init__(self, stream: TextIO, interval_s: float) -> None:
         self.stream, self.interval_s = stream, interval_s
         self.current = self.written = ""
-        self.last = time.monotonic()  # the first line comes after one interval, or at the end
+        self.last = -float("inf")  # the first draw is written at once
 
     def write(self, text: str) -> None:
         drawn = [part.rstrip() for part in text.split("\r") if part.strip()]
@@ -78,21 +83,16 @@ def progress_bar(
     desc: str,
     unit: str,
     quiet: bool = False,
-    open_ended: bool = False,
     stream: TextIO | None = None,
     **options: Any,
 ) -> tqdm:
-    """A tqdm bar for one stage (see the module docstring); `stream` defaults to sys.stderr.
-
-    open_ended: the total grows while the stage runs, so show the count and rate only.
-    """
+    """A tqdm bar for one stage (see the module docstring); `stream` defaults to sys.stderr."""
     stream = sys.stderr if stream is None else stream
-    if open_ended:
-        options["bar_format"] = OPEN_ENDED_FORMAT
     if quiet:
         return _Bar(iterable, total=total, disable=True)
     if stream.isatty():
         return _Bar(iterable, total=total, desc=desc, unit=unit, file=stream, dynamic_ncols=True, **options)
+    options.setdefault("position", 0)  # several bars at once: whole lines each, no cursor moves between them
     return _Bar(
         iterable,
         total=total,
@@ -103,3 +103,39 @@ def progress_bar(
         ascii=True,
         **options,
     )
+
+
+@dataclass
+class RemoteBar:
+    """A worker's side of a bar its parent draws: `update(n, **figures)` puts (label, n, figures) on `queue`, at most
+    every REPORT_INTERVAL_S unless `final`; picklable, so it travels with a job to a spawned process.
+
+    n: the count so far (absolute, not an increment); figures: the bar's postfix, already formatted.
+    """
+
+    queue: Any  # a multiprocessing Manager's Queue (its proxy pickles)
+    label: str
+    _last: float = field(default=-float("inf"), repr=False)
+
+    def update(self, n: int, final: bool = False, **figures: str) -> None:
+        now = time.monotonic()
+        if final or now - self._last >= REPORT_INTERVAL_S:
+            self.queue.put((self.label, n, figures))
+            self._last = now
+
+
+def follow_reports(queue: Any, bars: Mapping[str, tqdm]) -> None:
+    """Move `bars` (label -> bar) to every report that `RemoteBar`s have put on `queue` so far, and redraw them (their
+    clocks run while a worker starts); returns at once. A bar's rate and time left count from its first report."""
+    while True:
+        try:
+            label, n, figures = queue.get_nowait()
+        except Empty:
+            break
+        bar = bars[label]
+        if bar.n == 0 and n > 0:
+            bar.reset(total=bar.total)  # the worker has started: steps per second from here
+        bar.set_postfix(figures, refresh=False)
+        bar.update(n - bar.n)
+    for bar in bars.values():
+        bar.refresh()

@@ -41,21 +41,25 @@ def inference_threads(requested: int | None = None, workers: int = 1) -> int:
 
 
 @contextmanager
-def single_thread_processes(workers: int) -> Iterator[ProcessPoolExecutor]:
+def single_thread_processes(workers: int, wait: bool = True) -> Iterator[ProcessPoolExecutor]:
     """A pool of `workers` spawned processes whose BLAS and torch start with one thread each, with
     SMALL_MODEL_MALLOC's allocator settings (`process_pool`: stopped when the block fails)."""
     with (
         environment({**dict.fromkeys(THREAD_VARIABLES, "1"), **SMALL_MODEL_MALLOC}),
-        process_pool(workers) as pool,
+        process_pool(workers, wait=wait) as pool,
     ):
         yield pool
 
 
 @contextmanager
-def process_pool(workers: int, initializer=None, initargs: tuple = ()) -> Iterator[ProcessPoolExecutor]:
+def process_pool(
+    workers: int, initializer=None, initargs: tuple = (), wait: bool = True
+) -> Iterator[ProcessPoolExecutor]:
     """A pool of `workers` spawned processes. When the block fails or is interrupted (Ctrl-C, SIGTERM), the jobs
     not started are dropped and the workers are stopped and waited for, instead of every queued job running
-    first; a worker stopped while writing leaves only a temporary file, which the output's next run removes."""
+    first; a worker stopped while writing leaves only a temporary file, which the output's next run removes.
+    With `wait` False a block that ends normally does not wait for the idle workers to exit (a worker that has
+    loaded torch takes seconds to): they exit beside what comes next."""
     pool = ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=initializer, initargs=initargs)
     try:
         yield pool
@@ -67,7 +71,7 @@ def process_pool(workers: int, initializer=None, initargs: tuple = ()) -> Iterat
         for process in processes:
             process.join()
         raise
-    pool.shutdown(wait=True)
+    pool.shutdown(wait=wait)
 
 
 def thread_environment(threads: int):

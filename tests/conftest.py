@@ -1,4 +1,7 @@
+import io
+import logging
 import os
+import time
 
 # One BLAS / OpenMP thread per test process, set before numpy and torch load their libraries: on a shared
 # 2-core machine a second thread per library made a GMM test 90x slower under load (601 s instead of 6.8 s).
@@ -70,13 +73,42 @@ def quick_demo(tmp_path_factory):
     mp.delenv(WEIGHTS_ENV_VAR, raising=False)
     out = tmp_path_factory.mktemp("demo") / "cnep-demo"
     threads = torch.get_num_threads()
+    stderr = TimedLines()  # what a log file of the demo gets, each line with its time (PROGRESS_LOG, beside OUT)
+    mp.setattr("sys.stderr", stderr)
+    handler = logging.StreamHandler(stderr)
+    handler.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s"))
+    logging.getLogger().addHandler(handler)
+    cnep_level = logging.getLogger("cnep").level
+    logging.getLogger("cnep").setLevel(logging.INFO)  # as `cnep demo` logs without -q
     try:
-        code = main(["-q", "demo", "--out", str(out), "--quick"])
+        code = main(["demo", "--out", str(out), "--quick"])
     finally:
+        logging.getLogger().removeHandler(handler)
+        logging.getLogger("cnep").setLevel(cnep_level)
         torch.set_num_threads(threads)
         mp.undo()
     assert code == 0
+    stderr.save(out.parent / PROGRESS_LOG)
     return out
+
+
+PROGRESS_LOG = "progress.log"  # beside the quick demo's folder: "<seconds since start> <line>" per stderr line
+
+
+class TimedLines(io.StringIO):
+    """A stderr that is not a terminal and notes when each of its lines ends (seconds since it was made)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.start, self.times = time.monotonic(), []
+
+    def write(self, text: str) -> int:
+        self.times += [time.monotonic() - self.start] * text.count("\n")
+        return super().write(text)
+
+    def save(self, path) -> None:
+        lines = self.getvalue().splitlines()
+        path.write_text("".join(f"{t:.2f} {line}\n" for t, line in zip(self.times, lines)))
 
 
 @pytest.fixture(scope="session")

@@ -80,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from cnep.pipeline.errors import PipelineError
-    from cnep.pipeline.evaluate.constants import PATIENCE, TABLES
+    from cnep.pipeline.evaluate.constants import PATIENCE, QUICK_NOTE, QUICK_QUERIES, QUICK_SEEDS, QUICK_STEPS, TABLES
     from cnep.pipeline.evaluate.stage import EvaluateConfig, evaluate
 
     kind, *address = args.executor
@@ -106,4 +106,7 @@ def run(args: argparse.Namespace) -> int:
     for path in written.values():
         print(path.read_text())
     print("written: " + ", ".join(str(p) for p in written.values()) + f" (+ JSON; figures in {config.out / 'figures'})")
+    if config.quick:
+        used = {"seeds": args.seeds or QUICK_SEEDS, "steps": args.steps or QUICK_STEPS}
+        print(QUICK_NOTE.format(**used, queries=args.queries or QUICK_QUERIES))
     return 0

@@ -27,6 +27,7 @@ COMMANDS = (
     "replay",
     "export",
     "run",
+    "view",
     "evaluate",
     "demo",
     "sim",

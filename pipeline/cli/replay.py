@@ -107,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
         )
     print(
         f"wrote {files[0] if len(files) == 1 else f'{len(files)} .rrd files'} and {decisions_path(args.out)}; "
-        f"open one with `rerun {shlex.quote(str(files[0]))}`"
+        f"open one with `cnep view {shlex.quote(str(files[0]))}`"
     )
     if server is not None:
         serve_until_interrupted()

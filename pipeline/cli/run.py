@@ -101,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
 
         files = rrd_files(Path(args.out), [r.path for r in runs], merge=False)
         wrote = files[0] if len(files) == 1 else f"{len(files)} .rrd files, one per recording, beside {args.out}"
-        print(f"wrote {wrote} and {summary_path(args.out)}; open one with `rerun {shlex.quote(str(files[0]))}`")
+        print(f"wrote {wrote} and {summary_path(args.out)}; open one with `cnep view {shlex.quote(str(files[0]))}`")
     if server is not None:
         serve_until_interrupted()
     return 0

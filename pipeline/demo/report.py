@@ -49,8 +49,10 @@ def format_summary(result: DemoResult) -> str:
     if result.figure is not None:
         lines.append(f"summary figure: {result.figure}")
     lines.append(f"other replayed recordings: {result.out / Path(REPLAYS_RRD).parent}/")
+    view = f"{shlex.quote(cnep_command())} view {shlex.quote(str(result.out / RRD_FILE))}"
     lines.append(
-        f"open the view (the scene change): {shlex.quote(viewer_command())} {shlex.quote(str(result.out / RRD_FILE))}"
+        f"open the view (the scene change): {view} (the Rerun viewer with a display, else its web viewer and the "
+        "address to open)"
     )
     lines.append(f"checkpoints: {', '.join(str(p) for p in result.checkpoints.values())}")
     lines.append(f"summary: {result.out / SUMMARY_FILE}")
@@ -94,12 +96,12 @@ def features_line(weights: str, imagenet_unavailable: str | None = None) -> str:
     return f"features: MobileNet-v2 with {said} ({weights})"
 
 
-def viewer_command() -> str:
-    """How to start the Rerun viewer from a fresh shell: `rerun` when it is on PATH, else the one installed beside
-    this Python (a virtual environment that is not activated)."""
-    if shutil.which("rerun"):
-        return "rerun"
-    beside = Path(sys.executable).parent / "rerun"
+def cnep_command() -> str:
+    """How to run `cnep` from a fresh shell: `cnep` when it is on PATH, else the one installed beside this Python (a
+    virtual environment that is not activated)."""
+    if shutil.which("cnep"):
+        return "cnep"
+    beside = Path(sys.executable).parent / "cnep"
     try:
         return str(beside.relative_to(Path.cwd()))
     except ValueError:

@@ -26,9 +26,10 @@ import json
 import logging
 import shutil
 import time
-from concurrent.futures import as_completed
+from concurrent.futures import FIRST_COMPLETED, wait
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, replace
+from multiprocessing import get_context
 from pathlib import Path
 
 import numpy as np
@@ -66,10 +67,11 @@ from cnep.pipeline.ownership import (
     json_with,
     png_by_matplotlib,
 )
+from cnep.pipeline.progress import REPORT_INTERVAL_S, RemoteBar, follow_reports, progress_bar
 from cnep.pipeline.replay.decisions import decisions_path, read_decisions
 from cnep.pipeline.replay.stage import replay
 from cnep.pipeline.train.constants import SCENE
-from cnep.pipeline.train.stage import TrainStageConfig, train
+from cnep.pipeline.train.stage import BAR_LEGEND, TrainStageConfig, train
 from cnep.pipeline.workers import single_thread_processes
 from cnep.recordings import read_demonstration, read_trajectory
 
@@ -78,6 +80,7 @@ log = logging.getLogger(__name__)
 LAYOUT = SCENE  # queries carry no features: the behaviour reaches the experts through the context and the gate
 CNMP_ASSIGNMENT = "paper"  # one expert: the paper's term is the plain CNMP likelihood, with no balancing schedule
 SUMMARY_FILE = "summary.json"
+SCENE_CHANGE_MARK = "the scene changes: the block moves to the other slot"  # the view's line at the switch step
 RRD_FILE = "demo.rrd"  # the scene change: what `make view` opens
 REPLAYS_RRD = "replays/replay.rrd"  # the other replayed recordings, one file each beside it
 PER_FILE_LOGGERS = ("cnep.pipeline.ingest", "cnep.pipeline.extract")
@@ -260,73 +263,126 @@ def _run_stages(config: DemoConfig, out: Path, size: DemoSize, seconds: dict[str
         "CNMP": {"model": replace(config.model, assignment=CNMP_ASSIGNMENT), "matched_cnmp": True},
     }
     log.info("training the CNEP and the CNMP side by side (%d steps each, one process each)", size.train_steps)
-    with single_thread_processes(len(checkpoints)) as pool:  # the workers train quietly; their errors reach us
-        futures = {
-            pool.submit(
-                train,
-                TrainStageConfig(
-                    inputs=(out / "trajectories" / "train",),
-                    out=path,
-                    layout=LAYOUT,
-                    training=training,
-                    quiet=True,
-                    **networks[name],
-                ),
-            ): name
-            for name, path in checkpoints.items()
-        }
-        for future in as_completed(futures):
-            future.result()
-            log.info("%s trained (%.1f s into the stage)", futures[future], time.perf_counter() - seconds["train"])
+    if not config.quiet:
+        log.info("%s", BAR_LEGEND)
+    jobs = {
+        name: TrainStageConfig(
+            inputs=(out / "trajectories" / "train",),
+            out=path,
+            layout=LAYOUT,
+            training=training,
+            quiet=True,
+            **networks[name],
+        )
+        for name, path in checkpoints.items()
+    }
+    train_side_by_side(jobs, config.quiet, seconds["train"])
     done("train")
 
     stage("replay", 5)
     trajectories = {split: sorted((out / "trajectories" / split).glob("*.mcap")) for split in SPLITS}
-    traces = online_gates(checkpoints["CNEP"], trajectories["free_choice"])  # every held-out free choice's gate
+    labels = {key(path): label for path, label in made.labels.items()}  # split/name is kept by every stage
+    switch_steps = {key(p): int(read_demonstration(p).episode.extra[SWITCH_KEY]) for p in made.files["scene_change"]}
+    decided = [p for p in trajectories["train"] if labels[key(p)] in BEHAVIOURS]  # free choices have no purity
+    with torch_threads():  # small-model forwards: one thread (the extract stage may have left torch on more)
+        behaviours = expert_purity(checkpoints["CNEP"], decided + trajectories["heldout"], labels)
+        traces = online_gates(checkpoints["CNEP"], trajectories["free_choice"])  # every held-out free choice's gate
     replayed_choice = [trajectories["free_choice"][replay_pick(traces)]]  # one that starts split, then commits
     (out / REPLAYS_RRD).parent.mkdir(exist_ok=True)
+    shown = {  # the view names each expert by the behaviours it takes, and marks where the scene changes
+        "expert_labels": expert_labels(behaviours),
+        "marks": {p: [(switch_steps[key(p)], SCENE_CHANGE_MARK)] for p in trajectories["scene_change"]},
+    }
     rrd = [
         path
         for recordings, target in (
             (trajectories["scene_change"], out / RRD_FILE),
             (trajectories["heldout"] + replayed_choice, out / REPLAYS_RRD),
         )
-        for path in replay(checkpoints["CNEP"], recordings, target, policy=POLICY, connect=None, quiet=config.quiet)
+        for path in replay(
+            checkpoints["CNEP"], recordings, target, policy=POLICY, connect=None, quiet=config.quiet, **shown
+        )
     ]  # one file each
     done("replay")
 
     stage("summary", 6)
-    with torch_threads():  # small-model forwards: one thread (the extract stage may have left torch on more)
-        labels = {key(path): label for path, label in made.labels.items()}  # split/name is kept by every stage
-        switch_steps = {
-            key(p): int(read_demonstration(p).episode.extra[SWITCH_KEY]) for p in made.files["scene_change"]
-        }
-        decided = [p for p in trajectories["train"] if labels[key(p)] in BEHAVIOURS]  # free choices have no purity
-        behaviours = expert_purity(checkpoints["CNEP"], decided + trajectories["heldout"], labels)
+    # What the summary measures, one bar step each: held-out errors (2 models), the scene change, where the free
+    # choices end (2 models), the replayed free choice, the figure.
+    bar = progress_bar(total=7, desc="summary: measuring", unit="measure", quiet=config.quiet)
+
+    def measured(value):
+        bar.update(1)
+        return value
+
+    with torch_threads(), bar:  # small-model forwards: one thread (the extract stage may have left torch on more)
         result = DemoResult(
             out=out,
             rrd=rrd,
             checkpoints=checkpoints,
             behaviours=behaviours,
             heldout={
-                name: heldout_errors(ckpt, trajectories["heldout"], decided, labels)
+                name: measured(heldout_errors(ckpt, trajectories["heldout"], decided, labels))
                 for name, ckpt in checkpoints.items()
             },
             feature_weights=read_trajectory(trajectories["train"][0]).extractor["weights"],
             imagenet_unavailable=chosen.imagenet_unavailable,
-            scene_change=scene_change_switches(out / RRD_FILE, trajectories["scene_change"], labels, switch_steps),
+            scene_change=measured(
+                scene_change_switches(out / RRD_FILE, trajectories["scene_change"], labels, switch_steps)
+            ),
             free_choice={
-                name: place_outcomes(generated_ends(*trained_rows(ckpt, trajectories["free_choice"])))
+                name: measured(place_outcomes(generated_ends(*trained_rows(ckpt, trajectories["free_choice"]))))
                 for name, ckpt in checkpoints.items()
             },
-            free_choice_replay=free_choice_commitment(
-                out / REPLAYS_RRD, replayed_choice, made.files["free_choice"], labels, behaviours, gate_census(traces)
+            free_choice_replay=measured(
+                free_choice_commitment(
+                    out / REPLAYS_RRD,
+                    replayed_choice,
+                    made.files["free_choice"],
+                    labels,
+                    behaviours,
+                    gate_census(traces),
+                )
             ),
             seconds=seconds,
         )
-        result.figure = summary_figure(out, result, trajectories)
+        result.figure = measured(summary_figure(out, result, trajectories))
     done("summary")
     return result
+
+
+def expert_labels(behaviours: dict[str, dict]) -> dict[int, str]:
+    """Each expert that some behaviour's demonstrations mostly go to -> those behaviours' names (the view shows them
+    beside the expert's number); `behaviours` as `measures.expert_purity` gives them."""
+    taken: dict[int, list[str]] = {}
+    for behaviour, row in behaviours.items():
+        taken.setdefault(int(row["expert"]), []).append(behaviour)
+    return {expert: ", ".join(names) for expert, names in taken.items()}
+
+
+def train_side_by_side(jobs: dict[str, TrainStageConfig], quiet: bool, started: float) -> None:
+    """Train each named job in a process of its own (their errors reach us), one bar per job here, fed by the
+    workers' reports (pipeline.progress.RemoteBar); `started`: the stage's perf_counter start, for the log."""
+    bars = {
+        name: progress_bar(total=job.training.steps, desc=f"train {name}", unit="step", quiet=quiet)
+        for name, job in jobs.items()
+    }
+    for bar in bars.values():
+        bar.set_postfix_str("starting (loading torch and the trajectories)")
+    try:
+        with get_context("spawn").Manager() as manager, single_thread_processes(len(jobs), wait=False) as pool:
+            reports = manager.Queue()
+            pending = {pool.submit(train, job, RemoteBar(reports, name)): name for name, job in jobs.items()}
+            while pending:
+                finished, _ = wait(pending, timeout=REPORT_INTERVAL_S, return_when=FIRST_COMPLETED)
+                follow_reports(reports, bars)
+                for future in finished:
+                    name = pending.pop(future)
+                    future.result()
+                    bars[name].close()
+                    log.info("%s trained (%.1f s into the stage)", name, time.perf_counter() - started)
+    finally:
+        for bar in bars.values():
+            bar.close()
 
 
 def summary_figure(out: Path, result: DemoResult, trajectories: dict[str, list[Path]]) -> Path | None:

@@ -191,15 +191,15 @@ def extract(config: ExtractConfig) -> list[Extracted]:
             else:
                 log.info("%s is up to date, skipped", dst)
                 done[i] = Extracted(src, dst, current[dst], skipped=True)
+        frames = frame_counts([pairs[i][0] for i in todo])
         with (
             logging_redirect_tqdm(),
-            progress_bar(total=0, unit="frame", desc="extract", quiet=config.quiet, open_ended=True) as bar,
+            progress_bar(total=sum(frames), unit="frame", desc=f"extract {config.out.name}", quiet=config.quiet) as bar,
         ):
             workers = auto_workers([pairs[i][0] for i in todo]) if config.workers == "auto" else config.workers
             if workers > 1 and len(todo) > 1:
-                done.update(
-                    extract_in_processes([pairs[i] for i in todo], todo, extractor, config, workers, bar, failed)
-                )
+                jobs = [(*pairs[i], count) for i, count in zip(todo, frames)]
+                done.update(extract_in_processes(jobs, todo, extractor, config, workers, bar, failed))
             else:
                 for i in todo:
                     try:
@@ -230,13 +230,16 @@ def torchrun_rank() -> tuple[int, int]:
     return (int(os.environ.get("RANK", "0")), world_size) if world_size > 1 else (0, 1)
 
 
+def frame_counts(sources: Sequence[Path]) -> list[int]:
+    """The camera frames of each demonstration file (0 for one without), read from the files' summaries."""
+    summaries = [read_summary(src, KIND_DEMONSTRATION) for src in sources]
+    return [summary.n_steps if summary.has_frames else 0 for summary in summaries]
+
+
 def auto_workers(sources: Sequence[Path]) -> int:
     """Worker processes for `workers="auto"`: one per core, at most one per file and one per WORKER_MIN_FRAMES
     frames to extract (at least 1), so that a small job never pays for starting processes."""
-    frames = 0
-    for src in sources:
-        summary = read_summary(src, KIND_DEMONSTRATION)
-        frames += summary.n_steps if summary.has_frames else 0
+    frames = sum(frame_counts(sources))
     workers = max(1, min(cpu_cores(), len(sources), frames // WORKER_MIN_FRAMES))
     log.info(
         "--workers auto: %d worker(s) for %d file(s), %d frames on %d cores", workers, len(sources), frames, cpu_cores()
@@ -245,7 +248,7 @@ def auto_workers(sources: Sequence[Path]) -> int:
 
 
 def extract_in_processes(
-    pairs: Sequence[tuple[Path, Path]],
+    jobs: Sequence[tuple[Path, Path, int]],
     keys: Sequence[int],
     extractor: Callable[[], FeatureExtractor],
     config: ExtractConfig,
@@ -253,32 +256,34 @@ def extract_in_processes(
     bar: tqdm,
     failed: Callable[[Path, Exception], None],
 ) -> dict[int, Extracted]:
-    """Extract `pairs` in `workers` spawned processes sharing the cores; returns {key: Extracted}.
+    """Extract `jobs` (source, output, its frames) in `workers` spawned processes sharing the cores; returns
+    {key: Extracted}.
 
     Every worker receives this process's extractor (calibrated once, here), so all files share one
     identity, and builds its own backend with `inference_threads(config.threads, workers)` threads.
     A file that fails goes to `failed(source, error)`, which raises or records it (keep_going).
     """
-    workers = min(workers, len(pairs))
+    workers = min(workers, len(jobs))
     threads = inference_threads(config.threads, workers)
-    with_frames = any(read_summary(src, KIND_DEMONSTRATION).has_frames for src, _ in pairs)
+    with_frames = any(frames for _, _, frames in jobs)
     shared = extractor() if with_frames else None  # motion-only inputs need no network
     done = {}
     with (
         thread_environment(threads),
         process_pool(workers, initializer=_set_worker_extractor, initargs=(shared, threads)) as pool,
     ):
-        futures = {pool.submit(_extract_in_worker, src, dst): (key, src) for key, (src, dst) in zip(keys, pairs)}
+        futures = {
+            pool.submit(_extract_in_worker, src, dst): (key, src, frames) for key, (src, dst, frames) in zip(keys, jobs)
+        }
         for future in as_completed(futures):
-            key, src = futures[future]
+            key, src, frames = futures[future]
             try:
                 item = future.result()  # a worker's error (a corrupt frame) is raised here, naming its file
             except (RecordingError, PerceptionError) as exc:
                 failed(src, exc)
                 continue
             done[key] = item
-            bar.total += item.n_steps
-            bar.update(item.n_steps)
+            bar.update(frames)
     return done
 
 
@@ -310,7 +315,9 @@ def build_extractor(config: ExtractConfig, sources: Sequence[Path]) -> FeatureEx
     frames = None
     if extractor.needs_calibration:
         frames = calibration_frames(sources, CALIBRATION_FRAMES)
-        extractor.calibrate(frames)
+        desc = f"calibrating random weights on {len(frames)} frames"
+        with progress_bar(total=len(frames), desc=desc, unit="frame", quiet=config.quiet) as bar:
+            extractor.calibrate(frames, done=bar.update)
     if extractor.needs_quantisation:
         extractor.quantise(calibration_frames(sources, CALIBRATION_FRAMES) if frames is None else frames)
     return extractor
@@ -325,11 +332,8 @@ def extract_file(src: Path, dst: Path, extractor: Callable[[], FeatureExtractor]
             trajectory = Trajectory.from_demonstration(demo)
     else:
         extractor().prepare()
-        if bar is not None:
-            if bar.n == 0:
-                bar.reset(total=bar.total)  # frames/s from here: calibration and backend set-up are done
-            bar.total += demo.n_steps
-            bar.refresh()
+        if bar is not None and bar.n == 0:
+            bar.reset(total=bar.total)  # frames/s and the time left from here: the backend's set-up is done
         features = features_of_frames(demo.frames, extractor(), src, bar)  # (T, 1280)
         with in_file(src):
             trajectory = Trajectory.from_demonstration(demo, features, extractor().identity)

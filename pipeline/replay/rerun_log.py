@@ -15,6 +15,7 @@ import os
 import socket
 import subprocess
 import sys
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 from urllib.parse import urlparse
@@ -28,6 +29,8 @@ from cnep.runtime.conditioning import ExpertSwitch
 
 if TYPE_CHECKING:  # the conditioning runs the torch model; this module (`cnep run` uses it) imports no torch
     from cnep.pipeline.replay.conditioning import Decisions
+
+Labels = Mapping[int, str] | None  # what experts stand for, where the caller knows (expert -> name)
 
 DEFAULT_VIEWER_URL = "rerun+http://127.0.0.1:9876/proxy"  # where a local `rerun` viewer listens
 PROBE_TIMEOUT_S = 0.5
@@ -78,11 +81,11 @@ def rrd_files(out: Path, paths: list[Path], merge: bool) -> list[Path]:
     ]
 
 
-def switch_text(switch: ExpertSwitch, start_ns: int) -> str:
+def switch_text(switch: ExpertSwitch, start_ns: int, labels: Labels = None) -> str:
     gate = ", ".join(f"{p:.2f}" for p in switch.gate)
     return (
         f"step {switch.step} ({(switch.timestamp_ns - start_ns) / 1e9:.2f} s): "
-        f"{L.expert_name(switch.from_expert)} -> {L.expert_name(switch.to_expert)} (p = {gate})"
+        f"{L.expert_name(switch.from_expert, labels)} -> {L.expert_name(switch.to_expert, labels)} (p = {gate})"
     )
 
 
@@ -97,9 +100,20 @@ def recording_name(index: int, source: Path) -> str:
     return f"{source.stem} ({source.parent.name or '.'}) #{index + 1}"
 
 
-def write_recording(recording_id: str, name: str, traj: Trajectory, decisions: Decisions, live: str | None) -> bytes:
+def write_recording(
+    recording_id: str,
+    name: str,
+    traj: Trajectory,
+    decisions: Decisions,
+    live: str | None,
+    labels: Labels = None,
+    marks: Sequence[tuple[int, str]] = (),
+) -> bytes:
     """One Rerun recording of one replayed trajectory: its .rrd bytes (and the same stream to the live viewer, if
-    any). The bytes are written by the caller, so that a full disk is an error naming the file, not Rerun's."""
+    any). The bytes are written by the caller, so that a full disk is an error naming the file, not Rerun's.
+
+    labels: what experts stand for, where the caller knows (expert -> a behaviour's name), shown beside their
+    numbers; marks: (step, what happens there) lines for the switch log, such as a scene change."""
     import rerun as rr
 
     d = decisions.gates.shape[1]
@@ -111,11 +125,11 @@ def write_recording(recording_id: str, name: str, traj: Trajectory, decisions: D
     index = change_index(traj, list(range(traj.n_steps)))
     log_camera(rec, index, traj)
     log_pose(rec, index, traj)
-    log_gates(rec, index, decisions.gates)
-    log_active_expert(rec, traj, decisions, d)
-    log_switches(rec, traj, decisions)
+    log_gates(rec, index, decisions.gates, labels)
+    log_active_expert(rec, traj, decisions, d, labels)
+    log_switches(rec, traj, decisions, labels, marks)
     if decisions.predictions is not None:
-        colors = [c for _, c in shown_states(decisions)]  # the active expert's colour, grey where unsure
+        colors = [c for _, c in shown_states(decisions, labels)]  # the active expert's colour, grey where unsure
         rec.send_columns(
             L.PREDICTION,
             indexes=index,
@@ -151,12 +165,12 @@ def log_pose(rec, index, traj: Trajectory) -> None:
     rec.log(L.EE_PATH, rr.LineStrips3D([pose[:, :3]], colors=[L.PATH_COLOR]), static=True)
 
 
-def log_gates(rec, index, gates: np.ndarray) -> None:
+def log_gates(rec, index, gates: np.ndarray, labels: Labels = None) -> None:
     """(T, d) gate probabilities: one row of d scalars per step, series named and coloured per expert."""
     import rerun as rr
 
     d = gates.shape[1]
-    rec.log(L.GATES, rr.SeriesLines(names=L.expert_names(d), colors=L.expert_colors(d)), static=True)
+    rec.log(L.GATES, rr.SeriesLines(names=L.expert_names(d, labels), colors=L.expert_colors(d)), static=True)
     rec.send_columns(L.GATES, indexes=index, columns=rr.Scalars.columns(scalars=gates))
 
 
@@ -168,32 +182,33 @@ def change_index(traj: Trajectory, steps: list[int]):
     return [rr.TimeColumn(L.TIMELINE_FRAME, sequence=steps), rr.TimeColumn(L.TIMELINE_TIME, duration=since_start)]
 
 
-def shown_state(gate: np.ndarray, expert: int) -> tuple[str, tuple[int, int, int]]:
+def shown_state(gate: np.ndarray, expert: int, labels: Labels = None) -> tuple[str, tuple[int, int, int]]:
     """The state the active-expert lane shows for a step's gate (d,) and active expert, and its colour: the expert,
     or L.UNSURE where it holds less than L.SURE_GATE."""
     if gate[expert] < L.SURE_GATE:
         return L.UNSURE, L.UNSURE_COLOR
-    return L.expert_name(int(expert)), L.expert_colors(len(gate))[expert]
+    return L.expert_name(int(expert), labels), L.expert_colors(len(gate))[expert]
 
 
-def shown_states(decisions: Decisions) -> list[tuple[str, tuple[int, int, int]]]:
+def shown_states(decisions: Decisions, labels: Labels = None) -> list[tuple[str, tuple[int, int, int]]]:
     """(T,) `shown_state` at each step of a replayed recording."""
-    return [shown_state(gate, int(e)) for gate, e in zip(decisions.gates, decisions.experts)]
+    return [shown_state(gate, int(e), labels) for gate, e in zip(decisions.gates, decisions.experts)]
 
 
-def active_expert_states(d: int):
+def active_expert_states(d: int, labels: Labels = None):
     """The active-expert lane's StateConfiguration for `d` experts: each expert in its colour, and L.UNSURE."""
     import rerun as rr
 
-    return rr.StateConfiguration(values=[*L.expert_names(d), L.UNSURE], colors=[*L.expert_colors(d), L.UNSURE_COLOR])
+    names = L.expert_names(d, labels)
+    return rr.StateConfiguration(values=[*names, L.UNSURE], colors=[*L.expert_colors(d), L.UNSURE_COLOR])
 
 
-def log_active_expert(rec, traj: Trajectory, decisions: Decisions, d: int) -> None:
+def log_active_expert(rec, traj: Trajectory, decisions: Decisions, d: int, labels: Labels = None) -> None:
     """The active expert as a colour lane (`shown_states`): a StateChange at the first step and at each change."""
     import rerun as rr
 
-    rec.log(L.ACTIVE_EXPERT, active_expert_states(d), static=True)
-    states = [state for state, _ in shown_states(decisions)]
+    rec.log(L.ACTIVE_EXPERT, active_expert_states(d, labels), static=True)
+    states = [state for state, _ in shown_states(decisions, labels)]
     steps = [k for k in range(len(states)) if k == 0 or states[k] != states[k - 1]]
     rec.send_columns(
         L.ACTIVE_EXPERT,
@@ -202,27 +217,35 @@ def log_active_expert(rec, traj: Trajectory, decisions: Decisions, d: int) -> No
     )
 
 
-def first_read_text(gate: np.ndarray, sure: bool) -> str:
+def first_read_text(gate: np.ndarray, sure: bool, labels: Labels = None) -> str:
     """The log line of the gate's step-0 read (d,): the expert it is sure of, or that it is unsure and between which
     experts (those above a tenth, most probable first)."""
     ranked = [int(e) for e in np.argsort(-gate) if gate[e] >= 0.1] or [int(gate.argmax())]
     if sure:
-        return f"step 0 (0.00 s): first read {L.expert_name(ranked[0])} (p = {gate[ranked[0]]:.2f})"
-    between = ", ".join(f"{L.expert_name(e)} {gate[e]:.2f}" for e in ranked)
+        return f"step 0 (0.00 s): first read {L.expert_name(ranked[0], labels)} (p = {gate[ranked[0]]:.2f})"
+    between = ", ".join(f"{L.expert_name(e, labels)} {gate[e]:.2f}" for e in ranked)
     return f"step 0 (0.00 s): first read unsure ({between})"
 
 
-def log_switches(rec, traj: Trajectory, decisions: Decisions) -> None:
-    """The TextLog: the first read at step 0 (`first_read_text`), then one line per switch, at its step."""
+def log_switches(
+    rec, traj: Trajectory, decisions: Decisions, labels: Labels = None, marks: Sequence[tuple[int, str]] = ()
+) -> None:
+    """The TextLog: the first read at step 0 (`first_read_text`), then one line per switch and per mark (a scene
+    change: level WARN, so that it stands out), at its step."""
     import rerun as rr
 
     start = int(traj.timestamps_ns[0])
-    texts = [first_read_text(decisions.gates[0], not decisions.unsure()[0])]
-    texts += [switch_text(s, start) for s in decisions.switches]
+    lines = [(0, first_read_text(decisions.gates[0], not decisions.unsure()[0], labels), "INFO")]
+    lines += [(s.step, switch_text(s, start, labels), "INFO") for s in decisions.switches]
+    lines += [
+        (step, f"step {step} ({(traj.timestamps_ns[step] - start) / 1e9:.2f} s): {what}", "WARN")
+        for step, what in marks
+    ]
+    lines.sort(key=lambda line: line[0])  # stable: at one step the expert lines come first
     rec.send_columns(
         L.SWITCH_LOG,
-        indexes=change_index(traj, [0] + [s.step for s in decisions.switches]),
-        columns=rr.TextLog.columns(text=texts, level=["INFO"] * len(texts)),
+        indexes=change_index(traj, [step for step, _, _ in lines]),
+        columns=rr.TextLog.columns(text=[text for _, text, _ in lines], level=[level for _, _, level in lines]),
     )
 
 

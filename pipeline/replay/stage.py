@@ -30,6 +30,7 @@ import logging
 import os
 import shlex
 import uuid
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 from cnep.models import ConditioningPolicy
@@ -68,12 +69,16 @@ def replay(
     merge: bool = False,
     force: bool = False,
     quiet: bool = False,
+    expert_labels: Mapping[int, str] | None = None,
+    marks: Mapping[Path, Sequence[tuple[int, str]]] | None = None,
 ) -> list[Path]:
     """Replay trajectory files through the checkpoint's CNEP; returns the .rrd files written (`rrd_files`).
 
     One recording goes to `out_rrd`; several go to one file each beside it (`merge`: all into `out_rrd`,
     where the viewer opens one of them, which one is not fixed).
-    `connect`: a viewer URL, streamed to only if reachable (None: file only). The decisions are
+    `connect`: a viewer URL, streamed to only if reachable (None: file only). `expert_labels`: what experts stand
+    for where the caller knows (expert -> a behaviour's name), shown beside their numbers; `marks`: per recording
+    path, (step, what happens there) lines for the view's switch log (a scene change). The decisions are
     written to `decisions_path(out_rrd)` (see `read_decisions`). Existing outputs (the .rrd, the
     decisions, the event copies) are refused unless `force`; a recording whose features come from
     another extractor than the checkpoint's training data is refused (pipeline.identity).
@@ -113,7 +118,7 @@ def replay(
     live = connect if connect and viewer_reachable(connect) else None
     if connect and live is None:
         log.warning(
-            "no Rerun viewer answers at %s; writing %s only (open it with `rerun %s`)",
+            "no Rerun viewer answers at %s; writing %s only (open it with `cnep view %s`)",
             connect,
             files[0],
             shlex.quote(str(files[0])),
@@ -133,11 +138,19 @@ def replay(
         refuse_existing(outputs, force, "replay output", kind=replay_kind)  # again: a run may have ended meanwhile
         held.enter_context(torch_threads())  # one small step at a time: one thread is fastest
         staging = held.enter_context(staged(record=True))
-        bar = progress_bar(total=sum(len(r) for r in rows), quiet=quiet, desc="replay", unit="step", leave=False)
+        bar = progress_bar(total=sum(len(r) for r in rows), quiet=quiet, desc=f"replay into {out.name}", unit="step")
         for i, (path, traj, x) in enumerate(zip(paths, trajectories, rows)):
             decisions = decide(model, x, traj.timestamps_ns, policy, xyz, prediction_points)
             bar.update(len(x))
-            data = write_recording(recording_id(i, traj, run_id), recording_name(i, path), traj, decisions, live)
+            data = write_recording(
+                recording_id(i, traj, run_id),
+                recording_name(i, path),
+                traj,
+                decisions,
+                live,
+                expert_labels,
+                (marks or {}).get(path, ()),
+            )
             if merge_all:  # one file holding every recording: the parts are merged into it, then dropped
                 parts[i] = staging.write(parts[i], data, keep=False)
             else:

@@ -5,6 +5,8 @@ Import `rerun` lazily (it is slow to import): only `blueprint()` needs it, and i
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 APPLICATION_ID = "cnep_replay"
 
 # Timelines
@@ -48,13 +50,15 @@ UNSURE_COLOR = (160, 160, 160)  # that state's colour, and the predicted path's 
 GATE_AXIS = (-0.05, 1.05)  # the gate plot's y range: probabilities of exactly 0 and 1 stay clear of the border
 
 
-def expert_name(e: int) -> str:
-    """Display name of expert `e` (also the state value of the active-expert lane)."""
-    return f"expert {e}"
+def expert_name(e: int, labels: Mapping[int, str] | None = None) -> str:
+    """Display name of expert `e` (also the state value of the active-expert lane): `expert 3`, or with what the
+    caller knows it stands for, `expert 3 (left-near)`."""
+    label = (labels or {}).get(e)
+    return f"expert {e} ({label})" if label else f"expert {e}"
 
 
-def expert_names(n_experts: int) -> list[str]:
-    return [expert_name(e) for e in range(n_experts)]
+def expert_names(n_experts: int, labels: Mapping[int, str] | None = None) -> list[str]:
+    return [expert_name(e, labels) for e in range(n_experts)]
 
 
 def expert_colors(n_experts: int) -> list[tuple[int, int, int]]:

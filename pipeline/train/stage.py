@@ -23,6 +23,7 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
+import math
 import shutil
 import time
 from collections.abc import Callable
@@ -115,16 +116,17 @@ class StageTrainer(Trainer):
         return stop
 
 
-def train(config: TrainStageConfig) -> Path:
+def train(config: TrainStageConfig, remote: progress.RemoteBar | None = None) -> Path:
     """Train a CNEP on the trajectory files of `config`; returns the checkpoint folder (config.out).
 
     Runs on `training.threads` torch threads per process (one by default: models.threads says why); more
-    cores are used by more processes under torchrun.
+    cores are used by more processes under torchrun. `remote`: where a worker process reports its steps and
+    figures for its parent's bar (the demo's).
     """
     procs, device = start_processes(config.device)
     try:
         with torch_threads(config.training.threads), ExitStack() as held:
-            out = _train(config, procs, device, held)
+            out = _train(config, procs, device, held, remote)
     except BaseException:
         stop_processes(procs, wait=False)  # the other ranks may never reach a barrier
         raise
@@ -132,7 +134,13 @@ def train(config: TrainStageConfig) -> Path:
     return out
 
 
-def _train(config: TrainStageConfig, procs: Processes, device: torch.device, held: ExitStack) -> Path:
+def _train(
+    config: TrainStageConfig,
+    procs: Processes,
+    device: torch.device,
+    held: ExitStack,
+    remote: progress.RemoteBar | None = None,
+) -> Path:
     """The run; rank 0 claims OUT into `held` (its folder and lock, released when the run ends)."""
     data = load_training_set(find_trajectory_files(config.inputs))
     layout = resolve_preset(config.layout, data.width, data.files[0].path)
@@ -179,11 +187,13 @@ def _train(config: TrainStageConfig, procs: Processes, device: torch.device, hel
             layout.roles.out_dim,
             procs.world_size,
         )
+        if not config.quiet:
+            log.info("%s", BAR_LEGEND)
 
     work, cfg = work_dir(config.out), config.training
     clock = time.perf_counter() - elapsed  # training time (s) counts across resumes, reading the files does not
     with progress_bar(trainer, disabled=config.quiet or not procs.is_main) as bar, deferred_interrupts() as received:
-        trainer.on_step = lambda stepped, terms: report_step(bar, stepped, terms, time.perf_counter() - clock)
+        trainer.on_step = lambda stepped, terms: report_step(bar, stepped, terms, time.perf_counter() - clock, remote)
         trainer.interrupted = lambda: any_rank_signal(procs, received())
         try:
             while trainer.step < cfg.steps and not trainer.should_stop():
@@ -357,22 +367,38 @@ def progress_bar(trainer: Trainer, disabled: bool) -> tqdm:
     )
 
 
-def report_step(bar: tqdm, trainer: Trainer, terms: dict, elapsed: float) -> None:
-    """Progress bar: loss terms of this step, the gate's mean usage of each expert, the best validation error.
+def report_step(bar: tqdm, trainer: Trainer, terms: dict, elapsed: float, remote: progress.RemoteBar | None) -> None:
+    """Progress: the step on the bar (and on `remote`), with the figures of `bar_figures`.
 
     The terms dict is the one the Trainer appends to its history at validation steps, so the
     elapsed time also lands in the log there.
     """
     terms["elapsed_s"] = round(elapsed, 3)
     bar.update(1)
-    if bar.disable:
+    if bar.disable and remote is None:
         return
-    bar.set_postfix(
-        loss=f"{terms['loss']:.3g}",
-        rec=f"{terms['rec']:.3g}",
-        H_batch=f"{terms['batch_entropy']:.3g}",
-        H_ind=f"{terms['ind_entropy']:.3g}",
-        usage="/".join(f"{u:.2f}" for u in terms["usage"]),
-        best_val=f"{trainer.best_error:.3g}",
-        refresh=False,
-    )
+    figures = bar_figures(trainer, terms)
+    if remote is not None:
+        remote.update(trainer.step, final=trainer.step >= trainer.cfg.steps, **figures)
+    if not bar.disable:
+        bar.set_postfix(figures, refresh=False)
+
+
+# What the figures on a training bar mean (logged once when training starts).
+BAR_LEGEND = (
+    "on the bar: loss = this batch's training loss; val = the last validation error (normalised units: predicting "
+    "the mean scores about 1), from the first validation on; best = the lowest validation error of the weights "
+    "kept so far (kept once the experts have settled); use = the share of each batch the gate gives each expert "
+    "(0.00 is an expert that is not used)"
+)
+
+
+def bar_figures(trainer: Trainer, terms: dict) -> dict[str, str]:
+    """The figures BAR_LEGEND explains, formatted: loss, val and best once there are some, use."""
+    figures = {"loss": f"{terms['loss']:.3g}"}
+    if trainer.history:
+        figures["val"] = f"{trainer.history[-1]['val_error']:.3g}"
+    if math.isfinite(trainer.best_error):
+        figures["best"] = f"{trainer.best_error:.3g}"
+    figures["use"] = "/".join(f"{u:.2f}" for u in terms["usage"])
+    return figures

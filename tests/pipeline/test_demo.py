@@ -16,12 +16,13 @@ from cnep.pipeline.demo.free_choice import gate_census, replay_pick
 from cnep.pipeline.demo.generator import CHOICE_KEY, LABEL_KEY
 from cnep.pipeline.demo.measures import online_gates
 from cnep.pipeline.demo.scene import BEHAVIOURS, FREE_CHOICE, SIDES
-from cnep.pipeline.demo.stage import REPLAYS_RRD, RRD_FILE, SUMMARY_FILE
+from cnep.pipeline.demo.stage import REPLAYS_RRD, RRD_FILE, SCENE_CHANGE_MARK, SUMMARY_FILE, expert_labels
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.replay.decisions import read_decisions
 from cnep.pipeline.train.constants import SCENE
 from cnep.recordings import read_demonstration, read_trajectory
 from cnep.recordings.constants import STEP_DIM
+from tests.conftest import PROGRESS_LOG
 
 N_TRAIN = QUICK.per_behaviour * len(BEHAVIOURS) + QUICK.free_choice_per_side * len(SIDES)
 N_HELDOUT = QUICK.heldout_per_behaviour * len(BEHAVIOURS)
@@ -172,7 +173,10 @@ def test_the_rrd_holds_each_replayed_recording(demo_run):
     assert view["frames"] == read_trajectory(demo_run / "trajectories" / "scene_change" / "demo_000.mcap").frames
     recordings = [rec for file in files for rec in _rrd_recordings(file)]
     assert len(recordings) == len(files)
-    (choice,) = json.loads((demo_run / SUMMARY_FILE).read_text())["free_choice_replay"]
+    summary = json.loads((demo_run / SUMMARY_FILE).read_text())
+    (choice,) = summary["free_choice_replay"]
+    labels = expert_labels(summary["behaviours"])
+    assert labels and all(name in BEHAVIOURS for names in labels.values() for name in names.split(", "))
     replayed = sorted((demo_run / "trajectories" / "heldout").glob("*.mcap")) + [
         demo_run / "trajectories" / "scene_change" / "demo_000.mcap",
         demo_run / "trajectories" / "free_choice" / choice["recording"],
@@ -188,7 +192,7 @@ def test_the_rrd_holds_each_replayed_recording(demo_run):
         (rec,) = [r for r in recordings if r["frames"] == frames]  # the stored JPEG bytes, one recording each
         assert rec["gates"].shape == (QUICK.steps, 4)
         np.testing.assert_allclose(rec["gates"].sum(1), 1.0, atol=1e-5)
-        assert rec["names"] == [[f"expert {e}" for e in range(4)]]
+        assert rec["names"] == [L.expert_names(4, labels)]  # each expert named by the behaviours it takes
         experts = decisions[f"{path.parent.name}/{path.name}"]["experts"]
         assert experts == rec["gates"].argmax(1).tolist()
 
@@ -223,7 +227,7 @@ def test_the_default_output_folder_never_mixes_runs(tmp_path):
 def test_precision_reaches_every_extraction_quantised_on_the_training_frames(tmp_path, monkeypatch):
     from cnep.pipeline.demo import stage
 
-    def stop(workers):  # at training: only the extract calls matter here
+    def stop(workers, wait=True):  # at training: only the extract calls matter here
         raise PipelineError("stopped before training")
 
     configs = []
@@ -255,3 +259,37 @@ def test_the_printed_summary_counts_the_scenes_read_wrong_apart_and_names_the_we
     assert "ImageNet weights (imagenet:mobilenet_v2-b0353104.pth)" in features_line(
         "imagenet:mobilenet_v2-b0353104.pth"
     )
+
+
+# The longest silence of a demo's log: ~10 s on an idle machine. A busy machine stretches every stretch of work
+# alike, so the bound is also a share of the whole run's wall time (the quick demo: about a minute idle).
+SILENCE_S, SILENCE_SHARE = 12.0, 0.12
+
+
+def test_the_demo_is_never_silent_for_long(demo_run):
+    """Every stage shows progress (a line at least every LINE_INTERVAL_S while it works, in a log file), the two
+    side-by-side trainings included: one bar per model with its steps, validation error and time left."""
+    timed = [line.split(" ", 1) for line in (demo_run.parent / PROGRESS_LOG).read_text().splitlines()]
+    times, lines = np.array([float(t) for t, _ in timed]), [line for _, line in timed]
+    gaps = np.diff(np.concatenate([[0.0], times]))
+    worst = int(np.argmax(gaps))
+    bound = max(SILENCE_S, SILENCE_SHARE * times[-1])
+    assert gaps[worst] <= bound, (
+        f"{gaps[worst]:.1f} s silent (bound {bound:.1f} s of {times[-1]:.0f}) before: {lines[worst]}"
+    )
+    for model in ("CNEP", "CNMP"):
+        bars = [line for line in lines if line.startswith(f"train {model}:")]
+        assert bars[0].startswith(f"train {model}:   0%") and f"0/{QUICK.train_steps}" in bars[0]
+        assert f"{QUICK.train_steps}/{QUICK.train_steps}" in bars[-1] and "val=" in bars[-1]
+    assert any(line.startswith("calibrating random weights on ") for line in lines)
+    for split in ("train", "heldout", "scene_change", "free_choice"):
+        assert any(line.startswith(f"extract {split}: 100%") for line in lines), split
+
+
+def test_the_view_marks_where_the_scene_changes(demo_run):
+    from tests.pipeline.test_replay import column
+
+    (change,) = json.loads((demo_run / SUMMARY_FILE).read_text())["scene_change"]
+    frames, texts = column(demo_run / RRD_FILE, L.SWITCH_LOG, "TextLog:text")
+    marked = [frame for frame, text in zip(frames, texts) if SCENE_CHANGE_MARK in text[0]]
+    assert marked == [change["change_step"]]

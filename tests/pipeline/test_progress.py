@@ -2,6 +2,7 @@
 
 import io
 import logging
+import queue
 
 import pytest
 from tqdm.contrib.logging import logging_redirect_tqdm
@@ -17,24 +18,26 @@ class Terminal(io.StringIO):
         return True
 
 
-def test_a_log_file_gets_one_line_at_the_end_and_no_carriage_returns():
+def test_a_log_file_gets_a_line_at_the_start_and_one_at_the_end_and_no_carriage_returns():
     stream = io.StringIO()
-    with progress.progress_bar(total=0, desc="extract", unit="frame", stream=stream) as bar:
-        for _ in range(3):
-            bar.total += 100
-            bar.refresh()
-            for _ in range(100):
-                bar.update(1)
-    text = stream.getvalue()
-    assert "\r" not in text and text.count("\n") == 1 and text.startswith("extract: 100%") and "300/300" in text
+    with progress.progress_bar(total=300, desc="extract train", unit="frame", stream=stream) as bar:
+        for _ in range(300):
+            bar.update(1)
+    lines = stream.getvalue().splitlines()
+    assert "\r" not in stream.getvalue() and len(lines) == 2
+    assert lines[0].startswith("extract train:   0%") and "0/300" in lines[0]  # what is about to happen, how much
+    assert lines[1].startswith("extract train: 100%") and "300/300" in lines[1]
 
 
-def test_an_open_ended_bar_shows_no_percentage():
-    stream = io.StringIO()
-    with progress.progress_bar(total=0, desc="extract", unit="frame", open_ended=True, stream=stream) as bar:
-        bar.total += 10
-        bar.update(4)
-    assert stream.getvalue().startswith("extract: 4 frame [") and "%" not in stream.getvalue()
+def test_a_worker_reports_to_its_parents_bar():
+    reports, stream = queue.Queue(), io.StringIO()
+    remote = progress.RemoteBar(reports, "CNEP")
+    for step in range(1, 11):
+        remote.update(step, final=step == 10, val="0.5")  # within REPORT_INTERVAL_S: the first and the last only
+    assert reports.qsize() == 2
+    with progress.progress_bar(total=10, desc="train CNEP", unit="step", stream=stream) as bar:
+        progress.follow_reports(reports, {"CNEP": bar})
+        assert bar.n == 10 and bar.postfix == "val=0.5"
 
 
 def test_a_log_file_gets_a_line_per_interval(monkeypatch):
@@ -75,7 +78,9 @@ def test_log_messages_stay_whole_lines_beside_the_bar():
                 bar.update(1)
     finally:
         logger.removeHandler(handler)
-    assert stream.getvalue().splitlines()[:2] == ["file 0 done", "file 1 done"] and "\r" not in stream.getvalue()
+    lines = stream.getvalue().splitlines()
+    assert lines[0].startswith("x:   0%") and lines[1:3] == ["file 0 done", "file 1 done"]
+    assert "\r" not in stream.getvalue()
 
 
 @pytest.mark.parametrize("quiet", [True, False])
@@ -96,4 +101,4 @@ def test_cnep_extract_in_a_log(tmp_path, capfd, quiet):
     assert main(["-q", *args] if quiet else args) == 0
     err = capfd.readouterr().err
     assert "\r" not in err
-    assert ("extract: 5 frame [" in err) != quiet
+    assert ("extract out: 100%" in err and "5/5" in err) != quiet

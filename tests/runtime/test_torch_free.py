@@ -22,9 +22,22 @@ sys.meta_path.insert(0, NoTorch())
 """
 
 
-def run_without_torch(code: str, cwd: Path) -> subprocess.CompletedProcess:
-    """`code` in a fresh interpreter in which every import of torch or torchvision fails."""
-    script = BLOCK_TORCH + textwrap.dedent(code) + "\nassert 'torch' not in sys.modules\n"
+# What `pip install ./policy/runtime` leaves out besides torch: the rest of cnep and the MCAP reader.
+BLOCK_ALL_BUT_THE_RUNTIME = """
+import sys
+class RuntimeOnly:
+    def find_spec(self, name, path=None, target=None):
+        top, _, rest = name.partition(".")
+        if top in ("torch", "torchvision", "mcap") or (top == "cnep" and rest and not rest.startswith("runtime")):
+            raise ModuleNotFoundError(f"No module named {name!r}")
+sys.meta_path.insert(0, RuntimeOnly())
+"""
+RUN_A_POLICY = Path(__file__).resolve().parents[2] / "docs" / "how-to" / "run-a-policy.md"
+
+
+def run_without_torch(code: str, cwd: Path, blocker: str = BLOCK_TORCH) -> subprocess.CompletedProcess:
+    """`code` in a fresh interpreter in which every import of torch or torchvision (or what `blocker` names) fails."""
+    script = blocker + textwrap.dedent(code) + "\nassert 'torch' not in sys.modules\n"
     return subprocess.run([sys.executable, "-c", script], cwd=cwd, capture_output=True, text=True, timeout=300)
 
 
@@ -69,3 +82,22 @@ def test_the_exported_policy_runs_without_torch_and_matches_the_torch_policy(pol
 def test_importing_the_runtime_needs_no_torch(tmp_path):
     done = run_without_torch("import cnep.runtime; from cnep.runtime import load_policy, Policy", tmp_path)
     assert done.returncode == 0, done.stderr
+
+
+def test_the_run_a_policy_page_runs_where_only_the_runtime_is_installed(quick_demo, policy_world, tmp_path):
+    """The page's blocks that run on the robot (the control loop and its playback without hardware) run where only
+    `cnep.runtime` is installed; the block that saves the playback runs where the project is."""
+    from mktestdocs import grab_code_blocks
+
+    blocks = grab_code_blocks(RUN_A_POLICY.read_text(), lang="python")
+    on_the_project = [b for b in blocks if "cnep.recordings" in b]
+    on_the_robot = [b for b in blocks if "run_episode" in b and b not in on_the_project]
+    assert len(on_the_project) == 1 and len(on_the_robot) == 2  # the loop, the playback
+    (tmp_path / "cnep-demo").symlink_to(quick_demo, target_is_directory=True)
+    (tmp_path / "policy").symlink_to(policy_world.exported, target_is_directory=True)
+    saved = subprocess.run([sys.executable, "-c", on_the_project[0]], cwd=tmp_path, capture_output=True, text=True)
+    assert saved.returncode == 0 and (tmp_path / "playback.npz").is_file(), saved.stderr
+    (tmp_path / "cnep-demo").unlink()  # the robot has the policy and the arrays, not the demo
+    done = run_without_torch("\n".join(on_the_robot), tmp_path, blocker=BLOCK_ALL_BUT_THE_RUNTIME)
+    assert done.returncode == 0, done.stderr
+    assert "No module named" not in done.stderr
