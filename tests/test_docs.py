@@ -86,15 +86,6 @@ def demonstration_folders(work: Path) -> None:
             write_demonstration(work / folder / f"pick_{seed}.mcap", demo)
 
 
-def trajectory_folder(work: Path) -> None:
-    from cnep.recordings import write_trajectory
-    from tests.recordings.factories import trajectory_factory
-
-    (work / "traj").mkdir()
-    for seed in range(4):
-        write_trajectory(work / "traj" / f"pick_{seed}.mcap", trajectory_factory(steps=12, seed=seed))
-
-
 def truncated_recording(work: Path) -> None:
     """recording.mcap: a trajectory file of several chunks whose writer died (the last 40% of its bytes lost)."""
     from cnep.recordings import write_trajectory
@@ -109,9 +100,7 @@ INPUTS = {
     "docs/how-to/own-csv-and-video.md": recordings_with_video_and_images,
     "docs/how-to/lerobot-dataset.md": lerobot_dataset,
     "docs/how-to/ros-bag.md": ros_bags,
-    "docs/how-to/extract-features.md": demonstration_folders,
     "docs/how-to/cluster.md": demonstration_folders,
-    "docs/how-to/train.md": trajectory_folder,
     "docs/how-to/repair-a-recording.md": truncated_recording,
 }
 
