@@ -114,7 +114,8 @@ def run(config: RunConfig) -> list[RecordingRun]:
     refuse_existing(outputs, config.force, "run output", kind=RUN_OUTPUT)
     if config.connect is not None and not viewer_reachable(config.connect):
         raise PipelineError(
-            f"{config.connect}: no Rerun viewer answers there; start one with `rerun`, or write a file with --out"
+            f"{config.connect}: no Rerun viewer answers there; start one with `rerun`, or write a file with --out "
+            f"and open it with `cnep view FILE` (also where there is no display)"
         )
     demos = [read_demonstration(p) for p in paths]
     policy = open_policy(
