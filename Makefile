@@ -16,7 +16,7 @@ EXTRAS_evaluate := onnx,baselines,plots
 EXTRAS_test     := dev,onnx,openvino,baselines,plots,lerobot,ros,sim,dask
 EXTRAS_sim      := onnx,sim
 
-.PHONY: demo view sim test lint docs evaluate bench install clean
+.PHONY: demo view sim test test-fast lint docs evaluate bench install clean
 
 $(BIN)/python:
 	@echo "== creating $(VENV) with $(PYTHON)"
@@ -56,8 +56,14 @@ sim: $(VENV)/.installed-sim
 evaluate: $(VENV)/.installed-evaluate
 	$(BIN)/cnep evaluate
 
+# Every test, one worker process per core (pytest-xdist), each test file on one worker so that its fixtures are built
+# once.
 test: $(VENV)/.installed-test
-	CI=1 $(BIN)/python -m pytest -q
+	CI=1 $(BIN)/python -m pytest -q -n auto --dist loadfile
+
+# The inner loop: every test but those marked slow (the whole pipeline's, the end-to-end commands'), in under a minute.
+test-fast: $(VENV)/.installed-test
+	CI=1 $(BIN)/python -m pytest -q -m "not slow"
 
 lint: $(VENV)/.installed-test
 	$(BIN)/ruff format --check .

@@ -14,6 +14,16 @@ os.environ.setdefault(
 
 import pytest  # noqa: E402
 
+# Session fixtures that run the whole pipeline (the quick demo and what is built on it): a test that uses one is
+# slow (`make test-fast` leaves it out), whatever its own body costs.
+PIPELINE_FIXTURES = {"quick_demo", "policy_world", "demo_run"}
+
+
+def pytest_collection_modifyitems(items):
+    for item in items:
+        if PIPELINE_FIXTURES & set(getattr(item, "fixturenames", ())):
+            item.add_marker(pytest.mark.slow)
+
 
 @pytest.fixture(autouse=True)
 def no_downloads(monkeypatch):
@@ -125,3 +135,44 @@ def policy_world(quick_demo, tmp_path_factory):
         return build_policy_world(quick_demo, tmp_path_factory.mktemp("policy"))
     finally:
         torch.set_num_threads(before)
+
+
+# The motion world's training: tiny networks, seeded, with resumable saves (tests/pipeline/test_faults.py re-runs it
+# interrupted and compares).
+MOTION_TRAINING = ["--layout", "motion", "--steps", "40", "--val-every", "10", "--save-every", "10"]
+MOTION_TRAINING += ["--warmup-steps", "4", "--encoder-widths", "8", "--expert-widths", "8", "--batch-size", "4"]
+MOTION_TRAINING += ["--seed", "1"]
+
+
+@pytest.fixture(scope="session")
+def motion_world(tmp_path_factory):
+    """Motion-only inputs and the outputs of uninterrupted `cnep` runs, built once per session and never written to
+    by the tests: `src` (4 CSVs of 40 rows with the usual column names), `demos` (ingested), `trajs` (extracted),
+    `ckpt` (trained with MOTION_TRAINING), `other_ckpt` (the same with 3 experts: another model for the same
+    recordings)."""
+    from types import SimpleNamespace
+
+    import numpy as np
+    import torch
+
+    from cnep.pipeline.cli.main import main
+
+    root = tmp_path_factory.mktemp("motion-world")
+    (root / "src").mkdir()
+    t = np.arange(40) * 0.05
+    for k in range(4):
+        rows = [[ti, 0.3 + 0.1 * k + 0.2 * ti, 0.1 * np.sin(ti + k), 0.2, 0, 0, 0, 1, 0.01 * k] for ti in t]
+        text = "\n".join(["t,x,y,z,qx,qy,qz,qw,gripper", *(",".join(map(repr, map(float, r))) for r in rows)])
+        (root / "src" / f"demo_{k}.csv").write_text(text + "\n")
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        assert main(["-q", "ingest", str(root / "src"), "--out", str(root / "demos")]) == 0
+        assert main(["-q", "extract", str(root / "demos"), "--out", str(root / "trajs")]) == 0
+        assert main(["-q", "train", str(root / "trajs"), "--out", str(root / "ckpt"), *MOTION_TRAINING]) == 0
+        other = [*MOTION_TRAINING, "--experts", "3"]
+        assert main(["-q", "train", str(root / "trajs"), "--out", str(root / "other"), *other]) == 0
+    finally:
+        torch.set_num_threads(threads)
+    names = ("src", "demos", "trajs", "ckpt", "other")
+    return SimpleNamespace(**{name: root / name for name in names}, other_ckpt=root / "other")

@@ -7,12 +7,15 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from tests.fuzz import FAMILIES
 
 ROOT = Path(__file__).resolve().parents[1]
 CASES = {"mcap": 200, "json": 300, "safetensors": 100}  # the safetensors child spends most of its time importing torch
 
 
+@pytest.mark.slow
 def test_mutated_files_are_refused_with_the_projects_errors_only():
     children = {  # the families run side by side: the suite waits for the slowest alone
         family: subprocess.Popen(

@@ -77,6 +77,7 @@ def test_bad_demonstrations_are_refused():
         NearestDemo().fit(np.zeros((4, 10)))
 
 
+@pytest.mark.slow
 def test_gmm_without_ridge_flags_conditionals_on_empty_components():
     """Plain EM on 32 bimodal demonstrations with the authors' 20 components leaves empty components
     (prior ~1e-17, mean 0, covariance 0); the library's conditional puts its weight on them for most

@@ -30,6 +30,7 @@ def _runs() -> list[FitRun]:
     return runs
 
 
+@pytest.mark.slow
 def test_each_batched_model_is_bit_identical_to_training_it_alone():
     runs = _runs()
     together = fit_many(runs)
@@ -61,6 +62,7 @@ def test_gradients_were_clipped_in_the_identity_test():
     assert max(norms) > SCHEDULE.grad_clip > min(norms)
 
 
+@pytest.mark.slow
 def test_early_stopping_stops_each_model_as_alone():
     """A model that stops leaves the stack; the others go on with their Adam state, still bit-identical."""
     runs = [

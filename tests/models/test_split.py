@@ -1,6 +1,7 @@
 import dataclasses
 import math
 
+import pytest
 import torch
 
 import cnep.models.split
@@ -85,6 +86,7 @@ def test_the_checks_fall_between_the_gates_unfreezing_and_the_balancings_fade():
     assert split_steps(4000, 1200, 0.3) == frozenset()
 
 
+@pytest.mark.slow
 def test_a_split_in_a_stack_matches_the_same_split_alone(monkeypatch):
     """Splits at every check (owners forced to one busy expert) leave each batched model bit-identical to its run
     alone, Adam moments and noise included."""

@@ -26,6 +26,7 @@ SMALL = {"encoder_widths": (32, 32), "expert_widths": (32, 32), "time_frequencie
 QUICK = TrainConfig(steps=60, warmup_steps=10, val_every=20, batch_size=8)
 
 
+@pytest.mark.slow
 def test_same_seed_same_model_different_seed_different_model():
     trajs, _ = two_mode_trajectories()
     a, _ = fit(trajs, CNEPConfig(**SMALL), QUICK, progress=False)
@@ -45,6 +46,7 @@ def test_validation_split_is_by_whole_trajectory_and_disjoint():
         split_validation(trajs[:1], 0.2, seed=0)
 
 
+@pytest.mark.slow
 def test_gate_stays_uniform_while_frozen_and_moves_after():
     trajs, _ = two_mode_trajectories()
     cfg = TrainConfig(steps=200, warmup_steps=10, gate_freeze_fraction=0.5, val_every=100, batch_size=16)
@@ -144,7 +146,7 @@ def test_fit_holds_out_a_reported_fifth_from_ten_trajectories_on(caplog):
     assert "validating on 2 of the 10 trajectories" in caplog.text
 
 
-@pytest.mark.parametrize("threads", [1, 2, None])
+@pytest.mark.parametrize("threads", [1, pytest.param(2, marks=pytest.mark.slow), None])  # two threads: slow when busy
 def test_fit_trains_on_the_configs_threads_and_restores_the_count(monkeypatch, threads):
     trajs, _ = two_mode_trajectories(n=4)
     seen, step = [], Trainer.train_step

@@ -12,6 +12,7 @@ def test_eager_is_always_available_and_auto_picks_the_first():
     assert FeatureExtractor("random", threads=1).identity["backend"] == backends[0]
 
 
+@pytest.mark.slow
 def test_all_backends_agree_on_the_same_frames():
     frames = np.concatenate([scene_frames(k, n=3, seed=k) for k in range(2)])  # (6, 60, 80, 3)
     features = {}
@@ -80,6 +81,7 @@ needs_openvino = pytest.mark.skipif(
 )
 
 
+@pytest.mark.slow
 @needs_openvino
 @pytest.mark.parametrize("precision", ["fp32", "int8"])
 def test_openvino_features_equal_onnxruntime_ones(precision):
@@ -109,6 +111,7 @@ def test_openvino_features_equal_onnxruntime_ones(precision):
         assert own <= 0.2 and error.max() <= 1.5 * own, (error, own)
 
 
+@pytest.mark.slow
 @needs_openvino
 def test_auto_runs_int8_on_openvino_and_fp32_on_onnxruntime():
     frames = scene_frames(0, n=4)

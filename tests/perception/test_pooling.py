@@ -24,6 +24,7 @@ def _ridge_read(train: np.ndarray, labels: np.ndarray, test: np.ndarray, lam: fl
     return (xt @ x.T @ alpha).argmax(1)
 
 
+@pytest.mark.slow
 def test_cells_read_the_demo_scenes_behaviour_from_few_examples():
     # The behaviour is where the cup and the free slot are; globally pooled random features keep that weakly.
     seeds = np.random.SeedSequence(0).spawn(2 * PER_BEHAVIOUR * len(BEHAVIOURS))

@@ -81,6 +81,7 @@ def run_pipeline(src: Path, work: Path, *ingest_args: str) -> list[Path]:
     return trajectories
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("version", ["v2.1", "v3.0"])
 def test_lerobot_dataset_end_to_end(tmp_path, version):
     pytest.importorskip("pyarrow")
@@ -98,6 +99,7 @@ def test_lerobot_dataset_end_to_end(tmp_path, version):
         np.testing.assert_allclose(traj.gripper, expected[:, 7])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", ["ros1", "ros2"])
 def test_ros_bags_end_to_end(tmp_path, kind):
     pytest.importorskip("rosbags")

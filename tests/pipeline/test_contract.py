@@ -64,7 +64,8 @@ TINY_TRAINING = [
 
 @dataclass(frozen=True)
 class World:
-    """Inputs shared by the tests (never written to): a CSV source, demonstrations, trajectories, a checkpoint."""
+    """Inputs shared by the tests (never written to): a CSV source, demonstrations, trajectories, a checkpoint (the
+    session's motion world's)."""
 
     csv: Path
     demos: Path
@@ -92,7 +93,7 @@ def cut(src: Path, dst: Path, keep: float) -> Path:
 
 
 @pytest.fixture(scope="module")
-def world(tmp_path_factory) -> World:
+def world(tmp_path_factory, motion_world) -> World:
     root = tmp_path_factory.mktemp("contract")
     for name in ("src", "demos", "trajs", "bad"):
         (root / name).mkdir()
@@ -102,14 +103,13 @@ def world(tmp_path_factory) -> World:
         write_demonstration(root / "demos" / f"d{i}.mcap", demo)
         write_trajectory(root / "trajs" / f"t{i}.mcap", Trajectory.from_demonstration(demo))
     big = write_demonstration(root / "bad" / "big.mcap", demonstration_factory(400, frames=True, frame_size=64))
-    assert main(["-q", "train", str(root / "trajs"), "--out", str(root / "ckpt"), *TINY_TRAINING]) == 0
     short = root / "bad" / "short.csv"
     short.write_text("\n".join(csv.read_text().splitlines()[:2]) + "\n")
     return World(
         csv=csv,
         demos=root / "demos",
         trajs=root / "trajs",
-        ckpt=root / "ckpt",
+        ckpt=motion_world.ckpt,  # a motion checkpoint: it replays these trajectories
         truncated_demo=cut(big, root / "bad" / "truncated-demo.mcap", 0.9),
         truncated_traj=cut(root / "trajs" / "t0.mcap", root / "bad" / "truncated-traj.mcap", 0.6),
         empty_chunks=cut(big, root / "bad" / "no-chunk.mcap", inside_first_chunk(big)),

@@ -64,8 +64,9 @@ def test_geometry_helpers():
     np.testing.assert_allclose(xy_path(demo, 4)[:, 0], [0, 1, 2, 3])  # even in time, not in samples
 
 
+@pytest.mark.slow
 def test_example_reports_every_start_point(data, tmp_path):
-    config = BaxterConfig(data=data, work=tmp_path / "work", steps=120, samples=50, quiet=True)
+    config = BaxterConfig(data=data, work=tmp_path / "work", steps=60, samples=30, quiet=True)
     demos, tests = load_paths(config)
     assert (tmp_path / "work" / "demos" / "demo_a.mcap").is_file()  # went through the ingest stage
     models = train_models(demos, config)
@@ -93,7 +94,7 @@ def test_example_reports_every_start_point(data, tmp_path):
             }
             for name in MODELS:
                 path, executed = r.paths[name], r.executed[name]
-                assert path.shape == executed.shape == (50, 2) and np.isfinite(path).all()
+                assert path.shape == executed.shape == (30, 2) and np.isfinite(path).all()
                 assert r.enters_box[name] == bool(in_box(path).any())
                 assert r.executed_enters_box[name] == bool(in_box(executed).any())
                 assert 0 <= r.distance[name] < 0.3

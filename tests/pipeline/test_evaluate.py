@@ -94,6 +94,7 @@ def torch_threads():
     torch.set_num_threads(before)
 
 
+@pytest.mark.slow
 def test_tiny_run_writes_every_table(tmp_path, monkeypatch, torch_threads):
     monkeypatch.setattr(gmm_module, "EM_ITERATIONS", 3)  # structure only: a few EM steps are enough
     config = EvaluateConfig(
@@ -164,6 +165,7 @@ class _Reports:
         self.steps.append(steps)
 
 
+@pytest.mark.slow
 def test_a_network_job_reports_its_steps_and_trains_as_fit(torch_threads):
     from cnep.models import TrainConfig, fit
     from cnep.models.synthetic import make_set
@@ -208,6 +210,7 @@ def test_units_group_one_network_shape_on_one_set():
         assert len(unit) == 1 or unit[0].spec is not None  # baselines alone
 
 
+@pytest.mark.slow
 def test_a_unit_trains_each_network_as_alone(torch_threads):
     from cnep.pipeline.evaluate.jobs import Job, run_job, run_unit
 
@@ -236,6 +239,7 @@ def test_an_early_stop_credits_the_steps_it_skipped(monkeypatch, torch_threads):
     assert sum(reports.steps) == 150 and reports.steps[-1] == 147
 
 
+@pytest.mark.slow
 def test_progress_counts_training_steps_in_whole_lines(capsys, torch_threads):
     from cnep.pipeline.evaluate.jobs import Job
     from cnep.pipeline.evaluate.stage import run_jobs

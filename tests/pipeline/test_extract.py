@@ -31,6 +31,7 @@ def _config(inputs, out, **overrides) -> ExtractConfig:
     return ExtractConfig(inputs=tuple(inputs), out=out, **settings)
 
 
+@pytest.mark.slow
 def test_trajectories_hold_features_pose_gripper_and_identity(demos, tmp_path):
     done = extract(_config(demos, tmp_path / "out"))
     assert [item.output.name for item in done] == ["demo-0.mcap", "demo-1.mcap"]
@@ -50,12 +51,14 @@ def test_trajectories_hold_features_pose_gripper_and_identity(demos, tmp_path):
     assert check_same_extractor([item.output for item in done]) == reference.identity
 
 
+@pytest.mark.slow
 def test_calibration_does_not_depend_on_input_order(demos, tmp_path):
     first = extract(_config(demos, tmp_path / "a"))
     second = extract(_config(demos[::-1], tmp_path / "b"))
     assert read_trajectory(first[0].output).extractor == read_trajectory(second[1].output).extractor
 
 
+@pytest.mark.slow
 def test_up_to_date_outputs_are_skipped_and_stale_ones_redone(demos, tmp_path):
     out = tmp_path / "out"
     extract(_config(demos, out))
@@ -116,6 +119,7 @@ def test_motion_only_demonstration_gives_motion_only_trajectory(tmp_path):
     assert extract(_config([src], tmp_path / "out", weights="imagenet"))[0].skipped
 
 
+@pytest.mark.slow
 def test_mixing_extractors_is_refused_naming_the_odd_files(demos, tmp_path):
     a = extract(_config(demos, tmp_path / "a"))
     b = extract(_config(demos[:1], tmp_path / "b", seed=1))
@@ -212,6 +216,7 @@ def test_two_worker_processes_give_the_same_files_as_one(demos, tmp_path):
         np.testing.assert_array_equal(second.features, first.features)
 
 
+@pytest.mark.slow
 def test_torchrun_ranks_extract_disjoint_shares_with_one_identity(demos, tmp_path, monkeypatch):
     monkeypatch.setenv("WORLD_SIZE", "2")
     outputs = {}
@@ -287,6 +292,7 @@ def test_auto_workers_start_processes_only_for_jobs_that_pay(demos, tmp_path, mo
     assert stage.auto_workers(demos) == 1
 
 
+@pytest.mark.slow
 def test_cli_workers_auto_extracts_a_small_job_in_this_process(demos, tmp_path, capsys, monkeypatch):
     from cnep.pipeline.extract import stage
 
@@ -317,6 +323,7 @@ def test_cli_workers_auto_extracts_a_small_job_in_this_process(demos, tmp_path, 
     assert "expected a whole number or `auto`, got 'two'" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_calibrate_on_gives_later_runs_the_first_runs_identity(demos, tmp_path):
     both = extract(_config(demos, tmp_path / "both"))
     later = extract(_config(demos[1:], tmp_path / "later", calibrate_on=(demos[0].parent,)))

@@ -24,7 +24,6 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
 import pytest
 import torch
 from safetensors.torch import load_file
@@ -32,46 +31,37 @@ from safetensors.torch import load_file
 from cnep.outputs import TEMPORARY
 from cnep.pipeline.cli.main import main
 from cnep.recordings import read_demonstration, write_demonstration
+from tests.conftest import MOTION_TRAINING
 from tests.pipeline.fault_driver import files, stray
 from tests.recordings.factories import demonstration_factory
 
-pytestmark = pytest.mark.usefixtures("one_thread")
+pytestmark = [pytest.mark.usefixtures("one_thread"), pytest.mark.slow]  # real `cnep` processes, killed and rerun
 
 ROOT = Path(__file__).resolve().parents[2]
-TRAINING = ["--layout", "motion", "--steps", "40", "--val-every", "10", "--save-every", "10", "--warmup-steps", "4"]
-TRAINING += ["--encoder-widths", "8", "--expert-widths", "8", "--batch-size", "4", "--seed", "1"]
+TRAINING = MOTION_TRAINING  # what the motion world's checkpoint was trained with
 WAIT_S = 240  # a paused process reached its point, or a killed one ended (a loaded 2-core machine is slow)
 
 
 @dataclass(frozen=True)
 class World:
-    """Inputs and the outputs of uninterrupted runs (never written to by the tests)."""
+    """Inputs and the outputs of uninterrupted runs (never written to by the tests): tests/conftest.py's
+    `motion_world`, and a demonstration cut in its second chunk, for repair."""
 
     src: Path  # 4 motion CSVs with the usual column names
     demos: Path  # ingested
     trajs: Path  # extracted
     ckpt: Path  # trained with TRAINING
     other_ckpt: Path  # 3 experts: another model for the same recordings
-    truncated: Path  # a demonstration cut in its second chunk, for repair
+    truncated: Path
 
 
 @pytest.fixture(scope="module")
-def world(tmp_path_factory) -> World:
+def world(motion_world, tmp_path_factory) -> World:
     root = tmp_path_factory.mktemp("faults")
-    (root / "src").mkdir()
-    t = np.arange(40) * 0.05
-    for k in range(4):
-        rows = [[ti, 0.3 + 0.1 * k + 0.2 * ti, 0.1 * np.sin(ti + k), 0.2, 0, 0, 0, 1, 0.01 * k] for ti in t]
-        text = "\n".join(["t,x,y,z,qx,qy,qz,qw,gripper", *(",".join(map(repr, map(float, r))) for r in rows)])
-        (root / "src" / f"demo_{k}.csv").write_text(text + "\n")
-    assert main(["-q", "ingest", str(root / "src"), "--out", str(root / "demos")]) == 0
-    assert main(["-q", "extract", str(root / "demos"), "--out", str(root / "trajs")]) == 0
-    assert main(["-q", "train", str(root / "trajs"), "--out", str(root / "ckpt"), *TRAINING]) == 0
-    other = [*TRAINING, "--experts", "3"]
-    assert main(["-q", "train", str(root / "trajs"), "--out", str(root / "other"), *other]) == 0
     big = write_demonstration(root / "big.mcap", demonstration_factory(200, frames=True, frame_size=128))
     (root / "truncated.mcap").write_bytes(big.read_bytes()[: int(big.stat().st_size * 0.7)])
-    return World(root / "src", root / "demos", root / "trajs", root / "ckpt", root / "other", root / "truncated.mcap")
+    w = motion_world
+    return World(w.src, w.demos, w.trajs, w.ckpt, w.other_ckpt, root / "truncated.mcap")
 
 
 class Paused:

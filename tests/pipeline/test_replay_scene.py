@@ -62,6 +62,7 @@ def checkpoint(tmp_path_factory):
     )
 
 
+@pytest.mark.slow
 def test_the_gate_moves_to_another_expert_when_the_scene_changes(tmp_path, checkpoint, monkeypatch):
     monkeypatch.setenv("CI", "1")
     monkeypatch.setenv("HOME", str(tmp_path))

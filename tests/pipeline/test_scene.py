@@ -86,6 +86,7 @@ def test_motion_shares_the_start_closes_and_opens_the_gripper(demo_set):
     assert np.linalg.norm(near - far) > 0.2
 
 
+@pytest.mark.slow
 def test_same_seed_same_recordings(demo_set, tmp_path):
     again = generate(
         DemoSetConfig(
@@ -220,6 +221,7 @@ def test_gripper_quaternion_round_trip():
         assert yaw_of(-q) == pytest.approx(yaw) or abs(abs(yaw_of(-q) - yaw) - 2 * np.pi) < 1e-9
 
 
+@pytest.mark.slow
 def test_random_weight_features_tell_the_behaviours_apart():
     """A linear read-out of calibrated random MobileNet features, fitted on some scenes, names the behaviour of others.
 

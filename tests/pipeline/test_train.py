@@ -207,6 +207,7 @@ def interrupt_at(monkeypatch, step: int) -> None:
     monkeypatch.setattr(StageTrainer, "train_step", train_step)
 
 
+@pytest.mark.slow
 def test_resume_after_interruption_gives_the_same_weights(full_set, tmp_path, monkeypatch):
     whole = train(stage_config(full_set, tmp_path / "whole", steps=40))
     out = tmp_path / "resumed"
@@ -287,6 +288,7 @@ def test_resume_without_a_run_is_refused(full_set, tmp_path):
         train(stage_config(full_set, tmp_path / "ckpt", resume=True))
 
 
+@pytest.mark.slow
 def test_early_stopping_ends_the_run(full_set, tmp_path):
     config = stage_config(full_set, tmp_path / "ckpt", steps=400)
     out = train(replace(config, training=replace(config.training, patience=1, lr=0.05)))

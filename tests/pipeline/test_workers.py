@@ -1,5 +1,7 @@
 import os
 
+import pytest
+
 from cnep.pipeline.workers import SMALL_MODEL_MALLOC, THREAD_VARIABLES, single_thread_processes
 
 
@@ -9,6 +11,7 @@ def threads_seen() -> tuple[dict, int]:
     return {name: os.environ.get(name) for name in (*THREAD_VARIABLES, *SMALL_MODEL_MALLOC)}, torch.get_num_threads()
 
 
+@pytest.mark.slow
 def test_workers_start_with_one_thread_and_the_environment_is_restored(monkeypatch):
     monkeypatch.setenv("OMP_NUM_THREADS", "7")
     monkeypatch.delenv("MKL_NUM_THREADS", raising=False)

@@ -43,6 +43,7 @@ def test_the_environment_passes_gymnasiums_checker_and_is_registered():
     cue.close()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("side", ["left", "right"])
 def test_the_scripted_demonstrator_reaches_the_goal_clear_of_the_box(env, side):
     rng = np.random.default_rng(1)
