@@ -22,7 +22,6 @@ from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
 
-from cnep.runtime.jsonfile import read_json
 from cnep.outputs import RECORD_FILE, TEMPORARY, is_lock_name, is_recorded, read_record
 from cnep.runtime.jsonfile import read_json
 
