@@ -1,6 +1,6 @@
 """Where is the demo's first read lost? Probes on the step-0 features and latents, the gate's read, its calibration.
 
-    python examples/first_read.py DEMO_DIR [DEMO_DIR ...] [--extra N] [--json OUT]
+    python examples/first_read.py DEMO_DIR [DEMO_DIR ...] [--extra N] [--json OUT] [--csv OUT]
 
 Each DEMO_DIR is a folder made by `cnep demo --seed N --out DEMO_DIR`. Conditioned on the first step (t = 0) of a
 held-out scene, its models should follow the behaviour the scene calls for. On the held-out scenes' first steps
@@ -27,7 +27,8 @@ held-out scene, its models should follow the behaviour the scene calls for. On t
 record it) on a stream the demo never drew from; only their first frame is rendered, and extracted with the
 folder's extractor.pt as the demo's extract stage does. Each accuracy is then printed as "held-out / extra",
 and the calibration pools both. Prints one markdown row per folder, then the mean over the folders (a
-calibration mean leaves out folders with no wrong read); --json OUT writes every number per folder.
+calibration mean leaves out folders with no wrong read); --json OUT writes every number per folder, --csv OUT the
+per-folder table (docs/results/first-read.csv).
 """
 
 from __future__ import annotations
@@ -371,11 +372,35 @@ def mean_cells(rows: list[dict]) -> list[str]:
     return cells
 
 
+def csv_names(header: str, values: int) -> list[str]:
+    """The CSV columns of one table column of `values` numbers: "features ridge" -> "features ridge (held-out)",
+    "features ridge (extra)"; "gate p, wrong / right" -> "gate p, wrong", "gate p, right"."""
+    if " / " in header:
+        left, right = header.split(" / ")
+        return [left, f"{left.rsplit(' ', 1)[0]} {right}"]
+    return [header] if values == 1 else [f"{header} (held-out)", f"{header} (extra)"]
+
+
+def csv_table(rows: list[dict]) -> str:
+    """The per-folder table as CSV: a `seed` column, then one column per number (empty for None)."""
+    header = ["seed"] + [n for h, numbers in COLUMNS.items() for n in csv_names(h, len(numbers(rows[0])))]
+    lines = [",".join(f'"{name}"' if "," in name else name for name in header)]
+    for f in rows:
+        values = [v for numbers in COLUMNS.values() for v in numbers(f)]
+        lines.append(
+            ",".join(
+                [str(f["seed"])] + ["" if v is None else f"{v}" if isinstance(v, int) else f"{v:.2f}" for v in values]
+            )
+        )
+    return "\n".join(lines) + "\n"
+
+
 def main(argv: list[str] | None = None) -> list[dict]:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("demos", nargs="+", type=Path, help="folders made by `cnep demo --out`")
     parser.add_argument("--extra", type=int, default=0, help="new scenes per behaviour to read too (default 0)")
     parser.add_argument("--json", type=Path, help="write every number per folder to this file")
+    parser.add_argument("--csv", type=Path, help="write the per-folder table to this CSV file (docs/results/)")
     args = parser.parse_args(argv)
     if args.extra < 0:
         parser.error(f"--extra must be >= 0, got {args.extra}")
@@ -400,6 +425,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
     print(f"{len(found)} folder(s) in {sum(f['seconds'] for f in found):.0f} s")
     if args.json:
         write_atomically(args.json, json.dumps(found, indent=1).encode())
+    if args.csv:
+        write_atomically(args.csv, csv_table(found).encode())
     return found
 
 

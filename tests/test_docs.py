@@ -191,3 +191,14 @@ def source_files() -> list[Path]:
             Path(folder) / f for f in sorted(files) if f.endswith((".md", ".py", ".toml")) and f != "CHANGELOG.md"
         ]
     return found
+
+
+def test_results_page_tables_are_read_in_a_minute():
+    """Each claim on the results page is a table of at most 6 columns; wider per-seed detail goes to a CSV."""
+    page = DOCS / "results.md"
+    widest = max(
+        (line.strip().strip("|").count("|") + 1, number)
+        for number, line in enumerate(page.read_text().splitlines(), 1)
+        if line.startswith("|")
+    )
+    assert widest[0] <= 6, f"docs/results.md:{widest[1]}: a table of {widest[0]} columns (at most 6)"

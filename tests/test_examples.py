@@ -1,5 +1,6 @@
 """The example scripts run and report what their docstrings promise."""
 
+import csv
 import importlib.util
 import json
 import sys
@@ -60,12 +61,16 @@ def test_first_read_probes_separate_what_is_separable_and_nothing_else():
 
 
 def test_first_read_measures_a_demo_folder_and_its_extra_scenes(quick_demo, tmp_path, capsys, one_thread):
-    out = tmp_path / "first_read.json"
-    found = load("first_read").main([str(quick_demo), "--extra", "2", "--json", str(out)])
+    out, table = tmp_path / "first_read.json", tmp_path / "first_read.csv"
+    found = load("first_read").main([str(quick_demo), "--extra", "2", "--json", str(out), "--csv", str(table)])
     rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| ") and "---" not in line]
     assert [row.split(" | ")[0] for row in rows] == ["| seed", "| 0", "| mean (1)"]  # the header, a folder, the mean
     assert all(len(row.split(" | ")) == len(rows[0].split(" | ")) for row in rows)
     (f,) = json.loads(out.read_text())
+    (header, row) = list(csv.reader(table.read_text().splitlines()))
+    assert header[:3] == ["seed", "features ridge (held-out)", "features ridge (extra)"] and len(row) == len(header)
+    assert header[-2:] == ["gate follows motion", "gate follows images"] and row[0] == "0"
+    assert float(row[1]) == pytest.approx(f["features"]["ridge"]["heldout"], abs=0.005)
     assert f == found[0] and f["seed"] == 0 and f["n"] == {"train": 8, "heldout": 4, "extra": 8}  # 2 per behaviour
     accuracies = [
         *(f["features"][probe] for probe in ("ridge", "1nn", "side", "slot")),
