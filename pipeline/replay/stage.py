@@ -31,11 +31,14 @@ import os
 import shlex
 import uuid
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
-from cnep.models import ConditioningPolicy
+import numpy as np
+
+from cnep.models import CNEP, ConditioningPolicy
 from cnep.models.threads import torch_threads
-from cnep.outputs import output_lock, record_written, staged
+from cnep.outputs import Staging, output_lock, record_written, staged
 from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_existing, refuse_inputs
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.inputs import TRAJECTORIES, existing_files
@@ -52,7 +55,7 @@ from cnep.pipeline.replay.rerun_log import (
     write_recording,
 )
 from cnep.pipeline.train.checkpoint import load_trained
-from cnep.recordings import add_events, read_trajectory
+from cnep.recordings import Trajectory, add_events, read_trajectory
 
 log = logging.getLogger(__name__)
 
@@ -83,9 +86,65 @@ def replay(
     decisions, the event copies) are refused unless `force`; a recording whose features come from
     another extractor than the checkpoint's training data is refused (pipeline.identity).
     """
-    from cnep.pipeline.progress import progress_bar
-
     checkpoint, out = Path(checkpoint_dir), Path(out_rrd)
+    paths = _checked_recordings(recording_paths, out, events_dir)
+    events = Path(events_dir) if events_dir is not None else None
+    files = rrd_files(out, paths, merge)
+    parts = [files[0].with_name(f"{files[0].name}-{i}") for i in range(len(paths))] if len(files) < len(paths) else []
+    outputs = [*files, decisions_path(out), *([events / p.name for p in paths] if events else [])]
+    refuse_inputs(outputs, [*paths, checkpoint], "--out or --events-out")
+    refuse_existing(outputs, force, "replay output", kind=replay_kind)
+    inputs = _load(checkpoint, paths)
+    live = _live_viewer(connect, files[0])
+    with contextlib.ExitStack() as held:  # a failure removes the folders made for the outputs, and what was staged
+        staging = _hold_outputs(held, out, events, [*files, decisions_path(out), *parts], outputs, force)
+        shown = (expert_labels, marks or {})
+        summaries = _replay_each(
+            inputs,
+            staging,
+            files,
+            parts,
+            events,
+            policy,
+            prediction_points,
+            live,
+            shown,
+            quiet,
+            f"replay into {out.name}",
+        )
+        staging.write(decisions_path(out), _decisions_record(checkpoint, files, inputs.model, policy, summaries))
+    for summary in summaries:
+        log.debug("%s: %s", summary["recording"], _summary_line(summary))
+    return files
+
+
+def _decisions_record(
+    checkpoint: Path, files: list[Path], model: CNEP, policy: ConditioningPolicy, summaries: list[dict]
+) -> bytes:
+    """The decisions file's JSON (`read_decisions`): the checkpoint, the .rrd files, the policy, each recording."""
+    record = {
+        "checkpoint": str(checkpoint),
+        "rrd": [file.name for file in files],
+        "n_experts": model.n_experts,
+        "policy": policy.to_dict(),
+        "recordings": summaries,
+    }
+    return json.dumps(record, indent=1).encode()
+
+
+def _summary_line(summary: dict) -> str:
+    """A recording's summary in words: its majority expert's share of the steps and its switches."""
+    return (
+        f"expert {summary['majority_expert']} on {100 * max(summary['share']):.0f}% of {summary['n_steps']} steps, "
+        f"{len(summary['switches'])} switch(es)"
+    )
+
+
+def _checked_recordings(
+    recording_paths: list[str | os.PathLike], out: Path, events_dir: str | os.PathLike | None
+) -> list[Path]:
+    """The recordings as paths, refused before anything is read: none, a missing one, an output that is not a .rrd,
+    or two named alike whose copies with events would overwrite each other."""
     paths = [Path(p) for p in recording_paths]
     if not paths:
         raise PipelineError("replay needs at least one trajectory file")
@@ -98,14 +157,25 @@ def replay(
             f"{events_dir}: several recordings are named alike ({', '.join(sorted(names))}) and their "
             f"copies with events would overwrite each other; replay them in separate runs"
         )
-    files = rrd_files(out, paths, merge)
-    merge_all = len(files) < len(paths)
-    events = [Path(events_dir) / name for name in names] if events_dir is not None else []
-    outputs = [*files, decisions_path(out), *events]
-    refuse_inputs(outputs, [*paths, checkpoint], "--out or --events-out")
-    refuse_existing(outputs, force, "replay output", kind=replay_kind)
+    return paths
+
+
+@dataclass(frozen=True)
+class _Inputs:
+    """The checkpoint's model and the recordings it replays: paths, trajectories, the model's rows of each (T, width)
+    and the predicted columns that are the end-effector's xyz."""
+
+    model: CNEP
+    paths: list[Path]
+    trajectories: list[Trajectory]
+    rows: list[np.ndarray]
+    xyz: list[int] | None
+
+
+def _load(checkpoint: Path, paths: list[Path]) -> _Inputs:
+    """The checkpoint and the recordings, every recording checked against it (its columns, its extractor, at least
+    two steps) before anything is written."""
     trained = load_trained(checkpoint)
-    model = trained.model
     trajectories = [read_trajectory(p) for p in paths]
     rows = [trained.rows(traj, p) for traj, p in zip(trajectories, paths)]  # refuse misfits first
     trained.check_extractor({p: traj.extractor for p, traj in zip(paths, trajectories)})
@@ -114,73 +184,89 @@ def replay(
             raise PipelineError(
                 f"{p}: {traj.n_steps} step(s); replay needs at least 2 (time runs from the first to the last)"
             )
-    xyz = trained.mapping.predicted_xyz(model)
+    return _Inputs(trained.model, paths, trajectories, rows, trained.mapping.predicted_xyz(trained.model))
+
+
+def _live_viewer(connect: str | None, first: Path) -> str | None:
+    """`connect` when a viewer answers there, else None (with a warning naming the file to open)."""
     live = connect if connect and viewer_reachable(connect) else None
     if connect and live is None:
         log.warning(
             "no Rerun viewer answers at %s; writing %s only (open it with `cnep view %s`)",
             connect,
-            files[0],
-            shlex.quote(str(files[0])),
+            first,
+            shlex.quote(str(first)),
         )
     elif live:
         log.info("streaming live to %s", live)
+    return live
+
+
+def _hold_outputs(
+    held: contextlib.ExitStack, out: Path, events: Path | None, names: list[Path], outputs: list[Path], force: bool
+) -> Staging:
+    """Into `held`: the output folders (removed again on failure), the locks on `names` (and on the events folder),
+    one torch thread, and the staging area every output is written to; the outputs are refused again first (a run
+    may have ended meanwhile)."""
+    for folder, option in [(out.parent, "--out"), *([(events, "--events-out")] if events else [])]:
+        held.enter_context(output_folder(folder, option))
+        check_writable_folder(folder)
+    held.enter_context(output_lock(out, names=[p.name for p in names]))
+    if events is not None:
+        held.enter_context(output_lock(events, folder=True))
+    refuse_existing(outputs, force, "replay output", kind=replay_kind)
+    held.enter_context(torch_threads())  # one small step at a time: one thread is fastest
+    return held.enter_context(staged(record=True))
+
+
+def _replay_each(
+    inputs: _Inputs,
+    staging: Staging,
+    files: list[Path],
+    parts: list[Path],
+    events: Path | None,
+    policy: ConditioningPolicy,
+    prediction_points: int,
+    live: str | None,
+    shown: tuple[Mapping[int, str] | None, Mapping[Path, Sequence[tuple[int, str]]]],
+    quiet: bool,
+    desc: str,
+) -> list[dict]:
+    """Step every recording through the model and stage its Rerun file (or its part of the merged one: `parts`) and
+    its copy with events; returns each recording's summary (decisions.summarise), with the .rrd it went to. shown:
+    the experts' labels and each recording's marks (`replay`)."""
+    from cnep.pipeline.progress import progress_bar
+
     run_id = uuid.uuid4().hex[:8]  # a new replay is a new recording in a viewer, not more rows in an old one
     summaries = []
-    with contextlib.ExitStack() as held:  # a failure removes the folders made for the outputs, and what was staged
-        for folder, option in [(out.parent, "--out"), *([(Path(events_dir), "--events-out")] if events_dir else [])]:
-            held.enter_context(output_folder(folder, option))
-            check_writable_folder(folder)
-        parts = [files[0].with_name(f"{files[0].name}-{i}") for i in range(len(paths))] if merge_all else []
-        held.enter_context(output_lock(out, names=[p.name for p in (*files, decisions_path(out), *parts)]))
-        if events_dir is not None:
-            held.enter_context(output_lock(Path(events_dir), folder=True))
-        refuse_existing(outputs, force, "replay output", kind=replay_kind)  # again: a run may have ended meanwhile
-        held.enter_context(torch_threads())  # one small step at a time: one thread is fastest
-        staging = held.enter_context(staged(record=True))
-        bar = progress_bar(total=sum(len(r) for r in rows), quiet=quiet, desc=f"replay into {out.name}", unit="step")
-        for i, (path, traj, x) in enumerate(zip(paths, trajectories, rows)):
-            decisions = decide(model, x, traj.timestamps_ns, policy, xyz, prediction_points)
-            bar.update(len(x))
-            data = write_recording(
-                recording_id(i, traj, run_id),
-                recording_name(i, path),
-                traj,
-                decisions,
-                live,
-                expert_labels,
-                (marks or {}).get(path, ()),
-            )
-            if merge_all:  # one file holding every recording: the parts are merged into it, then dropped
-                parts[i] = staging.write(parts[i], data, keep=False)
-            else:
-                staging.write(files[i], data)
-            if events_dir is not None:
-                record_written([add_events(path, Path(events_dir) / path.name, decision_events(traj, decisions))])
-            summaries.append(summarise(path, traj, decisions))
-        bar.close()
-        if parts:
-            merge_rrd(parts, staging.path(files[0]), files[0])
-        for i, summary in enumerate(summaries):
-            summary["rrd"] = files[min(i, len(files) - 1)].name
-        record = {
-            "checkpoint": str(checkpoint),
-            "rrd": [file.name for file in files],
-            "n_experts": model.n_experts,
-            "policy": policy.to_dict(),
-            "recordings": summaries,
-        }
-        staging.write(decisions_path(out), json.dumps(record, indent=1).encode())
-    for s in summaries:
-        log.debug(
-            "%s: expert %d on %.0f%% of %d steps, %d switch(es)",
-            s["recording"],
-            s["majority_expert"],
-            100 * max(s["share"]),
-            s["n_steps"],
-            len(s["switches"]),
+    expert_labels, marks = shown
+    total = sum(len(r) for r in inputs.rows)
+    bar = progress_bar(total=total, quiet=quiet, desc=desc, unit="step")
+    for i, (path, traj, x) in enumerate(zip(inputs.paths, inputs.trajectories, inputs.rows)):
+        decisions = decide(inputs.model, x, traj.timestamps_ns, policy, inputs.xyz, prediction_points)
+        bar.update(len(x))
+        data = write_recording(
+            recording_id(i, traj, run_id),
+            recording_name(i, path),
+            traj,
+            decisions,
+            live,
+            expert_labels,
+            marks.get(path, ()),
         )
-    return files
+        if parts:  # one file holding every recording: the parts are merged into it, then dropped
+            parts[i] = staging.write(parts[i], data, keep=False)
+        else:
+            staging.write(files[i], data)
+        if events is not None:
+            record_written([add_events(path, events / path.name, decision_events(traj, decisions))])
+        summaries.append(summarise(path, traj, decisions))
+    bar.close()
+    if parts:
+        merge_rrd(parts, staging.path(files[0]), files[0])
+    for i, summary in enumerate(summaries):
+        summary["rrd"] = files[min(i, len(files) - 1)].name
+    return summaries
 
 
 def _replay_output(path: Path) -> bool:
