@@ -41,7 +41,7 @@ from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_
 from cnep.pipeline.demo.config import DemoConfig, DemoSize
 from cnep.pipeline.demo.figure import FIGURE_FILE, Scene, draw_summary
 from cnep.pipeline.demo.free_choice import gate_census, generated_ends, place_outcomes, replay_pick
-from cnep.pipeline.demo.generator import SPLITS, SWITCH_KEY, DemoSetConfig, generate
+from cnep.pipeline.demo.generator import SPLITS, SWITCH_KEY, DemoSet, DemoSetConfig, generate
 from cnep.pipeline.demo.measures import (
     POLICY,
     expert_purity,
@@ -53,7 +53,7 @@ from cnep.pipeline.demo.measures import (
     trained_rows,
 )
 from cnep.pipeline.demo.scene import BEHAVIOURS
-from cnep.pipeline.demo.weights import choose_weights
+from cnep.pipeline.demo.weights import WeightsChoice, choose_weights
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.extract.stage import ExtractConfig, extract
 from cnep.pipeline.ingest.stage import IngestConfig, ingest
@@ -194,17 +194,43 @@ def quiet_per_file_logs():
 
 
 def _run_stages(config: DemoConfig, out: Path, size: DemoSize, seconds: dict[str, float]) -> DemoResult:
-    def stage(name: str, number: int):
-        log.info("[%d/6] %s", number, name)
-        seconds[name] = time.perf_counter()
-
-    def done(name: str) -> None:
-        seconds[name] = round(time.perf_counter() - seconds[name], 2)
-        log.info("%s done in %.1f s", name, seconds[name])
-
+    """The six stages in order, each timed into `seconds` (stage -> s)."""
+    timed = _StageClock(seconds)
     chosen = choose_weights(config.weights, config.offline)  # before anything is made: `imagenet` may be refused
-    stage("generate", 1)
-    made = generate(
+    with timed("generate", 1):
+        made = _generate(config, out, size)
+    with timed("ingest", 2):
+        ingest(IngestConfig(src=out / "recorded", out=out / "demos", quiet=config.quiet))
+    with timed("extract", 3):
+        _extract(config, out, chosen.weights)
+    with timed("train", 4):
+        checkpoints = _train(config, out, size, started=seconds["train"])
+    with timed("replay", 5):
+        replayed = _replay(config, out, made, checkpoints["CNEP"])
+    with timed("summary", 6):
+        result = _summarise(config, out, made, chosen, checkpoints, replayed, seconds)
+    return result
+
+
+class _StageClock:
+    """`with clock(name, number):` logs the stage's start and, when it completes, its wall time (s) into `seconds`
+    (which holds its start time, from `time.perf_counter`, while it runs)."""
+
+    def __init__(self, seconds: dict[str, float]):
+        self.seconds = seconds
+
+    @contextmanager
+    def __call__(self, name: str, number: int):
+        log.info("[%d/6] %s", number, name)
+        self.seconds[name] = time.perf_counter()
+        yield
+        self.seconds[name] = round(time.perf_counter() - self.seconds[name], 2)
+        log.info("%s done in %.1f s", name, self.seconds[name])
+
+
+def _generate(config: DemoConfig, out: Path, size: DemoSize) -> DemoSet:
+    """Stage 1: the seeded robot recordings under OUT/recorded (pipeline.demo.generator)."""
+    return generate(
         DemoSetConfig(
             out / "recorded",
             size.per_behaviour,
@@ -217,13 +243,11 @@ def _run_stages(config: DemoConfig, out: Path, size: DemoSize, seconds: dict[str
             heldout_free_choice_per_side=size.heldout_free_choice_per_side,
         )
     )
-    done("generate")
 
-    stage("ingest", 2)
-    ingest(IngestConfig(src=out / "recorded", out=out / "demos", quiet=config.quiet))
-    done("ingest")
 
-    stage("extract", 3)
+def _extract(config: DemoConfig, out: Path, chosen_weights: str) -> None:
+    """Stage 3: the training split's features with the chosen weights (random ones calibrated on its frames), saved to
+    EXTRACTOR_FILE, which then extracts the other splits."""
     weights = out / EXTRACTOR_FILE
     common = {
         "seed": config.seed,
@@ -236,7 +260,7 @@ def _run_stages(config: DemoConfig, out: Path, size: DemoSize, seconds: dict[str
         ExtractConfig(
             inputs=(out / "demos" / "train",),
             out=out / "trajectories" / "train",
-            weights=chosen.weights,  # random weights are calibrated on the training frames, ImageNet's used as given
+            weights=chosen_weights,  # random weights are calibrated on the training frames, ImageNet's used as given
             save_weights=weights,
             **common,
         )
@@ -247,9 +271,11 @@ def _run_stages(config: DemoConfig, out: Path, size: DemoSize, seconds: dict[str
                 inputs=(out / "demos" / split,), out=out / "trajectories" / split, weights=str(weights), **common
             )
         )
-    done("extract")
 
-    stage("train", 4)
+
+def _train(config: DemoConfig, out: Path, size: DemoSize, started: float) -> dict[str, Path]:
+    """Stage 4: the CNEP and the parameter-matched CNMP side by side, one process each; their checkpoints by name.
+    started: the stage's start (time.perf_counter), for the log."""
     training = TrainConfig(
         steps=size.train_steps,
         warmup_steps=size.warmup_steps,
@@ -276,17 +302,37 @@ def _run_stages(config: DemoConfig, out: Path, size: DemoSize, seconds: dict[str
         )
         for name, path in checkpoints.items()
     }
-    train_side_by_side(jobs, config.quiet, seconds["train"])
-    done("train")
+    train_side_by_side(jobs, config.quiet, started)
+    return checkpoints
 
-    stage("replay", 5)
+
+@dataclass(frozen=True)
+class _Replayed:
+    """What the replay stage read and made: trajectories, each split's files; labels, each recording's behaviour
+    (by split/name); switch_steps, the scene changes' steps; decided, the scene-decided training files; behaviours,
+    each behaviour's expert (measures.expert_purity); traces, every held-out free choice's online gates (T, d); choice,
+    the replayed free choice; rrd, the .rrd files."""
+
+    trajectories: dict[str, list[Path]]
+    labels: dict[str, str]
+    switch_steps: dict[str, int]
+    decided: list[Path]
+    behaviours: dict[str, dict]
+    traces: list[np.ndarray]
+    choice: list[Path]
+    rrd: list[Path]
+
+
+def _replay(config: DemoConfig, out: Path, made: DemoSet, cnep: Path) -> _Replayed:
+    """Stage 5: the scene change to RRD_FILE, the held-out recordings and one held-out free choice (one whose gate
+    starts split, then commits) to REPLAYS_RRD, the experts named by the behaviours they take."""
     trajectories = {split: sorted((out / "trajectories" / split).glob("*.mcap")) for split in SPLITS}
     labels = {key(path): label for path, label in made.labels.items()}  # split/name is kept by every stage
     switch_steps = {key(p): int(read_demonstration(p).episode.extra[SWITCH_KEY]) for p in made.files["scene_change"]}
     decided = [p for p in trajectories["train"] if labels[key(p)] in BEHAVIOURS]  # free choices have no purity
     with torch_threads():  # small-model forwards: one thread (the extract stage may have left torch on more)
-        behaviours = expert_purity(checkpoints["CNEP"], decided + trajectories["heldout"], labels)
-        traces = online_gates(checkpoints["CNEP"], trajectories["free_choice"])  # every held-out free choice's gate
+        behaviours = expert_purity(cnep, decided + trajectories["heldout"], labels)
+        traces = online_gates(cnep, trajectories["free_choice"])  # every held-out free choice's gate
     replayed_choice = [trajectories["free_choice"][replay_pick(traces)]]  # one that starts split, then commits
     (out / REPLAYS_RRD).parent.mkdir(exist_ok=True)
     shown = {  # the view names each expert by the behaviours it takes, and marks where the scene changes
@@ -299,13 +345,28 @@ def _run_stages(config: DemoConfig, out: Path, size: DemoSize, seconds: dict[str
             (trajectories["scene_change"], out / RRD_FILE),
             (trajectories["heldout"] + replayed_choice, out / REPLAYS_RRD),
         )
-        for path in replay(
-            checkpoints["CNEP"], recordings, target, policy=POLICY, connect=None, quiet=config.quiet, **shown
-        )
+        for path in replay(cnep, recordings, target, policy=POLICY, connect=None, quiet=config.quiet, **shown)
     ]  # one file each
-    done("replay")
+    return _Replayed(trajectories, labels, switch_steps, decided, behaviours, traces, replayed_choice, rrd)
 
-    stage("summary", 6)
+
+def _summarise(
+    config: DemoConfig,
+    out: Path,
+    made: DemoSet,
+    chosen: WeightsChoice,
+    checkpoints: dict[str, Path],
+    replayed: _Replayed,
+    seconds: dict[str, float],
+) -> DemoResult:
+    """Stage 6: what the demo measures (pipeline.demo.measures) and its figure, one bar step each."""
+    trajectories, labels, decided, behaviours = (
+        replayed.trajectories,
+        replayed.labels,
+        replayed.decided,
+        replayed.behaviours,
+    )
+    switch_steps, traces, replayed_choice, rrd = replayed.switch_steps, replayed.traces, replayed.choice, replayed.rrd
     # What the summary measures, one bar step each: held-out errors (2 models), the scene change, where the free
     # choices end (2 models), the replayed free choice, the figure.
     bar = progress_bar(total=7, desc="summary: measuring", unit="measure", quiet=config.quiet)
@@ -346,7 +407,6 @@ def _run_stages(config: DemoConfig, out: Path, size: DemoSize, seconds: dict[str
             seconds=seconds,
         )
         result.figure = measured(summary_figure(out, result, trajectories))
-    done("summary")
     return result
 
 
