@@ -136,19 +136,7 @@ def extract(config: ExtractConfig) -> list[Extracted]:
     if config.save_weights is not None:
         refuse_inputs([config.save_weights], [src for src, _ in all_pairs], "--save-weights")
         refuse_existing([config.save_weights], config.force, "weights file", kind=WEIGHTS)
-    built: list[FeatureExtractor] = []
-
-    def extractor() -> FeatureExtractor:
-        if not built:
-            sources = (
-                [src for given in config.calibrate_on for src in mcap_files(given, DEMONSTRATIONS)]
-                if config.calibrate_on
-                else [src for src, _ in all_pairs]
-            )
-            built.append(build_extractor(config, sources))
-        return built[0]
-
-    done: dict[int, Extracted] = {}
+    extractor = _lazy_extractor(config, [src for src, _ in all_pairs])
     skipped: list[str] = []
 
     def failed(src: Path, exc: Exception) -> None:
@@ -163,51 +151,93 @@ def extract(config: ExtractConfig) -> list[Extracted]:
     alone = world_size == 1 and config.shard[1] == 1
     lock = output_lock(config.out, folder=True, clean=alone) if rank == 0 and config.shard[1] == 1 else None
     with output_folder(config.out), lock or contextlib.nullcontext():
-        for _, dst in pairs:  # nested input folders keep their sub-folders under --out
-            dst.parent.mkdir(parents=True, exist_ok=True)
-        current = {dst: None if config.force else up_to_date_steps(src, dst, extractor) for src, dst in pairs}
-        stale = {dst for src, dst in pairs if current[dst] is None and not _newer_than(dst, src)}
-        refuse_existing(
-            [dst for _, dst in pairs if current[dst] is None and dst not in stale],
-            config.force,
-            "output",
-            " and is not this input's trajectory file from these weights",
-            kind=MCAP,
-        )
-        refuse_existing(sorted(stale), True, kind=MCAP)  # redone without --force, but only if cnep wrote it
+        current = _current_outputs(config, pairs, extractor)
         if config.save_weights is not None and first:
-            with output_lock(config.save_weights):
-                extractor().save_weights(config.save_weights)
-                record_written([config.save_weights])
-            log.info(
-                "saved the extractor weights to %s (reuse them with --weights %s)",
-                config.save_weights,
-                config.save_weights,
-            )
-        todo = []
+            _save_weights(config.save_weights, extractor)
+        done: dict[int, Extracted] = {}
         for i, (src, dst) in enumerate(pairs):
-            if current[dst] is None:
-                todo.append(i)
-            else:
+            if current[dst] is not None:
                 log.info("%s is up to date, skipped", dst)
                 done[i] = Extracted(src, dst, current[dst], skipped=True)
-        frames = frame_counts([pairs[i][0] for i in todo])
-        with (
-            logging_redirect_tqdm(),
-            progress_bar(total=sum(frames), unit="frame", desc=f"extract {config.out.name}", quiet=config.quiet) as bar,
-        ):
-            workers = auto_workers([pairs[i][0] for i in todo]) if config.workers == "auto" else config.workers
-            if workers > 1 and len(todo) > 1:
-                jobs = [(*pairs[i], count) for i, count in zip(todo, frames)]
-                done.update(extract_in_processes(jobs, todo, extractor, config, workers, bar, failed))
-            else:
-                for i in todo:
-                    try:
-                        done[i] = extract_file(*pairs[i], extractor, bar)
-                    except (RecordingError, PerceptionError) as exc:
-                        failed(pairs[i][0], exc)
+        todo = [i for i, (_, dst) in enumerate(pairs) if current[dst] is None]
+        done.update(_extract_todo(config, pairs, todo, extractor, failed))
     raise_if_skipped(skipped, len(pairs), f"were extracted into {config.out}")
     return [done[i] for i in sorted(done)]
+
+
+def _lazy_extractor(config: ExtractConfig, inputs: list[Path]) -> Callable[[], FeatureExtractor]:
+    """A function returning the run's one extractor, built (and calibrated, on `config.calibrate_on` or else on
+    `inputs`) at its first call."""
+    built: list[FeatureExtractor] = []
+
+    def extractor() -> FeatureExtractor:
+        if not built:
+            sources = (
+                [src for given in config.calibrate_on for src in mcap_files(given, DEMONSTRATIONS)]
+                if config.calibrate_on
+                else inputs
+            )
+            built.append(build_extractor(config, sources))
+        return built[0]
+
+    return extractor
+
+
+def _current_outputs(
+    config: ExtractConfig, pairs: list[tuple[Path, Path]], extractor: Callable[[], FeatureExtractor]
+) -> dict[Path, int | None]:
+    """Each output's steps when it is up to date with its input and these weights, else None (to be written); an
+    existing output that is not is refused unless `force`, a stale one (older than its input) only if cnep did not
+    write it."""
+    for _, dst in pairs:  # nested input folders keep their sub-folders under --out
+        dst.parent.mkdir(parents=True, exist_ok=True)
+    current = {dst: None if config.force else up_to_date_steps(src, dst, extractor) for src, dst in pairs}
+    stale = {dst for src, dst in pairs if current[dst] is None and not _newer_than(dst, src)}
+    refuse_existing(
+        [dst for _, dst in pairs if current[dst] is None and dst not in stale],
+        config.force,
+        "output",
+        " and is not this input's trajectory file from these weights",
+        kind=MCAP,
+    )
+    refuse_existing(sorted(stale), True, kind=MCAP)  # redone without --force, but only if cnep wrote it
+    return current
+
+
+def _save_weights(path: Path, extractor: Callable[[], FeatureExtractor]) -> None:
+    """The extractor's weights to `path`, under its lock (`--save-weights`)."""
+    with output_lock(path):
+        extractor().save_weights(path)
+        record_written([path])
+    log.info("saved the extractor weights to %s (reuse them with --weights %s)", path, path)
+
+
+def _extract_todo(
+    config: ExtractConfig,
+    pairs: list[tuple[Path, Path]],
+    todo: list[int],
+    extractor: Callable[[], FeatureExtractor],
+    failed: Callable[[Path, Exception], None],
+) -> dict[int, Extracted]:
+    """Extract pairs[i] for each i in `todo`, in worker processes when the job pays for them (`workers`), else here;
+    a file that fails goes to `failed`."""
+    done: dict[int, Extracted] = {}
+    frames = frame_counts([pairs[i][0] for i in todo])
+    with (
+        logging_redirect_tqdm(),
+        progress_bar(total=sum(frames), unit="frame", desc=f"extract {config.out.name}", quiet=config.quiet) as bar,
+    ):
+        workers = auto_workers([pairs[i][0] for i in todo]) if config.workers == "auto" else config.workers
+        if workers > 1 and len(todo) > 1:
+            jobs = [(*pairs[i], count) for i, count in zip(todo, frames)]
+            done.update(extract_in_processes(jobs, todo, extractor, config, workers, bar, failed))
+        else:
+            for i in todo:
+                try:
+                    done[i] = extract_file(*pairs[i], extractor, bar)
+                except (RecordingError, PerceptionError) as exc:
+                    failed(pairs[i][0], exc)
+    return done
 
 
 def _newer_than(dst: Path, src: Path) -> bool:
