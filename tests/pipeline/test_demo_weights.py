@@ -131,7 +131,7 @@ def test_random_and_a_file_are_taken_as_given(hub, served, monkeypatch, tmp_path
 def test_the_demo_extracts_with_the_chosen_weights(hub, tmp_path, monkeypatch):
     from cnep.pipeline.demo import stage
 
-    def stop(workers):  # at training: only the extract calls matter here
+    def stop(workers, **_):  # at training: only the extract calls matter here
         raise PipelineError("stopped before training")
 
     _imagenet_stand_in(hub)
