@@ -24,8 +24,9 @@ MODELS = ("CNEP", "CNMP")
 
 @dataclass(frozen=True)
 class LoopSettings:
-    """What every closed-loop evaluation takes: the task variant, the episodes and the recordings of them."""
+    """What every closed-loop evaluation takes: the task and its variant, the episodes and the recordings of them."""
 
+    task: str = setting(OBSTACLE, "the task", choices=TASKS)
     cue: bool = setting(False, "the variant where a tile on one side of the box shows the side to pass")
     episodes: int = setting(20, "closed-loop episodes per policy and protocol")
     episode_seed: int = setting(0, "seed of the first episode (episode i is reset with seed + i)")
@@ -50,6 +51,8 @@ class LoopSettings:
 
     def check(self) -> None:
         """PipelineError for a setting out of range."""
+        if self.task not in TASKS:
+            raise PipelineError(f"task must be one of {', '.join(TASKS)}, got {self.task!r}")
         if self.protocol not in (BOTH, *PROTOCOLS):
             raise PipelineError(f"protocol must be one of {BOTH}, {', '.join(PROTOCOLS)}, got {self.protocol!r}")
         if self.episodes < 1 or self.record < 0:
@@ -63,7 +66,6 @@ class SimConfig(LoopSettings):
     one CNEP and one matched CNMP per training seed, each exported and run in closed loop."""
 
     out: Path
-    task: str = setting(OBSTACLE, "the task", choices=TASKS)
     demonstrations: int = setting(40, "demonstrations generated (half pass left, half right)")
     seed: int = setting(0, "seed of the demonstrations (and of the feature network's random weights)")
     train_seeds: tuple[int, ...] = setting((0,), "training seeds: one CNEP and one matched CNMP trained per seed")
@@ -76,8 +78,6 @@ class SimConfig(LoopSettings):
     def __post_init__(self) -> None:
         coerce_paths(self)
         self.check()
-        if self.task not in TASKS:
-            raise PipelineError(f"task must be one of {', '.join(TASKS)}, got {self.task!r}")
         if self.demonstrations < 2 or self.train_steps < 1 or self.experts < 2 or not self.train_seeds:
             raise PipelineError(
                 f"need >= 2 demonstrations, >= 1 training step, >= 2 experts and a training seed, got "
@@ -92,7 +92,6 @@ class EvalConfig(LoopSettings):
 
     policy: Path
     out: Path | None = None
-    task: str = setting(OBSTACLE, "the task", choices=TASKS)
     episodes: int = setting(50, "closed-loop episodes per protocol")
     extractor: Path | None = None
     quiet: bool = False
@@ -100,5 +99,3 @@ class EvalConfig(LoopSettings):
     def __post_init__(self) -> None:
         coerce_paths(self)
         self.check()
-        if self.task not in TASKS:
-            raise PipelineError(f"task must be one of {', '.join(TASKS)}, got {self.task!r}")

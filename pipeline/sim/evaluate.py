@@ -8,13 +8,11 @@ import json
 from dataclasses import asdict
 from pathlib import Path
 
-from cnep.outputs import output_lock, write_atomically
-from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_file_as_folder
-from cnep.pipeline.errors import PipelineError
+from cnep.outputs import write_atomically
 from cnep.pipeline.sim.config import EvalConfig
 from cnep.pipeline.sim.figure import FIGURE_FILE
 from cnep.pipeline.sim.loop import evaluate_policy
-from cnep.pipeline.sim.stage import SUMMARY_FILE
+from cnep.pipeline.sim.stage import SUMMARY_FILE, new_output_folder
 from cnep.pipeline.sim.summary import format_table
 from cnep.sim import require_extra
 
@@ -27,11 +25,7 @@ def run_eval(config: EvalConfig) -> dict:
         results = {label: _evaluate(config, label, None)}
         return _summary(config, results)
     out = Path(config.out)
-    refuse_file_as_folder(out)
-    with output_folder(out), output_lock(out, folder=True) as lock:
-        check_writable_folder(out)
-        if any(p != lock for p in out.iterdir()):
-            raise PipelineError(f"{out}: `cnep sim eval --out` writes into a new folder and this one is not empty")
+    with new_output_folder(out, "cnep sim eval"):
         results = {label: _evaluate(config, label, out)}
         summary = _summary(config, results)
         write_atomically(out / SUMMARY_FILE, json.dumps(summary, indent=1).encode())

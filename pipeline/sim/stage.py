@@ -25,7 +25,9 @@ import json
 import logging
 import shutil
 import time
+from collections.abc import Iterator
 from concurrent.futures import as_completed
+from contextlib import contextmanager
 from dataclasses import asdict, replace
 from pathlib import Path
 
@@ -60,11 +62,7 @@ def run_sim(config: SimConfig) -> dict:
     """Run every stage into `config.out` (module docstring); returns the summary (also OUT/summary.json)."""
     require_extra()
     out = Path(config.out)
-    refuse_file_as_folder(out)
-    with output_folder(out), output_lock(out, folder=True) as lock:
-        check_writable_folder(out)
-        if any(p != lock for p in out.iterdir()):
-            raise PipelineError(f"{out}: `cnep sim obstacle` writes into a new folder and this one is not empty")
+    with new_output_folder(out, "cnep sim obstacle") as lock:
         try:
             with quiet_per_file_logs():
                 summary = _run_stages(config, out)
@@ -75,6 +73,18 @@ def run_sim(config: SimConfig) -> dict:
                     shutil.rmtree(child) if child.is_dir() and not child.is_symlink() else child.unlink()
             raise
     return summary
+
+
+@contextmanager
+def new_output_folder(out: Path, command: str) -> Iterator[Path]:
+    """`out` made (or found empty) and locked for `command`, which writes into a new folder only; yields the lock's
+    path (the one entry of the folder that is not an output)."""
+    refuse_file_as_folder(out)
+    with output_folder(out), output_lock(out, folder=True) as lock:
+        check_writable_folder(out)
+        if any(p != lock for p in out.iterdir()):
+            raise PipelineError(f"{out}: `{command} --out` writes into a new folder and this one is not empty")
+        yield lock
 
 
 def _run_stages(config: SimConfig, out: Path) -> dict:
