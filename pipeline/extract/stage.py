@@ -261,9 +261,17 @@ def torchrun_rank() -> tuple[int, int]:
 
 
 def frame_counts(sources: Sequence[Path]) -> list[int]:
-    """The camera frames of each demonstration file (0 for one without), read from the files' summaries."""
-    summaries = [read_summary(src, KIND_DEMONSTRATION) for src in sources]
-    return [summary.n_steps if summary.has_frames else 0 for summary in summaries]
+    """The camera frames of each demonstration file, read from the files' summaries: 0 for one without frames, and
+    for one whose summary cannot be read (its own extraction says what is wrong with it, or skips it)."""
+    return [_frames_of(src) for src in sources]
+
+
+def _frames_of(src: Path) -> int:
+    try:
+        summary = read_summary(src, KIND_DEMONSTRATION)
+    except RecordingError:
+        return 0
+    return summary.n_steps if summary.has_frames else 0
 
 
 def auto_workers(sources: Sequence[Path]) -> int:
