@@ -134,6 +134,25 @@ def train(config: TrainStageConfig, remote: progress.RemoteBar | None = None) ->
     return out
 
 
+@dataclass(frozen=True)
+class _Run:
+    """What a run reads before it builds the model, alike on every rank: the files and their columns, the split of
+    whole demonstrations (all of it, and this rank's share), the packed columns of that share, the gripper command
+    they give, the run's identity and the state saved by an earlier run of it (None: a fresh run)."""
+
+    data: TrainingSet
+    layout: TrainingColumns
+    model_config: CNEPConfig
+    train_idx: list[int]
+    val_idx: list[int]
+    my_train: list[int]
+    my_val: list[int]
+    packed: PackedColumns
+    gripper: GripperCommand | None
+    identity: dict
+    saved: dict | None
+
+
 def _train(
     config: TrainStageConfig,
     procs: Processes,
@@ -142,6 +161,21 @@ def _train(
     remote: progress.RemoteBar | None = None,
 ) -> Path:
     """The run; rank 0 claims OUT into `held` (its folder and lock, released when the run ends)."""
+    run = _load(config, procs, held)
+    model, trainer, elapsed = _build(run, config, procs, device)
+    _log_start(run, config, procs)
+    elapsed = _loop(trainer, run, config, procs, elapsed, remote)
+    remove_pack(run.packed, config.out, procs)
+    barrier(procs)  # every rank's pack is gone before rank 0 renames the work folder into the checkpoint
+    if trainer.diverged is not None and procs.is_main:
+        diverged(trainer, config, run.saved is None)
+    if procs.is_main:
+        _publish(model, trainer, run, config, elapsed)
+    return config.out
+
+
+def _load(config: TrainStageConfig, procs: Processes, held: ExitStack) -> _Run:
+    """Read the inputs, split them, claim the work folder (resuming what it holds) and pack this rank's share."""
     data = load_training_set(find_trajectory_files(config.inputs))
     layout = resolve_preset(config.layout, data.width, data.files[0].path)
     model_config = replace(config.model, columns=layout.roles)
@@ -160,38 +194,66 @@ def _train(
         check_same_run(saved["identity"], identity, work_dir(config.out) / STATE_FILE)
     if procs.is_main:
         warn_identical(data, [hashes[i][1] for i in range(len(inputs))], train_idx, val_idx)
+    return _Run(data, layout, model_config, train_idx, val_idx, my_train, my_val, packed, gripper, identity, saved)
 
-    moments = gather(procs, packed.moments(my_train))  # each rank's training share, in rank order
-    fitted_on = Moments.total(moments) if disjoint(train_idx, procs) else moments[0]
-    model = build_model(model_config, fitted_on, config.training.seed)  # normaliser fitted on training demos
-    train_stack = TrajectoryStack.from_rows(packed.rows, *packed.span(my_train), model)
-    val_stack = TrajectoryStack.from_rows(packed.rows, *packed.span(my_val), model)
+
+def _build(
+    run: _Run, config: TrainStageConfig, procs: Processes, device: torch.device
+) -> tuple[torch.nn.Module, StageTrainer, float]:
+    """The model (its normaliser fitted on the training demonstrations), its trainer, and the seconds trained so far
+    (restored from the saved state when resuming)."""
+    moments = gather(procs, run.packed.moments(run.my_train))  # each rank's training share, in rank order
+    fitted_on = Moments.total(moments) if disjoint(run.train_idx, procs) else moments[0]
+    model = build_model(run.model_config, fitted_on, config.training.seed)
+    train_stack = TrajectoryStack.from_rows(run.packed.rows, *run.packed.span(run.my_train), model)
+    val_stack = TrajectoryStack.from_rows(run.packed.rows, *run.packed.span(run.my_val), model)
     trainer = StageTrainer(PlacedModel(model, device, procs), train_stack, val_stack, config.training)
-    if procs.distributed and disjoint(val_idx, procs):  # validation errors are means over the ranks' shares
+    if procs.distributed and disjoint(run.val_idx, procs):  # validation errors are means over the ranks' shares
         trainer.ranks = procs
         trainer.mean_error = mean_over_ranks(procs, trainer.mean_error)
     trainer.generator.manual_seed(rank_seed(config.training.seed, procs.rank))
-    elapsed = 0.0
-    if saved is not None:
-        trainer.load_state_dict(saved["trainer"])
-        trainer.generator.set_state(saved["generators"][procs.rank])
-        elapsed = saved["elapsed_s"]
-        log.info("resuming at step %d of %d", trainer.step, config.training.steps)
-    if procs.is_main:
-        log.info(
-            "training on %d demonstrations, validating on %d; layout %s (%d columns -> %d predicted), %d process(es)",
-            len(train_idx),
-            len(val_idx),
-            layout.name,
-            layout.roles.width,
-            layout.roles.out_dim,
-            procs.world_size,
-        )
-        if not config.quiet:
-            log.info("%s", BAR_LEGEND)
+    if run.saved is None:
+        return model, trainer, 0.0
+    trainer.load_state_dict(run.saved["trainer"])
+    trainer.generator.set_state(run.saved["generators"][procs.rank])
+    log.info("resuming at step %d of %d", trainer.step, config.training.steps)
+    return model, trainer, run.saved["elapsed_s"]
 
+
+def _log_start(run: _Run, config: TrainStageConfig, procs: Processes) -> None:
+    """What is trained on (rank 0), and the progress bar's legend."""
+    if not procs.is_main:
+        return
+    log.info(
+        "training on %d demonstrations, validating on %d; layout %s (%d columns -> %d predicted), %d process(es)",
+        len(run.train_idx),
+        len(run.val_idx),
+        run.layout.name,
+        run.layout.roles.width,
+        run.layout.roles.out_dim,
+        procs.world_size,
+    )
+    if not config.quiet:
+        log.info("%s", BAR_LEGEND)
+
+
+def _loop(
+    trainer: StageTrainer,
+    run: _Run,
+    config: TrainStageConfig,
+    procs: Processes,
+    elapsed: float,
+    remote: progress.RemoteBar | None,
+) -> float:
+    """Train to the last step (or an early stop, or divergence), saving a resumable state every `save_every` steps;
+    returns the seconds trained, across resumes. Interrupted, the state of the last step every rank finished is
+    saved and the interruption re-raised with how to resume."""
     work, cfg = work_dir(config.out), config.training
     clock = time.perf_counter() - elapsed  # training time (s) counts across resumes, reading the files does not
+
+    def state() -> dict:
+        return {"identity": run.identity, "elapsed_s": time.perf_counter() - clock}
+
     with progress_bar(trainer, disabled=config.quiet or not procs.is_main) as bar, deferred_interrupts() as received:
         trainer.on_step = lambda stepped, terms: report_step(bar, stepped, terms, time.perf_counter() - clock, remote)
         trainer.interrupted = lambda: any_rank_signal(procs, received())
@@ -200,55 +262,56 @@ def _train(
                 trainer.run(progress=False, until=(trainer.step // config.save_every + 1) * config.save_every)
                 if trainer.diverged is not None:
                     break
-                save_progress(trainer, procs, work, {"identity": identity, "elapsed_s": time.perf_counter() - clock})
+                save_progress(trainer, procs, work, state())
         except KeyboardInterrupt as exc:
             if trainer.stopped_between_steps:  # every rank stopped after the same step: its state resumes exactly
-                save_progress(trainer, procs, work, {"identity": identity, "elapsed_s": time.perf_counter() - clock})
+                save_progress(trainer, procs, work, state())
             saved_at = (
                 trainer.step if trainer.stopped_between_steps else trainer.step // config.save_every * config.save_every
             )
             then = (
                 f"the state of step {saved_at} is in {work}: add --resume to the same command to continue"
-                if saved_at or saved is not None
+                if saved_at or run.saved is not None
                 else "nothing was saved yet; run the command again to start over"
             )
             raise type(exc)(then) from None
-    elapsed = time.perf_counter() - clock
-    remove_pack(packed, config.out, procs)
-    barrier(procs)  # every rank's pack is gone before rank 0 renames the work folder into the checkpoint
-    if trainer.diverged is not None and procs.is_main:
-        diverged(trainer, config, saved is None)
+    return time.perf_counter() - clock
 
-    if procs.is_main:
-        model.load_state_dict(trainer.best_state)
-        not_learned = trainer.not_learned()
-        if not_learned is not None:
-            log.warning("%s", not_learned)
-        summary = {
-            "best_step": trainer.best_step,
-            "best_val_error": trainer.best_error,
-            "mean_prediction_error": trainer.mean_error,  # what predicting the training mean scores
-            "learned": not_learned is None,
-            **({"warning": not_learned} if not_learned else {}),
-            "steps_run": trainer.step,
-            "stopped_early": trainer.step < cfg.steps,
-            "elapsed_s": round(elapsed, 3),
-        }
-        extra = {key: value for key, value in identity.items() if key != "model"}  # save_checkpoint writes "model"
-        time_base = data.time_base().to_dict()  # the robot's seconds -> t (runtime.timebase)
-        policy = {"time_base": time_base, "gripper": gripper.to_dict() if gripper else None}
-        save_checkpoint(model, work, {**extra, **policy, "result": summary, "log": LOG_FILE})
-        record_written([work / n for n in CHECKPOINT_FILES if (work / n).is_file()], forget=[work / STATE_FILE])
-        publish(work, config.out)
-        log.info(
-            "best validation error %.4g at step %d; %d steps in %.1f s -> %s",
-            trainer.best_error,
-            trainer.best_step,
-            trainer.step,
-            elapsed,
-            config.out,
-        )
-    return config.out
+
+def _publish(
+    model: torch.nn.Module, trainer: StageTrainer, run: _Run, config: TrainStageConfig, elapsed: float
+) -> None:
+    """Rank 0: the best weights, the run's result and what a policy needs (time base, gripper command) into the work
+    folder's checkpoint, recorded and renamed to OUT."""
+    work = work_dir(config.out)
+    model.load_state_dict(trainer.best_state)
+    not_learned = trainer.not_learned()
+    if not_learned is not None:
+        log.warning("%s", not_learned)
+    summary = {
+        "best_step": trainer.best_step,
+        "best_val_error": trainer.best_error,
+        "mean_prediction_error": trainer.mean_error,  # what predicting the training mean scores
+        "learned": not_learned is None,
+        **({"warning": not_learned} if not_learned else {}),
+        "steps_run": trainer.step,
+        "stopped_early": trainer.step < config.training.steps,
+        "elapsed_s": round(elapsed, 3),
+    }
+    extra = {key: value for key, value in run.identity.items() if key != "model"}  # save_checkpoint writes "model"
+    time_base = run.data.time_base().to_dict()  # the robot's seconds -> t (runtime.timebase)
+    policy = {"time_base": time_base, "gripper": run.gripper.to_dict() if run.gripper else None}
+    save_checkpoint(model, work, {**extra, **policy, "result": summary, "log": LOG_FILE})
+    record_written([work / n for n in CHECKPOINT_FILES if (work / n).is_file()], forget=[work / STATE_FILE])
+    publish(work, config.out)
+    log.info(
+        "best validation error %.4g at step %d; %d steps in %.1f s -> %s",
+        trainer.best_error,
+        trainer.best_step,
+        trainer.step,
+        elapsed,
+        config.out,
+    )
 
 
 def diverged(trainer: Trainer, config: TrainStageConfig, fresh: bool) -> None:
