@@ -12,9 +12,11 @@ label with `follow_reports`.
 
 from __future__ import annotations
 
+import logging
 import sys
 import time
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Iterator, Mapping
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from queue import Empty
 from typing import Any, TextIO
@@ -139,3 +141,19 @@ def follow_reports(queue: Any, bars: Mapping[str, tqdm]) -> None:
         bar.update(n - bar.n)
     for bar in bars.values():
         bar.refresh()
+
+
+class StageClock:
+    """`with clock(name, number):` logs `[number/total] name` to `log` at a stage's start and, when it completes,
+    its wall time (s) into `seconds` (which holds its start time, from `time.perf_counter`, while it runs)."""
+
+    def __init__(self, seconds: dict[str, float], total: int, log: logging.Logger):
+        self.seconds, self.total, self.log = seconds, total, log
+
+    @contextmanager
+    def __call__(self, name: str, number: int) -> Iterator[None]:
+        self.log.info("[%d/%d] %s", number, self.total, name)
+        self.seconds[name] = time.perf_counter()
+        yield
+        self.seconds[name] = round(time.perf_counter() - self.seconds[name], 2)
+        self.log.info("%s done in %.1f s", name, self.seconds[name])

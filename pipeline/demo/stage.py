@@ -67,7 +67,7 @@ from cnep.pipeline.ownership import (
     json_with,
     png_by_matplotlib,
 )
-from cnep.pipeline.progress import REPORT_INTERVAL_S, RemoteBar, follow_reports, progress_bar
+from cnep.pipeline.progress import REPORT_INTERVAL_S, RemoteBar, StageClock, follow_reports, progress_bar
 from cnep.pipeline.replay.decisions import decisions_path, read_decisions
 from cnep.pipeline.replay.stage import replay
 from cnep.pipeline.train.constants import SCENE
@@ -195,7 +195,7 @@ def quiet_per_file_logs():
 
 def _run_stages(config: DemoConfig, out: Path, size: DemoSize, seconds: dict[str, float]) -> DemoResult:
     """The six stages in order, each timed into `seconds` (stage -> s)."""
-    timed = _StageClock(seconds)
+    timed = StageClock(seconds, 6, log)
     chosen = choose_weights(config.weights, config.offline)  # before anything is made: `imagenet` may be refused
     with timed("generate", 1):
         made = _generate(config, out, size)
@@ -210,22 +210,6 @@ def _run_stages(config: DemoConfig, out: Path, size: DemoSize, seconds: dict[str
     with timed("summary", 6):
         result = _summarise(config, out, made, chosen, checkpoints, replayed, seconds)
     return result
-
-
-class _StageClock:
-    """`with clock(name, number):` logs the stage's start and, when it completes, its wall time (s) into `seconds`
-    (which holds its start time, from `time.perf_counter`, while it runs)."""
-
-    def __init__(self, seconds: dict[str, float]):
-        self.seconds = seconds
-
-    @contextmanager
-    def __call__(self, name: str, number: int):
-        log.info("[%d/6] %s", number, name)
-        self.seconds[name] = time.perf_counter()
-        yield
-        self.seconds[name] = round(time.perf_counter() - self.seconds[name], 2)
-        log.info("%s done in %.1f s", name, self.seconds[name])
 
 
 def _generate(config: DemoConfig, out: Path, size: DemoSize) -> DemoSet:

@@ -28,7 +28,7 @@ import time
 from collections.abc import Iterator
 from concurrent.futures import as_completed
 from contextlib import contextmanager
-from dataclasses import asdict, replace
+from dataclasses import asdict, fields, replace
 from pathlib import Path
 
 from cnep.models import CNEPConfig, TrainConfig
@@ -41,6 +41,7 @@ from cnep.pipeline.export.config import ExportConfig
 from cnep.pipeline.export.stage import export
 from cnep.pipeline.extract.stage import ExtractConfig, extract
 from cnep.pipeline.ingest.stage import IngestConfig, ingest
+from cnep.pipeline.progress import StageClock
 from cnep.pipeline.sim.config import LoopSettings, SimConfig
 from cnep.pipeline.sim.figure import FIGURE_FILE
 from cnep.pipeline.sim.generate import generate_demonstrations
@@ -88,56 +89,22 @@ def new_output_folder(out: Path, command: str) -> Iterator[Path]:
 
 
 def _run_stages(config: SimConfig, out: Path) -> dict:
+    """The six stages in order, each timed; returns the summary."""
     seconds: dict[str, float] = {}
-    clock = time.perf_counter()
-
-    def stage(number: int) -> None:
-        nonlocal clock
-        if number > 1:
-            seconds[STAGES[number - 2]] = round(time.perf_counter() - clock, 1)
-            log.info("%s done in %.1f s", STAGES[number - 2], seconds[STAGES[number - 2]])
-        clock = time.perf_counter()
-        if number <= len(STAGES):
-            log.info("[%d/%d] %s", number, len(STAGES), STAGES[number - 1])
-
+    timed = StageClock(seconds, len(STAGES), log)
     chosen = choose_weights(config.weights, config.offline)  # before anything is made: `imagenet` may be refused
-    stage(1)
-    made = generate_demonstrations(out / "recorded", config.demonstrations, config.seed, config.cue, config.quiet)
-    stage(2)
-    ingest(IngestConfig(src=out / "recorded", out=out / "demos", quiet=config.quiet))
-    stage(3)
-    extract(
-        ExtractConfig(
-            inputs=(out / "demos",),
-            out=out / "trajectories",
-            weights=chosen.weights,
-            save_weights=out / EXTRACTOR_FILE,
-            seed=config.seed,
-            quiet=config.quiet,
-            offline=config.offline,
-        )
-    )
-    stage(4)
-    checkpoints = _train(config, out)
-    stage(5)
-    policies = {}
-    for label, checkpoint in checkpoints.items():
-        policies[label] = out / "policies" / checkpoint.name
-        export(ExportConfig(checkpoint, policies[label], extractor=out / EXTRACTOR_FILE, quiet=True))
-        log.info("exported %s", policies[label])
-    stage(6)
-    (out / "episodes").mkdir()
-    settings = LoopSettings(
-        config.cue, config.episodes, config.episode_seed, config.protocol, config.record, config.first_expert
-    )
-    results = {
-        label: evaluate_policy(
-            path, settings, label=label, recordings=out / "episodes", quiet=config.quiet,
-            figure=out / FIGURE_FILE if label == next(iter(policies)) else None,
-        )
-        for label, path in policies.items()
-    }  # fmt: skip
-    stage(len(STAGES) + 1)
+    with timed("generate", 1):
+        made = generate_demonstrations(out / "recorded", config.demonstrations, config.seed, config.cue, config.quiet)
+    with timed("ingest", 2):
+        ingest(IngestConfig(src=out / "recorded", out=out / "demos", quiet=config.quiet))
+    with timed("extract", 3):
+        _extract(config, out, chosen.weights)
+    with timed("train", 4):
+        checkpoints = _train(config, out)
+    with timed("export", 5):
+        policies = _export(checkpoints, out)
+    with timed("closed loop", 6):
+        results = _closed_loop(config, out, policies)
     return {
         "task": config.task,
         "cue": config.cue,
@@ -154,6 +121,46 @@ def _run_stages(config: SimConfig, out: Path) -> dict:
         "table": format_table(results),
         "seconds": seconds,
     }
+
+
+def _extract(config: SimConfig, out: Path, weights: str) -> None:
+    """Stage 3: the demonstrations' features under OUT/trajectories, the weights saved to OUT/extractor.pt."""
+    extract(
+        ExtractConfig(
+            inputs=(out / "demos",),
+            out=out / "trajectories",
+            weights=weights,
+            save_weights=out / EXTRACTOR_FILE,
+            seed=config.seed,
+            quiet=config.quiet,
+            offline=config.offline,
+        )
+    )
+
+
+def _export(checkpoints: dict[str, Path], out: Path) -> dict[str, Path]:
+    """Stage 5: each checkpoint as a policy folder under OUT/policies; label -> folder."""
+    policies = {}
+    for label, checkpoint in checkpoints.items():
+        policies[label] = out / "policies" / checkpoint.name
+        export(ExportConfig(checkpoint, policies[label], extractor=out / EXTRACTOR_FILE, quiet=True))
+        log.info("exported %s", policies[label])
+    return policies
+
+
+def _closed_loop(config: SimConfig, out: Path, policies: dict[str, Path]) -> dict[str, dict]:
+    """Stage 6: every policy in closed loop, its first episodes recorded under OUT/episodes, the first policy's
+    episode drawn into OUT/episode.png; label -> results."""
+    (out / "episodes").mkdir()
+    settings = LoopSettings(**{f.name: getattr(config, f.name) for f in fields(LoopSettings)})
+    first = next(iter(policies))
+    return {
+        label: evaluate_policy(
+            path, settings, label=label, recordings=out / "episodes", quiet=config.quiet,
+            figure=out / FIGURE_FILE if label == first else None,
+        )
+        for label, path in policies.items()
+    }  # fmt: skip
 
 
 def _train(config: SimConfig, out: Path) -> dict[str, Path]:
