@@ -3,6 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
+import os
+import signal
+import subprocess
 
 HELP = (
     "open a .rrd file: the Rerun viewer where there is a display, else Rerun's web viewer served on this machine, "
@@ -25,7 +29,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run the viewer in the foreground: its exit status, or 0 when the web viewer is stopped with Ctrl-C."""
-    import subprocess
     from pathlib import Path
 
     from cnep.pipeline.inputs import existing_files
@@ -36,7 +39,22 @@ def run(args: argparse.Namespace) -> int:
     web = args.web or not has_display()
     if web:
         print(web_instructions(rrd, args.web_port, args.port), flush=True)
+    # In a session of its own, so that stopping this command stops the viewer and every process it started (the
+    # rerun wrapper runs the viewer's binary as a child, which would outlive a wrapper killed alone).
+    viewer = subprocess.Popen(viewer_command(rrd, web, args.web_port, args.port), start_new_session=True)
     try:
-        return subprocess.run(viewer_command(rrd, web, args.web_port, args.port)).returncode
-    except KeyboardInterrupt:
+        return viewer.wait()
+    except KeyboardInterrupt:  # Ctrl-C or SIGTERM (pipeline.contract): the viewer's end, not an error
         return 0
+    finally:
+        _stop(viewer)
+
+
+def _stop(viewer: subprocess.Popen) -> None:
+    """End the viewer's whole process group (the wrapper and the binary it started): SIGTERM, then SIGKILL for
+    whatever is left a few seconds later."""
+    for signum in (signal.SIGTERM, signal.SIGKILL):
+        with contextlib.suppress(ProcessLookupError):  # the group has ended
+            os.killpg(viewer.pid, signum)
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            viewer.wait(timeout=5)

@@ -7,6 +7,8 @@ import sys
 import time
 import urllib.request
 
+import pytest
+
 from cnep.pipeline.demo.stage import RRD_FILE
 from cnep.pipeline.replay import viewing
 
@@ -54,3 +56,5 @@ def test_without_a_display_the_file_is_served_to_a_browser(quick_demo, tmp_path)
     finally:
         served.terminate()
         served.wait(timeout=30)
+    with pytest.raises(OSError):  # stopping `cnep view` stopped the viewer it started, binary included
+        urllib.request.urlopen(f"http://127.0.0.1:{web}/", timeout=5)
