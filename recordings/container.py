@@ -223,57 +223,78 @@ def _walk(data: bytes, out: McapContents, salvage: bool) -> None:
                 f"the record at byte {pos} runs past the end of the file ({size} bytes)", truncated=not closed
             )
         if opcode in (Opcode.MESSAGE, Opcode.CHUNK) or opcode in _TOP_LEVEL:
-            try:
-                if opcode == Opcode.CHUNK:
-                    record = _chunk_at(view, body, end)
-                else:
-                    stream = ReadDataStream(io.BytesIO(data[body:end]))
-                    record = Message.read(stream, length) if opcode == Opcode.MESSAGE else _TOP_LEVEL[opcode](stream)
-            except CORRUPTION_ERRORS as exc:
-                raise _Damage(f"unreadable record at byte {pos} ({_describe(exc)})", truncated=False) from None
+            record = _record_at(data, view, opcode, pos, body, end)
             if isinstance(record, Chunk):
-                try:
-                    limit = out.chunk_limit()
-                    out.inflated += record.uncompressed_size if record.uncompressed_size <= limit else 0
-                    args = record.compression, record.data, record.uncompressed_size, record.uncompressed_crc, limit
-                    inner, _ = chunk_records(inflate(*args))
-                except CORRUPTION_ERRORS as exc:
-                    if not salvage:
-                        raise _Damage(f"damaged chunk at byte {pos} ({_describe(exc)})", truncated=False) from None
-                    out.chunks_lost += 1
-                    out.problem = (
-                        f"{out.chunks_lost} damaged chunk(s) skipped, the last at byte {pos} ({_describe(exc)})"
-                    )
-                else:
-                    out.chunks_read += 1
-                    for r in inner:
-                        _keep(out, r)
+                _take_chunk(record, pos, out, salvage)
             elif isinstance(record, DataEnd):
-                if record.data_section_crc and zlib.crc32(view[:pos]) != record.data_section_crc:
-                    if not salvage:
-                        raise _Damage(
-                            "CRC mismatch in the data section (a byte outside the chunks changed)", truncated=False
-                        )
-                    out.problem = out.problem or "CRC mismatch in the data section"
+                _check_data_end(record, view, pos, out, salvage)
             elif isinstance(record, Attachment):
-                stored = struct.unpack_from("<I", data, end - 4)[0]
-                if stored and zlib.crc32(view[body : end - 4]) != stored:
-                    raise _Damage(f"CRC mismatch in attachment {record.name!r} at byte {pos}", truncated=False)
+                _check_attachment(record, data, view, body, end)
                 _keep(out, record)
             elif isinstance(record, Footer):
                 out.bytes_used = end
-                if data[end:] != MCAP_MAGIC:
-                    raise _Damage("no closing magic bytes after the footer", truncated=size < end + len(MCAP_MAGIC))
-                if (
-                    record.summary_crc
-                    and record.summary_start
-                    and zlib.crc32(view[record.summary_start : body + 16]) != record.summary_crc
-                ):
-                    raise _Damage("CRC mismatch in the summary section", truncated=False)
+                _check_footer(record, data, view, body, end)
                 return
             else:
                 _keep(out, record)
         pos = out.bytes_used = end
+
+
+def _record_at(data: bytes, view: memoryview, opcode: int, pos: int, body: int, end: int) -> object:
+    """The record of `opcode` whose body is data[body:end]; _Damage if it cannot be read."""
+    try:
+        if opcode == Opcode.CHUNK:
+            return _chunk_at(view, body, end)
+        stream = ReadDataStream(io.BytesIO(data[body:end]))
+        return Message.read(stream, end - body) if opcode == Opcode.MESSAGE else _TOP_LEVEL[opcode](stream)
+    except CORRUPTION_ERRORS as exc:
+        raise _Damage(f"unreadable record at byte {pos} ({_describe(exc)})", truncated=False) from None
+
+
+def _take_chunk(chunk: Chunk, pos: int, out: McapContents, salvage: bool) -> None:
+    """The chunk's records into `out`, inflated within its limits; a damaged one is _Damage, or skipped and counted
+    when salvaging."""
+    try:
+        limit = out.chunk_limit()
+        out.inflated += chunk.uncompressed_size if chunk.uncompressed_size <= limit else 0
+        args = chunk.compression, chunk.data, chunk.uncompressed_size, chunk.uncompressed_crc, limit
+        inner, _ = chunk_records(inflate(*args))
+    except CORRUPTION_ERRORS as exc:
+        if not salvage:
+            raise _Damage(f"damaged chunk at byte {pos} ({_describe(exc)})", truncated=False) from None
+        out.chunks_lost += 1
+        out.problem = f"{out.chunks_lost} damaged chunk(s) skipped, the last at byte {pos} ({_describe(exc)})"
+        return
+    out.chunks_read += 1
+    for record in inner:
+        _keep(out, record)
+
+
+def _check_data_end(record: DataEnd, view: memoryview, pos: int, out: McapContents, salvage: bool) -> None:
+    """The data section's CRC: a mismatch is _Damage, or noted in `out` when salvaging."""
+    if record.data_section_crc and zlib.crc32(view[:pos]) != record.data_section_crc:
+        if not salvage:
+            raise _Damage("CRC mismatch in the data section (a byte outside the chunks changed)", truncated=False)
+        out.problem = out.problem or "CRC mismatch in the data section"
+
+
+def _check_attachment(record: Attachment, data: bytes, view: memoryview, body: int, end: int) -> None:
+    """The attachment's CRC (its record's last 4 bytes); _Damage on a mismatch."""
+    stored = struct.unpack_from("<I", data, end - 4)[0]
+    if stored and zlib.crc32(view[body : end - 4]) != stored:
+        raise _Damage(f"CRC mismatch in attachment {record.name!r} at byte {body - RECORD_HEAD.size}", truncated=False)
+
+
+def _check_footer(record: Footer, data: bytes, view: memoryview, body: int, end: int) -> None:
+    """The closing magic after the footer and the summary section's CRC; _Damage otherwise."""
+    if data[end:] != MCAP_MAGIC:
+        raise _Damage("no closing magic bytes after the footer", truncated=len(data) < end + len(MCAP_MAGIC))
+    if (
+        record.summary_crc
+        and record.summary_start
+        and zlib.crc32(view[record.summary_start : body + 16]) != record.summary_crc
+    ):
+        raise _Damage("CRC mismatch in the summary section", truncated=False)
 
 
 def read_mcap(path: str | os.PathLike, salvage: bool = False) -> McapContents:
