@@ -18,11 +18,15 @@ BACKENDS = {"egl": "libegl1 (and libgl1-mesa-dri for software rendering)", "osme
 
 
 class Camera:
-    """The scene's fixed camera: one `mujoco.Renderer` of the frame's size, reused for every frame."""
+    """A scene's fixed camera `name`: one `mujoco.Renderer` of the frame's size (height, width in pixels), reused
+    for every frame."""
 
-    def __init__(self, model: mujoco.MjModel) -> None:
+    def __init__(
+        self, model: mujoco.MjModel, height: int = S.IMAGE_HEIGHT, width: int = S.IMAGE_WIDTH, name: str = S.CAMERA
+    ) -> None:
+        self.name = name
         try:
-            self._renderer = mujoco.Renderer(model, S.IMAGE_HEIGHT, S.IMAGE_WIDTH)
+            self._renderer = mujoco.Renderer(model, height, width)
         except Exception as exc:  # the GL backends raise several kinds of error
             backend = os.environ.get("MUJOCO_GL", "egl")
             package = BACKENDS.get(backend, "the OpenGL library MUJOCO_GL names")
@@ -32,8 +36,8 @@ class Camera:
             ) from None
 
     def frame(self, data: mujoco.MjData) -> np.ndarray:
-        """The camera's view of `data`: (IMAGE_HEIGHT, IMAGE_WIDTH, 3) uint8 RGB, a new array."""
-        self._renderer.update_scene(data, camera=S.CAMERA)
+        """The camera's view of `data`: (height, width, 3) uint8 RGB, a new array."""
+        self._renderer.update_scene(data, camera=self.name)
         return self._renderer.render()
 
     def close(self) -> None:

@@ -64,27 +64,52 @@ def _v(values) -> str:
     return " ".join(f"{v:g}" for v in values)
 
 
-def scene_xml() -> str:
-    """The MJCF of the tabletop: table, box (free), goal marker, cue tile (hidden until placed), gripper (a free
-    body welded to the mocap target), the fixed camera; shadows off and an offscreen buffer of the frame's size."""
+def gripper_xml(finger_open: float = FINGER_OPEN) -> str:
+    """The gripper's MJCF: the mocap target and a free body (palm and two fingers sliding apart along x, each by up
+    to `finger_open` m) welded softly to it, both at the start; the `<equality>` and `<actuator>` blocks follow with
+    gripper_constraints_xml."""
     fh, ph = FINGER_HALF, PALM_HALF
     fingers = "".join(
         f'<body name="{name}_body" pos="{sign * fh[0]:g} 0 {-(ph[2] + fh[2]):g}">'
-        f'<joint name="{name}" type="slide" axis="{sign} 0 0" range="0 {FINGER_OPEN:g}" damping="5"/>'
+        f'<joint name="{name}" type="slide" axis="{sign} 0 0" range="0 {finger_open:g}" damping="5"/>'
         f'<geom name="{name}_geom" type="box" size="{_v(fh)}" mass="0.02" rgba="{_v(GRIPPER_RGBA)}"/></body>'
         for name, sign in zip(FINGER_JOINTS, (-1, 1))
     )
+    return f"""<body name="{MOCAP_BODY}" mocap="true" pos="0 {START_Y:g} {EE_HEIGHT:g}"/>
+    <body name="{GRIPPER_BODY}" pos="0 {START_Y:g} {EE_HEIGHT:g}" gravcomp="1">
+      <freejoint/>
+      <geom name="palm" type="box" size="{_v(ph)}" mass="0.2" rgba="{_v(GRIPPER_RGBA)}"/>
+      {fingers}
+    </body>"""
+
+
+def gripper_constraints_xml(finger_open: float = FINGER_OPEN) -> str:
+    """The weld of the gripper to the mocap target and the fingers' position actuators (range 0 to `finger_open`)."""
     actuators = "".join(
-        f'<position name="{name}" joint="{name}" kp="{FINGER_KP:g}" ctrlrange="0 {FINGER_OPEN:g}"/>'
+        f'<position name="{name}" joint="{name}" kp="{FINGER_KP:g}" ctrlrange="0 {finger_open:g}"/>'
         for name in FINGER_JOINTS
     )
-    return f"""<mujoco model="cnep-obstacle">
-  <option timestep="{TIMESTEP_S:g}"/>
-  <visual>
-    <global offwidth="{IMAGE_WIDTH}" offheight="{IMAGE_HEIGHT}"/>
+    return f"""<equality>
+    <weld body1="{MOCAP_BODY}" body2="{GRIPPER_BODY}" solref="{_v(WELD_SOLREF)}"/>
+  </equality>
+  <actuator>{actuators}</actuator>"""
+
+
+def visual_xml(width: int = IMAGE_WIDTH, height: int = IMAGE_HEIGHT) -> str:
+    """The render settings: an offscreen buffer of the frame's size, shadows off, a soft headlight."""
+    return f"""<visual>
+    <global offwidth="{width}" offheight="{height}"/>
     <quality shadowsize="0"/>
     <headlight ambient="0.5 0.5 0.5" diffuse="0.5 0.5 0.5"/>
-  </visual>
+  </visual>"""
+
+
+def scene_xml() -> str:
+    """The MJCF of the tabletop: table, box (free), goal marker, cue tile (hidden until placed), gripper (a free
+    body welded to the mocap target), the fixed camera; shadows off and an offscreen buffer of the frame's size."""
+    return f"""<mujoco model="cnep-obstacle">
+  <option timestep="{TIMESTEP_S:g}"/>
+  {visual_xml()}
   <worldbody>
     <geom name="{TABLE_GEOM}" type="box" pos="0 0 {-TABLE_HALF[2]:g}" size="{_v(TABLE_HALF)}" rgba="{_v(TABLE_RGBA)}"/>
     <geom name="goal" type="cylinder" pos="{_v(GOAL_XY)} 0.001" size="{GOAL_RADIUS:g} 0.001" rgba="{_v(GOAL_RGBA)}"
@@ -96,16 +121,8 @@ def scene_xml() -> str:
       <freejoint/>
       <geom name="{BOX_GEOM}" type="box" size="{_v(BOX_HALF)}" mass="{BOX_MASS:g}" rgba="{_v(BOX_RGBA)}"/>
     </body>
-    <body name="{MOCAP_BODY}" mocap="true" pos="0 {START_Y:g} {EE_HEIGHT:g}"/>
-    <body name="{GRIPPER_BODY}" pos="0 {START_Y:g} {EE_HEIGHT:g}" gravcomp="1">
-      <freejoint/>
-      <geom name="palm" type="box" size="{_v(ph)}" mass="0.2" rgba="{_v(GRIPPER_RGBA)}"/>
-      {fingers}
-    </body>
+    {gripper_xml()}
   </worldbody>
-  <equality>
-    <weld body1="{MOCAP_BODY}" body2="{GRIPPER_BODY}" solref="{_v(WELD_SOLREF)}"/>
-  </equality>
-  <actuator>{actuators}</actuator>
+  {gripper_constraints_xml()}
 </mujoco>
 """
