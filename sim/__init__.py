@@ -1,7 +1,8 @@
-"""The simulator (the `sim` extra: MuJoCo and Gymnasium): the obstacle task's tabletop as a Gymnasium environment.
+"""The simulator (the `sim` extra: MuJoCo and Gymnasium): the tabletop tasks as Gymnasium environments.
 
     import gymnasium, cnep.sim
     env = gymnasium.make("cnep/Obstacle-v0")          # or "cnep/ObstacleCue-v0": a tile shows the side to pass
+    env = gymnasium.make("cnep/PickPlace-v0")         # pick a bar, put it on a free mat it fits (condition=...)
     observation, info = env.reset(seed=0)
 
 Rendering is headless: MUJOCO_GL defaults to `egl` here, before MuJoCo loads (sim.render). This package imports
@@ -16,15 +17,18 @@ from cnep.sim.errors import SimError
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 ENV_ID, CUE_ENV_ID = "cnep/Obstacle-v0", "cnep/ObstacleCue-v0"
+PICK_ENV_ID = "cnep/PickPlace-v0"
 EXTRA = ("mujoco", "gymnasium")  # what the `sim` extra installs
 
 _MODULES = {
     "demonstrator": ("demonstration_path", "DemoDraw", "draw_demonstration"),
     "env": ("IMAGE_KEY", "SIDES", "ObstacleEnv"),
     "episode": ("EpisodeResult", "PLANNED", "ONLINE", "PROTOCOLS", "run_episode"),
+    "pick_env": ("PICK_IMAGE_KEY", "PickPlaceEnv", "grasp_places"),
+    "pick_demonstrator": ("PickDraw", "draw_pick", "pick_path"),
 }
 _WHERE = {name: module for module, names in _MODULES.items() for name in names}
-__all__ = sorted([*_WHERE, "CUE_ENV_ID", "ENV_ID", "SimError", "require_extra"])
+__all__ = sorted([*_WHERE, "CUE_ENV_ID", "ENV_ID", "PICK_ENV_ID", "SimError", "require_extra"])
 
 
 def require_extra() -> None:
@@ -48,3 +52,4 @@ if importlib.util.find_spec("gymnasium") is not None:  # registered by name: not
 
     gymnasium.register(id=ENV_ID, entry_point="cnep.sim.env:ObstacleEnv")
     gymnasium.register(id=CUE_ENV_ID, entry_point="cnep.sim.env:ObstacleEnv", kwargs={"cue": True})
+    gymnasium.register(id=PICK_ENV_ID, entry_point="cnep.sim.pick_env:PickPlaceEnv")

@@ -60,7 +60,8 @@ FINGER_JOINTS = ("finger_left", "finger_right")
 BOX_GEOM, CUE_GEOM, TABLE_GEOM = "box", "cue", "table"
 
 
-def _v(values) -> str:
+def v(values) -> str:
+    """Numbers as the MJCF writes them: space-separated, in their shortest form."""
     return " ".join(f"{v:g}" for v in values)
 
 
@@ -72,13 +73,13 @@ def gripper_xml(finger_open: float = FINGER_OPEN) -> str:
     fingers = "".join(
         f'<body name="{name}_body" pos="{sign * fh[0]:g} 0 {-(ph[2] + fh[2]):g}">'
         f'<joint name="{name}" type="slide" axis="{sign} 0 0" range="0 {finger_open:g}" damping="5"/>'
-        f'<geom name="{name}_geom" type="box" size="{_v(fh)}" mass="0.02" rgba="{_v(GRIPPER_RGBA)}"/></body>'
+        f'<geom name="{name}_geom" type="box" size="{v(fh)}" mass="0.02" rgba="{v(GRIPPER_RGBA)}"/></body>'
         for name, sign in zip(FINGER_JOINTS, (-1, 1))
     )
     return f"""<body name="{MOCAP_BODY}" mocap="true" pos="0 {START_Y:g} {EE_HEIGHT:g}"/>
     <body name="{GRIPPER_BODY}" pos="0 {START_Y:g} {EE_HEIGHT:g}" gravcomp="1">
       <freejoint/>
-      <geom name="palm" type="box" size="{_v(ph)}" mass="0.2" rgba="{_v(GRIPPER_RGBA)}"/>
+      <geom name="palm" type="box" size="{v(ph)}" mass="0.2" rgba="{v(GRIPPER_RGBA)}"/>
       {fingers}
     </body>"""
 
@@ -90,7 +91,7 @@ def gripper_constraints_xml(finger_open: float = FINGER_OPEN) -> str:
         for name in FINGER_JOINTS
     )
     return f"""<equality>
-    <weld body1="{MOCAP_BODY}" body2="{GRIPPER_BODY}" solref="{_v(WELD_SOLREF)}"/>
+    <weld body1="{MOCAP_BODY}" body2="{GRIPPER_BODY}" solref="{v(WELD_SOLREF)}"/>
   </equality>
   <actuator>{actuators}</actuator>"""
 
@@ -111,15 +112,15 @@ def scene_xml() -> str:
   <option timestep="{TIMESTEP_S:g}"/>
   {visual_xml()}
   <worldbody>
-    <geom name="{TABLE_GEOM}" type="box" pos="0 0 {-TABLE_HALF[2]:g}" size="{_v(TABLE_HALF)}" rgba="{_v(TABLE_RGBA)}"/>
-    <geom name="goal" type="cylinder" pos="{_v(GOAL_XY)} 0.001" size="{GOAL_RADIUS:g} 0.001" rgba="{_v(GOAL_RGBA)}"
+    <geom name="{TABLE_GEOM}" type="box" pos="0 0 {-TABLE_HALF[2]:g}" size="{v(TABLE_HALF)}" rgba="{v(TABLE_RGBA)}"/>
+    <geom name="goal" type="cylinder" pos="{v(GOAL_XY)} 0.001" size="{GOAL_RADIUS:g} 0.001" rgba="{v(GOAL_RGBA)}"
       contype="0" conaffinity="0"/>
-    <geom name="{CUE_GEOM}" type="box" pos="0 0 -0.5" size="{CUE_HALF:g} {CUE_HALF:g} 0.001" rgba="{_v(CUE_RGBA)}"
+    <geom name="{CUE_GEOM}" type="box" pos="0 0 -0.5" size="{CUE_HALF:g} {CUE_HALF:g} 0.001" rgba="{v(CUE_RGBA)}"
       contype="0" conaffinity="0"/>
-    <camera name="{CAMERA}" pos="{_v(CAMERA_POS)}" xyaxes="{_v(CAMERA_XYAXES)}" fovy="{CAMERA_FOVY:g}"/>
+    <camera name="{CAMERA}" pos="{v(CAMERA_POS)}" xyaxes="{v(CAMERA_XYAXES)}" fovy="{CAMERA_FOVY:g}"/>
     <body name="{BOX_BODY}" pos="0 0 {BOX_HALF[2]:g}">
       <freejoint/>
-      <geom name="{BOX_GEOM}" type="box" size="{_v(BOX_HALF)}" mass="{BOX_MASS:g}" rgba="{_v(BOX_RGBA)}"/>
+      <geom name="{BOX_GEOM}" type="box" size="{v(BOX_HALF)}" mass="{BOX_MASS:g}" rgba="{v(BOX_RGBA)}"/>
     </body>
     {gripper_xml()}
   </worldbody>

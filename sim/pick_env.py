@@ -1,0 +1,192 @@
+"""`PickPlaceEnv`: the pick-and-place task as a Gymnasium environment (`gymnasium.make("cnep/PickPlace-v0")`).
+
+Observation and action as every tabletop task's (sim.tabletop), the camera `observation.images.overhead`. The
+action's gripper is a two-state gripper's command: below CLOSE_BELOW the fingers close (driven to 0, so they
+squeeze what they hold), else they open to FINGER_OPEN; the state reports the fingers' opening as measured.
+
+An episode (`reset(seed=)`) draws the gripper's start, the bar's pose and orientation (which decides the grasp and
+so its two places), the places the `condition` takes (sim.pick_scene.CONDITIONS: `decided`, `free`, `changed`; or
+`mixed`: decided or free with equal chance, the demonstrations' scenes) and, for `changed`, the step at which the
+cup moves to the grasp's other place. It ends (`terminated`) once the bar was lifted and rests, released, on the
+table (on a mat or not), else is truncated after `max_steps`. Judged by the physics (`info`): `lifted` (the bar
+rose LIFTED_Z), `dropped` (out of the fingers with its bottom DROP_HEIGHT above the table), `collision` (the
+gripper or the bar touched a cup), `place` (the mat whose footprint holds the bar's whole footprint at the end,
+or None), `valid` (the places free now that fit the bar's orientation), `is_success` (lifted, not dropped, no
+collision, at rest in a valid place, released). `env.timings` holds the last step's physics and render seconds.
+"""
+
+from __future__ import annotations
+
+import math
+
+import mujoco
+import numpy as np
+
+from cnep.runtime.constants import IMAGE_KEY_PREFIX
+from cnep.sim import pick_scene as P
+from cnep.sim.tabletop import TabletopEnv
+
+MIXED = "mixed"
+PICK_IMAGE_KEY = IMAGE_KEY_PREFIX + P.CAMERA
+FOOTPRINT_TOLERANCE = 0.005  # m: how far the bar's corners may lie outside a mat's edge
+
+
+def yaw_quaternion(yaw_deg: float) -> np.ndarray:
+    """The quaternion xyzw (4,) of a turn by `yaw_deg` degrees about z."""
+    half = math.radians(yaw_deg) / 2
+    return np.array([0.0, 0.0, math.sin(half), math.cos(half)])
+
+
+def grasp_places(orientation: str) -> tuple[int, ...]:
+    """The places (indices of PLACES) a bar lying `orientation` fits."""
+    return tuple(i for i, (_, _, fits) in enumerate(P.PLACES) if fits == orientation)
+
+
+class PickPlaceEnv(TabletopEnv):
+    """Pick the bar and put it on a free mat it fits (module docstring); `condition`: the scenes drawn."""
+
+    def __init__(self, condition: str = MIXED, render_mode: str | None = None, max_steps: int = P.MAX_STEPS) -> None:
+        if condition not in (MIXED, *P.CONDITIONS):
+            raise ValueError(f"condition must be one of {MIXED}, {', '.join(P.CONDITIONS)}, got {condition!r}")
+        super().__init__(
+            P.scene_xml(),
+            height=P.IMAGE_HEIGHT,
+            width=P.IMAGE_WIDTH,
+            camera=P.CAMERA,
+            finger_open=P.FINGER_OPEN,
+            max_steps=max_steps,
+            render_mode=render_mode,
+        )
+        self.condition = condition
+        m = self.model
+        self._object_joint = m.body(P.OBJECT_BODY).jntadr[0]
+        self._object_geom = {m.geom(P.OBJECT_GEOM).id}
+        self._cup_geoms = {m.geom(P.cup_body(i)).id for i in range(len(P.PLACES))}
+        self._cups = [m.body(P.cup_body(i)).mocapid[0] for i in range(len(P.PLACES))]
+        self.scene: dict = {}
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
+        """A new episode. options override the draws: `start` (x, y) m, `orientation` (an ORIENTATIONS key),
+        `taken` (a bool per place), `change_step` (int, or None for no change)."""
+        super().reset(seed=seed)
+        options = options or {}
+        m, d, rng = self.model, self.data, self.np_random
+        mujoco.mj_resetData(m, d)
+        jitter = rng.uniform(-P.START_JITTER, P.START_JITTER, 2)
+        start = np.asarray(options.get("start", (P.START[0] + jitter[0], P.START[1] + jitter[1])), np.float64)
+        scene = self._draw_scene(options)
+        self.scene = scene
+        self.place_gripper((*start, P.START[2]), P.FINGER_OPEN)
+        root = m.jnt_qposadr[self._object_joint]
+        d.qpos[root : root + 3] = (*scene["object_xy"], P.OBJECT_HALF[2])
+        d.qpos[root + 3 : root + 7] = np.roll(yaw_quaternion(scene["object_yaw"]), 1)
+        self._set_cups(scene["taken"])
+        mujoco.mj_forward(m, d)
+        self._steps, self._lifted, self._dropped, self._collision = 0, False, False, False
+        return self.observe(0.0), {**self._info(), "start": start.copy()}
+
+    def _draw_scene(self, options: dict) -> dict:
+        """The episode's scene: object_xy, object_yaw (deg), orientation, taken (per place), change_step."""
+        rng = self.np_random
+        orientation = options.get("orientation", tuple(P.ORIENTATIONS)[int(rng.integers(2))])
+        xy = np.asarray(P.OBJECT_XY) + rng.uniform(-P.OBJECT_JITTER, P.OBJECT_JITTER, 2)
+        yaw = P.ORIENTATIONS[orientation] + rng.uniform(-P.YAW_JITTER_DEG, P.YAW_JITTER_DEG)
+        condition = self.condition if self.condition != MIXED else (P.DECIDED, P.FREE)[int(rng.integers(2))]
+        taken = list(rng.random(len(P.PLACES)) < P.OTHER_TAKEN)
+        ours = grasp_places(orientation)
+        blocked = int(rng.integers(2))
+        for j, place in enumerate(ours):
+            taken[place] = condition != P.FREE and j == blocked
+        lo, hi = P.CHANGE_STEPS
+        change = int(rng.integers(lo, hi + 1)) if condition == P.CHANGED else None
+        taken = [bool(t) for t in options.get("taken", taken)]
+        return {
+            "condition": condition,
+            "object_xy": xy,
+            "object_yaw": yaw,
+            "orientation": orientation,
+            "taken": taken,
+            "change_step": options.get("change_step", change),
+        }
+
+    def step(self, action: np.ndarray) -> tuple[dict, float, bool, bool, dict]:
+        """Move towards the waypoint `action` (8,) for one control period, the gripper by its command;
+        (observation, reward, terminated, truncated, info), reward 1 at the step that succeeds."""
+        action = np.asarray(action, dtype=np.float64).reshape(-1)
+        if self._steps == self.scene["change_step"]:
+            self._change_scene()
+        fingers = 0.0 if action[7] < P.CLOSE_BELOW else P.FINGER_OPEN
+        physics_s = self.drive(action, fingers, self._judge)
+        self._steps += 1
+        observation = self.observe(physics_s)
+        info = self._info()
+        terminated = self._lifted and info["at_rest"] and info["released"]
+        truncated = not terminated and self._steps >= self.max_steps
+        return observation, float(info["is_success"] and terminated), terminated, truncated, info
+
+    def _change_scene(self) -> None:
+        """The cup on the grasp's taken place moves to its other place (the `changed` condition)."""
+        ours = grasp_places(self.scene["orientation"])
+        taken = list(self.scene["taken"])
+        for place in ours:
+            taken[place] = not taken[place]
+        self.scene["taken"] = taken
+        self._set_cups(taken)
+
+    def _set_cups(self, taken: list[bool]) -> None:
+        for i, (_, xy, _) in enumerate(P.PLACES):
+            self.data.mocap_pos[self._cups[i]] = (*xy, P.CUP_HALF_HEIGHT if taken[i] else P.HIDDEN_Z)
+
+    def _judge(self) -> None:
+        """After a physics step: lifted, dropped, a collision with a cup."""
+        z = self.data.body(P.OBJECT_BODY).xpos[2]
+        self._lifted = self._lifted or z > P.OBJECT_HALF[2] + P.LIFTED_Z
+        high = z > P.OBJECT_HALF[2] + P.DROP_HEIGHT
+        self._dropped = self._dropped or (high and not self.touching(self.gripper_geoms, self._object_geom))
+        holder = self.gripper_geoms | self._object_geom
+        self._collision = self._collision or self.touching(holder, self._cup_geoms)
+
+    def object_velocity(self) -> np.ndarray:
+        """The bar's linear velocity (3,) m/s."""
+        d, m = self.data, self.model
+        dof = m.jnt_dofadr[self._object_joint]
+        return d.qvel[dof : dof + 3].copy()
+
+    def object_pose(self) -> tuple[np.ndarray, np.ndarray]:
+        """The bar's position (3,) m and quaternion xyzw (4,)."""
+        return self.data.body(P.OBJECT_BODY).xpos.copy(), np.roll(self.data.body(P.OBJECT_BODY).xquat, -1)
+
+    def place_of_object(self) -> int | None:
+        """The place whose mat holds the bar's whole footprint (its corners, FOOTPRINT_TOLERANCE out at most),
+        or None."""
+        xmat = self.data.body(P.OBJECT_BODY).xmat.reshape(3, 3)
+        hx, hy, _ = P.OBJECT_HALF
+        corners = np.array([[sx * hx, sy * hy, 0.0] for sx in (-1, 1) for sy in (-1, 1)]) @ xmat.T
+        corners = corners[:, :2] + self.data.body(P.OBJECT_BODY).xpos[:2]
+        for i, (_, xy, _) in enumerate(P.PLACES):
+            half = np.asarray(P.mat_half(i)) + FOOTPRINT_TOLERANCE
+            if np.all(np.abs(corners - xy) <= half):
+                return i
+        return None
+
+    def _info(self) -> dict:
+        place = self.place_of_object()
+        valid = [i for i in grasp_places(self.scene["orientation"]) if not self.scene["taken"][i]]
+        z = float(self.data.body(P.OBJECT_BODY).xpos[2])
+        released = not self.touching(self.gripper_geoms, self._object_geom)
+        at_rest = bool(np.linalg.norm(self.object_velocity()) < P.REST_SPEED and z < P.OBJECT_HALF[2] + 0.005)
+        success = self._lifted and not self._dropped and not self._collision and at_rest and released
+        return {
+            "is_success": bool(success and place in valid),
+            "lifted": self._lifted,
+            "dropped": self._dropped,
+            "collision": self._collision,
+            "released": released,
+            "at_rest": at_rest,
+            "place": place,
+            "valid": valid,
+            "condition": self.scene["condition"],
+            "orientation": self.scene["orientation"],
+            "taken": list(self.scene["taken"]),
+            "change_step": self.scene["change_step"],
+        }
