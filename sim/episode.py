@@ -71,7 +71,6 @@ def run_episode(
     observation, info = env.reset(seed=seed)
     policy.reset(seed=seed)
     columns = [STATE_NAMES.index(name) for name in policy.action_names]
-    xyz = [policy.action_names.index(name) for name in STATE_NAMES[:3]]
     trace: dict[str, list] = {k: [] for k in ("states", "box", "frames", "gates", "experts", "predicted")}
     times: dict[str, list] = {"policy_s": [], "render_s": [env.timings["render_s"]], "physics_s": []}
     plan: PolicyStep | None = None
@@ -80,15 +79,9 @@ def run_episode(
     for k in range(env.max_steps):
         _keep(trace, env, observation, record_frames)
         if protocol == ONLINE or plan is None:
-            start = time.perf_counter()
-            plan = policy.step({**observation, TIMESTAMP_KEY: k * S.CONTROL_PERIOD_S})
-            times["policy_s"].append(time.perf_counter() - start)
-            trace["gates"].append(plan.gate)
-            trace["experts"].append(plan.expert)
-            trace["predicted"].append(plan.waypoints[:, xyz])
-        waypoint = plan.waypoints[0 if protocol == ONLINE else min(k, len(plan.waypoints) - 1)]
+            plan = _read(policy, observation, k, trace, times)
         action = observation[STATE_KEY].copy()
-        action[columns] = waypoint
+        action[columns] = plan.waypoints[0 if protocol == ONLINE else min(k, len(plan.waypoints) - 1)]
         if policy.gripper is not None and GRIPPER in policy.action_names:
             command = policy.gripper.command(float(action[GRIPPER_INDEX]), command)
             action[GRIPPER_INDEX] = command
@@ -123,6 +116,17 @@ def run_episode(
         contact_step=contact_step,
         frames=np.asarray(trace["frames"]) if record_frames else None,
     )
+
+
+def _read(policy: Policy, observation: dict, k: int, trace: dict, times: dict) -> PolicyStep:
+    """The policy's step on `observation` at control step `k`, its time, gate, expert and xyz waypoints kept."""
+    start = time.perf_counter()
+    plan = policy.step({**observation, TIMESTAMP_KEY: k * S.CONTROL_PERIOD_S})
+    times["policy_s"].append(time.perf_counter() - start)
+    trace["gates"].append(plan.gate)
+    trace["experts"].append(plan.expert)
+    trace["predicted"].append(plan.waypoints[:, [policy.action_names.index(name) for name in STATE_NAMES[:3]]])
+    return plan
 
 
 def side_passed(states: np.ndarray) -> str:
