@@ -8,6 +8,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from cnep.models.assignments import ASSIGNMENTS
 from cnep.models.config import setting
 from cnep.pipeline.demo.config import AUTO_WEIGHTS
 from cnep.pipeline.errors import PipelineError
@@ -71,6 +72,12 @@ class SimConfig(LoopSettings):
     train_seeds: tuple[int, ...] = setting((0,), "training seeds: one CNEP and one matched CNMP trained per seed")
     train_steps: int = setting(3000, "training steps of each model")
     experts: int = setting(2, "the CNEP's experts (the CNMP: one, parameter-matched)")
+    # The demonstrations pass left and right alike, and an expert that reads the side from a start it has memorised
+    # takes both sides where a share left free to drift allows it: equal shares until the experts commit keep them
+    # one side each (docs/results-closed-loop.md).
+    assignment: str = setting(
+        "annealed", "the CNEP's assignment, as `cnep train --assignment` takes it", choices=tuple(ASSIGNMENTS)
+    )
     weights: str = setting(AUTO_WEIGHTS, "the feature network's weights, as `cnep demo --weights` takes them")
     offline: bool = setting(False, "never download the ImageNet weights (also: environment variable CNEP_OFFLINE=1)")
     quiet: bool = False

@@ -165,7 +165,7 @@ def _closed_loop(config: SimConfig, out: Path, policies: dict[str, Path]) -> dic
 
 def _train(config: SimConfig, out: Path) -> dict[str, Path]:
     """Train the CNEP and the matched CNMP for every training seed, two processes at a time; label -> checkpoint."""
-    model = CNEPConfig(n_experts=config.experts)
+    model = CNEPConfig(n_experts=config.experts, assignment=config.assignment)
     networks = {
         "CNEP": {"model": model},
         "CNMP": {"model": replace(model, assignment=CNMP_ASSIGNMENT), "matched_cnmp": True},
