@@ -1,0 +1,76 @@
+"""The closed-loop results as one CSV: a row per demonstration set, model, training seed and protocol.
+
+    python examples/closed_loop_csv.py RUN [RUN ...] --csv OUT
+
+Each RUN is a folder written by `cnep sim obstacle` (its summary.json holds every model and training seed) or by
+`cnep sim eval` (one policy: its model and seed are read from the policy folder's name, `cnep-seed0`, as
+`cnep sim obstacle` names them). A row: the run's folder, the demonstrations' seed (`set`, empty for an eval), the
+cue variant, the first expert's rule, the training steps, model, training seed, protocol, episodes, the rates
+(success, collision, left, switching, followed_cue) and the smallest gripper-box distance (cm); `usage`: the
+experts' shares of the training samples at the last step (the last line of the checkpoint's training_log.jsonl, for
+a `cnep sim obstacle` run), `/`-separated.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+from pathlib import Path
+
+COLUMNS = (
+    "run", "set", "cue", "first_expert", "train_steps", "model", "train_seed", "protocol", "episodes", "success",
+    "collision", "left", "switching", "followed_cue", "min_gap_cm", "usage",
+)  # fmt: skip
+
+
+def usage(run: Path, model: str, seed: str) -> str:
+    """The experts' shares at the last logged step of `run`'s checkpoint of `model` and `seed` ("" when absent)."""
+    log = run / "checkpoints" / f"{model.lower()}-seed{seed}" / "training_log.jsonl"
+    if not log.is_file():
+        return ""
+    last = json.loads(log.read_text().splitlines()[-1])
+    return "/".join(f"{share:.2f}" for share in last["usage"])
+
+
+def rows_of(run: Path) -> list[dict]:
+    """The CSV rows of one run folder (module docstring)."""
+    summary = json.loads((run / "summary.json").read_text())
+    settings = summary["settings"]
+    if "models" in summary:  # cnep sim obstacle
+        results = [(m, s, p) for m, seeds in summary["models"].items() for s, p in seeds.items()]
+        demo_seed, steps = settings["seed"], settings["train_steps"]
+    else:  # cnep sim eval: one policy, named MODEL-seedN
+        model, _, seed = Path(settings["policy"]).name.partition("-seed")
+        results, demo_seed, steps = [(model.upper(), seed, summary["results"])], "", ""
+    rows = []
+    for model, seed, protocols in results:
+        for protocol, r in protocols.items():
+            rows.append(
+                {
+                    "run": run.name, "set": demo_seed, "cue": settings["cue"], "first_expert": settings["first_expert"],
+                    "train_steps": steps, "model": model, "train_seed": seed, "protocol": protocol,
+                    "episodes": r["episodes"], "success": r["success"], "collision": r["collision"], "left": r["left"],
+                    "switching": r["switching"], "followed_cue": "" if r["followed_cue"] is None else r["followed_cue"],
+                    "min_gap_cm": round(r["min_clearance_m"] * 100, 1), "usage": usage(run, model, seed),
+                }
+            )  # fmt: skip
+    return rows
+
+
+def main(argv: list[str] | None = None) -> list[dict]:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("runs", nargs="+", type=Path, help="folders holding a summary.json")
+    parser.add_argument("--csv", type=Path, required=True, help="the CSV file to write")
+    args = parser.parse_args(argv)
+    rows = [row for run in args.runs for row in rows_of(run)]
+    with args.csv.open("w", newline="") as f:
+        writer = csv.DictWriter(f, COLUMNS)
+        writer.writeheader()
+        writer.writerows(rows)
+    print(f"{len(rows)} rows -> {args.csv}")
+    return rows
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,51 @@
+"""`cnep sim obstacle` end to end on the smallest data that runs every stage (4 demonstrations, 20 training steps, one
+episode per protocol): summary.json holds the documented keys, the exported policies repeat their episodes with the
+same seeds, and examples/closed_loop_csv.py turns the run into its rows."""
+
+import importlib.util
+import json
+from dataclasses import fields
+
+import pytest
+
+import cnep.sim
+
+if not all(importlib.util.find_spec(name) for name in cnep.sim.EXTRA):
+    pytest.skip("the sim extra is not installed", allow_module_level=True)
+
+from cnep.pipeline.sim.config import MODELS, PROTOCOLS, LoopSettings, SimConfig  # noqa: E402
+from cnep.pipeline.sim.loop import evaluate_policy  # noqa: E402
+from cnep.pipeline.sim.stage import SUMMARY_FILE, run_sim  # noqa: E402
+from tests.test_examples import load  # noqa: E402
+
+EPISODE_KEYS = ("seed", "success", "collision", "side", "clearance_m", "distance_to_goal_m", "steps", "switches")
+
+
+def outcome(rates: dict) -> list[tuple]:
+    """The episodes' outcomes (every row's value but its timings)."""
+    return [tuple(row[k] for k in EPISODE_KEYS) for row in rates["per_episode"]]
+
+
+@pytest.mark.slow  # two spawned training processes, MobileNet-v2 features and two exports
+def test_cnep_sim_obstacle_writes_the_documented_summary_and_its_policies_repeat_their_episodes(tmp_path, monkeypatch):
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    monkeypatch.setenv("TORCH_HOME", str(tmp_path / "torch"))
+    out = tmp_path / "sim"
+    config = SimConfig(out=out, demonstrations=4, train_steps=20, episodes=1, record=0, offline=True, quiet=True)
+    summary = run_sim(config)
+    assert json.loads((out / SUMMARY_FILE).read_text()) == json.loads(json.dumps(summary))
+    assert summary["demonstrations"] == {"n": 4, "left": 2, "right": 2, "clean": 4}
+    assert summary["features"].startswith("random") and summary["settings"]["assignment"] == config.assignment
+    assert set(summary["models"]) == set(MODELS) and all(set(seeds) == {"0"} for seeds in summary["models"].values())
+    settings = LoopSettings(**{f.name: getattr(config, f.name) for f in fields(LoopSettings)})
+    for model, seeds in summary["models"].items():
+        assert set(seeds["0"]) == set(PROTOCOLS)
+        for rates in seeds["0"].values():
+            assert rates["episodes"] == 1 and {"success", "collision", "left", "switching"} <= set(rates)
+            assert {"policy", "render", "physics"} == set(rates["per_episode"][0]["ms"])
+        again = evaluate_policy(out / "policies" / f"{model.lower()}-seed0", settings, label=model, quiet=True)
+        assert {p: outcome(r) for p, r in again.items()} == {p: outcome(r) for p, r in seeds["0"].items()}
+    rows = load("closed_loop_csv").main([str(out), "--csv", str(tmp_path / "closed-loop.csv")])
+    assert [(r["model"], r["protocol"]) for r in rows] == [(m, p) for m in MODELS for p in PROTOCOLS]
+    assert rows[0]["success"] == summary["models"]["CNEP"]["0"][PROTOCOLS[0]]["success"] and rows[0]["set"] == 0
+    assert len(rows[0]["usage"].split("/")) == config.experts and rows[-1]["usage"] == "1.00"
