@@ -4,11 +4,12 @@
 
 Each RUN is a folder written by `cnep sim obstacle` (its summary.json holds every model and training seed) or by
 `cnep sim eval` (one policy: its model and seed are read from the policy folder's name, `cnep-seed0`, as
-`cnep sim obstacle` names them). A row: the run's folder, the demonstrations' seed (`set`, empty for an eval), the
-cue variant, the first expert's rule, the training steps, model, training seed, protocol, episodes, the rates
-(success, collision, left, switching, followed_cue) and the smallest gripper-box distance (cm); `usage`: the
-experts' shares of the training samples at the last step (the last line of the checkpoint's training_log.jsonl, for
-a `cnep sim obstacle` run), `/`-separated.
+`cnep sim obstacle` names them; the demonstrations' seed and training steps from the summary of the `cnep sim
+obstacle` run found in a folder above RUN, if any). A row: the run's folder, the demonstrations' seed (`set`), the cue
+variant, the first expert's rule, the training steps, model, training seed, protocol, episodes, the rates (success,
+collision, left, switching, followed_cue) and the smallest gripper-box distance (cm); `usage`: the experts' shares of
+the training samples at the last step (the last line of training_log.jsonl in the checkpoint `checkpoints/NAME`
+beside the policy's folder `policies/NAME`, as `cnep sim obstacle` lays them out), `/`-separated.
 """
 
 from __future__ import annotations
@@ -24,13 +25,22 @@ COLUMNS = (
 )  # fmt: skip
 
 
-def usage(run: Path, model: str, seed: str) -> str:
-    """The experts' shares at the last logged step of `run`'s checkpoint of `model` and `seed` ("" when absent)."""
-    log = run / "checkpoints" / f"{model.lower()}-seed{seed}" / "training_log.jsonl"
+def usage(checkpoint: Path) -> str:
+    """The experts' shares at the last logged step of `checkpoint` ("" without a training log)."""
+    log = checkpoint / "training_log.jsonl"
     if not log.is_file():
         return ""
     last = json.loads(log.read_text().splitlines()[-1])
     return "/".join(f"{share:.2f}" for share in last["usage"])
+
+
+def obstacle_run(run: Path) -> dict:
+    """The summary of the `cnep sim obstacle` run in a folder above `run` ({} when there is none)."""
+    for folder in run.resolve().parents:
+        found = folder / "summary.json"
+        if found.is_file() and "models" in (summary := json.loads(found.read_text())):
+            return summary
+    return {}
 
 
 def rows_of(run: Path) -> list[dict]:
@@ -38,21 +48,25 @@ def rows_of(run: Path) -> list[dict]:
     summary = json.loads((run / "summary.json").read_text())
     settings = summary["settings"]
     if "models" in summary:  # cnep sim obstacle
-        results = [(m, s, p) for m, seeds in summary["models"].items() for s, p in seeds.items()]
-        demo_seed, steps = settings["seed"], settings["train_steps"]
+        results = [(m, s, p, run / "checkpoints" / f"{m.lower()}-seed{s}") for m, seeds in summary["models"].items()
+                   for s, p in seeds.items()]  # fmt: skip
+        made = settings
     else:  # cnep sim eval: one policy, named MODEL-seedN
-        model, _, seed = Path(settings["policy"]).name.partition("-seed")
-        results, demo_seed, steps = [(model.upper(), seed, summary["results"])], "", ""
+        policy = Path(settings["policy"])
+        model, _, seed = policy.name.partition("-seed")
+        results = [(model.upper(), seed, summary["results"], policy.parent.parent / "checkpoints" / policy.name)]
+        made = obstacle_run(run).get("settings", {})
     rows = []
-    for model, seed, protocols in results:
+    for model, seed, protocols, checkpoint in results:
         for protocol, r in protocols.items():
             rows.append(
                 {
-                    "run": run.name, "set": demo_seed, "cue": settings["cue"], "first_expert": settings["first_expert"],
-                    "train_steps": steps, "model": model, "train_seed": seed, "protocol": protocol,
-                    "episodes": r["episodes"], "success": r["success"], "collision": r["collision"], "left": r["left"],
+                    "run": run.name, "set": made.get("seed", ""), "cue": settings["cue"],
+                    "first_expert": settings["first_expert"], "train_steps": made.get("train_steps", ""),
+                    "model": model, "train_seed": seed, "protocol": protocol, "episodes": r["episodes"],
+                    "success": r["success"], "collision": r["collision"], "left": r["left"],
                     "switching": r["switching"], "followed_cue": "" if r["followed_cue"] is None else r["followed_cue"],
-                    "min_gap_cm": round(r["min_clearance_m"] * 100, 1), "usage": usage(run, model, seed),
+                    "min_gap_cm": round(r["min_clearance_m"] * 100, 1), "usage": usage(checkpoint),
                 }
             )  # fmt: skip
     return rows
