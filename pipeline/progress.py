@@ -8,16 +8,24 @@ With `quiet` (`cnep -q`) nothing.
 A worker process (a spawned pool's) reports through a `RemoteBar`: a label and a queue (a multiprocessing
 Manager's) on which it puts its count and figures at most every REPORT_INTERVAL_S; the parent moves one bar per
 label with `follow_reports`.
+
+No step is silent for longer than about LINE_INTERVAL_S: an open bar is redrawn that often by a thread even when
+nothing updates it (a long batch, a slow file), and a known long step that has no bar of its own (loading torch and
+a stage's libraries, reading the frames that calibrate random weights, reading and packing the training files) runs
+inside `heartbeat(what)`: a line naming it and the seconds it has taken that often, none when it ends sooner.
 """
 
 from __future__ import annotations
 
 import logging
 import sys
+import threading
 import time
-from collections.abc import Iterable, Iterator, Mapping
+import weakref
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from functools import partial
 from queue import Empty
 from typing import Any, TextIO
 
@@ -69,13 +77,50 @@ def discard_bars() -> None:
         _discard(bar)
 
 
+class _Ticker:
+    """Calls `tick()` every LINE_INTERVAL_S on a thread of its own until `stop()`: a step that holds the main thread
+    (an import, a long batch, a read) still lets it run."""
+
+    def __init__(self, tick: Callable[[], None]) -> None:
+        self._stopped = threading.Event()
+        self._thread = threading.Thread(target=self._run, args=(tick,), name="progress-ticker", daemon=True)
+        self._thread.start()
+
+    def _run(self, tick: Callable[[], None]) -> None:
+        while not self._stopped.wait(LINE_INTERVAL_S):
+            tick()
+
+    def stop(self) -> None:
+        self._stopped.set()
+        if self._thread is not threading.current_thread():
+            self._thread.join()
+
+
 class _Bar(tqdm):
-    """A tqdm bar that, left by an exception, closes without its last line."""
+    """A tqdm bar redrawn every LINE_INTERVAL_S while it is open, even when nothing updates it (its clock and time
+    left move), and that, left by an exception, closes without its last line."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._ticker = None if self.disable else _Ticker(partial(_redraw, weakref.ref(self)))
+
+    def close(self) -> None:
+        if getattr(self, "_ticker", None) is not None:
+            self._ticker.stop()
+            self._ticker = None
+        super().close()
 
     def __exit__(self, exc_type, exc_value, traceback):
         if exc_type is not None:
             _discard(self)
         return super().__exit__(exc_type, exc_value, traceback)
+
+
+def _redraw(bar: weakref.ref) -> None:
+    """Redraw the bar if it is still open (the ticker holds only a weak reference: a bar nobody keeps is dropped)."""
+    live = bar()
+    if live is not None and not live.disable:
+        live.refresh()
 
 
 def progress_bar(
@@ -157,3 +202,24 @@ class StageClock:
         yield
         self.seconds[name] = round(time.perf_counter() - self.seconds[name], 2)
         self.log.info("%s done in %.1f s", name, self.seconds[name])
+
+
+@contextmanager
+def heartbeat(what: str, quiet: bool = False, stream: TextIO | None = None) -> Iterator[None]:
+    """While the block runs, write `what ... N s` (the wall time so far) every LINE_INTERVAL_S to `stream`
+    (sys.stderr); nothing with `quiet`, nothing when the block ends within the first interval."""
+    if quiet:
+        yield
+        return
+    stream = sys.stderr if stream is None else stream
+    start = time.monotonic()
+
+    def beat() -> None:
+        stream.write(f"{what} ... {time.monotonic() - start:.0f} s\n")
+        stream.flush()
+
+    ticker = _Ticker(beat)
+    try:
+        yield
+    finally:
+        ticker.stop()

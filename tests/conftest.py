@@ -1,6 +1,7 @@
-import io
-import logging
 import os
+import subprocess
+import sys
+import threading
 import time
 
 # One BLAS / OpenMP thread per test process, set before numpy and torch load their libraries: on a shared
@@ -66,59 +67,33 @@ def one_thread():
 
 @pytest.fixture(scope="session")
 def quick_demo(tmp_path_factory):
-    """`cnep demo --quick` once per test session, its outputs in `<tmp>/cnep-demo` as `make demo` leaves them
-    (the rerun CLI it calls writes analytics under HOME unless CI is set: a temporary HOME, CI=1). Offline with an
-    empty torch hub cache, as a machine without internet access runs it: the features come from seeded random
-    weights (a session fixture runs before the function fixtures that set the environment, so it sets its own)."""
-    import torch
-
+    """`cnep demo --quick` once per test session, run as a user runs it (a process of its own: loading torch is part
+    of what it shows), its outputs in `<tmp>/cnep-demo` as `make demo` leaves them (the rerun CLI it calls writes
+    analytics under HOME unless CI is set: a temporary HOME, CI=1). Offline with an empty torch hub cache, as a
+    machine without internet access runs it: the features come from seeded random weights. Its stderr, each line with
+    the seconds since the command started, is kept in PROGRESS_LOG beside OUT."""
     from cnep.perception.constants import OFFLINE_ENV_VAR, WEIGHTS_ENV_VAR
-    from cnep.pipeline.cli.main import main
 
-    mp = pytest.MonkeyPatch()
-    mp.setenv("HOME", str(tmp_path_factory.mktemp("home")))
-    mp.setenv("CI", "1")
-    mp.setenv(OFFLINE_ENV_VAR, "1")
-    mp.setenv("TORCH_HOME", str(tmp_path_factory.mktemp("torch")))
-    mp.delenv(WEIGHTS_ENV_VAR, raising=False)
+    env = {**os.environ, "HOME": str(tmp_path_factory.mktemp("home")), "CI": "1", OFFLINE_ENV_VAR: "1"}
+    env["TORCH_HOME"] = str(tmp_path_factory.mktemp("torch"))
+    env.pop(WEIGHTS_ENV_VAR, None)
     out = tmp_path_factory.mktemp("demo") / "cnep-demo"
-    threads = torch.get_num_threads()
-    stderr = TimedLines()  # what a log file of the demo gets, each line with its time (PROGRESS_LOG, beside OUT)
-    mp.setattr("sys.stderr", stderr)
-    handler = logging.StreamHandler(stderr)
-    handler.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s"))
-    logging.getLogger().addHandler(handler)
-    cnep_level = logging.getLogger("cnep").level
-    logging.getLogger("cnep").setLevel(logging.INFO)  # as `cnep demo` logs without -q
-    try:
-        code = main(["demo", "--out", str(out), "--quick"])
-    finally:
-        logging.getLogger().removeHandler(handler)
-        logging.getLogger("cnep").setLevel(cnep_level)
-        torch.set_num_threads(threads)
-        mp.undo()
-    assert code == 0
-    stderr.save(out.parent / PROGRESS_LOG)
+    command = [sys.executable, "-m", "cnep.pipeline", "demo", "--out", str(out), "--quick"]
+    start = time.monotonic()
+    demo = subprocess.Popen(command, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    timed: list[str] = []  # "<seconds> <line>", each line with the time it arrived
+    reader = threading.Thread(
+        target=lambda: timed.extend(f"{time.monotonic() - start:.2f} {line}" for line in demo.stderr)
+    )
+    reader.start()
+    demo.stdout.read()
+    reader.join()
+    assert demo.wait() == 0, "".join(timed[-30:])
+    (out.parent / PROGRESS_LOG).write_text("".join(timed))
     return out
 
 
 PROGRESS_LOG = "progress.log"  # beside the quick demo's folder: "<seconds since start> <line>" per stderr line
-
-
-class TimedLines(io.StringIO):
-    """A stderr that is not a terminal and notes when each of its lines ends (seconds since it was made)."""
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.start, self.times = time.monotonic(), []
-
-    def write(self, text: str) -> int:
-        self.times += [time.monotonic() - self.start] * text.count("\n")
-        return super().write(text)
-
-    def save(self, path) -> None:
-        lines = self.getvalue().splitlines()
-        path.write_text("".join(f"{t:.2f} {line}\n" for t, line in zip(self.times, lines)))
 
 
 @pytest.fixture(scope="session")

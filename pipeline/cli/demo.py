@@ -34,7 +34,6 @@ def demo_config(args: argparse.Namespace) -> DemoConfig:
 
 
 def run(args: argparse.Namespace) -> int:
-    import logging
     import time
     from pathlib import Path
 
@@ -44,9 +43,11 @@ def run(args: argparse.Namespace) -> int:
     config = demo_config(args)
     if config.weights not in (AUTO_WEIGHTS, IMAGENET_WEIGHTS, RANDOM_WEIGHTS):  # refused before torch loads
         existing_files([Path(config.weights)], "`auto`, `imagenet`, `random` or a MobileNet-v2 state dict")
-    logging.getLogger(__name__).info("loading torch and the pipeline's stages")  # seconds, before the first stage
-    from cnep.pipeline.demo.report import format_summary
-    from cnep.pipeline.demo.stage import run_demo
+    from cnep.pipeline.progress import heartbeat
+
+    with heartbeat("loading torch and the pipeline's stages", args.quiet):
+        from cnep.pipeline.demo.report import format_summary
+        from cnep.pipeline.demo.stage import run_demo
 
     start = time.perf_counter()
     result = run_demo(config)

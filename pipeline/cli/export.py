@@ -76,8 +76,11 @@ def run(args: argparse.Namespace) -> int:
         existing_files([config.extractor], "the weights file the training features were made with")
     find_demonstration_files(config.calibration)
     refuse_existing([config.out], config.force, what="exported policy")
-    from cnep.pipeline.export.stage import export
-    from cnep.runtime import read_manifest
+    from cnep.pipeline.progress import heartbeat
+
+    with heartbeat("loading torch and the export stage", args.quiet):
+        from cnep.pipeline.export.stage import export
+        from cnep.runtime import read_manifest
 
     out = export(config)
     manifest = read_manifest(out)

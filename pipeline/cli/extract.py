@@ -97,7 +97,10 @@ def run(args: argparse.Namespace) -> int:
 
     for given in (*args.inputs, *args.calibrate_on):  # refused before torch and onnx load with the stage
         mcap_files(Path(given), DEMONSTRATIONS)
-    from cnep.pipeline.extract.stage import ExtractConfig, extract
+    from cnep.pipeline.progress import heartbeat
+
+    with heartbeat("loading torch and the extract stage", args.quiet):
+        from cnep.pipeline.extract.stage import ExtractConfig, extract
 
     options = {"batch_size": args.batch_size} if args.batch_size is not None else {}
     config = ExtractConfig(

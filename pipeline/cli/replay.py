@@ -79,9 +79,12 @@ def run(args: argparse.Namespace) -> int:
 
     read_checkpoint_config(args.checkpoint)  # refused before torch and rerun load with the stage
     existing_files(args.recordings, TRAJECTORIES)
-    from cnep.pipeline.replay.decisions import decisions_path, read_decisions
-    from cnep.pipeline.replay.rerun_log import DEFAULT_VIEWER_URL, serve, serve_until_interrupted
-    from cnep.pipeline.replay.stage import replay
+    from cnep.pipeline.progress import heartbeat
+
+    with heartbeat("loading torch and the replay stage", args.quiet):
+        from cnep.pipeline.replay.decisions import decisions_path, read_decisions
+        from cnep.pipeline.replay.rerun_log import DEFAULT_VIEWER_URL, serve, serve_until_interrupted
+        from cnep.pipeline.replay.stage import replay
 
     server = None
     connect = None if args.no_live else args.connect or DEFAULT_VIEWER_URL

@@ -47,7 +47,10 @@ def run_obstacle(args: argparse.Namespace) -> int:
     import time
 
     config = config_of(SimConfig, args, out=args.out)  # checked before the stage loads
-    from cnep.pipeline.sim.stage import SUMMARY_FILE, run_sim
+    from cnep.pipeline.progress import heartbeat
+
+    with heartbeat("loading torch and the simulator", args.quiet):
+        from cnep.pipeline.sim.stage import SUMMARY_FILE, run_sim
 
     start = time.perf_counter()
     summary = run_sim(config)
@@ -62,7 +65,10 @@ def run_eval(args: argparse.Namespace) -> int:
     from cnep.pipeline.run.config import policy_kind
 
     policy_kind(config.policy)  # refused before the stage loads
-    from cnep.pipeline.sim.evaluate import run_eval as evaluate
+    from cnep.pipeline.progress import heartbeat
+
+    with heartbeat("loading torch and the simulator", args.quiet):
+        from cnep.pipeline.sim.evaluate import run_eval as evaluate
 
     summary = evaluate(config)
     print(summary["table"])

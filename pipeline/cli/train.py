@@ -140,7 +140,10 @@ def run(args: argparse.Namespace) -> int:
 
     config = stage_config(args)
     find_trajectory_files(config.inputs)  # a missing input is refused before torch loads with the stage
-    from cnep.pipeline.train.stage import train
+    from cnep.pipeline.progress import heartbeat
+
+    with heartbeat("loading torch and the train stage", args.quiet):
+        from cnep.pipeline.train.stage import train
 
     out = train(config)
     if os.environ.get("RANK", "0") == "0":  # under torchrun only rank 0 reports

@@ -6,9 +6,9 @@ A unit (`pipeline.evaluate.jobs.run_unit`) is self-contained: its jobs name the 
 builds its data, seeds and threads itself, so any engine that can call a Python function on another machine runs it
 and returns the same numbers as the local pool. The engines are optional extras (`pip install
 'cnep-pipeline[dask]'` or `[ray]`), imported only when asked for. Without an address each starts a cluster on this
-machine of `workers` one-thread processes (Dask's `LocalCluster`, Ray's local instance); with one, it joins the
-user's cluster, whose workers need cnep installed. The engines report a unit when it is done (the progress bar moves
-by whole units), not step by step as the local pool does.
+machine of `workers` one-thread processes (Dask's `LocalCluster`, a new Ray instance even where one that `ray start`
+began is running); with one, it joins the user's cluster, whose workers need cnep installed. The engines report a
+unit when it is done (the progress bar moves by whole units), not step by step as the local pool does.
 """
 
 from __future__ import annotations
@@ -22,6 +22,10 @@ from cnep.pipeline.evaluate.jobs import Job, run_unit
 from cnep.pipeline.workers import SMALL_MODEL_MALLOC, THREAD_VARIABLES, environment
 
 Unit = tuple[Job, ...]
+
+# Ray gives a starting worker process a time to register (60 s by default); one that registers later leaves the run
+# waiting with no end and no error, and a loaded machine slows a new process's start. The local instance allows more.
+RAY_LOCAL_SETTINGS = {"worker_register_timeout_seconds": 600}
 
 
 def run_on_cluster(units: Sequence[Unit], executor: str, address: str | None, workers: int) -> Iterator[tuple]:
@@ -65,8 +69,10 @@ def _on_ray(units: Sequence[Unit], address: str | None, workers: int) -> Iterato
         import ray
     except ImportError:
         raise _missing("ray", "ray") from None
-    local = {"num_cpus": workers, "include_dashboard": False} if address is None else {}
-    ray.init(address=address, **local)
+    if address is None:  # a new instance on this machine, not a cluster that `ray start` left running here
+        ray.init(address="local", num_cpus=workers, include_dashboard=False, _system_config=RAY_LOCAL_SETTINGS)
+    else:
+        ray.init(address=address)
     try:
         remote = ray.remote(num_cpus=1)(run_unit)
         pending = {remote.remote(unit): unit for unit in units}

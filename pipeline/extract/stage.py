@@ -48,7 +48,7 @@ from cnep.pipeline.contract import output_folder, raise_if_skipped, refuse_exist
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.inputs import DEMONSTRATIONS, coerce_paths, mcap_files
 from cnep.pipeline.ownership import MCAP, WEIGHTS
-from cnep.pipeline.progress import progress_bar
+from cnep.pipeline.progress import heartbeat, progress_bar
 from cnep.pipeline.workers import cpu_cores, inference_threads, process_pool, thread_environment
 from cnep.recordings import (
     RecordingError,
@@ -352,12 +352,16 @@ def build_extractor(config: ExtractConfig, sources: Sequence[Path]) -> FeatureEx
     )
     frames = None
     if extractor.needs_calibration:
-        frames = calibration_frames(sources, CALIBRATION_FRAMES)
+        with heartbeat(f"reading frames from {len(sources)} file(s) to calibrate random weights", config.quiet):
+            frames = calibration_frames(sources, CALIBRATION_FRAMES)
         desc = f"calibrating random weights on {len(frames)} frames"
         with progress_bar(total=len(frames), desc=desc, unit="frame", quiet=config.quiet) as bar:
             extractor.calibrate(frames, done=bar.update)
     if extractor.needs_quantisation:
-        extractor.quantise(calibration_frames(sources, CALIBRATION_FRAMES) if frames is None else frames)
+        if frames is None:
+            with heartbeat(f"reading frames from {len(sources)} file(s) to quantise to int8", config.quiet):
+                frames = calibration_frames(sources, CALIBRATION_FRAMES)
+        extractor.quantise(frames)
     return extractor
 
 

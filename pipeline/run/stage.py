@@ -37,6 +37,7 @@ from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.inputs import find_demonstration_files
 from cnep.pipeline.ownership import RRD, OutputKind, json_with
+from cnep.pipeline.progress import heartbeat
 from cnep.pipeline.replay.rerun_log import (
     FLUSH_TIMEOUT_S,
     active_expert_states,
@@ -117,16 +118,17 @@ def run(config: RunConfig) -> list[RecordingRun]:
             f"{config.connect}: no Rerun viewer answers there; start one with `rerun`, or write a file with --out "
             f"and open it with `cnep view FILE` (also where there is no display)"
         )
-    demos = [read_demonstration(p) for p in paths]
-    policy = open_policy(
-        Path(config.policy),
-        extractor=config.extractor,
-        precision=config.precision,
-        backend=config.backend,
-        threads=config.threads,
-        waypoints=config.waypoints,
-        time_base=config.time_base,
-    )
+    with heartbeat(f"reading {len(paths)} recording(s) and loading the policy", config.quiet):
+        demos = [read_demonstration(p) for p in paths]
+        policy = open_policy(
+            Path(config.policy),
+            extractor=config.extractor,
+            precision=config.precision,
+            backend=config.backend,
+            threads=config.threads,
+            waypoints=config.waypoints,
+            time_base=config.time_base,
+        )
     for path, demo in zip(paths, demos):
         if policy.uses_camera and demo.frames is None:
             raise PipelineError(f"{path}: has no {TOPIC_IMAGE} frames, but the policy sees the camera")

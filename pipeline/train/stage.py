@@ -161,8 +161,9 @@ def _train(
     remote: progress.RemoteBar | None = None,
 ) -> Path:
     """The run; rank 0 claims OUT into `held` (its folder and lock, released when the run ends)."""
-    run = _load(config, procs, held)
-    model, trainer, elapsed = _build(run, config, procs, device)
+    with progress.heartbeat("reading the training files and building the model", config.quiet or not procs.is_main):
+        run = _load(config, procs, held)
+        model, trainer, elapsed = _build(run, config, procs, device)
     _log_start(run, config, procs)
     elapsed = _loop(trainer, run, config, procs, elapsed, remote)
     remove_pack(run.packed, config.out, procs)

@@ -271,21 +271,22 @@ def test_unimodal_has_no_commitment_queries_and_still_scores(tmp_path, monkeypat
     assert data["results"]["paper"]["CNEP"]["unimodal"]["failures"] == 0
 
 
-@pytest.mark.slow  # starts a Dask cluster of one worker process
-def test_a_dask_cluster_gives_the_results_of_the_local_pool(torch_threads):
-    pytest.importorskip("distributed")
+@pytest.mark.slow  # starts a Dask cluster or a Ray instance of one worker process
+@pytest.mark.parametrize("executor, package", [("dask", "distributed"), ("ray", "ray")])
+def test_a_cluster_gives_the_results_of_the_local_pool(executor, package, torch_threads, tmp_path, monkeypatch):
+    pytest.importorskip(package)
     from cnep.pipeline.evaluate.jobs import Job
     from cnep.pipeline.evaluate.stage import run_jobs
 
+    monkeypatch.setenv("HOME", str(tmp_path))  # Ray keeps its session's token under HOME
     jobs = [Job("bimodal", 0, ModelSpec.of(2), 30, 3), Job("bimodal", 0, ModelSpec.of(1), 30, 3)]
     local = {job.key: result for job, result in run_jobs(jobs, workers=0, quiet=True)}
-    on_dask = {job.key: result for job, result in run_jobs(jobs, workers=1, quiet=True, executor="dask")}
-    assert on_dask.keys() == local.keys()
+    on_cluster = {job.key: result for job, result in run_jobs(jobs, workers=1, quiet=True, executor=executor)}
+    assert on_cluster.keys() == local.keys()
     for key, result in local.items():
         for method, row in result.items():
-            assert (
-                on_dask[key][method]["paper"] == row["paper"] and on_dask[key][method]["val_curve"] == row["val_curve"]
-            )
+            remote = on_cluster[key][method]
+            assert remote["paper"] == row["paper"] and remote["val_curve"] == row["val_curve"]
 
 
 def test_an_executor_is_local_dask_or_ray_and_only_a_cluster_takes_an_address(tmp_path, capsys):

@@ -3,6 +3,8 @@
 import io
 import logging
 import queue
+import re
+import time
 
 import pytest
 from tqdm.contrib.logging import logging_redirect_tqdm
@@ -61,6 +63,36 @@ def test_quiet_prints_nothing():
     stream = Terminal()
     assert list(progress.progress_bar(range(3), desc="ingest", unit="demo", quiet=True, stream=stream)) == [0, 1, 2]
     assert stream.getvalue() == ""
+
+
+def test_a_long_step_without_a_bar_says_what_it_does_and_for_how_long(monkeypatch):
+    monkeypatch.setattr(progress, "LINE_INTERVAL_S", 0.05)
+    stream = io.StringIO()
+    with progress.heartbeat("loading torch", stream=stream):
+        time.sleep(0.5)
+    lines = stream.getvalue().splitlines()
+    assert len(lines) >= 3 and all(re.fullmatch(r"loading torch \.\.\. \d+ s", line) for line in lines), lines
+    with progress.heartbeat("loading torch", stream=stream):
+        pass  # done within the first interval: nothing more
+    assert stream.getvalue().splitlines() == lines
+    quiet = io.StringIO()
+    with progress.heartbeat("loading torch", quiet=True, stream=quiet):
+        time.sleep(0.2)
+    assert quiet.getvalue() == ""
+
+
+def test_a_bar_that_nothing_updates_still_shows_its_clock(monkeypatch):
+    monkeypatch.setattr(progress, "LINE_INTERVAL_S", 0.2)
+    stream = io.StringIO()
+    with progress.progress_bar(total=2, desc="calibrating", unit="frame", stream=stream) as bar:
+        time.sleep(2.5)  # one long batch
+        bar.update(2)
+    lines = stream.getvalue().splitlines()
+    assert [line for line in lines if "0/2 [00:01<" in line] and [line for line in lines if "0/2 [00:02<" in line]
+    assert lines[-1].startswith("calibrating: 100%")
+    written = stream.getvalue()
+    time.sleep(0.5)
+    assert stream.getvalue() == written  # a closed bar is left alone
 
 
 def test_log_messages_stay_whole_lines_beside_the_bar():
