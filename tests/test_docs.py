@@ -2,8 +2,10 @@
 how-to guides runs as printed (on small inputs built here under the names the page uses), links resolve, the CLI
 reference equals what the parsers generate, and no page narrates how the project was made.
 
-Snippets are run by mktestdocs: a page's `python` blocks in one namespace, its `bash` blocks as one script
-(`bash -e -u`), both from a fresh folder where `cnep-demo/` is the quick demo (a `make demo` stand-in). Blocks
+A page's `python` blocks run in one namespace (mktestdocs), its `bash` blocks one command after the other,
+stopping at the first that fails (as `bash -e -u` runs them): a `cnep` command through the CLI's `main` in this
+process, which is what the installed `cnep` script calls (tests/test_packaging.py runs the script itself), every
+other line by bash; both from a fresh folder where `cnep-demo/` is the quick demo (a `make demo` stand-in). Blocks
 marked `console` or `text` are shown, not run (multi-machine torchrun, GPUs, viewers, full-length runs).
 """
 
@@ -11,6 +13,8 @@ from __future__ import annotations
 
 import os
 import re
+import shlex
+import subprocess
 import sys
 from pathlib import Path
 
@@ -18,6 +22,7 @@ import numpy as np
 import pytest
 from mktestdocs import check_md_file, grab_code_blocks
 
+from cnep.pipeline.cli.main import main
 from cnep.pipeline.cli.reference import render
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -25,6 +30,10 @@ DOCS = ROOT / "docs"
 GENERATED = DOCS / "reference" / "cli.md"
 PAGES = [ROOT / "README.md", *sorted(DOCS.rglob("*.md"))]
 MAX_LINES = 400
+# A line only bash runs: variables, pipes, redirections, lists, sub-shells, globs.
+SHELL_SYNTAX = re.compile(r"[$|;&<>`(){}*?]")
+# A page whose blocks hold more than one command a line (a here-document, a loop, a condition) runs as one bash script.
+COMPOUND = re.compile(r"<<|^\s*(if|for|while|until|case|function)\b", flags=re.M)
 # What a page must not say: numbered work items, sessions, links out of the repository.
 HISTORY = re.compile(r"[Ss]essions? [0-9]+|\b([Ff]rom|[Ii]n|[Ss]ee) issue #?[0-9]+|\([Ii]ssue #?[0-9]+|\.\./shared/")
 
@@ -137,9 +146,29 @@ def test_page_runs_as_printed(page, page_folder):
     if runnable(page, "bash"):
         if name(page) in INPUTS:  # other pages start from the demo's outputs
             INPUTS[name(page)](page_folder)
-        check_md_file(page, memory=True, lang="bash")
+        run_commands(page)
     if runnable(page, "python"):
         check_md_file(page, memory=True, lang="python")
+
+
+def run_commands(page: Path) -> None:
+    """Run the page's `bash` blocks in the current folder, one command a line (a trailing backslash continues it)."""
+    script = "\n".join(grab_code_blocks(page.read_text(), lang="bash"))
+    if COMPOUND.search(script):
+        check_md_file(page, memory=True, lang="bash")
+        return
+    for line in script.replace("\\\n", " ").splitlines():
+        words = shlex.split(line, comments=True)
+        if not words:
+            continue
+        if words[0] == "cnep" and not SHELL_SYNTAX.search(line):
+            try:
+                status = main(words[1:])
+            except SystemExit as exit:  # a usage error
+                status = exit.code
+        else:
+            status = subprocess.run(["bash", "-e", "-u", "-c", line]).returncode
+        assert status == 0, f"{name(page)}: `{line}` exited with {status}"
 
 
 def test_cli_reference_is_generated_from_the_parsers():

@@ -58,3 +58,15 @@ def test_the_packages_settings_and_constants_import_without_torch():
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip() == "[]"
+
+
+def test_the_installed_cnep_command_runs_the_cli_and_exits_with_its_status(tmp_path):
+    """The `cnep` script the install puts beside the interpreter calls the CLI's `main` (tests/test_docs.py runs the
+    pages' `cnep` lines through `main` in-process): its help names every stage, a refusal is exit 2 and one line."""
+    cnep = Path(sys.executable).parent / "cnep"
+    done = subprocess.run([cnep, "--help"], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert all(f"    {stage} " in done.stdout for stage in STAGES), done.stdout
+    missing = tmp_path / "missing.mcap"
+    done = subprocess.run([cnep, "inspect", missing], capture_output=True, text=True, timeout=120)
+    assert (done.returncode, done.stderr) == (2, f"cnep inspect: error: {missing}: no such file\n")
