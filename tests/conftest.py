@@ -1,8 +1,11 @@
+import fcntl
 import os
+import shutil
 import subprocess
 import sys
 import threading
 import time
+from pathlib import Path
 
 # One BLAS / OpenMP thread per test process, set before numpy and torch load their libraries: on a shared
 # 2-core machine a second thread per library made a GMM test 90x slower under load (601 s instead of 6.8 s).
@@ -24,6 +27,23 @@ def pytest_collection_modifyitems(items):
     for item in items:
         if PIPELINE_FIXTURES & set(getattr(item, "fixturenames", ())):
             item.add_marker(pytest.mark.slow)
+
+
+def built_once(tmp_path_factory, name: str, build) -> Path:
+    """The folder `name` that `build(folder)` fills, built once per test run: the first worker process (pytest-xdist)
+    to ask builds it while the others wait for it, then all read it (a session fixture alone is built once per
+    worker). A build that failed is tried again by the next worker to ask."""
+    base = tmp_path_factory.getbasetemp()
+    root = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base  # the parent: one per run, shared
+    folder, done = root / name, root / f"{name}.done"
+    with open(root / f"{name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+        if not done.exists():
+            shutil.rmtree(folder, ignore_errors=True)
+            folder.mkdir()
+            build(folder)
+            done.touch()
+    return folder
 
 
 @pytest.fixture(autouse=True)
@@ -72,12 +92,17 @@ def quick_demo(tmp_path_factory):
     analytics under HOME unless CI is set: a temporary HOME, CI=1). Offline with an empty torch hub cache, as a
     machine without internet access runs it: the features come from seeded random weights. Its stderr, each line with
     the seconds since the command started, is kept in PROGRESS_LOG beside OUT."""
+    return built_once(tmp_path_factory, "demo", lambda folder: run_quick_demo(folder, tmp_path_factory)) / "cnep-demo"
+
+
+def run_quick_demo(folder: Path, tmp_path_factory) -> None:
+    """`cnep demo --quick --out folder/cnep-demo` in a process of its own, its timed stderr in folder/PROGRESS_LOG."""
     from cnep.perception.constants import OFFLINE_ENV_VAR, WEIGHTS_ENV_VAR
 
     env = {**os.environ, "HOME": str(tmp_path_factory.mktemp("home")), "CI": "1", OFFLINE_ENV_VAR: "1"}
     env["TORCH_HOME"] = str(tmp_path_factory.mktemp("torch"))
     env.pop(WEIGHTS_ENV_VAR, None)
-    out = tmp_path_factory.mktemp("demo") / "cnep-demo"
+    out = folder / "cnep-demo"
     command = [sys.executable, "-m", "cnep.pipeline", "demo", "--out", str(out), "--quick"]
     start = time.monotonic()
     demo = subprocess.Popen(command, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -89,8 +114,7 @@ def quick_demo(tmp_path_factory):
     demo.stdout.read()
     reader.join()
     assert demo.wait() == 0, "".join(timed[-30:])
-    (out.parent / PROGRESS_LOG).write_text("".join(timed))
-    return out
+    (folder / PROGRESS_LOG).write_text("".join(timed))
 
 
 PROGRESS_LOG = "progress.log"  # beside the quick demo's folder: "<seconds since start> <line>" per stderr line
@@ -99,17 +123,20 @@ PROGRESS_LOG = "progress.log"  # beside the quick demo's folder: "<seconds since
 @pytest.fixture(scope="session")
 def policy_world(quick_demo, tmp_path_factory):
     """The quick demo's policy exported, a motion policy and their recordings (tests/policy_world.py), built once
-    per session."""
+    per test run."""
     import torch
 
-    from tests.policy_world import build_policy_world
+    from tests.policy_world import PolicyWorld, build_policy_world
 
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        return build_policy_world(quick_demo, tmp_path_factory.mktemp("policy"))
-    finally:
-        torch.set_num_threads(before)
+    def build(folder: Path) -> None:
+        before = torch.get_num_threads()
+        torch.set_num_threads(1)
+        try:
+            build_policy_world(quick_demo, folder)
+        finally:
+            torch.set_num_threads(before)
+
+    return PolicyWorld.of(quick_demo, built_once(tmp_path_factory, "policy", build))
 
 
 # The motion world's training: tiny networks, seeded, with resumable saves (tests/pipeline/test_faults.py re-runs it
@@ -121,18 +148,23 @@ MOTION_TRAINING += ["--seed", "1"]
 
 @pytest.fixture(scope="session")
 def motion_world(tmp_path_factory):
-    """Motion-only inputs and the outputs of uninterrupted `cnep` runs, built once per session and never written to
+    """Motion-only inputs and the outputs of uninterrupted `cnep` runs, built once per test run and never written to
     by the tests: `src` (4 CSVs of 40 rows with the usual column names), `demos` (ingested), `trajs` (extracted),
     `ckpt` (trained with MOTION_TRAINING), `other_ckpt` (the same with 3 experts: another model for the same
     recordings)."""
     from types import SimpleNamespace
 
+    root = built_once(tmp_path_factory, "motion-world", build_motion_world)
+    names = ("src", "demos", "trajs", "ckpt", "other")
+    return SimpleNamespace(**{name: root / name for name in names}, other_ckpt=root / "other")
+
+
+def build_motion_world(root: Path) -> None:
     import numpy as np
     import torch
 
     from cnep.pipeline.cli.main import main
 
-    root = tmp_path_factory.mktemp("motion-world")
     (root / "src").mkdir()
     t = np.arange(40) * 0.05
     for k in range(4):
@@ -149,5 +181,3 @@ def motion_world(tmp_path_factory):
         assert main(["-q", "train", str(root / "trajs"), "--out", str(root / "other"), *other]) == 0
     finally:
         torch.set_num_threads(threads)
-    names = ("src", "demos", "trajs", "ckpt", "other")
-    return SimpleNamespace(**{name: root / name for name in names}, other_ckpt=root / "other")

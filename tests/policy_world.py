@@ -29,16 +29,20 @@ class PolicyWorld:
     motion_checkpoint: Path  # layout motion: pose and gripper only
     exported: Path  # `cnep export checkpoint --int8`: fp32 and int8 feature graphs
 
+    @classmethod
+    def of(cls, demo: Path, root: Path) -> PolicyWorld:
+        """The world on the quick demo's outputs in `demo`, what it adds under `root` (build_policy_world)."""
+        demos, heldout = demo / "demos" / "train", sorted((demo / "demos" / "heldout").glob("*.mcap"))[0]
+        checkpoint = demo / "checkpoints" / "cnep"
+        return cls(demos, heldout, demo / "extractor.pt", checkpoint, root / "motion", root / "exported")
 
-def build_policy_world(demo: Path, root: Path) -> PolicyWorld:
-    """The world on the quick demo's outputs in `demo`, what it adds written under `root`."""
-    demos, extractor, checkpoint = demo / "demos" / "train", demo / "extractor.pt", demo / "checkpoints" / "cnep"
-    cli("train", demo / "trajectories" / "train", "--out", root / "motion", *MOTION_TRAINING)
-    exported = root / "exported"
-    calibration = sorted(demos.glob("*.mcap"))[0]
-    cli("export", checkpoint, "--out", exported, "--extractor", extractor, "--int8", "--calibration", calibration)
-    heldout = sorted((demo / "demos" / "heldout").glob("*.mcap"))[0]
-    return PolicyWorld(demos, heldout, extractor, checkpoint, root / "motion", exported)
+
+def build_policy_world(demo: Path, root: Path) -> None:
+    """Write what the world adds to the quick demo's outputs in `demo` under `root`."""
+    w = PolicyWorld.of(demo, root)
+    cli("train", demo / "trajectories" / "train", "--out", w.motion_checkpoint, *MOTION_TRAINING)
+    calibration = sorted(w.demos.glob("*.mcap"))[0]
+    cli("export", w.checkpoint, "--out", w.exported, "--extractor", w.extractor, "--int8", "--calibration", calibration)
 
 
 def cli(*argv) -> None:
