@@ -20,13 +20,32 @@ from cnep.runtime.constants import DEFAULT_BACKEND, DEFAULT_PRECISION, DEFAULT_W
 from cnep.runtime.errors import PolicyError
 from cnep.runtime.gripper import GripperCommand
 from cnep.runtime.manifest import check_closed, read_manifest
-from cnep.runtime.policy import Policy
+from cnep.runtime.policy import Features, Policy
 from cnep.runtime.sessions import Graph, load_graph
 from cnep.runtime.timebase import TimeBase
 
 FEATURES_INPUT, FEATURES_OUTPUT = "pixels", "features"
 ENCODER_INPUT, ENCODER_OUTPUT = "obs", "encodings"
 DECODER_INPUTS, DECODER_OUTPUTS = ("r", "query"), ("gate", "mean", "std")
+
+
+def load_features(
+    folder: str | Path, precision: str = DEFAULT_PRECISION, backend: str = DEFAULT_BACKEND, threads: int | None = None
+) -> Features | None:
+    """The feature function (uint8 pixels (N, 224, 224, 3) -> float32 features (N, 1280)) of the policy exported
+    to `folder`, checked as `load_policy` checks it; None for a model that sees no camera."""
+    folder = Path(folder)
+    manifest = read_manifest(folder)
+    check_closed(folder, manifest)
+    if manifest.spec.features is None:
+        return None
+    if precision not in manifest.features:
+        raise PolicyError(
+            f"{folder}: has no {precision} feature graph (it has {', '.join(sorted(manifest.features))}); "
+            f"export with --int8 for int8 features"
+        )
+    graph = load_graph(str(manifest.verified(folder, manifest.features[precision]["file"])), backend, threads)
+    return lambda pixels: graph({FEATURES_INPUT: pixels})[0]
 
 
 class ExportedNetwork:
@@ -68,16 +87,7 @@ def load_policy(
     """
     folder = Path(folder)
     manifest = read_manifest(folder)
-    check_closed(folder, manifest)
-    features = None
-    if manifest.spec.features is not None:
-        if precision not in manifest.features:
-            raise PolicyError(
-                f"{folder}: has no {precision} feature graph (it has {', '.join(sorted(manifest.features))}); "
-                f"export with --int8 for int8 features"
-            )
-        graph = load_graph(str(manifest.verified(folder, manifest.features[precision]["file"])), backend, threads)
-        features = lambda pixels: graph({FEATURES_INPUT: pixels})[0]  # noqa: E731
+    features = load_features(folder, precision, backend, threads)
     network = ExportedNetwork(
         load_graph(str(manifest.verified(folder, manifest.graphs["encoder"])), backend, threads),
         load_graph(str(manifest.verified(folder, manifest.graphs["decoder"])), backend, threads),

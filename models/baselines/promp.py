@@ -6,12 +6,15 @@ import numpy as np
 
 from cnep.models.baselines.base import check_demos, grid, require, resample
 
+EM_ITERATIONS = 1000  # the library's default: the EM of `imitate` stops earlier when the weights settle
+
 
 class ProMP:
-    """`n_weights` radial basis functions per output dimension (the authors used 10/30/8 for uni/bi/multi)."""
+    """`n_weights` radial basis functions per output dimension (the authors used 10/30/8 for uni/bi/multi), imitated
+    by at most `iterations` EM iterations."""
 
-    def __init__(self, n_weights: int = 10) -> None:
-        self.n_weights = n_weights
+    def __init__(self, n_weights: int = 10, iterations: int = EM_ITERATIONS) -> None:
+        self.n_weights, self.iterations = n_weights, iterations
 
     def fit(self, demos: np.ndarray) -> ProMP:
         promp = require("movement_primitives.promp", "movement-primitives")
@@ -19,7 +22,7 @@ class ProMP:
         N, T, dy = demos.shape
         self.T = T
         self.promp = promp.ProMP(n_dims=dy, n_weights_per_dim=self.n_weights)
-        self.promp.imitate(np.tile(grid(T), (N, 1)), demos)
+        self.promp.imitate(np.tile(grid(T), (N, 1)), demos, n_iter=self.iterations)
         return self
 
     def generate(self, obs_t: np.ndarray, obs_y: np.ndarray, query_t: np.ndarray) -> np.ndarray:

@@ -1,17 +1,26 @@
-"""`cnep sim obstacle --out DIR` and `cnep sim eval POLICY`: policies in closed loop in the simulator (the `sim`
-extra). The options are the fields of SimConfig and EvalConfig (pipeline.cli.fields)."""
+"""`cnep sim obstacle --out DIR`, `cnep sim pick-place --out DIR` and `cnep sim eval POLICY`: policies in closed loop
+in the simulator (the `sim` extra). The options are the fields of SimConfig, PickPlaceConfig and EvalConfig
+(pipeline.cli.fields)."""
 
 from __future__ import annotations
 
 import argparse
 
 from cnep.pipeline.cli.fields import add_options, build, options
-from cnep.pipeline.sim.config import EvalConfig, SimConfig
+from cnep.pipeline.sim.config import EvalConfig, PickPlaceConfig, SimConfig
 
-HELP = "closed loop in a simulator: `obstacle` from nothing to the table, `eval` a given policy (the `sim` extra)"
+HELP = (
+    "closed loop in a simulator: `obstacle` and `pick-place` from nothing to the table, `eval` a given policy (the "
+    "`sim` extra)"
+)
 OBSTACLE_HELP = (
     "generate demonstrations in the simulator, ingest, extract, train the CNEP and the matched CNMP, export, run "
     "them in closed loop and print the table"
+)
+PICK_PLACE_HELP = (
+    "the pick-and-place task: generate demonstrations, ingest, extract, train the CNEP and the matched CNMP, export, "
+    "run them and the baselines in closed loop (scenes that decide the place, leave it free, change during the "
+    "motion) and print the table"
 )
 EVAL_HELP = "run a policy (exported folder or checkpoint) in closed loop in the simulator and print its rates"
 
@@ -22,6 +31,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     obstacle.add_argument("--out", required=True, help="a new or empty folder for everything")
     add_options(obstacle, options(SimConfig))
     obstacle.set_defaults(_sim=run_obstacle)
+    pick = sub.add_parser("pick-place", help=PICK_PLACE_HELP, description=PICK_PLACE_HELP)
+    pick.add_argument("--out", required=True, help="a new or empty folder for everything")
+    add_options(pick, options(PickPlaceConfig))
+    pick.set_defaults(_sim=run_pick)
     evaluate = sub.add_parser("eval", help=EVAL_HELP, description=EVAL_HELP)
     evaluate.add_argument("policy", help="a folder written by `cnep export` (runs without torch) or `cnep train`")
     evaluate.add_argument("--out", help="a new or empty folder for summary.json and the recordings (default: none)")
@@ -54,6 +67,21 @@ def run_obstacle(args: argparse.Namespace) -> int:
 
     start = time.perf_counter()
     summary = run_sim(config)
+    print(summary["table"])
+    print(f"features: {summary['features']}; wrote {config.out}/{SUMMARY_FILE} and the recordings in "
+          f"{config.out}/episodes; done in {time.perf_counter() - start:.0f} s")  # fmt: skip
+    return 0
+
+
+def run_pick(args: argparse.Namespace) -> int:
+    import time
+
+    config = config_of(PickPlaceConfig, args, out=args.out)  # checked before the stage loads
+    from cnep.pipeline.sim.pick_stage import run_pick_place
+    from cnep.pipeline.sim.stage import SUMMARY_FILE
+
+    start = time.perf_counter()
+    summary = run_pick_place(config)
     print(summary["table"])
     print(f"features: {summary['features']}; wrote {config.out}/{SUMMARY_FILE} and the recordings in "
           f"{config.out}/episodes; done in {time.perf_counter() - start:.0f} s")  # fmt: skip

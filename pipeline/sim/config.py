@@ -106,3 +106,39 @@ class EvalConfig(LoopSettings):
     def __post_init__(self) -> None:
         coerce_paths(self)
         self.check()
+
+
+@dataclass(frozen=True, kw_only=True)
+class PickPlaceConfig:
+    """`cnep sim pick-place`: out, a new or empty folder for everything; demonstrations generated with `seed`, the
+    features' `weights`, one CNEP and one matched CNMP per training seed (and the baselines), each run in closed loop
+    in every condition."""
+
+    out: Path
+    demonstrations: int = setting(48, "demonstrations generated (each a scene drawn decided or free, its place drawn)")
+    seed: int = setting(0, "seed of the demonstrations (and of the feature network's random weights)")
+    train_seeds: tuple[int, ...] = setting((0,), "training seeds: one CNEP and one matched CNMP trained per seed")
+    train_steps: int = setting(3000, "training steps of each model")
+    experts: int = setting(4, "the CNEP's experts (the CNMP: one, parameter-matched)")
+    weights: str = setting(AUTO_WEIGHTS, "the feature network's weights, as `cnep demo --weights` takes them")
+    offline: bool = setting(False, "never download the ImageNet weights (also: environment variable CNEP_OFFLINE=1)")
+    episodes: int = setting(20, "closed-loop episodes per policy and condition (decided, free, changed)")
+    episode_seed: int = setting(0, "seed of the first episode (episode i is reset with seed + i)")
+    record: int = setting(1, "episodes per policy and condition written as Rerun recordings (the first ones)")
+    baselines: bool = setting(
+        True, "also run ProMP and GMM-GMR (on PCA-reduced features) and nearest-demonstration retrieval in the loop"
+    )
+    pca: int = setting(8, "principal components of the features the baselines see (PCA fitted on the training frames)")
+    quiet: bool = False
+
+    def __post_init__(self) -> None:
+        coerce_paths(self)
+        if self.demonstrations < 2 or self.train_steps < 1 or self.experts < 2 or not self.train_seeds:
+            raise PipelineError(
+                f"need >= 2 demonstrations, >= 1 training step, >= 2 experts and a training seed, got "
+                f"{self.demonstrations}, {self.train_steps}, {self.experts} and {self.train_seeds}"
+            )
+        if self.episodes < 1 or self.record < 0 or self.pca < 1:
+            raise PipelineError(
+                f"episodes and pca must be >= 1 and record >= 0, got {self.episodes}, {self.pca} and {self.record}"
+            )

@@ -5,6 +5,8 @@ pose CSV (`t,x,y,z,qx,qy,qz,qw,gripper`, seconds and metres), which `cnep ingest
 The scripted demonstrator (cnep.sim.demonstrator) drives the environment itself: the frames and poses are what the
 camera saw and the robot reported while it moved, not the plan. Sides are balanced: half the demonstrations pass
 left, half right, in a seeded order (in the cue variant, the cue's side decides, drawn per demonstration).
+`generate_pick_demonstrations` does the same for the pick-and-place task: each demonstration a scene drawn by the
+environment (decided or free) and the place the demonstrator chose in it.
 """
 
 from __future__ import annotations
@@ -18,7 +20,8 @@ import numpy as np
 from cnep.outputs import temporary_path
 from cnep.pipeline.progress import progress_bar
 from cnep.runtime import STATE_KEY, STATE_NAMES
-from cnep.sim import IMAGE_KEY, ObstacleEnv, demonstration_path, draw_demonstration
+from cnep.sim import IMAGE_KEY, ObstacleEnv, PickPlaceEnv, demonstration_path, draw_demonstration, draw_pick, pick_path
+from cnep.sim import pick_scene as P
 from cnep.sim import scene as S
 
 CSV_FILE = "poses.csv"
@@ -28,8 +31,8 @@ DEMO_SEED_OFFSET = 1_000_000  # demonstration starts are drawn from seeds above 
 
 @dataclass(frozen=True)
 class Generated:
-    """folders: one per demonstration (sorted); sides: each one's side; successes: how many reached the goal
-    without touching the box."""
+    """folders: one per demonstration (sorted); sides: each one's side (pick and place: its place); successes: how
+    many succeeded (reached the goal without touching the box; put the bar on a valid place)."""
 
     folders: list[Path]
     sides: list[str]
@@ -55,7 +58,7 @@ def generate_demonstrations(out: Path, n: int, seed: int, cue: bool = False, qui
                 steps.append(observation)
             successes += bool(info["distance_to_goal"] < S.GOAL_TOLERANCE and not info["collision"])
             folder = out / f"demo_{i:03d}"
-            _write(folder, steps)
+            _write(folder, steps, IMAGE_KEY)
             folders.append(folder)
             taken.append(sides[i])
     finally:
@@ -63,13 +66,38 @@ def generate_demonstrations(out: Path, n: int, seed: int, cue: bool = False, qui
     return Generated(folders, taken, successes)
 
 
-def _write(folder: Path, steps: list[dict]) -> None:
+def generate_pick_demonstrations(out: Path, n: int, seed: int, quiet: bool = False) -> Generated:
+    """Write `n` pick-and-place demonstrations into out/demo_NNN/ (frames + CSV), seeded by `seed`; `sides` holds
+    each one's place (pick_scene.PLACES' name)."""
+    rng = np.random.default_rng(seed)
+    env = PickPlaceEnv()
+    folders, successes, places = [], 0, []
+    try:
+        for i in progress_bar(range(n), desc="generate", unit="demo", quiet=quiet):
+            observation, info = env.reset(seed=DEMO_SEED_OFFSET + seed * 10_000 + i)
+            scene = env.scene
+            draw = draw_pick(rng, scene["orientation"], scene["taken"])
+            steps = [observation]
+            for action in pick_path(draw, observation[STATE_KEY][:3], scene["object_xy"], scene["object_yaw"]):
+                observation, _, _, _, info = env.step(action.astype(np.float32))
+                steps.append(observation)
+            successes += bool(info["is_success"])
+            folder = out / f"demo_{i:03d}"
+            _write(folder, steps, env.image_key)
+            folders.append(folder)
+            places.append(P.PLACES[draw.place][0])
+    finally:
+        env.close()
+    return Generated(folders, places, successes)
+
+
+def _write(folder: Path, steps: list[dict], image_key: str) -> None:
     """One demonstration's frames and CSV, written under a temporary name and renamed when complete."""
     work = temporary_path(folder)
     work.mkdir(parents=True)
     rows = []
     for k, observation in enumerate(steps):
-        _, png = cv2.imencode(".png", cv2.cvtColor(observation[IMAGE_KEY], cv2.COLOR_RGB2BGR))
+        _, png = cv2.imencode(".png", cv2.cvtColor(observation[image_key], cv2.COLOR_RGB2BGR))
         (work / f"frame_{k:03d}.png").write_bytes(png.tobytes())
         rows.append([f"{k * S.CONTROL_PERIOD_S:.3f}", *(f"{v:.4f}" for v in observation[STATE_KEY])])
     lines = [",".join(CSV_HEADER), *(",".join(row) for row in rows)]

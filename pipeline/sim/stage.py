@@ -25,7 +25,7 @@ import json
 import logging
 import shutil
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from concurrent.futures import as_completed
 from contextlib import contextmanager
 from dataclasses import asdict, fields, replace
@@ -42,7 +42,7 @@ from cnep.pipeline.export.stage import export
 from cnep.pipeline.extract.stage import ExtractConfig, extract
 from cnep.pipeline.ingest.stage import IngestConfig, ingest
 from cnep.pipeline.progress import StageClock
-from cnep.pipeline.sim.config import LoopSettings, SimConfig
+from cnep.pipeline.sim.config import LoopSettings, PickPlaceConfig, SimConfig
 from cnep.pipeline.sim.figure import FIGURE_FILE
 from cnep.pipeline.sim.generate import generate_demonstrations
 from cnep.pipeline.sim.loop import evaluate_policy
@@ -62,11 +62,16 @@ STAGES = ("generate", "ingest", "extract", "train", "export", "closed loop")
 def run_sim(config: SimConfig) -> dict:
     """Run every stage into `config.out` (module docstring); returns the summary (also OUT/summary.json)."""
     require_extra()
-    out = Path(config.out)
-    with new_output_folder(out, "cnep sim obstacle") as lock:
+    return run_in_new_folder(Path(config.out), "cnep sim obstacle", lambda out: _run_stages(config, out))
+
+
+def run_in_new_folder(out: Path, command: str, stages: Callable[[Path], dict]) -> dict:
+    """`stages(out)` run in the new or empty folder `out` (locked for `command`), its summary written to
+    OUT/summary.json; a failure or an interruption leaves the folder as empty as it found it."""
+    with new_output_folder(out, command) as lock:
         try:
             with quiet_per_file_logs():
-                summary = _run_stages(config, out)
+                summary = stages(out)
             write_atomically(out / SUMMARY_FILE, json.dumps(summary, indent=1).encode())
         except BaseException:
             for child in out.iterdir():
@@ -98,11 +103,11 @@ def _run_stages(config: SimConfig, out: Path) -> dict:
     with timed("ingest", 2):
         ingest(IngestConfig(src=out / "recorded", out=out / "demos", quiet=config.quiet))
     with timed("extract", 3):
-        _extract(config, out, chosen.weights)
+        extract_features(config, out, chosen.weights)
     with timed("train", 4):
-        checkpoints = _train(config, out)
+        checkpoints = train_models(config, out)
     with timed("export", 5):
-        policies = _export(checkpoints, out)
+        policies = export_policies(checkpoints, out)
     with timed("closed loop", 6):
         results = _closed_loop(config, out, policies)
     return {
@@ -117,13 +122,13 @@ def _run_stages(config: SimConfig, out: Path) -> dict:
             "right": made.sides.count("right"),
             "clean": made.successes,
         },
-        "models": _by_model(results),
+        "models": by_model(results),
         "table": format_table(results),
         "seconds": seconds,
     }
 
 
-def _extract(config: SimConfig, out: Path, weights: str) -> None:
+def extract_features(config: SimConfig | PickPlaceConfig, out: Path, weights: str) -> None:
     """Stage 3: the demonstrations' features under OUT/trajectories, the weights saved to OUT/extractor.pt."""
     extract(
         ExtractConfig(
@@ -138,7 +143,7 @@ def _extract(config: SimConfig, out: Path, weights: str) -> None:
     )
 
 
-def _export(checkpoints: dict[str, Path], out: Path) -> dict[str, Path]:
+def export_policies(checkpoints: dict[str, Path], out: Path) -> dict[str, Path]:
     """Stage 5: each checkpoint as a policy folder under OUT/policies; label -> folder."""
     policies = {}
     for label, checkpoint in checkpoints.items():
@@ -163,7 +168,7 @@ def _closed_loop(config: SimConfig, out: Path, policies: dict[str, Path]) -> dic
     }  # fmt: skip
 
 
-def _train(config: SimConfig, out: Path) -> dict[str, Path]:
+def train_models(config: SimConfig | PickPlaceConfig, out: Path) -> dict[str, Path]:
     """Train the CNEP and the matched CNMP for every training seed, two processes at a time; label -> checkpoint."""
     model = CNEPConfig(n_experts=config.experts, assignment=config.assignment)
     networks = {
@@ -199,8 +204,8 @@ def _train(config: SimConfig, out: Path) -> dict[str, Path]:
     return {label: path for label, (path, _, _) in jobs.items()}
 
 
-def _by_model(results: dict[str, dict]) -> dict[str, dict[str, dict]]:
-    """label `MODEL-seedN` -> {MODEL: {N: protocol -> rates}}."""
+def by_model(results: dict[str, dict]) -> dict[str, dict[str, dict]]:
+    """label `MODEL-seedN` -> {MODEL: {N: protocol (or condition) -> rates}}."""
     models: dict[str, dict[str, dict]] = {}
     for label, protocols in results.items():
         model, seed = label.split("-seed")

@@ -56,12 +56,12 @@ def rates(rows: list[dict]) -> dict:
         "switching": share(lambda r: r["switches"] > 0),
         "followed_cue": round(sum(r["side"] == r["cue_side"] for r in cued) / len(cued), 4) if cued else None,
         "min_clearance_m": min(r["clearance_m"] for r in rows),
-        "ms": {name: _pooled(rows, name) for name in TIMES},
+        "ms": {name: pooled_ms(rows, name) for name in TIMES},
         "per_episode": rows,
     }
 
 
-def _pooled(rows: list[dict], name: str) -> dict[str, float]:
+def pooled_ms(rows: list[dict], name: str) -> dict[str, float]:
     """The median of the episodes' p50 and the largest of their p99 (ms)."""
     return {
         "p50": round(float(np.median([r["ms"][name]["p50"] for r in rows])), 2),

@@ -8,7 +8,8 @@ import pytest
 
 from cnep.pipeline.cli.main import build_parser, main
 from cnep.pipeline.cli.sim import config_of
-from cnep.pipeline.sim.config import PROTOCOLS, EvalConfig, SimConfig
+from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.sim.config import PROTOCOLS, EvalConfig, PickPlaceConfig, SimConfig
 
 
 def test_obstacle_arguments_become_its_settings_and_the_others_keep_their_defaults():
@@ -17,6 +18,15 @@ def test_obstacle_arguments_become_its_settings_and_the_others_keep_their_defaul
     assert config.train_seeds == (0, 1, 2) and config.cue and config.out == Path("x")
     assert config.episodes == SimConfig.episodes and config.train_steps == SimConfig.train_steps
     assert config.protocols == PROTOCOLS
+
+
+def test_pick_place_arguments_become_its_settings_and_bad_ones_are_refused():
+    args = build_parser().parse_args(["sim", "pick-place", "--out", "x", "--episodes", "3", "--no-baselines"])
+    config = config_of(PickPlaceConfig, args, out=args.out)
+    assert (config.episodes, config.baselines, config.out) == (3, False, Path("x"))
+    assert config.experts == PickPlaceConfig.experts and config.pca == PickPlaceConfig.pca
+    with pytest.raises(PipelineError, match="pca must be >= 1"):
+        PickPlaceConfig(out=Path("x"), pca=0)
 
 
 def test_eval_arguments_become_its_settings():

@@ -1,0 +1,52 @@
+"""A policy in the pick-and-place closed loop: `evaluate_pick_policy` runs it for `episodes` episodes in each
+condition (decided, free, changed), writes the first `record` of each as Rerun recordings and returns the rates and
+rows (pipeline.sim.pick_summary).
+
+Episode i of a condition is reset with seed `episode_seed + i`: every policy meets the same scenes, and the same seed
+gives the same episode bit for bit. The demonstrations' scenes come from other seeds
+(pipeline.sim.generate.DEMO_SEED_OFFSET), so every episode is unseen.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from cnep.pipeline.progress import progress_bar
+from cnep.pipeline.sim.pick_rerun import write_pick_episode
+from cnep.pipeline.sim.pick_summary import pick_rates, pick_row
+from cnep.runtime import Policy
+from cnep.sim.pick_env import PickPlaceEnv
+from cnep.sim.pick_episode import run_pick_episode
+
+
+def evaluate_pick_policy(
+    policy: Policy,
+    conditions: tuple[str, ...],
+    episodes: int,
+    *,
+    label: str,
+    episode_seed: int = 0,
+    record: int = 0,
+    recordings: Path | None = None,
+    quiet: bool = False,
+) -> dict[str, dict]:
+    """Condition -> rates (pipeline.sim.pick_summary.pick_rates) of `policy` (a runtime.Policy or a baseline behind
+    its interface) over `episodes` episodes per condition; recordings: the folder for
+    `<label>-<condition>-seed<N>.rrd`, the first `record` episodes of each condition (None: none written)."""
+    results = {}
+    for condition in conditions:
+        env = PickPlaceEnv(condition)
+        rows = []
+        try:
+            for i in progress_bar(range(episodes), desc=f"{label} {condition}", unit="episode", quiet=quiet):
+                seed = episode_seed + i
+                recorded = recordings is not None and i < record
+                ep = run_pick_episode(env, policy, seed, record_frames=recorded)
+                if recorded:
+                    name = f"{label}-{condition}-seed{seed}"
+                    write_pick_episode(recordings / f"{name}.rrd", name, ep, policy.n_experts)
+                rows.append(pick_row(ep))
+        finally:
+            env.close()
+        results[condition] = pick_rates(rows)
+    return results

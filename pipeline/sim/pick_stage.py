@@ -1,0 +1,113 @@
+"""`cnep sim pick-place`: from nothing to the pick-and-place table, through the stages a user runs.
+
+Stages (each logs its progress), all under OUT, as `cnep sim obstacle`'s (pipeline.sim.stage):
+
+1. generate   `recorded/demo_NNN/` frames (PNG) + `poses.csv`: the scripted demonstrator picking the bar and
+              putting it on a place the scene allows (pipeline.sim.generate);
+2. ingest     `demos/`; 3. extract `trajectories/` and `extractor.pt`; 4. train `checkpoints/{cnep,cnmp}-seedN`;
+5. export     `policies/{cnep,cnmp}-seedN`;
+6. closed loop `episodes/*.rrd` (the first `record` episodes of each policy and condition) and `summary.json`: every
+              exported policy (and with `baselines` ProMP, GMM-GMR and the nearest demonstration,
+              pipeline.sim.pick_baselines) in closed loop in each condition: decided, free, changed
+              (pipeline.sim.pick_loop).
+
+A failed or interrupted run leaves the folder as empty as it found it.
+"""
+
+from __future__ import annotations
+
+import logging
+from concurrent.futures import as_completed
+from dataclasses import asdict
+from pathlib import Path
+
+from cnep.pipeline.demo.weights import choose_weights
+from cnep.pipeline.ingest.stage import IngestConfig, ingest
+from cnep.pipeline.progress import StageClock, progress_bar
+from cnep.pipeline.run.stage import open_policy
+from cnep.pipeline.sim.config import PickPlaceConfig
+from cnep.pipeline.sim.generate import generate_pick_demonstrations
+from cnep.pipeline.sim.pick_baselines import BASELINES, baseline_policy
+from cnep.pipeline.sim.pick_loop import evaluate_pick_policy
+from cnep.pipeline.sim.pick_summary import format_pick_table
+from cnep.pipeline.sim.stage import by_model, export_policies, extract_features, run_in_new_folder, train_models
+from cnep.pipeline.workers import single_thread_processes
+from cnep.recordings import read_trajectory
+from cnep.sim import pick_scene as P
+from cnep.sim import require_extra
+
+log = logging.getLogger(__name__)
+
+STAGES = ("generate", "ingest", "extract", "train", "export", "closed loop")
+POLICY_THREADS = 1  # intra-op threads of the policy's graphs: one episode steps them one frame at a time
+
+
+def run_pick_place(config: PickPlaceConfig) -> dict:
+    """Run every stage into `config.out` (module docstring); returns the summary (also OUT/summary.json)."""
+    require_extra()
+    return run_in_new_folder(Path(config.out), "cnep sim pick-place", lambda out: _run_stages(config, out))
+
+
+def _run_stages(config: PickPlaceConfig, out: Path) -> dict:
+    """The six stages in order, each timed; returns the summary."""
+    seconds: dict[str, float] = {}
+    timed = StageClock(seconds, len(STAGES), log)
+    chosen = choose_weights(config.weights, config.offline)
+    with timed("generate", 1):
+        made = generate_pick_demonstrations(out / "recorded", config.demonstrations, config.seed, config.quiet)
+    with timed("ingest", 2):
+        ingest(IngestConfig(src=out / "recorded", out=out / "demos", quiet=config.quiet))
+    with timed("extract", 3):
+        extract_features(config, out, chosen.weights)
+    with timed("train", 4):
+        checkpoints = train_models(config, out)
+    with timed("export", 5):
+        policies = export_policies(checkpoints, out)
+    with timed("closed loop", 6):
+        results = _closed_loop(config, out, policies)
+    return {
+        "task": "pick-place",
+        "settings": {k: v for k, v in asdict(config).items() if k not in ("out", "quiet")},
+        "features": read_trajectory(next((out / "trajectories").glob("*.mcap"))).extractor["weights"],
+        "imagenet_unavailable": chosen.imagenet_unavailable,
+        "demonstrations": {
+            "n": len(made.folders),
+            "places": {name: made.sides.count(name) for name, _, _ in P.PLACES},
+            "clean": made.successes,
+        },
+        "models": by_model(results),
+        "table": format_pick_table(results),
+        "seconds": seconds,
+    }
+
+
+def _closed_loop(config: PickPlaceConfig, out: Path, policies: dict[str, Path]) -> dict[str, dict]:
+    """Stage 6: every policy in closed loop in each condition, two at a time in single-threaded processes, its first
+    episodes recorded under OUT/episodes; label -> results. The baselines, fitted with the first training seed's
+    CNEP's normaliser and feature graph, carry that seed in their label."""
+    (out / "episodes").mkdir()
+    jobs = {label: (path, None) for label, path in policies.items()}
+    if config.baselines:
+        first = config.train_seeds[0]
+        jobs.update({f"{name}-seed{first}": (policies[f"CNEP-seed{first}"], name) for name in BASELINES})
+    results: dict[str, dict] = {}
+    with single_thread_processes(2) as pool:
+        futures = {pool.submit(_evaluate, config, out, label, *job): label for label, job in jobs.items()}
+        for future in progress_bar(as_completed(futures), total=len(futures), desc="closed loop", unit="policy",
+                                   quiet=config.quiet):  # fmt: skip
+            results[futures[future]] = future.result()
+    return {label: results[label] for label in jobs}
+
+
+def _evaluate(config: PickPlaceConfig, out: Path, label: str, path: Path, baseline: str | None) -> dict:
+    """One policy's closed loop (in a worker): the exported policy `path`, or the baseline `baseline` fitted beside
+    the exported CNEP `path`."""
+    if baseline is None:
+        policy = open_policy(path, threads=POLICY_THREADS, waypoints=1)
+    else:
+        trajectories = sorted((out / "trajectories").glob("*.mcap"))
+        policy = baseline_policy(baseline, path, trajectories, config.pca, waypoints=1)
+    return evaluate_pick_policy(
+        policy, P.CONDITIONS, config.episodes, label=label, episode_seed=config.episode_seed, record=config.record,
+        recordings=out / "episodes", quiet=True,
+    )  # fmt: skip
