@@ -72,12 +72,12 @@ def probe(x: np.ndarray, y: np.ndarray, fit: int) -> dict:
     }
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> dict[str, dict]:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("out", type=Path, help="a folder made by `cnep sim pick-place --out`")
     parser.add_argument("--scenes", type=int, default=150, help="fresh scenes (default 150)")
     parser.add_argument("--json", type=Path, help="write the rows here")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     cnep.sim.require_extra()
     features = load_features(args.out / "policies" / "cnep-seed0", threads=1)
     x, labels = scenes(features, args.scenes)
@@ -89,6 +89,7 @@ def main() -> None:
         print(f"| {name} | {r['classes']} | {r['ridge']:.2f} | {r['nearest']:.2f} | {r['majority']:.2f} |")
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1))
+    return rows
 
 
 if __name__ == "__main__":

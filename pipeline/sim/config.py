@@ -120,6 +120,9 @@ class PickPlaceConfig:
     train_seeds: tuple[int, ...] = setting((0,), "training seeds: one CNEP and one matched CNMP trained per seed")
     train_steps: int = setting(3000, "training steps of each model")
     experts: int = setting(4, "the CNEP's experts (the CNMP: one, parameter-matched)")
+    assignment: str = setting(
+        "annealed", "the CNEP's assignment, as `cnep train --assignment` takes it", choices=tuple(ASSIGNMENTS)
+    )
     weights: str = setting(AUTO_WEIGHTS, "the feature network's weights, as `cnep demo --weights` takes them")
     offline: bool = setting(False, "never download the ImageNet weights (also: environment variable CNEP_OFFLINE=1)")
     episodes: int = setting(20, "closed-loop episodes per policy and condition (decided, free, changed)")

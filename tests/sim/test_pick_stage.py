@@ -1,0 +1,41 @@
+"""`cnep sim pick-place` end to end on the smallest data that runs every stage (4 demonstrations, 20 training steps,
+one episode per condition): summary.json holds per model and condition the documented rates, and the examples
+turn the run into its table and probe its features."""
+
+import importlib.util
+import json
+
+import pytest
+
+import cnep.sim
+
+if not all(importlib.util.find_spec(name) for name in cnep.sim.EXTRA):
+    pytest.skip("the sim extra is not installed", allow_module_level=True)
+
+from cnep.pipeline.sim.config import PickPlaceConfig  # noqa: E402
+from cnep.pipeline.sim.pick_baselines import BASELINES  # noqa: E402
+from cnep.pipeline.sim.pick_stage import run_pick_place  # noqa: E402
+from cnep.pipeline.sim.stage import SUMMARY_FILE  # noqa: E402
+from cnep.sim import pick_scene as P  # noqa: E402
+from tests.test_examples import load  # noqa: E402
+
+
+@pytest.mark.slow  # two spawned training processes, MobileNet-v2 features, two exports, five policies in the loop
+def test_cnep_sim_pick_place_writes_the_documented_summary(tmp_path, monkeypatch):
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    monkeypatch.setenv("TORCH_HOME", str(tmp_path / "torch"))
+    out = tmp_path / "pick"
+    config = PickPlaceConfig(out=out, demonstrations=4, train_steps=20, episodes=1, record=1, offline=True, quiet=True)
+    summary = run_pick_place(config)
+    assert json.loads((out / SUMMARY_FILE).read_text()) == json.loads(json.dumps(summary))
+    assert summary["demonstrations"]["n"] == 4 and summary["demonstrations"]["clean"] == 4
+    assert set(summary["models"]) == {"CNEP", "CNMP", *BASELINES}
+    for seeds in summary["models"].values():
+        assert set(seeds) == {"0"} and list(seeds["0"]) == list(P.CONDITIONS)
+        for rates in seeds["0"].values():
+            assert rates["episodes"] == 1 and {"success", "collision", "places", "switched_within"} <= set(rates)
+    assert len(list((out / "episodes").glob("*.rrd"))) == 5 * len(P.CONDITIONS)
+    rows = load("pick_place_table").main([str(out / SUMMARY_FILE), "--csv", str(tmp_path / "pick.csv")])
+    assert len(rows) == 5 * len(P.CONDITIONS) and rows[0]["model"] == "CNEP"
+    probes = load("pick_place_probe").main([str(out), "--scenes", "9"])
+    assert set(probes) >= {"orientation", "valid"} and all(0 <= p["ridge"] <= 1 for p in probes.values())
