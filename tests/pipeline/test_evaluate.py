@@ -9,7 +9,7 @@ import torch
 import cnep.models.baselines.gmm as gmm_module
 from cnep.pipeline.cli.main import main
 from cnep.pipeline.errors import PipelineError
-from cnep.pipeline.evaluate.constants import PAPER, QUICK_QUERIES, QUICK_SETS, QUICK_STEPS, TABLES
+from cnep.pipeline.evaluate.constants import PAPER, QUICK_QUERIES, QUICK_SEEDS, QUICK_SETS, QUICK_STEPS, TABLES
 from cnep.pipeline.evaluate.jobs import ModelSpec
 from cnep.pipeline.evaluate.stage import EvaluateConfig, evaluate, plan, pooled, table_rows
 
@@ -30,7 +30,9 @@ def test_steps_per_set_unless_given():
     by_set = {j.set_name: j.steps for j in plan(EvaluateConfig(tables=("comparison",)))}
     assert by_set["bimodal"] < by_set["multimodal"] == by_set["multimodal6"]
     assert {j.steps for j in plan(EvaluateConfig(tables=("comparison",), steps=123))} == {123}
-    assert {j.steps for j in plan(EvaluateConfig(tables=("comparison",), quick=True))} == {QUICK_STEPS}
+    quick = plan(EvaluateConfig(quick=True))  # the comparison on QUICK_SETS, QUICK_SEEDS seeds, QUICK_QUERIES queries
+    assert {(j.set_name, j.steps, j.n_queries) for j in quick} == {(s, QUICK_STEPS, QUICK_QUERIES) for s in QUICK_SETS}
+    assert {j.seed for j in quick} == set(range(QUICK_SEEDS))
 
 
 def test_patience_reaches_every_network_unless_turned_off():
@@ -139,20 +141,29 @@ def test_sets_restrict_every_table():
     assert {j.set_name for j in jobs} == {"multimodal6"}
 
 
-@pytest.mark.slow  # ~45 s on 2 cores: the CI run, four networks in two worker processes
-def test_quick_command_runs_the_comparison_on_two_sets(tmp_path, capsys):
-    assert main(["-q", "evaluate", "--quick", "--out", str(tmp_path)]) == 0
+@pytest.mark.slow  # the CI run on its bimodal set: two networks, 1500 steps each, in two worker processes
+def test_quick_command_tells_the_bimodal_modes_apart(tmp_path, capsys):
+    assert main(["-q", "evaluate", "--quick", "--sets", "bimodal", "--out", str(tmp_path)]) == 0
     assert "does not reproduce the paper's ordering" in capsys.readouterr().out
     data = json.loads((tmp_path / "comparison.json").read_text())
     settings = data["settings"]
-    assert data["sets"] == list(QUICK_SETS) and settings["quick"]
-    assert settings["steps"] == dict.fromkeys(QUICK_SETS, QUICK_STEPS) and settings["queries"] == QUICK_QUERIES
+    assert data["sets"] == ["bimodal"] and settings["quick"]
+    assert settings["steps"] == {"bimodal": QUICK_STEPS} and settings["queries"] == QUICK_QUERIES
     for protocol in ("paper", "heldout"):
         for row in ("CNEP", "CNMP"):  # 1500 steps already tell the two bimodal modes apart
             assert data["results"][protocol][row]["bimodal"]["mode_accuracy"] == 1.0
-    for set_name in QUICK_SETS:
-        nearest = data["results"]["paper"]["Nearest demo"][set_name]
-        assert nearest["mse"] == pytest.approx(0.0, abs=1e-12) and nearest["mode_accuracy"] == 1.0
+    nearest = data["results"]["paper"]["Nearest demo"]["bimodal"]
+    assert nearest["mse"] == pytest.approx(0.0, abs=1e-12) and nearest["mode_accuracy"] == 1.0
+
+
+@pytest.mark.slow
+def test_the_nearest_demo_is_exact_on_the_quick_runs_other_set(tmp_path, monkeypatch, torch_threads):
+    monkeypatch.setattr(gmm_module, "EM_ITERATIONS", 3)  # the networks and baselines only have to run
+    (other,) = set(QUICK_SETS) - {"bimodal"}
+    settings = {"seeds": 1, "steps": 20, "queries": 3, "jobs": 0, "quiet": True, "figures": False}
+    evaluate(EvaluateConfig(tables=("comparison",), sets=(other,), out=tmp_path, **settings))
+    nearest = json.loads((tmp_path / "comparison.json").read_text())["results"]["paper"]["Nearest demo"][other]
+    assert nearest["mse"] == pytest.approx(0.0, abs=1e-12) and nearest["mode_accuracy"] == 1.0
 
 
 class _Reports:
