@@ -31,7 +31,9 @@ class PolicySpec:
     image features in the row, or None for a model that sees no camera; state: ((state_start, state_stop),
     (row_start, row_stop)) pairs; time_base: seconds -> phase (None: the checkpoint has none, give one);
     conditioning: the conditioning set and the active expert's rule; gripper: the two-state gripper's command from
-    the predicted gripper (None: the prediction is the action).
+    the predicted gripper (None: the prediction is the action); expert_labels: what each expert stands for, one
+    entry per expert ("" where unknown; empty where the training named none: the task of most of its training
+    demonstrations).
     """
 
     columns: Columns
@@ -41,12 +43,17 @@ class PolicySpec:
     time_base: TimeBase | None
     conditioning: ConditioningPolicy = ConditioningPolicy()
     gripper: GripperCommand | None = None
+    expert_labels: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         width = self.columns.width
         if int(self.n_experts) < 1:
             raise PolicyError(f"a policy needs at least one expert, got n_experts={self.n_experts}")
         object.__setattr__(self, "n_experts", int(self.n_experts))
+        labels = tuple(str(label) for label in self.expert_labels)
+        if labels and len(labels) != self.n_experts:
+            raise PolicyError(f"expert_labels names {len(labels)} experts, the policy has {self.n_experts}")
+        object.__setattr__(self, "expert_labels", labels)
         if self.features is not None:
             a, b = map(int, self.features)
             if not 0 <= a < b <= width:
@@ -94,12 +101,13 @@ class PolicySpec:
             "time_base": self.time_base.to_dict() if self.time_base else None,
             "conditioning": self.conditioning.to_dict(),
             "gripper": self.gripper.to_dict() if self.gripper else None,
+            "expert_labels": list(self.expert_labels),
         }
 
     @classmethod
     def from_dict(cls, data: dict) -> PolicySpec:
-        """The spec of `to_dict` (`gripper` may be absent: a format 1 manifest has none); a PolicyError names the
-        entry that is missing or wrong."""
+        """The spec of `to_dict` (`gripper` may be absent: a format 1 manifest has none; `expert_labels` too: a
+        manifest written before it has none); a PolicyError names the entry that is missing or wrong."""
         try:
             if tuple(data["state_names"]) != STATE_NAMES:
                 raise PolicyError(
@@ -124,6 +132,7 @@ class PolicySpec:
                 time_base=TimeBase.from_dict(data["time_base"]) if data["time_base"] else None,
                 conditioning=ConditioningPolicy(**data["conditioning"]),
                 gripper=GripperCommand.from_dict(data["gripper"]) if data.get("gripper") else None,
+                expert_labels=tuple(data.get("expert_labels", ())),
             )
         except (KeyError, TypeError, ValueError) as exc:
             if isinstance(exc, PolicyError):

@@ -28,6 +28,7 @@ from cnep.pipeline.inputs import DEMONSTRATIONS, mcap_files
 from cnep.pipeline.replay.conditioning import decide
 from cnep.pipeline.replay.decisions import read_decisions
 from cnep.pipeline.train.checkpoint import TrainedModel, load_trained
+from cnep.pipeline.train.experts import gate_of
 from cnep.recordings import DemonstrationReader, read_demonstration, read_trajectory
 from cnep.recordings.constants import BLOCK_GRIPPER
 
@@ -65,15 +66,6 @@ def online_gates(checkpoint: Path, paths: list[Path]) -> list[np.ndarray]:
             rows = trained.rows(trajectory, path)
             traces.append(decide(trained.model, rows, trajectory.timestamps_ns, POLICY).gates)
     return traces
-
-
-def gate_of(model, rows: np.ndarray) -> np.ndarray:
-    """The gate (d,) of a model conditioned on every step of a demonstration (T, model width)."""
-    T = len(rows)
-    t = np.arange(T) / (T - 1)
-    obs = rows[:, model.obs_columns.numpy()]
-    query = rows[:1, model.query_columns.numpy()] if model.config.columns.query_dim else None
-    return model.generate(t, obs, t[:1], query).gate
 
 
 def expert_purity(checkpoint: Path, paths: list[Path], labels: dict[str, str]) -> dict[str, dict]:

@@ -92,9 +92,15 @@ def policy_spec(trained: TrainedModel) -> PolicySpec:
             state=state,
             time_base=TimeBase.from_dict(time_base) if time_base else None,
             gripper=GripperCommand.from_dict(gripper) if gripper and BLOCK_GRIPPER in blocks else None,
+            expert_labels=labels_by_expert(trained.expert_labels, model.n_experts),
         )
     except ValueError as exc:
         raise PipelineError(f"{trained.path / CONFIG_FILE}: cannot be run as a policy: {exc}") from None
+
+
+def labels_by_expert(labels: dict[int, str], n_experts: int) -> tuple[str, ...]:
+    """`labels` (expert -> label) as one entry per expert ("" for an expert without one), () when there are none."""
+    return tuple(labels.get(expert, "") for expert in range(n_experts)) if labels else ()
 
 
 def feature_extractor(

@@ -80,7 +80,8 @@ def replay(
     One recording goes to `out_rrd`; several go to one file each beside it (`merge`: all into `out_rrd`,
     where the viewer opens one of them, which one is not fixed).
     `connect`: a viewer URL, streamed to only if reachable (None: file only). `expert_labels`: what experts stand
-    for where the caller knows (expert -> a behaviour's name), shown beside their numbers; `marks`: per recording
+    for (expert -> a behaviour's name), shown beside their numbers (None: the checkpoint's, the task of most of each
+    expert's training demonstrations where they named tasks); `marks`: per recording
     path, (step, what happens there) lines for the view's switch log (a scene change). The decisions are
     written to `decisions_path(out_rrd)` (see `read_decisions`). Existing outputs (the .rrd, the
     decisions, the event copies) are refused unless `force`; a recording whose features come from
@@ -98,7 +99,7 @@ def replay(
     live = _live_viewer(connect, files[0])
     with contextlib.ExitStack() as held:  # a failure removes the folders made for the outputs, and what was staged
         staging = _hold_outputs(held, out, events, [*files, decisions_path(out), *parts], outputs, force)
-        shown = (expert_labels, marks or {})
+        shown = (inputs.expert_labels if expert_labels is None else expert_labels, marks or {})
         summaries = _replay_each(
             inputs,
             staging,
@@ -162,14 +163,15 @@ def _checked_recordings(
 
 @dataclass(frozen=True)
 class _Inputs:
-    """The checkpoint's model and the recordings it replays: paths, trajectories, the model's rows of each (T, width)
-    and the predicted columns that are the end-effector's xyz."""
+    """The checkpoint's model and the recordings it replays: paths, trajectories, the model's rows of each (T, width),
+    the predicted columns that are the end-effector's xyz, and what the checkpoint says its experts stand for."""
 
     model: CNEP
     paths: list[Path]
     trajectories: list[Trajectory]
     rows: list[np.ndarray]
     xyz: list[int] | None
+    expert_labels: dict[int, str]
 
 
 def _load(checkpoint: Path, paths: list[Path]) -> _Inputs:
@@ -184,7 +186,8 @@ def _load(checkpoint: Path, paths: list[Path]) -> _Inputs:
             raise PipelineError(
                 f"{p}: {traj.n_steps} step(s); replay needs at least 2 (time runs from the first to the last)"
             )
-    return _Inputs(trained.model, paths, trajectories, rows, trained.mapping.predicted_xyz(trained.model))
+    xyz = trained.mapping.predicted_xyz(trained.model)
+    return _Inputs(trained.model, paths, trajectories, rows, xyz, trained.expert_labels)
 
 
 def _live_viewer(connect: str | None, first: Path) -> str | None:

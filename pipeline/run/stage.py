@@ -198,7 +198,7 @@ def run_recording(policy: Policy, demo: Demonstration, path: Path, rec, realtime
     step_s = np.empty(demo.n_steps)
     switches = 0
     policy.reset()
-    start, shown = time.perf_counter(), None
+    start, shown, labels = time.perf_counter(), None, expert_labels(policy)
     for k, observation in enumerate(observations(demo, path, camera=policy.uses_camera)):
         if realtime:
             time.sleep(max(0.0, start + observation[TIMESTAMP_KEY] - time.perf_counter()))
@@ -206,7 +206,7 @@ def run_recording(policy: Policy, demo: Demonstration, path: Path, rec, realtime
         result = policy.step(observation)
         step_s[k] = time.perf_counter() - before
         switches += result.switch is not None
-        shown = log_step(rec, demo, k, result, step_s[k], period_s, shown)
+        shown = log_step(rec, demo, k, result, step_s[k], period_s, shown, labels)
     return RecordingRun(path, step_s, period_s, switches)
 
 
@@ -232,18 +232,32 @@ def log_recording(rec, demo: Demonstration, policy: Policy, period_s: float) -> 
     d = policy.n_experts
     rec.log(L.EE, rr.TransformAxes3D(axis_length=0.05), static=True)
     rec.log(L.EE_PATH, rr.LineStrips3D([demo.pose[:, :3]], colors=[L.PATH_COLOR]), static=True)
-    rec.log(L.GATES, rr.SeriesLines(names=L.expert_names(d), colors=L.expert_colors(d)), static=True)
-    rec.log(L.ACTIVE_EXPERT, active_expert_states(d), static=True)
+    labels = expert_labels(policy)
+    rec.log(L.GATES, rr.SeriesLines(names=L.expert_names(d, labels), colors=L.expert_colors(d)), static=True)
+    rec.log(L.ACTIVE_EXPERT, active_expert_states(d, labels), static=True)
     rec.log(L.STEP_TIME, rr.SeriesLines(names=["step"]), static=True)
     rec.log(L.FRAME_PERIOD, rr.SeriesLines(names=["frame period"], colors=[L.PATH_COLOR]), static=True)
 
 
+def expert_labels(policy: Policy) -> dict[int, str]:
+    """Expert -> what it stands for, as the policy's spec says (the task of most of its training demonstrations)."""
+    return {expert: label for expert, label in enumerate(policy.spec.expert_labels) if label}
+
+
 def log_step(
-    rec, demo: Demonstration, k: int, result: PolicyStep, step_s: float, period_s: float, shown: str | None
+    rec,
+    demo: Demonstration,
+    k: int,
+    result: PolicyStep,
+    step_s: float,
+    period_s: float,
+    shown: str | None,
+    labels: dict[int, str] | None = None,
 ) -> str:
     """Step k: the frame, the recorded pose, the predicted waypoints, the gate, the active expert (`unsure` where
     the gate is: `shown_state`; logged when it changes from `shown`, the previous step's), the first read or a
-    switch, its time beside the frame period. Returns the active-expert state shown at this step."""
+    switch, its time beside the frame period; experts named with `labels`. Returns the active-expert state shown at
+    this step."""
     import rerun as rr
 
     rec.set_time(L.TIMELINE_FRAME, sequence=k)
@@ -252,17 +266,18 @@ def log_step(
         rec.log(L.CAMERA, rr.EncodedImage(contents=demo.frames[k], media_type="image/jpeg"))
     pose = demo.pose[k]
     rec.log(L.EE, rr.Transform3D(translation=pose[:3], quaternion=pose[3:]))
-    state, color = shown_state(result.gate, result.expert)
+    state, color = shown_state(result.gate, result.expert, labels)
     rec.log(L.PREDICTION, rr.LineStrips3D([np.vstack([pose[:3], result.waypoints[:, :3]])], colors=[color]))
     rec.log(L.GATES, rr.Scalars(result.gate))
     if state != shown:
         rec.log(L.ACTIVE_EXPERT, rr.StateChange(state=state))
     if k == 0:
-        rec.log(L.SWITCH_LOG, rr.TextLog(first_read_text(result.gate, state != L.UNSURE), level="INFO"))
+        rec.log(L.SWITCH_LOG, rr.TextLog(first_read_text(result.gate, state != L.UNSURE, labels), level="INFO"))
     if result.switch is not None:
         s = result.switch
         gate = ", ".join(f"{p:.2f}" for p in s.gate)
-        text = f"step {k} ({result.time_s:.2f} s): {L.expert_name(s.from_expert)} -> {L.expert_name(s.to_expert)}"
+        names = L.expert_name(s.from_expert, labels), L.expert_name(s.to_expert, labels)
+        text = f"step {k} ({result.time_s:.2f} s): {names[0]} -> {names[1]}"
         rec.log(L.SWITCH_LOG, rr.TextLog(f"{text} (p = {gate})", level="INFO"))
     rec.log(L.STEP_TIME, rr.Scalars(step_s * 1e3))
     rec.log(L.FRAME_PERIOD, rr.Scalars(period_s * 1e3))

@@ -24,6 +24,7 @@ from cnep.models import CNEP, load_checkpoint, read_checkpoint_config
 from cnep.models.checkpoint import CONFIG_FILE
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.identity import Identity, check_checkpoint_extractor
+from cnep.pipeline.train.constants import EXPERT_LABELS
 from cnep.recordings import Trajectory
 from cnep.recordings.constants import BLOCK_FEATURES, BLOCK_POSE_XYZ, BLOCKS_BY_WIDTH
 
@@ -107,6 +108,12 @@ class TrainedModel:
     def rows(self, trajectory: Trajectory, path: Path) -> np.ndarray:
         """The (T, model width) float32 rows the model takes from `trajectory` (read from `path`)."""
         return self.mapping.select(trajectory, path, self.path)
+
+    @property
+    def expert_labels(self) -> dict[int, str]:
+        """Expert -> the task of most of its training demonstrations, where they named tasks (`pipeline.train.experts`;
+        {} otherwise)."""
+        return {int(expert): label for expert, label in (self.config.get(EXPERT_LABELS) or {}).items()}
 
     def check_extractor(self, identities: Mapping[Path, Identity]) -> None:
         """Refuse recordings (path -> extractor identity) whose features come from another extractor than the

@@ -23,12 +23,14 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class TrainingFile:
-    """One trajectory file trained on: where, its episode id, steps and seconds from its first to its last step."""
+    """One trajectory file trained on: where, its episode id, steps, seconds from its first to its last step, and its
+    episode's task ("" for none: `pipeline.train.experts` names experts by the tasks)."""
 
     path: Path
     episode_id: str
     n_steps: int
     duration_s: float
+    task: str = ""
 
     def describe(self, sha256: str) -> dict:
         """JSON-able entry for config.json, with the file's `sha256` (hex)."""
@@ -60,7 +62,10 @@ def load_training_set(paths: Sequence[Path]) -> TrainingSet:
     files, extractors, widths = [], {}, {}
     for path in paths:
         summary = read_summary(path, KIND_TRAJECTORY)
-        files.append(TrainingFile(Path(path), summary.episode.episode_id, summary.n_steps, summary.duration_ns / 1e9))
+        episode = summary.episode
+        files.append(
+            TrainingFile(Path(path), episode.episode_id, summary.n_steps, summary.duration_ns / 1e9, episode.task)
+        )
         extractors[path] = summary.extractor
         widths.setdefault(summary.width, []).append(path)
     if len(widths) > 1:

@@ -35,7 +35,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from cnep.models import CNEPConfig, Trainer, build_model, save_checkpoint
+from cnep.models import CNEP, CNEPConfig, Trainer, build_model, save_checkpoint
 from cnep.models.matched import matched_cnmp
 from cnep.models.normaliser import Moments
 from cnep.models.sampler import TrajectoryStack
@@ -48,8 +48,9 @@ from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.inputs import find_trajectory_files
 from cnep.pipeline.ownership import CHECKPOINT_FILES
 from cnep.pipeline.train.config import TrainStageConfig
-from cnep.pipeline.train.constants import LOG_FILE, STATE_FILE
+from cnep.pipeline.train.constants import EXPERT_LABELS, LOG_FILE, STATE_FILE
 from cnep.pipeline.train.data import TrainingSet, load_training_set
+from cnep.pipeline.train.experts import demonstration_experts, expert_labels
 from cnep.pipeline.train.packed import PackedColumns, pack_columns
 from cnep.pipeline.train.parallel import (
     PlacedModel,
@@ -166,12 +167,13 @@ def _train(
         model, trainer, elapsed = _build(run, config, procs, device)
     _log_start(run, config, procs)
     elapsed = _loop(trainer, run, config, procs, elapsed, remote)
+    labels = name_experts(model, trainer, run, procs)
     remove_pack(run.packed, config.out, procs)
     barrier(procs)  # every rank's pack is gone before rank 0 renames the work folder into the checkpoint
     if trainer.diverged is not None and procs.is_main:
         diverged(trainer, config, run.saved is None)
     if procs.is_main:
-        _publish(model, trainer, run, config, elapsed)
+        _publish(model, trainer, run, config, elapsed, labels)
     return config.out
 
 
@@ -279,11 +281,28 @@ def _loop(
     return time.perf_counter() - clock
 
 
+def name_experts(model: CNEP, trainer: StageTrainer, run: _Run, procs: Processes) -> dict[int, str]:
+    """Every rank: the expert each of its training demonstrations goes to under the best weights, gathered over the
+    ranks; returns what each expert stands for where the demonstrations name tasks (`pipeline.train.experts`)."""
+    if not trainer.best_state:  # no weights kept (a run that diverged before its first validation)
+        return {}
+    model.load_state_dict(trainer.best_state)
+    model.eval()
+    mine = demonstration_experts(model, run.packed, run.my_train)
+    experts = {index: expert for part in gather(procs, mine) for index, expert in part.items()}
+    return expert_labels(experts, [f.task for f in run.data.files])
+
+
 def _publish(
-    model: torch.nn.Module, trainer: StageTrainer, run: _Run, config: TrainStageConfig, elapsed: float
+    model: torch.nn.Module,
+    trainer: StageTrainer,
+    run: _Run,
+    config: TrainStageConfig,
+    elapsed: float,
+    labels: dict[int, str],
 ) -> None:
-    """Rank 0: the best weights, the run's result and what a policy needs (time base, gripper command) into the work
-    folder's checkpoint, recorded and renamed to OUT."""
+    """Rank 0: the best weights, the run's result, what a policy needs (time base, gripper command) and what the
+    experts stand for (`labels`) into the work folder's checkpoint, recorded and renamed to OUT."""
     work = work_dir(config.out)
     model.load_state_dict(trainer.best_state)
     not_learned = trainer.not_learned()
@@ -302,6 +321,7 @@ def _publish(
     extra = {key: value for key, value in run.identity.items() if key != "model"}  # save_checkpoint writes "model"
     time_base = run.data.time_base().to_dict()  # the robot's seconds -> t (runtime.timebase)
     policy = {"time_base": time_base, "gripper": run.gripper.to_dict() if run.gripper else None}
+    policy[EXPERT_LABELS] = {str(expert): label for expert, label in labels.items()}
     save_checkpoint(model, work, {**extra, **policy, "result": summary, "log": LOG_FILE})
     record_written([work / n for n in CHECKPOINT_FILES if (work / n).is_file()], forget=[work / STATE_FILE])
     publish(work, config.out)
