@@ -15,7 +15,6 @@ import hashlib
 import io
 import logging
 import os
-import pickle
 import re
 import socket
 import sys
@@ -38,7 +37,7 @@ from cnep.perception.constants import (
     OFFLINE_ENV_VAR,
     WEIGHTS_ENV_VAR,
 )
-from cnep.perception.errors import PerceptionError
+from cnep.perception.errors import PerceptionError, torch_load_problem
 from cnep.perception.network import mobilenet_v2_features
 
 _FEATURES_PREFIX = "features."  # keys of a full torchvision mobilenet_v2 state dict
@@ -214,17 +213,6 @@ def load_state_dict(path: Path) -> dict[str, torch.Tensor]:
     Returns the `features` part with keys relative to it, checked against the architecture.
     """
     return load_weights_file(path)[0]
-
-
-def torch_load_problem(exc: Exception) -> str:
-    """What went wrong in `torch.load(..., weights_only=True)`, for a user: a refused pickle says what it would have
-    loaded and that cnep loads tensors only, without torch's advice to load it with `weights_only=False`."""
-    text = str(exc)
-    if not (isinstance(exc, pickle.UnpicklingError) and text.startswith("Weights only load failed")):
-        return text
-    said = [line.strip() for line in text.splitlines()[1:] if line.strip() and "weights_only" not in line]
-    what = f" ({said[0].rstrip('.')})" if said else ""
-    return f"it holds pickled Python objects beyond tensors{what}, which could run code, and cnep loads tensors only"
 
 
 def load_weights_file(path: Path) -> tuple[dict[str, torch.Tensor], str]:

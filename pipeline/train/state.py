@@ -21,7 +21,7 @@ from pathlib import Path
 import torch
 
 from cnep.outputs import output_lock, record_written, remove_stale_temporaries, write_atomically
-from cnep.perception.weights import torch_load_problem
+from cnep.perception.errors import torch_load_problem
 from cnep.pipeline.contract import output_folder, refuse_existing, refuse_inputs
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.ownership import CHECKPOINT, CHECKPOINT_FILES, foreign_files, not_written
