@@ -56,14 +56,15 @@ sim: $(VENV)/.installed-sim
 evaluate: $(VENV)/.installed-evaluate
 	$(BIN)/cnep evaluate
 
-# Every test, one worker process per core (pytest-xdist), each test file on one worker so that its fixtures are built
-# once.
+# Every test, one worker process per core (pytest-xdist), handed out one at a time, slow ones first, the tests of a
+# module fixture together (tests/conftest.py), so that the workers finish together.
 test: $(VENV)/.installed-test
-	CI=1 $(BIN)/python -m pytest -q -n auto --dist loadfile
+	CI=1 $(BIN)/python -m pytest -q -n auto --dist loadgroup
 
-# The inner loop: every test but those marked slow (the whole pipeline's, the end-to-end commands'), in under a minute.
+# The inner loop: every test but those marked slow (the whole pipeline's, the end-to-end commands', any over a second),
+# on the same workers, in under a minute.
 test-fast: $(VENV)/.installed-test
-	CI=1 $(BIN)/python -m pytest -q -m "not slow"
+	CI=1 $(BIN)/python -m pytest -q -n auto --dist loadgroup -m "not slow"
 
 lint: $(VENV)/.installed-test
 	$(BIN)/ruff format --check .

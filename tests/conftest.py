@@ -24,9 +24,35 @@ PIPELINE_FIXTURES = {"quick_demo", "policy_world", "demo_run"}
 
 
 def pytest_collection_modifyitems(items):
+    """Marks and an order for `make test`'s worker processes (pytest-xdist `--dist loadgroup` hands the tests out in
+    this order, one at a time unless grouped): a test of the pipeline's fixtures is slow; the tests that share a
+    module fixture go to one worker together (each worker would build it); slow tests first, so that the last ones
+    handed out are short and the workers finish together, and one that builds the quick demo before them all, so
+    that meanwhile the other worker runs tests that do not need it instead of waiting for it."""
     for item in items:
-        if PIPELINE_FIXTURES & set(getattr(item, "fixturenames", ())):
+        if uses(item, PIPELINE_FIXTURES):
             item.add_marker(pytest.mark.slow)
+        if uses_module_fixture(item):
+            item.add_marker(pytest.mark.xdist_group(item.nodeid.split("::")[0]))
+    first_demo = next((item for item in items if uses(item, PIPELINE_FIXTURES)), None)
+
+    def rank(item) -> int:
+        if item is first_demo:
+            return 0
+        if item.get_closest_marker("slow") is None:
+            return 3
+        return 2 if uses(item, PIPELINE_FIXTURES) else 1
+
+    items.sort(key=rank)
+
+
+def uses(item, fixtures: set[str]) -> bool:
+    return bool(fixtures & set(getattr(item, "fixturenames", ())))
+
+
+def uses_module_fixture(item) -> bool:
+    info = getattr(item, "_fixtureinfo", None)  # pytest's record of the fixtures a test resolves
+    return info is not None and any(d.scope == "module" for defs in info.name2fixturedefs.values() for d in defs)
 
 
 def built_once(tmp_path_factory, name: str, build) -> Path:

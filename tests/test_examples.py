@@ -20,6 +20,7 @@ def load(name: str):
     return module
 
 
+@pytest.mark.slow
 def test_gate_ceiling_classifiers_learn_the_modes(capsys, one_thread):
     load("gate_ceiling").main(["--seeds", "1", "--steps", "300"])
     lines = capsys.readouterr().out.splitlines()

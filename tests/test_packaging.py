@@ -22,6 +22,7 @@ def test_every_package_folder_is_installed_under_cnep():
     assert set(settings["packages"]) == on_disk
 
 
+@pytest.mark.slow
 def test_a_users_own_models_and_pipeline_packages_do_not_shadow_the_library(tmp_path):
     for name in FOLDERS:
         (tmp_path / name).mkdir()

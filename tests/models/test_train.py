@@ -265,6 +265,7 @@ def test_observed_only_decay_and_dropout_leave_a_model_that_predicts_all_it_obse
     assert all(torch.equal(decayed.state_dict()[k], v) for k, v in plain.state_dict().items())
 
 
+@pytest.mark.slow
 def test_a_run_no_better_than_predicting_the_training_mean_warns_naming_the_cause_and_the_numbers(caplog):
     data = make_set("unimodal", seed=0)
     columns = ColumnRoles(width=1, observed=((0, 1),), query=(), predicted=((0, 1),))

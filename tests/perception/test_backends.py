@@ -142,6 +142,7 @@ def test_openvino_runs_the_requested_threads_unpinned():
     assert compiled.get_property("ENABLE_CPU_PINNING") is False
 
 
+@pytest.mark.slow
 def test_a_torch_runner_leaves_the_process_thread_count_as_it_was():
     """torch's thread count is process-wide: the extractor uses its threads during a call, not after it."""
     import torch

@@ -228,6 +228,7 @@ def test_torchrun_ranks_extract_disjoint_shares_with_one_identity(demos, tmp_pat
     assert check_same_extractor(sorted((tmp_path / "out").glob("*.mcap")))  # both ranks calibrated alike
 
 
+@pytest.mark.slow
 def test_two_shards_write_the_files_of_one_unsharded_run_byte_for_byte(tmp_path):
     folder = tmp_path / "demos"
     folder.mkdir()
