@@ -150,7 +150,7 @@ class CNEPConfig:
 class TrainConfig:
     """How `fit` trains. Steps and widths follow the spec's CPU recipe (see docs/concepts.md)."""
 
-    steps: int = setting(10_000, "training steps")
+    steps: int = setting(4_000, "training steps")
     batch_size: int = setting(32, "samples per step and process")
     n_max: int = setting(10, "most observations per sample (n ~ U{1..n_max})")
     m_max: int = setting(10, "most targets per sample (m ~ U{1..m_max})")

@@ -4,6 +4,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from benchmarks.__main__ import benchmarks, main
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -26,3 +28,20 @@ def test_a_benchmark_runs_by_name_and_an_unknown_name_is_refused(capsys):
     assert "== recordings: -m benchmarks.bench_recordings --help" in done.stdout and "usage:" in done.stdout
     assert main(["nothing"]) == 2
     assert "no benchmark 'nothing'" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_the_commitment_benchmark_scores_a_short_fit_on_the_paper_s_sines():
+    """benchmarks.paper_sines: seeded, modes alternating, every mode through the same start; bench_commitment's
+    cell trains on what `fit` does not hold out and scores every shared point of it."""
+    import numpy as np
+
+    from benchmarks.bench_commitment import cell
+    from benchmarks.paper_sines import PER_MODE, paper_sines
+
+    y, modes = paper_sines(3, seed=4)
+    again, _ = paper_sines(3, seed=4)
+    assert y.shape == (3 * PER_MODE, 200, 1) and np.array_equal(y, again) and list(modes[:4]) == [0, 1, 2, 0]
+    assert np.ptp([y[modes == k, 0].mean() for k in range(3)]) < 0.05 < np.ptp(y[:, 100])  # shared start, then apart
+    row = cell("paper", 2, 0, {"steps": 20, "val_every": 10, "warmup_steps": 5})
+    assert row["steps"] == 20 and row["experts"] == 2 and row["queries"] >= 2 and 0.0 <= float(row["valid"]) <= 1.0

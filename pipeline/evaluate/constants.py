@@ -25,8 +25,8 @@ PROMP_WEIGHTS = {"unimodal": 10, "bimodal": 30, "multimodal": 8, "multimodal6": 
 GMM_COMPONENTS = {"unimodal": 10, "bimodal": 20, "multimodal": 6, "multimodal6": 12}
 
 # Budgets. Full: every set of the table; quick: what CI runs.
-# Training steps per set (`--steps` sets one value for all): 4 and 6 modes need the models.TrainConfig
-# default (docs/concepts.md); the unimodal and bimodal sets are learnt in fewer.
+# Training steps per set (`--steps` sets one value for all): the paper tables' 4 and 6 modes train 2.5 times the
+# models.TrainConfig default (docs/concepts.md); the unimodal and bimodal sets are learnt in the default.
 STEPS = {"unimodal": 4_000, "bimodal": 4_000, "multimodal": 10_000, "multimodal6": 10_000}
 # Early stopping (models.TrainConfig.patience): a network stops after this many validations (every 500 steps)
 # without a lower validation error; the model kept is its best, as without the stop. On the full schedule the

@@ -9,6 +9,7 @@ from cnep.models.cnep import CNEP
 from cnep.models.config import CNEPConfig, ColumnRoles, TrainConfig
 from cnep.models.errors import ConfigError
 from cnep.models.sampler import TrajectoryStack
+from cnep.models.split import SPLIT_CHECKS
 from cnep.models.synthetic import make_set
 from cnep.models.train import (
     LEARNED_RATIO,
@@ -104,6 +105,17 @@ def test_learning_rate_warms_up_then_decays():
     assert lr_factor(99, cfg) == pytest.approx(1.0)
     assert lr_factor(999, cfg) == pytest.approx(0.05, abs=1e-3)
     assert lr_factor(500, cfg) < lr_factor(200, cfg)
+
+
+def test_the_defaults_train_the_schedule_that_commits_the_demo_s_and_the_commitment_table_s():
+    """`fit`'s and `cnep train`'s defaults are the schedule `cnep demo` trains and the commitment table measures
+    (docs/results.md): the learning rate still warming up when the gate unfreezes and at the first split check."""
+    from cnep.pipeline.demo.config import FULL
+
+    cfg = TrainConfig()
+    assert (cfg.steps, cfg.warmup_steps) == (FULL.train_steps, FULL.warmup_steps) == (4000, 2000)
+    assert lr_factor(int(cfg.gate_freeze_fraction * cfg.steps), cfg) < lr_factor(int(SPLIT_CHECKS[0] * cfg.steps), cfg)
+    assert lr_factor(int(SPLIT_CHECKS[0] * cfg.steps), cfg) < 1.0 == lr_factor(cfg.warmup_steps, cfg)
 
 
 def test_trajectories_of_the_wrong_width_are_refused():

@@ -554,8 +554,8 @@ def test_train_fits_the_warm_up_into_few_steps_and_says_so(world, tmp_path, capl
 
     with caplog.at_level(logging.WARNING):
         assert main(["-q", "train", str(world.trajs), "--out", str(tmp_path / "ckpt"), *TINY_TRAINING]) == 0
-    assert "warming up over 0 steps instead" in caplog.text  # 4 steps: 4 * 2000 // 10000
-    assert json.loads((tmp_path / "ckpt" / "config.json").read_text())["training"]["warmup_steps"] == 0
+    assert "warming up over 2 steps instead" in caplog.text  # 4 steps: 4 * 2000 // 4000
+    assert json.loads((tmp_path / "ckpt" / "config.json").read_text())["training"]["warmup_steps"] == 2
     caplog.clear()
     with caplog.at_level(logging.WARNING):
         assert (
@@ -587,4 +587,4 @@ def test_train_help_shows_the_actual_defaults():
     done = subprocess.run(
         [sys.executable, "-m", "cnep.pipeline", "train", "--help"], capture_output=True, text=True, cwd=ROOT, timeout=60
     )
-    assert "TrainConfig's default" not in done.stdout and "(default 10000)" in done.stdout
+    assert "TrainConfig's default" not in done.stdout and "(default 4000)" in done.stdout
