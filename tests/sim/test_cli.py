@@ -59,8 +59,10 @@ def test_without_the_sim_extra_the_command_says_how_to_install_it(monkeypatch, c
     monkeypatch.setattr(builtins, "__import__", no_mujoco)
     (tmp_path / "policy").mkdir()
     (tmp_path / "policy" / "manifest.json").write_text("{}")
-    assert main(["sim", "eval", str(tmp_path / "policy")]) != 0
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "pip install 'cnep-pipeline[sim]'" in err[0], err
+    for command in (["sim", "eval", str(tmp_path / "policy")], ["sim", "pick-place", "--out", str(tmp_path / "o")]):
+        assert main(command) != 0
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "pip install 'cnep-pipeline[sim]'" in err[0], err
+    assert not (tmp_path / "o").exists()
     with pytest.raises(Exception, match="mujoco"):
         import mujoco  # noqa: F401
