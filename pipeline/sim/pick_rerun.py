@@ -11,8 +11,16 @@ from pathlib import Path
 
 import cnep.pipeline.replay.viewer as L
 from cnep.outputs import write_atomically
-from cnep.pipeline.replay.rerun_log import active_expert_states, first_read_text, shown_state
-from cnep.pipeline.sim.rerun_log import APPLICATION_ID, GRIPPER, GRIPPER_CENTRE, GRIPPER_HALF, TABLE
+from cnep.pipeline.replay.rerun_log import active_expert_states
+from cnep.pipeline.sim.rerun_log import (
+    APPLICATION_ID,
+    GRIPPER,
+    GRIPPER_CENTRE,
+    GRIPPER_HALF,
+    TABLE,
+    at_step,
+    log_policy_read,
+)
 from cnep.sim import pick_scene as P
 from cnep.sim import scene as S
 from cnep.sim.pick_episode import PickEpisode
@@ -34,8 +42,7 @@ def write_pick_episode(path: Path, name: str, ep: PickEpisode, n_experts: int) -
     rec.log(L.ACTIVE_EXPERT, active_expert_states(n_experts), static=True)
     shown = None
     for k in range(len(ep.states)):
-        rec.set_time(L.TIMELINE_FRAME, sequence=k)
-        rec.set_time(L.TIMELINE_TIME, duration=k * S.CONTROL_PERIOD_S)
+        at_step(rec, k)
         if k == 0 or k == ep.change_step:
             _cups(rec, ep.taken_start if k == 0 else ep.taken_end)
         if k == ep.change_step:
@@ -44,18 +51,7 @@ def write_pick_episode(path: Path, name: str, ep: PickEpisode, n_experts: int) -
         rec.log(L.EE, rr.Transform3D(translation=ep.states[k, :3], quaternion=ep.states[k, 3:7]))
         rec.log(BAR, rr.Transform3D(translation=ep.bar[k, :3], quaternion=ep.bar[k, 3:]))
         if k < len(ep.gates):
-            state, color = shown_state(ep.gates[k], int(ep.experts[k]))
-            rec.log(L.GATES, rr.Scalars(ep.gates[k]))
-            rec.log(L.PREDICTION, rr.LineStrips3D([ep.predicted[k]], colors=[color]))
-            if state != shown:
-                rec.log(L.ACTIVE_EXPERT, rr.StateChange(state=state))
-                shown = state
-            if k == 0:
-                sure = ep.gates[0][ep.experts[0]] >= L.SURE_GATE
-                rec.log(L.SWITCH_LOG, rr.TextLog(first_read_text(ep.gates[0], sure), level="INFO"))
-            elif ep.experts[k] != ep.experts[k - 1]:
-                text = f"step {k} ({k * S.CONTROL_PERIOD_S:.2f} s): switch {ep.experts[k - 1]} -> {ep.experts[k]}"
-                rec.log(L.SWITCH_LOG, rr.TextLog(text, level="INFO"))
+            shown = log_policy_read(rec, k, ep.gates, ep.experts, ep.predicted, shown)
     rec.log(L.SWITCH_LOG, rr.TextLog(_outcome(ep), level="INFO" if ep.success else "WARN"))
     rec.flush()
     rec.disconnect()

@@ -16,29 +16,21 @@ A failed or interrupted run leaves the folder as empty as it found it.
 
 from __future__ import annotations
 
-import logging
 from concurrent.futures import as_completed
-from dataclasses import asdict
 from pathlib import Path
 
-from cnep.pipeline.demo.weights import choose_weights
-from cnep.pipeline.ingest.stage import IngestConfig, ingest
-from cnep.pipeline.progress import StageClock, progress_bar
+from cnep.pipeline.progress import progress_bar
 from cnep.pipeline.run.stage import open_policy
 from cnep.pipeline.sim.config import PickPlaceConfig
 from cnep.pipeline.sim.generate import generate_pick_demonstrations
 from cnep.pipeline.sim.pick_baselines import BASELINES, baseline_policy
 from cnep.pipeline.sim.pick_loop import evaluate_pick_policy
 from cnep.pipeline.sim.pick_summary import format_pick_table
-from cnep.pipeline.sim.stage import by_model, export_policies, extract_features, run_in_new_folder, train_models
+from cnep.pipeline.sim.stage import by_model, run_in_new_folder, run_stages
 from cnep.pipeline.workers import single_thread_processes
-from cnep.recordings import read_trajectory
 from cnep.sim import pick_scene as P
 from cnep.sim import require_extra
 
-log = logging.getLogger(__name__)
-
-STAGES = ("generate", "ingest", "extract", "train", "export", "closed loop")
 POLICY_THREADS = 1  # intra-op threads of the policy's graphs: one episode steps them one frame at a time
 
 
@@ -50,26 +42,15 @@ def run_pick_place(config: PickPlaceConfig) -> dict:
 
 def _run_stages(config: PickPlaceConfig, out: Path) -> dict:
     """The six stages in order, each timed; returns the summary."""
-    seconds: dict[str, float] = {}
-    timed = StageClock(seconds, len(STAGES), log)
-    chosen = choose_weights(config.weights, config.offline)
-    with timed("generate", 1):
-        made = generate_pick_demonstrations(out / "recorded", config.demonstrations, config.seed, config.quiet)
-    with timed("ingest", 2):
-        ingest(IngestConfig(src=out / "recorded", out=out / "demos", quiet=config.quiet))
-    with timed("extract", 3):
-        extract_features(config, out, chosen.weights)
-    with timed("train", 4):
-        checkpoints = train_models(config, out)
-    with timed("export", 5):
-        policies = export_policies(checkpoints, out)
-    with timed("closed loop", 6):
-        results = _closed_loop(config, out, policies)
+    made, results, shared = run_stages(
+        config,
+        out,
+        lambda recorded: generate_pick_demonstrations(recorded, config.demonstrations, config.seed, config.quiet),
+        lambda policies: _closed_loop(config, out, policies),
+    )
     return {
         "task": "pick-place",
-        "settings": {k: v for k, v in asdict(config).items() if k not in ("out", "quiet")},
-        "features": read_trajectory(next((out / "trajectories").glob("*.mcap"))).extractor["weights"],
-        "imagenet_unavailable": chosen.imagenet_unavailable,
+        **shared,
         "demonstrations": {
             "n": len(made.folders),
             "places": {name: made.sides.count(name) for name, _, _ in P.PLACES},
@@ -77,7 +58,7 @@ def _run_stages(config: PickPlaceConfig, out: Path) -> dict:
         },
         "models": by_model(results),
         "table": format_pick_table(results),
-        "seconds": seconds,
+        "seconds": shared.pop("seconds"),
     }
 
 

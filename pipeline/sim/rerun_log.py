@@ -38,23 +38,12 @@ def write_episode(path: Path, name: str, ep: EpisodeResult, n_experts: int) -> P
     rec.log(L.ACTIVE_EXPERT, active_expert_states(n_experts), static=True)
     shown = None
     for k in range(len(ep.states)):
-        _at(rec, k)
+        at_step(rec, k)
         rec.log(L.CAMERA, rr.Image(ep.frames[k]))
         rec.log(L.EE, rr.Transform3D(translation=ep.states[k, :3], quaternion=ep.states[k, 3:7]))
         rec.log(BOX, rr.Transform3D(translation=ep.box[k, :3], quaternion=ep.box[k, 3:]))
         if k < len(ep.gates):  # a read of the policy (every step online, the first only when planned)
-            state, color = shown_state(ep.gates[k], int(ep.experts[k]))
-            rec.log(L.GATES, rr.Scalars(ep.gates[k]))
-            rec.log(L.PREDICTION, rr.LineStrips3D([ep.predicted[k]], colors=[color]))
-            if state != shown:
-                rec.log(L.ACTIVE_EXPERT, rr.StateChange(state=state))
-                shown = state
-            if k == 0:
-                sure = ep.gates[0][ep.experts[0]] >= L.SURE_GATE
-                rec.log(L.SWITCH_LOG, rr.TextLog(first_read_text(ep.gates[0], sure), level="INFO"))
-            elif ep.experts[k] != ep.experts[k - 1]:
-                text = f"step {k} ({k * S.CONTROL_PERIOD_S:.2f} s): switch {ep.experts[k - 1]} -> {ep.experts[k]}"
-                rec.log(L.SWITCH_LOG, rr.TextLog(text, level="INFO"))
+            shown = log_policy_read(rec, k, ep.gates, ep.experts, ep.predicted, shown)
         if k == ep.contact_step:
             rec.log(L.SWITCH_LOG, rr.TextLog(f"step {k}: the gripper touches the box", level="WARN"))
             rec.log(f"{GRIPPER}/contact", rr.Points3D([GRIPPER_CENTRE], radii=0.02, colors=[CONTACT_COLOR]))
@@ -72,7 +61,27 @@ def write_episode(path: Path, name: str, ep: EpisodeResult, n_experts: int) -> P
     return write_atomically(path, stream.read(flush=True) or b"")
 
 
-def _at(rec, k: int) -> None:
+def log_policy_read(rec, k: int, gates, experts, predicted, shown: str | None) -> str | None:
+    """Log the policy's read at step k: the gate, the predicted waypoints in the active expert's colour, the active
+    expert where it changes from `shown` (returned, as now shown), the first read at step 0 and a switch after it."""
+    import rerun as rr
+
+    state, color = shown_state(gates[k], int(experts[k]))
+    rec.log(L.GATES, rr.Scalars(gates[k]))
+    rec.log(L.PREDICTION, rr.LineStrips3D([predicted[k]], colors=[color]))
+    if state != shown:
+        rec.log(L.ACTIVE_EXPERT, rr.StateChange(state=state))
+    if k == 0:
+        sure = gates[0][experts[0]] >= L.SURE_GATE
+        rec.log(L.SWITCH_LOG, rr.TextLog(first_read_text(gates[0], sure), level="INFO"))
+    elif experts[k] != experts[k - 1]:
+        text = f"step {k} ({k * S.CONTROL_PERIOD_S:.2f} s): switch {experts[k - 1]} -> {experts[k]}"
+        rec.log(L.SWITCH_LOG, rr.TextLog(text, level="INFO"))
+    return state
+
+
+def at_step(rec, k: int) -> None:
+    """Set the recording's frame and time lines to control step k."""
     rec.set_time(L.TIMELINE_FRAME, sequence=k)
     rec.set_time(L.TIMELINE_TIME, duration=k * S.CONTROL_PERIOD_S)
 

@@ -44,7 +44,7 @@ from cnep.pipeline.ingest.stage import IngestConfig, ingest
 from cnep.pipeline.progress import StageClock
 from cnep.pipeline.sim.config import LoopSettings, PickPlaceConfig, SimConfig
 from cnep.pipeline.sim.figure import FIGURE_FILE
-from cnep.pipeline.sim.generate import generate_demonstrations
+from cnep.pipeline.sim.generate import Generated, generate_demonstrations
 from cnep.pipeline.sim.loop import evaluate_policy
 from cnep.pipeline.sim.summary import format_table
 from cnep.pipeline.train.stage import TrainStageConfig, train
@@ -95,11 +95,44 @@ def new_output_folder(out: Path, command: str) -> Iterator[Path]:
 
 def _run_stages(config: SimConfig, out: Path) -> dict:
     """The six stages in order, each timed; returns the summary."""
+    made, results, shared = run_stages(
+        config,
+        out,
+        lambda recorded: generate_demonstrations(
+            recorded, config.demonstrations, config.seed, config.cue, config.quiet
+        ),
+        lambda policies: _closed_loop(config, out, policies),
+    )
+    return {
+        "task": config.task,
+        "cue": config.cue,
+        **shared,
+        "demonstrations": {
+            "n": len(made.folders),
+            "left": made.sides.count("left"),
+            "right": made.sides.count("right"),
+            "clean": made.successes,
+        },
+        "models": by_model(results),
+        "table": format_table(results),
+        "seconds": shared.pop("seconds"),
+    }
+
+
+def run_stages(
+    config: SimConfig | PickPlaceConfig,
+    out: Path,
+    generate: Callable[[Path], Generated],
+    closed_loop: Callable[[dict[str, Path]], dict[str, dict]],
+) -> tuple[Generated, dict[str, dict], dict]:
+    """A task's six stages (STAGES) in order, each timed: `generate` writes the demonstrations into the folder it is
+    given, `closed_loop` runs the exported policies (label -> folder). Returns the demonstrations, the closed loop's
+    results and the summary's entries every task has (settings, features, imagenet_unavailable, seconds)."""
     seconds: dict[str, float] = {}
     timed = StageClock(seconds, len(STAGES), log)
     chosen = choose_weights(config.weights, config.offline)  # before anything is made: `imagenet` may be refused
     with timed("generate", 1):
-        made = generate_demonstrations(out / "recorded", config.demonstrations, config.seed, config.cue, config.quiet)
+        made = generate(out / "recorded")
     with timed("ingest", 2):
         ingest(IngestConfig(src=out / "recorded", out=out / "demos", quiet=config.quiet))
     with timed("extract", 3):
@@ -109,23 +142,14 @@ def _run_stages(config: SimConfig, out: Path) -> dict:
     with timed("export", 5):
         policies = export_policies(checkpoints, out)
     with timed("closed loop", 6):
-        results = _closed_loop(config, out, policies)
-    return {
-        "task": config.task,
-        "cue": config.cue,
+        results = closed_loop(policies)
+    shared = {
         "settings": {k: v for k, v in asdict(config).items() if k not in ("out", "quiet")},
         "features": read_trajectory(next((out / "trajectories").glob("*.mcap"))).extractor["weights"],
         "imagenet_unavailable": chosen.imagenet_unavailable,
-        "demonstrations": {
-            "n": len(made.folders),
-            "left": made.sides.count("left"),
-            "right": made.sides.count("right"),
-            "clean": made.successes,
-        },
-        "models": by_model(results),
-        "table": format_table(results),
         "seconds": seconds,
     }
+    return made, results, shared
 
 
 def extract_features(config: SimConfig | PickPlaceConfig, out: Path, weights: str) -> None:

@@ -88,3 +88,12 @@ def test_with_the_split_option_episodes_take_both_sides_each_keeping_one_and_a_s
     assert {ep.side for ep in episodes} == {"left", "right"}
     assert all(ep.switches == 0 and ep.success for ep in episodes)
     assert run_episode(env, policy, seed=3, protocol=ONLINE).side == episodes[3].side
+
+
+def test_an_episode_run_with_its_frames_is_written_as_a_recording(env, tmp_path):
+    from cnep.pipeline.sim.rerun_log import write_episode
+
+    ep = run_episode(env, scripted_policy(gate=(0.2, 0.8)), seed=5, protocol=ONLINE, record_frames=True)
+    assert ep.frames is not None and len(ep.frames) == len(ep.states)
+    path = write_episode(tmp_path / "episode.rrd", "episode", ep, n_experts=2)
+    assert path == tmp_path / "episode.rrd" and path.read_bytes()[:4] == b"RRF2"
