@@ -23,8 +23,8 @@ def gate_of(model: CNEP, rows: np.ndarray) -> np.ndarray:
     """The gate (d,) of a model conditioned on every step of a demonstration (T, model width), raw values."""
     T = len(rows)
     t = np.arange(T) / max(T - 1, 1)  # (T,)
-    obs = rows[:, model.obs_columns.numpy()]  # (T, obs_dim)
-    query = rows[:1, model.query_columns.numpy()] if model.config.columns.query_dim else None
+    obs = rows[:, model.obs_columns.cpu().numpy()]  # (T, obs_dim)
+    query = rows[:1, model.query_columns.cpu().numpy()] if model.config.columns.query_dim else None
     return model.generate(t, obs, t[:1], query).gate
 
 
