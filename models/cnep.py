@@ -178,13 +178,10 @@ class CNEP(nn.Module):
             query_values = np.zeros((len(query_t), 0), dtype=np.float32)
         query_values = np.asarray(query_values, dtype=np.float32).reshape(len(query_t), lay.query_dim)
         p = next(self.parameters())
-        obs = self.prepare(torch.as_tensor(obs_t, dtype=p.dtype), torch.as_tensor(obs_values), self.obs_columns)
-        query = self.prepare(torch.as_tensor(query_t, dtype=p.dtype), torch.as_tensor(query_values), self.query_columns)
-        mean, std, gate = self(
-            obs[None].to(p.device),
-            torch.ones(1, len(obs_t), dtype=torch.bool, device=p.device),
-            query[None].to(p.device),
-        )
+        on = {"dtype": p.dtype, "device": p.device}  # the model's: a GPU model generates on the GPU
+        obs = self.prepare(torch.as_tensor(obs_t, **on), torch.as_tensor(obs_values, **on), self.obs_columns)
+        query = self.prepare(torch.as_tensor(query_t, **on), torch.as_tensor(query_values, **on), self.query_columns)
+        mean, std, gate = self(obs[None], torch.ones(1, len(obs_t), dtype=torch.bool, device=p.device), query[None])
         mean, std, gate = mean[0], std[0], gate[0]  # (d, M, dy), (d, M, dy), (d,)
         scale = self.normaliser.scale[self.out_columns]
         means = self.normaliser.denormalise(mean, self.out_columns)  # (d, M, dy)
