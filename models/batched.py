@@ -238,6 +238,7 @@ class BatchedTrainer:
             self.assignments,
             self.step / self.cfg.steps,
             posterior,
+            self.cfg.nll_beta,
         )  # name -> (k,)
         a = self.weights
         total = a[:, 0] * terms["rec"] - a[:, 1] * terms["batch_entropy"] + a[:, 2] * terms["ind_entropy"]  # (k,)
@@ -296,13 +297,14 @@ def stacked_loss_terms(
     assignments: Sequence[Assignment],
     progress: float,
     posterior: tuple[torch.Tensor, torch.Tensor] | None = None,
+    beta: float = 0.0,
 ) -> dict[str, torch.Tensor]:
     """`models.loss.loss_terms` of k stacked models (leading dimension k), model j with `assignments[j]` -> name ->
     (k,); posterior: each model's (nll (k, B, d), values (k, B)) of its samples' demonstrations
-    (`models.train.demonstration_nll`), read by the assignments that use it."""
+    (`models.train.demonstration_nll`), read by the assignments that use it; beta: as in `models.loss.expert_nll`."""
     groups = {a: [j for j, x in enumerate(assignments) if x == a] for a in dict.fromkeys(assignments)}
     if len(groups) == 1:
-        return loss_terms(mean, std, gate, target, target_mask, assignments[0], progress, posterior)
+        return loss_terms(mean, std, gate, target, target_mask, assignments[0], progress, posterior, beta)
     parts = [
         loss_terms(
             mean[idx],
@@ -313,6 +315,7 @@ def stacked_loss_terms(
             a,
             progress,
             None if posterior is None else tuple(x[idx] for x in posterior),
+            beta,
         )
         for a, idx in groups.items()
     ]

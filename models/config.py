@@ -176,6 +176,14 @@ class TrainConfig:
         0.0, "share of training and validation contexts that are a trajectory's first k ~ U{1..first_steps_max} steps"
     )
     first_steps_max: int = setting(4, "most steps in such a first-steps context")
+    # Plain NLL lets the well-predicted values outweigh a hard one by the ratio of their variances, and the hard one's
+    # mean stops being learned (its std grows instead): where a model must read a value from its context, such as
+    # the place a motion heads for, beta > 0 keeps that mean learning (models.loss.expert_nll).
+    nll_beta: float = setting(
+        0.0,
+        "each value's NLL in the training loss weighted by its predicted variance to this power (beta-NLL); 0 is the "
+        "paper's plain NLL, 0.5 the usual beta-NLL",
+    )
     lr: float = setting(1e-3, "peak learning rate of Adam")
     warmup_steps: int = setting(2_000, "steps of linear learning-rate warm-up")
     gate_freeze_fraction: float = setting(0.3, "share of the steps with the gate held uniform")
@@ -195,6 +203,10 @@ class TrainConfig:
         if self.gate_lr_scale is not None and not self.gate_lr_scale > 0:
             raise ConfigError(
                 f"gate_lr_scale must be > 0 (use gate_freeze_fraction to hold the gate), got {self.gate_lr_scale}."
+            )
+        if not 0 <= self.nll_beta <= 1:
+            raise ConfigError(
+                f"nll_beta must be in [0, 1] (0: plain NLL; 0.5: the usual beta-NLL), got {self.nll_beta}."
             )
         if not 0 <= self.first_steps_fraction <= 1 or self.first_steps_max < 1:
             raise ConfigError(

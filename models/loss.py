@@ -47,14 +47,21 @@ def entropy(p: torch.Tensor) -> torch.Tensor:
     return -(p * p.clamp_min(_TINY).log()).sum(-1)
 
 
-def expert_nll(mean: torch.Tensor, std: torch.Tensor, target: torch.Tensor, target_mask: torch.Tensor) -> torch.Tensor:
+def expert_nll(
+    mean: torch.Tensor, std: torch.Tensor, target: torch.Tensor, target_mask: torch.Tensor, beta: float = 0.0
+) -> torch.Tensor:
     """Mean Gaussian NLL per sample and expert over the real targets and output dims.
 
     mean, std (..., B, d, M, dy); target (..., B, M, dy); target_mask (..., B, M) bool -> (..., B, d).
     Leading dimensions (k stacked models, models.batched) are computed slice by slice as without them.
+    beta: each value's NLL weighted by its predicted variance ** beta, not differentiated (the beta-NLL of Seitzer
+    et al., 2022). With plain NLL (0) a value predicted with a small std outweighs one the model finds hard by the
+    ratio of their variances, and the hard one's mean stops being learned: its std grows to cover it instead.
     """
     z = (target.unsqueeze(-3) - mean) / std  # (B, d, M, dy)
     nll = 0.5 * z**2 + std.log() + _HALF_LOG_2PI  # (B, d, M, dy)
+    if beta:
+        nll = nll * std.detach() ** (2 * beta)
     w = target_mask.to(nll.dtype)[..., None, :, None]  # (B, 1, M, 1)
     count = w.sum((-2, -1)) * mean.shape[-1]  # (B, 1)
     return (nll * w).sum((-2, -1)) / count.clamp_min(1.0)  # (B, d)
@@ -170,10 +177,11 @@ def loss_terms(
     assignment: Assignment,
     progress: float = 1.0,
     posterior: tuple[torch.Tensor, torch.Tensor] | None = None,
+    beta: float = 0.0,
 ) -> dict[str, torch.Tensor]:
-    """L_rec, L_batch and L_ind as tensors (...): shapes as in `expert_nll`, gate (..., B, d); posterior as in
-    `reconstruction`. Leading dimensions are k stacked models (models.batched), each computed exactly as alone."""
-    nll = expert_nll(mean, std, target, target_mask)  # (B, d)
+    """L_rec, L_batch and L_ind as tensors (...): shapes and beta as in `expert_nll`, gate (..., B, d); posterior as
+    in `reconstruction`. Leading dimensions are k stacked models (models.batched), each computed exactly as alone."""
+    nll = expert_nll(mean, std, target, target_mask, beta)  # (B, d)
     values = target_mask.to(nll.dtype).sum(-1) * mean.shape[-1]  # (B,) target values per sample
     return {
         "rec": reconstruction(nll, gate, values, assignment, progress, posterior),
@@ -191,10 +199,11 @@ def cnep_loss(
     config: CNEPConfig,
     progress: float = 1.0,
     posterior: tuple[torch.Tensor, torch.Tensor] | None = None,
+    beta: float = 0.0,
 ) -> tuple[torch.Tensor, dict[str, float]]:
-    """Total loss and its terms as floats (for logs). Shapes as in `expert_nll`; gate (B, d); progress: the
+    """Total loss and its terms as floats (for logs). Shapes and beta as in `expert_nll`; gate (B, d); progress: the
     fraction of training done (step / steps; the "annealed" assignment's schedule); posterior: as in
     `reconstruction`."""
-    terms = loss_terms(mean, std, gate, target, target_mask, config.assigned, progress, posterior)
+    terms = loss_terms(mean, std, gate, target, target_mask, config.assigned, progress, posterior, beta)
     total = config.a_rec * terms["rec"] - config.a_batch * terms["batch_entropy"] + config.a_ind * terms["ind_entropy"]
     return total, {"loss": total.item(), **{name: term.item() for name, term in terms.items()}}

@@ -264,8 +264,9 @@ class Trainer:
             if self.model.config.assigned.uses_demonstration
             else None
         )
+        progress = self.step / self.cfg.steps
         loss, terms = cnep_loss(
-            mean, std, gate, batch.target, batch.target_mask, self.model.config, self.step / self.cfg.steps, posterior
+            mean, std, gate, batch.target, batch.target_mask, self.model.config, progress, posterior, self.cfg.nll_beta
         )
         self.optimizer.zero_grad(set_to_none=False)
         loss.backward()

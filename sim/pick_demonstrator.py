@@ -3,8 +3,9 @@ put it down, leave; with natural variation.
 
 A demonstration (`PickDraw`, drawn by `draw_pick` from a generator and the scene) has a place (one of the grasp's
 free places, drawn uniformly: the scene decides where one is taken and leaves the choice where both are free), a
-number of steps per phase (its speed: pick_scene.PHASE_STEPS), the grasp point along the bar, the place point on
-the mat and the carrying height. Its waypoints (`pick_path`) are the actions (8,): xyz, the quaternion xyzw (the
+number of steps per phase (its speed: one pace within pick_scene.PHASE_STEPS' ranges for the whole motion, so each
+stage comes at about the same share of every demonstration), the grasp point along the bar, the place point on the
+mat and the carrying height. Its waypoints (`pick_path`) are the actions (8,): xyz, the quaternion xyzw (the
 grasp's yaw, turned during the approach) and the gripper command (FINGER_OPEN open, 0 closed); each phase moves
 with a minimum-jerk timing.
 """
@@ -36,11 +37,18 @@ def draw_pick(rng: np.random.Generator, orientation: str, taken: list[bool]) -> 
     free = [i for i in grasp_places(orientation) if not taken[i]]
     return PickDraw(
         place=free[int(rng.integers(len(free)))],
-        steps=tuple(int(rng.integers(lo, hi + 1)) for lo, hi in P.PHASE_STEPS.values()),
+        steps=phase_steps(float(rng.uniform())),
         grasp=float(rng.uniform(-P.GRASP_OFFSET, P.GRASP_OFFSET)),
         target=tuple(float(v) for v in rng.uniform(-P.PLACE_OFFSET, P.PLACE_OFFSET, 2)),
         carry_z=float(P.CARRY_Z + rng.uniform(-P.CARRY_JITTER, P.CARRY_JITTER)),
     )
+
+
+def phase_steps(pace: float) -> tuple[int, ...]:
+    """The steps of each phase (PHASE_STEPS' order) of a demonstrator whose `pace` in [0, 1] runs from the quickest
+    (0) to the slowest (1): one pace for the whole motion, so each stage comes at the same share of every
+    demonstration, as a demonstrator's tempo carries through a motion."""
+    return tuple(int(round(lo + pace * (hi - lo))) for lo, hi in P.PHASE_STEPS.values())
 
 
 def pick_path(draw: PickDraw, start: np.ndarray, object_xy: np.ndarray, object_yaw: float) -> np.ndarray:

@@ -78,6 +78,7 @@ class SimConfig(LoopSettings):
     assignment: str = setting(
         "annealed", "the CNEP's assignment, as `cnep train --assignment` takes it", choices=tuple(ASSIGNMENTS)
     )
+    nll_beta: float = setting(0.0, "the training loss's beta-NLL power, as `cnep train --nll-beta` takes it")
     weights: str = setting(AUTO_WEIGHTS, "the feature network's weights, as `cnep demo --weights` takes them")
     offline: bool = setting(False, "never download the ImageNet weights (also: environment variable CNEP_OFFLINE=1)")
     quiet: bool = False
@@ -123,6 +124,9 @@ class PickPlaceConfig:
     assignment: str = setting(
         "annealed", "the CNEP's assignment, as `cnep train --assignment` takes it", choices=tuple(ASSIGNMENTS)
     )
+    # Where a motion heads (which mat) is read from the context, beside values the model predicts closely (the
+    # heights, the gripper): with plain NLL those outweigh it and the place's mean stops being learned.
+    nll_beta: float = setting(0.5, "the training loss's beta-NLL power, as `cnep train --nll-beta` takes it")
     weights: str = setting(AUTO_WEIGHTS, "the feature network's weights, as `cnep demo --weights` takes them")
     offline: bool = setting(False, "never download the ImageNet weights (also: environment variable CNEP_OFFLINE=1)")
     episodes: int = setting(20, "closed-loop episodes per policy and condition (decided, free, changed)")

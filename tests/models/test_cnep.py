@@ -131,6 +131,8 @@ def test_train_config_rejects_bad_values():
         TrainConfig(first_steps_fraction=1.5)
     with pytest.raises(ConfigError, match="first_steps_max >= 1"):
         TrainConfig(first_steps_max=0)
+    with pytest.raises(ConfigError, match=r"nll_beta must be in \[0, 1\].*got 1.5"):
+        TrainConfig(nll_beta=1.5)
 
 
 def test_config_round_trips_through_a_dict():

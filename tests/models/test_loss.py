@@ -33,6 +33,32 @@ def test_expert_nll_against_a_hand_computation():
     torch.testing.assert_close(only_first, torch.tensor([[nll(0, 0, 1), nll(0, 2, 0.5)]]))
 
 
+def test_beta_nll_weights_each_value_by_its_variance_without_differentiating_the_weight():
+    mean = torch.tensor([[[[0.0, 0.0]]]], requires_grad=True)  # (B=1, d=1, M=1, dy=2)
+    std = torch.tensor([[[[0.1, 2.0]]]], requires_grad=True)  # one value predicted closely, one hard
+    target = torch.tensor([[[1.0, 1.0]]])
+    mask = torch.tensor([[True]])
+    plain = expert_nll(mean, std, target, mask)
+    (grad_plain,) = torch.autograd.grad(plain.sum(), mean)
+    assert grad_plain[0, 0, 0, 0] / grad_plain[0, 0, 0, 1] == pytest.approx(400.0)  # the variances' ratio
+    weighted = expert_nll(mean, std, target, mask, beta=1.0)
+    torch.testing.assert_close(weighted, _nll_terms(std, 1.0))
+    (grad_mean, grad_std) = torch.autograd.grad(weighted.sum(), (mean, std))
+    torch.testing.assert_close(grad_mean, -(target - mean.detach()) / 2)  # beta 1: the squared error's gradient
+    (grad_std_plain,) = torch.autograd.grad(expert_nll(mean, std, target, mask).sum(), std)
+    torch.testing.assert_close(grad_std, grad_std_plain * std.detach() ** 2)  # the weight itself is not differentiated
+    half = expert_nll(mean, std, target, mask, beta=0.5)
+    (grad_half,) = torch.autograd.grad(half.sum(), mean)
+    assert grad_half[0, 0, 0, 0] / grad_half[0, 0, 0, 1] == pytest.approx(20.0)  # the stds' ratio
+
+
+def _nll_terms(std: torch.Tensor, beta: float) -> torch.Tensor:
+    """The mean over the two values of test_beta_nll's NLL, each weighted by variance ** beta: (1, 1)."""
+    s = std.detach()[0, 0, 0]  # (2,)
+    nll = 0.5 / s**2 + s.log() + 0.5 * math.log(2 * math.pi)
+    return (nll * s ** (2 * beta)).mean().reshape(1, 1)
+
+
 def test_entropy_is_stable_at_zero_and_per_row():
     p = torch.tensor([[1.0, 0.0], [0.5, 0.5]], requires_grad=True)
     h = entropy(p)

@@ -17,6 +17,7 @@ from gymnasium.utils.env_checker import check_env  # noqa: E402
 from cnep.runtime import STATE_KEY  # noqa: E402
 from cnep.sim import PICK_ENV_ID, PICK_IMAGE_KEY, PickPlaceEnv, draw_pick, grasp_places, pick_path  # noqa: E402
 from cnep.sim import pick_scene as P  # noqa: E402
+from cnep.sim.pick_demonstrator import phase_steps  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -48,6 +49,18 @@ def test_the_environment_passes_gymnasiums_checker_and_is_registered():
     assert observation[PICK_IMAGE_KEY].shape == (P.IMAGE_HEIGHT, P.IMAGE_WIDTH, 3)
     assert info["condition"] in (P.DECIDED, P.FREE) and info["valid"]
     env.close()
+
+
+def test_a_demonstrators_pace_carries_through_its_whole_motion():
+    assert phase_steps(0.0) == tuple(lo for lo, _ in P.PHASE_STEPS.values())
+    assert phase_steps(1.0) == tuple(hi for _, hi in P.PHASE_STEPS.values())
+    rng = np.random.default_rng(0)
+    draws = [draw_pick(rng, "along_y", [False] * len(P.PLACES)).steps for _ in range(40)]
+    assert len(set(draws)) > 5  # demonstrations vary in speed
+    for steps in draws:  # and a quick one is quick in every phase: no phase is slower than in a slower draw
+        for other in draws:
+            if sum(other) > sum(steps) + len(steps):
+                assert all(a <= b for a, b in zip(steps, other))
 
 
 def test_the_scene_decides_where_one_place_of_the_grasp_is_taken_and_leaves_the_choice_where_none_is():
