@@ -110,9 +110,7 @@ class TabletopEnv(gym.Env):
         return (np.round(state / S.STATE_RESOLUTION) * S.STATE_RESOLUTION).astype(np.float32)
 
     def touching(self, these: set[int], those: set[int]) -> bool:
-        """A contact between a geom of `these` and one of `those` at this physics step."""
-        for contact in self.data.contact[: self.data.ncon]:
-            a, b = int(contact.geom1), int(contact.geom2)
-            if (a in these and b in those) or (a in those and b in these):
-                return True
-        return False
+        """A contact between a geom of `these` and one of `those` at this physics step (the contacts' geom pairs read
+        as one array, not contact by contact: the environments ask after every physics step)."""
+        pairs = self.data.contact.geom[: self.data.ncon].tolist()  # [[geom, geom], ...]
+        return any((a in these and b in those) or (a in those and b in these) for a, b in pairs)

@@ -1,6 +1,8 @@
-"""`cnep sim pick-place` end to end on the smallest data that runs every stage (4 demonstrations, 20 training steps,
-one episode per condition): summary.json holds per model and condition the documented rates, and the examples
-turn the run into its table and probe its features."""
+"""`cnep sim pick-place` end to end on the smallest data that runs every stage (2 demonstrations, random features
+calibrated on one batch of frames, 20 training steps, one episode per condition): summary.json holds per model and
+condition the documented rates, and the examples turn the run into its table and probe its features. The stage's
+two pools (training, closed loop) run their jobs in this process: `cnep sim obstacle`'s test (test_stage.py) runs
+the same training pool in spawned processes, and tests/pipeline/test_workers.py the pools themselves."""
 
 import importlib.util
 import json
@@ -20,15 +22,17 @@ from cnep.sim import pick_scene as P  # noqa: E402
 from tests.test_examples import load  # noqa: E402
 
 
-@pytest.mark.slow  # two spawned training processes, MobileNet-v2 features, two exports, five policies in the loop
-def test_cnep_sim_pick_place_writes_the_documented_summary(tmp_path, monkeypatch):
+@pytest.mark.slow  # MobileNet-v2 features, two trainings, two exports, five policies in the loop
+def test_cnep_sim_pick_place_writes_the_documented_summary(
+    tmp_path, monkeypatch, few_calibration_frames, sim_pools_in_process
+):
     monkeypatch.setenv("HOME", str(tmp_path / "home"))
     monkeypatch.setenv("TORCH_HOME", str(tmp_path / "torch"))
     out = tmp_path / "pick"
-    config = PickPlaceConfig(out=out, demonstrations=4, train_steps=20, episodes=1, record=1, offline=True, quiet=True)
+    config = PickPlaceConfig(out=out, demonstrations=2, train_steps=20, episodes=1, record=1, offline=True, quiet=True)
     summary = run_pick_place(config)
     assert json.loads((out / SUMMARY_FILE).read_text()) == json.loads(json.dumps(summary))
-    assert summary["demonstrations"]["n"] == 4 and summary["demonstrations"]["clean"] == 4
+    assert summary["demonstrations"]["n"] == 2 and summary["demonstrations"]["clean"] == 2
     assert set(summary["models"]) == {"CNEP", "CNMP", *BASELINES}
     for seeds in summary["models"].values():
         assert set(seeds) == {"0"} and list(seeds["0"]) == list(P.CONDITIONS)

@@ -1,6 +1,7 @@
-"""`cnep sim obstacle` end to end on the smallest data that runs every stage (4 demonstrations, 20 training steps, one
-episode per protocol): summary.json holds the documented keys, the exported policies repeat their episodes with the
-same seeds, and examples/closed_loop_csv.py turns the run into its rows."""
+"""`cnep sim obstacle` end to end on the smallest data that runs every stage (2 demonstrations, random features
+calibrated on one batch of frames, 20 training steps, one episode per protocol): summary.json holds the documented
+keys, the exported policies repeat their episodes with the same seeds, and examples/closed_loop_csv.py turns the run
+into its rows."""
 
 import importlib.util
 import json
@@ -27,14 +28,16 @@ def outcome(rates: dict) -> list[tuple]:
 
 
 @pytest.mark.slow  # two spawned training processes, MobileNet-v2 features and two exports
-def test_cnep_sim_obstacle_writes_the_documented_summary_and_its_policies_repeat_their_episodes(tmp_path, monkeypatch):
+def test_cnep_sim_obstacle_writes_the_documented_summary_and_its_policies_repeat_their_episodes(
+    tmp_path, monkeypatch, few_calibration_frames
+):
     monkeypatch.setenv("HOME", str(tmp_path / "home"))
     monkeypatch.setenv("TORCH_HOME", str(tmp_path / "torch"))
     out = tmp_path / "sim"
-    config = SimConfig(out=out, demonstrations=4, train_steps=20, episodes=1, record=0, offline=True, quiet=True)
+    config = SimConfig(out=out, demonstrations=2, train_steps=20, episodes=1, record=0, offline=True, quiet=True)
     summary = run_sim(config)
     assert json.loads((out / SUMMARY_FILE).read_text()) == json.loads(json.dumps(summary))
-    assert summary["demonstrations"] == {"n": 4, "left": 2, "right": 2, "clean": 4}
+    assert summary["demonstrations"] == {"n": 2, "left": 1, "right": 1, "clean": 2}
     assert summary["features"].startswith("random") and summary["settings"]["assignment"] == config.assignment
     assert set(summary["models"]) == set(MODELS) and all(set(seeds) == {"0"} for seeds in summary["models"].values())
     settings = LoopSettings(**{f.name: getattr(config, f.name) for f in fields(LoopSettings)})

@@ -1,0 +1,46 @@
+from concurrent.futures import Executor, Future
+from contextlib import contextmanager
+
+import pytest
+
+# Frames that calibrate the random feature weights in the end-to-end runs here: one calibration batch, where the
+# command takes perception.constants.CALIBRATION_FRAMES. These tests check the stages and the summary, not how well
+# the features tell scenes apart (tests/pipeline/test_scene.py does).
+FEW_CALIBRATION_FRAMES = 32
+
+
+@pytest.fixture
+def few_calibration_frames(monkeypatch):
+    """`cnep extract` calibrates random weights on FEW_CALIBRATION_FRAMES frames while the test runs."""
+    import cnep.pipeline.extract.stage as extract_stage
+
+    monkeypatch.setattr(extract_stage, "CALIBRATION_FRAMES", FEW_CALIBRATION_FRAMES)
+
+
+class InProcess(Executor):
+    """An executor that runs each job when it is submitted, in this process (concurrent.futures' interface)."""
+
+    def submit(self, fn, /, *args, **kwargs) -> Future:
+        future = Future()
+        try:
+            future.set_result(fn(*args, **kwargs))
+        except Exception as error:
+            future.set_exception(error)
+        return future
+
+
+@contextmanager
+def in_process(workers: int, wait: bool = True):
+    """pipeline.workers.single_thread_processes' stand-in: the jobs run in this process, one after the other."""
+    yield InProcess()
+
+
+@pytest.fixture
+def sim_pools_in_process(monkeypatch, one_thread):
+    """The sim stages' worker pools (training, the pick-and-place closed loop) run their jobs in this process, on one
+    torch thread as in a worker: no process to start, no torch to import again."""
+    import cnep.pipeline.sim.pick_stage as pick_stage
+    import cnep.pipeline.sim.stage as sim_stage
+
+    for module in (sim_stage, pick_stage):
+        monkeypatch.setattr(module, "single_thread_processes", in_process)
