@@ -116,7 +116,7 @@ class PickPlaceConfig:
     in every condition."""
 
     out: Path
-    demonstrations: int = setting(48, "demonstrations generated (each a scene drawn decided or free, its place drawn)")
+    demonstrations: int = setting(96, "demonstrations generated (each a scene drawn decided or free, its place drawn)")
     seed: int = setting(0, "seed of the demonstrations (and of the feature network's random weights)")
     train_seeds: tuple[int, ...] = setting((0,), "training seeds: one CNEP and one matched CNMP trained per seed")
     train_steps: int = setting(3000, "training steps of each model")
