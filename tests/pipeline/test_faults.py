@@ -33,6 +33,7 @@ from cnep.pipeline.cli.main import main
 from cnep.recordings import read_demonstration, write_demonstration
 from tests.conftest import MOTION_TRAINING
 from tests.pipeline.fault_driver import files, stray
+from tests.pipeline.preloaded import Preloaded
 from tests.recordings.factories import demonstration_factory
 
 pytestmark = [pytest.mark.usefixtures("one_thread"), pytest.mark.slow]  # real `cnep` processes, killed and rerun
@@ -40,6 +41,18 @@ pytestmark = [pytest.mark.usefixtures("one_thread"), pytest.mark.slow]  # real `
 ROOT = Path(__file__).resolve().parents[2]
 TRAINING = MOTION_TRAINING  # what the motion world's checkpoint was trained with
 WAIT_S = 240  # a paused process reached its point, or a killed one ended (a loaded 2-core machine is slow)
+
+
+SERVER: list[Preloaded] = []  # the module's one server (the `preloaded` fixture)
+
+
+@pytest.fixture(scope="module", autouse=True)
+def preloaded() -> Iterator[Preloaded]:
+    """The server that forks the `cnep` processes these tests kill, torch already imported (tests/pipeline/
+    preloaded.py); a module fixture, so every test here runs on the one worker process that started it."""
+    SERVER.append(Preloaded())
+    yield SERVER[0]
+    SERVER.pop().close()
 
 
 @dataclass(frozen=True)
@@ -65,17 +78,15 @@ def world(motion_world, tmp_path_factory) -> World:
 
 
 class Paused:
-    """A `cnep` process that will pause at the `hit`-th call of `target` (`module:Attr.name`); started at once,
-    `wait()` for it to get there (start several, then wait: they import torch side by side)."""
+    """A `cnep` process that will pause at the `hit`-th call of `target` (`module:Attr.name`), forked by the module's
+    server; started at once, `wait()` for it to get there (start several, then wait: they run side by side)."""
 
     def __init__(self, target: str, hit: int, argv: list, tmp: Path):
         self.target, self.hit = target, hit
         self.go = tmp / f".go-{time.monotonic_ns()}"
         env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": str(ROOT)}
         cmd = [sys.executable, "-m", "tests.pipeline.fault_driver", target, str(hit), str(self.go), "--", "-q"]
-        self.proc = subprocess.Popen(
-            [*cmd, *map(str, argv)], cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
-        )
+        self.proc = SERVER[0].popen([*cmd, *map(str, argv)], cwd=ROOT, env=env)
 
     def wait(self) -> Paused:
         ready, _, _ = select.select([self.proc.stdout], [], [], WAIT_S)
@@ -440,10 +451,13 @@ def test_a_full_disk_is_one_line_naming_the_file_in_every_stage(world, full_disk
 
 
 @pytest.mark.parametrize("free", [0, 64 * 1024, 1000 * 1024])
-def test_a_full_disk_names_its_file_in_every_command(world, tmp_path, capsys, free):
+def test_a_full_disk_names_its_file_in_every_command(world, tmp_path, capsys, monkeypatch, free):
     """With no space left, 64 kB or 1000 kB (some outputs fit, others do not): done, or exit 2 with one line that
     names a file on that disk; nothing half-written either way."""
+    import cnep.models.baselines.gmm as gmm_module
     from tests.pipeline.test_contract import QUICK_EVALUATE
+
+    monkeypatch.setattr(gmm_module, "EM_ITERATIONS", 3)  # the evaluation's tables are written, not read: a few EM steps
 
     with small_disk(tmp_path / "disk", free) as disk:
         cases = {
