@@ -105,7 +105,20 @@ def truncated_recording(work: Path) -> None:
     path.write_bytes(data[: int(len(data) * 0.6)])
 
 
+def few_demo_recordings(work: Path) -> None:
+    """cnep-demo/demos/train and cnep-demo/demos/heldout with two and one of the quick demo's recordings: the page
+    extracts them three times over, and the others would only add frames."""
+    demo = (work / "cnep-demo").resolve()
+    (work / "cnep-demo").unlink()
+    for split, count in (("train", 2), ("heldout", 1)):
+        folder = work / "cnep-demo" / "demos" / split
+        folder.mkdir(parents=True)
+        for recording in sorted((demo / "demos" / split).glob("*.mcap"))[:count]:
+            (folder / recording.name).symlink_to(recording)
+
+
 INPUTS = {
+    "docs/how-to/extract-features.md": few_demo_recordings,
     "docs/how-to/own-csv-and-video.md": recordings_with_video_and_images,
     "docs/how-to/lerobot-dataset.md": lerobot_dataset,
     "docs/how-to/ros-bag.md": ros_bags,
