@@ -129,6 +129,13 @@ class PickPlaceConfig:
     nll_beta: float = setting(0.5, "the training loss's beta-NLL power, as `cnep train --nll-beta` takes it")
     weights: str = setting(AUTO_WEIGHTS, "the feature network's weights, as `cnep demo --weights` takes them")
     offline: bool = setting(False, "never download the ImageNet weights (also: environment variable CNEP_OFFLINE=1)")
+    # A cup can move during the motion: the start's frame, kept in the context for the whole episode, would go on
+    # showing the old table, and a long window dilutes the change's evidence; a short window of recent steps alone
+    # switches expert within a few steps of the change.
+    window: int = setting(
+        4, "latest observations in the CNEP's and the CNMP's conditioning set (runtime.ConditioningPolicy.window)"
+    )
+    anchors: int = setting(0, "first observations kept in that set for the whole episode (ConditioningPolicy.anchors)")
     episodes: int = setting(20, "closed-loop episodes per policy and condition (decided, free, changed)")
     episode_seed: int = setting(0, "seed of the first episode (episode i is reset with seed + i)")
     record: int = setting(1, "episodes per policy and condition written as Rerun recordings (the first ones)")
@@ -145,6 +152,8 @@ class PickPlaceConfig:
                 f"need >= 2 demonstrations, >= 1 training step, >= 2 experts and a training seed, got "
                 f"{self.demonstrations}, {self.train_steps}, {self.experts} and {self.train_seeds}"
             )
+        if self.window < 1 or self.anchors < 0:
+            raise PipelineError(f"window must be >= 1 and anchors >= 0, got {self.window} and {self.anchors}")
         if self.episodes < 1 or self.record < 0 or self.pca < 1:
             raise PipelineError(
                 f"episodes and pca must be >= 1 and record >= 0, got {self.episodes}, {self.pca} and {self.record}"

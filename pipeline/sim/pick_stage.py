@@ -28,6 +28,7 @@ from cnep.pipeline.sim.pick_loop import evaluate_pick_policy
 from cnep.pipeline.sim.pick_summary import format_pick_table
 from cnep.pipeline.sim.stage import by_model, run_in_new_folder, run_stages
 from cnep.pipeline.workers import single_thread_processes
+from cnep.runtime.conditioning import ConditioningPolicy
 from cnep.sim import pick_scene as P
 from cnep.sim import require_extra
 
@@ -84,7 +85,8 @@ def _evaluate(config: PickPlaceConfig, out: Path, label: str, path: Path, baseli
     """One policy's closed loop (in a worker): the exported policy `path`, or the baseline `baseline` fitted beside
     the exported CNEP `path`."""
     if baseline is None:
-        policy = open_policy(path, threads=POLICY_THREADS, waypoints=1)
+        conditioning = ConditioningPolicy(window=config.window, anchors=config.anchors)
+        policy = open_policy(path, threads=POLICY_THREADS, waypoints=1, conditioning=conditioning)
     else:
         trajectories = sorted((out / "trajectories").glob("*.mcap"))
         policy = baseline_policy(baseline, path, trajectories, config.pca, waypoints=1)

@@ -27,6 +27,11 @@ def test_pick_place_arguments_become_its_settings_and_bad_ones_are_refused():
     assert config.experts == PickPlaceConfig.experts and config.pca == PickPlaceConfig.pca
     with pytest.raises(PipelineError, match="pca must be >= 1"):
         PickPlaceConfig(out=Path("x"), pca=0)
+    args = build_parser().parse_args(["sim", "pick-place", "--out", "x", "--window", "6", "--anchors", "1"])
+    config = config_of(PickPlaceConfig, args, out=args.out)
+    assert (config.window, config.anchors) == (6, 1)
+    with pytest.raises(PipelineError, match="window must be >= 1 and anchors >= 0, got 0 and 0"):
+        PickPlaceConfig(out=Path("x"), window=0)
 
 
 def test_eval_arguments_become_its_settings():
