@@ -38,7 +38,8 @@ def in_process(workers: int, wait: bool = True):
 @pytest.fixture
 def sim_pools_in_process(monkeypatch, one_thread):
     """The sim stages' worker pools (training, the pick-and-place closed loop) run their jobs in this process, on one
-    torch thread as in a worker: no process to start, no torch to import again."""
+    torch thread as in a worker: no process to start, no torch to import again. The pools themselves are
+    pipeline.workers' (tests/pipeline/test_workers.py), and the quick demo trains the same `train` jobs in them."""
     import cnep.pipeline.sim.pick_stage as pick_stage
     import cnep.pipeline.sim.stage as sim_stage
 

@@ -1,8 +1,7 @@
 """`cnep sim pick-place` end to end on the smallest data that runs every stage (2 demonstrations, random features
 calibrated on one batch of frames, 20 training steps, one episode per condition): summary.json holds per model and
 condition the documented rates, and the examples turn the run into its table and probe its features. The stage's
-two pools (training, closed loop) run their jobs in this process: `cnep sim obstacle`'s test (test_stage.py) runs
-the same training pool in spawned processes, and tests/pipeline/test_workers.py the pools themselves."""
+two pools (training, closed loop) run their jobs in this process (tests/sim/conftest.py)."""
 
 import importlib.util
 import json

@@ -1,7 +1,7 @@
 """`cnep sim obstacle` end to end on the smallest data that runs every stage (2 demonstrations, random features
 calibrated on one batch of frames, 20 training steps, one episode per protocol): summary.json holds the documented
 keys, the exported policies repeat their episodes with the same seeds, and examples/closed_loop_csv.py turns the run
-into its rows."""
+into its rows. The training pool runs its jobs in this process (tests/sim/conftest.py)."""
 
 import importlib.util
 import json
@@ -27,9 +27,9 @@ def outcome(rates: dict) -> list[tuple]:
     return [tuple(row[k] for k in EPISODE_KEYS) for row in rates["per_episode"]]
 
 
-@pytest.mark.slow  # two spawned training processes, MobileNet-v2 features and two exports
+@pytest.mark.slow  # MobileNet-v2 features, two trainings, two exports, two policies in the loop
 def test_cnep_sim_obstacle_writes_the_documented_summary_and_its_policies_repeat_their_episodes(
-    tmp_path, monkeypatch, few_calibration_frames
+    tmp_path, monkeypatch, few_calibration_frames, sim_pools_in_process
 ):
     monkeypatch.setenv("HOME", str(tmp_path / "home"))
     monkeypatch.setenv("TORCH_HOME", str(tmp_path / "torch"))
