@@ -15,6 +15,11 @@ for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 os.environ.setdefault(
     "CNEP_CACHE_DIR", os.path.join(os.environ.get("TMPDIR", "/tmp"), f"cnep-test-cache-{os.getuid()}")
 )
+# matplotlib's font cache in one folder for every test and the processes they start: it lives under HOME otherwise,
+# and the tests that give a command a fresh HOME (the rerun CLI writes there) would each have it rebuilt.
+os.environ.setdefault(
+    "MPLCONFIGDIR", os.path.join(os.environ.get("TMPDIR", "/tmp"), f"cnep-test-matplotlib-{os.getuid()}")
+)
 
 import pytest  # noqa: E402
 
