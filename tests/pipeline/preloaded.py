@@ -97,8 +97,9 @@ class Preloaded:
 
 
 def serve(server: socket.socket) -> list[str] | None:
-    """Fork a child per request until the socket closes, reaping each child and writing its exit status to its
-    status pipe; in a child, return the request's argv (`[MODULE, *args]`); in the server, None at the end."""
+    """Fork a child per request until the socket closes (then the children left are killed), reaping each child and
+    writing its exit status to its status pipe; in a child, return the request's argv (`[MODULE, *args]`); in the
+    server, None at the end."""
     children: dict[int, int] = {}  # pid -> status pipe
     while True:
         reap(children, block=False)
@@ -106,7 +107,9 @@ def serve(server: socket.socket) -> list[str] | None:
         if not ready:
             continue
         message, fds, _, _ = socket.recv_fds(server, 1 << 20, 3)
-        if not message:
+        if not message:  # the tests are done: a child still running was left behind by a failed one
+            for pid in children:
+                os.kill(pid, signal.SIGKILL)
             reap(children, block=True)
             return None
         request = json.loads(message)
