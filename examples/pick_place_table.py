@@ -2,10 +2,10 @@
 
     python examples/pick_place_table.py OUT/summary.json [OUT2/summary.json ...] [--csv FILE]
 
-One row per summary, model, training seed and condition: episodes, success, collision, lifted, dropped, the
-share of changed episodes that switched within 5 steps, the median switch latency (steps) and the places the bar
-ended on (name:count). Prints the headline table (model, condition, episodes, success, collision, switch within
-5 steps) in markdown; --csv FILE writes every column (docs/results/pick-place.csv).
+One row per summary, model, training seed, protocol (planned, online) and condition: episodes, success,
+collision, lifted, dropped, the share of changed episodes that switched within 5 steps, the median switch latency
+(steps) and the places the bar ended on (name:count). Prints the headline table (model, protocol, condition, success,
+collision, switch within 5 steps) in markdown; --csv FILE writes every column (docs/results/pick-place.csv).
 """
 
 from __future__ import annotations
@@ -16,8 +16,8 @@ import io
 import json
 from pathlib import Path
 
-COLUMNS = ("run", "model", "train_seed", "condition", "episodes", "success", "collision", "lifted", "dropped",
-           "switched_within_5", "switch_latency_p50", "places")  # fmt: skip
+COLUMNS = ("run", "model", "train_seed", "protocol", "condition", "episodes", "success", "collision", "lifted",
+           "dropped", "switched_within_5", "switch_latency_p50", "places")  # fmt: skip
 
 
 def rows(summary: Path) -> list[dict]:
@@ -25,24 +25,26 @@ def rows(summary: Path) -> list[dict]:
     data = json.loads(summary.read_text())
     out = []
     for model, seeds in data["models"].items():
-        for seed, conditions in seeds.items():
-            for condition, r in conditions.items():
-                out.append(
-                    {
-                        "run": summary.parent.name,
-                        "model": model,
-                        "train_seed": seed,
-                        "condition": condition,
-                        "episodes": r["episodes"],
-                        "success": r["success"],
-                        "collision": r["collision"],
-                        "lifted": r["lifted"],
-                        "dropped": r["dropped"],
-                        "switched_within_5": r["switched_within"],
-                        "switch_latency_p50": r["switch_latency_p50"],
-                        "places": " ".join(f"{k}:{v}" for k, v in r["places"].items()),
-                    }
-                )
+        for seed, protocols in seeds.items():
+            for protocol, conditions in protocols.items():
+                for condition, r in conditions.items():
+                    out.append(
+                        {
+                            "run": summary.parent.name,
+                            "model": model,
+                            "train_seed": seed,
+                            "protocol": protocol,
+                            "condition": condition,
+                            "episodes": r["episodes"],
+                            "success": r["success"],
+                            "collision": r["collision"],
+                            "lifted": r["lifted"],
+                            "dropped": r["dropped"],
+                            "switched_within_5": r["switched_within"],
+                            "switch_latency_p50": r["switch_latency_p50"],
+                            "places": " ".join(f"{k}:{v}" for k, v in r["places"].items()),
+                        }
+                    )
     return out
 
 
@@ -52,11 +54,11 @@ def main(argv: list[str] | None = None) -> list[dict]:
     parser.add_argument("--csv", type=Path, help="write every row and column here")
     args = parser.parse_args(argv)
     table = [row for summary in args.summaries for row in rows(summary)]
-    print("| model (seed) | condition | episodes | success | collision | switch within 5 steps |")
+    print("| model (seed) | protocol | condition | success | collision | switch within 5 steps |")
     print("|---|---|---|---|---|---|")
     for r in table:
         within = "-" if r["switched_within_5"] is None else f"{r['switched_within_5']:.0%}"
-        print(f"| {r['model']} ({r['train_seed']}) | {r['condition']} | {r['episodes']} | {r['success']:.0%} | "
+        print(f"| {r['model']} ({r['train_seed']}) | {r['protocol']} | {r['condition']} | {r['success']:.0%} | "
               f"{r['collision']:.0%} | {within} |")  # fmt: skip
     if args.csv:
         buffer = io.StringIO()

@@ -66,26 +66,15 @@ def run_episode(
     env: ObstacleEnv, policy: Policy, seed: int, protocol: str = ONLINE, record_frames: bool = False
 ) -> EpisodeResult:
     """Run one episode of `env` (reset with `seed`) driven by `policy` (reset first) by `protocol`."""
-    if protocol not in PROTOCOLS:
-        raise ValueError(f"protocol must be one of {', '.join(PROTOCOLS)}, got {protocol!r}")
     observation, info = env.reset(seed=seed)
     policy.reset(seed=seed)
-    columns = [STATE_NAMES.index(name) for name in policy.action_names]
-    trace: dict[str, list] = {k: [] for k in ("states", "box", "frames", "gates", "experts", "predicted")}
-    times: dict[str, list] = {"policy_s": [], "render_s": [env.timings["render_s"]], "physics_s": []}
-    plan: PolicyStep | None = None
+    driver = Driver(policy, protocol, observation)
+    trace: dict[str, list] = {k: [] for k in ("states", "box", "frames")}
+    times: dict[str, list] = {"render_s": [env.timings["render_s"]], "physics_s": []}
     contact_step = None
-    command = policy.gripper.nearest(float(observation[STATE_KEY][GRIPPER_INDEX])) if policy.gripper else None
     for k in range(env.max_steps):
         _keep(trace, env, observation, record_frames)
-        if protocol == ONLINE or plan is None:
-            plan = _read(policy, observation, k, trace, times)
-        action = observation[STATE_KEY].copy()
-        action[columns] = plan.waypoints[0 if protocol == ONLINE else min(k, len(plan.waypoints) - 1)]
-        if policy.gripper is not None and GRIPPER in policy.action_names:
-            command = policy.gripper.command(float(action[GRIPPER_INDEX]), command)
-            action[GRIPPER_INDEX] = command
-        observation, _, terminated, truncated, info = env.step(action)
+        observation, _, terminated, truncated, info = env.step(driver.action(observation, k))
         times["render_s"].append(env.timings["render_s"])
         times["physics_s"].append(env.timings["physics_s"])
         if info["collision"] and contact_step is None:
@@ -93,7 +82,7 @@ def run_episode(
         if terminated or truncated:
             break
     _keep(trace, env, observation, record_frames)
-    experts = np.asarray(trace["experts"], dtype=np.int64)
+    experts = np.asarray(driver.experts, dtype=np.int64)
     states = np.asarray(trace["states"])
     return EpisodeResult(
         seed=seed,
@@ -107,10 +96,10 @@ def run_episode(
         cue_side=info["cue_side"],
         states=states,
         box=np.asarray(trace["box"]),
-        gates=np.asarray(trace["gates"]),
+        gates=np.asarray(driver.gates),
         experts=experts,
-        predicted=np.asarray(trace["predicted"]),
-        policy_s=np.asarray(times["policy_s"]),
+        predicted=np.asarray(driver.predicted),
+        policy_s=np.asarray(driver.policy_s),
         render_s=np.asarray(times["render_s"]),
         physics_s=np.asarray(times["physics_s"]),
         contact_step=contact_step,
@@ -118,15 +107,52 @@ def run_episode(
     )
 
 
-def _read(policy: Policy, observation: dict, k: int, trace: dict, times: dict) -> PolicyStep:
-    """The policy's step on `observation` at control step `k`, its time, gate, expert and xyz waypoints kept."""
-    start = time.perf_counter()
-    plan = policy.step({**observation, TIMESTAMP_KEY: k * S.CONTROL_PERIOD_S})
-    times["policy_s"].append(time.perf_counter() - start)
-    trace["gates"].append(plan.gate)
-    trace["experts"].append(plan.expert)
-    trace["predicted"].append(plan.waypoints[:, [policy.action_names.index(name) for name in STATE_NAMES[:3]]])
-    return plan
+class Driver:
+    """A policy's actions in one episode by a protocol (module docstring), with what each read of the policy gave.
+
+    ONLINE reads the policy at every step and acts on its first waypoint; PLANNED reads it at step 0 only and acts
+    on waypoint k at step k (the last one after the plan's end). An action (8,) is the observed state with the
+    policy's columns replaced by the waypoint's and the gripper by the policy's command where it has one. Per read:
+    gates (d,), experts (the active expert), predicted (W, 3) the waypoints' xyz, policy_s (seconds).
+    Made at the episode's first observation, the policy reset: no plan yet, the gripper command the nearest to where
+    the gripper is.
+    """
+
+    def __init__(self, policy: Policy, protocol: str, observation: dict) -> None:
+        if protocol not in PROTOCOLS:
+            raise ValueError(f"protocol must be one of {', '.join(PROTOCOLS)}, got {protocol!r}")
+        self.policy, self.protocol = policy, protocol
+        self.columns = [STATE_NAMES.index(name) for name in policy.action_names]
+        self.xyz = [policy.action_names.index(name) for name in STATE_NAMES[:3]]
+        self.commands_gripper = policy.gripper is not None and GRIPPER in policy.action_names
+        self.gates: list[np.ndarray] = []
+        self.experts: list[int] = []
+        self.predicted: list[np.ndarray] = []
+        self.policy_s: list[float] = []
+        self._plan: PolicyStep | None = None
+        gripper = float(observation[STATE_KEY][GRIPPER_INDEX])
+        self._command = policy.gripper.nearest(gripper) if self.commands_gripper else None
+
+    def action(self, observation: dict, k: int) -> np.ndarray:
+        """The action (8,) at control step `k` on `observation`, reading the policy where the protocol says."""
+        if self.protocol == ONLINE or self._plan is None:
+            self._plan = self._read(observation, k)
+        waypoints = self._plan.waypoints
+        action = observation[STATE_KEY].copy()
+        action[self.columns] = waypoints[0 if self.protocol == ONLINE else min(k, len(waypoints) - 1)]
+        if self.commands_gripper:
+            self._command = self.policy.gripper.command(float(action[GRIPPER_INDEX]), self._command)
+            action[GRIPPER_INDEX] = self._command
+        return action
+
+    def _read(self, observation: dict, k: int) -> PolicyStep:
+        start = time.perf_counter()
+        read = self.policy.step({**observation, TIMESTAMP_KEY: k * S.CONTROL_PERIOD_S})
+        self.policy_s.append(time.perf_counter() - start)
+        self.gates.append(read.gate)
+        self.experts.append(read.expert)
+        self.predicted.append(read.waypoints[:, self.xyz])
+        return read
 
 
 def side_passed(states: np.ndarray) -> str:

@@ -1,41 +1,42 @@
-"""One closed-loop pick-and-place episode: a policy conditions on every new frame and state (the online protocol)
-and its next waypoint is the next action, the gripper by the policy's two-state command where it has one.
+"""One closed-loop pick-and-place episode: a policy drives the pick-and-place environment by one of the obstacle
+task's protocols (cnep.sim.episode, whose `Driver` turns reads into actions): PLANNED reads the first observation
+only and executes its waypoints step by step; ONLINE conditions on every new frame and state and its next waypoint is
+the next action. The gripper follows the policy's two-state command where it has one.
 
 The policy is anything with `reset(seed)`, `step(observation) -> runtime.PolicyStep`, `action_names` and
-`gripper` (a `cnep.runtime.Policy`, or a baseline behind the same interface).
+`gripper` (a `cnep.runtime.Policy`, or a baseline behind the same interface), opened with waypoints >= the
+episode's steps (pick_scene.MAX_STEPS) for PLANNED.
 """
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from cnep.runtime import STATE_KEY, STATE_NAMES, TIMESTAMP_KEY, Policy
-from cnep.runtime.spec import GRIPPER
+from cnep.runtime import STATE_KEY, Policy
 from cnep.sim import pick_scene as P
-from cnep.sim import scene as S
+from cnep.sim.episode import ONLINE, Driver
 from cnep.sim.pick_env import PickPlaceEnv
-
-GRIPPER_INDEX = STATE_NAMES.index(GRIPPER)
 
 
 @dataclass
 class PickEpisode:
     """A pick-and-place episode's outcome and its trace.
 
-    seed: the reset seed; condition: decided / free / changed; success, collision, lifted, dropped: the
-    environment's verdicts at the end; place: the mat the bar ended on (a PLACES name) or None; valid: the valid
-    places' names at the end; taken_start, taken_end: the places taken at the start and at the end (a bool each);
-    change_step: the step at which the table changed (None: it did not); switch_step: the first step at or after
-    the change at which the active expert changed (None: none did, or no change); switches: changes of the active
-    expert over the episode. Per step: states (steps + 1, 8), bar (steps + 1, 7) the bar's position and quaternion
-    xyzw, gates (steps, d), experts (steps,), predicted (steps, W, 3), policy_s / render_s / physics_s (seconds);
-    frames (steps + 1, H, W, 3) when recorded, else None.
+    seed: the reset seed; protocol: planned / online; condition: decided / free / changed; success, collision,
+    lifted, dropped: the environment's verdicts at the end; place: the mat the bar ended on (a PLACES name) or None;
+    valid: the valid places' names at the end; taken_start, taken_end: the places taken at the start and at the end
+    (a bool each); change_step: the step at which the table changed (None: it did not); switch_step: the first step
+    at or after the change at which the active expert changed (None: none did, no change, or PLANNED); switches:
+    changes of the active expert over the episode (0 for PLANNED: one read). Per step: states (steps + 1, 8), bar
+    (steps + 1, 7) the bar's position and quaternion xyzw, render_s / physics_s (seconds); per read of the policy
+    (every step ONLINE, the first only PLANNED): gates (reads, d), experts (reads,), predicted (reads, W, 3),
+    policy_s (seconds); frames (steps + 1, H, W, 3) when recorded, else None.
     """
 
     seed: int
+    protocol: str
     condition: str
     success: bool
     collision: bool
@@ -59,40 +60,30 @@ class PickEpisode:
     frames: np.ndarray | None = field(default=None, repr=False)
 
 
-def run_pick_episode(env: PickPlaceEnv, policy: Policy, seed: int, record_frames: bool = False) -> PickEpisode:
-    """Run one episode of `env` (reset with `seed`) driven online by `policy` (reset first with `seed`)."""
+def run_pick_episode(
+    env: PickPlaceEnv, policy: Policy, seed: int, protocol: str = ONLINE, record_frames: bool = False
+) -> PickEpisode:
+    """Run one episode of `env` (reset with `seed`) driven by `policy` (reset first with `seed`) by `protocol`."""
     observation, info = env.reset(seed=seed)
     policy.reset(seed=seed)
+    driver = Driver(policy, protocol, observation)
     taken_start = list(info["taken"])
-    columns = [STATE_NAMES.index(name) for name in policy.action_names]
-    xyz = [policy.action_names.index(name) for name in STATE_NAMES[:3]]
-    trace: dict[str, list] = {k: [] for k in ("states", "bar", "frames", "gates", "experts", "predicted")}
-    times: dict[str, list] = {"policy_s": [], "render_s": [env.timings["render_s"]], "physics_s": []}
-    gripper = policy.gripper is not None and GRIPPER in policy.action_names
-    command = policy.gripper.nearest(float(observation[STATE_KEY][GRIPPER_INDEX])) if gripper else None
+    trace: dict[str, list] = {k: [] for k in ("states", "bar", "frames")}
+    times: dict[str, list] = {"render_s": [env.timings["render_s"]], "physics_s": []}
     for k in range(env.max_steps):
         _keep(trace, env, observation, record_frames)
-        start = time.perf_counter()
-        read = policy.step({**observation, TIMESTAMP_KEY: k * S.CONTROL_PERIOD_S})
-        times["policy_s"].append(time.perf_counter() - start)
-        trace["gates"].append(read.gate)
-        trace["experts"].append(read.expert)
-        trace["predicted"].append(read.waypoints[:, xyz])
-        action = observation[STATE_KEY].copy()
-        action[columns] = read.waypoints[0]
-        if gripper:
-            command = policy.gripper.command(float(action[GRIPPER_INDEX]), command)
-            action[GRIPPER_INDEX] = command
-        observation, _, terminated, truncated, info = env.step(action)
+        observation, _, terminated, truncated, info = env.step(driver.action(observation, k))
         times["render_s"].append(env.timings["render_s"])
         times["physics_s"].append(env.timings["physics_s"])
         if terminated or truncated:
             break
     _keep(trace, env, observation, record_frames)
-    experts = np.asarray(trace["experts"], dtype=np.int64)
-    change = info["change_step"] if info["change_step"] is not None and info["change_step"] < len(experts) else None
+    experts = np.asarray(driver.experts, dtype=np.int64)
+    steps = len(trace["states"]) - 1
+    change = info["change_step"] if info["change_step"] is not None and info["change_step"] < steps else None
     return PickEpisode(
         seed=seed,
+        protocol=protocol,
         condition=info["condition"],
         success=bool(info["is_success"]),
         collision=bool(info["collision"]),
@@ -107,10 +98,10 @@ def run_pick_episode(env: PickPlaceEnv, policy: Policy, seed: int, record_frames
         switches=int(np.count_nonzero(np.diff(experts))),
         states=np.asarray(trace["states"]),
         bar=np.asarray(trace["bar"]),
-        gates=np.asarray(trace["gates"]),
+        gates=np.asarray(driver.gates),
         experts=experts,
-        predicted=np.asarray(trace["predicted"]),
-        policy_s=np.asarray(times["policy_s"]),
+        predicted=np.asarray(driver.predicted),
+        policy_s=np.asarray(driver.policy_s),
         render_s=np.asarray(times["render_s"]),
         physics_s=np.asarray(times["physics_s"]),
         frames=np.asarray(trace["frames"]) if record_frames else None,

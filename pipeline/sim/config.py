@@ -20,7 +20,18 @@ TASKS = (OBSTACLE,)
 PLANNED, ONLINE = "planned", "online"  # cnep.sim.episode's protocols, named here without importing MuJoCo
 PROTOCOLS = (PLANNED, ONLINE)
 BOTH = "both"
+PROTOCOL_HELP = (
+    "planned = the motion planned from the first observation alone and executed by the controller; online = "
+    "conditioning on every new frame and pose; both = each in turn"
+)
 MODELS = ("CNEP", "CNMP")
+
+
+def protocols_of(protocol: str) -> tuple[str, ...]:
+    """The protocols a `protocol` setting (both, planned or online) runs, in order; PipelineError for another."""
+    if protocol not in (BOTH, *PROTOCOLS):
+        raise PipelineError(f"protocol must be one of {BOTH}, {', '.join(PROTOCOLS)}, got {protocol!r}")
+    return PROTOCOLS if protocol == BOTH else (protocol,)
 
 
 @dataclass(frozen=True)
@@ -31,12 +42,7 @@ class LoopSettings:
     cue: bool = setting(False, "the variant where a tile on one side of the box shows the side to pass")
     episodes: int = setting(20, "closed-loop episodes per policy and protocol")
     episode_seed: int = setting(0, "seed of the first episode (episode i is reset with seed + i)")
-    protocol: str = setting(
-        BOTH,
-        "planned = the motion planned from the first observation alone and executed by the controller; online = "
-        "conditioning on every new frame and pose; both = each in turn",
-        choices=(BOTH, *PROTOCOLS),
-    )
+    protocol: str = setting(BOTH, PROTOCOL_HELP, choices=(BOTH, *PROTOCOLS))
     record: int = setting(2, "episodes per policy and protocol written as Rerun recordings (the first ones)")
     first_expert: str = setting(
         ConditioningPolicy.first_expert,
@@ -48,14 +54,13 @@ class LoopSettings:
     @property
     def protocols(self) -> tuple[str, ...]:
         """The protocols to run, in order."""
-        return PROTOCOLS if self.protocol == BOTH else (self.protocol,)
+        return protocols_of(self.protocol)
 
     def check(self) -> None:
         """PipelineError for a setting out of range."""
         if self.task not in TASKS:
             raise PipelineError(f"task must be one of {', '.join(TASKS)}, got {self.task!r}")
-        if self.protocol not in (BOTH, *PROTOCOLS):
-            raise PipelineError(f"protocol must be one of {BOTH}, {', '.join(PROTOCOLS)}, got {self.protocol!r}")
+        protocols_of(self.protocol)
         if self.episodes < 1 or self.record < 0:
             raise PipelineError(f"episodes must be >= 1 and record >= 0, got {self.episodes} and {self.record}")
 
@@ -113,7 +118,7 @@ class EvalConfig(LoopSettings):
 class PickPlaceConfig:
     """`cnep sim pick-place`: out, a new or empty folder for everything; demonstrations generated with `seed`, the
     features' `weights`, one CNEP and one matched CNMP per training seed (and the baselines), each run in closed loop
-    in every condition."""
+    by each protocol in every condition."""
 
     out: Path
     demonstrations: int = setting(96, "demonstrations generated (each a scene drawn decided or free, its place drawn)")
@@ -136,17 +141,24 @@ class PickPlaceConfig:
         4, "latest observations in the CNEP's and the CNMP's conditioning set (runtime.ConditioningPolicy.window)"
     )
     anchors: int = setting(0, "first observations kept in that set for the whole episode (ConditioningPolicy.anchors)")
-    episodes: int = setting(20, "closed-loop episodes per policy and condition (decided, free, changed)")
+    episodes: int = setting(20, "closed-loop episodes per policy, protocol and condition (decided, free, changed)")
     episode_seed: int = setting(0, "seed of the first episode (episode i is reset with seed + i)")
-    record: int = setting(1, "episodes per policy and condition written as Rerun recordings (the first ones)")
+    protocol: str = setting(BOTH, PROTOCOL_HELP, choices=(BOTH, *PROTOCOLS))
+    record: int = setting(1, "episodes per policy, protocol and condition written as Rerun recordings (the first ones)")
     baselines: bool = setting(
         True, "also run ProMP and GMM-GMR (on PCA-reduced features) and nearest-demonstration retrieval in the loop"
     )
     pca: int = setting(8, "principal components of the features the baselines see (PCA fitted on the training frames)")
     quiet: bool = False
 
+    @property
+    def protocols(self) -> tuple[str, ...]:
+        """The protocols to run, in order."""
+        return protocols_of(self.protocol)
+
     def __post_init__(self) -> None:
         coerce_paths(self)
+        protocols_of(self.protocol)
         if self.demonstrations < 2 or self.train_steps < 1 or self.experts < 2 or not self.train_seeds:
             raise PipelineError(
                 f"need >= 2 demonstrations, >= 1 training step, >= 2 experts and a training seed, got "

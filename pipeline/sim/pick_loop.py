@@ -1,6 +1,6 @@
-"""A policy in the pick-and-place closed loop: `evaluate_pick_policy` runs it for `episodes` episodes in each
-condition (decided, free, changed), writes the first `record` of each as Rerun recordings and returns the rates and
-rows (pipeline.sim.pick_summary).
+"""A policy in the pick-and-place closed loop: `evaluate_pick_policy` runs it for `episodes` episodes by each
+protocol (planned, online: cnep.sim.episode) in each condition (decided, free, changed), writes the first `record` of
+each as Rerun recordings and returns the rates and rows (pipeline.sim.pick_summary).
 
 Episode i of a condition is reset with seed `episode_seed + i`: every policy meets the same scenes, and the same seed
 gives the same episode bit for bit. The demonstrations' scenes come from other seeds
@@ -21,6 +21,7 @@ from cnep.sim.pick_episode import run_pick_episode
 
 def evaluate_pick_policy(
     policy: Policy,
+    protocols: tuple[str, ...],
     conditions: tuple[str, ...],
     episodes: int,
     *,
@@ -29,24 +30,27 @@ def evaluate_pick_policy(
     record: int = 0,
     recordings: Path | None = None,
     quiet: bool = False,
-) -> dict[str, dict]:
-    """Condition -> rates (pipeline.sim.pick_summary.pick_rates) of `policy` (a runtime.Policy or a baseline behind
-    its interface) over `episodes` episodes per condition; recordings: the folder for
-    `<label>-<condition>-seed<N>.rrd`, the first `record` episodes of each condition (None: none written)."""
-    results = {}
+) -> dict[str, dict[str, dict]]:
+    """Protocol -> condition -> rates (pipeline.sim.pick_summary.pick_rates) of `policy` (a runtime.Policy or a
+    baseline behind its interface, its waypoints covering an episode for PLANNED) over `episodes` episodes each;
+    recordings: the folder for `<label>-<protocol>-<condition>-seed<N>.rrd`, the first `record` episodes of each
+    protocol and condition (None: none written)."""
+    results: dict[str, dict[str, dict]] = {protocol: {} for protocol in protocols}
     for condition in conditions:
         env = PickPlaceEnv(condition)
-        rows = []
         try:
-            for i in progress_bar(range(episodes), desc=f"{label} {condition}", unit="episode", quiet=quiet):
-                seed = episode_seed + i
-                recorded = recordings is not None and i < record
-                ep = run_pick_episode(env, policy, seed, record_frames=recorded)
-                if recorded:
-                    name = f"{label}-{condition}-seed{seed}"
-                    write_pick_episode(recordings / f"{name}.rrd", name, ep, policy.n_experts)
-                rows.append(pick_row(ep))
+            for protocol in protocols:
+                rows = []
+                bar = progress_bar(range(episodes), desc=f"{label} {protocol} {condition}", unit="episode", quiet=quiet)
+                for i in bar:
+                    seed = episode_seed + i
+                    recorded = recordings is not None and i < record
+                    ep = run_pick_episode(env, policy, seed, protocol, record_frames=recorded)
+                    if recorded:
+                        name = f"{label}-{protocol}-{condition}-seed{seed}"
+                        write_pick_episode(recordings / f"{name}.rrd", name, ep, policy.n_experts)
+                    rows.append(pick_row(ep))
+                results[protocol][condition] = pick_rates(rows)
         finally:
             env.close()
-        results[condition] = pick_rates(rows)
     return results

@@ -6,10 +6,10 @@ Stages (each logs its progress), all under OUT, as `cnep sim obstacle`'s (pipeli
               putting it on a place the scene allows (pipeline.sim.generate);
 2. ingest     `demos/`; 3. extract `trajectories/` and `extractor.pt`; 4. train `checkpoints/{cnep,cnmp}-seedN`;
 5. export     `policies/{cnep,cnmp}-seedN`;
-6. closed loop `episodes/*.rrd` (the first `record` episodes of each policy and condition) and `summary.json`: every
-              exported policy (and with `baselines` ProMP, GMM-GMR and the nearest demonstration,
-              pipeline.sim.pick_baselines) in closed loop in each condition: decided, free, changed
-              (pipeline.sim.pick_loop).
+6. closed loop `episodes/*.rrd` (the first `record` episodes of each policy, protocol and condition) and
+              `summary.json`: every exported policy (and with `baselines` ProMP, GMM-GMR and the nearest
+              demonstration, pipeline.sim.pick_baselines) in closed loop by each protocol (planned, online) in each
+              condition: decided, free, changed (pipeline.sim.pick_loop).
 
 A failed or interrupted run leaves the folder as empty as it found it.
 """
@@ -64,9 +64,9 @@ def _run_stages(config: PickPlaceConfig, out: Path) -> dict:
 
 
 def _closed_loop(config: PickPlaceConfig, out: Path, policies: dict[str, Path]) -> dict[str, dict]:
-    """Stage 6: every policy in closed loop in each condition, two at a time in single-threaded processes, its first
-    episodes recorded under OUT/episodes; label -> results. The baselines, fitted with the first training seed's
-    CNEP's normaliser and feature graph, carry that seed in their label."""
+    """Stage 6: every policy in closed loop by each protocol in each condition, two at a time in single-threaded
+    processes, its first episodes recorded under OUT/episodes; label -> results. The baselines, fitted with the first
+    training seed's CNEP's normaliser and feature graph, carry that seed in their label."""
     (out / "episodes").mkdir()
     jobs = {label: (path, None) for label, path in policies.items()}
     if config.baselines:
@@ -83,14 +83,14 @@ def _closed_loop(config: PickPlaceConfig, out: Path, policies: dict[str, Path]) 
 
 def _evaluate(config: PickPlaceConfig, out: Path, label: str, path: Path, baseline: str | None) -> dict:
     """One policy's closed loop (in a worker): the exported policy `path`, or the baseline `baseline` fitted beside
-    the exported CNEP `path`."""
+    the exported CNEP `path`, its waypoints covering an episode (a plan for PLANNED; ONLINE acts on the first)."""
     if baseline is None:
         conditioning = ConditioningPolicy(window=config.window, anchors=config.anchors)
-        policy = open_policy(path, threads=POLICY_THREADS, waypoints=1, conditioning=conditioning)
+        policy = open_policy(path, threads=POLICY_THREADS, waypoints=P.MAX_STEPS, conditioning=conditioning)
     else:
         trajectories = sorted((out / "trajectories").glob("*.mcap"))
-        policy = baseline_policy(baseline, path, trajectories, config.pca, waypoints=1)
+        policy = baseline_policy(baseline, path, trajectories, config.pca, waypoints=P.MAX_STEPS)
     return evaluate_pick_policy(
-        policy, P.CONDITIONS, config.episodes, label=label, episode_seed=config.episode_seed, record=config.record,
-        recordings=out / "episodes", quiet=True,
+        policy, config.protocols, P.CONDITIONS, config.episodes, label=label, episode_seed=config.episode_seed,
+        record=config.record, recordings=out / "episodes", quiet=True,
     )  # fmt: skip

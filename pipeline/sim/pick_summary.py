@@ -1,5 +1,5 @@
-"""A pick-and-place evaluation as a table: each episode's row (`pick_row`), the rates of a policy's episodes in one
-condition (`pick_rates`), and the table on screen (`format_pick_table`).
+"""A pick-and-place evaluation as a table: each episode's row (`pick_row`), the rates of a policy's episodes by one
+protocol in one condition (`pick_rates`), and the table on screen (`format_pick_table`).
 
 A row: the episode's seed, success, collision, lifted, dropped, the place the bar ended on and the valid ones, the
 change's step and the switch's (the changed condition), the expert switches, the steps and the policy / render /
@@ -65,20 +65,22 @@ def pick_rates(rows: list[dict]) -> dict:
     }
 
 
-def format_pick_table(results: dict[str, dict[str, dict]]) -> str:
-    """The on-screen table: one line per policy (a label: model and seed) and condition."""
+def format_pick_table(results: dict[str, dict[str, dict[str, dict]]]) -> str:
+    """The on-screen table: one line per policy (a label: model and seed), protocol and condition (the episodes per
+    line are the summary's)."""
     head = (
-        f"{'policy':<18} {'condition':<9} {'episodes':>8} {'success':>8} {'collision':>9} {'lifted':>7} "
+        f"{'policy':<18} {'protocol':<8} {'condition':<9} {'success':>8} {'collision':>9} {'lifted':>7} "
         f"{'switch<=5':>9} {'latency':>7}  places"
     )
     lines = [head, "-" * len(head)]
-    for label, conditions in results.items():
-        for condition, r in conditions.items():
-            within = "-" if r["switched_within"] is None else f"{r['switched_within']:.0%}"
-            latency = "-" if r["switch_latency_p50"] is None else f"{r['switch_latency_p50']:.0f}"
-            places = " ".join(f"{k}:{v}" for k, v in r["places"].items())
-            lines.append(
-                f"{label:<18} {condition:<9} {r['episodes']:>8} {r['success']:>8.0%} {r['collision']:>9.0%} "
-                f"{r['lifted']:>7.0%} {within:>9} {latency:>7}  {places}"
-            )
+    for label, protocols in results.items():
+        for protocol, conditions in protocols.items():
+            for condition, r in conditions.items():
+                within = "-" if r["switched_within"] is None else f"{r['switched_within']:.0%}"
+                latency = "-" if r["switch_latency_p50"] is None else f"{r['switch_latency_p50']:.0f}"
+                places = " ".join(f"{k}:{v}" for k, v in r["places"].items())
+                lines.append(
+                    f"{label:<18} {protocol:<8} {condition:<9} {r['success']:>8.0%} {r['collision']:>9.0%} "
+                    f"{r['lifted']:>7.0%} {within:>9} {latency:>7}  {places}"
+                )
     return "\n".join(lines)

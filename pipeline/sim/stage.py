@@ -230,7 +230,8 @@ def train_models(config: SimConfig | PickPlaceConfig, out: Path) -> dict[str, Pa
 
 
 def by_model(results: dict[str, dict]) -> dict[str, dict[str, dict]]:
-    """label `MODEL-seedN` -> {MODEL: {N: protocol (or condition) -> rates}}."""
+    """label `MODEL-seedN` -> {MODEL: {N: its results}}: protocol -> rates (pick and place: protocol -> condition ->
+    rates)."""
     models: dict[str, dict[str, dict]] = {}
     for label, protocols in results.items():
         model, seed = label.split("-seed")

@@ -25,6 +25,9 @@ def test_pick_place_arguments_become_its_settings_and_bad_ones_are_refused():
     config = config_of(PickPlaceConfig, args, out=args.out)
     assert (config.episodes, config.baselines, config.out) == (3, False, Path("x"))
     assert config.experts == PickPlaceConfig.experts and config.pca == PickPlaceConfig.pca
+    assert config.protocols == PROTOCOLS
+    args = build_parser().parse_args(["sim", "pick-place", "--out", "x", "--protocol", "planned"])
+    assert config_of(PickPlaceConfig, args, out=args.out).protocols == ("planned",)
     with pytest.raises(PipelineError, match="pca must be >= 1"):
         PickPlaceConfig(out=Path("x"), pca=0)
     args = build_parser().parse_args(["sim", "pick-place", "--out", "x", "--window", "6", "--anchors", "1"])
@@ -32,6 +35,8 @@ def test_pick_place_arguments_become_its_settings_and_bad_ones_are_refused():
     assert (config.window, config.anchors) == (6, 1)
     with pytest.raises(PipelineError, match="window must be >= 1 and anchors >= 0, got 0 and 0"):
         PickPlaceConfig(out=Path("x"), window=0)
+    with pytest.raises(PipelineError, match="protocol must be one of both, planned, online"):
+        PickPlaceConfig(out=Path("x"), protocol="replanned")
 
 
 def test_eval_arguments_become_its_settings():

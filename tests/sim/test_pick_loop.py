@@ -1,5 +1,6 @@
 """The pick-and-place closed loop: a scripted policy's episode judged by the physics and repeated exactly by its
-seed, the switch after a change of the table, the rates, and a recording."""
+seed, by both protocols (the planned one reads the policy once and executes its plan), the switch after a change of
+the table, the rates, the table, and a recording per protocol."""
 
 import importlib.util
 
@@ -12,9 +13,10 @@ if not all(importlib.util.find_spec(name) for name in cnep.sim.EXTRA):
     pytest.skip("the sim extra is not installed", allow_module_level=True)
 
 from cnep.pipeline.sim.pick_loop import evaluate_pick_policy  # noqa: E402
-from cnep.pipeline.sim.pick_summary import pick_rates  # noqa: E402
+from cnep.pipeline.sim.pick_summary import format_pick_table, pick_rates  # noqa: E402
 from cnep.sim import PickPlaceEnv  # noqa: E402
 from cnep.sim import pick_scene as P  # noqa: E402
+from cnep.sim.episode import ONLINE, PLANNED, Driver  # noqa: E402
 from cnep.sim.pick_episode import first_switch, run_pick_episode  # noqa: E402
 from tests.sim.pick_scripted import pick_policy  # noqa: E402
 
@@ -28,6 +30,44 @@ def test_a_few_closed_loop_steps_repeat_exactly_with_the_same_seed():
     np.testing.assert_array_equal(first.states, again.states)
     np.testing.assert_array_equal(first.bar, again.bar)
     assert not np.array_equal(first.states[0], other.states[0])
+
+
+def test_the_planned_protocol_reads_the_policy_once_and_executes_its_waypoints_in_turn():
+    env = PickPlaceEnv(P.FREE, max_steps=6)
+    observation, _ = env.reset(seed=3)
+    policy = pick_policy(gate=(0.1, 0.7, 0.1, 0.1), waypoints=4)
+    policy.reset(seed=3)
+    planned, online = Driver(policy, PLANNED, observation), Driver(policy, ONLINE, observation)
+    actions = [planned.action(observation, k) for k in range(6)]
+    assert len(planned.experts) == 1  # one read, at step 0
+    plan = planned.predicted[0]  # (4, 3): the waypoints' xyz
+    for k, action in enumerate(actions):
+        np.testing.assert_allclose(action[:3], plan[min(k, 3)], rtol=1e-6)  # held at the last waypoint
+    assert not np.allclose(actions[0][:3], actions[3][:3])
+    policy.reset(seed=3)
+    for k in range(3):
+        online.action(observation, k)
+    assert len(online.experts) == 3  # a read per step
+    with pytest.raises(ValueError, match="protocol must be one of planned, online"):
+        Driver(policy, "replanned", observation)
+    ep = run_pick_episode(env, pick_policy(gate=(0.1, 0.7, 0.1, 0.1), waypoints=P.MAX_STEPS), 3, PLANNED)
+    env.close()
+    assert ep.protocol == PLANNED and len(ep.states) == 7 and ep.experts.tolist() == [1] and len(ep.policy_s) == 1
+    assert ep.gates.shape == (1, 4) and ep.predicted.shape == (1, P.MAX_STEPS, 3) and ep.switches == 0
+
+
+@pytest.mark.slow
+def test_a_planned_episode_puts_the_bar_where_its_one_read_says(monkeypatch):
+    env = PickPlaceEnv(P.FREE)
+    seed = next(s for s in range(20) if env.reset(seed=s)[1]["orientation"] == "along_y")
+    policy = pick_policy(gate=(0.1, 0.7, 0.1, 0.1), waypoints=P.MAX_STEPS)  # the right mat
+    reads = []
+    step = policy.step
+    monkeypatch.setattr(policy, "step", lambda observation: reads.append(observation) or step(observation))
+    ep = run_pick_episode(env, policy, seed, PLANNED)
+    env.close()
+    assert ep.success and ep.place == "right" and ep.lifted and not ep.collision
+    assert len(reads) == 1 and len(ep.states) > 2 and ep.switches == 0
 
 
 @pytest.mark.slow
@@ -63,9 +103,21 @@ def test_the_rates_count_places_and_switch_latency_over_the_changed_episodes():
 
 
 @pytest.mark.slow
-def test_the_loop_runs_each_condition_and_records_the_first_episode(tmp_path, monkeypatch):
+def test_the_loop_runs_each_protocol_and_condition_and_records_the_first_episode(tmp_path, monkeypatch):
     monkeypatch.setenv("HOME", str(tmp_path))
-    policy = pick_policy(gate=(0.4, 0.3, 0.2, 0.1))
-    results = evaluate_pick_policy(policy, (P.CHANGED,), 1, label="scripted", record=1, recordings=tmp_path)
-    assert results[P.CHANGED]["episodes"] == 1 and results[P.CHANGED]["switched_within"] is not None
-    assert (tmp_path / "scripted-changed-seed0.rrd").stat().st_size > 0
+    policy = pick_policy(gate=(0.4, 0.3, 0.2, 0.1), waypoints=P.MAX_STEPS)
+    results = evaluate_pick_policy(
+        policy, (PLANNED, ONLINE), (P.CHANGED,), 1, label="scripted", record=1, recordings=tmp_path
+    )
+    assert list(results) == [PLANNED, ONLINE]
+    planned, online = results[PLANNED][P.CHANGED], results[ONLINE][P.CHANGED]
+    assert planned["episodes"] == online["episodes"] == 1
+    assert planned["per_episode"][0]["change_step"] is not None  # the table changed under the plan too
+    assert planned["switching"] == 0 and planned["switched_within"] == 0 and planned["switch_latency_p50"] is None
+    assert online["switched_within"] is not None
+    for protocol in (PLANNED, ONLINE):
+        assert (tmp_path / f"scripted-{protocol}-changed-seed0.rrd").stat().st_size > 0
+    lines = format_pick_table({"scripted-seed0": results}).splitlines()
+    assert lines[0].split()[:3] == ["policy", "protocol", "condition"] and len(lines) == 4
+    assert lines[2].split()[:3] == ["scripted-seed0", PLANNED, P.CHANGED]
+    assert lines[3].split()[:3] == ["scripted-seed0", ONLINE, P.CHANGED]

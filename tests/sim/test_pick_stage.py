@@ -1,7 +1,7 @@
 """`cnep sim pick-place` end to end on the smallest data that runs every stage (2 demonstrations, random features
-calibrated on one batch of frames, 20 training steps, one episode per condition): summary.json holds per model and
-condition the documented rates, and the examples turn the run into its table and probe its features. The stage's
-two pools (training, closed loop) run their jobs in this process (tests/sim/conftest.py)."""
+calibrated on one batch of frames, 20 training steps, one episode per protocol and condition): summary.json holds per
+model, protocol and condition the documented rates, and the examples turn the run into its table and probe its
+features. The stage's two pools (training, closed loop) run their jobs in this process (tests/sim/conftest.py)."""
 
 import importlib.util
 import json
@@ -13,7 +13,7 @@ import cnep.sim
 if not all(importlib.util.find_spec(name) for name in cnep.sim.EXTRA):
     pytest.skip("the sim extra is not installed", allow_module_level=True)
 
-from cnep.pipeline.sim.config import PickPlaceConfig  # noqa: E402
+from cnep.pipeline.sim.config import PROTOCOLS, PickPlaceConfig  # noqa: E402
 from cnep.pipeline.sim.pick_baselines import BASELINES  # noqa: E402
 from cnep.pipeline.sim.pick_stage import run_pick_place  # noqa: E402
 from cnep.pipeline.sim.stage import SUMMARY_FILE  # noqa: E402
@@ -34,11 +34,16 @@ def test_cnep_sim_pick_place_writes_the_documented_summary(
     assert summary["demonstrations"]["n"] == 2 and summary["demonstrations"]["clean"] == 2
     assert set(summary["models"]) == {"CNEP", "CNMP", *BASELINES}
     for seeds in summary["models"].values():
-        assert set(seeds) == {"0"} and list(seeds["0"]) == list(P.CONDITIONS)
-        for rates in seeds["0"].values():
-            assert rates["episodes"] == 1 and {"success", "collision", "places", "switched_within"} <= set(rates)
-    assert len(list((out / "episodes").glob("*.rrd"))) == 5 * len(P.CONDITIONS)
+        assert set(seeds) == {"0"} and list(seeds["0"]) == list(PROTOCOLS)
+        for conditions in seeds["0"].values():
+            assert list(conditions) == list(P.CONDITIONS)
+            for rates in conditions.values():
+                assert rates["episodes"] == 1 and {"success", "collision", "places", "switched_within"} <= set(rates)
+    assert len(list((out / "episodes").glob("*-planned-changed-seed0.rrd"))) == 5
+    assert len(list((out / "episodes").glob("*.rrd"))) == 5 * len(PROTOCOLS) * len(P.CONDITIONS)
     rows = load("pick_place_table").main([str(out / SUMMARY_FILE), "--csv", str(tmp_path / "pick.csv")])
-    assert len(rows) == 5 * len(P.CONDITIONS) and rows[0]["model"] == "CNEP"
+    assert len(rows) == 5 * len(PROTOCOLS) * len(P.CONDITIONS) and rows[0]["model"] == "CNEP"
+    assert [r["protocol"] for r in rows[:4]] == [PROTOCOLS[0]] * 3 + [PROTOCOLS[1]]
+    assert (tmp_path / "pick.csv").read_text().startswith("run,model,train_seed,protocol,condition,")
     probes = load("pick_place_probe").main([str(out), "--scenes", "9"])
     assert set(probes) >= {"orientation", "valid"} and all(0 <= p["ridge"] <= 1 for p in probes.values())
