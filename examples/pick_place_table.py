@@ -4,8 +4,9 @@
 
 One row per summary, model, training seed, protocol (planned, online) and condition: episodes, success,
 collision, lifted, dropped, the share of changed episodes that switched within 5 steps, the median switch latency
-(steps) and the places the bar ended on (name:count). Prints the headline table (model, protocol, condition, success,
-collision, switch within 5 steps) in markdown; --csv FILE writes every column (docs/results/pick-place.csv).
+(steps) and the places the bar ended on (name:count). Prints the headline table in markdown, one row per model,
+protocol and condition with a value per training seed (success, collision, switch within 5 steps); --csv FILE writes
+every column (docs/results/pick-place.csv).
 """
 
 from __future__ import annotations
@@ -54,12 +55,15 @@ def main(argv: list[str] | None = None) -> list[dict]:
     parser.add_argument("--csv", type=Path, help="write every row and column here")
     args = parser.parse_args(argv)
     table = [row for summary in args.summaries for row in rows(summary)]
-    print("| model (seed) | protocol | condition | success | collision | switch within 5 steps |")
-    print("|---|---|---|---|---|---|")
+    groups: dict[tuple, list[dict]] = {}
     for r in table:
-        within = "-" if r["switched_within_5"] is None else f"{r['switched_within_5']:.0%}"
-        print(f"| {r['model']} ({r['train_seed']}) | {r['protocol']} | {r['condition']} | {r['success']:.0%} | "
-              f"{r['collision']:.0%} | {within} |")  # fmt: skip
+        groups.setdefault((r["model"], r["protocol"], r["condition"]), []).append(r)
+    print("| model (seeds) | protocol | condition | success | collision | switch within 5 steps |")
+    print("|---|---|---|---|---|---|")
+    for (model, protocol, condition), seeds in groups.items():
+        names = ", ".join(str(r["train_seed"]) for r in seeds)
+        print(f"| {model} ({names}) | {protocol} | {condition} | {_each(seeds, 'success')} | "
+              f"{_each(seeds, 'collision')} | {_each(seeds, 'switched_within_5')} |")  # fmt: skip
     if args.csv:
         buffer = io.StringIO()
         writer = csv.DictWriter(buffer, COLUMNS, lineterminator="\n")
@@ -67,6 +71,12 @@ def main(argv: list[str] | None = None) -> list[dict]:
         writer.writerows(table)
         args.csv.write_text(buffer.getvalue())
     return table
+
+
+def _each(seeds: list[dict], key: str) -> str:
+    """The rows' `key` as percentages, one per training seed ("-" where a row has none): "86 / 84 / 92%"."""
+    values = [r[key] for r in seeds]
+    return "-" if None in values else " / ".join(f"{v:.0%}"[:-1] for v in values) + "%"
 
 
 if __name__ == "__main__":
