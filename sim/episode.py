@@ -5,7 +5,7 @@
 - ONLINE: the policy conditions on every new frame and state and its next waypoint is the next action.
 
 The policy is a `cnep.runtime.Policy` (`step(observation) -> PolicyStep`: waypoints (W, dy) named by
-`action_names`, the gate and the active expert), loaded with waypoints >= the episode's steps for PLANNED.
+`action_names`, the gate and the active expert), loaded for PLANNED with waypoints spanning the task's motion.
 An action is the state with the predicted columns replaced by the waypoint's, the gripper by the policy's gripper
 command where it has one (`Policy.gripper`: a threshold with hysteresis, applied to each planned waypoint in turn).
 `Policy.reset(seed)` starts each episode with the episode's seed (the draw of `first_expert="sample"`).

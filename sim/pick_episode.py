@@ -4,8 +4,8 @@ only and executes its waypoints step by step; ONLINE conditions on every new fra
 the next action. The gripper follows the policy's two-state command where it has one.
 
 The policy is anything with `reset(seed)`, `step(observation) -> runtime.PolicyStep`, `action_names` and
-`gripper` (a `cnep.runtime.Policy`, or a baseline behind the same interface), opened with waypoints >= the
-episode's steps (pick_scene.MAX_STEPS) for PLANNED.
+`gripper` (a `cnep.runtime.Policy`, or a baseline behind the same interface), opened for PLANNED with waypoints
+spanning the task's motion (pick_scene.MAX_STEPS).
 """
 
 from __future__ import annotations

@@ -14,6 +14,7 @@ from cnep.pipeline.demo.config import AUTO_WEIGHTS
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.inputs import coerce_paths
 from cnep.runtime.conditioning import FIRST_EXPERTS, ConditioningPolicy
+from cnep.sim import pick_scene, scene
 
 OBSTACLE = "obstacle"
 TASKS = (OBSTACLE,)
@@ -25,6 +26,14 @@ PROTOCOL_HELP = (
     "conditioning on every new frame and pose; both = each in turn"
 )
 MODELS = ("CNEP", "CNMP")
+
+
+def _max_steps_help(task_steps: int) -> str:
+    """The help of a task's `max_steps`, whose default is the task's own `task_steps`."""
+    return (
+        f"control steps an episode gets before it is truncated (the planned protocol's plan spans the task's "
+        f"{task_steps} steps whatever the limit, its last waypoint held after them)"
+    )
 
 
 def protocols_of(protocol: str) -> tuple[str, ...]:
@@ -41,6 +50,7 @@ class LoopSettings:
     task: str = setting(OBSTACLE, "the task", choices=TASKS)
     cue: bool = setting(False, "the variant where a tile on one side of the box shows the side to pass")
     episodes: int = setting(20, "closed-loop episodes per policy and protocol")
+    max_steps: int = setting(scene.MAX_STEPS, _max_steps_help(scene.MAX_STEPS))
     episode_seed: int = setting(0, "seed of the first episode (episode i is reset with seed + i)")
     protocol: str = setting(BOTH, PROTOCOL_HELP, choices=(BOTH, *PROTOCOLS))
     record: int = setting(2, "episodes per policy and protocol written as Rerun recordings (the first ones)")
@@ -61,8 +71,11 @@ class LoopSettings:
         if self.task not in TASKS:
             raise PipelineError(f"task must be one of {', '.join(TASKS)}, got {self.task!r}")
         protocols_of(self.protocol)
-        if self.episodes < 1 or self.record < 0:
-            raise PipelineError(f"episodes must be >= 1 and record >= 0, got {self.episodes} and {self.record}")
+        if self.episodes < 1 or self.max_steps < 1 or self.record < 0:
+            raise PipelineError(
+                f"episodes and max_steps must be >= 1 and record >= 0, got {self.episodes}, {self.max_steps} and "
+                f"{self.record}"
+            )
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -142,6 +155,7 @@ class PickPlaceConfig:
     )
     anchors: int = setting(0, "first observations kept in that set for the whole episode (ConditioningPolicy.anchors)")
     episodes: int = setting(20, "closed-loop episodes per policy, protocol and condition (decided, free, changed)")
+    max_steps: int = setting(pick_scene.MAX_STEPS, _max_steps_help(pick_scene.MAX_STEPS))
     episode_seed: int = setting(0, "seed of the first episode (episode i is reset with seed + i)")
     protocol: str = setting(BOTH, PROTOCOL_HELP, choices=(BOTH, *PROTOCOLS))
     record: int = setting(1, "episodes per policy, protocol and condition written as Rerun recordings (the first ones)")
@@ -166,7 +180,8 @@ class PickPlaceConfig:
             )
         if self.window < 1 or self.anchors < 0:
             raise PipelineError(f"window must be >= 1 and anchors >= 0, got {self.window} and {self.anchors}")
-        if self.episodes < 1 or self.record < 0 or self.pca < 1:
+        if self.episodes < 1 or self.max_steps < 1 or self.record < 0 or self.pca < 1:
             raise PipelineError(
-                f"episodes and pca must be >= 1 and record >= 0, got {self.episodes}, {self.pca} and {self.record}"
+                f"episodes, max_steps and pca must be >= 1 and record >= 0, got {self.episodes}, {self.max_steps}, "
+                f"{self.pca} and {self.record}"
             )

@@ -42,7 +42,7 @@ def evaluate_policy(
     recordings: the folder for `<label>-<protocol>-seed<N>.rrd` (None: none written); figure: the PNG of the last
     protocol's first episode (pipeline.sim.figure; None, or matplotlib missing: none drawn)."""
     policy = _policy(policy_path, extractor, settings.first_expert)
-    env = ObstacleEnv(cue=settings.cue)
+    env = ObstacleEnv(cue=settings.cue, max_steps=settings.max_steps)
     results = {}
     try:
         for protocol in settings.protocols:
@@ -66,8 +66,9 @@ def evaluate_policy(
 
 
 def _policy(path: Path, extractor: Path | None, first_expert: str) -> Policy:
-    """The policy in `path`, its waypoints covering a whole episode (a plan), its first expert chosen by
-    `first_expert`; the rest of its conditioning its own."""
+    """The policy in `path`, its waypoints covering the task's episode (a plan: a limit of steps cuts it short or
+    holds its end, and never rescales it), its first expert chosen by `first_expert`; the rest of its conditioning
+    its own."""
     policy = open_policy(path, extractor=extractor, threads=POLICY_THREADS, waypoints=S.MAX_STEPS)
     if policy.spec.conditioning.first_expert == first_expert:
         return policy

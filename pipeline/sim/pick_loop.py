@@ -26,18 +26,19 @@ def evaluate_pick_policy(
     episodes: int,
     *,
     label: str,
+    max_steps: int,
     episode_seed: int = 0,
     record: int = 0,
     recordings: Path | None = None,
     quiet: bool = False,
 ) -> dict[str, dict[str, dict]]:
     """Protocol -> condition -> rates (pipeline.sim.pick_summary.pick_rates) of `policy` (a runtime.Policy or a
-    baseline behind its interface, its waypoints covering an episode for PLANNED) over `episodes` episodes each;
-    recordings: the folder for `<label>-<protocol>-<condition>-seed<N>.rrd`, the first `record` episodes of each
-    protocol and condition (None: none written)."""
+    baseline behind its interface, its waypoints covering an episode for PLANNED) over `episodes` episodes each,
+    truncated after `max_steps` control steps; recordings: the folder for `<label>-<protocol>-<condition>-seed<N>.rrd`,
+    the first `record` episodes of each protocol and condition (None: none written)."""
     results: dict[str, dict[str, dict]] = {protocol: {} for protocol in protocols}
     for condition in conditions:
-        env = PickPlaceEnv(condition)
+        env = PickPlaceEnv(condition, max_steps=max_steps)
         try:
             for protocol in protocols:
                 rows = []

@@ -83,7 +83,8 @@ def _closed_loop(config: PickPlaceConfig, out: Path, policies: dict[str, Path]) 
 
 def _evaluate(config: PickPlaceConfig, out: Path, label: str, path: Path, baseline: str | None) -> dict:
     """One policy's closed loop (in a worker): the exported policy `path`, or the baseline `baseline` fitted beside
-    the exported CNEP `path`, its waypoints covering an episode (a plan for PLANNED; ONLINE acts on the first)."""
+    the exported CNEP `path`, its waypoints covering the task's episode (a plan for PLANNED, which `max_steps` cuts
+    short or holds at its end; ONLINE acts on the first)."""
     if baseline is None:
         conditioning = ConditioningPolicy(window=config.window, anchors=config.anchors)
         policy = open_policy(path, threads=POLICY_THREADS, waypoints=P.MAX_STEPS, conditioning=conditioning)
@@ -91,6 +92,6 @@ def _evaluate(config: PickPlaceConfig, out: Path, label: str, path: Path, baseli
         trajectories = sorted((out / "trajectories").glob("*.mcap"))
         policy = baseline_policy(baseline, path, trajectories, config.pca, waypoints=P.MAX_STEPS)
     return evaluate_pick_policy(
-        policy, config.protocols, P.CONDITIONS, config.episodes, label=label, episode_seed=config.episode_seed,
-        record=config.record, recordings=out / "episodes", quiet=True,
+        policy, config.protocols, P.CONDITIONS, config.episodes, label=label, max_steps=config.max_steps,
+        episode_seed=config.episode_seed, record=config.record, recordings=out / "episodes", quiet=True,
     )  # fmt: skip

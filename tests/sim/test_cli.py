@@ -10,6 +10,8 @@ from cnep.pipeline.cli.main import build_parser, main
 from cnep.pipeline.cli.sim import config_of
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.sim.config import PROTOCOLS, EvalConfig, PickPlaceConfig, SimConfig
+from cnep.sim import pick_scene as P
+from cnep.sim import scene as S
 
 
 def test_obstacle_arguments_become_its_settings_and_the_others_keep_their_defaults():
@@ -45,6 +47,19 @@ def test_eval_arguments_become_its_settings():
     assert (config.policy, config.protocols, config.episodes) == (Path("policy"), ("online",), 3)
     args = build_parser().parse_args(["sim", "eval", "p"])
     assert config_of(EvalConfig, args, policy=args.policy).episodes == EvalConfig.episodes == 50
+
+
+def test_max_steps_defaults_to_each_tasks_episode_and_must_be_at_least_one():
+    for command, cls, given, task_steps in (
+        (["obstacle", "--out", "x"], SimConfig, {"out": "x"}, S.MAX_STEPS),
+        (["pick-place", "--out", "x"], PickPlaceConfig, {"out": "x"}, P.MAX_STEPS),
+        (["eval", "p"], EvalConfig, {"policy": "p"}, S.MAX_STEPS),
+    ):
+        assert config_of(cls, build_parser().parse_args(["sim", *command]), **given).max_steps == task_steps
+        args = build_parser().parse_args(["sim", *command, "--max-steps", "12"])
+        assert config_of(cls, args, **given).max_steps == 12
+        with pytest.raises(PipelineError, match="max_steps (and pca )?must be >= 1"):
+            cls(**given, max_steps=0)
 
 
 def test_an_unknown_protocol_is_refused(capsys, tmp_path):

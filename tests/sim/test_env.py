@@ -1,7 +1,8 @@
 """The obstacle environment: Gymnasium's checker, the demonstrator clearing the box, physics-judged outcomes,
-and closed-loop episodes by both protocols that the same seed repeats exactly."""
+and closed-loop episodes by both protocols that the same seed repeats exactly and the step limit truncates."""
 
 import importlib.util
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -97,3 +98,21 @@ def test_an_episode_run_with_its_frames_is_written_as_a_recording(env, tmp_path)
     assert ep.frames is not None and len(ep.frames) == len(ep.states)
     path = write_episode(tmp_path / "episode.rrd", "episode", ep, n_experts=2)
     assert path == tmp_path / "episode.rrd" and path.read_bytes()[:4] == b"RRF2"
+
+
+def test_the_step_limit_truncates_every_episode_and_leaves_the_plan_spanning_the_task(monkeypatch):
+    import cnep.pipeline.sim.loop as loop
+    from cnep.pipeline.sim.config import LoopSettings
+
+    opened = []
+
+    def open_scripted(path: Path, *, waypoints: int, **kwargs) -> object:
+        opened.append(waypoints)
+        return scripted_policy(gate=(0.2, 0.8), waypoints=waypoints)
+
+    monkeypatch.setattr(loop, "open_policy", open_scripted)
+    results = loop.evaluate_policy(Path("scripted"), LoopSettings(episodes=2, max_steps=7), label="s", quiet=True)
+    assert opened == [S.MAX_STEPS]  # the plan: the task's steps, not the limit's
+    assert list(results) == [PLANNED, ONLINE]
+    for rates in results.values():
+        assert [(row["steps"], row["success"]) for row in rates["per_episode"]] == [(7, False), (7, False)]

@@ -1,6 +1,6 @@
 """The pick-and-place closed loop: a scripted policy's episode judged by the physics and repeated exactly by its
-seed, by both protocols (the planned one reads the policy once and executes its plan), the switch after a change of
-the table, the rates, the table, and a recording per protocol."""
+seed, by both protocols (the planned one reads the policy once and executes its plan), the step limit, the switch
+after a change of the table, the rates, the table, and a recording per protocol."""
 
 import importlib.util
 
@@ -102,12 +102,27 @@ def test_the_rates_count_places_and_switch_latency_over_the_changed_episodes():
     assert rates["switch_latency_p50"] == 5.0 and rates["switched_within"] == round(1 / 3, 4)
 
 
+def test_the_step_limit_truncates_the_episodes_of_either_protocol():
+    policy = pick_policy(gate=(0.1, 0.7, 0.1, 0.1), waypoints=P.MAX_STEPS)  # its plan spans the whole task
+    results = evaluate_pick_policy(policy, (PLANNED, ONLINE), (P.FREE,), 2, label="scripted", max_steps=5, quiet=True)
+    for protocol in (PLANNED, ONLINE):
+        rows = results[protocol][P.FREE]["per_episode"]
+        assert [(row["steps"], row["success"]) for row in rows] == [(5, False), (5, False)]
+
+
 @pytest.mark.slow
 def test_the_loop_runs_each_protocol_and_condition_and_records_the_first_episode(tmp_path, monkeypatch):
     monkeypatch.setenv("HOME", str(tmp_path))
     policy = pick_policy(gate=(0.4, 0.3, 0.2, 0.1), waypoints=P.MAX_STEPS)
     results = evaluate_pick_policy(
-        policy, (PLANNED, ONLINE), (P.CHANGED,), 1, label="scripted", record=1, recordings=tmp_path
+        policy,
+        (PLANNED, ONLINE),
+        (P.CHANGED,),
+        1,
+        label="scripted",
+        max_steps=P.MAX_STEPS,
+        record=1,
+        recordings=tmp_path,
     )
     assert list(results) == [PLANNED, ONLINE]
     planned, online = results[PLANNED][P.CHANGED], results[ONLINE][P.CHANGED]

@@ -1,5 +1,6 @@
 """`cnep sim pick-place` end to end on the smallest data that runs every stage (2 demonstrations, random features
-calibrated on one batch of frames, 20 training steps, one episode per protocol and condition): summary.json holds per
+calibrated on one batch of frames, 20 training steps, one episode per protocol and condition, each cut after the step
+at which a changed table has changed at the latest): summary.json holds per
 model, protocol and condition the documented rates, and the examples turn the run into its table and probe its
 features. The stage's two pools (training, closed loop) run their jobs in this process (tests/sim/conftest.py)."""
 
@@ -28,10 +29,20 @@ def test_cnep_sim_pick_place_writes_the_documented_summary(
     monkeypatch.setenv("HOME", str(tmp_path / "home"))
     monkeypatch.setenv("TORCH_HOME", str(tmp_path / "torch"))
     out = tmp_path / "pick"
-    config = PickPlaceConfig(out=out, demonstrations=2, train_steps=20, episodes=1, record=1, offline=True, quiet=True)
+    config = PickPlaceConfig(
+        out=out,
+        demonstrations=2,
+        train_steps=20,
+        episodes=1,
+        max_steps=P.CHANGE_STEPS[1] + 1,
+        record=1,
+        offline=True,
+        quiet=True,
+    )
     summary = run_pick_place(config)
     assert json.loads((out / SUMMARY_FILE).read_text()) == json.loads(json.dumps(summary))
     assert summary["demonstrations"]["n"] == 2 and summary["demonstrations"]["clean"] == 2
+    assert summary["settings"]["max_steps"] == config.max_steps
     assert set(summary["models"]) == {"CNEP", "CNMP", *BASELINES}
     for seeds in summary["models"].values():
         assert set(seeds) == {"0"} and list(seeds["0"]) == list(PROTOCOLS)
@@ -39,6 +50,8 @@ def test_cnep_sim_pick_place_writes_the_documented_summary(
             assert list(conditions) == list(P.CONDITIONS)
             for rates in conditions.values():
                 assert rates["episodes"] == 1 and {"success", "collision", "places", "switched_within"} <= set(rates)
+                assert rates["per_episode"][0]["steps"] <= config.max_steps
+            assert conditions[P.CHANGED]["per_episode"][0]["change_step"] is not None  # the table changed in time
     assert len(list((out / "episodes").glob("*-planned-changed-seed0.rrd"))) == 5
     assert len(list((out / "episodes").glob("*.rrd"))) == 5 * len(PROTOCOLS) * len(P.CONDITIONS)
     rows = load("pick_place_table").main([str(out / SUMMARY_FILE), "--csv", str(tmp_path / "pick.csv")])

@@ -1,7 +1,8 @@
 """`cnep sim obstacle` end to end on the smallest data that runs every stage (2 demonstrations, random features
-calibrated on one batch of frames, 20 training steps, one episode per protocol): summary.json holds the documented
-keys, the exported policies repeat their episodes with the same seeds, and examples/closed_loop_csv.py turns the run
-into its rows. The training pool runs its jobs in this process (tests/sim/conftest.py)."""
+calibrated on one batch of frames, 20 training steps, one episode per protocol cut after a third of the task's steps):
+summary.json holds the documented keys, the exported policies repeat their episodes with the same seeds, and
+examples/closed_loop_csv.py turns the run into its rows. The training pool runs its jobs in this process
+(tests/sim/conftest.py)."""
 
 import importlib.util
 import json
@@ -34,11 +35,14 @@ def test_cnep_sim_obstacle_writes_the_documented_summary_and_its_policies_repeat
     monkeypatch.setenv("HOME", str(tmp_path / "home"))
     monkeypatch.setenv("TORCH_HOME", str(tmp_path / "torch"))
     out = tmp_path / "sim"
-    config = SimConfig(out=out, demonstrations=2, train_steps=20, episodes=1, record=0, offline=True, quiet=True)
+    config = SimConfig(
+        out=out, demonstrations=2, train_steps=20, episodes=1, max_steps=20, record=0, offline=True, quiet=True
+    )
     summary = run_sim(config)
     assert json.loads((out / SUMMARY_FILE).read_text()) == json.loads(json.dumps(summary))
     assert summary["demonstrations"] == {"n": 2, "left": 1, "right": 1, "clean": 2}
     assert summary["features"].startswith("random") and summary["settings"]["assignment"] == config.assignment
+    assert summary["settings"]["max_steps"] == config.max_steps
     assert set(summary["models"]) == set(MODELS) and all(set(seeds) == {"0"} for seeds in summary["models"].values())
     settings = LoopSettings(**{f.name: getattr(config, f.name) for f in fields(LoopSettings)})
     for model, seeds in summary["models"].items():
@@ -46,6 +50,7 @@ def test_cnep_sim_obstacle_writes_the_documented_summary_and_its_policies_repeat
         for rates in seeds["0"].values():
             assert rates["episodes"] == 1 and {"success", "collision", "left", "switching"} <= set(rates)
             assert {"policy", "render", "physics"} == set(rates["per_episode"][0]["ms"])
+            assert rates["per_episode"][0]["steps"] <= config.max_steps
         again = evaluate_policy(out / "policies" / f"{model.lower()}-seed0", settings, label=model, quiet=True)
         assert {p: outcome(r) for p, r in again.items()} == {p: outcome(r) for p, r in seeds["0"].items()}
     rows = load("closed_loop_csv").main([str(out), "--csv", str(tmp_path / "closed-loop.csv")])
