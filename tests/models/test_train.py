@@ -126,7 +126,7 @@ def test_trajectories_of_the_wrong_width_are_refused():
 @pytest.mark.slow
 def test_two_modes_end_on_different_experts():
     trajs, modes = two_mode_trajectories(n=24, T=60)
-    cfg = TrainConfig(steps=1200, warmup_steps=120, val_every=200, batch_size=32)
+    cfg = TrainConfig(steps=600, warmup_steps=120, val_every=200, batch_size=32)
     model, history = fit(trajs, CNEPConfig(n_experts=2, **SMALL), cfg, progress=False)
     t = np.linspace(0, 1, 60)
     chosen = []
