@@ -24,6 +24,7 @@ from mktestdocs import check_md_file, grab_code_blocks
 
 from cnep.pipeline.cli.main import main
 from cnep.pipeline.cli.reference import render
+from cnep.pipeline.run import stage as run_stage
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
@@ -150,6 +151,9 @@ def page_folder(tmp_path, monkeypatch, quick_demo, imagenet_stand_in, one_thread
     monkeypatch.setenv("CI", "1")
     monkeypatch.setenv("PATH", f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}")
     monkeypatch.setenv("CNEP_MOBILENET_WEIGHTS", str(imagenet_stand_in))
+    # `cnep run` paces its steps at the recording's rate; that pacing is tests/pipeline/test_run.py's to check, and a
+    # page's run need not wait out the recordings' seconds
+    monkeypatch.setattr(run_stage, "wait_until", lambda deadline_s: None)
     return tmp_path
 
 

@@ -201,13 +201,18 @@ def run_recording(policy: Policy, demo: Demonstration, path: Path, rec, realtime
     start, shown, labels = time.perf_counter(), None, expert_labels(policy)
     for k, observation in enumerate(observations(demo, path, camera=policy.uses_camera)):
         if realtime:
-            time.sleep(max(0.0, start + observation[TIMESTAMP_KEY] - time.perf_counter()))
+            wait_until(start + observation[TIMESTAMP_KEY])
         before = time.perf_counter()
         result = policy.step(observation)
         step_s[k] = time.perf_counter() - before
         switches += result.switch is not None
         shown = log_step(rec, demo, k, result, step_s[k], period_s, shown, labels)
     return RecordingRun(path, step_s, period_s, switches)
+
+
+def wait_until(deadline_s: float) -> None:
+    """Sleep until `time.perf_counter()` reaches `deadline_s` (at once if it has)."""
+    time.sleep(max(0.0, deadline_s - time.perf_counter()))
 
 
 def observations(demo: Demonstration, path: Path, camera: bool = True) -> Iterator[dict]:
