@@ -23,6 +23,15 @@ os.environ.setdefault(
 
 import pytest  # noqa: E402
 
+from cnep.pipeline.workers import SMALL_MODEL_MALLOC  # noqa: E402
+
+# glibc's malloc settings of the pipeline's small-model workers for every test process too: the feature network's
+# batches and the trainers' steps would otherwise give their buffers back to the kernel and fault them in again on
+# the next pass. glibc reads them when a process starts, so they reach the worker processes (pytest-xdist starts
+# them after this file is read) and every command a test starts; a value set by the caller is kept.
+for _name, _value in SMALL_MODEL_MALLOC.items():
+    os.environ.setdefault(_name, _value)
+
 # Session fixtures that run the whole pipeline (the quick demo and what is built on it): a test that uses one is
 # slow (`make test-fast` leaves it out), whatever its own body costs.
 PIPELINE_FIXTURES = {"quick_demo", "policy_world", "demo_run"}
