@@ -13,6 +13,8 @@ from torchvision.models import mobilenet_v2
 
 import cnep.perception.weights as weights_module
 
+POLL_S = 0.05  # how often the server checks whether it should stop (s)
+
 
 class WeightsServer:
     """Serves the files of a folder on 127.0.0.1 and counts the requests."""
@@ -31,7 +33,8 @@ class WeightsServer:
 
         self.httpd = http.server.ThreadingHTTPServer(("127.0.0.1", 0), partial(Handler, directory=str(folder)))
         self.url = f"http://127.0.0.1:{self.httpd.server_address[1]}"
-        threading.Thread(target=self.httpd.serve_forever, daemon=True).start()
+        # polled often: `close` waits for the serving loop to notice, a poll interval at most
+        threading.Thread(target=self.httpd.serve_forever, args=(POLL_S,), daemon=True).start()
 
     def close(self) -> None:
         self.httpd.shutdown()
