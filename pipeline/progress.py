@@ -171,6 +171,18 @@ class RemoteBar:
             self._last = now
 
 
+class BarQueue:
+    """The queue of a `RemoteBar` whose job runs in this process: each report moves `bar` at once."""
+
+    def __init__(self, bar: tqdm) -> None:
+        self.bar = bar
+
+    def put(self, report: tuple[str, int, dict[str, str]]) -> None:
+        _, n, figures = report
+        self.bar.set_postfix(figures, refresh=False)
+        self.bar.update(n - self.bar.n)
+
+
 def follow_reports(queue: Any, bars: Mapping[str, tqdm]) -> None:
     """Move `bars` (label -> bar) to every report that `RemoteBar`s have put on `queue` so far, and redraw them (their
     clocks run while a worker starts); returns at once. A bar's rate and time left count from its first report."""

@@ -20,7 +20,9 @@ class DemoSize:
     """How much the demo generates and trains: demonstrations per behaviour, steps per episode, training steps.
 
     free_choice_per_side / heldout_free_choice_per_side: training / held-out free-choice demonstrations
-    per cup side; warmup_steps: the learning-rate warm-up (the models' default unless a size needs less).
+    per cup side; warmup_steps: the learning-rate warm-up (the models' default unless a size needs less);
+    side_by_side: train the CNEP and the CNMP at once, in a process each (a process takes seconds to start, more than
+    a few training steps take: a small size trains them one after the other in the demo's own process).
     """
 
     per_behaviour: int
@@ -31,6 +33,7 @@ class DemoSize:
     train_steps: int
     val_every: int
     warmup_steps: int = TrainConfig.warmup_steps
+    side_by_side: bool = True
 
 
 FULL = DemoSize(
@@ -51,6 +54,7 @@ QUICK = DemoSize(
     train_steps=60,
     val_every=20,
     warmup_steps=6,
+    side_by_side=False,
 )
 
 

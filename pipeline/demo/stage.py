@@ -67,7 +67,7 @@ from cnep.pipeline.ownership import (
     json_with,
     png_by_matplotlib,
 )
-from cnep.pipeline.progress import REPORT_INTERVAL_S, RemoteBar, StageClock, follow_reports, progress_bar
+from cnep.pipeline.progress import REPORT_INTERVAL_S, BarQueue, RemoteBar, StageClock, follow_reports, progress_bar
 from cnep.pipeline.replay.decisions import decisions_path, read_decisions
 from cnep.pipeline.replay.stage import replay
 from cnep.pipeline.train.constants import SCENE
@@ -258,8 +258,8 @@ def _extract(config: DemoConfig, out: Path, chosen_weights: str) -> None:
 
 
 def _train(config: DemoConfig, out: Path, size: DemoSize, started: float) -> dict[str, Path]:
-    """Stage 4: the CNEP and the parameter-matched CNMP side by side, one process each; their checkpoints by name.
-    started: the stage's start (time.perf_counter), for the log."""
+    """Stage 4: the CNEP and the parameter-matched CNMP, side by side in a process each or one after the other here
+    (`size.side_by_side`); their checkpoints by name. started: the stage's start (time.perf_counter), for the log."""
     training = TrainConfig(
         steps=size.train_steps,
         warmup_steps=size.warmup_steps,
@@ -272,7 +272,8 @@ def _train(config: DemoConfig, out: Path, size: DemoSize, started: float) -> dic
         "CNEP": {"model": config.model},
         "CNMP": {"model": replace(config.model, assignment=CNMP_ASSIGNMENT), "matched_cnmp": True},
     }
-    log.info("training the CNEP and the CNMP side by side (%d steps each, one process each)", size.train_steps)
+    how = "side by side, one process each" if size.side_by_side else "one after the other, in this process"
+    log.info("training the CNEP and the CNMP %s (%d steps each)", how, size.train_steps)
     if not config.quiet:
         log.info("%s", BAR_LEGEND)
     jobs = {
@@ -286,7 +287,7 @@ def _train(config: DemoConfig, out: Path, size: DemoSize, started: float) -> dic
         )
         for name, path in checkpoints.items()
     }
-    train_side_by_side(jobs, config.quiet, started)
+    (train_side_by_side if size.side_by_side else train_one_after_another)(jobs, config.quiet, started)
     return checkpoints
 
 
@@ -427,6 +428,14 @@ def train_side_by_side(jobs: dict[str, TrainStageConfig], quiet: bool, started: 
     finally:
         for bar in bars.values():
             bar.close()
+
+
+def train_one_after_another(jobs: dict[str, TrainStageConfig], quiet: bool, started: float) -> None:
+    """Train each named job in this process, in turn, with the bars `train_side_by_side` draws."""
+    for name, job in jobs.items():
+        with progress_bar(total=job.training.steps, desc=f"train {name}", unit="step", quiet=quiet) as bar:
+            train(job, RemoteBar(BarQueue(bar), name))
+        log.info("%s trained (%.1f s into the stage)", name, time.perf_counter() - started)
 
 
 def summary_figure(out: Path, result: DemoResult, trajectories: dict[str, list[Path]]) -> Path | None:

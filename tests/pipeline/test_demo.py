@@ -1,6 +1,7 @@
 """`cnep demo --quick` end to end: every stage's files, the summary, and what the .rrd holds."""
 
 import json
+import time
 from pathlib import Path
 
 import numpy as np
@@ -16,13 +17,21 @@ from cnep.pipeline.demo.free_choice import gate_census, replay_pick
 from cnep.pipeline.demo.generator import CHOICE_KEY, LABEL_KEY
 from cnep.pipeline.demo.measures import online_gates
 from cnep.pipeline.demo.scene import BEHAVIOURS, FREE_CHOICE, SIDES
-from cnep.pipeline.demo.stage import REPLAYS_RRD, RRD_FILE, SCENE_CHANGE_MARK, SUMMARY_FILE, expert_labels
+from cnep.pipeline.demo.stage import (
+    REPLAYS_RRD,
+    RRD_FILE,
+    SCENE_CHANGE_MARK,
+    SUMMARY_FILE,
+    expert_labels,
+    train_side_by_side,
+)
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.replay.decisions import read_decisions
 from cnep.pipeline.train.constants import SCENE
 from cnep.recordings import read_demonstration, read_trajectory
 from cnep.recordings.constants import STEP_DIM
 from tests.conftest import PROGRESS_LOG
+from tests.pipeline.test_train import stage_config, write_set
 
 N_TRAIN = QUICK.per_behaviour * len(BEHAVIOURS) + QUICK.free_choice_per_side * len(SIDES)
 N_HELDOUT = QUICK.heldout_per_behaviour * len(BEHAVIOURS)
@@ -293,3 +302,13 @@ def test_the_view_marks_where_the_scene_changes(demo_run):
     frames, texts = column(demo_run / RRD_FILE, L.SWITCH_LOG, "TextLog:text")
     marked = [frame for frame, text in zip(frames, texts) if SCENE_CHANGE_MARK in text[0]]
     assert marked == [change["change_step"]]
+
+
+@pytest.mark.slow  # a process of its own, which imports torch
+def test_side_by_side_trains_each_job_in_a_process_of_its_own_onto_its_bar(tmp_path, capsys):
+    """The full demo's training (the quick one trains in its own process: the test above reads its bars)."""
+    job = stage_config(write_set(tmp_path / "data"), tmp_path / "ckpt", steps=10)
+    train_side_by_side({"CNEP": job}, quiet=False, started=time.perf_counter())
+    assert load_checkpoint(tmp_path / "ckpt").config.n_experts == job.model.n_experts
+    bars = [line for line in capsys.readouterr().err.splitlines() if line.startswith("train CNEP:")]
+    assert bars[-1].startswith("train CNEP: 100%") and "10/10" in bars[-1] and "loss=" in bars[-1]

@@ -42,6 +42,18 @@ def test_a_worker_reports_to_its_parents_bar():
         assert bar.n == 10 and bar.postfix == "val=0.5"
 
 
+def test_a_job_in_this_process_moves_its_bar_as_it_reports():
+    stream = io.StringIO()
+    with progress.progress_bar(total=10, desc="train CNEP", unit="step", stream=stream) as bar:
+        remote = progress.RemoteBar(progress.BarQueue(bar), "CNEP")
+        remote.update(4, val="0.7")
+        assert bar.n == 4 and bar.postfix == "val=0.7"  # at once: nothing has to follow the reports
+        remote.update(5, val="0.6")  # within REPORT_INTERVAL_S of the last: not reported
+        assert bar.n == 4
+        remote.update(10, final=True, val="0.5")
+        assert bar.n == 10 and bar.postfix == "val=0.5"
+
+
 def test_a_log_file_gets_a_line_per_interval(monkeypatch):
     monkeypatch.setattr(progress, "LINE_INTERVAL_S", 0.0)
     stream = io.StringIO()
