@@ -37,6 +37,7 @@ for _name, _value in SMALL_MODEL_MALLOC.items():
 PIPELINE_FIXTURES = {"quick_demo", "policy_world", "demo_run"}
 
 
+@pytest.hookimpl(tryfirst=True)  # marks the groups before pytest-xdist reads them
 def pytest_collection_modifyitems(items):
     """Marks and an order for `make test`'s worker processes (pytest-xdist `--dist loadgroup` hands the tests out in
     this order, one at a time unless grouped): a test of the pipeline's fixtures is slow; the tests that share a
