@@ -1,8 +1,8 @@
 """`cnep sim pick-place` end to end on the smallest data that runs every stage (2 demonstrations, random features
 calibrated on one batch of frames, 20 training steps, one episode per protocol and condition, each cut after the step
-at which a changed table has changed at the latest): summary.json holds per
-model, protocol and condition the documented rates, and the examples turn the run into its table and probe its
-features. The stage's two pools (training, closed loop) run their jobs in this process (tests/sim/conftest.py)."""
+at which a changed table has changed at the latest): summary.json holds per model, protocol and condition the
+documented rates, and the examples turn the run into its table and probe its features. The stage's two pools
+(training, closed loop) run their jobs in this process (tests/sim/conftest.py)."""
 
 import importlib.util
 import json
