@@ -271,13 +271,13 @@ def test_the_printed_summary_counts_the_scenes_read_wrong_apart_and_names_the_we
 
 
 # The longest silence of a demo's log: ~10 s on an idle machine. A busy machine stretches every stretch of work
-# alike, so the bound is also a share of the whole run's wall time (the quick demo: about a minute idle).
+# alike, so the bound is also a share of the whole run's wall time.
 SILENCE_S, SILENCE_SHARE = 12.0, 0.12
 
 
 def test_the_demo_is_never_silent_for_long(demo_run):
     """Every stage shows progress (a line at least every LINE_INTERVAL_S while it works, in a log file), the two
-    side-by-side trainings included: one bar per model with its steps, validation error and time left."""
+    trainings included: one bar per model with its steps, validation error and time left."""
     timed = [line.split(" ", 1) for line in (demo_run.parent / PROGRESS_LOG).read_text().splitlines()]
     times, lines = np.array([float(t) for t, _ in timed]), [line for _, line in timed]
     gaps = np.diff(np.concatenate([[0.0], times]))
