@@ -27,6 +27,7 @@ from cnep.outputs.atomic import write_atomically
 RECORD_FILE = ".cnep-record.json"
 RECORD_VERSION = 1
 _CHUNK = 1 << 20  # bytes read at a time while hashing
+MAX_RECORD_BYTES = 16 << 20  # the largest record read (bytes): about 150,000 files' entries
 
 
 def file_entry(path: Path) -> dict:
@@ -39,9 +40,17 @@ def file_entry(path: Path) -> dict:
 
 
 def read_record(folder: Path) -> dict[str, dict] | None:
-    """The files `folder`'s record names ({name: entry}); None when the folder has no readable record."""
+    """The files `folder`'s record names ({name: entry}); None when the folder has no readable record (none, not a
+    regular file, larger than MAX_RECORD_BYTES, or not a record)."""
+    path = Path(folder) / RECORD_FILE
     try:
-        data = json.loads((Path(folder) / RECORD_FILE).read_text(encoding="utf-8"))
+        if not path.is_file():  # a pipe planted there would make open() wait for a writer
+            return None
+        with open(path, "rb") as f:
+            raw = f.read(MAX_RECORD_BYTES + 1)
+        if len(raw) > MAX_RECORD_BYTES:
+            return None
+        data = json.loads(raw.decode("utf-8"))
     except (OSError, ValueError, RecursionError):  # RecursionError: a planted record nested too deep to parse
         return None
     if not isinstance(data, dict) or data.get("format_version") != RECORD_VERSION:

@@ -1,0 +1,39 @@
+"""The record of what cnep wrote in a folder is read within a size limit: a planted record of any size costs bounded
+memory and is no record."""
+
+import json
+import os
+import tracemalloc
+
+from cnep.outputs import RECORD_FILE, read_record
+from cnep.outputs.record import MAX_RECORD_BYTES
+
+
+def peak_of(read) -> tuple[object, int]:
+    """What `read()` returns and the most bytes Python held while it ran."""
+    tracemalloc.start()
+    try:
+        return read(), tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+
+
+def test_a_record_larger_than_the_limit_is_no_record_and_is_not_read_whole(tmp_path):
+    entries = {f"f{k}.mcap": {"size": 1, "sha256": "0" * 64} for k in range(3)}
+    text = json.dumps({"format_version": 1, "files": entries})
+    with open(tmp_path / RECORD_FILE, "w") as f:
+        f.write(text[:-2] + ', "pad": "')  # a valid start, then a string run out to four times the limit
+        f.truncate(4 * MAX_RECORD_BYTES)  # sparse: costs no disk
+    found, peak = peak_of(lambda: read_record(tmp_path))
+    assert found is None and peak < 1.5 * MAX_RECORD_BYTES, peak
+
+
+def test_a_record_within_the_limit_is_read(tmp_path):
+    entries = {"a.mcap": {"size": 1, "sha256": "0" * 64}}
+    (tmp_path / RECORD_FILE).write_text(json.dumps({"format_version": 1, "files": entries}))
+    assert read_record(tmp_path) == entries
+
+
+def test_a_record_that_is_no_regular_file_is_no_record_and_is_not_waited_for(tmp_path):
+    os.mkfifo(tmp_path / RECORD_FILE)  # opening a pipe for reading waits for a writer that never comes
+    assert read_record(tmp_path) is None
