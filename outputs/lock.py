@@ -28,6 +28,7 @@ log = logging.getLogger(__name__)
 
 FOLDER_LOCK = ".cnep-folder.lock"  # not `.cnep.lock`: that is the lock beside an output named `cnep`
 _SIGNATURE = b'{"pid": '  # how the lock file's JSON starts (_holder's first key)
+_HOLDER_BYTES = 4096  # the most of a lock file read: a holder is a few hundred bytes (its command cut at 300)
 
 
 def is_lock_name(name: str) -> bool:
@@ -52,7 +53,8 @@ def _holder() -> dict:
 def _read_holder(path: Path) -> dict | None:
     """The holder a lock file names: {} when it says nothing readable (yet), None when there is no file."""
     try:
-        text = path.read_text(encoding="utf-8", errors="replace").strip()
+        with open(path, "rb") as f:
+            text = f.read(_HOLDER_BYTES).decode("utf-8", errors="replace").strip()
     except FileNotFoundError:
         return None
     except OSError:
@@ -66,6 +68,8 @@ def _read_holder(path: Path) -> dict | None:
 
 def _refuse_foreign(path: Path) -> None:
     """OutputError if a file that is no cnep lock file sits where the lock goes (flock would write into it)."""
+    if path.exists() and not path.is_file() and not path.is_dir():  # a pipe: opening it would wait for a writer
+        raise OutputError(f"{path}: this is where the output's lock file goes, and it is no file; move it away")
     try:
         with open(path, "rb") as f:
             head = f.read(len(_SIGNATURE))

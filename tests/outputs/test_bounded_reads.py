@@ -1,11 +1,14 @@
-"""The record of what cnep wrote in a folder is read within a size limit: a planted record of any size costs bounded
-memory and is no record."""
+"""What cnep reads of its own bookkeeping in an output folder is read within a size limit: a planted record or lock
+file of any size costs bounded memory."""
 
 import json
 import os
 import tracemalloc
 
-from cnep.outputs import RECORD_FILE, read_record
+import pytest
+
+from cnep.outputs import RECORD_FILE, OutputError, output_lock, read_record
+from cnep.outputs.lock import lock_path
 from cnep.outputs.record import MAX_RECORD_BYTES
 
 
@@ -37,3 +40,27 @@ def test_a_record_within_the_limit_is_read(tmp_path):
 def test_a_record_that_is_no_regular_file_is_no_record_and_is_not_waited_for(tmp_path):
     os.mkfifo(tmp_path / RECORD_FILE)  # opening a pipe for reading waits for a writer that never comes
     assert read_record(tmp_path) is None
+
+
+def test_a_planted_lock_file_of_any_size_costs_bounded_memory(tmp_path):
+    path = lock_path(tmp_path / "out.mcap", folder=False)
+    with open(path, "w") as f:
+        f.write('{"pid": 1, "host": "elsewhere", "command": "')  # a lock file's start, then 64 MB of one string
+        f.truncate(64 << 20)
+
+    def lock_and_release() -> None:
+        with output_lock(tmp_path / "out.mcap"):
+            pass
+
+    _, peak = peak_of(lock_and_release)
+    assert peak < 1 << 20, peak
+    assert not path.exists()  # taken over and released
+
+
+def test_a_pipe_where_the_lock_goes_is_refused_and_not_waited_for(tmp_path):
+    os.mkfifo(lock_path(tmp_path / "out.mcap", folder=False))
+    with (
+        pytest.raises(OutputError, match="this is where the output's lock file goes, and it is no file"),
+        output_lock(tmp_path / "out.mcap"),
+    ):
+        pass
