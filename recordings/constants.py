@@ -91,6 +91,10 @@ CHUNK_SIZE_BYTES = 16 * 1024
 MAX_CHUNK_BYTES = 64 * 1024 * 1024
 MAX_INFLATION = 100
 INFLATION_GRACE_BYTES = 2 * 1024 * 1024
+# A file's summary (recordings.summary) is read within these: its summary section (about 120 bytes per chunk, so
+# hours of frames at a chunk each) and each metadata record it indexes (a few hundred bytes in a cnep file).
+MAX_SUMMARY_BYTES = 64 * 1024 * 1024
+MAX_METADATA_BYTES = 1024 * 1024
 COMPRESSION_BY_KIND: Mapping[str, str] = MappingProxyType({KIND_DEMONSTRATION: "zstd", KIND_TRAJECTORY: "lz4"})
 DEFAULT_COMPRESSION = "zstd"
 JPEG_QUALITY = 90  # used only when a frame has to be (re-)encoded during ingest

@@ -1,7 +1,9 @@
 """Seeded fuzzing of cnep's readers: valid small files built with the project's own writers, mutated (bytes flipped,
-inserted, deleted, cut; size fields set to extremes; JSON values replaced by hostile ones), each read in a child
-process under a memory cap and a time limit per case. A reader may refuse a file only with the project's error for
-it; anything else (another exception, a hang, a blow-up) is a finding.
+inserted, deleted, cut; size fields set to extremes; a decompression bomb put into an MCAP file; JSON values replaced
+by hostile ones), each read in a child process under a memory cap, with a time limit and a memory budget per case.
+The MCAP files go through what `cnep inspect`, `repair`, `ingest`, `extract` (the summaries, the calibration frames)
+and `train` (the training set's summaries, the trajectories) read. A reader may refuse a file only with the project's
+errors for it; anything else (another exception, a hang, a blow-up) is a finding.
 
     python -m tests.fuzz --family mcap --cases 200 --seed 0     # the findings, one JSON line each; exit 1 if any
 
@@ -11,6 +13,7 @@ tests/test_fuzz.py runs a few hundred cases per family; `python -m benchmarks fu
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import resource
 import signal
@@ -46,6 +49,8 @@ HOSTILE_VALUES = (
 )
 MEMORY_CAP = 1 << 30  # bytes a child may add to its address space after its imports
 CASE_SECONDS = 10  # a case that takes longer is a hang
+CASE_MEMORY = 256 << 20  # a case that raises the child's peak resident memory by more is a blow-up (bytes)
+BOMB_SIZES = (16 << 20, 128 << 20, 768 << 20)  # what a bomb chunk inflates to (bytes): each within MEMORY_CAP
 
 
 @dataclass(frozen=True)
@@ -88,6 +93,30 @@ def mutate_bytes(data: bytes, rng: np.random.Generator, size_fields: tuple[int, 
     start = int(rng.integers(max(n - 8, 1)))
     buf[start : start + 8] = struct.pack("<Q", EXTREMES[int(rng.integers(len(EXTREMES)))])
     return bytes(buf), f"u64 at {start} = extreme"
+
+
+def mutate_mcap(data: bytes, rng: np.random.Generator, size_fields: tuple[int, ...]) -> tuple[bytes, str]:
+    """A zstd chunk of zeros that declares its size truthfully inserted after the header, and half the time the
+    footer's summary start set to 0 (a file without a summary: the mcap library then reads every record), in a
+    fifth of the cases; else a byte-level change."""
+    if rng.random() >= 0.2:
+        return mutate_bytes(data, rng, size_fields)
+    declared = BOMB_SIZES[int(rng.integers(len(BOMB_SIZES)))]
+    header_end = 8 + 9 + struct.unpack_from("<Q", data, 9)[0]
+    buf = bytearray(data[:header_end] + bomb_chunk(declared) + data[header_end:])
+    no_summary = rng.random() < 0.5
+    if no_summary:
+        footer = len(buf) - 8 - 20  # the footer's body: summary start, summary offset start, summary CRC
+        buf[footer : footer + 20] = bytes(20)
+    return bytes(buf), f"a chunk of {declared} zero bytes after the header{', no summary' if no_summary else ''}"
+
+
+@functools.cache
+def bomb_chunk(declared: int) -> bytes:
+    """An MCAP chunk record of `declared` zero bytes in a few KB of zstd (no CRC: it is never inflated to check)."""
+    from tests.recordings.hostile import chunk_record, zstd_zeros
+
+    return chunk_record(declared, zstd_zeros(declared))
 
 
 def mutate_json(data: bytes, rng: np.random.Generator, restamp: Callable[[dict], dict] | None) -> tuple[bytes, str]:
@@ -229,13 +258,21 @@ def safetensors_seeds(folder: Path) -> list[Seed]:
 # --- the readers and the errors they may raise ------------------------------------------------------------------
 
 
-def mcap_readers() -> list[tuple[str, Callable[[Path, Path], object], type[Exception]]]:
+Allowed = type[Exception] | tuple[type[Exception], ...]
+
+
+def mcap_readers() -> list[tuple[str, Callable[[Path, Path], object], Allowed]]:
+    from cnep.perception import PerceptionError
+    from cnep.pipeline.errors import PipelineError
+    from cnep.pipeline.extract.stage import calibration_frames, frame_counts
+    from cnep.pipeline.train.data import load_training_set
     from cnep.recordings import RecordingError, read_demonstration, read_trajectory
     from cnep.recordings.inspection import format_report, inspect_file
     from cnep.recordings.mcap_source import McapTopics, demonstration_from_mcap
     from cnep.recordings.repair import repair
 
     robot = McapTopics(image="/robot/camera", pose="/robot/ee", gripper="/robot/joints", gripper_joint="gripper_joint")
+    refused = (RecordingError, PipelineError, PerceptionError)
 
     return [
         ("read_demonstration", lambda path, _: read_demonstration(path), RecordingError),
@@ -243,10 +280,13 @@ def mcap_readers() -> list[tuple[str, Callable[[Path, Path], object], type[Excep
         ("inspect", lambda path, _: format_report(inspect_file(path)), RecordingError),
         ("repair", lambda path, work: repair(path, work / "repaired.mcap"), RecordingError),
         ("ingest robot MCAP", lambda path, _: demonstration_from_mcap(path, "fuzz", robot), RecordingError),
+        ("extract: frame counts", lambda path, _: frame_counts([path]), RecordingError),
+        ("extract: calibration frames", lambda path, _: calibration_frames([path], 4), refused),
+        ("train: the training set", lambda path, _: load_training_set([path, path]), refused),
     ]
 
 
-def json_readers() -> dict[str, tuple[str, Callable[[Path, Path], object], type[Exception]]]:
+def json_readers() -> dict[str, tuple[str, Callable[[Path, Path], object], Allowed]]:
     from cnep.models import ConfigError
     from cnep.models.checkpoint import checkpoint_model_config
     from cnep.pipeline.cli.train import read_settings
@@ -277,7 +317,7 @@ def json_readers() -> dict[str, tuple[str, Callable[[Path, Path], object], type[
     }
 
 
-def safetensors_readers() -> list[tuple[str, Callable[[Path, Path], object], type[Exception]]]:
+def safetensors_readers() -> list[tuple[str, Callable[[Path, Path], object], Allowed]]:
     from cnep.models import ConfigError, load_checkpoint
 
     return [("load_checkpoint", lambda path, _: load_checkpoint(path.parent), ConfigError)]
@@ -292,6 +332,11 @@ class _Hang(Exception):
 
 def _alarm(signum: int, frame: object) -> None:
     raise _Hang
+
+
+def peak_memory() -> int:
+    """The most memory this process has held resident so far (bytes)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024  # Linux counts it in KiB
 
 
 def cap_memory(extra: int) -> None:
@@ -309,8 +354,10 @@ def run(family: str, cases: int, seed: int) -> tuple[list[dict], int]:
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
         seeds = {"mcap": mcap_seeds, "json": json_seeds, "safetensors": safetensors_seeds}[family](root)
-        readers = {"mcap": mcap_readers, "safetensors": safetensors_readers}.get(family)
+        readers = {"mcap": mcap_readers, "safetensors": safetensors_readers}.get(family, list)()
         by_name = json_readers() if family == "json" else None
+        for declared in BOMB_SIZES if family == "mcap" else ():
+            bomb_chunk(declared)  # made before the memory is capped and measured
         cap_memory(MEMORY_CAP)
         signal.signal(signal.SIGALRM, _alarm)
         for case in range(cases):
@@ -320,15 +367,15 @@ def run(family: str, cases: int, seed: int) -> tuple[list[dict], int]:
             elif family == "safetensors":
                 data, change = mutate_safetensors(chosen.data, rng)
             else:
-                data, change = mutate_bytes(chosen.data, rng, chosen.size_fields)
+                data, change = mutate_mcap(chosen.data, rng, chosen.size_fields)
             work = root / f"case{case}"
             target = work / ("checkpoint" if family == "safetensors" else "in") / chosen.name
             target.parent.mkdir(parents=True)
             if family == "safetensors":
                 (target.parent / "config.json").write_bytes((root / "checkpoint" / "config.json").read_bytes())
             target.write_bytes(data)
-            for name, read, allowed in [by_name[chosen.name]] if by_name else readers():
-                start = time.perf_counter()
+            for name, read, allowed in [by_name[chosen.name]] if by_name else readers:
+                start, peak = time.perf_counter(), peak_memory()
                 signal.alarm(CASE_SECONDS)
                 try:
                     read(target, work)
@@ -351,6 +398,11 @@ def run(family: str, cases: int, seed: int) -> tuple[list[dict], int]:
                     )
                 finally:
                     signal.alarm(0)
+                grew = peak_memory() - peak
+                if grew > CASE_MEMORY:
+                    findings.append(
+                        {"case": case, "file": chosen.name, "change": change, "reader": name, "memory": grew}
+                    )
     return findings, cases
 
 
