@@ -95,6 +95,9 @@ INFLATION_GRACE_BYTES = 2 * 1024 * 1024
 # hours of frames at a chunk each) and each metadata record it indexes (a few hundred bytes in a cnep file).
 MAX_SUMMARY_BYTES = 64 * 1024 * 1024
 MAX_METADATA_BYTES = 1024 * 1024
+# A camera frame declaring more pixels than this is refused when read, before anything decodes it: a few hundred bytes
+# of JPEG can declare 65535 x 65535 pixels. This allows 8192 x 8192 (192 MiB decoded as RGB).
+MAX_FRAME_PIXELS = 8192 * 8192
 COMPRESSION_BY_KIND: Mapping[str, str] = MappingProxyType({KIND_DEMONSTRATION: "zstd", KIND_TRAJECTORY: "lz4"})
 DEFAULT_COMPRESSION = "zstd"
 JPEG_QUALITY = 90  # used only when a frame has to be (re-)encoded during ingest

@@ -25,8 +25,6 @@ VIDEO_SUFFIXES = frozenset({".mp4", ".avi", ".mov", ".mkv"})
 IMAGE_SUFFIXES = frozenset({".jpg", ".jpeg", ".png", ".bmp"})
 _NUMBER = re.compile(r"(\d+)")
 _FFMPEG_PREFIX = re.compile(r"^\[[^\]]*@ 0x[0-9a-f]+\]\s*")  # `[mov,mp4,m4a,3gp,3g2,mj2 @ 0x5581...] `
-# JPEG start-of-frame markers (they hold the image size); C4, C8 and CC share the range but are not frames.
-_SOF_MARKERS = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
 
 log = logging.getLogger(__name__)
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -54,23 +52,6 @@ def native_stderr() -> Iterator[list[str]]:
 def _ffmpeg_says(lines: list[str]) -> str:
     """` (FFmpeg: <its last line>)`, or "" when it said nothing."""
     return f" (FFmpeg: {_FFMPEG_PREFIX.sub('', lines[-1]).strip()})" if lines else ""
-
-
-def jpeg_size(data: bytes) -> tuple[int, int] | None:
-    """(width, height) from a JPEG's start-of-frame marker, without decoding it; None if there is none."""
-    i = 2
-    while i + 4 <= len(data) and data[i] == 0xFF:
-        marker = data[i + 1]
-        if marker == 0xFF:  # fill byte
-            i += 1
-            continue
-        if 0xD0 <= marker <= 0xD9 or marker == 0x01:  # markers without a length
-            i += 2
-            continue
-        if marker in _SOF_MARKERS and i + 9 <= len(data):
-            return int.from_bytes(data[i + 7 : i + 9], "big"), int.from_bytes(data[i + 5 : i + 7], "big")
-        i += 2 + int.from_bytes(data[i + 2 : i + 4], "big")
-    return None
 
 
 def _encode_jpeg(image: object, where: str) -> bytes:

@@ -14,9 +14,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from cnep.recordings.media import jpeg_size
 from cnep.recordings.records import Demonstration
-from cnep.recordings.validation import check_outliers
+from cnep.recordings.validation import check_outliers, jpeg_size
 
 log = logging.getLogger(__name__)
 

@@ -15,12 +15,15 @@ import numpy as np
 from cnep.recordings.constants import (
     BLOCK_FEATURES,
     BLOCKS_BY_WIDTH,
+    MAX_FRAME_PIXELS,
     POSE_DIM,
     SUPPORTED_FORMAT_VERSIONS,
 )
 from cnep.recordings.errors import RecordingError
 
 JPEG_MAGIC = b"\xff\xd8"
+# JPEG start-of-frame markers (they hold the image size); C4, C8 and CC share the range but are not frames.
+SOF_MARKERS = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
 # A quaternion whose length differs from the recording's typical length by more than this share is not a rotation
 # of the same kind: normalising it would turn it into an unrelated orientation (a 0.55 among unit ones: ~130 degrees).
 QUATERNION_TOLERANCE = 0.1
@@ -101,7 +104,35 @@ def check_frames(frames: Sequence[bytes] | None, n_steps: int, where: str) -> li
     for i, frame in enumerate(out):
         if not isinstance(frame, (bytes, bytearray)) or not bytes(frame[:2]) == JPEG_MAGIC:
             raise RecordingError(f"{where}: frame {i} is not JPEG data (it must start with bytes FF D8)")
+        size = jpeg_size(frame)
+        if size is None or size[0] * size[1] > MAX_FRAME_PIXELS:
+            said = (
+                "its header declares no frame size"
+                if size is None
+                else f"it declares {size[0]}x{size[1]} pixels, more than the {MAX_FRAME_PIXELS} a frame may have"
+            )
+            raise RecordingError(
+                f"{where}: frame {i} is not a decodable JPEG ({said}); a frame is a JPEG image of at most "
+                f"{MAX_FRAME_PIXELS} pixels: ingest the recording again from its source"
+            )
     return [bytes(f) for f in out]
+
+
+def jpeg_size(data: bytes) -> tuple[int, int] | None:
+    """(width, height) from a JPEG's start-of-frame marker, without decoding it; None if there is none."""
+    i = 2
+    while i + 4 <= len(data) and data[i] == 0xFF:
+        marker = data[i + 1]
+        if marker == 0xFF:  # fill byte
+            i += 1
+            continue
+        if 0xD0 <= marker <= 0xD9 or marker == 0x01:  # markers without a length
+            i += 2
+            continue
+        if marker in SOF_MARKERS and i + 9 <= len(data):
+            return int.from_bytes(data[i + 7 : i + 9], "big"), int.from_bytes(data[i + 5 : i + 7], "big")
+        i += 2 + int.from_bytes(data[i + 2 : i + 4], "big")
+    return None
 
 
 def check_blocks(blocks: Mapping[str, Sequence[int]] | None, width: int, where: str) -> dict[str, tuple[int, int]]:

@@ -25,7 +25,7 @@ from cnep.models.checkpoint import CHECKSUM_KEY, config_checksum
 from cnep.outputs import RECORD_FILE
 from cnep.pipeline.cli.main import main
 from cnep.recordings import Trajectory, write_demonstration, write_trajectory
-from tests.recordings.factories import demonstration_factory
+from tests.recordings.factories import cut_after_header, demonstration_factory
 from tests.recordings.sources import baxter_csv
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -536,7 +536,7 @@ def test_training_on_demonstrations_says_to_extract_first(world, tmp_path, capsy
 
 def test_inspect_names_a_frame_that_does_not_decode(world, tmp_path, capsys):
     demo = demonstration_factory(12, frames=True)
-    demo.frames[10] = b"\xff\xd8" + bytes(60)  # starts like a JPEG, decodes to nothing
+    demo.frames[10] = cut_after_header(demo.frames[10])  # a JPEG's header, then nothing to decode
     path = write_demonstration(tmp_path / "bad-frame.mcap", demo)
     code, err = run_cli(["inspect", path], capsys)
     assert code == 2

@@ -12,7 +12,7 @@ from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.extract.stage import ExtractConfig, calibration_frames, extract, plan_outputs, shard_of
 from cnep.pipeline.identity import check_identities, check_same_extractor
 from cnep.recordings import read_trajectory, write_demonstration
-from tests.recordings.factories import demonstration_factory
+from tests.recordings.factories import cut_after_header, demonstration_factory
 
 
 @pytest.fixture
@@ -82,7 +82,7 @@ def test_up_to_date_outputs_are_skipped_and_stale_ones_redone(demos, tmp_path):
 
 def test_corrupt_frame_names_file_and_step_and_leaves_no_output(tmp_path):
     demo = demonstration_factory(6, seed=0)
-    demo.frames[3] = b"\xff\xd8" + bytes(40)  # starts like a JPEG, decodes to nothing
+    demo.frames[3] = cut_after_header(demo.frames[3])  # a JPEG's header, then nothing to decode
     src = write_demonstration(tmp_path / "broken.mcap", demo)
     out = tmp_path / "out"
     with pytest.raises(PerceptionError, match=r"broken\.mcap: step 3 on /camera/rgb: cannot decode image"):
@@ -95,7 +95,7 @@ def test_corrupt_frame_after_calibration_leaves_other_outputs(demos, tmp_path):
     weights = tmp_path / "w.pt"
     extract(_config(demos[:1], tmp_path / "first", save_weights=weights))
     demo = demonstration_factory(6, seed=5)
-    demo.frames[5] = b"\xff\xd8\xff" + bytes(10)
+    demo.frames[5] = cut_after_header(demo.frames[5])
     broken = write_demonstration(tmp_path / "demos" / "z-broken.mcap", demo)
     out = tmp_path / "out"
     with pytest.raises(PerceptionError, match=r"z-broken\.mcap: step 5"):

@@ -20,6 +20,29 @@ def jpeg_frames(steps: int, size: int = 16, seed: int = 0) -> list[bytes]:
     return frames
 
 
+def _frame_header_at(jpeg: bytes) -> int:
+    """Where a JPEG's start-of-frame marker (its size) begins."""
+    from cnep.recordings.validation import SOF_MARKERS
+
+    i = 2
+    while jpeg[i + 1] not in SOF_MARKERS:
+        i += 2 + int.from_bytes(jpeg[i + 2 : i + 4], "big")
+    return i
+
+
+def cut_after_header(jpeg: bytes) -> bytes:
+    """`jpeg` cut after its frame header: it declares its size, and decodes to nothing."""
+    at = _frame_header_at(jpeg)
+    return jpeg[: at + 2 + int.from_bytes(jpeg[at + 2 : at + 4], "big")]
+
+
+def declaring(jpeg: bytes, width: int, height: int) -> bytes:
+    """`jpeg` with its frame header declaring `width` x `height` pixels (its data as it was)."""
+    data, at = bytearray(jpeg), _frame_header_at(jpeg)
+    data[at + 5 : at + 9] = height.to_bytes(2, "big") + width.to_bytes(2, "big")
+    return bytes(data)
+
+
 def random_pose(steps: int, rng: np.random.Generator) -> np.ndarray:
     """(steps, 7) float64: xyz in m and unit quaternions xyzw."""
     quat = rng.normal(size=(steps, 4))
