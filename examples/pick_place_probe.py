@@ -28,7 +28,7 @@ import cnep.sim
 from cnep.runtime.exported import load_features
 from cnep.runtime.frames import pixel_buffer, resize_frame
 from cnep.sim import PickPlaceEnv
-from cnep.sim import pick_scene as P
+from cnep.sim.tasks.pick_place import scene as P
 
 RIDGE = 1.0
 PROBE_SEED = 5_000_000  # above the demonstrations' seeds (pipeline.sim.generate.DEMO_SEED_OFFSET + ...)

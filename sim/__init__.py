@@ -21,11 +21,11 @@ PICK_ENV_ID = "cnep/PickPlace-v0"
 EXTRA = ("mujoco", "gymnasium")  # what the `sim` extra installs
 
 _MODULES = {
-    "demonstrator": ("demonstration_path", "DemoDraw", "draw_demonstration"),
-    "env": ("IMAGE_KEY", "SIDES", "ObstacleEnv"),
+    "tasks.obstacle.demonstrator": ("demonstration_path", "DemoDraw", "draw_demonstration"),
+    "tasks.obstacle.env": ("IMAGE_KEY", "SIDES", "ObstacleEnv"),
     "episode": ("EpisodeResult", "PLANNED", "ONLINE", "PROTOCOLS", "run_episode"),
-    "pick_env": ("PICK_IMAGE_KEY", "PickPlaceEnv", "grasp_places"),
-    "pick_demonstrator": ("PickDraw", "draw_pick", "pick_path"),
+    "tasks.pick_place.env": ("PICK_IMAGE_KEY", "PickPlaceEnv", "grasp_places"),
+    "tasks.pick_place.demonstrator": ("PickDraw", "draw_pick", "pick_path"),
 }
 _WHERE = {name: module for module, names in _MODULES.items() for name in names}
 __all__ = sorted([*_WHERE, "CUE_ENV_ID", "ENV_ID", "PICK_ENV_ID", "SimError", "require_extra"])
@@ -50,6 +50,6 @@ def __getattr__(name: str) -> object:
 if importlib.util.find_spec("gymnasium") is not None:  # registered by name: nothing is imported until made
     import gymnasium
 
-    gymnasium.register(id=ENV_ID, entry_point="cnep.sim.env:ObstacleEnv")
-    gymnasium.register(id=CUE_ENV_ID, entry_point="cnep.sim.env:ObstacleEnv", kwargs={"cue": True})
-    gymnasium.register(id=PICK_ENV_ID, entry_point="cnep.sim.pick_env:PickPlaceEnv")
+    gymnasium.register(id=ENV_ID, entry_point="cnep.sim.tasks.obstacle.env:ObstacleEnv")
+    gymnasium.register(id=CUE_ENV_ID, entry_point="cnep.sim.tasks.obstacle.env:ObstacleEnv", kwargs={"cue": True})
+    gymnasium.register(id=PICK_ENV_ID, entry_point="cnep.sim.tasks.pick_place.env:PickPlaceEnv")

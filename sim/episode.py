@@ -21,7 +21,7 @@ import numpy as np
 from cnep.runtime import STATE_KEY, STATE_NAMES, TIMESTAMP_KEY, Policy, PolicyStep
 from cnep.runtime.spec import GRIPPER
 from cnep.sim import scene as S
-from cnep.sim.env import IMAGE_KEY, ObstacleEnv
+from cnep.sim.tasks.obstacle.env import IMAGE_KEY, ObstacleEnv
 
 GRIPPER_INDEX = STATE_NAMES.index(GRIPPER)
 PLANNED, ONLINE = "planned", "online"

@@ -26,8 +26,9 @@ GOAL_XY = (0.0, GOAL_Y)
 GOAL_RADIUS = 0.04  # m: the goal marker's radius
 CUE_XY = (0.2, 0.13)  # m: the cue tile's |x| (on the side to pass, in the cue variant) and y (beyond the box)
 CUE_HALF = 0.04  # m: the tile's half size
-# The scripted demonstrator (sim.demonstrator): per demonstration a side, a number of steps (its speed), the detour's
-# lateral reach at the box and its shape (the exponent of the bump: < 1 flatter near the box), each drawn uniformly.
+# The scripted demonstrator (sim.tasks.obstacle.demonstrator): per demonstration a side, a number of steps (its
+# speed), the detour's lateral reach at the box and its shape (the exponent of the bump: < 1 flatter near the box),
+# each drawn uniformly.
 DEMO_STEPS = (34, 44)  # control steps from start to goal, inclusive range
 DETOUR = (
     0.19,

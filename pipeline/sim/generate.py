@@ -21,8 +21,8 @@ from cnep.outputs import temporary_path
 from cnep.pipeline.progress import progress_bar
 from cnep.runtime import STATE_KEY, STATE_NAMES
 from cnep.sim import IMAGE_KEY, ObstacleEnv, PickPlaceEnv, demonstration_path, draw_demonstration, draw_pick, pick_path
-from cnep.sim import pick_scene as P
 from cnep.sim import scene as S
+from cnep.sim.tasks.pick_place import scene as P
 
 CSV_FILE = "poses.csv"
 CSV_HEADER = ("t", *STATE_NAMES)
@@ -68,7 +68,7 @@ def generate_demonstrations(out: Path, n: int, seed: int, cue: bool = False, qui
 
 def generate_pick_demonstrations(out: Path, n: int, seed: int, quiet: bool = False) -> Generated:
     """Write `n` pick-and-place demonstrations into out/demo_NNN/ (frames + CSV), seeded by `seed`; `sides` holds
-    each one's place (pick_scene.PLACES' name)."""
+    each one's place (the pick-and-place scene's PLACES' name)."""
     rng = np.random.default_rng(seed)
     env = PickPlaceEnv()
     folders, successes, places = [], 0, []

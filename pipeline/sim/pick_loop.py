@@ -15,8 +15,8 @@ from cnep.pipeline.progress import progress_bar
 from cnep.pipeline.sim.pick_rerun import write_pick_episode
 from cnep.pipeline.sim.pick_summary import pick_rates, pick_row
 from cnep.runtime import Policy
-from cnep.sim.pick_env import PickPlaceEnv
-from cnep.sim.pick_episode import run_pick_episode
+from cnep.sim.tasks.pick_place.env import PickPlaceEnv
+from cnep.sim.tasks.pick_place.episode import run_pick_episode
 
 
 def evaluate_pick_policy(

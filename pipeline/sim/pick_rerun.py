@@ -21,9 +21,9 @@ from cnep.pipeline.sim.rerun_log import (
     at_step,
     log_policy_read,
 )
-from cnep.sim import pick_scene as P
 from cnep.sim import scene as S
-from cnep.sim.pick_episode import PickEpisode
+from cnep.sim.tasks.pick_place import scene as P
+from cnep.sim.tasks.pick_place.episode import PickEpisode
 
 BAR, MATS, CUPS = (f"{L.WORLD}/{name}" for name in ("bar", "mats", "cups"))
 

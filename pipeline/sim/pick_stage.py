@@ -29,8 +29,8 @@ from cnep.pipeline.sim.pick_summary import format_pick_table
 from cnep.pipeline.sim.stage import by_model, run_in_new_folder, run_stages
 from cnep.pipeline.workers import single_thread_processes
 from cnep.runtime.conditioning import ConditioningPolicy
-from cnep.sim import pick_scene as P
 from cnep.sim import require_extra
+from cnep.sim.tasks.pick_place import scene as P
 
 POLICY_THREADS = 1  # intra-op threads of the policy's graphs: one episode steps them one frame at a time
 

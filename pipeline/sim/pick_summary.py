@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from cnep.pipeline.sim.summary import TIMES, percentiles_ms, pooled_ms
-from cnep.sim.pick_episode import PickEpisode
+from cnep.sim.tasks.pick_place.episode import PickEpisode
 
 SWITCH_WITHIN = 5  # steps: a switch this soon after the change counts as prompt
 

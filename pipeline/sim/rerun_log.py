@@ -13,8 +13,8 @@ import cnep.pipeline.replay.viewer as L
 from cnep.outputs import write_atomically
 from cnep.pipeline.replay.rerun_log import active_expert_states, first_read_text, shown_state
 from cnep.sim import scene as S
-from cnep.sim.demonstrator import SIDE_SIGN
 from cnep.sim.episode import EpisodeResult
+from cnep.sim.tasks.obstacle.demonstrator import SIDE_SIGN
 
 APPLICATION_ID = "cnep_sim"
 BOX, TABLE, GOAL, CUE = (f"{L.WORLD}/{name}" for name in ("box", "table", "goal", "cue"))

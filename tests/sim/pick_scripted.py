@@ -9,8 +9,8 @@ import numpy as np
 from cnep.runtime import Columns, ConditioningPolicy, Policy, PolicySpec, TimeBase
 from cnep.runtime.gripper import GripperCommand
 from cnep.sim import PickDraw, pick_path
-from cnep.sim import pick_scene as P
 from cnep.sim import scene as S
+from cnep.sim.tasks.pick_place import scene as P
 
 STEPS = tuple(hi for _, hi in P.PHASE_STEPS.values())  # the slowest demonstration: each phase's most steps
 

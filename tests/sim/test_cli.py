@@ -10,8 +10,8 @@ from cnep.pipeline.cli.main import build_parser, main
 from cnep.pipeline.cli.sim import config_of
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.sim.config import PROTOCOLS, EvalConfig, PickPlaceConfig, SimConfig
-from cnep.sim import pick_scene as P
 from cnep.sim import scene as S
+from cnep.sim.tasks.pick_place import scene as P
 
 
 def test_obstacle_arguments_become_its_settings_and_the_others_keep_their_defaults():

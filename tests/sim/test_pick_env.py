@@ -16,8 +16,8 @@ from gymnasium.utils.env_checker import check_env  # noqa: E402
 
 from cnep.runtime import STATE_KEY  # noqa: E402
 from cnep.sim import PICK_ENV_ID, PICK_IMAGE_KEY, PickPlaceEnv, draw_pick, grasp_places, pick_path  # noqa: E402
-from cnep.sim import pick_scene as P  # noqa: E402
-from cnep.sim.pick_demonstrator import phase_steps  # noqa: E402
+from cnep.sim.tasks.pick_place import scene as P  # noqa: E402
+from cnep.sim.tasks.pick_place.demonstrator import phase_steps  # noqa: E402
 
 
 @pytest.fixture(scope="module")

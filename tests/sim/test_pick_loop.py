@@ -15,9 +15,9 @@ if not all(importlib.util.find_spec(name) for name in cnep.sim.EXTRA):
 from cnep.pipeline.sim.pick_loop import evaluate_pick_policy  # noqa: E402
 from cnep.pipeline.sim.pick_summary import format_pick_table, pick_rates  # noqa: E402
 from cnep.sim import PickPlaceEnv  # noqa: E402
-from cnep.sim import pick_scene as P  # noqa: E402
 from cnep.sim.episode import ONLINE, PLANNED, Driver  # noqa: E402
-from cnep.sim.pick_episode import first_switch, run_pick_episode  # noqa: E402
+from cnep.sim.tasks.pick_place import scene as P  # noqa: E402
+from cnep.sim.tasks.pick_place.episode import first_switch, run_pick_episode  # noqa: E402
 from tests.sim.pick_scripted import pick_policy  # noqa: E402
 
 

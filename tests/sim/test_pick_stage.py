@@ -18,7 +18,7 @@ from cnep.pipeline.sim.config import PROTOCOLS, PickPlaceConfig  # noqa: E402
 from cnep.pipeline.sim.pick_baselines import BASELINES  # noqa: E402
 from cnep.pipeline.sim.pick_stage import run_pick_place  # noqa: E402
 from cnep.pipeline.sim.stage import SUMMARY_FILE  # noqa: E402
-from cnep.sim import pick_scene as P  # noqa: E402
+from cnep.sim.tasks.pick_place import scene as P  # noqa: E402
 from tests.test_examples import load  # noqa: E402
 
 

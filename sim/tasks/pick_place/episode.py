@@ -5,7 +5,7 @@ the next action. The gripper follows the policy's two-state command where it has
 
 The policy is anything with `reset(seed)`, `step(observation) -> runtime.PolicyStep`, `action_names` and
 `gripper` (a `cnep.runtime.Policy`, or a baseline behind the same interface), opened for PLANNED with waypoints
-spanning the task's motion (pick_scene.MAX_STEPS).
+spanning the task's motion (the scene's MAX_STEPS).
 """
 
 from __future__ import annotations
@@ -15,9 +15,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cnep.runtime import STATE_KEY, Policy
-from cnep.sim import pick_scene as P
 from cnep.sim.episode import ONLINE, Driver
-from cnep.sim.pick_env import PickPlaceEnv
+from cnep.sim.tasks.pick_place import scene as P
+from cnep.sim.tasks.pick_place.env import PickPlaceEnv
 
 
 @dataclass

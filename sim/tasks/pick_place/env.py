@@ -5,7 +5,7 @@ action's gripper is a two-state gripper's command: below CLOSE_BELOW the fingers
 squeeze what they hold), else they open to FINGER_OPEN; the state reports the fingers' opening as measured.
 
 An episode (`reset(seed=)`) draws the gripper's start, the bar's pose and orientation (which decides the grasp and
-so its two places), the places the `condition` takes (sim.pick_scene.CONDITIONS: `decided`, `free`, `changed`; or
+so its two places), the places the `condition` takes (its scene's CONDITIONS: `decided`, `free`, `changed`; or
 `mixed`: decided or free with equal chance, the demonstrations' scenes) and, for `changed`, the step at which the
 cup moves to the grasp's other place. It ends (`terminated`) once the bar was lifted and rests, released, on the
 table (on a mat or not), else is truncated after `max_steps`. Judged by the physics (`info`): `lifted` (the bar
@@ -23,8 +23,8 @@ import mujoco
 import numpy as np
 
 from cnep.runtime.constants import IMAGE_KEY_PREFIX
-from cnep.sim import pick_scene as P
 from cnep.sim.tabletop import TabletopEnv
+from cnep.sim.tasks.pick_place import scene as P
 
 MIXED = "mixed"
 PICK_IMAGE_KEY = IMAGE_KEY_PREFIX + P.CAMERA

@@ -3,7 +3,7 @@ put it down, leave; with natural variation.
 
 A demonstration (`PickDraw`, drawn by `draw_pick` from a generator and the scene) has a place (one of the grasp's
 free places, drawn uniformly: the scene decides where one is taken and leaves the choice where both are free), a
-number of steps per phase (its speed: one pace within pick_scene.PHASE_STEPS' ranges for the whole motion, so each
+number of steps per phase (its speed: one pace within the scene's PHASE_STEPS' ranges for the whole motion, so each
 stage comes at about the same share of every demonstration), the grasp point along the bar, the place point on the
 mat and the carrying height. Its waypoints (`pick_path`) are the actions (8,): xyz, the quaternion xyzw (the
 grasp's yaw, turned during the approach) and the gripper command (FINGER_OPEN open, 0 closed); each phase moves
@@ -16,8 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cnep.sim import pick_scene as P
-from cnep.sim.pick_env import grasp_places, yaw_quaternion
+from cnep.sim.tasks.pick_place import scene as P
+from cnep.sim.tasks.pick_place.env import grasp_places, yaw_quaternion
 
 
 @dataclass(frozen=True)

@@ -44,7 +44,7 @@ LIFTED_Z = 0.03  # m: the bar's centre this far above where it lay counts as lif
 DROP_HEIGHT = 0.02  # m: the bar out of the fingers with its bottom this far above the table was dropped
 REST_SPEED = 0.02  # m/s: the bar at rest
 MAX_STEPS = 90  # control steps of an episode (9 s): demonstrations take PHASE_STEPS' sum
-# The scripted demonstrator (sim.pick_demonstrator): per phase a number of control steps within these (inclusive),
+# The scripted demonstrator (the task's demonstrator): per phase a number of control steps within these (inclusive),
 # at one pace drawn per demonstration; approach (above the bar, turning to the grasp's yaw), descend, close, lift,
 # carry, lower, open, leave.
 PHASE_STEPS = {

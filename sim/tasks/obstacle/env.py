@@ -22,8 +22,8 @@ import numpy as np
 
 from cnep.runtime.constants import IMAGE_KEY_PREFIX
 from cnep.sim import scene as S
-from cnep.sim.demonstrator import SIDE_SIGN
 from cnep.sim.tabletop import TabletopEnv
+from cnep.sim.tasks.obstacle.demonstrator import SIDE_SIGN
 
 SIDES = tuple(SIDE_SIGN)
 IMAGE_KEY = IMAGE_KEY_PREFIX + S.CAMERA

@@ -1,0 +1,1 @@
+"""The simulator's tasks, one folder each: its scene, environment, scripted demonstrator and scoring."""
