@@ -10,45 +10,27 @@ Public API (stable; see docs/reference/mcap-schema.md for the file contract):
     constants    recordings.constants (topics, schemas, BLOCKS_FULL, BLOCKS_MOTION, FORMAT_VERSION, ...)
 """
 
-from cnep.recordings import constants
-from cnep.recordings.constants import (
-    BLOCKS_FULL,
-    BLOCKS_MOTION,
-    FEATURE_DIM,
-    FORMAT_VERSION,
-    MOTION_DIM,
-    STEP_DIM,
-)
-from cnep.recordings.errors import RecordingError
-from cnep.recordings.events import add_events, read_events
-from cnep.recordings.readers import DemonstrationReader, TrajectoryReader, read_demonstration, read_trajectory
-from cnep.recordings.records import Demonstration, Episode, Event, Trajectory
-from cnep.recordings.summary import FileSummary, read_summary
-from cnep.recordings.writers import DemonstrationWriter, TrajectoryWriter, write_demonstration, write_trajectory
+import importlib
 
-__all__ = [
-    "BLOCKS_FULL",
-    "BLOCKS_MOTION",
-    "FEATURE_DIM",
-    "FORMAT_VERSION",
-    "MOTION_DIM",
-    "STEP_DIM",
-    "Demonstration",
-    "DemonstrationReader",
-    "DemonstrationWriter",
-    "Episode",
-    "Event",
-    "FileSummary",
-    "RecordingError",
-    "Trajectory",
-    "TrajectoryReader",
-    "TrajectoryWriter",
-    "add_events",
-    "constants",
-    "read_demonstration",
-    "read_events",
-    "read_summary",
-    "read_trajectory",
-    "write_demonstration",
-    "write_trajectory",
-]
+# Module -> the public names it defines. A name's module is imported when the name is first used (PEP 562), so a
+# light module (`cnep.recordings.constants`, the LeRobot layout and video settings the `cnep` command's options read)
+# loads without the MCAP library.
+_MODULES = {
+    "constants": ("BLOCKS_FULL", "BLOCKS_MOTION", "FEATURE_DIM", "FORMAT_VERSION", "MOTION_DIM", "STEP_DIM"),
+    "errors": ("RecordingError",),
+    "events": ("add_events", "read_events"),
+    "readers": ("DemonstrationReader", "TrajectoryReader", "read_demonstration", "read_trajectory"),
+    "records": ("Demonstration", "Episode", "Event", "Trajectory"),
+    "summary": ("FileSummary", "read_summary"),
+    "writers": ("DemonstrationWriter", "TrajectoryWriter", "write_demonstration", "write_trajectory"),
+}
+_WHERE = {name: module for module, names in _MODULES.items() for name in names}
+__all__ = sorted([*_WHERE, "constants"])
+
+
+def __getattr__(name: str) -> object:
+    if name == "constants":
+        return importlib.import_module(f"{__name__}.constants")
+    if name not in _WHERE:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(importlib.import_module(f"{__name__}.{_WHERE[name]}"), name)

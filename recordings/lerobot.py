@@ -32,15 +32,25 @@ from typing import Any
 import numpy as np
 
 from cnep.recordings.errors import RecordingError
-from cnep.recordings.lerobot_columns import NS_PER_S, LerobotMapping, motion_of_rows, resolve_columns
+from cnep.recordings.lerobot_columns import (
+    NS_PER_S,
+    LerobotMapping,
+    StateColumns,
+    motion_of_rows,
+    resolve_columns,
+)
+from cnep.recordings.lerobot_layout import (
+    CAMERA_DTYPES,
+    EPISODES_DIR,
+    EPISODES_V21,
+    INFO_PATH,
+    INSTALL_HINT,
+    SUPPORTED_VERSIONS,
+    TOLERANCE_S,
+)
 from cnep.recordings.media import as_jpeg, video_frames_at
 from cnep.recordings.records import Demonstration, Episode
 from cnep.runtime.jsonfile import parse_json, read_json
-
-SUPPORTED_VERSIONS = ("v2.1", "v3.0")
-TOLERANCE_S = 1e-4  # largest gap between a Parquet timestamp and its video frame (LeRobot's default)
-CAMERA_DTYPES = ("video", "image")
-INSTALL_HINT = "pip install 'cnep-pipeline[lerobot]'"
 
 
 @dataclass(frozen=True)
@@ -83,7 +93,7 @@ def is_lerobot_dataset(path: str | os.PathLike) -> bool:
     An `info.json` that cannot be read as JSON is a RecordingError naming it: the folder looks like a LeRobot
     dataset whose description is damaged, and reading it as other files would only mislead.
     """
-    info = Path(path) / "meta" / "info.json"
+    info = Path(path) / INFO_PATH
     if not info.is_file():
         return False
     try:
@@ -106,7 +116,7 @@ def _parquet() -> Any:
 
 
 def _read_info(root: Path) -> dict:
-    path = root / "meta" / "info.json"
+    path = root / INFO_PATH
     try:
         info = read_json(path)
     except FileNotFoundError:
@@ -137,13 +147,8 @@ def _choose_camera(info: dict, wanted: str | None, where: Path) -> str:
     if wanted == "":
         return ""
     if wanted is None:
-        if len(cameras) == 1:
-            return cameras[0]
-        if not cameras:
-            raise RecordingError(
-                f"{where}: the dataset has no camera feature (dtype video or image); "
-                f'ingest it motion-only with --camera ""'
-            )
+        if len(cameras) <= 1:
+            return cameras[0] if cameras else ""  # no camera: motion only
         raise RecordingError(f"{where}: the dataset has {len(cameras)} cameras {cameras}; choose one with --camera KEY")
     if wanted not in cameras:
         raise RecordingError(
@@ -162,7 +167,7 @@ def _read_parquet(path: Path, columns: list[str] | None = None) -> Any:
         raise RecordingError(f"{path}: cannot read as Parquet ({exc})") from None
 
 
-def _motion_table(path: Path, state: str) -> tuple[Any, np.ndarray | None]:
+def _motion_table(path: Path, columns: StateColumns) -> tuple[Any, np.ndarray | None]:
     """The columns of a data file that motion needs (not the images), and the episode index of each row (or None)."""
     pq = _parquet()
     if not path.is_file():
@@ -171,27 +176,28 @@ def _motion_table(path: Path, state: str) -> tuple[Any, np.ndarray | None]:
         names = pq.read_schema(path).names
     except Exception as exc:  # pyarrow raises several unrelated types for bad files
         raise RecordingError(f"{path}: cannot read as Parquet ({exc})") from None
-    table = _read_parquet(path, [c for c in ("timestamp", state, "episode_index") if c in names])
+    wanted = ("timestamp", columns.state, columns.gripper_column, "episode_index")
+    table = _read_parquet(path, [c for c in dict.fromkeys(wanted) if c in names])
     if "episode_index" not in names:
         return table, None
     return table, table.column("episode_index").to_numpy()
 
 
 def _episodes_v21(root: Path) -> list[dict]:
-    path = root / "meta" / "episodes.jsonl"
+    path = root / EPISODES_V21
     try:
         lines = [line for line in path.read_text().splitlines() if line.strip()]
         return sorted((parse_json(line) for line in lines), key=lambda e: e["episode_index"])
     except FileNotFoundError:
-        raise RecordingError(f"{root}: a v2.1 dataset needs meta/episodes.jsonl") from None
+        raise RecordingError(f"{root}: a v2.1 dataset needs {EPISODES_V21}") from None
     except (ValueError, KeyError, TypeError) as exc:
         raise RecordingError(f"{path}: cannot read the episode list ({exc})") from None
 
 
 def _episodes_v30(root: Path) -> list[dict]:
-    files = sorted((root / "meta" / "episodes").glob("chunk-*/file-*.parquet"))
+    files = sorted((root / EPISODES_DIR).glob("chunk-*/file-*.parquet"))
     if not files:
-        raise RecordingError(f"{root}: a v3.0 dataset needs meta/episodes/chunk-*/file-*.parquet")
+        raise RecordingError(f"{root}: a v3.0 dataset needs {EPISODES_DIR}/chunk-*/file-*.parquet")
     rows = [row for f in files for row in _read_parquet(f).to_pylist()]
     if any("episode_index" not in r for r in rows):
         raise RecordingError(f"{files[0]}: episode rows without 'episode_index'")
@@ -233,13 +239,11 @@ def plan_lerobot(root: str | os.PathLike, mapping: LerobotMapping = LerobotMappi
     root = Path(root)
     info = _read_info(root)
     version = info["codebase_version"]
-    camera = _choose_camera(info, mapping.camera, root / "meta" / "info.json")
-    columns = resolve_columns(info, mapping, root / "meta" / "info.json")
+    camera = _choose_camera(info, mapping.camera, root / INFO_PATH)
+    columns = resolve_columns(info, mapping, root / INFO_PATH)
     is_video = bool(camera) and info["features"][camera]["dtype"] == "video"
     if is_video and "video_path" not in info:
-        raise RecordingError(
-            f"{root / 'meta' / 'info.json'}: camera {camera!r} is a video but there is no 'video_path'"
-        )
+        raise RecordingError(f"{root / INFO_PATH}: camera {camera!r} is a video but there is no 'video_path'")
     entries = _episodes_v21(root) if version == "v2.1" else _episodes_v30(root)
     if not entries:
         raise RecordingError(f"{root}: the dataset lists no episodes")
@@ -257,7 +261,7 @@ def plan_lerobot(root: str | os.PathLike, mapping: LerobotMapping = LerobotMappi
             ) from None
         if data not in cached:  # consecutive episodes share a v3.0 data file: read it once
             cached.clear()
-            cached[data] = _motion_table(data, mapping.state)
+            cached[data] = _motion_table(data, columns)
         table, episode_of_row = cached[data]
         rows = np.arange(table.num_rows) if episode_of_row is None else np.flatnonzero(episode_of_row == index)
         where = f"{data} (episode {index})"
@@ -267,7 +271,7 @@ def plan_lerobot(root: str | os.PathLike, mapping: LerobotMapping = LerobotMappi
             )
         if len(rows) < 2:
             raise RecordingError(f"{where}: the episode has only 1 frame; a demonstration needs at least 2")
-        times, pose, gripper, notes = motion_of_rows(table.take(rows), columns, mapping.state, where)
+        times, pose, gripper, notes = motion_of_rows(table.take(rows), columns, where)
         if video is not None and not video.is_file():
             raise RecordingError(f"{video}: missing video of camera {camera!r} for episode {index}")
         frames = None

@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import argparse
 
+from cnep.pipeline.cli.fields import default_of
+from cnep.recordings.lerobot_columns import GRIPPER_SOURCES, LerobotMapping
+
 HELP = (
     "convert recordings (video/images + CSV, motion-only CSV, a robot's MCAP or ROS bag, a LeRobot dataset) into "
     "demonstration MCAP files"
@@ -98,6 +101,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="NAME|INDEX",
         help='gripper entry of that column (default: the entry named gripper; "" for none)',
     )
+    r.add_argument(
+        "--gripper-from",
+        choices=GRIPPER_SOURCES,
+        default=default_of(LerobotMapping, "gripper_from"),
+        help="action: the gripper entry of the dataset's action where it names one (the commanded open/close, what "
+        "a policy learns), else the state's; state: the state's (the measured opening) (default: %(default)s)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -106,7 +116,6 @@ def run(args: argparse.Namespace) -> int:
     from cnep.pipeline.ingest.stage import IngestConfig, ingest
     from cnep.recordings.adapters import FrameTiming
     from cnep.recordings.csv_motion import CsvColumns
-    from cnep.recordings.lerobot import LerobotMapping
     from cnep.recordings.mcap_source import McapTopics
 
     config = IngestConfig(
@@ -130,6 +139,7 @@ def run(args: argparse.Namespace) -> int:
             camera=args.camera,
             state=args.state_column,
             gripper=args.gripper,
+            gripper_from=args.gripper_from,
             pose=tuple(p.strip() for p in args.pose.split(",")) if args.pose else None,
         ),
     )

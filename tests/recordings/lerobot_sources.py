@@ -3,7 +3,8 @@
 Episode e, step i (at i / fps s): the state vector is [x y z qx qy qz qw gripper] (or
 [x y z roll pitch yaw gripper] with `rpy=True`, plus `pad` trailing joint values) from `state_of`, and
 the camera frame is a uniform grey image of level `level_of(e, i)`, so a test can tell from a decoded
-frame which step it belongs to.
+frame which step it belongs to. The action is two unnamed values, or with `command=True` the state's
+entries (same names) with the gripper's command `command_of(e, i)`, which differs from the state's opening.
 """
 
 from __future__ import annotations
@@ -28,6 +29,11 @@ def state_of(episode: int, step: int, rpy: bool = False, pad: int = 0) -> list[f
     xyz = [0.1 * episode + 0.01 * step, -0.2 + 0.02 * step, 0.3]
     rot = [0.0, 0.0, angle] if rpy else [0.0, 0.0, float(np.sin(angle / 2)), float(np.cos(angle / 2))]
     return xyz + rot + [float(10 * step)] + [0.5] * pad
+
+
+def command_of(episode: int, step: int) -> float:
+    """The gripper command of a step: open (1.0) for the first three steps, then closed (0.0)."""
+    return 1.0 if step < 3 else 0.0
 
 
 def state_names(rpy: bool = False, pad: int = 0) -> list[str]:
@@ -55,8 +61,9 @@ def write_video(path: Path, frames: list[np.ndarray], fps: int, codec: str = "li
         out.mux(stream.encode())
 
 
-def _features(image: bool, size: int, fps: int, rpy: bool, pad: int) -> dict:
+def _features(image: bool, size: int, fps: int, rpy: bool, pad: int, command: bool) -> dict:
     names = state_names(rpy, pad)
+    action = {"dtype": "float32", "shape": [len(names)], "names": names} if command else None
     scalar = {"dtype": "int64", "shape": [1], "names": None}
     camera = {
         "dtype": "image" if image else "video",
@@ -74,7 +81,7 @@ def _features(image: bool, size: int, fps: int, rpy: bool, pad: int) -> dict:
     return {
         CAMERA: camera,
         STATE: {"dtype": "float32", "shape": [len(names)], "names": names},
-        "action": {"dtype": "float32", "shape": [2], "names": ["a0", "a1"]},
+        "action": action or {"dtype": "float32", "shape": [2], "names": ["a0", "a1"]},
         "timestamp": {"dtype": "float32", "shape": [1], "names": None},
         "frame_index": scalar,
         "episode_index": scalar,
@@ -83,12 +90,21 @@ def _features(image: bool, size: int, fps: int, rpy: bool, pad: int) -> dict:
     }
 
 
-def _rows(episode: int, steps: int, first_index: int, fps: int, image: bool, size: int, rpy: bool, pad: int) -> dict:
+def _action(episode: int, step: int, rpy: bool, pad: int) -> list[float]:
+    """The state's entries with the gripper's command in place of its opening."""
+    values = state_of(episode, step, rpy, pad)
+    values[6 if rpy else 7] = command_of(episode, step)
+    return np.float32(values).tolist()
+
+
+def _rows(
+    episode: int, steps: int, first_index: int, fps: int, image: bool, size: int, rpy: bool, pad: int, command: bool
+) -> dict:
     import cv2
 
     columns = {
         STATE: [np.float32(state_of(episode, i, rpy, pad)).tolist() for i in range(steps)],
-        "action": [[0.0, 1.0]] * steps,
+        "action": [_action(episode, i, rpy, pad) for i in range(steps)] if command else [[0.0, 1.0]] * steps,
         "timestamp": [float(np.float32(i / fps)) for i in range(steps)],
         "frame_index": list(range(steps)),
         "episode_index": [episode] * steps,
@@ -130,11 +146,13 @@ def build_lerobot(
     pad: int = 0,
     empty_episode: int | None = None,
     codec: str = "libx264",
+    command: bool = False,
 ) -> Path:
     """Write a LeRobot dataset at `root` (v2.1: files per episode; v3.0: all episodes in one data and one video file).
 
     image: store the camera as PNG images inside the Parquet rows instead of a video.
     empty_episode: that episode gets no rows (a broken dataset).
+    command: the action names the state's entries and holds the gripper's command (module docstring).
     """
     import pyarrow.parquet as pq
 
@@ -150,9 +168,9 @@ def build_lerobot(
         "chunks_size": 1000,
         "fps": fps,
         "splits": {"train": f"0:{episodes}"},
-        "features": _features(image, size, fps, rpy, pad),
+        "features": _features(image, size, fps, rpy, pad, command),
     }
-    per_episode = [_rows(e, n, sum(lengths[:e]), fps, image, size, rpy, pad) for e, n in enumerate(lengths)]
+    per_episode = [_rows(e, n, sum(lengths[:e]), fps, image, size, rpy, pad, command) for e, n in enumerate(lengths)]
     frames = [[grey_frame(level_of(e, i), size) for i in range(n)] for e, n in enumerate(lengths)]
     if version == "v3.0":
         info["data_path"] = "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"
@@ -212,3 +230,34 @@ def build_lerobot(
         )
     (root / "meta" / "info.json").write_text(json.dumps(info, indent=4))
     return root
+
+
+def gradient_frames(steps: int, size: int = 32, seed: int = 0) -> list[bytes]:
+    """`steps` JPEG frames (quality 95) of smooth colour gradients that move with the step: detail a video codec keeps
+    (not noise, which neither a codec nor a JPEG re-encoding keeps), different in every frame."""
+    import cv2
+
+    y, x = np.mgrid[0:size, 0:size] * (128 / size)  # (size, size), 0 .. 128
+    frames = []
+    for i in range(steps):
+        shift = (8 * i + 20 * seed) % 120
+        image = np.stack([x + shift, y + 0.5 * shift, 200 - 0.5 * (x + y)], axis=-1)  # (size, size, 3) BGR in 0 .. 248
+        frames.append(cv2.imencode(".jpg", image.astype(np.uint8), [cv2.IMWRITE_JPEG_QUALITY, 95])[1].tobytes())
+    return frames
+
+
+def recorded_demonstration(seed: int, steps: int = 5, size: int = 32, fps: float = 10.0, task: str = "pick"):
+    """A demonstration as `cnep ingest` writes one from a robot's recording: epoch times (ns) at `fps` with a few ms
+    of jitter, a seeded pose and gripper (float64), gradient frames."""
+    from cnep.recordings import Demonstration, Episode
+    from tests.recordings.factories import random_pose
+
+    rng = np.random.default_rng(seed)
+    times = 1_700_000_000_000_000_000 + np.round((np.arange(steps) / fps + rng.uniform(0, 4e-3, steps)) * 1e9)
+    return Demonstration(
+        episode=Episode(f"demo_{seed}", fps=fps, task=task, source="robot"),
+        timestamps_ns=times.astype(np.int64),
+        pose=random_pose(steps, rng),
+        gripper=rng.uniform(0.0, 0.08, steps),
+        frames=gradient_frames(steps, size, seed),
+    )

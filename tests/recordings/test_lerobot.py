@@ -14,7 +14,7 @@ from cnep.pipeline.ingest.stage import IngestConfig, ingest  # noqa: E402
 from cnep.recordings import RecordingError, read_demonstration  # noqa: E402
 from cnep.recordings.lerobot import LerobotMapping, demonstration_from_lerobot, plan_lerobot  # noqa: E402
 from cnep.recordings.lerobot_columns import quaternion_from_rpy  # noqa: E402
-from tests.recordings.lerobot_sources import TASKS, build_lerobot, level_of, state_of  # noqa: E402
+from tests.recordings.lerobot_sources import TASKS, build_lerobot, command_of, level_of, state_of  # noqa: E402
 
 STEPS, FPS = 6, 10
 
@@ -62,6 +62,29 @@ def test_roll_pitch_yaw_and_indices_map_to_the_same_pose(tmp_path):
     quat = np.array([state_of(0, i)[3:7] for i in range(4)], dtype=np.float32)  # the quaternion form of the same angles
     np.testing.assert_allclose(by_name.pose[:, 3:], quat, atol=1e-6)
     np.testing.assert_allclose(by_name.gripper, [0, 10, 20, 30])
+
+
+@pytest.mark.parametrize("version", ["v2.1", "v3.0"])
+def test_the_gripper_is_the_actions_command_where_the_action_names_it(tmp_path, version):
+    src = build_lerobot(tmp_path / "ds", version, episodes=2, steps=5, command=True)
+    commanded, measured = plan_lerobot(src), plan_lerobot(src, LerobotMapping(gripper_from="state"))
+    for e, (by_action, by_state) in enumerate(zip(commanded, measured)):
+        np.testing.assert_array_equal(by_action.gripper, [command_of(e, i) for i in range(5)])
+        np.testing.assert_allclose(by_state.gripper, [state_of(e, i)[7] for i in range(5)])
+        np.testing.assert_array_equal(by_action.pose, by_state.pose)  # the pose is the state's either way
+    assert commanded[0].extra["columns"].endswith("gripper action[gripper]")
+    assert measured[0].extra["columns"].endswith("gripper observation.state[gripper]")
+
+
+def test_a_gripper_given_by_index_is_found_in_the_action_by_its_name(tmp_path):
+    src = build_lerobot(tmp_path / "ds", "v3.0", episodes=1, steps=5, rpy=True, pad=2, command=True)
+    episode = plan_lerobot(src, LerobotMapping(pose=tuple("012345"), gripper="6"))[0]
+    np.testing.assert_array_equal(episode.gripper, [command_of(0, i) for i in range(5)])
+
+
+def test_an_unknown_gripper_source_is_refused():
+    with pytest.raises(RecordingError, match="gripper source 'command': choose one of action, state"):
+        LerobotMapping(gripper_from="command")
 
 
 def test_rpy_follows_the_z_y_x_convention():
