@@ -20,25 +20,23 @@ from __future__ import annotations
 
 import json
 import logging
-import shutil
 from dataclasses import replace
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
 import cnep.runtime
 from cnep.models.checkpoint import CONFIG_FILE, config_checksum
-from cnep.outputs import is_stale_temporary, naming, output_lock, temporary_path
 from cnep.perception import FeatureExtractor
 from cnep.perception.constants import CALIBRATION_FRAMES
-from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_existing, refuse_inputs
+from cnep.pipeline.contract import refuse_existing, refuse_inputs
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.export.config import ExportConfig
 from cnep.pipeline.export.graphs import model_graphs
 from cnep.pipeline.export.policy import LoadedCheckpoint, load_for_policy
 from cnep.pipeline.extract.stage import calibration_frames
+from cnep.pipeline.folders import assembled_folder
 from cnep.pipeline.inputs import find_demonstration_files
 from cnep.pipeline.ownership import OutputKind
-from cnep.pipeline.train.state import publish, recover_replaced
 from cnep.runtime.constants import (
     DECODER_FILE,
     ENCODER_FILE,
@@ -85,20 +83,10 @@ def export(config: ExportConfig) -> Path:
     loaded = with_time_base(
         load_for_policy(config.checkpoint, config.extractor, backend=EXPORT_BACKEND, threads=1), config.time_base
     )
-    with output_folder(out.parent), output_lock(out):
-        check_writable_folder(out.parent)
-        recover_replaced(out)
-        refuse_existing([out], config.force, "exported policy", kind=POLICY_FOLDER)  # again, under the lock
-        remove_stale_work(out)
-        work = temporary_path(out)  # the folder is assembled under a temporary name unique to the run
-        work.mkdir()
-        try:
-            with naming(out):  # a full disk: said of the folder the user asked for, not of the work folder
-                write_policy(work, loaded, config, calibration)
-            publish(work, out)
-        except BaseException:
-            shutil.rmtree(work, ignore_errors=True)
-            raise
+    with assembled_folder(
+        out, lambda: refuse_existing([out], config.force, "exported policy", kind=POLICY_FOLDER)
+    ) as work:
+        write_policy(work, loaded, config, calibration)
     log.info("exported %s -> %s", config.checkpoint, out)
     return out
 
@@ -113,14 +101,6 @@ def with_time_base(loaded: LoadedCheckpoint, time_base: TimeBase | None) -> Load
             f"--time-base DURATION_S,PERIOD_S"
         )
     return replace(loaded, spec=spec)
-
-
-def remove_stale_work(out: Path) -> None:
-    """Remove the work folders that killed exports into `out` left beside it (their process no longer runs)."""
-    for work in out.parent.glob(f".{out.name}.*.tmp"):
-        if work.is_dir() and not work.is_symlink() and is_stale_temporary(work):
-            log.warning("%s: removing the work folder of an export that was stopped", work)
-            shutil.rmtree(work, ignore_errors=True)
 
 
 def write_policy(folder: Path, loaded: LoadedCheckpoint, config: ExportConfig, calibration: list[Path]) -> None:

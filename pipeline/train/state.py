@@ -24,6 +24,8 @@ from cnep.outputs import output_lock, record_written, remove_stale_temporaries, 
 from cnep.perception.errors import torch_load_problem
 from cnep.pipeline.contract import output_folder, refuse_existing, refuse_inputs
 from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.folders import publish as publish_folder
+from cnep.pipeline.folders import recover_replaced
 from cnep.pipeline.ownership import CHECKPOINT, CHECKPOINT_FILES, foreign_files, not_written
 from cnep.pipeline.train.constants import STATE_FILE
 
@@ -35,11 +37,6 @@ STATE_VERSION = 1
 def work_dir(out: Path) -> Path:
     """Folder of an unfinished run writing to `out`."""
     return out.parent / f".{out.name}.partial"
-
-
-def replaced_dir(out: Path) -> Path:
-    """Where the checkpoint that `--force` replaces waits while the new one is renamed into place (`publish`)."""
-    return out.parent / f".{out.name}.replaced"
 
 
 def prepare_work_dir(out: Path, resume: bool, force: bool, inputs: Sequence[Path], held: ExitStack) -> dict | None:
@@ -89,21 +86,6 @@ def _remove_work_dir(work: Path) -> None:
             f"choose another --out"
         )
     shutil.rmtree(work)
-
-
-def recover_replaced(out: Path) -> None:
-    """After a run killed while publishing (`publish`): put the replaced folder back if OUT is missing, else drop it.
-
-    Call it holding the lock on OUT (train and export do)."""
-    old = replaced_dir(out)
-    if not old.is_dir() or old.is_symlink():
-        return
-    if out.exists():
-        log.warning("%s: removing the checkpoint a finished run replaced", old)
-        shutil.rmtree(old)
-    else:
-        log.warning("%s: a run was stopped while replacing %s; restoring the previous checkpoint", old, out)
-        old.rename(out)
 
 
 def _remove_if_failed(out: Path):
@@ -169,13 +151,8 @@ def write_log(path: Path, history: list[dict]) -> None:
 
 def publish(work: Path, out: Path) -> None:
     """Rename the finished work folder to `out` (replacing an existing `out`), then drop the resumable state."""
-    old = replaced_dir(out)
-    if out.exists():
-        out.rename(old)
-    work.rename(out)
+    publish_folder(work, out)
     (out / STATE_FILE).unlink(missing_ok=True)
-    if old.is_dir() and not old.is_symlink():
-        shutil.rmtree(old)
 
 
 def _jsonable(value):
