@@ -19,6 +19,7 @@ KIND_TRAJECTORY = "trajectory"
 
 # Topics.
 TOPIC_IMAGE = "/camera/rgb"  # foxglove.CompressedImage, JPEG
+CAMERA_NAME = "rgb"  # that camera as an observation or a LeRobot dataset names it: observation.images.rgb
 TOPIC_POSE = "/ee/pose"  # foxglove.PoseInFrame, xyz in m + quaternion xyzw
 TOPIC_GRIPPER = "/gripper"  # foxglove.JointStates with one joint named GRIPPER_JOINT
 TOPIC_TRAJECTORY = "/trajectory"  # cnep.FeatureVector, packed float32, width = the column blocks' width

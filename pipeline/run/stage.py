@@ -49,7 +49,7 @@ from cnep.pipeline.replay.rerun_log import (
 )
 from cnep.pipeline.run.config import EXPORTED, RunConfig, policy_kind
 from cnep.recordings import Demonstration, read_demonstration
-from cnep.recordings.constants import TOPIC_IMAGE
+from cnep.recordings.constants import CAMERA_NAME, TOPIC_IMAGE
 from cnep.runtime import STATE_KEY, TIMESTAMP_KEY, ConditioningPolicy, Policy, PolicyStep, TimeBase, load_policy
 from cnep.runtime.constants import DEFAULT_PRECISION, IMAGE_KEY_PREFIX
 from cnep.runtime.frames import decode_frame
@@ -57,7 +57,6 @@ from cnep.runtime.frames import decode_frame
 log = logging.getLogger(__name__)
 
 SUMMARY_SUFFIX = ".summary.json"
-CAMERA_NAME = "rgb"  # the observation key of the recordings' camera: observation.images.rgb
 
 
 @dataclass(frozen=True)
