@@ -8,7 +8,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 LIBRARIES = ("models", "recordings", "perception")
-STAGE_ORDER = ("ingest", "extract", "train", "replay", "export", "run", "evaluate", "demo", "sim", "cli")
+STAGE_ORDER = ("ingest", "to_lerobot", "extract", "train", "replay", "export", "run", "evaluate", "demo", "sim", "cli")
 
 
 def imports(package: str) -> list[tuple[Path, str]]:

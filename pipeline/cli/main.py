@@ -17,9 +17,10 @@ import threading
 
 NUMBERS = re.compile(r"^-\d*\.?\d+(e[-+]?\d+)?(,[-+]?\d*\.?\d+(e[-+]?\d+)?)*$", re.IGNORECASE)  # -1, -.5, -1,0.05
 
-# Subcommand name -> module under pipeline.cli (kept in pipeline order).
+# Subcommand names, in pipeline order; each is the module under pipeline.cli of that name (`-` read as `_`).
 COMMANDS = (
     "ingest",
+    "to-lerobot",
     "inspect",
     "repair",
     "extract",
@@ -37,10 +38,11 @@ COMMANDS = (
 def _available_commands() -> list[tuple[str, object]]:
     found = []
     for name in COMMANDS:
+        module_name = f"cnep.pipeline.cli.{name.replace('-', '_')}"
         try:
-            module = importlib.import_module(f"cnep.pipeline.cli.{name}")
+            module = importlib.import_module(module_name)
         except ModuleNotFoundError as exc:
-            if exc.name != f"cnep.pipeline.cli.{name}":
+            if exc.name != module_name:
                 raise
             continue  # that stage is not part of this build yet
         found.append((name, module))

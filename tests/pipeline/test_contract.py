@@ -141,6 +141,7 @@ def leftovers(folder: Path) -> list[str]:
 
 MISSING_INPUT = {
     "ingest": lambda w, t: ["ingest", t / "nope.csv", "--out", t / "out"],
+    "to-lerobot": lambda w, t: ["to-lerobot", t / "nope.mcap", "--out", t / "out" / "ds"],
     "inspect": lambda w, t: ["inspect", t / "nope.mcap"],
     "repair": lambda w, t: ["repair", t / "nope.mcap", t / "out" / "fixed.mcap"],
     "extract": lambda w, t: ["extract", t / "nope.mcap", "--out", t / "out"],
@@ -164,6 +165,11 @@ def test_a_missing_input_is_one_line_and_exit_2(world, tmp_path, capsys, command
 
 DAMAGED_INPUT = {
     "ingest": lambda w, t: (["ingest", w.short_csv, "--out", t / "out"], w.short_csv, "found a header and 1 data row"),
+    "to-lerobot": lambda w, t: (
+        ["to-lerobot", w.truncated_demo, "--out", t / "out" / "ds"],
+        w.truncated_demo,
+        "cnep repair",
+    ),
     "inspect": lambda w, t: (["inspect", w.truncated_demo], w.truncated_demo, "truncated"),
     "repair": lambda w, t: (["repair", w.empty_chunks, t / "out" / "fixed.mcap"], w.empty_chunks, "nothing to salvage"),
     "extract": lambda w, t: (["extract", w.truncated_demo, "--out", t / "out"], w.truncated_demo, "cnep repair"),
@@ -198,6 +204,7 @@ def test_a_damaged_input_is_one_line_and_exit_2(world, tmp_path, capsys, command
 
 EXISTING_OUTPUT = {  # argv, the output path to pre-fill, whether --force is quick enough to try here
     "ingest": lambda w, t: (["ingest", w.csv, "--out", t / "out"], t / "out" / "a.mcap", True),
+    "to-lerobot": lambda w, t: (["to-lerobot", w.demos, "--out", t / "out" / "ds"], t / "out" / "ds", True),
     "repair": lambda w, t: (["repair", w.truncated_demo, t / "out" / "fixed.mcap"], t / "out" / "fixed.mcap", True),
     "extract": lambda w, t: (["extract", w.demos, "--out", t / "out"], t / "out" / "d1.mcap", True),
     "train": lambda w, t: (["train", w.trajs, "--out", t / "out" / "ckpt", *TINY_TRAINING], t / "out" / "ckpt", True),
@@ -272,6 +279,7 @@ def read_only(tmp_path):
 
 READ_ONLY_OUTPUT = {
     "ingest": lambda w, ro: ["ingest", w.csv, "--out", ro / "out"],
+    "to-lerobot": lambda w, ro: ["to-lerobot", w.demos, "--out", ro / "ds"],
     "repair": lambda w, ro: ["repair", w.truncated_demo, ro / "fixed.mcap"],
     "extract": lambda w, ro: ["extract", w.demos, "--out", ro],
     "train": lambda w, ro: ["train", w.trajs, "--out", ro / "ckpt", *TINY_TRAINING],
@@ -300,6 +308,11 @@ def interrupt(*args, **kwargs):
 
 INTERRUPTED = {  # argv, and the function replaced by one that interrupts (Ctrl-C in the middle of the work)
     "ingest": lambda w, t: (["ingest", w.csv, "--out", t / "out"], "cnep.recordings.writers", "new_writer"),
+    "to-lerobot": lambda w, t: (
+        ["to-lerobot", w.demos, "--out", t / "out" / "ds"],
+        "cnep.recordings.lerobot_writer",
+        "step_columns",
+    ),
     "inspect": lambda w, t: (["inspect", w.demos / "d0.mcap"], "cnep.recordings.inspection", "read_mcap"),
     "repair": lambda w, t: (
         ["repair", w.truncated_demo, t / "out" / "fixed.mcap"],
@@ -387,6 +400,7 @@ REFUSED_BEFORE_LOADING = {
     "extract": ["extract", "does/not/exist", "--out", "x"],
     "replay": ["replay", "does/not/exist", "r.mcap", "--out", "x.rrd", "--no-live"],
     "export": ["export", "does/not/exist", "--out", "x"],
+    "to-lerobot": ["to-lerobot", "does/not/exist", "--out", "x"],
     "run": ["run", "does/not/exist", "r.mcap", "--out", "x.rrd"],
     "demo": ["demo", "--weights", "does/not/exist", "--out", "x"],
     "help": ["train", "--help"],

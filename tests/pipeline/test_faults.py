@@ -66,6 +66,7 @@ class World:
     ckpt: Path  # trained with TRAINING
     other_ckpt: Path  # 3 experts: another model for the same recordings
     truncated: Path
+    framed: Path  # 3 demonstrations with camera frames
 
 
 @pytest.fixture(scope="module")
@@ -73,8 +74,11 @@ def world(motion_world, tmp_path_factory) -> World:
     root = tmp_path_factory.mktemp("faults")
     big = write_demonstration(root / "big.mcap", demonstration_factory(200, frames=True, frame_size=128))
     (root / "truncated.mcap").write_bytes(big.read_bytes()[: int(big.stat().st_size * 0.7)])
+    (root / "framed").mkdir()
+    for seed in range(3):
+        write_demonstration(root / "framed" / f"d{seed}.mcap", demonstration_factory(6, seed=seed, frame_size=32))
     w = motion_world
-    return World(w.src, w.demos, w.trajs, w.ckpt, w.other_ckpt, root / "truncated.mcap")
+    return World(w.src, w.demos, w.trajs, w.ckpt, w.other_ckpt, root / "truncated.mcap", root / "framed")
 
 
 class Paused:
@@ -241,19 +245,38 @@ def test_replay_killed_writes_no_output_and_runs_again(world, tmp_path):
         assert stray(out) == []
 
 
-def test_export_killed_leaves_no_policy_folder_and_runs_again(world, tmp_path):
-    def argv(folder):
-        return ["export", world.ckpt, "--out", folder / "policy"]
+FOLDERS = {  # commands that assemble a folder (pipeline.folders): argv into a folder, the output's name, where to stop
+    "export": (
+        lambda w, t: ["export", w.ckpt, "--out", t / "policy"],
+        "policy",
+        "cnep.pipeline.export.stage:write_runtime",
+        1,
+    ),
+    "to-lerobot": (
+        lambda w, t: ["to-lerobot", w.framed, "--out", t / "ds"],
+        "ds",
+        "cnep.recordings.lerobot_writer:LerobotWriter.add",
+        2,
+    ),
+}
 
-    stopped = both("cnep.pipeline.export.stage:write_runtime", 1, argv, tmp_path)
-    assert_terminated(*stopped[signal.SIGTERM], "export")
+
+@pytest.mark.parametrize("command", FOLDERS)
+def test_a_folder_killed_while_assembled_is_not_left_and_runs_again(world, tmp_path, command):
+    make_argv, name, target, hit = FOLDERS[command]
+
+    def argv(folder):
+        return make_argv(world, folder)
+
+    stopped = both(target, hit, argv, tmp_path)
+    assert_terminated(*stopped[signal.SIGTERM], command)
     assert list((tmp_path / "term").iterdir()) == []  # the work folder went with the run
     left = sorted(p.name for p in (tmp_path / "kill").iterdir())  # the lock and the work folder of the killed run
-    assert len(left) == 2 and TEMPORARY.match(left[0]) and left[1] == ".policy.lock", left
+    assert len(left) == 2 and TEMPORARY.match(left[0]) and left[1] == f".{name}.lock", left
     for run in ("kill", "term"):
         assert main(["-q", *map(str, argv(tmp_path / run))]) == 0
-        assert [p.name for p in (tmp_path / run).iterdir()] == ["policy"]  # a killed run's work folder is removed
-    assert files(tmp_path / "kill" / "policy") == files(tmp_path / "term" / "policy")
+        assert [p.name for p in (tmp_path / run).iterdir()] == [name]  # a killed run's work folder is removed
+    assert files(tmp_path / "kill" / name) == files(tmp_path / "term" / name)
 
 
 def test_run_killed_writes_no_output_and_runs_again(world, tmp_path):
@@ -462,6 +485,7 @@ def test_a_full_disk_names_its_file_in_every_command(world, tmp_path, capsys, mo
     with small_disk(tmp_path / "disk", free) as disk:
         cases = {
             "ingest": ["ingest", world.src, "--out", disk / "demos"],
+            "to-lerobot": ["to-lerobot", world.framed, "--out", disk / "lerobot"],
             "extract": ["extract", world.demos, "--out", disk / "trajs"],
             "repair": ["repair", world.truncated, disk / "fixed.mcap"],
             "train": ["train", world.trajs, "--out", disk / "ckpt", *TRAINING],
