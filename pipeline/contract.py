@@ -9,7 +9,7 @@
 
 - Errors are one line on stderr, `cnep <cmd>: error: <path>: <problem>; <fix>` (`error_line`); no
   traceback for anything a user can cause, unless `-v` asks for it (`run_command`).
-- Outputs are never overwritten without `--force` (`refuse_existing`): ingest, extract, repair,
+- Outputs are never overwritten without `--force` (`refuse_existing`): ingest, to-lerobot, extract, repair,
   replay, train, export, run, evaluate and demo alike; `--force` replaces only what a cnep command recorded
   writing (`pipeline.ownership`, `cnep.outputs.record`), and never an input or a folder holding one
   (`refuse_inputs`). Inputs are never written.

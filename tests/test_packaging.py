@@ -9,7 +9,11 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 FOLDERS = ("models", "outputs", "perception", "pipeline", "recordings", "runtime", "sim")
-STAGES = ("ingest", "extract", "train", "replay", "export", "run", "evaluate", "demo", "sim")
+STAGES = ("ingest", "to_lerobot", "extract", "train", "replay", "export", "run", "evaluate", "demo", "sim")
+LIGHT = {
+    "cnep.models": "cnep.models.config",
+    "cnep.recordings": "cnep.recordings.constants",
+}  # a package's light module
 
 
 def test_every_package_folder_is_installed_under_cnep():
@@ -37,7 +41,7 @@ def test_a_users_own_models_and_pipeline_packages_do_not_shadow_the_library(tmp_
     assert Path(done.stdout.strip()).resolve() == ROOT / "models" / "__init__.py"
 
 
-@pytest.mark.parametrize("package", ["cnep.models", *(f"cnep.pipeline.{stage}" for stage in STAGES)])
+@pytest.mark.parametrize("package", [*LIGHT, *(f"cnep.pipeline.{stage}" for stage in STAGES)])
 def test_every_public_name_of_a_package_resolves_and_unknown_names_are_attribute_errors(package):
     module = importlib.import_module(package)
     assert module.__all__ == sorted(module.__all__) and module.__all__
@@ -45,7 +49,7 @@ def test_every_public_name_of_a_package_resolves_and_unknown_names_are_attribute
         assert getattr(module, name) is not None, name
     with pytest.raises(AttributeError, match="no attribute 'nothing_here'"):
         module.nothing_here  # noqa: B018
-    assert importlib.import_module(f"{package}.stage" if package != "cnep.models" else "cnep.models.config")
+    assert importlib.import_module(LIGHT.get(package, f"{package}.stage"))
 
 
 def test_the_packages_settings_and_constants_import_without_torch():
@@ -67,7 +71,7 @@ def test_the_installed_cnep_command_runs_the_cli_and_exits_with_its_status(tmp_p
     cnep = Path(sys.executable).parent / "cnep"
     done = subprocess.run([cnep, "--help"], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
-    assert all(f"    {stage} " in done.stdout for stage in STAGES), done.stdout
+    assert all(f"    {stage.replace('_', '-')} " in done.stdout for stage in STAGES), done.stdout
     missing = tmp_path / "missing.mcap"
     done = subprocess.run([cnep, "inspect", missing], capture_output=True, text=True, timeout=120)
     assert (done.returncode, done.stderr) == (2, f"cnep inspect: error: {missing}: no such file\n")
