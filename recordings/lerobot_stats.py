@@ -26,16 +26,18 @@ def quantile_keys() -> list[str]:
 
 
 def vector_stats(values: np.ndarray) -> dict[str, np.ndarray]:
-    """The statistics of values (N, D) (or (N,), taken as D = 1), each entry's, shape (D,); count (1,)."""
-    values = np.asarray(values, dtype=np.float64).reshape(len(values), -1)  # (N, D)
+    """The statistics of values (N, D) (or (N,), taken as D = 1), each entry's, shape (D,); count (1,). min and max
+    keep the values' type (an index column's are integers, as LeRobot's are), the others are float64."""
+    values = np.asarray(values).reshape(len(values), -1)  # (N, D)
+    real = values.astype(np.float64)
     stats = {
         "min": values.min(axis=0),
         "max": values.max(axis=0),
-        "mean": values.mean(axis=0),
-        "std": values.std(axis=0),
+        "mean": real.mean(axis=0),
+        "std": real.std(axis=0),
         "count": np.array([len(values)]),
     }
-    quantiles = np.quantile(values, QUANTILES, axis=0)  # (Q, D)
+    quantiles = np.quantile(real, QUANTILES, axis=0)  # (Q, D)
     return stats | dict(zip(quantile_keys(), quantiles))
 
 

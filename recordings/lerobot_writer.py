@@ -109,6 +109,7 @@ class LerobotWriter:
         self._made = not self.root.exists()
         self.root.mkdir(parents=True, exist_ok=True)
         self.episodes: list[dict] = []  # the rows of meta/episodes
+        self.frames = 0  # steps written so far, every episode's
         self.tasks: dict[str, int] = {}
         self.values: dict[str, list[np.ndarray]] = {}  # feature -> each episode's values, for meta/stats.json
         self.images: list[ImageStats] = []
@@ -135,7 +136,7 @@ class LerobotWriter:
         episode = len(self.episodes)
         columns = step_columns(demo)
         steps = demo.n_steps
-        first = sum(e["length"] for e in self.episodes)
+        first = self.frames
         task = self.tasks.setdefault(demo.episode.task, len(self.tasks))
         columns |= {
             "frame_index": np.arange(steps),
@@ -153,6 +154,7 @@ class LerobotWriter:
             self.values.setdefault(name, []).append(values)
         row |= {f"stats/{name}/{key}": value.tolist() for name, s in stats.items() for key, value in s.items()}
         self.episodes.append(row | {"meta/episodes/chunk_index": 0, "meta/episodes/file_index": 0})
+        self.frames += steps
         return episode
 
     def _write_rows(self, columns: dict[str, np.ndarray]) -> dict[str, int]:
@@ -299,7 +301,7 @@ class LerobotWriter:
             "codebase_version": CODEBASE_VERSION,
             "robot_type": None,
             "total_episodes": len(self.episodes),
-            "total_frames": sum(e["length"] for e in self.episodes),
+            "total_frames": self.frames,
             "total_tasks": len(self.tasks),
             "chunks_size": CHUNKS_SIZE,
             "data_files_size_in_mb": self.data_file_mb,
@@ -312,20 +314,25 @@ class LerobotWriter:
         }
 
     def _write_tasks(self) -> None:
-        """meta/tasks.parquet: `task_index` per task, the task strings as the pandas index `task` (how LeRobot reads
-        the file, with pandas: its schema says which column is the index)."""
-        table = self.pa.table({"task_index": list(self.tasks.values()), "task": list(self.tasks)})
-        columns = [
-            {"name": name, "field_name": name, "pandas_type": kind, "numpy_type": numpy, "metadata": None}
-            for name, kind, numpy in (("task_index", "int64", "int64"), ("task", "unicode", "object"))
-        ]
+        """meta/tasks.parquet as pandas writes LeRobot's: `task_index` per task, the task strings the DataFrame's index
+        (the column `__index_level_0__`, which the file's pandas metadata names as the index)."""
+        table = self.pa.table({"task_index": list(self.tasks.values()), TASKS_INDEX: list(self.tasks)})
         pandas = {
-            "index_columns": ["task"],
-            "column_indexes": [],
-            "columns": columns,
+            "index_columns": [TASKS_INDEX],
+            "column_indexes": [
+                {"name": None, "field_name": None, "pandas_type": "unicode", "numpy_type": "object",
+                 "metadata": {"encoding": "UTF-8"}},
+            ],
+            "columns": [
+                {"name": "task_index", "field_name": "task_index", "pandas_type": "int64", "numpy_type": "int64",
+                 "metadata": None},
+                {"name": None, "field_name": TASKS_INDEX, "pandas_type": "unicode", "numpy_type": "object",
+                 "metadata": None},
+            ],
+            "attributes": {},
             "creator": {"library": "pyarrow", "version": self.pa.__version__},
-            "pandas_version": "2.2.0",
-        }
+            "pandas_version": "2.2.3",
+        }  # fmt: skip
         self._write_table(TASKS_PATH, table.replace_schema_metadata({"pandas": json.dumps(pandas)}))
 
     def _write_table(self, relative: str, table: Any) -> None:
@@ -337,6 +344,9 @@ class LerobotWriter:
         path = self.root / relative
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(json.dumps(data, indent=4) + "\n")
+
+
+TASKS_INDEX = "__index_level_0__"  # the column pandas stores an unnamed index in
 
 
 def _listed(stats: dict[str, np.ndarray]) -> dict[str, list]:

@@ -72,8 +72,8 @@ def test_the_files_are_where_lerobot_lays_them_out(dataset):
 def test_tasks_are_the_pandas_index_lerobot_reads(dataset):
     root, _ = dataset
     table = pq.read_table(root / "meta" / "tasks.parquet")
-    assert table.to_pydict() == {"task_index": [0, 1], "task": ["pick", "place"]}
-    assert json.loads(table.schema.metadata[b"pandas"])["index_columns"] == ["task"]
+    assert table.to_pydict() == {"task_index": [0, 1], "__index_level_0__": ["pick", "place"]}
+    assert json.loads(table.schema.metadata[b"pandas"])["index_columns"] == ["__index_level_0__"]
 
 
 def test_each_step_is_a_row_and_each_episode_says_where_its_rows_and_frames_are(dataset):
@@ -122,14 +122,15 @@ def test_the_statistics_are_the_datas(dataset):
     state = np.array(rows["observation.state"], dtype=np.float64)
     np.testing.assert_allclose(stats["observation.state"]["mean"], state.mean(axis=0))
     np.testing.assert_allclose(stats["observation.state"]["q90"], np.quantile(state, 0.9, axis=0))
-    assert stats["index"]["max"] == [14.0] and stats["index"]["count"] == [15]
+    assert stats["index"]["max"] == [14] and stats["index"]["count"] == [15]
     pixels = np.concatenate([decode_frame(f).reshape(-1, 3) for demo in demos for f in demo.frames]) / 255  # (P, 3)
     camera = stats[CAMERA]
     assert np.array(camera["mean"]).shape == (3, 1, 1) and camera["count"] == [15]
     np.testing.assert_allclose(np.array(camera["std"]).ravel(), pixels.std(axis=0))
     np.testing.assert_allclose(np.array(camera["q01"]).ravel(), np.quantile(pixels, 0.01, axis=0))
-    episodes = pq.read_table(root / "meta" / "episodes" / "chunk-000" / "file-000.parquet").to_pylist()
-    np.testing.assert_allclose(episodes[1]["stats/observation.state/min"], state[5:9].min(axis=0))
+    episodes = pq.read_table(root / "meta" / "episodes" / "chunk-000" / "file-000.parquet")
+    np.testing.assert_allclose(episodes.to_pylist()[1]["stats/observation.state/min"], state[5:9].min(axis=0))
+    assert episodes.schema.field("stats/index/max").type == pa.list_(pa.int64())  # an index's bounds are integers
 
 
 def test_every_frame_is_in_the_video_at_its_steps_time(dataset):
