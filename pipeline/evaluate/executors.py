@@ -17,6 +17,7 @@ import contextlib
 from collections.abc import Iterator, Sequence
 
 from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.evaluate import addresses
 from cnep.pipeline.evaluate.constants import EXECUTORS
 from cnep.pipeline.evaluate.jobs import Job, run_unit
 from cnep.pipeline.workers import SMALL_MODEL_MALLOC, THREAD_VARIABLES, environment
@@ -58,7 +59,9 @@ def _on_dask(units: Sequence[Unit], address: str | None, workers: int) -> Iterat
             cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
             held.enter_context(cluster)
             address = cluster.scheduler_address
-        client = held.enter_context(Client(address))
+        else:
+            addresses.reach("dask", address)  # Dask's client would wait without end where no scheduler answers
+        client = held.enter_context(Client(address, timeout=addresses.CONNECT_SECONDS))
         futures = {client.submit(run_unit, unit, pure=False): unit for unit in units}
         for future in as_completed(futures):
             yield futures[future], future.result()
@@ -72,6 +75,7 @@ def _on_ray(units: Sequence[Unit], address: str | None, workers: int) -> Iterato
     if address is None:  # a new instance on this machine, not a cluster that `ray start` left running here
         ray.init(address="local", num_cpus=workers, include_dashboard=False, _system_config=RAY_LOCAL_SETTINGS)
     else:
+        addresses.reach("ray", address)
         ray.init(address=address)
     try:
         remote = ray.remote(num_cpus=1)(run_unit)

@@ -30,6 +30,7 @@ from cnep.models.assignments import ASSIGNMENTS
 from cnep.outputs import output_lock
 from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_existing
 from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.evaluate.addresses import parse_address
 from cnep.pipeline.evaluate.constants import (
     CNEP_EXPERTS,
     DEFAULT_OUT,
@@ -90,6 +91,8 @@ class EvaluateConfig:
             raise PipelineError(f"unknown executor {self.executor!r}; choose one of {', '.join(EXECUTORS)}")
         if self.address is not None and self.executor == LOCAL:
             raise PipelineError(f"--executor local takes no address, got {self.address!r}; name dask or ray with it")
+        if self.address is not None:
+            parse_address(self.executor, self.address)
         unknown = [t for t in self.tables if t not in TABLES]
         if unknown or not self.tables:
             raise PipelineError(f"unknown table(s) {unknown or self.tables}; choose from {', '.join(TABLES)} or all")
