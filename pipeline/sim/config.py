@@ -14,7 +14,7 @@ from cnep.pipeline.demo.config import AUTO_WEIGHTS
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.inputs import coerce_paths
 from cnep.runtime.conditioning import FIRST_EXPERTS, ConditioningPolicy
-from cnep.sim import scene
+from cnep.sim.tasks.obstacle import scene
 from cnep.sim.tasks.pick_place import scene as pick_scene
 
 OBSTACLE = "obstacle"

@@ -14,6 +14,7 @@ from cnep.outputs import write_atomically
 from cnep.pipeline.replay.viewer import PALETTE, PATH_COLOR
 from cnep.sim import scene as S
 from cnep.sim.episode import EpisodeResult
+from cnep.sim.tasks.obstacle import scene as O
 
 FIGURE_FILE = "episode.png"
 FRAMES = 6  # camera frames in the strip, evenly spaced over the episode
@@ -39,22 +40,22 @@ def draw_episode(ep: EpisodeResult, title: str, path: Path) -> Path:
     ax = fig.add_subplot(grid[1, :FRAMES])
     ax.add_patch(Rectangle((-S.TABLE_HALF[0], -S.TABLE_HALF[1]), 2 * S.TABLE_HALF[0], 2 * S.TABLE_HALF[1],
                            color=S.TABLE_RGBA[:3], alpha=0.35))  # fmt: skip
-    ax.add_patch(Circle(S.GOAL_XY, S.GOAL_RADIUS, color=S.GOAL_RGBA[:3], alpha=0.8, label="goal"))
+    ax.add_patch(Circle(O.GOAL_XY, O.GOAL_RADIUS, color=O.GOAL_RGBA[:3], alpha=0.8, label="goal"))
     for k, alpha in ((0, 0.35), (n - 1, 0.9)):
         x, y = ep.box[k, :2]
-        ax.add_patch(Rectangle((x - S.BOX_HALF[0], y - S.BOX_HALF[1]), 2 * S.BOX_HALF[0], 2 * S.BOX_HALF[1],
-                               color=S.BOX_RGBA[:3], alpha=alpha))  # fmt: skip
+        ax.add_patch(Rectangle((x - O.BOX_HALF[0], y - O.BOX_HALF[1]), 2 * O.BOX_HALF[0], 2 * O.BOX_HALF[1],
+                               color=O.BOX_RGBA[:3], alpha=alpha))  # fmt: skip
     if ep.cue_side is not None:
-        cx = S.CUE_XY[0] * (-1 if ep.cue_side == "left" else 1)
-        ax.add_patch(Rectangle((cx - S.CUE_HALF, S.CUE_XY[1] - S.CUE_HALF), 2 * S.CUE_HALF, 2 * S.CUE_HALF,
-                               color=S.CUE_RGBA[:3], alpha=0.8, label="cue"))  # fmt: skip
+        cx = O.CUE_XY[0] * (-1 if ep.cue_side == "left" else 1)
+        ax.add_patch(Rectangle((cx - O.CUE_HALF, O.CUE_XY[1] - O.CUE_HALF), 2 * O.CUE_HALF, 2 * O.CUE_HALF,
+                               color=O.CUE_RGBA[:3], alpha=0.8, label="cue"))  # fmt: skip
     for k in np.unique(np.linspace(0, len(ep.predicted) - 1, PREDICTIONS).round().astype(int)):
         color = np.asarray(PALETTE[int(ep.experts[k]) % len(PALETTE)]) / 255
         ax.plot(*ep.predicted[k][:, :2].T, ":", color=color, lw=1.5, label=f"predicted at step {k}")
     ax.plot(*ep.states[:, :2].T, "-", color=np.asarray(PATH_COLOR) / 400, lw=2, label="executed path")
     ax.set_aspect("equal")
     ax.set_xlim(-S.TABLE_HALF[0], S.TABLE_HALF[0])
-    ax.set_ylim(S.START_Y - 0.08, S.GOAL_Y + 0.08)
+    ax.set_ylim(O.START_Y - 0.08, O.GOAL_Y + 0.08)
     ax.set_xlabel("x (m): left < 0 < right, facing the goal")
     ax.set_ylabel("y (m)")
     ax.set_title("from above", fontsize=9)

@@ -22,6 +22,7 @@ from cnep.pipeline.progress import progress_bar
 from cnep.runtime import STATE_KEY, STATE_NAMES
 from cnep.sim import IMAGE_KEY, ObstacleEnv, PickPlaceEnv, demonstration_path, draw_demonstration, draw_pick, pick_path
 from cnep.sim import scene as S
+from cnep.sim.tasks.obstacle import scene as O
 from cnep.sim.tasks.pick_place import scene as P
 
 CSV_FILE = "poses.csv"
@@ -44,7 +45,7 @@ def generate_demonstrations(out: Path, n: int, seed: int, cue: bool = False, qui
     rng = np.random.default_rng(seed)
     sides = [("left", "right")[i % 2] for i in range(n)]
     rng.shuffle(sides)
-    env = ObstacleEnv(cue=cue, max_steps=S.DEMO_STEPS[1] + 1)
+    env = ObstacleEnv(cue=cue, max_steps=O.DEMO_STEPS[1] + 1)
     folders, successes, taken = [], 0, []
     try:
         for i in progress_bar(range(n), desc="generate", unit="demo", quiet=quiet):
@@ -56,7 +57,7 @@ def generate_demonstrations(out: Path, n: int, seed: int, cue: bool = False, qui
                 action = np.array([*waypoint, *observation[STATE_KEY][3:7], S.FINGER_OPEN], dtype=np.float32)
                 observation, _, _, _, info = env.step(action)
                 steps.append(observation)
-            successes += bool(info["distance_to_goal"] < S.GOAL_TOLERANCE and not info["collision"])
+            successes += bool(info["distance_to_goal"] < O.GOAL_TOLERANCE and not info["collision"])
             folder = out / f"demo_{i:03d}"
             _write(folder, steps, IMAGE_KEY)
             folders.append(folder)

@@ -21,7 +21,7 @@ from cnep.pipeline.sim.rerun_log import write_episode
 from cnep.pipeline.sim.summary import episode_row, rates
 from cnep.runtime import Policy
 from cnep.sim import ObstacleEnv, run_episode
-from cnep.sim import scene as S
+from cnep.sim.tasks.obstacle import scene as O
 
 log = logging.getLogger(__name__)
 
@@ -69,12 +69,12 @@ def _policy(path: Path, extractor: Path | None, first_expert: str) -> Policy:
     """The policy in `path`, its waypoints covering the task's episode (a plan: a limit of steps cuts it short or
     holds its end, and never rescales it), its first expert chosen by `first_expert`; the rest of its conditioning
     its own."""
-    policy = open_policy(path, extractor=extractor, threads=POLICY_THREADS, waypoints=S.MAX_STEPS)
+    policy = open_policy(path, extractor=extractor, threads=POLICY_THREADS, waypoints=O.MAX_STEPS)
     if policy.spec.conditioning.first_expert == first_expert:
         return policy
     conditioning = replace(policy.spec.conditioning, first_expert=first_expert)
     return open_policy(
-        path, extractor=extractor, threads=POLICY_THREADS, waypoints=S.MAX_STEPS, conditioning=conditioning
+        path, extractor=extractor, threads=POLICY_THREADS, waypoints=O.MAX_STEPS, conditioning=conditioning
     )
 
 

@@ -14,6 +14,7 @@ from cnep.outputs import write_atomically
 from cnep.pipeline.replay.rerun_log import active_expert_states, first_read_text, shown_state
 from cnep.sim import scene as S
 from cnep.sim.episode import EpisodeResult
+from cnep.sim.tasks.obstacle import scene as O
 from cnep.sim.tasks.obstacle.demonstrator import SIDE_SIGN
 
 APPLICATION_ID = "cnep_sim"
@@ -90,18 +91,18 @@ def _scene(rec, ep: EpisodeResult) -> None:
     """The static bodies: table, goal, cue tile (where it was), box and gripper shapes."""
     import rerun as rr
 
-    rgb = [tuple(round(255 * c) for c in rgba[:3]) for rgba in (S.TABLE_RGBA, S.GOAL_RGBA, S.CUE_RGBA)]
+    rgb = [tuple(round(255 * c) for c in rgba[:3]) for rgba in (S.TABLE_RGBA, O.GOAL_RGBA, O.CUE_RGBA)]
     rec.log(L.WORLD, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
     rec.log(
         TABLE, rr.Boxes3D(centers=[(0, 0, -S.TABLE_HALF[2])], half_sizes=[S.TABLE_HALF], colors=[rgb[0]]), static=True
     )
-    goal = (S.GOAL_RADIUS, S.GOAL_RADIUS, 0.001)
-    rec.log(GOAL, rr.Boxes3D(centers=[(*S.GOAL_XY, 0.001)], half_sizes=[goal], colors=[rgb[1]]), static=True)
+    goal = (O.GOAL_RADIUS, O.GOAL_RADIUS, 0.001)
+    rec.log(GOAL, rr.Boxes3D(centers=[(*O.GOAL_XY, 0.001)], half_sizes=[goal], colors=[rgb[1]]), static=True)
     if ep.cue_side is not None:
-        cue = (S.CUE_XY[0] * SIDE_SIGN[ep.cue_side], S.CUE_XY[1], 0.001)
-        half = (S.CUE_HALF, S.CUE_HALF, 0.001)
+        cue = (O.CUE_XY[0] * SIDE_SIGN[ep.cue_side], O.CUE_XY[1], 0.001)
+        half = (O.CUE_HALF, O.CUE_HALF, 0.001)
         rec.log(CUE, rr.Boxes3D(centers=[cue], half_sizes=[half], colors=[rgb[2]]), static=True)
-    box_rgb = tuple(round(255 * c) for c in S.BOX_RGBA[:3])
-    rec.log(BOX, rr.Boxes3D(half_sizes=[S.BOX_HALF], colors=[box_rgb], fill_mode="solid"), static=True)
+    box_rgb = tuple(round(255 * c) for c in O.BOX_RGBA[:3])
+    rec.log(BOX, rr.Boxes3D(half_sizes=[O.BOX_HALF], colors=[box_rgb], fill_mode="solid"), static=True)
     grip_rgb = tuple(round(255 * c) for c in S.GRIPPER_RGBA[:3])
     rec.log(GRIPPER, rr.Boxes3D(centers=[GRIPPER_CENTRE], half_sizes=[GRIPPER_HALF], colors=[grip_rgb]), static=True)

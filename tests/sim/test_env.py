@@ -19,6 +19,7 @@ from cnep.runtime import STATE_KEY  # noqa: E402
 from cnep.sim import CUE_ENV_ID, ENV_ID, IMAGE_KEY, ObstacleEnv, demonstration_path, draw_demonstration  # noqa: E402
 from cnep.sim import scene as S  # noqa: E402
 from cnep.sim.episode import ONLINE, PLANNED, run_episode  # noqa: E402
+from cnep.sim.tasks.obstacle import scene as O  # noqa: E402
 from tests.sim.scripted import scripted_policy  # noqa: E402
 
 
@@ -34,7 +35,7 @@ def test_the_environment_passes_gymnasiums_checker_and_is_registered():
     check_env(env.unwrapped, skip_render_check=True)
     observation, _ = env.reset(seed=0)
     assert (
-        observation[IMAGE_KEY].shape == (S.IMAGE_HEIGHT, S.IMAGE_WIDTH, 3) and observation[IMAGE_KEY].dtype == np.uint8
+        observation[IMAGE_KEY].shape == (O.IMAGE_HEIGHT, O.IMAGE_WIDTH, 3) and observation[IMAGE_KEY].dtype == np.uint8
     )
     assert observation[STATE_KEY].shape == (8,)
     env.close()
@@ -59,7 +60,7 @@ def test_the_scripted_demonstrator_reaches_the_goal_clear_of_the_box(env, side):
 
 
 def test_driving_through_the_box_is_a_collision_read_from_the_contacts(env):
-    observation, info = env.reset(seed=0, options={"start": (0.0, S.START_Y)})
+    observation, info = env.reset(seed=0, options={"start": (0.0, O.START_Y)})
     action = observation[STATE_KEY].copy()
     for _ in range(30):
         action[1] += 0.02
@@ -112,7 +113,7 @@ def test_the_step_limit_truncates_every_episode_and_leaves_the_plan_spanning_the
 
     monkeypatch.setattr(loop, "open_policy", open_scripted)
     results = loop.evaluate_policy(Path("scripted"), LoopSettings(episodes=2, max_steps=7), label="s", quiet=True)
-    assert opened == [S.MAX_STEPS]  # the plan: the task's steps, not the limit's
+    assert opened == [O.MAX_STEPS]  # the plan: the task's steps, not the limit's
     assert list(results) == [PLANNED, ONLINE]
     for rates in results.values():
         assert [(row["steps"], row["success"]) for row in rates["per_episode"]] == [(7, False), (7, False)]

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cnep.sim import scene as S
+from cnep.sim.tasks.obstacle import scene as O
 
 SIDE_SIGN = {"left": -1.0, "right": 1.0}  # facing the goal (+y): left is -x
 
@@ -32,13 +32,13 @@ class DemoDraw:
 def draw_demonstration(rng: np.random.Generator, side: str | None = None) -> DemoDraw:
     """A demonstration's choices drawn from `rng`; `side` None: left or right with equal chance."""
     side = side if side is not None else ("left", "right")[int(rng.integers(2))]
-    lo, hi = S.DEMO_STEPS
+    lo, hi = O.DEMO_STEPS
     return DemoDraw(
         side=side,
         steps=int(rng.integers(lo, hi + 1)),
-        detour=float(rng.uniform(*S.DETOUR)),
-        shape=float(rng.uniform(*S.DETOUR_SHAPE)),
-        peak=float(rng.uniform(*S.DETOUR_PEAK)),
+        detour=float(rng.uniform(*O.DETOUR)),
+        shape=float(rng.uniform(*O.DETOUR_SHAPE)),
+        peak=float(rng.uniform(*O.DETOUR_PEAK)),
     )
 
 
@@ -49,6 +49,6 @@ def demonstration_path(draw: DemoDraw, start: np.ndarray) -> np.ndarray:
     s = 10 * tau**3 - 15 * tau**4 + 6 * tau**5  # minimum-jerk progress, 0 -> 1
     warped = np.where(s < draw.peak, 0.5 * s / draw.peak, 0.5 + 0.5 * (s - draw.peak) / (1 - draw.peak))
     bump = np.sin(np.pi * warped) ** draw.shape  # 0 at the ends, 1 at the peak
-    x = start[0] * (1 - s) + S.GOAL_XY[0] * s + SIDE_SIGN[draw.side] * draw.detour * bump
-    y = start[1] * (1 - s) + S.GOAL_XY[1] * s
-    return np.stack([x, y, np.full_like(x, S.EE_HEIGHT)], axis=1)
+    x = start[0] * (1 - s) + O.GOAL_XY[0] * s + SIDE_SIGN[draw.side] * draw.detour * bump
+    y = start[1] * (1 - s) + O.GOAL_XY[1] * s
+    return np.stack([x, y, np.full_like(x, O.EE_HEIGHT)], axis=1)
