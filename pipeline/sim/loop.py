@@ -1,5 +1,5 @@
 """A policy in closed loop: `evaluate_policy` runs it for `episodes` episodes per protocol in the simulator, writes
-the first `record` of each as Rerun recordings and returns the rates and rows (pipeline.sim.summary).
+the first `record` of each as Rerun recordings and returns the rates and rows (sim.tasks.obstacle.scoring).
 
 Episode i is reset with seed `episode_seed + i`: every policy meets the same starts (and cue sides), and the same
 seed gives the same episode bit for bit. The demonstrations' starts come from other seeds
@@ -18,10 +18,10 @@ from cnep.pipeline.run.stage import open_policy
 from cnep.pipeline.sim.config import LoopSettings
 from cnep.pipeline.sim.figure import draw_episode
 from cnep.pipeline.sim.rerun_log import write_episode
-from cnep.pipeline.sim.summary import episode_row, rates
 from cnep.runtime import Policy
 from cnep.sim import ObstacleEnv, run_episode
 from cnep.sim.tasks.obstacle import scene as O
+from cnep.sim.tasks.obstacle.scoring import episode_row, rates
 
 log = logging.getLogger(__name__)
 
@@ -38,7 +38,7 @@ def evaluate_policy(
     figure: Path | None = None,
     quiet: bool = False,
 ) -> dict[str, dict]:
-    """Protocol -> rates (pipeline.sim.summary.rates) of the policy in `policy_path` (exported or checkpoint);
+    """Protocol -> rates (sim.tasks.obstacle.scoring.rates) of the policy in `policy_path` (exported or checkpoint);
     recordings: the folder for `<label>-<protocol>-seed<N>.rrd` (None: none written); figure: the PNG of the last
     protocol's first episode (pipeline.sim.figure; None, or matplotlib missing: none drawn)."""
     policy = _policy(policy_path, extractor, settings.first_expert)

@@ -1,6 +1,6 @@
 """A policy in the pick-and-place closed loop: `evaluate_pick_policy` runs it for `episodes` episodes by each
 protocol (planned, online: cnep.sim.episode) in each condition (decided, free, changed), writes the first `record` of
-each as Rerun recordings and returns the rates and rows (pipeline.sim.pick_summary).
+each as Rerun recordings and returns the rates and rows (sim.tasks.pick_place.scoring).
 
 Episode i of a condition is reset with seed `episode_seed + i`: every policy meets the same scenes, and the same seed
 gives the same episode bit for bit. The demonstrations' scenes come from other seeds
@@ -13,10 +13,10 @@ from pathlib import Path
 
 from cnep.pipeline.progress import progress_bar
 from cnep.pipeline.sim.pick_rerun import write_pick_episode
-from cnep.pipeline.sim.pick_summary import pick_rates, pick_row
 from cnep.runtime import Policy
 from cnep.sim.tasks.pick_place.env import PickPlaceEnv
 from cnep.sim.tasks.pick_place.episode import run_pick_episode
+from cnep.sim.tasks.pick_place.scoring import pick_rates, pick_row
 
 
 def evaluate_pick_policy(
@@ -32,7 +32,7 @@ def evaluate_pick_policy(
     recordings: Path | None = None,
     quiet: bool = False,
 ) -> dict[str, dict[str, dict]]:
-    """Protocol -> condition -> rates (pipeline.sim.pick_summary.pick_rates) of `policy` (a runtime.Policy or a
+    """Protocol -> condition -> rates (sim.tasks.pick_place.scoring.pick_rates) of `policy` (a runtime.Policy or a
     baseline behind its interface, its waypoints covering an episode for PLANNED) over `episodes` episodes each,
     truncated after `max_steps` control steps; recordings: the folder for `<label>-<protocol>-<condition>-seed<N>.rrd`,
     the first `record` episodes of each protocol and condition (None: none written)."""

@@ -25,8 +25,8 @@ from cnep.pipeline.sim.config import PickPlaceConfig
 from cnep.pipeline.sim.generate import generate_pick_demonstrations
 from cnep.pipeline.sim.pick_baselines import BASELINES, baseline_policy
 from cnep.pipeline.sim.pick_loop import evaluate_pick_policy
-from cnep.pipeline.sim.pick_summary import format_pick_table
 from cnep.pipeline.sim.stage import by_model, run_in_new_folder, run_stages
+from cnep.pipeline.sim.summary import format_pick_table
 from cnep.pipeline.workers import single_thread_processes
 from cnep.runtime.conditioning import ConditioningPolicy
 from cnep.sim import require_extra

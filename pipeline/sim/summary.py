@@ -1,72 +1,10 @@
-"""An evaluation as a table of episodes: each episode's row (`episode_row`), the rates of a policy's episodes under
-one protocol (`rates`), and the table printed on screen (`format_table`).
-
-A row: the episode's seed, success, collision, the side it passed, the cue's side (None without a cue), min
-clearance and distance to the goal (m), steps, expert switches and the policy / render / physics time per step
-(p50, p99, ms). The rates: success, collision, the share that followed the cue, the share passing left, the share
-of episodes with an expert switch (the scene never changes during an episode), over `episodes`.
+"""The closed loop's tables on screen: one line per policy and protocol (`format_table`, the obstacle task), one per
+policy, protocol and condition (`format_pick_table`, the pick-and-place task).
 """
 
 from __future__ import annotations
 
-import numpy as np
-
-from cnep.sim.episode import EpisodeResult
-
-TIMES = ("policy", "render", "physics")
-
-
-def percentiles_ms(seconds: np.ndarray) -> dict[str, float]:
-    """p50 and p99 of `seconds` (n,), in ms (0 for none)."""
-    if not len(seconds):
-        return {"p50": 0.0, "p99": 0.0}
-    p50, p99 = np.percentile(np.asarray(seconds) * 1e3, (50, 99))
-    return {"p50": round(float(p50), 2), "p99": round(float(p99), 2)}
-
-
-def episode_row(ep: EpisodeResult) -> dict:
-    """One episode as a JSON-able row (module docstring)."""
-    return {
-        "seed": ep.seed,
-        "success": ep.success,
-        "collision": ep.collision,
-        "side": ep.side,
-        "cue_side": ep.cue_side,
-        "clearance_m": round(ep.clearance_m, 4),
-        "distance_to_goal_m": round(ep.distance_to_goal_m, 4),
-        "steps": len(ep.states) - 1,
-        "switches": ep.switches,
-        "ms": {name: percentiles_ms(getattr(ep, f"{name}_s")) for name in TIMES},
-    }
-
-
-def rates(rows: list[dict]) -> dict:
-    """The rates over episode rows (module docstring), with the rows under `per_episode`."""
-    n = len(rows)
-
-    def share(key) -> float:
-        return round(sum(map(key, rows)) / n, 4)
-
-    cued = [r for r in rows if r["cue_side"] is not None]
-    return {
-        "episodes": n,
-        "success": share(lambda r: r["success"]),
-        "collision": share(lambda r: r["collision"]),
-        "left": share(lambda r: r["side"] == "left"),
-        "switching": share(lambda r: r["switches"] > 0),
-        "followed_cue": round(sum(r["side"] == r["cue_side"] for r in cued) / len(cued), 4) if cued else None,
-        "min_clearance_m": min(r["clearance_m"] for r in rows),
-        "ms": {name: pooled_ms(rows, name) for name in TIMES},
-        "per_episode": rows,
-    }
-
-
-def pooled_ms(rows: list[dict], name: str) -> dict[str, float]:
-    """The median of the episodes' p50 and the largest of their p99 (ms)."""
-    return {
-        "p50": round(float(np.median([r["ms"][name]["p50"] for r in rows])), 2),
-        "p99": max(r["ms"][name]["p99"] for r in rows),
-    }
+from cnep.sim.tasks.pick_place.scoring import SWITCH_WITHIN
 
 
 def format_table(results: dict[str, dict[str, dict]]) -> str:
@@ -85,4 +23,25 @@ def format_table(results: dict[str, dict[str, dict]]) -> str:
                 f"{r['left']:>6.0%} {cue:>6} {r['switching']:>9.0%} {r['min_clearance_m'] * 100:>6.1f}cm "
                 f"{ms['p50']:>9.1f}/{ms['p99']:.1f}"
             )
+    return "\n".join(lines)
+
+
+def format_pick_table(results: dict[str, dict[str, dict[str, dict]]]) -> str:
+    """The on-screen table: one line per policy (a label: model and seed), protocol and condition (the episodes per
+    line are the summary's)."""
+    head = (
+        f"{'policy':<18} {'protocol':<8} {'condition':<9} {'success':>8} {'collision':>9} {'lifted':>7} "
+        f"{f'switch<={SWITCH_WITHIN}':>9} {'latency':>7}  places"
+    )
+    lines = [head, "-" * len(head)]
+    for label, protocols in results.items():
+        for protocol, conditions in protocols.items():
+            for condition, r in conditions.items():
+                within = "-" if r["switched_within"] is None else f"{r['switched_within']:.0%}"
+                latency = "-" if r["switch_latency_p50"] is None else f"{r['switch_latency_p50']:.0f}"
+                places = " ".join(f"{k}:{v}" for k, v in r["places"].items())
+                lines.append(
+                    f"{label:<18} {protocol:<8} {condition:<9} {r['success']:>8.0%} {r['collision']:>9.0%} "
+                    f"{r['lifted']:>7.0%} {within:>9} {latency:>7}  {places}"
+                )
     return "\n".join(lines)

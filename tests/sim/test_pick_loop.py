@@ -13,11 +13,12 @@ if not all(importlib.util.find_spec(name) for name in cnep.sim.EXTRA):
     pytest.skip("the sim extra is not installed", allow_module_level=True)
 
 from cnep.pipeline.sim.pick_loop import evaluate_pick_policy  # noqa: E402
-from cnep.pipeline.sim.pick_summary import format_pick_table, pick_rates  # noqa: E402
+from cnep.pipeline.sim.summary import format_pick_table  # noqa: E402
 from cnep.sim import PickPlaceEnv  # noqa: E402
 from cnep.sim.episode import ONLINE, PLANNED, Driver  # noqa: E402
 from cnep.sim.tasks.pick_place import scene as P  # noqa: E402
 from cnep.sim.tasks.pick_place.episode import first_switch, run_pick_episode  # noqa: E402
+from cnep.sim.tasks.pick_place.scoring import pick_rates  # noqa: E402
 from tests.sim.pick_scripted import pick_policy  # noqa: E402
 
 

@@ -1,5 +1,5 @@
-"""A pick-and-place evaluation as a table: each episode's row (`pick_row`), the rates of a policy's episodes by one
-protocol in one condition (`pick_rates`), and the table on screen (`format_pick_table`).
+"""The pick-and-place task's scoring: each episode's row (`pick_row`) and the rates of a policy's episodes by one
+protocol in one condition (`pick_rates`).
 
 A row: the episode's seed, success, collision, lifted, dropped, the place the bar ended on and the valid ones, the
 change's step and the switch's (the changed condition), the expert switches, the steps and the policy / render /
@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from cnep.pipeline.sim.summary import TIMES, percentiles_ms, pooled_ms
+from cnep.sim.scoring import TIMES, percentiles_ms, pooled_ms
 from cnep.sim.tasks.pick_place.episode import PickEpisode
 
 SWITCH_WITHIN = 5  # steps: a switch this soon after the change counts as prompt
@@ -63,24 +63,3 @@ def pick_rates(rows: list[dict]) -> dict:
         "ms": {name: pooled_ms(rows, name) for name in TIMES},
         "per_episode": rows,
     }
-
-
-def format_pick_table(results: dict[str, dict[str, dict[str, dict]]]) -> str:
-    """The on-screen table: one line per policy (a label: model and seed), protocol and condition (the episodes per
-    line are the summary's)."""
-    head = (
-        f"{'policy':<18} {'protocol':<8} {'condition':<9} {'success':>8} {'collision':>9} {'lifted':>7} "
-        f"{'switch<=5':>9} {'latency':>7}  places"
-    )
-    lines = [head, "-" * len(head)]
-    for label, protocols in results.items():
-        for protocol, conditions in protocols.items():
-            for condition, r in conditions.items():
-                within = "-" if r["switched_within"] is None else f"{r['switched_within']:.0%}"
-                latency = "-" if r["switch_latency_p50"] is None else f"{r['switch_latency_p50']:.0f}"
-                places = " ".join(f"{k}:{v}" for k, v in r["places"].items())
-                lines.append(
-                    f"{label:<18} {protocol:<8} {condition:<9} {r['success']:>8.0%} {r['collision']:>9.0%} "
-                    f"{r['lifted']:>7.0%} {within:>9} {latency:>7}  {places}"
-                )
-    return "\n".join(lines)
