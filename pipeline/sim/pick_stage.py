@@ -8,7 +8,7 @@ Stages (each logs its progress), all under OUT, as `cnep sim obstacle`'s (pipeli
 5. export     `policies/{cnep,cnmp}-seedN`;
 6. closed loop `episodes/*.rrd` (the first `record` episodes of each policy, protocol and condition) and
               `summary.json`: every exported policy (and with `baselines` ProMP, GMM-GMR and the nearest
-              demonstration, pipeline.sim.pick_baselines) in closed loop by each protocol (planned, online) in each
+              demonstration, pipeline.sim.baselines) in closed loop by each protocol (planned, online) in each
               condition: decided, free, changed (pipeline.sim.pick_loop).
 
 A failed or interrupted run leaves the folder as empty as it found it.
@@ -21,9 +21,9 @@ from pathlib import Path
 
 from cnep.pipeline.progress import progress_bar
 from cnep.pipeline.run.stage import open_policy
+from cnep.pipeline.sim.baselines import BASELINES, baseline_policy
 from cnep.pipeline.sim.config import PickPlaceConfig
 from cnep.pipeline.sim.generate import generate_pick_demonstrations
-from cnep.pipeline.sim.pick_baselines import BASELINES, baseline_policy
 from cnep.pipeline.sim.pick_loop import evaluate_pick_policy
 from cnep.pipeline.sim.stage import by_model, run_in_new_folder, run_stages
 from cnep.pipeline.sim.summary import format_pick_table

@@ -14,8 +14,8 @@ import cnep.sim
 if not all(importlib.util.find_spec(name) for name in cnep.sim.EXTRA):
     pytest.skip("the sim extra is not installed", allow_module_level=True)
 
+from cnep.pipeline.sim.baselines import BASELINES  # noqa: E402
 from cnep.pipeline.sim.config import PROTOCOLS, PickPlaceConfig  # noqa: E402
-from cnep.pipeline.sim.pick_baselines import BASELINES  # noqa: E402
 from cnep.pipeline.sim.pick_stage import run_pick_place  # noqa: E402
 from cnep.pipeline.sim.stage import SUMMARY_FILE  # noqa: E402
 from cnep.sim.tasks.pick_place import scene as P  # noqa: E402
