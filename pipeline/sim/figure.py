@@ -13,15 +13,15 @@ import numpy as np
 from cnep.outputs import write_atomically
 from cnep.pipeline.replay.viewer import PALETTE, PATH_COLOR
 from cnep.sim import scene as S
-from cnep.sim.episode import EpisodeResult
 from cnep.sim.tasks.obstacle import scene as O
+from cnep.sim.tasks.obstacle.scoring import ObstacleEpisode
 
 FIGURE_FILE = "episode.png"
 FRAMES = 6  # camera frames in the strip, evenly spaced over the episode
 PREDICTIONS = 4  # reads whose predicted waypoints are drawn, evenly spaced
 
 
-def draw_episode(ep: EpisodeResult, title: str, path: Path) -> Path:
+def draw_episode(ep: ObstacleEpisode, title: str, path: Path) -> Path:
     """Draw episode `ep` (run with its frames recorded) into the PNG `path`."""
     import matplotlib
 
@@ -42,7 +42,7 @@ def draw_episode(ep: EpisodeResult, title: str, path: Path) -> Path:
                            color=S.TABLE_RGBA[:3], alpha=0.35))  # fmt: skip
     ax.add_patch(Circle(O.GOAL_XY, O.GOAL_RADIUS, color=O.GOAL_RGBA[:3], alpha=0.8, label="goal"))
     for k, alpha in ((0, 0.35), (n - 1, 0.9)):
-        x, y = ep.box[k, :2]
+        x, y = ep.object_poses[k, :2]
         ax.add_patch(Rectangle((x - O.BOX_HALF[0], y - O.BOX_HALF[1]), 2 * O.BOX_HALF[0], 2 * O.BOX_HALF[1],
                                color=O.BOX_RGBA[:3], alpha=alpha))  # fmt: skip
     if ep.cue_side is not None:

@@ -14,8 +14,8 @@ from pathlib import Path
 from cnep.pipeline.progress import progress_bar
 from cnep.pipeline.sim.pick_rerun import write_pick_episode
 from cnep.runtime import Policy
+from cnep.sim.episode import run_episode
 from cnep.sim.tasks.pick_place.env import PickPlaceEnv
-from cnep.sim.tasks.pick_place.episode import run_pick_episode
 from cnep.sim.tasks.pick_place.scoring import pick_rates, pick_row
 
 
@@ -46,7 +46,7 @@ def evaluate_pick_policy(
                 for i in bar:
                     seed = episode_seed + i
                     recorded = recordings is not None and i < record
-                    ep = run_pick_episode(env, policy, seed, protocol, record_frames=recorded)
+                    ep = run_episode(env, policy, seed, protocol, record_frames=recorded)
                     if recorded:
                         name = f"{label}-{protocol}-{condition}-seed{seed}"
                         write_pick_episode(recordings / f"{name}.rrd", name, ep, policy.n_experts)

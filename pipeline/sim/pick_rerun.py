@@ -23,7 +23,7 @@ from cnep.pipeline.sim.rerun_log import (
 )
 from cnep.sim import scene as S
 from cnep.sim.tasks.pick_place import scene as P
-from cnep.sim.tasks.pick_place.episode import PickEpisode
+from cnep.sim.tasks.pick_place.scoring import PickEpisode
 
 BAR, MATS, CUPS = (f"{L.WORLD}/{name}" for name in ("bar", "mats", "cups"))
 
@@ -49,7 +49,7 @@ def write_pick_episode(path: Path, name: str, ep: PickEpisode, n_experts: int) -
             rec.log(L.SWITCH_LOG, rr.TextLog(f"step {k}: the table changes", level="WARN"))
         rec.log(L.CAMERA, rr.Image(ep.frames[k]))
         rec.log(L.EE, rr.Transform3D(translation=ep.states[k, :3], quaternion=ep.states[k, 3:7]))
-        rec.log(BAR, rr.Transform3D(translation=ep.bar[k, :3], quaternion=ep.bar[k, 3:]))
+        rec.log(BAR, rr.Transform3D(translation=ep.object_poses[k, :3], quaternion=ep.object_poses[k, 3:]))
         if k < len(ep.gates):
             shown = log_policy_read(rec, k, ep.gates, ep.experts, ep.predicted, shown)
     rec.log(L.SWITCH_LOG, rr.TextLog(_outcome(ep), level="INFO" if ep.success else "WARN"))

@@ -13,9 +13,9 @@ import cnep.pipeline.replay.viewer as L
 from cnep.outputs import write_atomically
 from cnep.pipeline.replay.rerun_log import active_expert_states, first_read_text, shown_state
 from cnep.sim import scene as S
-from cnep.sim.episode import EpisodeResult
 from cnep.sim.tasks.obstacle import scene as O
 from cnep.sim.tasks.obstacle.demonstrator import SIDE_SIGN
+from cnep.sim.tasks.obstacle.scoring import ObstacleEpisode
 
 APPLICATION_ID = "cnep_sim"
 BOX, TABLE, GOAL, CUE = (f"{L.WORLD}/{name}" for name in ("box", "table", "goal", "cue"))
@@ -25,7 +25,7 @@ GRIPPER_CENTRE = (0.0, 0.0, S.PALM_HALF[2] - GRIPPER_HALF[2])  # the palm's top 
 CONTACT_COLOR = (230, 40, 40)
 
 
-def write_episode(path: Path, name: str, ep: EpisodeResult, n_experts: int) -> Path:
+def write_episode(path: Path, name: str, ep: ObstacleEpisode, n_experts: int) -> Path:
     """Write episode `ep` (run with its frames recorded) to the .rrd `path`, listed in the viewer as `name`."""
     import rerun as rr
 
@@ -42,7 +42,7 @@ def write_episode(path: Path, name: str, ep: EpisodeResult, n_experts: int) -> P
         at_step(rec, k)
         rec.log(L.CAMERA, rr.Image(ep.frames[k]))
         rec.log(L.EE, rr.Transform3D(translation=ep.states[k, :3], quaternion=ep.states[k, 3:7]))
-        rec.log(BOX, rr.Transform3D(translation=ep.box[k, :3], quaternion=ep.box[k, 3:]))
+        rec.log(BOX, rr.Transform3D(translation=ep.object_poses[k, :3], quaternion=ep.object_poses[k, 3:]))
         if k < len(ep.gates):  # a read of the policy (every step online, the first only when planned)
             shown = log_policy_read(rec, k, ep.gates, ep.experts, ep.predicted, shown)
         if k == ep.contact_step:
@@ -87,7 +87,7 @@ def at_step(rec, k: int) -> None:
     rec.set_time(L.TIMELINE_TIME, duration=k * S.CONTROL_PERIOD_S)
 
 
-def _scene(rec, ep: EpisodeResult) -> None:
+def _scene(rec, ep: ObstacleEpisode) -> None:
     """The static bodies: table, goal, cue tile (where it was), box and gripper shapes."""
     import rerun as rr
 

@@ -79,7 +79,7 @@ def test_a_closed_loop_episode_succeeds_and_the_same_seed_repeats_it_exactly(env
     assert first.success and not first.collision and first.side == "right" and first.switches == 0
     assert len(first.gates) == (1 if protocol == PLANNED else len(first.states) - 1)
     np.testing.assert_array_equal(first.states, again.states)
-    np.testing.assert_array_equal(first.box, again.box)
+    np.testing.assert_array_equal(first.object_poses, again.object_poses)
     assert (first.clearance_m, first.distance_to_goal_m) == (again.clearance_m, again.distance_to_goal_m)
     assert not np.array_equal(first.states[0], other.states[0])  # another seed, another start
 

@@ -15,21 +15,28 @@ if not all(importlib.util.find_spec(name) for name in cnep.sim.EXTRA):
 from cnep.pipeline.sim.pick_loop import evaluate_pick_policy  # noqa: E402
 from cnep.pipeline.sim.summary import format_pick_table  # noqa: E402
 from cnep.sim import PickPlaceEnv  # noqa: E402
-from cnep.sim.episode import ONLINE, PLANNED, Driver  # noqa: E402
+from cnep.sim.episode import (  # noqa: E402
+    ONLINE,
+    PLANNED,
+    Driver,
+    run_episode,  # noqa: E402
+)
 from cnep.sim.tasks.pick_place import scene as P  # noqa: E402
-from cnep.sim.tasks.pick_place.episode import first_switch, run_pick_episode  # noqa: E402
-from cnep.sim.tasks.pick_place.scoring import pick_rates  # noqa: E402
+from cnep.sim.tasks.pick_place.scoring import (
+    first_switch,  # noqa: E402
+    pick_rates,  # noqa: E402
+)
 from tests.sim.pick_scripted import pick_policy  # noqa: E402
 
 
 def test_a_few_closed_loop_steps_repeat_exactly_with_the_same_seed():
     env = PickPlaceEnv(P.FREE, max_steps=6)
     policy = pick_policy(gate=(0.1, 0.7, 0.1, 0.1))
-    first, again, other = (run_pick_episode(env, policy, seed) for seed in (3, 3, 4))
+    first, again, other = (run_episode(env, policy, seed) for seed in (3, 3, 4))
     env.close()
     assert len(first.states) == 7 and not first.success and first.experts.tolist() == [1] * 6
     np.testing.assert_array_equal(first.states, again.states)
-    np.testing.assert_array_equal(first.bar, again.bar)
+    np.testing.assert_array_equal(first.object_poses, again.object_poses)
     assert not np.array_equal(first.states[0], other.states[0])
 
 
@@ -51,7 +58,7 @@ def test_the_planned_protocol_reads_the_policy_once_and_executes_its_waypoints_i
     assert len(online.experts) == 3  # a read per step
     with pytest.raises(ValueError, match="protocol must be one of planned, online"):
         Driver(policy, "replanned", observation)
-    ep = run_pick_episode(env, pick_policy(gate=(0.1, 0.7, 0.1, 0.1), waypoints=P.MAX_STEPS), 3, PLANNED)
+    ep = run_episode(env, pick_policy(gate=(0.1, 0.7, 0.1, 0.1), waypoints=P.MAX_STEPS), 3, PLANNED)
     env.close()
     assert ep.protocol == PLANNED and len(ep.states) == 7 and ep.experts.tolist() == [1] and len(ep.policy_s) == 1
     assert ep.gates.shape == (1, 4) and ep.predicted.shape == (1, P.MAX_STEPS, 3) and ep.switches == 0
@@ -65,7 +72,7 @@ def test_a_planned_episode_puts_the_bar_where_its_one_read_says(monkeypatch):
     reads = []
     step = policy.step
     monkeypatch.setattr(policy, "step", lambda observation: reads.append(observation) or step(observation))
-    ep = run_pick_episode(env, policy, seed, PLANNED)
+    ep = run_episode(env, policy, seed, PLANNED)
     env.close()
     assert ep.success and ep.place == "right" and ep.lifted and not ep.collision
     assert len(reads) == 1 and len(ep.states) > 2 and ep.switches == 0
@@ -75,7 +82,7 @@ def test_a_planned_episode_puts_the_bar_where_its_one_read_says(monkeypatch):
 def test_a_closed_loop_episode_puts_the_bar_where_the_gate_says():
     env = PickPlaceEnv(P.FREE)
     seed = next(s for s in range(20) if env.reset(seed=s)[1]["orientation"] == "along_y")
-    ep = run_pick_episode(env, pick_policy(gate=(0.1, 0.7, 0.1, 0.1)), seed)  # the right mat
+    ep = run_episode(env, pick_policy(gate=(0.1, 0.7, 0.1, 0.1)), seed)  # the right mat
     env.close()
     assert ep.success and ep.place == "right" and ep.lifted and not ep.collision
     assert ep.valid == ["left", "right"] and ep.switches == 0 and ep.change_step is None

@@ -25,6 +25,7 @@ from cnep.sim import scene as S
 from cnep.sim.tabletop import TabletopEnv
 from cnep.sim.tasks.obstacle import scene as O
 from cnep.sim.tasks.obstacle.demonstrator import SIDE_SIGN
+from cnep.sim.tasks.obstacle.scoring import ObstacleEpisode, judge
 
 SIDES = tuple(SIDE_SIGN)
 IMAGE_KEY = IMAGE_KEY_PREFIX + O.CAMERA
@@ -80,10 +81,14 @@ class ObstacleEnv(TabletopEnv):
         truncated = not terminated and self._steps >= self.max_steps
         return observation, float(info["is_success"]), terminated, truncated, info
 
-    def box_pose(self) -> tuple[np.ndarray, np.ndarray]:
+    def object_pose(self) -> tuple[np.ndarray, np.ndarray]:
         """The box's position (3,) m and quaternion xyzw (4,)."""
         body = self.data.body(O.BOX_BODY)
         return body.xpos.copy(), np.roll(body.xquat, -1)
+
+    def judge(self, infos: list[dict], **recorded) -> ObstacleEpisode:
+        """The episode's result (sim.tasks.obstacle.scoring.judge)."""
+        return judge(infos, **recorded)
 
     def _info(self) -> dict:
         to_goal = float(np.linalg.norm(self.data.body(S.GRIPPER_BODY).xpos[:2] - np.asarray(O.GOAL_XY)))

@@ -1,5 +1,5 @@
-"""The obstacle task's scoring: each episode's row (`episode_row`) and the rates of a policy's episodes under one
-protocol (`rates`).
+"""The obstacle task's scoring: an episode's result (`ObstacleEpisode`, judged from its trace by `judge`), its row
+(`episode_row`) and the rates of a policy's episodes under one protocol (`rates`).
 
 A row: the episode's seed, success, collision, the side it passed, the cue's side (None without a cue), min
 clearance and distance to the goal (m), steps, expert switches and the policy / render / physics time per step
@@ -9,11 +9,48 @@ of episodes with an expert switch (the scene never changes during an episode), o
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
+import numpy as np
+
 from cnep.sim.episode import EpisodeResult
 from cnep.sim.scoring import TIMES, percentiles_ms, pooled_ms
 
 
-def episode_row(ep: EpisodeResult) -> dict:
+@dataclass(kw_only=True)
+class ObstacleEpisode(EpisodeResult):
+    """An obstacle episode (sim.episode.EpisodeResult, its object the box): side, where the end effector passed the
+    box ("left" / "right", facing the goal); clearance_m, the smallest gripper-box distance; distance_to_goal_m, at
+    the end (xy); cue_side, the side the cue showed (None without a cue); contact_step, the first step touching the
+    box, or None."""
+
+    side: str
+    clearance_m: float
+    distance_to_goal_m: float
+    cue_side: str | None
+    contact_step: int | None = None
+
+
+def judge(infos: list[dict], **recorded) -> ObstacleEpisode:
+    """The episode's result from the environment's `infos` (the reset's, then one per step) and what
+    sim.episode.run_episode `recorded`."""
+    info = infos[-1]
+    return ObstacleEpisode(
+        **recorded,
+        side=side_passed(recorded["states"]),
+        clearance_m=float(info["clearance"]),
+        distance_to_goal_m=float(info["distance_to_goal"]),
+        cue_side=info["cue_side"],
+        contact_step=next((k for k, step in enumerate(infos) if step["collision"]), None),
+    )
+
+
+def side_passed(states: np.ndarray) -> str:
+    """Where a path of states (n, >= 2) passed the box: "left" (x < 0) or "right", at the step nearest the box's y."""
+    return "left" if states[int(np.abs(states[:, 1]).argmin()), 0] < 0 else "right"
+
+
+def episode_row(ep: ObstacleEpisode) -> dict:
     """One episode as a JSON-able row (module docstring)."""
     return {
         "seed": ep.seed,
@@ -23,7 +60,7 @@ def episode_row(ep: EpisodeResult) -> dict:
         "cue_side": ep.cue_side,
         "clearance_m": round(ep.clearance_m, 4),
         "distance_to_goal_m": round(ep.distance_to_goal_m, 4),
-        "steps": len(ep.states) - 1,
+        "steps": ep.steps,
         "switches": ep.switches,
         "ms": {name: percentiles_ms(getattr(ep, f"{name}_s")) for name in TIMES},
     }

@@ -1,5 +1,5 @@
-"""The pick-and-place task's scoring: each episode's row (`pick_row`) and the rates of a policy's episodes by one
-protocol in one condition (`pick_rates`).
+"""The pick-and-place task's scoring: an episode's result (`PickEpisode`, judged from its trace by `judge`), its row
+(`pick_row`) and the rates of a policy's episodes by one protocol in one condition (`pick_rates`).
 
 A row: the episode's seed, success, collision, lifted, dropped, the place the bar ended on and the valid ones, the
 change's step and the switch's (the changed condition), the expert switches, the steps and the policy / render /
@@ -11,12 +11,63 @@ p50 over the episodes that switched) and the share that switched within SWITCH_W
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
+from cnep.sim.episode import EpisodeResult
 from cnep.sim.scoring import TIMES, percentiles_ms, pooled_ms
-from cnep.sim.tasks.pick_place.episode import PickEpisode
+from cnep.sim.tasks.pick_place import scene as P
 
 SWITCH_WITHIN = 5  # steps: a switch this soon after the change counts as prompt
+
+
+@dataclass(kw_only=True)
+class PickEpisode(EpisodeResult):
+    """A pick-and-place episode (sim.episode.EpisodeResult, its object the bar, its condition decided / free /
+    changed): lifted, dropped, the environment's verdicts at the end; place, the mat the bar ended on (a PLACES name)
+    or None; valid, the valid places' names at the end; taken_start, taken_end, the places taken at the start and at
+    the end (a bool each); change_step, the step at which the table changed (None: it did not); switch_step, the
+    first step at or after the change at which the active expert changed (None: none did, no change, or PLANNED).
+    """
+
+    lifted: bool
+    dropped: bool
+    place: str | None
+    valid: list[str]
+    taken_start: list[bool]
+    taken_end: list[bool]
+    change_step: int | None
+    switch_step: int | None
+
+
+def judge(infos: list[dict], **recorded) -> PickEpisode:
+    """The episode's result from the environment's `infos` (the reset's, then one per step) and what
+    sim.episode.run_episode `recorded`."""
+    info = infos[-1]
+    steps = len(recorded["states"]) - 1
+    change = info["change_step"] if info["change_step"] is not None and info["change_step"] < steps else None
+    return PickEpisode(
+        **recorded,
+        lifted=bool(info["lifted"]),
+        dropped=bool(info["dropped"]),
+        place=None if info["place"] is None else P.PLACES[info["place"]][0],
+        valid=[P.PLACES[i][0] for i in info["valid"]],
+        taken_start=list(infos[0]["taken"]),
+        taken_end=list(info["taken"]),
+        change_step=change,
+        switch_step=first_switch(recorded["experts"], change),
+    )
+
+
+def first_switch(experts: np.ndarray, change: int | None) -> int | None:
+    """The first step at or after `change` whose active expert (`experts` (n,), one per step) differs from the
+    step before's; None without a change or a switch. The table changes before the step `change` acts, so the
+    policy first sees the change in its read at step `change + 1`."""
+    if change is None:
+        return None
+    after = np.flatnonzero(np.diff(experts[change:]) != 0)
+    return int(change + 1 + after[0]) if len(after) else None
 
 
 def pick_row(ep: PickEpisode) -> dict:
@@ -32,7 +83,7 @@ def pick_row(ep: PickEpisode) -> dict:
         "change_step": ep.change_step,
         "switch_step": ep.switch_step,
         "switches": ep.switches,
-        "steps": len(ep.states) - 1,
+        "steps": ep.steps,
         "ms": {name: percentiles_ms(getattr(ep, f"{name}_s")) for name in TIMES},
     }
 
