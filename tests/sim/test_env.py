@@ -94,16 +94,18 @@ def test_with_the_split_option_episodes_take_both_sides_each_keeping_one_and_a_s
 
 def test_an_episode_run_with_its_frames_is_written_as_a_recording(env, tmp_path):
     from cnep.pipeline.sim.rerun_log import write_episode
+    from cnep.sim.tasks.obstacle.drawing import drawing
 
     ep = run_episode(env, scripted_policy(gate=(0.2, 0.8)), seed=5, protocol=ONLINE, record_frames=True)
     assert ep.frames is not None and len(ep.frames) == len(ep.states)
-    path = write_episode(tmp_path / "episode.rrd", "episode", ep, n_experts=2)
+    path = write_episode(tmp_path / "episode.rrd", "episode", ep, 2, drawing(ep))
     assert path == tmp_path / "episode.rrd" and path.read_bytes()[:4] == b"RRF2"
 
 
 def test_the_step_limit_truncates_every_episode_and_leaves_the_plan_spanning_the_task(monkeypatch):
     import cnep.pipeline.sim.loop as loop
     from cnep.pipeline.sim.config import LoopSettings
+    from cnep.sim.tasks import find_task
 
     opened = []
 
@@ -112,7 +114,8 @@ def test_the_step_limit_truncates_every_episode_and_leaves_the_plan_spanning_the
         return scripted_policy(gate=(0.2, 0.8), waypoints=waypoints)
 
     monkeypatch.setattr(loop, "open_policy", open_scripted)
-    results = loop.evaluate_policy(Path("scripted"), LoopSettings(episodes=2, max_steps=7), label="s", quiet=True)
+    task, settings = find_task("obstacle"), LoopSettings(episodes=2, max_steps=7)
+    results = loop.evaluate_policy(loop.open_task_policy(Path("scripted"), task, settings), task, settings, label="s")
     assert opened == [O.MAX_STEPS]  # the plan: the task's steps, not the limit's
     assert list(results) == [PLANNED, ONLINE]
     for rates in results.values():

@@ -24,10 +24,9 @@ from cnep.runtime.constants import IMAGE_KEY_PREFIX
 from cnep.sim import scene as S
 from cnep.sim.tabletop import TabletopEnv
 from cnep.sim.tasks.obstacle import scene as O
-from cnep.sim.tasks.obstacle.demonstrator import SIDE_SIGN
 from cnep.sim.tasks.obstacle.scoring import ObstacleEpisode, judge
 
-SIDES = tuple(SIDE_SIGN)
+SIDES = O.SIDES
 IMAGE_KEY = IMAGE_KEY_PREFIX + O.CAMERA
 
 
@@ -58,9 +57,9 @@ class ObstacleEnv(TabletopEnv):
         mujoco.mj_resetData(m, d)
         jitter = self.np_random.uniform(-O.START_JITTER, O.START_JITTER, 2)
         start = np.asarray(options.get("start", (jitter[0], O.START_Y + jitter[1])), dtype=np.float64)
-        side = options.get("cue_side", SIDES[int(self.np_random.integers(2))])
+        side = options.get("cue_side", O.SIDES[int(self.np_random.integers(2))])
         self.cue_side = side if self.cue else None
-        cue_pos = (SIDE_SIGN[side] * O.CUE_XY[0], O.CUE_XY[1], 0.001) if self.cue else (0.0, 0.0, -0.5)
+        cue_pos = (O.SIDE_SIGN[side] * O.CUE_XY[0], O.CUE_XY[1], 0.001) if self.cue else (0.0, 0.0, -0.5)
         m.geom_pos[m.geom(O.CUE_GEOM).id] = cue_pos
         self.place_gripper((*start, O.EE_HEIGHT), S.FINGER_OPEN)
         mujoco.mj_forward(m, d)

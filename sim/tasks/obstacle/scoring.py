@@ -1,5 +1,6 @@
 """The obstacle task's scoring: an episode's result (`ObstacleEpisode`, judged from its trace by `judge`), its row
-(`episode_row`) and the rates of a policy's episodes under one protocol (`rates`).
+(`episode_row`), the rates of a policy's episodes under one protocol (`rates`), the table's COLUMNS and what the
+summary says of the demonstrations (`describe_demonstrations`).
 
 A row: the episode's seed, success, collision, the side it passed, the cue's side (None without a cue), min
 clearance and distance to the goal (m), steps, expert switches and the policy / render / physics time per step
@@ -14,7 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from cnep.sim.episode import EpisodeResult
-from cnep.sim.scoring import TIMES, percentiles_ms, pooled_ms
+from cnep.sim.scoring import Column, percent, pooled_ms, share, timings_ms
+from cnep.sim.tasks.obstacle import scene as O
 
 
 @dataclass(kw_only=True)
@@ -62,26 +64,39 @@ def episode_row(ep: ObstacleEpisode) -> dict:
         "distance_to_goal_m": round(ep.distance_to_goal_m, 4),
         "steps": ep.steps,
         "switches": ep.switches,
-        "ms": {name: percentiles_ms(getattr(ep, f"{name}_s")) for name in TIMES},
+        "ms": timings_ms(ep),
     }
 
 
 def rates(rows: list[dict]) -> dict:
     """The rates over episode rows (module docstring), with the rows under `per_episode`."""
     n = len(rows)
-
-    def share(key) -> float:
-        return round(sum(map(key, rows)) / n, 4)
-
     cued = [r for r in rows if r["cue_side"] is not None]
     return {
         "episodes": n,
-        "success": share(lambda r: r["success"]),
-        "collision": share(lambda r: r["collision"]),
-        "left": share(lambda r: r["side"] == "left"),
-        "switching": share(lambda r: r["switches"] > 0),
+        "success": share(rows, lambda r: r["success"]),
+        "collision": share(rows, lambda r: r["collision"]),
+        "left": share(rows, lambda r: r["side"] == "left"),
+        "switching": share(rows, lambda r: r["switches"] > 0),
         "followed_cue": round(sum(r["side"] == r["cue_side"] for r in cued) / len(cued), 4) if cued else None,
         "min_clearance_m": min(r["clearance_m"] for r in rows),
-        "ms": {name: pooled_ms(rows, name) for name in TIMES},
+        "ms": pooled_ms(rows),
         "per_episode": rows,
     }
+
+
+COLUMNS = (
+    Column("episodes", 8, lambda r: str(r["episodes"])),
+    Column("success", 8, percent("success")),
+    Column("collision", 9, percent("collision")),
+    Column("left", 6, percent("left")),
+    Column("cue", 6, percent("followed_cue")),
+    Column("switching", 9, percent("switching")),
+    Column("min gap", 8, lambda r: f"{r['min_clearance_m'] * 100:.1f}cm"),
+    Column("policy ms p50/p99", 18, lambda r: "{p50:.1f}/{p99:.1f}".format(**r["ms"]["policy"])),
+)
+
+
+def describe_demonstrations(sides: list[str]) -> dict[str, int]:
+    """How many demonstrations passed each side."""
+    return {side: sides.count(side) for side in O.SIDES}

@@ -1,5 +1,6 @@
 """The pick-and-place task's scoring: an episode's result (`PickEpisode`, judged from its trace by `judge`), its row
-(`pick_row`) and the rates of a policy's episodes by one protocol in one condition (`pick_rates`).
+(`pick_row`), the rates of a policy's episodes by one protocol in one condition (`pick_rates`), the table's COLUMNS
+and what the summary says of the demonstrations (`describe_demonstrations`).
 
 A row: the episode's seed, success, collision, lifted, dropped, the place the bar ended on and the valid ones, the
 change's step and the switch's (the changed condition), the expert switches, the steps and the policy / render /
@@ -16,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from cnep.sim.episode import EpisodeResult
-from cnep.sim.scoring import TIMES, percentiles_ms, pooled_ms
+from cnep.sim.scoring import Column, percent, pooled_ms, share, timings_ms
 from cnep.sim.tasks.pick_place import scene as P
 
 SWITCH_WITHIN = 5  # steps: a switch this soon after the change counts as prompt
@@ -84,17 +85,13 @@ def pick_row(ep: PickEpisode) -> dict:
         "switch_step": ep.switch_step,
         "switches": ep.switches,
         "steps": ep.steps,
-        "ms": {name: percentiles_ms(getattr(ep, f"{name}_s")) for name in TIMES},
+        "ms": timings_ms(ep),
     }
 
 
 def pick_rates(rows: list[dict]) -> dict:
     """The rates over episode rows (module docstring), with the rows under `per_episode`."""
     n = len(rows)
-
-    def share(key) -> float:
-        return round(sum(map(key, rows)) / n, 4)
-
     places: dict[str, int] = {}
     for r in rows:
         if r["place"] is not None:
@@ -103,14 +100,29 @@ def pick_rates(rows: list[dict]) -> dict:
     latencies = [r["switch_step"] - r["change_step"] for r in changed if r["switch_step"] is not None]
     return {
         "episodes": n,
-        "success": share(lambda r: r["success"]),
-        "collision": share(lambda r: r["collision"]),
-        "lifted": share(lambda r: r["lifted"]),
-        "dropped": share(lambda r: r["dropped"]),
+        "success": share(rows, lambda r: r["success"]),
+        "collision": share(rows, lambda r: r["collision"]),
+        "lifted": share(rows, lambda r: r["lifted"]),
+        "dropped": share(rows, lambda r: r["dropped"]),
         "places": dict(sorted(places.items())),
-        "switching": share(lambda r: r["switches"] > 0),
+        "switching": share(rows, lambda r: r["switches"] > 0),
         "switch_latency_p50": float(np.median(latencies)) if latencies else None,
         "switched_within": round(sum(x <= SWITCH_WITHIN for x in latencies) / len(changed), 4) if changed else None,
-        "ms": {name: pooled_ms(rows, name) for name in TIMES},
+        "ms": pooled_ms(rows),
         "per_episode": rows,
     }
+
+
+COLUMNS = (
+    Column("success", 8, percent("success")),
+    Column("collision", 9, percent("collision")),
+    Column("lifted", 7, percent("lifted")),
+    Column(f"switch<={SWITCH_WITHIN}", 9, percent("switched_within")),
+    Column("latency", 7, lambda r: "-" if r["switch_latency_p50"] is None else f"{r['switch_latency_p50']:.0f}"),
+    Column("places", 0, lambda r: " ".join(f"{k}:{v}" for k, v in r["places"].items())),
+)
+
+
+def describe_demonstrations(places: list[str]) -> dict[str, dict[str, int]]:
+    """How many demonstrations chose each place."""
+    return {"places": {name: places.count(name) for name, _, _ in P.PLACES}}
