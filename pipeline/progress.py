@@ -235,3 +235,16 @@ def heartbeat(what: str, quiet: bool = False, stream: TextIO | None = None) -> I
         yield
     finally:
         ticker.stop()
+
+
+def follow_total(queue: Any, bar: tqdm, counts: dict[str, int]) -> None:
+    """Move `bar` to the sum of the latest counts the `RemoteBar`s of several jobs have put on `queue` so far (label ->
+    count, kept in `counts` between calls), and redraw it; returns at once."""
+    while True:
+        try:
+            label, n, _ = queue.get_nowait()
+        except Empty:
+            break
+        counts[label] = n
+    bar.update(sum(counts.values()) - bar.n)
+    bar.refresh()

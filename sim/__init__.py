@@ -24,6 +24,8 @@ _MODULES = {
     "tasks.obstacle.demonstrator": ("demonstration_path", "DemoDraw", "draw_demonstration"),
     "tasks.obstacle.env": ("IMAGE_KEY", "SIDES", "ObstacleEnv"),
     "episode": ("EpisodeResult", "PLANNED", "ONLINE", "PROTOCOLS", "run_episode"),
+    "tasks.obstacle.scoring": ("ObstacleEpisode",),
+    "tasks.pick_place.scoring": ("PickEpisode",),
     "tasks.pick_place.env": ("PICK_IMAGE_KEY", "PickPlaceEnv", "grasp_places"),
     "tasks.pick_place.demonstrator": ("PickDraw", "draw_pick", "pick_path"),
 }

@@ -1,108 +1,113 @@
-"""One closed-loop episode: a policy drives the environment from its camera frames and state, by one of two protocols.
+"""One closed-loop episode of any task: a policy drives the environment from its camera frames and state, by one of two
+protocols.
 
 - PLANNED (the paper's protocol on the Baxter): the policy reads the first observation only; its waypoints for the
   whole episode are the plan, executed step by step by the controller (held at the last waypoint after it).
 - ONLINE: the policy conditions on every new frame and state and its next waypoint is the next action.
 
 The policy is a `cnep.runtime.Policy` (`step(observation) -> PolicyStep`: waypoints (W, dy) named by
-`action_names`, the gate and the active expert), loaded for PLANNED with waypoints spanning the task's motion.
+`action_names`, the gate and the active expert), or anything with the same `reset`, `step`, `action_names` and
+`gripper` (a baseline behind its interface), loaded for PLANNED with waypoints spanning the task's motion.
 An action is the state with the predicted columns replaced by the waypoint's, the gripper by the policy's gripper
 command where it has one (`Policy.gripper`: a threshold with hysteresis, applied to each planned waypoint in turn).
 `Policy.reset(seed)` starts each episode with the episode's seed (the draw of `first_expert="sample"`).
+
+`run_episode` records what every task records (`EpisodeResult`); the environment judges the episode
+(`TabletopEnv.judge`), its task's result adding the task's verdicts.
 """
 
 from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from cnep.runtime import STATE_KEY, STATE_NAMES, TIMESTAMP_KEY, Policy, PolicyStep
 from cnep.runtime.spec import GRIPPER
 from cnep.sim import scene as S
-from cnep.sim.tasks.obstacle.env import IMAGE_KEY, ObstacleEnv
+
+if TYPE_CHECKING:
+    from cnep.sim.tabletop import TabletopEnv
 
 GRIPPER_INDEX = STATE_NAMES.index(GRIPPER)
 PLANNED, ONLINE = "planned", "online"
 PROTOCOLS = (PLANNED, ONLINE)
 
 
-@dataclass
+@dataclass(kw_only=True)
 class EpisodeResult:
-    """An episode's outcome and its trace.
+    """An episode's outcome and its trace, as every task records them (a task's result adds its own verdicts).
 
-    seed: the environment's reset seed; success, collision: the environment's verdicts at the end; side: where the
-    end effector passed the box ("left" / "right", facing the goal); clearance_m: the smallest gripper-box distance;
-    distance_to_goal_m: at the end (xy); switches: changes of the active expert (0 for PLANNED: one read);
-    cue_side: the side the cue showed (None without a cue). Per step: states (steps + 1, 8) the observed states,
-    box (steps + 1, 7) the box's position and quaternion xyzw, gates (reads, d), experts (reads,), predicted
-    (reads, W, 3) the waypoints' xyz, policy_s / render_s / physics_s the seconds each part took (policy per read).
-    frames (steps + 1, H, W, 3) when recorded, else None; contact_step: the first step touching the box, or None.
+    seed: the environment's reset seed; protocol: planned / online; condition: the task's condition (None for a task
+    without conditions); success, collision: the environment's verdicts at the end; switches: changes of the active
+    expert (0 for PLANNED: one read). Per step: states (steps + 1, 8) the observed states, object_poses (steps + 1,
+    7) the position and quaternion xyzw of the task's object (`TabletopEnv.object_pose`), render_s / physics_s the
+    seconds each took; per read of the policy (every step ONLINE, the first only PLANNED): gates (reads, d), experts
+    (reads,), predicted (reads, W, 3) the waypoints' xyz, policy_s (seconds); frames (steps + 1, H, W, 3) when
+    recorded, else None.
     """
 
     seed: int
     protocol: str
+    condition: str | None
     success: bool
     collision: bool
-    side: str
-    clearance_m: float
-    distance_to_goal_m: float
     switches: int
-    cue_side: str | None
     states: np.ndarray
-    box: np.ndarray
+    object_poses: np.ndarray
     gates: np.ndarray
     experts: np.ndarray
     predicted: np.ndarray
     policy_s: np.ndarray
     render_s: np.ndarray
     physics_s: np.ndarray
-    contact_step: int | None = None
     frames: np.ndarray | None = field(default=None, repr=False)
+
+    @property
+    def steps(self) -> int:
+        """The control steps the episode ran."""
+        return len(self.states) - 1
 
 
 def run_episode(
-    env: ObstacleEnv, policy: Policy, seed: int, protocol: str = ONLINE, record_frames: bool = False
+    env: TabletopEnv, policy: Policy, seed: int, protocol: str = ONLINE, record_frames: bool = False
 ) -> EpisodeResult:
-    """Run one episode of `env` (reset with `seed`) driven by `policy` (reset first) by `protocol`."""
+    """Run one episode of `env` (reset with `seed`) driven by `policy` (reset first with `seed`) by `protocol`; the
+    environment's task judges it (its result type)."""
     observation, info = env.reset(seed=seed)
     policy.reset(seed=seed)
     driver = Driver(policy, protocol, observation)
-    trace: dict[str, list] = {k: [] for k in ("states", "box", "frames")}
+    infos = [info]
+    trace: dict[str, list] = {k: [] for k in ("states", "object_poses", "frames")}
     times: dict[str, list] = {"render_s": [env.timings["render_s"]], "physics_s": []}
-    contact_step = None
     for k in range(env.max_steps):
         _keep(trace, env, observation, record_frames)
         observation, _, terminated, truncated, info = env.step(driver.action(observation, k))
         times["render_s"].append(env.timings["render_s"])
         times["physics_s"].append(env.timings["physics_s"])
-        if info["collision"] and contact_step is None:
-            contact_step = k + 1
+        infos.append(info)
         if terminated or truncated:
             break
     _keep(trace, env, observation, record_frames)
     experts = np.asarray(driver.experts, dtype=np.int64)
-    states = np.asarray(trace["states"])
-    return EpisodeResult(
+    return env.judge(
+        infos,
         seed=seed,
         protocol=protocol,
+        condition=info.get("condition"),
         success=bool(info["is_success"]),
         collision=bool(info["collision"]),
-        side=side_passed(states),
-        clearance_m=float(info["clearance"]),
-        distance_to_goal_m=float(info["distance_to_goal"]),
         switches=int(np.count_nonzero(np.diff(experts))),
-        cue_side=info["cue_side"],
-        states=states,
-        box=np.asarray(trace["box"]),
+        states=np.asarray(trace["states"]),
+        object_poses=np.asarray(trace["object_poses"]),
         gates=np.asarray(driver.gates),
         experts=experts,
         predicted=np.asarray(driver.predicted),
         policy_s=np.asarray(driver.policy_s),
         render_s=np.asarray(times["render_s"]),
         physics_s=np.asarray(times["physics_s"]),
-        contact_step=contact_step,
         frames=np.asarray(trace["frames"]) if record_frames else None,
     )
 
@@ -155,13 +160,8 @@ class Driver:
         return read
 
 
-def side_passed(states: np.ndarray) -> str:
-    """Where a path of states (n, >= 2) passed the box: "left" (x < 0) or "right", at the step nearest the box's y."""
-    return "left" if states[int(np.abs(states[:, 1]).argmin()), 0] < 0 else "right"
-
-
-def _keep(trace: dict, env: ObstacleEnv, observation: dict, record_frames: bool) -> None:
+def _keep(trace: dict, env: TabletopEnv, observation: dict, record_frames: bool) -> None:
     trace["states"].append(observation[STATE_KEY])
-    trace["box"].append(np.concatenate(env.box_pose()))
+    trace["object_poses"].append(np.concatenate(env.object_pose()))
     if record_frames:
-        trace["frames"].append(observation[IMAGE_KEY])
+        trace["frames"].append(observation[env.image_key])

@@ -11,7 +11,6 @@ import os
 import mujoco
 import numpy as np
 
-from cnep.sim import scene as S
 from cnep.sim.errors import SimError
 
 BACKENDS = {"egl": "libegl1 (and libgl1-mesa-dri for software rendering)", "osmesa": "libosmesa6"}
@@ -21,9 +20,7 @@ class Camera:
     """A scene's fixed camera `name`: one `mujoco.Renderer` of the frame's size (height, width in pixels), reused
     for every frame."""
 
-    def __init__(
-        self, model: mujoco.MjModel, height: int = S.IMAGE_HEIGHT, width: int = S.IMAGE_WIDTH, name: str = S.CAMERA
-    ) -> None:
+    def __init__(self, model: mujoco.MjModel, height: int, width: int, name: str) -> None:
         self.name = name
         try:
             self._renderer = mujoco.Renderer(model, height, width)

@@ -5,6 +5,10 @@ waypoint) driving the mocap target for one control period, and the state a robot
 Observation: `observation.images.<camera>` (height, width, 3) uint8 and `observation.state` (8,) float32,
 runtime.spec.STATE_NAMES: the end effector's xyz (m), its quaternion xyzw and the gripper's opening (m, each
 finger's travel), at STATE_RESOLUTION. Action (8,) float32 in the same layout, clipped to the workspace.
+
+A task's environment adds `reset`, `step` and two hooks, as Gymnasium's MuJoCo environments add `reset_model`:
+`object_pose()` (the task's object, traced through an episode) and `judge(infos, **recorded)` (an episode's result,
+sim.episode.run_episode's, from the environment's infos: its task's scoring).
 """
 
 from __future__ import annotations
@@ -18,6 +22,7 @@ import numpy as np
 
 from cnep.runtime.constants import IMAGE_KEY_PREFIX, STATE_KEY
 from cnep.sim import scene as S
+from cnep.sim.episode import EpisodeResult
 from cnep.sim.render import Camera
 
 HOME_QUAT_XYZW = np.array([0.0, 0.0, 0.0, 1.0])
@@ -101,6 +106,15 @@ class TabletopEnv(gym.Env):
 
     def close(self) -> None:
         self.camera.close()
+
+    def object_pose(self) -> tuple[np.ndarray, np.ndarray]:
+        """The task's object's position (3,) m and quaternion xyzw (4,)."""
+        raise NotImplementedError
+
+    def judge(self, infos: list[dict], **recorded) -> EpisodeResult:
+        """An episode's result from `infos` (the reset's, then one per step) and what sim.episode.run_episode
+        `recorded` (EpisodeResult's fields)."""
+        raise NotImplementedError
 
     def ee_state(self) -> np.ndarray:
         """observation.state (8,) float32 (module docstring), at STATE_RESOLUTION."""

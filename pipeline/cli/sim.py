@@ -1,6 +1,6 @@
 """`cnep sim obstacle --out DIR`, `cnep sim pick-place --out DIR` and `cnep sim eval POLICY`: policies in closed loop
-in the simulator (the `sim` extra). The options are the fields of SimConfig, PickPlaceConfig and EvalConfig
-(pipeline.cli.fields)."""
+in the simulator (the `sim` extra), each task's run by the one stage (pipeline.sim.stage.run_sim). The options are
+the fields of SimConfig, PickPlaceConfig and EvalConfig (pipeline.cli.fields)."""
 
 from __future__ import annotations
 
@@ -27,14 +27,11 @@ EVAL_HELP = "run a policy (exported folder or checkpoint) in closed loop in the 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     sub = parser.add_subparsers(dest="sim_command", metavar="TASK", required=True)
-    obstacle = sub.add_parser("obstacle", help=OBSTACLE_HELP, description=OBSTACLE_HELP)
-    obstacle.add_argument("--out", required=True, help="a new or empty folder for everything")
-    add_options(obstacle, options(SimConfig))
-    obstacle.set_defaults(_sim=run_obstacle)
-    pick = sub.add_parser("pick-place", help=PICK_PLACE_HELP, description=PICK_PLACE_HELP)
-    pick.add_argument("--out", required=True, help="a new or empty folder for everything")
-    add_options(pick, options(PickPlaceConfig))
-    pick.set_defaults(_sim=run_pick)
+    for cls, help in ((SimConfig, OBSTACLE_HELP), (PickPlaceConfig, PICK_PLACE_HELP)):
+        task = sub.add_parser(cls.TASK, help=help, description=help)
+        task.add_argument("--out", required=True, help="a new or empty folder for everything")
+        add_options(task, options(cls))
+        task.set_defaults(_sim=run_task, _config=cls)
     evaluate = sub.add_parser("eval", help=EVAL_HELP, description=EVAL_HELP)
     evaluate.add_argument("policy", help="a folder written by `cnep export` (runs without torch) or `cnep train`")
     evaluate.add_argument("--out", help="a new or empty folder for summary.json and the recordings (default: none)")
@@ -56,10 +53,10 @@ def run(args: argparse.Namespace) -> int:
     return args._sim(args)
 
 
-def run_obstacle(args: argparse.Namespace) -> int:
+def run_task(args: argparse.Namespace) -> int:
     import time
 
-    config = config_of(SimConfig, args, out=args.out)  # checked before the stage loads
+    config = config_of(args._config, args, out=args.out)  # checked before the stage loads
     from cnep.pipeline.progress import heartbeat
 
     with heartbeat("loading torch and the simulator", args.quiet):
@@ -67,21 +64,6 @@ def run_obstacle(args: argparse.Namespace) -> int:
 
     start = time.perf_counter()
     summary = run_sim(config)
-    print(summary["table"])
-    print(f"features: {summary['features']}; wrote {config.out}/{SUMMARY_FILE} and the recordings in "
-          f"{config.out}/episodes; done in {time.perf_counter() - start:.0f} s")  # fmt: skip
-    return 0
-
-
-def run_pick(args: argparse.Namespace) -> int:
-    import time
-
-    config = config_of(PickPlaceConfig, args, out=args.out)  # checked before the stage loads
-    from cnep.pipeline.sim.pick_stage import run_pick_place
-    from cnep.pipeline.sim.stage import SUMMARY_FILE
-
-    start = time.perf_counter()
-    summary = run_pick_place(config)
     print(summary["table"])
     print(f"features: {summary['features']}; wrote {config.out}/{SUMMARY_FILE} and the recordings in "
           f"{config.out}/episodes; done in {time.perf_counter() - start:.0f} s")  # fmt: skip

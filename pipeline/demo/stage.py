@@ -404,17 +404,21 @@ def expert_labels(behaviours: dict[str, dict]) -> dict[int, str]:
     return {expert: ", ".join(names) for expert, names in taken.items()}
 
 
-def train_side_by_side(jobs: dict[str, TrainStageConfig], quiet: bool, started: float) -> None:
-    """Train each named job in a process of its own (their errors reach us), one bar per job here, fed by the
-    workers' reports (pipeline.progress.RemoteBar); `started`: the stage's perf_counter start, for the log."""
+def train_side_by_side(
+    jobs: dict[str, TrainStageConfig], quiet: bool, started: float, workers: int | None = None
+) -> None:
+    """Train each named job in a process of its own, `workers` at a time (None: all at once; their errors reach us),
+    one bar per job here, fed by the workers' reports (pipeline.progress.RemoteBar); `started`: the stage's
+    perf_counter start, for the log."""
+    workers = len(jobs) if workers is None else min(workers, len(jobs))
     bars = {
         name: progress_bar(total=job.training.steps, desc=f"train {name}", unit="step", quiet=quiet)
         for name, job in jobs.items()
     }
-    for bar in bars.values():
-        bar.set_postfix_str("starting (loading torch and the trajectories)")
+    for i, bar in enumerate(bars.values()):
+        bar.set_postfix_str("starting (loading torch and the trajectories)" if i < workers else "waiting for a worker")
     try:
-        with get_context("spawn").Manager() as manager, single_thread_processes(len(jobs), wait=False) as pool:
+        with get_context("spawn").Manager() as manager, single_thread_processes(workers, wait=False) as pool:
             reports = manager.Queue()
             pending = {pool.submit(train, job, RemoteBar(reports, name)): name for name, job in jobs.items()}
             while pending:

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import ClassVar
 
 from cnep.models.assignments import ASSIGNMENTS
 from cnep.models.config import setting
@@ -14,10 +15,10 @@ from cnep.pipeline.demo.config import AUTO_WEIGHTS
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.inputs import coerce_paths
 from cnep.runtime.conditioning import FIRST_EXPERTS, ConditioningPolicy
-from cnep.sim import scene
+from cnep.sim.tasks.obstacle import scene
 from cnep.sim.tasks.pick_place import scene as pick_scene
 
-OBSTACLE = "obstacle"
+OBSTACLE, PICK_PLACE = "obstacle", "pick-place"
 TASKS = (OBSTACLE,)
 PLANNED, ONLINE = "planned", "online"  # cnep.sim.episode's protocols, named here without importing MuJoCo
 PROTOCOLS = (PLANNED, ONLINE)
@@ -85,6 +86,7 @@ class SimConfig(LoopSettings):
     features' `weights` (`auto`: ImageNet's where they can be had, else seeded random ones: pipeline.demo.weights),
     one CNEP and one matched CNMP per training seed, each exported and run in closed loop."""
 
+    TASK: ClassVar[str] = OBSTACLE
     out: Path
     demonstrations: int = setting(40, "demonstrations generated (half pass left, half right)")
     seed: int = setting(0, "seed of the demonstrations (and of the feature network's random weights)")
@@ -100,6 +102,10 @@ class SimConfig(LoopSettings):
     nll_beta: float = setting(0.0, "the training loss's beta-NLL power, as `cnep train --nll-beta` takes it")
     weights: str = setting(AUTO_WEIGHTS, "the feature network's weights, as `cnep demo --weights` takes them")
     offline: bool = setting(False, "never download the ImageNet weights (also: environment variable CNEP_OFFLINE=1)")
+    baselines: bool = setting(
+        False, "also run ProMP and GMM-GMR (on PCA-reduced features) and nearest-demonstration retrieval in the loop"
+    )
+    pca: int = setting(8, "principal components of the features the baselines see (PCA fitted on the training frames)")
     quiet: bool = False
 
     def __post_init__(self) -> None:
@@ -110,6 +116,8 @@ class SimConfig(LoopSettings):
                 f"need >= 2 demonstrations, >= 1 training step, >= 2 experts and a training seed, got "
                 f"{self.demonstrations}, {self.train_steps}, {self.experts} and {self.train_seeds}"
             )
+        if self.pca < 1:
+            raise PipelineError(f"pca must be >= 1, got {self.pca}")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -134,6 +142,7 @@ class PickPlaceConfig:
     features' `weights`, one CNEP and one matched CNMP per training seed (and the baselines), each run in closed loop
     by each protocol in every condition."""
 
+    TASK: ClassVar[str] = PICK_PLACE
     out: Path
     demonstrations: int = setting(96, "demonstrations generated (each a scene drawn decided or free, its place drawn)")
     seed: int = setting(0, "seed of the demonstrations (and of the feature network's random weights)")

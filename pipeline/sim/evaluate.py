@@ -9,12 +9,14 @@ from dataclasses import asdict
 from pathlib import Path
 
 from cnep.outputs import write_atomically
+from cnep.pipeline.progress import progress_bar
 from cnep.pipeline.sim.config import EvalConfig
 from cnep.pipeline.sim.figure import FIGURE_FILE
-from cnep.pipeline.sim.loop import evaluate_policy
+from cnep.pipeline.sim.loop import episodes_of, evaluate_policy, open_task_policy
 from cnep.pipeline.sim.stage import SUMMARY_FILE, new_output_folder
 from cnep.pipeline.sim.summary import format_table
 from cnep.sim import require_extra
+from cnep.sim.tasks import find_task
 
 
 def run_eval(config: EvalConfig) -> dict:
@@ -33,18 +35,17 @@ def run_eval(config: EvalConfig) -> dict:
 
 
 def _evaluate(config: EvalConfig, label: str, out: Path | None) -> dict:
+    """The policy's results on its task (pipeline.sim.loop), its first episodes recorded into `out` (None: none)."""
+    task = find_task(config.task)
+    policy = open_task_policy(config.policy, task, config, extractor=config.extractor)
     figure = out / FIGURE_FILE if out is not None else None
-    return evaluate_policy(
-        config.policy,
-        config,
-        label=label,
-        extractor=config.extractor,
-        recordings=out,
-        figure=figure,
-        quiet=config.quiet,
-    )
+    with progress_bar(total=episodes_of(task, config), desc=label, unit="episode", quiet=config.quiet) as bar:
+        return evaluate_policy(
+            policy, task, config, label=label, recordings=out, figure=figure, progress=lambda n: bar.update(n - bar.n)
+        )
 
 
 def _summary(config: EvalConfig, results: dict) -> dict:
     settings = {k: str(v) if isinstance(v, Path) else v for k, v in asdict(config).items() if k != "quiet"}
-    return {"settings": settings, "results": next(iter(results.values())), "table": format_table(results)}
+    table = format_table(results, find_task(config.task))
+    return {"settings": settings, "results": next(iter(results.values())), "table": table}

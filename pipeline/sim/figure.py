@@ -1,11 +1,13 @@
-"""A picture of one closed-loop episode: a strip of camera frames, and the scene from above with the executed path,
-the waypoints the policy predicted at a few steps (in the active expert's colour), the box where it started and
-ended, and the goal. matplotlib comes from the `plots` extra; it is imported when the figure is drawn.
+"""A picture of one closed-loop episode: a strip of camera frames, and the scene from above as the task's drawing
+describes it (sim.drawing: its shapes, those that change as they ended, its object where it started and ended) with
+the executed path and the waypoints the policy predicted at a few steps (in the active expert's colour).
+matplotlib comes from the `plots` extra; it is imported when the figure is drawn.
 """
 
 from __future__ import annotations
 
 import io
+import math
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +15,7 @@ import numpy as np
 from cnep.outputs import write_atomically
 from cnep.pipeline.replay.viewer import PALETTE, PATH_COLOR
 from cnep.sim import scene as S
+from cnep.sim.drawing import Drawing, Shape
 from cnep.sim.episode import EpisodeResult
 
 FIGURE_FILE = "episode.png"
@@ -20,13 +23,12 @@ FRAMES = 6  # camera frames in the strip, evenly spaced over the episode
 PREDICTIONS = 4  # reads whose predicted waypoints are drawn, evenly spaced
 
 
-def draw_episode(ep: EpisodeResult, title: str, path: Path) -> Path:
-    """Draw episode `ep` (run with its frames recorded) into the PNG `path`."""
+def draw_episode(ep: EpisodeResult, title: str, path: Path, drawing: Drawing) -> Path:
+    """Draw episode `ep` (run with its frames recorded), its scene as `drawing` says, into the PNG `path`."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from matplotlib.patches import Circle, Rectangle
 
     n = len(ep.states)
     fig = plt.figure(figsize=(12, 5.2), dpi=100)
@@ -37,32 +39,48 @@ def draw_episode(ep: EpisodeResult, title: str, path: Path) -> Path:
         ax.set_title(f"step {k} ({k * S.CONTROL_PERIOD_S:.1f} s)", fontsize=8)
         ax.axis("off")
     ax = fig.add_subplot(grid[1, :FRAMES])
-    ax.add_patch(Rectangle((-S.TABLE_HALF[0], -S.TABLE_HALF[1]), 2 * S.TABLE_HALF[0], 2 * S.TABLE_HALF[1],
-                           color=S.TABLE_RGBA[:3], alpha=0.35))  # fmt: skip
-    ax.add_patch(Circle(S.GOAL_XY, S.GOAL_RADIUS, color=S.GOAL_RGBA[:3], alpha=0.8, label="goal"))
+    ended = {shape.name: shape for step in sorted(drawing.changes) for shape in drawing.changes[step]}
+    for shape in (*drawing.shapes, *ended.values()):
+        _from_above(ax, shape, alpha=0.35 if shape.name == S.TABLE_GEOM else 0.8)
     for k, alpha in ((0, 0.35), (n - 1, 0.9)):
-        x, y = ep.box[k, :2]
-        ax.add_patch(Rectangle((x - S.BOX_HALF[0], y - S.BOX_HALF[1]), 2 * S.BOX_HALF[0], 2 * S.BOX_HALF[1],
-                               color=S.BOX_RGBA[:3], alpha=alpha))  # fmt: skip
-    if ep.cue_side is not None:
-        cx = S.CUE_XY[0] * (-1 if ep.cue_side == "left" else 1)
-        ax.add_patch(Rectangle((cx - S.CUE_HALF, S.CUE_XY[1] - S.CUE_HALF), 2 * S.CUE_HALF, 2 * S.CUE_HALF,
-                               color=S.CUE_RGBA[:3], alpha=0.8, label="cue"))  # fmt: skip
+        _object_from_above(ax, drawing.obj, ep.object_poses[k], alpha)
     for k in np.unique(np.linspace(0, len(ep.predicted) - 1, PREDICTIONS).round().astype(int)):
         color = np.asarray(PALETTE[int(ep.experts[k]) % len(PALETTE)]) / 255
         ax.plot(*ep.predicted[k][:, :2].T, ":", color=color, lw=1.5, label=f"predicted at step {k}")
     ax.plot(*ep.states[:, :2].T, "-", color=np.asarray(PATH_COLOR) / 400, lw=2, label="executed path")
     ax.set_aspect("equal")
-    ax.set_xlim(-S.TABLE_HALF[0], S.TABLE_HALF[0])
-    ax.set_ylim(S.START_Y - 0.08, S.GOAL_Y + 0.08)
-    ax.set_xlabel("x (m): left < 0 < right, facing the goal")
+    ax.set_xlim(*drawing.view[0])
+    ax.set_ylim(*drawing.view[1])
+    ax.set_xlabel("x (m): left < 0 < right, facing +y")
     ax.set_ylabel("y (m)")
     ax.set_title("from above", fontsize=9)
     ax.legend(loc="center left", bbox_to_anchor=(1.02, 0.5), fontsize=8)
-    outcome = "success" if ep.success else "collision" if ep.collision else "missed the goal"
-    fig.suptitle(f"{title}: {outcome}, passed {ep.side}, min clearance {ep.clearance_m * 100:.1f} cm, "
-                 f"{ep.switches} expert switches", fontsize=10)  # fmt: skip
+    fig.suptitle(f"{title}: {drawing.outcome}, {ep.switches} expert switches", fontsize=10)
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", bbox_inches="tight")
     plt.close(fig)
     return write_atomically(path, buffer.getvalue())
+
+
+def _from_above(ax, shape: Shape, alpha: float) -> None:
+    """`shape`'s boxes (or discs) seen from above, labelled with its name (not the table's)."""
+    from matplotlib.patches import Circle, Rectangle
+
+    label = None if shape.name == S.TABLE_GEOM else shape.name
+    for (x, y, _), (hx, hy, _) in zip(shape.centres, shape.half_sizes):
+        patch = Circle((x, y), hx) if shape.disc else Rectangle((x - hx, y - hy), 2 * hx, 2 * hy)
+        patch.set(color=shape.rgba[:3], alpha=alpha, label=label)
+        ax.add_patch(patch)
+        label = None  # one legend entry per shape
+
+
+def _object_from_above(ax, obj: Shape, pose: np.ndarray, alpha: float) -> None:
+    """The object's box seen from above at `pose` (7,): position and quaternion xyzw (turned by its yaw)."""
+    from matplotlib.patches import Rectangle
+
+    (hx, hy, _), (x, y) = obj.half_sizes[0], pose[:2]
+    qx, qy, qz, qw = pose[3:7]
+    yaw = math.degrees(math.atan2(2 * (qw * qz + qx * qy), 1 - 2 * (qy * qy + qz * qz)))
+    box = Rectangle((x - hx, y - hy), 2 * hx, 2 * hy, angle=yaw, rotation_point="center")
+    box.set(color=obj.rgba[:3], alpha=alpha)
+    ax.add_patch(box)

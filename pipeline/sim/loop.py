@@ -1,81 +1,103 @@
-"""A policy in closed loop: `evaluate_policy` runs it for `episodes` episodes per protocol in the simulator, writes
-the first `record` of each as Rerun recordings and returns the rates and rows (pipeline.sim.summary).
+"""A policy in closed loop on a task: `evaluate_policy` runs it for `episodes` episodes per protocol (and per condition
+where the task has conditions) in the simulator, writes the first `record` of each as Rerun recordings and returns
+the rates and rows (the task's scoring: Task.row, Task.rates).
 
-Episode i is reset with seed `episode_seed + i`: every policy meets the same starts (and cue sides), and the same
-seed gives the same episode bit for bit. The demonstrations' starts come from other seeds
-(pipeline.sim.generate.DEMO_SEED_OFFSET), so every episode is unseen.
+Episode i is reset with seed `episode_seed + i`: every policy meets the same scenes, and the same seed gives the same
+episode bit for bit. The demonstrations come from other seeds (sim.task.demonstration_seed), so every episode is
+unseen.
 """
 
 from __future__ import annotations
 
 import importlib.util
 import logging
-from dataclasses import replace
+from collections.abc import Callable
+from dataclasses import fields, replace
 from pathlib import Path
 
-from cnep.pipeline.progress import progress_bar
 from cnep.pipeline.run.stage import open_policy
-from cnep.pipeline.sim.config import LoopSettings
 from cnep.pipeline.sim.figure import draw_episode
 from cnep.pipeline.sim.rerun_log import write_episode
-from cnep.pipeline.sim.summary import episode_row, rates
-from cnep.runtime import Policy
-from cnep.sim import ObstacleEnv, run_episode
-from cnep.sim import scene as S
+from cnep.runtime import ConditioningPolicy, Policy
+from cnep.sim.episode import run_episode
+from cnep.sim.task import Task
 
 log = logging.getLogger(__name__)
 
 POLICY_THREADS = 1  # intra-op threads of the policy's graphs: one episode steps them one frame at a time
 
 
+def episodes_of(task: Task, settings) -> int:
+    """The episodes one policy runs: per protocol, and per condition where the task has conditions."""
+    return settings.episodes * len(settings.protocols) * max(1, len(task.conditions))
+
+
 def evaluate_policy(
-    policy_path: Path,
-    settings: LoopSettings,
+    policy: Policy,
+    task: Task,
+    settings,
     *,
     label: str,
-    extractor: Path | None = None,
     recordings: Path | None = None,
     figure: Path | None = None,
-    quiet: bool = False,
+    progress: Callable[[int], None] | None = None,
 ) -> dict[str, dict]:
-    """Protocol -> rates (pipeline.sim.summary.rates) of the policy in `policy_path` (exported or checkpoint);
-    recordings: the folder for `<label>-<protocol>-seed<N>.rrd` (None: none written); figure: the PNG of the last
-    protocol's first episode (pipeline.sim.figure; None, or matplotlib missing: none drawn)."""
-    policy = _policy(policy_path, extractor, settings.first_expert)
-    env = ObstacleEnv(cue=settings.cue, max_steps=settings.max_steps)
-    results = {}
-    try:
-        for protocol in settings.protocols:
-            rows = []
-            bar = progress_bar(range(settings.episodes), desc=f"{label} {protocol}", unit="episode", quiet=quiet)
-            for i in bar:
-                seed = settings.episode_seed + i
-                record = recordings is not None and i < settings.record
-                drawn = figure is not None and i == 0 and protocol == settings.protocols[-1] and _plots()
-                ep = run_episode(env, policy, seed, protocol, record_frames=record or drawn)
-                name = f"{label}-{protocol}-seed{seed}"
-                if record:
-                    write_episode(recordings / f"{name}.rrd", name, ep, policy.n_experts)
-                if drawn:
-                    draw_episode(ep, name, figure)
-                rows.append(episode_row(ep))
-            results[protocol] = rates(rows)
-    finally:
-        env.close()
+    """Protocol -> rates (Task.rates; where the task has conditions, protocol -> condition -> rates) of `policy` (a
+    runtime.Policy, or a baseline behind its interface, its waypoints covering the task's episode for PLANNED).
+    settings: the loop's (pipeline.sim.config: episodes, max_steps, episode_seed, protocols, record and the task's
+    variants); recordings: the folder for `<label>-<protocol>[-<condition>]-seed<N>.rrd` (None: none written);
+    figure: the PNG of the first episode of the last protocol and condition (pipeline.sim.figure; None, or matplotlib
+    missing: none drawn); progress: called with the number of episodes done after each."""
+    variants = {name: getattr(settings, name) for name in task.variants}
+    conditions = task.conditions or (None,)
+    results: dict[str, dict] = {protocol: {} for protocol in settings.protocols}
+    done = 0
+    for condition in conditions:
+        env = task.make_env(condition, settings.max_steps, **variants)
+        try:
+            for protocol in settings.protocols:
+                rows = []
+                for i in range(settings.episodes):
+                    seed = settings.episode_seed + i
+                    record = recordings is not None and i < settings.record
+                    last = (protocol, condition) == (settings.protocols[-1], conditions[-1])
+                    drawn = figure is not None and i == 0 and last and _plots()
+                    ep = run_episode(env, policy, seed, protocol, record_frames=record or drawn)
+                    name = "-".join([label, protocol, *([condition] if condition else []), f"seed{seed}"])
+                    if record:
+                        write_episode(recordings / f"{name}.rrd", name, ep, policy.n_experts, task.drawing(ep))
+                    if drawn:
+                        draw_episode(ep, name, figure, task.drawing(ep))
+                    rows.append(task.row(ep))
+                    done += 1
+                    if progress is not None:
+                        progress(done)
+                if condition is None:
+                    results[protocol] = task.rates(rows)
+                else:
+                    results[protocol][condition] = task.rates(rows)
+        finally:
+            env.close()
     return results
 
 
-def _policy(path: Path, extractor: Path | None, first_expert: str) -> Policy:
-    """The policy in `path`, its waypoints covering the task's episode (a plan: a limit of steps cuts it short or
-    holds its end, and never rescales it), its first expert chosen by `first_expert`; the rest of its conditioning
-    its own."""
-    policy = open_policy(path, extractor=extractor, threads=POLICY_THREADS, waypoints=S.MAX_STEPS)
-    if policy.spec.conditioning.first_expert == first_expert:
+def open_task_policy(path: Path, task: Task, settings, extractor: Path | None = None) -> Policy:
+    """The policy in `path` (exported or checkpoint), its waypoints covering the task's episode (a plan: a limit of
+    steps cuts it short or holds its end, and never rescales it), its conditioning its own but for the settings'
+    conditioning fields that are set (runtime.ConditioningPolicy's: window, anchors, first_expert, ...)."""
+    policy = open_policy(path, extractor=extractor, threads=POLICY_THREADS, waypoints=task.max_steps)
+    conditioning = conditioning_of(policy.spec.conditioning, settings)
+    if conditioning == policy.spec.conditioning:
         return policy
-    conditioning = replace(policy.spec.conditioning, first_expert=first_expert)
     return open_policy(
-        path, extractor=extractor, threads=POLICY_THREADS, waypoints=S.MAX_STEPS, conditioning=conditioning
+        path, extractor=extractor, threads=POLICY_THREADS, waypoints=task.max_steps, conditioning=conditioning
     )
+
+
+def conditioning_of(own: ConditioningPolicy, settings) -> ConditioningPolicy:
+    """`own` with each of its fields that `settings` sets (not None) replaced by the settings' value."""
+    changed = {f.name: getattr(settings, f.name) for f in fields(own) if getattr(settings, f.name, None) is not None}
+    return replace(own, **changed)
 
 
 def _plots() -> bool:

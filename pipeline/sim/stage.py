@@ -1,20 +1,23 @@
-"""`cnep sim obstacle`: from nothing to the closed-loop table, through the stages a user runs.
+"""`cnep sim TASK` (obstacle, pick-place): from nothing to the closed-loop table, through the stages a user runs, for
+any task of the simulator (sim.task.Task).
 
 Stages (each logs its progress), all under OUT:
 
-1. generate   `recorded/demo_NNN/` frames (PNG) + `poses.csv`: the scripted demonstrator driving the simulator
+1. generate   `recorded/demo_NNN/` frames (PNG) + `poses.csv`: the task's scripted demonstrator driving the simulator
               (pipeline.sim.generate), as a user's robot would record them;
-2. ingest     `demos/`: `cnep ingest` of those folders;
+2. ingest     `demos/`: `cnep ingest` of those folders (the task's name their task);
 3. extract    `trajectories/`: MobileNet-v2 features with the weights `config.weights` chooses (pipeline.demo.weights:
               ImageNet's where they can be had, else seeded random ones calibrated on these frames), saved to
               `extractor.pt`;
-4. train      `checkpoints/{cnep,cnmp}-seedN`: per training seed the CNEP and the parameter-matched CNMP, side by
-              side (layout `scene`: observe features + pose + gripper, query with time, predict pose + gripper);
+4. train      `checkpoints/{cnep,cnmp}-seedN`: per training seed the CNEP and the parameter-matched CNMP, two at a
+              time (layout `scene`: observe features + pose + gripper, query with time, predict pose + gripper);
 5. export     `policies/{cnep,cnmp}-seedN`: each checkpoint as a torch-free policy folder (`cnep export`);
-6. closed loop `episodes/*.rrd` (the first `record` episodes of each policy and protocol) and `summary.json`: every
-              exported policy in closed loop (cnep.runtime.load_policy) by each protocol (pipeline.sim.loop);
+6. closed loop `episodes/*.rrd` (the first `record` episodes of each policy, protocol and condition) and
+              `summary.json`: every exported policy (and with `baselines` ProMP, GMM-GMR and the nearest
+              demonstration, pipeline.sim.baselines) in closed loop (cnep.runtime.load_policy) by each protocol, in
+              each of the task's conditions (pipeline.sim.loop), two policies at a time in single-threaded processes;
               `episode.png` (pipeline.sim.figure, with matplotlib): the first CNEP's first episode of the last
-              protocol.
+              protocol and condition.
 
 A failed or interrupted run leaves the folder as empty as it found it.
 """
@@ -24,45 +27,52 @@ from __future__ import annotations
 import json
 import logging
 import shutil
-import time
 from collections.abc import Callable, Iterator
-from concurrent.futures import as_completed
+from concurrent.futures import FIRST_COMPLETED, wait
 from contextlib import contextmanager
-from dataclasses import asdict, fields, replace
+from dataclasses import asdict, replace
+from multiprocessing import get_context
 from pathlib import Path
 
 from cnep.models import CNEPConfig, TrainConfig
 from cnep.outputs import output_lock, write_atomically
 from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_file_as_folder
-from cnep.pipeline.demo.stage import CNMP_ASSIGNMENT, LAYOUT, quiet_per_file_logs
+from cnep.pipeline.demo.stage import CNMP_ASSIGNMENT, LAYOUT, quiet_per_file_logs, train_side_by_side
 from cnep.pipeline.demo.weights import choose_weights
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.export.config import ExportConfig
 from cnep.pipeline.export.stage import export
 from cnep.pipeline.extract.stage import ExtractConfig, extract
 from cnep.pipeline.ingest.stage import IngestConfig, ingest
-from cnep.pipeline.progress import StageClock
-from cnep.pipeline.sim.config import LoopSettings, PickPlaceConfig, SimConfig
+from cnep.pipeline.progress import REPORT_INTERVAL_S, RemoteBar, StageClock, follow_total, progress_bar
+from cnep.pipeline.sim.baselines import BASELINES, baseline_policy
+from cnep.pipeline.sim.config import PickPlaceConfig, SimConfig
 from cnep.pipeline.sim.figure import FIGURE_FILE
-from cnep.pipeline.sim.generate import Generated, generate_demonstrations
-from cnep.pipeline.sim.loop import evaluate_policy
+from cnep.pipeline.sim.generate import TIME_UNIT, generate_demonstrations
+from cnep.pipeline.sim.loop import episodes_of, evaluate_policy, open_task_policy
 from cnep.pipeline.sim.summary import format_table
-from cnep.pipeline.train.stage import TrainStageConfig, train
+from cnep.pipeline.train.stage import TrainStageConfig
 from cnep.pipeline.workers import single_thread_processes
 from cnep.recordings import read_trajectory
+from cnep.recordings.csv_motion import CsvColumns
 from cnep.sim import require_extra
+from cnep.sim.task import Task
+from cnep.sim.tasks import find_task
 
 log = logging.getLogger(__name__)
 
 SUMMARY_FILE = "summary.json"
 EXTRACTOR_FILE = "extractor.pt"
 STAGES = ("generate", "ingest", "extract", "train", "export", "closed loop")
+WORKERS = 2  # processes training the models, then running the policies in closed loop
 
 
-def run_sim(config: SimConfig) -> dict:
-    """Run every stage into `config.out` (module docstring); returns the summary (also OUT/summary.json)."""
+def run_sim(config: SimConfig | PickPlaceConfig) -> dict:
+    """Run every stage of the task `config.TASK` into `config.out` (module docstring); returns the summary (also
+    OUT/summary.json)."""
     require_extra()
-    return run_in_new_folder(Path(config.out), "cnep sim obstacle", lambda out: _run_stages(config, out))
+    task = find_task(config.TASK)
+    return run_in_new_folder(Path(config.out), f"cnep sim {task.name}", lambda out: _run_stages(config, task, out))
 
 
 def run_in_new_folder(out: Path, command: str, stages: Callable[[Path], dict]) -> dict:
@@ -93,63 +103,44 @@ def new_output_folder(out: Path, command: str) -> Iterator[Path]:
         yield lock
 
 
-def _run_stages(config: SimConfig, out: Path) -> dict:
-    """The six stages in order, each timed; returns the summary."""
-    made, results, shared = run_stages(
-        config,
-        out,
-        lambda recorded: generate_demonstrations(
-            recorded, config.demonstrations, config.seed, config.cue, config.quiet
-        ),
-        lambda policies: _closed_loop(config, out, policies),
-    )
-    return {
-        "task": config.task,
-        "cue": config.cue,
-        **shared,
-        "demonstrations": {
-            "n": len(made.folders),
-            "left": made.sides.count("left"),
-            "right": made.sides.count("right"),
-            "clean": made.successes,
-        },
-        "models": by_model(results),
-        "table": format_table(results),
-        "seconds": shared.pop("seconds"),
-    }
-
-
-def run_stages(
-    config: SimConfig | PickPlaceConfig,
-    out: Path,
-    generate: Callable[[Path], Generated],
-    closed_loop: Callable[[dict[str, Path]], dict[str, dict]],
-) -> tuple[Generated, dict[str, dict], dict]:
-    """A task's six stages (STAGES) in order, each timed: `generate` writes the demonstrations into the folder it is
-    given, `closed_loop` runs the exported policies (label -> folder). Returns the demonstrations, the closed loop's
-    results and the summary's entries every task has (settings, features, imagenet_unavailable, seconds)."""
+def _run_stages(config: SimConfig | PickPlaceConfig, task: Task, out: Path) -> dict:
+    """The six stages (STAGES) in order, each timed; returns the summary."""
     seconds: dict[str, float] = {}
     timed = StageClock(seconds, len(STAGES), log)
     chosen = choose_weights(config.weights, config.offline)  # before anything is made: `imagenet` may be refused
+    variants = {name: getattr(config, name) for name in task.variants}
     with timed("generate", 1):
-        made = generate(out / "recorded")
+        made = generate_demonstrations(
+            task, out / "recorded", config.demonstrations, config.seed, config.quiet, **variants
+        )
     with timed("ingest", 2):
-        ingest(IngestConfig(src=out / "recorded", out=out / "demos", quiet=config.quiet))
+        columns = CsvColumns(time_unit=TIME_UNIT)
+        ingest(
+            IngestConfig(src=out / "recorded", out=out / "demos", columns=columns, task=task.name, quiet=config.quiet)
+        )
     with timed("extract", 3):
         extract_features(config, out, chosen.weights)
     with timed("train", 4):
-        checkpoints = train_models(config, out)
+        checkpoints = train_models(config, out, started=seconds["train"])
     with timed("export", 5):
         policies = export_policies(checkpoints, out)
     with timed("closed loop", 6):
-        results = closed_loop(policies)
-    shared = {
+        results = _closed_loop(config, task, out, policies)
+    return {
+        "task": task.name,
+        **variants,
         "settings": {k: v for k, v in asdict(config).items() if k not in ("out", "quiet")},
         "features": read_trajectory(next((out / "trajectories").glob("*.mcap"))).extractor["weights"],
         "imagenet_unavailable": chosen.imagenet_unavailable,
+        "demonstrations": {
+            "n": len(made.folders),
+            **task.describe_demonstrations(made.behaviours),
+            "clean": made.successes,
+        },
+        "models": by_model(results),
+        "table": format_table(results, task),
         "seconds": seconds,
     }
-    return made, results, shared
 
 
 def extract_features(config: SimConfig | PickPlaceConfig, out: Path, weights: str) -> None:
@@ -167,6 +158,31 @@ def extract_features(config: SimConfig | PickPlaceConfig, out: Path, weights: st
     )
 
 
+def train_models(config: SimConfig | PickPlaceConfig, out: Path, started: float) -> dict[str, Path]:
+    """Stage 4: the CNEP and the matched CNMP for every training seed, WORKERS at a time, a bar each; label ->
+    checkpoint. started: the stage's start (time.perf_counter), for the log."""
+    model = CNEPConfig(n_experts=config.experts, assignment=config.assignment)
+    networks = {
+        "CNEP": {"model": model},
+        "CNMP": {"model": replace(model, assignment=CNMP_ASSIGNMENT), "matched_cnmp": True},
+    }
+    checkpoints, jobs = {}, {}
+    for seed in config.train_seeds:
+        training = replace(TrainConfig(), steps=config.train_steps, warmup_steps=config.train_steps // 6,
+                           val_every=max(1, config.train_steps // 12), patience=None, seed=seed,
+                           nll_beta=config.nll_beta)  # fmt: skip
+        for name, network in networks.items():
+            label = f"{name}-seed{seed}"
+            checkpoints[label] = out / "checkpoints" / f"{name.lower()}-seed{seed}"
+            jobs[label] = TrainStageConfig(
+                inputs=(out / "trajectories",), out=checkpoints[label], layout=LAYOUT, training=training, quiet=True,
+                **network,
+            )  # fmt: skip
+    log.info("training %d models, %d at a time (%d steps each)", len(jobs), WORKERS, config.train_steps)
+    train_side_by_side(jobs, config.quiet, started, workers=WORKERS)
+    return checkpoints
+
+
 def export_policies(checkpoints: dict[str, Path], out: Path) -> dict[str, Path]:
     """Stage 5: each checkpoint as a policy folder under OUT/policies; label -> folder."""
     policies = {}
@@ -177,61 +193,67 @@ def export_policies(checkpoints: dict[str, Path], out: Path) -> dict[str, Path]:
     return policies
 
 
-def _closed_loop(config: SimConfig, out: Path, policies: dict[str, Path]) -> dict[str, dict]:
-    """Stage 6: every policy in closed loop, its first episodes recorded under OUT/episodes, the first policy's
-    episode drawn into OUT/episode.png; label -> results."""
+def _closed_loop(
+    config: SimConfig | PickPlaceConfig, task: Task, out: Path, policies: dict[str, Path]
+) -> dict[str, dict]:
+    """Stage 6: every policy (and the baselines, fitted with the first training seed's CNEP's normaliser and feature
+    graph: they carry that seed in their label) in closed loop, WORKERS at a time in single-threaded processes, one
+    bar counting their episodes; its first episodes recorded under OUT/episodes, the first policy's drawn into
+    OUT/episode.png; label -> results."""
     (out / "episodes").mkdir()
-    settings = LoopSettings(**{f.name: getattr(config, f.name) for f in fields(LoopSettings)})
-    first = next(iter(policies))
-    return {
-        label: evaluate_policy(
-            path, settings, label=label, recordings=out / "episodes", quiet=config.quiet,
-            figure=out / FIGURE_FILE if label == first else None,
-        )
-        for label, path in policies.items()
-    }  # fmt: skip
-
-
-def train_models(config: SimConfig | PickPlaceConfig, out: Path) -> dict[str, Path]:
-    """Train the CNEP and the matched CNMP for every training seed, two processes at a time; label -> checkpoint."""
-    model = CNEPConfig(n_experts=config.experts, assignment=config.assignment)
-    networks = {
-        "CNEP": {"model": model},
-        "CNMP": {"model": replace(model, assignment=CNMP_ASSIGNMENT), "matched_cnmp": True},
-    }
-    jobs = {
-        f"{model}-seed{seed}": (out / "checkpoints" / f"{model.lower()}-seed{seed}", seed, network)
-        for seed in config.train_seeds
-        for model, network in networks.items()
-    }
-    log.info("training %d models, two at a time (%d steps each)", len(jobs), config.train_steps)
-    start = time.perf_counter()
-    with single_thread_processes(2) as pool:
-        futures = {
-            pool.submit(
-                train,
-                TrainStageConfig(
-                    inputs=(out / "trajectories",),
-                    out=path,
-                    layout=LAYOUT,
-                    training=replace(TrainConfig(), steps=config.train_steps, warmup_steps=config.train_steps // 6,
-                                     val_every=max(1, config.train_steps // 12), patience=None, seed=seed,
-                                     nll_beta=config.nll_beta),
-                    quiet=True,
-                    **network,
-                ),
-            ): label
-            for label, (path, seed, network) in jobs.items()
+    jobs = {label: (path, None) for label, path in policies.items()}
+    if config.baselines:
+        first = config.train_seeds[0]
+        jobs.update({f"{name}-seed{first}": (policies[f"CNEP-seed{first}"], name) for name in BASELINES})
+    figure = {next(iter(policies)): out / FIGURE_FILE}
+    results: dict[str, dict] = {}
+    total = episodes_of(task, config) * len(jobs)
+    with (
+        progress_bar(total=total, desc="closed loop", unit="episode", quiet=config.quiet) as bar,
+        get_context("spawn").Manager() as manager,
+        single_thread_processes(WORKERS) as pool,
+    ):
+        reports, counts = manager.Queue(), {}
+        pending = {
+            pool.submit(_evaluate, config, task.name, out, label, *job, RemoteBar(reports, label), figure.get(label)):
+            label for label, job in jobs.items()
         }  # fmt: skip
-        for future in as_completed(futures):
-            future.result()
-            log.info("%s trained (%.0f s into the stage)", futures[future], time.perf_counter() - start)
-    return {label: path for label, (path, _, _) in jobs.items()}
+        while pending:
+            finished, _ = wait(pending, timeout=REPORT_INTERVAL_S, return_when=FIRST_COMPLETED)
+            follow_total(reports, bar, counts)
+            for future in finished:
+                results[pending.pop(future)] = future.result()
+    return {label: results[label] for label in jobs}
+
+
+def _evaluate(
+    config: SimConfig | PickPlaceConfig,
+    task_name: str,
+    out: Path,
+    label: str,
+    path: Path,
+    baseline: str | None,
+    bar: RemoteBar,
+    figure: Path | None,
+) -> dict:
+    """One policy's closed loop (in a worker): the exported policy `path`, or the baseline `baseline` fitted beside
+    the exported CNEP `path`, its waypoints covering the task's episode (a plan for PLANNED, which `max_steps` cuts
+    short or holds at its end; ONLINE acts on the first)."""
+    task = find_task(task_name)
+    if baseline is None:
+        policy = open_task_policy(path, task, config)
+    else:
+        trajectories = sorted((out / "trajectories").glob("*.mcap"))
+        policy = baseline_policy(baseline, path, trajectories, config.pca, waypoints=task.max_steps)
+    results = evaluate_policy(
+        policy, task, config, label=label, recordings=out / "episodes", figure=figure, progress=bar.update
+    )
+    bar.update(episodes_of(task, config), final=True)
+    return results
 
 
 def by_model(results: dict[str, dict]) -> dict[str, dict[str, dict]]:
-    """label `MODEL-seedN` -> {MODEL: {N: its results}}: protocol -> rates (pick and place: protocol -> condition ->
-    rates)."""
+    """label `MODEL-seedN` -> {MODEL: {N: its results}}: protocol -> rates (or protocol -> condition -> rates)."""
     models: dict[str, dict[str, dict]] = {}
     for label, protocols in results.items():
         model, seed = label.split("-seed")

@@ -37,11 +37,11 @@ def in_process(workers: int, wait: bool = True):
 
 @pytest.fixture
 def sim_pools_in_process(monkeypatch, one_thread):
-    """The sim stages' worker pools (training, the pick-and-place closed loop) run their jobs in this process, on one
-    torch thread as in a worker: no process to start, no torch to import again. The pools themselves are
-    pipeline.workers' (tests/pipeline/test_workers.py), and the quick demo trains the same `train` jobs in them."""
-    import cnep.pipeline.sim.pick_stage as pick_stage
+    """The sim stage's worker pools (training, the closed loop) run their jobs in this process, on one torch thread as
+    in a worker: no process to start, no torch to import again. The pools themselves are pipeline.workers'
+    (tests/pipeline/test_workers.py), and the quick demo trains the same `train` jobs in them."""
+    import cnep.pipeline.demo.stage as demo_stage
     import cnep.pipeline.sim.stage as sim_stage
 
-    for module in (sim_stage, pick_stage):
+    for module in (sim_stage, demo_stage):  # the closed loop's pool; the training's (demo.stage.train_side_by_side)
         monkeypatch.setattr(module, "single_thread_processes", in_process)

@@ -8,6 +8,7 @@ import numpy as np
 from cnep.runtime import Columns, ConditioningPolicy, Policy, PolicySpec, TimeBase
 from cnep.sim import DemoDraw, demonstration_path
 from cnep.sim import scene as S
+from cnep.sim.tasks.obstacle import scene as O
 
 STEPS = 40  # the paths' control steps: the time base's duration is STEPS periods
 
@@ -17,7 +18,7 @@ class ScriptedNetwork:
 
     def __init__(self, gate: tuple[float, float]) -> None:
         self.gate = np.asarray(gate, dtype=np.float32)
-        paths = [demonstration_path(DemoDraw(side, STEPS, 0.21, 0.8, 0.5), np.array([0.0, S.START_Y])) for side in
+        paths = [demonstration_path(DemoDraw(side, STEPS, 0.21, 0.8, 0.5), np.array([0.0, O.START_Y])) for side in
                  ("left", "right")]  # fmt: skip
         self.paths = np.stack(paths)  # (2, STEPS, 3): waypoint k at phase (k + 1) / STEPS
 
@@ -33,7 +34,7 @@ class ScriptedNetwork:
 
 
 def scripted_policy(
-    gate: tuple[float, float] = (0.9, 0.1), waypoints: int = S.MAX_STEPS, first_expert: str = "argmax"
+    gate: tuple[float, float] = (0.9, 0.1), waypoints: int = O.MAX_STEPS, first_expert: str = "argmax"
 ) -> Policy:
     """The scripted policy (motion only: it sees no camera) with a fixed `gate` over (left, right)."""
     columns = Columns(((0, 8),), (), ((0, 8),), np.zeros(8, np.float32), np.ones(8, np.float32))

@@ -10,7 +10,7 @@ from cnep.pipeline.cli.main import build_parser, main
 from cnep.pipeline.cli.sim import config_of
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.sim.config import PROTOCOLS, EvalConfig, PickPlaceConfig, SimConfig
-from cnep.sim import scene as S
+from cnep.sim.tasks.obstacle import scene as O
 from cnep.sim.tasks.pick_place import scene as P
 
 
@@ -51,9 +51,9 @@ def test_eval_arguments_become_its_settings():
 
 def test_max_steps_defaults_to_each_tasks_episode_and_must_be_at_least_one():
     for command, cls, given, task_steps in (
-        (["obstacle", "--out", "x"], SimConfig, {"out": "x"}, S.MAX_STEPS),
+        (["obstacle", "--out", "x"], SimConfig, {"out": "x"}, O.MAX_STEPS),
         (["pick-place", "--out", "x"], PickPlaceConfig, {"out": "x"}, P.MAX_STEPS),
-        (["eval", "p"], EvalConfig, {"policy": "p"}, S.MAX_STEPS),
+        (["eval", "p"], EvalConfig, {"policy": "p"}, O.MAX_STEPS),
     ):
         assert config_of(cls, build_parser().parse_args(["sim", *command]), **given).max_steps == task_steps
         args = build_parser().parse_args(["sim", *command, "--max-steps", "12"])

@@ -19,6 +19,7 @@ from cnep.runtime import STATE_KEY  # noqa: E402
 from cnep.sim import CUE_ENV_ID, ENV_ID, IMAGE_KEY, ObstacleEnv, demonstration_path, draw_demonstration  # noqa: E402
 from cnep.sim import scene as S  # noqa: E402
 from cnep.sim.episode import ONLINE, PLANNED, run_episode  # noqa: E402
+from cnep.sim.tasks.obstacle import scene as O  # noqa: E402
 from tests.sim.scripted import scripted_policy  # noqa: E402
 
 
@@ -34,7 +35,7 @@ def test_the_environment_passes_gymnasiums_checker_and_is_registered():
     check_env(env.unwrapped, skip_render_check=True)
     observation, _ = env.reset(seed=0)
     assert (
-        observation[IMAGE_KEY].shape == (S.IMAGE_HEIGHT, S.IMAGE_WIDTH, 3) and observation[IMAGE_KEY].dtype == np.uint8
+        observation[IMAGE_KEY].shape == (O.IMAGE_HEIGHT, O.IMAGE_WIDTH, 3) and observation[IMAGE_KEY].dtype == np.uint8
     )
     assert observation[STATE_KEY].shape == (8,)
     env.close()
@@ -59,7 +60,7 @@ def test_the_scripted_demonstrator_reaches_the_goal_clear_of_the_box(env, side):
 
 
 def test_driving_through_the_box_is_a_collision_read_from_the_contacts(env):
-    observation, info = env.reset(seed=0, options={"start": (0.0, S.START_Y)})
+    observation, info = env.reset(seed=0, options={"start": (0.0, O.START_Y)})
     action = observation[STATE_KEY].copy()
     for _ in range(30):
         action[1] += 0.02
@@ -78,7 +79,7 @@ def test_a_closed_loop_episode_succeeds_and_the_same_seed_repeats_it_exactly(env
     assert first.success and not first.collision and first.side == "right" and first.switches == 0
     assert len(first.gates) == (1 if protocol == PLANNED else len(first.states) - 1)
     np.testing.assert_array_equal(first.states, again.states)
-    np.testing.assert_array_equal(first.box, again.box)
+    np.testing.assert_array_equal(first.object_poses, again.object_poses)
     assert (first.clearance_m, first.distance_to_goal_m) == (again.clearance_m, again.distance_to_goal_m)
     assert not np.array_equal(first.states[0], other.states[0])  # another seed, another start
 
@@ -93,16 +94,18 @@ def test_with_the_split_option_episodes_take_both_sides_each_keeping_one_and_a_s
 
 def test_an_episode_run_with_its_frames_is_written_as_a_recording(env, tmp_path):
     from cnep.pipeline.sim.rerun_log import write_episode
+    from cnep.sim.tasks.obstacle.drawing import drawing
 
     ep = run_episode(env, scripted_policy(gate=(0.2, 0.8)), seed=5, protocol=ONLINE, record_frames=True)
     assert ep.frames is not None and len(ep.frames) == len(ep.states)
-    path = write_episode(tmp_path / "episode.rrd", "episode", ep, n_experts=2)
+    path = write_episode(tmp_path / "episode.rrd", "episode", ep, 2, drawing(ep))
     assert path == tmp_path / "episode.rrd" and path.read_bytes()[:4] == b"RRF2"
 
 
 def test_the_step_limit_truncates_every_episode_and_leaves_the_plan_spanning_the_task(monkeypatch):
     import cnep.pipeline.sim.loop as loop
     from cnep.pipeline.sim.config import LoopSettings
+    from cnep.sim.tasks import find_task
 
     opened = []
 
@@ -111,8 +114,9 @@ def test_the_step_limit_truncates_every_episode_and_leaves_the_plan_spanning_the
         return scripted_policy(gate=(0.2, 0.8), waypoints=waypoints)
 
     monkeypatch.setattr(loop, "open_policy", open_scripted)
-    results = loop.evaluate_policy(Path("scripted"), LoopSettings(episodes=2, max_steps=7), label="s", quiet=True)
-    assert opened == [S.MAX_STEPS]  # the plan: the task's steps, not the limit's
+    task, settings = find_task("obstacle"), LoopSettings(episodes=2, max_steps=7)
+    results = loop.evaluate_policy(loop.open_task_policy(Path("scripted"), task, settings), task, settings, label="s")
+    assert opened == [O.MAX_STEPS]  # the plan: the task's steps, not the limit's
     assert list(results) == [PLANNED, ONLINE]
     for rates in results.values():
         assert [(row["steps"], row["success"]) for row in rates["per_episode"]] == [(7, False), (7, False)]

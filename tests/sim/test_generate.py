@@ -12,12 +12,13 @@ if not all(importlib.util.find_spec(name) for name in cnep.sim.EXTRA):
 from cnep.pipeline.ingest.stage import IngestConfig, ingest  # noqa: E402
 from cnep.pipeline.sim.generate import CSV_FILE, generate_demonstrations  # noqa: E402
 from cnep.recordings import read_demonstration  # noqa: E402
-from cnep.sim import scene as S  # noqa: E402
+from cnep.sim.tasks import find_task  # noqa: E402
+from cnep.sim.tasks.obstacle import scene as O  # noqa: E402
 
 
 def test_generated_demonstrations_are_balanced_clean_and_ingested_as_a_users_recordings(tmp_path):
-    made = generate_demonstrations(tmp_path / "recorded", 2, seed=3, quiet=True)
-    assert sorted(made.sides) == ["left", "right"] and made.successes == 2
+    made = generate_demonstrations(find_task("obstacle"), tmp_path / "recorded", 2, seed=3, quiet=True)
+    assert sorted(made.behaviours) == ["left", "right"] and made.successes == 2
     folder = made.folders[0]
     frames = sorted(folder.glob("frame_*.png"))
     rows = (folder / CSV_FILE).read_text().splitlines()
@@ -25,4 +26,4 @@ def test_generated_demonstrations_are_balanced_clean_and_ingested_as_a_users_rec
     ingest(IngestConfig(src=tmp_path / "recorded", out=tmp_path / "demos", quiet=True))
     demo = read_demonstration(tmp_path / "demos" / f"{folder.name}.mcap")
     assert demo.frames is not None and len(demo.frames) == len(frames)
-    assert abs(demo.pose[-1, 1] - S.GOAL_Y) < S.GOAL_TOLERANCE
+    assert abs(demo.pose[-1, 1] - O.GOAL_Y) < O.GOAL_TOLERANCE

@@ -3,6 +3,7 @@ seed, by both protocols (the planned one reads the policy once and executes its 
 after a change of the table, the rates, the table, and a recording per protocol."""
 
 import importlib.util
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -12,23 +13,33 @@ import cnep.sim
 if not all(importlib.util.find_spec(name) for name in cnep.sim.EXTRA):
     pytest.skip("the sim extra is not installed", allow_module_level=True)
 
-from cnep.pipeline.sim.pick_loop import evaluate_pick_policy  # noqa: E402
-from cnep.pipeline.sim.pick_summary import format_pick_table, pick_rates  # noqa: E402
+from cnep.pipeline.sim.config import LoopSettings  # noqa: E402
+from cnep.pipeline.sim.loop import evaluate_policy  # noqa: E402
+from cnep.pipeline.sim.summary import format_table  # noqa: E402
 from cnep.sim import PickPlaceEnv  # noqa: E402
-from cnep.sim.episode import ONLINE, PLANNED, Driver  # noqa: E402
+from cnep.sim.episode import (  # noqa: E402
+    ONLINE,
+    PLANNED,
+    Driver,
+    run_episode,  # noqa: E402
+)
+from cnep.sim.tasks import find_task  # noqa: E402
 from cnep.sim.tasks.pick_place import scene as P  # noqa: E402
-from cnep.sim.tasks.pick_place.episode import first_switch, run_pick_episode  # noqa: E402
+from cnep.sim.tasks.pick_place.scoring import (
+    first_switch,  # noqa: E402
+    pick_rates,  # noqa: E402
+)
 from tests.sim.pick_scripted import pick_policy  # noqa: E402
 
 
 def test_a_few_closed_loop_steps_repeat_exactly_with_the_same_seed():
     env = PickPlaceEnv(P.FREE, max_steps=6)
     policy = pick_policy(gate=(0.1, 0.7, 0.1, 0.1))
-    first, again, other = (run_pick_episode(env, policy, seed) for seed in (3, 3, 4))
+    first, again, other = (run_episode(env, policy, seed) for seed in (3, 3, 4))
     env.close()
     assert len(first.states) == 7 and not first.success and first.experts.tolist() == [1] * 6
     np.testing.assert_array_equal(first.states, again.states)
-    np.testing.assert_array_equal(first.bar, again.bar)
+    np.testing.assert_array_equal(first.object_poses, again.object_poses)
     assert not np.array_equal(first.states[0], other.states[0])
 
 
@@ -50,7 +61,7 @@ def test_the_planned_protocol_reads_the_policy_once_and_executes_its_waypoints_i
     assert len(online.experts) == 3  # a read per step
     with pytest.raises(ValueError, match="protocol must be one of planned, online"):
         Driver(policy, "replanned", observation)
-    ep = run_pick_episode(env, pick_policy(gate=(0.1, 0.7, 0.1, 0.1), waypoints=P.MAX_STEPS), 3, PLANNED)
+    ep = run_episode(env, pick_policy(gate=(0.1, 0.7, 0.1, 0.1), waypoints=P.MAX_STEPS), 3, PLANNED)
     env.close()
     assert ep.protocol == PLANNED and len(ep.states) == 7 and ep.experts.tolist() == [1] and len(ep.policy_s) == 1
     assert ep.gates.shape == (1, 4) and ep.predicted.shape == (1, P.MAX_STEPS, 3) and ep.switches == 0
@@ -64,7 +75,7 @@ def test_a_planned_episode_puts_the_bar_where_its_one_read_says(monkeypatch):
     reads = []
     step = policy.step
     monkeypatch.setattr(policy, "step", lambda observation: reads.append(observation) or step(observation))
-    ep = run_pick_episode(env, policy, seed, PLANNED)
+    ep = run_episode(env, policy, seed, PLANNED)
     env.close()
     assert ep.success and ep.place == "right" and ep.lifted and not ep.collision
     assert len(reads) == 1 and len(ep.states) > 2 and ep.switches == 0
@@ -74,7 +85,7 @@ def test_a_planned_episode_puts_the_bar_where_its_one_read_says(monkeypatch):
 def test_a_closed_loop_episode_puts_the_bar_where_the_gate_says():
     env = PickPlaceEnv(P.FREE)
     seed = next(s for s in range(20) if env.reset(seed=s)[1]["orientation"] == "along_y")
-    ep = run_pick_episode(env, pick_policy(gate=(0.1, 0.7, 0.1, 0.1)), seed)  # the right mat
+    ep = run_episode(env, pick_policy(gate=(0.1, 0.7, 0.1, 0.1)), seed)  # the right mat
     env.close()
     assert ep.success and ep.place == "right" and ep.lifted and not ep.collision
     assert ep.valid == ["left", "right"] and ep.switches == 0 and ep.change_step is None
@@ -104,7 +115,8 @@ def test_the_rates_count_places_and_switch_latency_over_the_changed_episodes():
 
 def test_the_step_limit_truncates_the_episodes_of_either_protocol():
     policy = pick_policy(gate=(0.1, 0.7, 0.1, 0.1), waypoints=P.MAX_STEPS)  # its plan spans the whole task
-    results = evaluate_pick_policy(policy, (PLANNED, ONLINE), (P.FREE,), 2, label="scripted", max_steps=5, quiet=True)
+    task = replace(find_task("pick-place"), conditions=(P.FREE,))
+    results = evaluate_policy(policy, task, LoopSettings(episodes=2, max_steps=5), label="scripted")
     for protocol in (PLANNED, ONLINE):
         rows = results[protocol][P.FREE]["per_episode"]
         assert [(row["steps"], row["success"]) for row in rows] == [(5, False), (5, False)]
@@ -114,16 +126,9 @@ def test_the_step_limit_truncates_the_episodes_of_either_protocol():
 def test_the_loop_runs_each_protocol_and_condition_and_records_the_first_episode(tmp_path, monkeypatch):
     monkeypatch.setenv("HOME", str(tmp_path))
     policy = pick_policy(gate=(0.4, 0.3, 0.2, 0.1), waypoints=P.MAX_STEPS)
-    results = evaluate_pick_policy(
-        policy,
-        (PLANNED, ONLINE),
-        (P.CHANGED,),
-        1,
-        label="scripted",
-        max_steps=P.MAX_STEPS,
-        record=1,
-        recordings=tmp_path,
-    )
+    task = replace(find_task("pick-place"), conditions=(P.CHANGED,))
+    settings = LoopSettings(episodes=1, max_steps=P.MAX_STEPS, record=1)
+    results = evaluate_policy(policy, task, settings, label="scripted", recordings=tmp_path)
     assert list(results) == [PLANNED, ONLINE]
     planned, online = results[PLANNED][P.CHANGED], results[ONLINE][P.CHANGED]
     assert planned["episodes"] == online["episodes"] == 1
@@ -132,7 +137,7 @@ def test_the_loop_runs_each_protocol_and_condition_and_records_the_first_episode
     assert online["switched_within"] is not None
     for protocol in (PLANNED, ONLINE):
         assert (tmp_path / f"scripted-{protocol}-changed-seed0.rrd").stat().st_size > 0
-    lines = format_pick_table({"scripted-seed0": results}).splitlines()
+    lines = format_table({"scripted-seed0": results}, task).splitlines()
     assert lines[0].split()[:3] == ["policy", "protocol", "condition"] and len(lines) == 4
     assert lines[2].split()[:3] == ["scripted-seed0", PLANNED, P.CHANGED]
     assert lines[3].split()[:3] == ["scripted-seed0", ONLINE, P.CHANGED]

@@ -14,10 +14,9 @@ import cnep.sim
 if not all(importlib.util.find_spec(name) for name in cnep.sim.EXTRA):
     pytest.skip("the sim extra is not installed", allow_module_level=True)
 
+from cnep.pipeline.sim.baselines import BASELINES  # noqa: E402
 from cnep.pipeline.sim.config import PROTOCOLS, PickPlaceConfig  # noqa: E402
-from cnep.pipeline.sim.pick_baselines import BASELINES  # noqa: E402
-from cnep.pipeline.sim.pick_stage import run_pick_place  # noqa: E402
-from cnep.pipeline.sim.stage import SUMMARY_FILE  # noqa: E402
+from cnep.pipeline.sim.stage import SUMMARY_FILE, run_sim  # noqa: E402
 from cnep.sim.tasks.pick_place import scene as P  # noqa: E402
 from tests.test_examples import load  # noqa: E402
 
@@ -39,7 +38,7 @@ def test_cnep_sim_pick_place_writes_the_documented_summary(
         offline=True,
         quiet=True,
     )
-    summary = run_pick_place(config)
+    summary = run_sim(config)
     assert json.loads((out / SUMMARY_FILE).read_text()) == json.loads(json.dumps(summary))
     assert summary["demonstrations"]["n"] == 2 and summary["demonstrations"]["clean"] == 2
     assert summary["settings"]["max_steps"] == config.max_steps

@@ -16,8 +16,9 @@ if not all(importlib.util.find_spec(name) for name in cnep.sim.EXTRA):
     pytest.skip("the sim extra is not installed", allow_module_level=True)
 
 from cnep.pipeline.sim.config import MODELS, PROTOCOLS, LoopSettings, SimConfig  # noqa: E402
-from cnep.pipeline.sim.loop import evaluate_policy  # noqa: E402
+from cnep.pipeline.sim.loop import evaluate_policy, open_task_policy  # noqa: E402
 from cnep.pipeline.sim.stage import SUMMARY_FILE, run_sim  # noqa: E402
+from cnep.sim.tasks import find_task  # noqa: E402
 from tests.test_examples import load  # noqa: E402
 
 EPISODE_KEYS = ("seed", "success", "collision", "side", "clearance_m", "distance_to_goal_m", "steps", "switches")
@@ -44,14 +45,18 @@ def test_cnep_sim_obstacle_writes_the_documented_summary_and_its_policies_repeat
     assert summary["features"].startswith("random") and summary["settings"]["assignment"] == config.assignment
     assert summary["settings"]["max_steps"] == config.max_steps
     assert set(summary["models"]) == set(MODELS) and all(set(seeds) == {"0"} for seeds in summary["models"].values())
-    settings = LoopSettings(**{f.name: getattr(config, f.name) for f in fields(LoopSettings)})
+    settings, task = (
+        LoopSettings(**{f.name: getattr(config, f.name) for f in fields(LoopSettings)}),
+        find_task("obstacle"),
+    )
     for model, seeds in summary["models"].items():
         assert set(seeds["0"]) == set(PROTOCOLS)
         for rates in seeds["0"].values():
             assert rates["episodes"] == 1 and {"success", "collision", "left", "switching"} <= set(rates)
             assert {"policy", "render", "physics"} == set(rates["per_episode"][0]["ms"])
             assert rates["per_episode"][0]["steps"] <= config.max_steps
-        again = evaluate_policy(out / "policies" / f"{model.lower()}-seed0", settings, label=model, quiet=True)
+        policy = open_task_policy(out / "policies" / f"{model.lower()}-seed0", task, settings)
+        again = evaluate_policy(policy, task, settings, label=model)
         assert {p: outcome(r) for p, r in again.items()} == {p: outcome(r) for p, r in seeds["0"].items()}
     rows = load("closed_loop_csv").main([str(out), "--csv", str(tmp_path / "closed-loop.csv")])
     assert [(r["model"], r["protocol"]) for r in rows] == [(m, p) for m in MODELS for p in PROTOCOLS]

@@ -23,28 +23,29 @@ import numpy as np
 from cnep.runtime.constants import IMAGE_KEY_PREFIX
 from cnep.sim import scene as S
 from cnep.sim.tabletop import TabletopEnv
-from cnep.sim.tasks.obstacle.demonstrator import SIDE_SIGN
+from cnep.sim.tasks.obstacle import scene as O
+from cnep.sim.tasks.obstacle.scoring import ObstacleEpisode, judge
 
-SIDES = tuple(SIDE_SIGN)
-IMAGE_KEY = IMAGE_KEY_PREFIX + S.CAMERA
+SIDES = O.SIDES
+IMAGE_KEY = IMAGE_KEY_PREFIX + O.CAMERA
 
 
 class ObstacleEnv(TabletopEnv):
     """Start to goal past a box on a tabletop, seen by a fixed camera (module docstring); `cue`: the variant where a
     tile shows the side to pass."""
 
-    def __init__(self, cue: bool = False, render_mode: str | None = None, max_steps: int = S.MAX_STEPS) -> None:
+    def __init__(self, cue: bool = False, render_mode: str | None = None, max_steps: int = O.MAX_STEPS) -> None:
         super().__init__(
-            S.scene_xml(),
-            height=S.IMAGE_HEIGHT,
-            width=S.IMAGE_WIDTH,
-            camera=S.CAMERA,
+            O.scene_xml(),
+            height=O.IMAGE_HEIGHT,
+            width=O.IMAGE_WIDTH,
+            camera=O.CAMERA,
             finger_open=S.FINGER_OPEN,
             max_steps=max_steps,
             render_mode=render_mode,
         )
         self.cue = cue
-        self._box_geom = self.model.geom(S.BOX_GEOM).id
+        self._box_geom = self.model.geom(O.BOX_GEOM).id
         self.cue_side: str | None = None
 
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
@@ -54,13 +55,13 @@ class ObstacleEnv(TabletopEnv):
         options = options or {}
         m, d = self.model, self.data
         mujoco.mj_resetData(m, d)
-        jitter = self.np_random.uniform(-S.START_JITTER, S.START_JITTER, 2)
-        start = np.asarray(options.get("start", (jitter[0], S.START_Y + jitter[1])), dtype=np.float64)
-        side = options.get("cue_side", SIDES[int(self.np_random.integers(2))])
+        jitter = self.np_random.uniform(-O.START_JITTER, O.START_JITTER, 2)
+        start = np.asarray(options.get("start", (jitter[0], O.START_Y + jitter[1])), dtype=np.float64)
+        side = options.get("cue_side", O.SIDES[int(self.np_random.integers(2))])
         self.cue_side = side if self.cue else None
-        cue_pos = (SIDE_SIGN[side] * S.CUE_XY[0], S.CUE_XY[1], 0.001) if self.cue else (0.0, 0.0, -0.5)
-        m.geom_pos[m.geom(S.CUE_GEOM).id] = cue_pos
-        self.place_gripper((*start, S.EE_HEIGHT), S.FINGER_OPEN)
+        cue_pos = (O.SIDE_SIGN[side] * O.CUE_XY[0], O.CUE_XY[1], 0.001) if self.cue else (0.0, 0.0, -0.5)
+        m.geom_pos[m.geom(O.CUE_GEOM).id] = cue_pos
+        self.place_gripper((*start, O.EE_HEIGHT), S.FINGER_OPEN)
         mujoco.mj_forward(m, d)
         self._steps, self._collision, self._clearance = 0, False, self._distance_to_box()
         observation = self.observe(0.0)
@@ -75,19 +76,23 @@ class ObstacleEnv(TabletopEnv):
         self._steps += 1
         observation = self.observe(physics_s)
         info = self._info()
-        terminated = info["distance_to_goal"] < S.GOAL_TOLERANCE
+        terminated = info["distance_to_goal"] < O.GOAL_TOLERANCE
         truncated = not terminated and self._steps >= self.max_steps
         return observation, float(info["is_success"]), terminated, truncated, info
 
-    def box_pose(self) -> tuple[np.ndarray, np.ndarray]:
+    def object_pose(self) -> tuple[np.ndarray, np.ndarray]:
         """The box's position (3,) m and quaternion xyzw (4,)."""
-        body = self.data.body(S.BOX_BODY)
+        body = self.data.body(O.BOX_BODY)
         return body.xpos.copy(), np.roll(body.xquat, -1)
 
+    def judge(self, infos: list[dict], **recorded) -> ObstacleEpisode:
+        """The episode's result (sim.tasks.obstacle.scoring.judge)."""
+        return judge(infos, **recorded)
+
     def _info(self) -> dict:
-        to_goal = float(np.linalg.norm(self.data.body(S.GRIPPER_BODY).xpos[:2] - np.asarray(S.GOAL_XY)))
+        to_goal = float(np.linalg.norm(self.data.body(S.GRIPPER_BODY).xpos[:2] - np.asarray(O.GOAL_XY)))
         return {
-            "is_success": bool(to_goal < S.GOAL_TOLERANCE and not self._collision),
+            "is_success": bool(to_goal < O.GOAL_TOLERANCE and not self._collision),
             "collision": self._collision,
             "clearance": float(self._clearance),
             "distance_to_goal": to_goal,

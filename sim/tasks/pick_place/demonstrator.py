@@ -7,17 +7,20 @@ number of steps per phase (its speed: one pace within the scene's PHASE_STEPS' r
 stage comes at about the same share of every demonstration), the grasp point along the bar, the place point on the
 mat and the carrying height. Its waypoints (`pick_path`) are the actions (8,): xyz, the quaternion xyzw (the
 grasp's yaw, turned during the approach) and the gripper command (FINGER_OPEN open, 0 closed); each phase moves
-with a minimum-jerk timing.
+with a minimum-jerk timing. `demonstrations` drives the environment with them, as a robot records a demonstration.
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
 
+from cnep.runtime import STATE_KEY
+from cnep.sim.task import Demonstration, demonstration_seed, recorded
 from cnep.sim.tasks.pick_place import scene as P
-from cnep.sim.tasks.pick_place.env import grasp_places, yaw_quaternion
+from cnep.sim.tasks.pick_place.env import PickPlaceEnv, grasp_places, yaw_quaternion
 
 
 @dataclass(frozen=True)
@@ -84,3 +87,22 @@ def pick_path(draw: PickDraw, start: np.ndarray, object_xy: np.ndarray, object_y
 def _along(yaw_deg: float) -> np.ndarray:
     """The long side (2,) of a bar turned `yaw_deg` degrees."""
     return np.array([-np.sin(np.radians(yaw_deg)), np.cos(np.radians(yaw_deg))])
+
+
+def demonstrations(n: int, seed: int) -> Iterator[Demonstration]:
+    """`n` demonstrations drawn with `seed`, each driving the environment from its own reset: the scene drawn decided or
+    free, the place chosen in it (its name the behaviour); clean when the bar ended on a valid place."""
+    rng = np.random.default_rng(seed)
+    env = PickPlaceEnv()
+    try:
+        for i in range(n):
+            observation, info = env.reset(seed=demonstration_seed(seed, i))
+            scene = env.scene
+            draw = draw_pick(rng, scene["orientation"], scene["taken"])
+            steps = [observation]
+            for action in pick_path(draw, observation[STATE_KEY][:3], scene["object_xy"], scene["object_yaw"]):
+                observation, _, _, _, info = env.step(action.astype(np.float32))
+                steps.append(observation)
+            yield recorded(steps, env.image_key, P.PLACES[draw.place][0], bool(info["is_success"]))
+    finally:
+        env.close()

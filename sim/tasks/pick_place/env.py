@@ -25,6 +25,7 @@ import numpy as np
 from cnep.runtime.constants import IMAGE_KEY_PREFIX
 from cnep.sim.tabletop import TabletopEnv
 from cnep.sim.tasks.pick_place import scene as P
+from cnep.sim.tasks.pick_place.scoring import PickEpisode, judge
 
 MIXED = "mixed"
 PICK_IMAGE_KEY = IMAGE_KEY_PREFIX + P.CAMERA
@@ -145,6 +146,10 @@ class PickPlaceEnv(TabletopEnv):
         self._dropped = self._dropped or (high and not self.touching(self.gripper_geoms, self._object_geom))
         holder = self.gripper_geoms | self._object_geom
         self._collision = self._collision or self.touching(holder, self._cup_geoms)
+
+    def judge(self, infos: list[dict], **recorded) -> PickEpisode:
+        """The episode's result (sim.tasks.pick_place.scoring.judge)."""
+        return judge(infos, **recorded)
 
     def object_velocity(self) -> np.ndarray:
         """The bar's linear velocity (3,) m/s."""

@@ -1,6 +1,7 @@
 """The baselines in the closed loop, behind the CNEP's interface: ProMP, GMM-GMR and nearest-demonstration retrieval
-(cnep.models.baselines), each a `runtime.conditioning.Network` inside a `runtime.Policy` that reads the camera with
-the exported CNEP's feature graph and the state as the CNEP does.
+(cnep.models.baselines), each a `runtime.conditioning.Network` (models.baselines.network) inside a `runtime.Policy`
+that reads the camera with the exported CNEP's feature graph and the state as the CNEP does, fitted here on the
+training trajectories.
 
 The baselines see the features reduced by PCA: `components` principal components fitted on the training frames'
 features (in the CNEP's normalised units), beside the 8 state values. A demonstration is its rows resampled to
@@ -11,13 +12,14 @@ conditioned on it at its phase, and its prediction of the CNEP's predicted colum
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from cnep.models.baselines import GMMGMR, NearestDemo, ProMP
-from cnep.models.baselines.base import Method, resample
+from cnep.models.baselines.base import resample
+from cnep.models.baselines.network import BaselineNetwork, Reduction
 from cnep.recordings import read_trajectory
 from cnep.recordings.constants import BLOCK_FEATURES
 from cnep.runtime import ConditioningPolicy, Policy
@@ -35,53 +37,6 @@ BASELINES = {
     "Nearest": (NearestDemo, 64),
 }
 CURRENT_ONLY = ConditioningPolicy(window=1, anchors=0)
-
-
-@dataclass(frozen=True)
-class Reduction:
-    """The observed columns (normalised) as the baselines see them: the features' principal components, then the
-    other observed columns. feature_at, rest_at: where the features and the others sit in an observed row;
-    mean (F,), basis (F, k): the PCA."""
-
-    feature_at: np.ndarray
-    rest_at: np.ndarray
-    mean: np.ndarray
-    basis: np.ndarray
-
-    @classmethod
-    def fit(cls, spec: PolicySpec, observed: np.ndarray, components: int) -> Reduction:
-        """The PCA of the features of `observed` (N, obs_dim) rows, normalised, for the CNEP's `spec`."""
-        features = set(range(*spec.features))
-        cols = span_indices(spec.columns.observed)
-        feature_at = np.array([i for i, c in enumerate(cols) if c in features])
-        rest_at = np.array([i for i, c in enumerate(cols) if c not in features])
-        mean = observed[:, feature_at].mean(axis=0)
-        _, _, vt = np.linalg.svd(observed[:, feature_at] - mean, full_matrices=False)
-        return cls(feature_at, rest_at, mean, vt[:components].T)
-
-    def __call__(self, observed: np.ndarray) -> np.ndarray:
-        """Observed rows (N, obs_dim) -> (N, k + rest)."""
-        components = (observed[:, self.feature_at] - self.mean) @ self.basis
-        return np.concatenate([components, observed[:, self.rest_at]], axis=1)
-
-
-class BaselineNetwork:
-    """A method fitted on reduced rows as a `Network` (module docstring); `predicted`: where the CNEP's predicted
-    columns sit in a reduced row."""
-
-    def __init__(self, method: Method, reduction: Reduction, predicted: np.ndarray) -> None:
-        self.method, self.reduction, self.predicted = method, reduction, predicted
-
-    def encode(self, obs: np.ndarray) -> np.ndarray:
-        """[t, observed columns] (N, 1 + obs_dim) -> [t, reduced row] (N, 1 + k + rest)."""
-        return np.concatenate([obs[:, :1], self.reduction(obs[:, 1:])], axis=1).astype(np.float32)
-
-    def decode(self, r: np.ndarray, query: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The method conditioned on r's row at r's phase -> gate (1,), mean and std (1, M, dy) at query[:, 0]."""
-        t = np.clip(r[:, 0].astype(np.float64), 0.0, 1.0)
-        path = self.method.generate(t, r[:, 1:].astype(np.float64), query[:, 0].astype(np.float64))
-        mean = np.nan_to_num(path[:, self.predicted])[None].astype(np.float32)
-        return np.ones(1, np.float32), mean, np.full_like(mean, 1e-3)
 
 
 def baseline_policy(name: str, cnep: Path, trajectories: list[Path], components: int, waypoints: int) -> Policy:

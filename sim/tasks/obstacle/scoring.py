@@ -1,0 +1,102 @@
+"""The obstacle task's scoring: an episode's result (`ObstacleEpisode`, judged from its trace by `judge`), its row
+(`episode_row`), the rates of a policy's episodes under one protocol (`rates`), the table's COLUMNS and what the
+summary says of the demonstrations (`describe_demonstrations`).
+
+A row: the episode's seed, success, collision, the side it passed, the cue's side (None without a cue), min
+clearance and distance to the goal (m), steps, expert switches and the policy / render / physics time per step
+(p50, p99, ms). The rates: success, collision, the share that followed the cue, the share passing left, the share
+of episodes with an expert switch (the scene never changes during an episode), over `episodes`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from cnep.sim.episode import EpisodeResult
+from cnep.sim.scoring import Column, percent, pooled_ms, share, timings_ms
+from cnep.sim.tasks.obstacle import scene as O
+
+
+@dataclass(kw_only=True)
+class ObstacleEpisode(EpisodeResult):
+    """An obstacle episode (sim.episode.EpisodeResult, its object the box): side, where the end effector passed the
+    box ("left" / "right", facing the goal); clearance_m, the smallest gripper-box distance; distance_to_goal_m, at
+    the end (xy); cue_side, the side the cue showed (None without a cue); contact_step, the first step touching the
+    box, or None."""
+
+    side: str
+    clearance_m: float
+    distance_to_goal_m: float
+    cue_side: str | None
+    contact_step: int | None = None
+
+
+def judge(infos: list[dict], **recorded) -> ObstacleEpisode:
+    """The episode's result from the environment's `infos` (the reset's, then one per step) and what
+    sim.episode.run_episode `recorded`."""
+    info = infos[-1]
+    return ObstacleEpisode(
+        **recorded,
+        side=side_passed(recorded["states"]),
+        clearance_m=float(info["clearance"]),
+        distance_to_goal_m=float(info["distance_to_goal"]),
+        cue_side=info["cue_side"],
+        contact_step=next((k for k, step in enumerate(infos) if step["collision"]), None),
+    )
+
+
+def side_passed(states: np.ndarray) -> str:
+    """Where a path of states (n, >= 2) passed the box: "left" (x < 0) or "right", at the step nearest the box's y."""
+    return "left" if states[int(np.abs(states[:, 1]).argmin()), 0] < 0 else "right"
+
+
+def episode_row(ep: ObstacleEpisode) -> dict:
+    """One episode as a JSON-able row (module docstring)."""
+    return {
+        "seed": ep.seed,
+        "success": ep.success,
+        "collision": ep.collision,
+        "side": ep.side,
+        "cue_side": ep.cue_side,
+        "clearance_m": round(ep.clearance_m, 4),
+        "distance_to_goal_m": round(ep.distance_to_goal_m, 4),
+        "steps": ep.steps,
+        "switches": ep.switches,
+        "ms": timings_ms(ep),
+    }
+
+
+def rates(rows: list[dict]) -> dict:
+    """The rates over episode rows (module docstring), with the rows under `per_episode`."""
+    n = len(rows)
+    cued = [r for r in rows if r["cue_side"] is not None]
+    return {
+        "episodes": n,
+        "success": share(rows, lambda r: r["success"]),
+        "collision": share(rows, lambda r: r["collision"]),
+        "left": share(rows, lambda r: r["side"] == "left"),
+        "switching": share(rows, lambda r: r["switches"] > 0),
+        "followed_cue": round(sum(r["side"] == r["cue_side"] for r in cued) / len(cued), 4) if cued else None,
+        "min_clearance_m": min(r["clearance_m"] for r in rows),
+        "ms": pooled_ms(rows),
+        "per_episode": rows,
+    }
+
+
+COLUMNS = (
+    Column("episodes", 8, lambda r: str(r["episodes"])),
+    Column("success", 8, percent("success")),
+    Column("collision", 9, percent("collision")),
+    Column("left", 6, percent("left")),
+    Column("cue", 6, percent("followed_cue")),
+    Column("switching", 9, percent("switching")),
+    Column("min gap", 8, lambda r: f"{r['min_clearance_m'] * 100:.1f}cm"),
+    Column("policy ms p50/p99", 18, lambda r: "{p50:.1f}/{p99:.1f}".format(**r["ms"]["policy"])),
+)
+
+
+def describe_demonstrations(sides: list[str]) -> dict[str, int]:
+    """How many demonstrations passed each side."""
+    return {side: sides.count(side) for side in O.SIDES}

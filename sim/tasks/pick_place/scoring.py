@@ -1,0 +1,128 @@
+"""The pick-and-place task's scoring: an episode's result (`PickEpisode`, judged from its trace by `judge`), its row
+(`pick_row`), the rates of a policy's episodes by one protocol in one condition (`pick_rates`), the table's COLUMNS
+and what the summary says of the demonstrations (`describe_demonstrations`).
+
+A row: the episode's seed, success, collision, lifted, dropped, the place the bar ended on and the valid ones, the
+change's step and the switch's (the changed condition), the expert switches, the steps and the policy / render /
+physics time per step (p50, p99, ms). The rates over `episodes`: success (the bar at rest on a valid place),
+collision (with a cup), lifted, dropped, the places used (episode counts by place), the share of episodes with an
+expert switch; in the changed condition the switch latency (steps from the change to the first switch after it,
+p50 over the episodes that switched) and the share that switched within SWITCH_WITHIN steps.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from cnep.sim.episode import EpisodeResult
+from cnep.sim.scoring import Column, percent, pooled_ms, share, timings_ms
+from cnep.sim.tasks.pick_place import scene as P
+
+SWITCH_WITHIN = 5  # steps: a switch this soon after the change counts as prompt
+
+
+@dataclass(kw_only=True)
+class PickEpisode(EpisodeResult):
+    """A pick-and-place episode (sim.episode.EpisodeResult, its object the bar, its condition decided / free /
+    changed): lifted, dropped, the environment's verdicts at the end; place, the mat the bar ended on (a PLACES name)
+    or None; valid, the valid places' names at the end; taken_start, taken_end, the places taken at the start and at
+    the end (a bool each); change_step, the step at which the table changed (None: it did not); switch_step, the
+    first step at or after the change at which the active expert changed (None: none did, no change, or PLANNED).
+    """
+
+    lifted: bool
+    dropped: bool
+    place: str | None
+    valid: list[str]
+    taken_start: list[bool]
+    taken_end: list[bool]
+    change_step: int | None
+    switch_step: int | None
+
+
+def judge(infos: list[dict], **recorded) -> PickEpisode:
+    """The episode's result from the environment's `infos` (the reset's, then one per step) and what
+    sim.episode.run_episode `recorded`."""
+    info = infos[-1]
+    steps = len(recorded["states"]) - 1
+    change = info["change_step"] if info["change_step"] is not None and info["change_step"] < steps else None
+    return PickEpisode(
+        **recorded,
+        lifted=bool(info["lifted"]),
+        dropped=bool(info["dropped"]),
+        place=None if info["place"] is None else P.PLACES[info["place"]][0],
+        valid=[P.PLACES[i][0] for i in info["valid"]],
+        taken_start=list(infos[0]["taken"]),
+        taken_end=list(info["taken"]),
+        change_step=change,
+        switch_step=first_switch(recorded["experts"], change),
+    )
+
+
+def first_switch(experts: np.ndarray, change: int | None) -> int | None:
+    """The first step at or after `change` whose active expert (`experts` (n,), one per step) differs from the
+    step before's; None without a change or a switch. The table changes before the step `change` acts, so the
+    policy first sees the change in its read at step `change + 1`."""
+    if change is None:
+        return None
+    after = np.flatnonzero(np.diff(experts[change:]) != 0)
+    return int(change + 1 + after[0]) if len(after) else None
+
+
+def pick_row(ep: PickEpisode) -> dict:
+    """One episode as a JSON-able row (module docstring)."""
+    return {
+        "seed": ep.seed,
+        "success": ep.success,
+        "collision": ep.collision,
+        "lifted": ep.lifted,
+        "dropped": ep.dropped,
+        "place": ep.place,
+        "valid": ep.valid,
+        "change_step": ep.change_step,
+        "switch_step": ep.switch_step,
+        "switches": ep.switches,
+        "steps": ep.steps,
+        "ms": timings_ms(ep),
+    }
+
+
+def pick_rates(rows: list[dict]) -> dict:
+    """The rates over episode rows (module docstring), with the rows under `per_episode`."""
+    n = len(rows)
+    places: dict[str, int] = {}
+    for r in rows:
+        if r["place"] is not None:
+            places[r["place"]] = places.get(r["place"], 0) + 1
+    changed = [r for r in rows if r["change_step"] is not None]
+    latencies = [r["switch_step"] - r["change_step"] for r in changed if r["switch_step"] is not None]
+    return {
+        "episodes": n,
+        "success": share(rows, lambda r: r["success"]),
+        "collision": share(rows, lambda r: r["collision"]),
+        "lifted": share(rows, lambda r: r["lifted"]),
+        "dropped": share(rows, lambda r: r["dropped"]),
+        "places": dict(sorted(places.items())),
+        "switching": share(rows, lambda r: r["switches"] > 0),
+        "switch_latency_p50": float(np.median(latencies)) if latencies else None,
+        "switched_within": round(sum(x <= SWITCH_WITHIN for x in latencies) / len(changed), 4) if changed else None,
+        "ms": pooled_ms(rows),
+        "per_episode": rows,
+    }
+
+
+COLUMNS = (
+    Column("success", 8, percent("success")),
+    Column("collision", 9, percent("collision")),
+    Column("lifted", 7, percent("lifted")),
+    Column(f"switch<={SWITCH_WITHIN}", 9, percent("switched_within")),
+    Column("latency", 7, lambda r: "-" if r["switch_latency_p50"] is None else f"{r['switch_latency_p50']:.0f}"),
+    Column("places", 0, lambda r: " ".join(f"{k}:{v}" for k, v in r["places"].items())),
+)
+
+
+def describe_demonstrations(places: list[str]) -> dict[str, dict[str, int]]:
+    """How many demonstrations chose each place."""
+    return {"places": {name: places.count(name) for name, _, _ in P.PLACES}}
