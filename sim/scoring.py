@@ -1,5 +1,5 @@
-"""What every task's scoring shares: the seconds each part of an episode took, as a row's and a table's figures, and
-the columns of a task's table."""
+"""What every task's scoring shares: the seconds each part of an episode took, as a row's and a table's figures, the
+shares with their 95% intervals, and the columns of a task's table."""
 
 from __future__ import annotations
 
@@ -7,6 +7,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+
+from cnep.sim.statistics import wilson
 
 TIMES = ("policy", "render", "physics")
 
@@ -27,6 +29,16 @@ def timings_ms(ep) -> dict[str, dict[str, float]]:
 def share(rows: list[dict], key: Callable[[dict], bool]) -> float:
     """The share of `rows` (at least one) for which `key` holds, to 4 decimals."""
     return round(sum(map(key, rows)) / len(rows), 4)
+
+
+def shares(rows: list[dict], **keys: Callable[[dict], bool]) -> dict[str, float | list[float] | None]:
+    """Per name of `keys`: the share of `rows` for which its key holds (`share`) and, under `NAME_ci`, its Wilson 95%
+    interval [lower, upper] (sim.statistics.wilson), to 4 decimals; both None where there are no rows."""
+    out: dict[str, float | list[float] | None] = {}
+    for name, key in keys.items():
+        out[name] = share(rows, key) if rows else None
+        out[f"{name}_ci"] = [round(bound, 4) for bound in wilson(sum(map(key, rows)), len(rows))] if rows else None
+    return out
 
 
 def pooled_ms(rows: list[dict]) -> dict[str, dict[str, float]]:
@@ -56,3 +68,24 @@ class Column:
 def percent(key: str) -> Callable[[dict], str]:
     """A column's value: the rate under `key` as a whole percentage ("-" where it is None)."""
     return lambda rates: "-" if rates[key] is None else f"{rates[key]:.0%}"
+
+
+def percent_ci(key: str) -> Callable[[dict], str]:
+    """A column's value: the rate under `key` and its interval under `KEY_ci` as whole percentages, `92% [81-97]`
+    ("-" where it is None); at most PERCENT_CI_WIDTH characters."""
+
+    def value(rates: dict) -> str:
+        if rates[key] is None:
+            return "-"
+        lo, hi = rates[f"{key}_ci"]
+        return f"{rates[key]:.0%} [{lo * 100:.0f}-{hi * 100:.0f}]"
+
+    return value
+
+
+PERCENT_CI_WIDTH = 13  # characters of percent_ci's longest value, `100% [93-100]`
+
+
+def decimals(key: str) -> Callable[[dict], str]:
+    """A column's value: the figure under `key` to 2 decimals ("-" where it is None)."""
+    return lambda rates: "-" if rates[key] is None else f"{rates[key]:.2f}"

@@ -102,15 +102,16 @@ def test_the_switch_step_is_the_first_change_of_expert_after_the_table_changed()
 def test_the_rates_count_places_and_switch_latency_over_the_changed_episodes():
     row = {"success": True, "collision": False, "lifted": True, "dropped": False, "switches": 1, "ms": {}}
     rows = [
-        {**row, "place": "left", "change_step": 10, "switch_step": 12},
-        {**row, "place": "right", "change_step": 10, "switch_step": 18},
-        {**row, "success": False, "place": None, "change_step": 10, "switch_step": None},
+        {**row, "place": "left", "valid": ["left"], "change_step": 10, "switch_step": 12},
+        {**row, "place": "right", "valid": ["right"], "change_step": 10, "switch_step": 18},
+        {**row, "success": False, "place": None, "valid": ["left"], "change_step": 10, "switch_step": None},
     ]
     for r in rows:
         r["ms"] = {name: {"p50": 1.0, "p99": 2.0} for name in ("policy", "render", "physics")}
     rates = pick_rates(rows)
     assert rates["success"] == round(2 / 3, 4) and rates["places"] == {"left": 1, "right": 1}
     assert rates["switch_latency_p50"] == 5.0 and rates["switched_within"] == round(1 / 3, 4)
+    assert rates["entropy"] is None  # a changed scene leaves one valid place
 
 
 def test_the_step_limit_truncates_the_episodes_of_either_protocol():

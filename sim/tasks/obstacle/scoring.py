@@ -4,8 +4,11 @@ summary says of the demonstrations (`describe_demonstrations`).
 
 A row: the episode's seed, success, collision, the side it passed, the cue's side (None without a cue), min
 clearance and distance to the goal (m), steps, expert switches and the policy / render / physics time per step
-(p50, p99, ms). The rates: success, collision, the share that followed the cue, the share passing left, the share
-of episodes with an expert switch (the scene never changes during an episode), over `episodes`.
+(p50, p99, ms). The rates: success, collision, the share that followed the cue (of the episodes with a cue), the
+share passing left, the share of episodes with an expert switch (the scene never changes during an episode: every
+switch is one without a change), over `episodes`, each with its Wilson 95% interval under `NAME_ci`
+(sim.scoring.shares); `entropy`, the behaviour entropy of the side passed (sim.statistics.behaviour_entropy: over
+the successful episodes without a cue, where either side is free; None with a cue, which leaves one side).
 """
 
 from __future__ import annotations
@@ -15,7 +18,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from cnep.sim.episode import EpisodeResult
-from cnep.sim.scoring import Column, percent, pooled_ms, share, timings_ms
+from cnep.sim.scoring import PERCENT_CI_WIDTH, Column, decimals, percent, percent_ci, pooled_ms, shares, timings_ms
+from cnep.sim.statistics import behaviour_entropy
 from cnep.sim.tasks.obstacle import scene as O
 
 
@@ -70,28 +74,37 @@ def episode_row(ep: ObstacleEpisode) -> dict:
 
 def rates(rows: list[dict]) -> dict:
     """The rates over episode rows (module docstring), with the rows under `per_episode`."""
-    n = len(rows)
     cued = [r for r in rows if r["cue_side"] is not None]
     return {
-        "episodes": n,
-        "success": share(rows, lambda r: r["success"]),
-        "collision": share(rows, lambda r: r["collision"]),
-        "left": share(rows, lambda r: r["side"] == "left"),
-        "switching": share(rows, lambda r: r["switches"] > 0),
-        "followed_cue": round(sum(r["side"] == r["cue_side"] for r in cued) / len(cued), 4) if cued else None,
+        "episodes": len(rows),
+        **shares(
+            rows,
+            success=lambda r: r["success"],
+            collision=lambda r: r["collision"],
+            left=lambda r: r["side"] == "left",
+            switching=lambda r: r["switches"] > 0,
+        ),
+        **shares(cued, followed_cue=lambda r: r["side"] == r["cue_side"]),
+        "entropy": behaviour_entropy((choice(r), r["side"]) for r in rows if r["success"]),
         "min_clearance_m": min(r["clearance_m"] for r in rows),
         "ms": pooled_ms(rows),
         "per_episode": rows,
     }
 
 
+def choice(row: dict) -> tuple[str, ...]:
+    """The sides an episode's scene left to choose from: either without a cue, the cue's side with one."""
+    return O.SIDES if row["cue_side"] is None else (row["cue_side"],)
+
+
 COLUMNS = (
     Column("episodes", 8, lambda r: str(r["episodes"])),
-    Column("success", 8, percent("success")),
+    Column("success", PERCENT_CI_WIDTH, percent_ci("success")),
     Column("collision", 9, percent("collision")),
     Column("left", 6, percent("left")),
     Column("cue", 6, percent("followed_cue")),
-    Column("switching", 9, percent("switching")),
+    Column("switching", PERCENT_CI_WIDTH, percent_ci("switching")),
+    Column("entropy", 7, decimals("entropy")),
     Column("min gap", 8, lambda r: f"{r['min_clearance_m'] * 100:.1f}cm"),
     Column("policy ms p50/p99", 18, lambda r: "{p50:.1f}/{p99:.1f}".format(**r["ms"]["policy"])),
 )

@@ -6,8 +6,12 @@ A row: the episode's seed, success, collision, lifted, dropped, the place the ba
 change's step and the switch's (the changed condition), the expert switches, the steps and the policy / render /
 physics time per step (p50, p99, ms). The rates over `episodes`: success (the bar at rest on a valid place),
 collision (with a cup), lifted, dropped, the places used (episode counts by place), the share of episodes with an
-expert switch; in the changed condition the switch latency (steps from the change to the first switch after it,
-p50 over the episodes that switched) and the share that switched within SWITCH_WITHIN steps.
+expert switch (in decided and free scenes, where nothing changes: the switching without a change); in the changed
+condition the switch latency (steps from the change to the first switch after it, p50 over the episodes that
+switched) and the share that switched within SWITCH_WITHIN steps (of the changed episodes). Each share has its
+Wilson 95% interval under `NAME_ci` (sim.scoring.shares). `entropy`: the behaviour entropy of the place
+(sim.statistics.behaviour_entropy) over the successful episodes whose scene left two valid places (free scenes,
+a context per grasp); None where the scene left one (decided, changed).
 """
 
 from __future__ import annotations
@@ -17,7 +21,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from cnep.sim.episode import EpisodeResult
-from cnep.sim.scoring import Column, percent, pooled_ms, share, timings_ms
+from cnep.sim.scoring import PERCENT_CI_WIDTH, Column, decimals, percent, percent_ci, pooled_ms, shares, timings_ms
+from cnep.sim.statistics import behaviour_entropy
 from cnep.sim.tasks.pick_place import scene as P
 
 SWITCH_WITHIN = 5  # steps: a switch this soon after the change counts as prompt
@@ -91,34 +96,44 @@ def pick_row(ep: PickEpisode) -> dict:
 
 def pick_rates(rows: list[dict]) -> dict:
     """The rates over episode rows (module docstring), with the rows under `per_episode`."""
-    n = len(rows)
     places: dict[str, int] = {}
     for r in rows:
         if r["place"] is not None:
             places[r["place"]] = places.get(r["place"], 0) + 1
     changed = [r for r in rows if r["change_step"] is not None]
-    latencies = [r["switch_step"] - r["change_step"] for r in changed if r["switch_step"] is not None]
+    latencies = [latency(r) for r in changed if r["switch_step"] is not None]
     return {
-        "episodes": n,
-        "success": share(rows, lambda r: r["success"]),
-        "collision": share(rows, lambda r: r["collision"]),
-        "lifted": share(rows, lambda r: r["lifted"]),
-        "dropped": share(rows, lambda r: r["dropped"]),
+        "episodes": len(rows),
+        **shares(
+            rows,
+            success=lambda r: r["success"],
+            collision=lambda r: r["collision"],
+            lifted=lambda r: r["lifted"],
+            dropped=lambda r: r["dropped"],
+        ),
         "places": dict(sorted(places.items())),
-        "switching": share(rows, lambda r: r["switches"] > 0),
+        **shares(rows, switching=lambda r: r["switches"] > 0),
         "switch_latency_p50": float(np.median(latencies)) if latencies else None,
-        "switched_within": round(sum(x <= SWITCH_WITHIN for x in latencies) / len(changed), 4) if changed else None,
+        **shares(changed, switched_within=lambda r: r["switch_step"] is not None and latency(r) <= SWITCH_WITHIN),
+        "entropy": behaviour_entropy((tuple(r["valid"]), r["place"]) for r in rows if r["success"]),
         "ms": pooled_ms(rows),
         "per_episode": rows,
     }
 
 
+def latency(row: dict) -> int:
+    """Steps from a changed episode's change to its first switch after it (the row has both)."""
+    return row["switch_step"] - row["change_step"]
+
+
 COLUMNS = (
-    Column("success", 8, percent("success")),
+    Column("success", PERCENT_CI_WIDTH, percent_ci("success")),
     Column("collision", 9, percent("collision")),
     Column("lifted", 7, percent("lifted")),
-    Column(f"switch<={SWITCH_WITHIN}", 9, percent("switched_within")),
+    Column("switching", PERCENT_CI_WIDTH, percent_ci("switching")),
+    Column(f"switch<={SWITCH_WITHIN}", PERCENT_CI_WIDTH, percent_ci("switched_within")),
     Column("latency", 7, lambda r: "-" if r["switch_latency_p50"] is None else f"{r['switch_latency_p50']:.0f}"),
+    Column("entropy", 7, decimals("entropy")),
     Column("places", 0, lambda r: " ".join(f"{k}:{v}" for k, v in r["places"].items())),
 )
 
