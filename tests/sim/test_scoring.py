@@ -1,0 +1,101 @@
+"""Each task's rates on hand-made rows: every share with its Wilson interval, the behaviour entropy where the scene
+leaves a choice and None where it does not, the switching without a change beside the switching after one; the
+tables show them; a policy's episodes give the same rows as a rerun and the documented rates of them."""
+
+import importlib.util
+
+import pytest
+
+import cnep.sim
+
+if not all(importlib.util.find_spec(name) for name in cnep.sim.EXTRA):
+    pytest.skip("the sim extra is not installed", allow_module_level=True)
+
+from cnep.pipeline.sim.config import LoopSettings  # noqa: E402
+from cnep.pipeline.sim.loop import evaluate_policy  # noqa: E402
+from cnep.pipeline.sim.summary import format_table  # noqa: E402
+from cnep.sim.episode import PLANNED  # noqa: E402
+from cnep.sim.statistics import wilson  # noqa: E402
+from cnep.sim.tasks import find_task  # noqa: E402
+from cnep.sim.tasks.obstacle.scoring import rates  # noqa: E402
+from cnep.sim.tasks.pick_place.scoring import pick_rates  # noqa: E402
+from tests.sim.scripted import scripted_policy  # noqa: E402
+
+MS = {name: {"p50": 1.0, "p99": 2.0} for name in ("policy", "render", "physics")}
+OBSTACLE_ROW_KEYS = {"seed", "success", "collision", "side", "cue_side", "clearance_m", "distance_to_goal_m", "steps",
+                     "switches", "ms"}  # fmt: skip
+
+
+def obstacle_row(side: str, success: bool = True, cue_side: str | None = None, switches: int = 0) -> dict:
+    return {"success": success, "collision": not success, "side": side, "cue_side": cue_side, "switches": switches,
+            "clearance_m": 0.05, "ms": MS}  # fmt: skip
+
+
+def pick_row(place: str | None, valid: list[str], success: bool = True, **changed) -> dict:
+    row = {"success": success, "collision": False, "lifted": True, "dropped": False, "place": place, "valid": valid,
+           "switches": 0, "change_step": None, "switch_step": None, "ms": MS}  # fmt: skip
+    return {**row, **changed}
+
+
+def rounded(interval: tuple[float, float]) -> list[float]:
+    return [round(bound, 4) for bound in interval]
+
+
+def test_the_obstacle_rates_carry_an_interval_per_share_and_the_entropy_of_the_successful_sides():
+    rows = [*[obstacle_row("left")] * 3, obstacle_row("right"), obstacle_row("right", success=False, switches=2)]
+    r = rates(rows)
+    assert r["success"] == 0.8 and r["success_ci"] == rounded(wilson(4, 5))
+    assert r["collision_ci"] == rounded(wilson(1, 5)) and r["left_ci"] == rounded(wilson(3, 5))
+    assert r["switching"] == 0.2 and r["switching_ci"] == rounded(wilson(1, 5))
+    assert r["entropy"] == 0.8113  # 3 left : 1 right over the successful episodes; the failed one does not count
+    assert r["followed_cue"] is None and r["followed_cue_ci"] is None
+
+
+def test_with_a_cue_the_obstacle_has_no_entropy_and_the_followed_cue_share_its_interval():
+    rows = [obstacle_row("left", cue_side="left"), obstacle_row("left", cue_side="right")]
+    r = rates([*rows, obstacle_row("right", cue_side="right")])
+    assert r["entropy"] is None and r["followed_cue"] == 0.6667 and r["followed_cue_ci"] == rounded(wilson(2, 3))
+
+
+def test_the_pick_place_entropy_is_over_the_free_scenes_valid_places_per_grasp():
+    along_y, along_x = ["left", "right"], ["far_left", "far_right"]
+    free = [pick_row("left", along_y), pick_row("right", along_y), *[pick_row("far_left", along_x)] * 3]
+    assert pick_rates(free)["entropy"] == 0.5  # grasp along y: 1.0, along x: 0.0, averaged
+    assert pick_rates([*free, pick_row(None, along_x, success=False)])["entropy"] == 0.5
+    decided = pick_rates([pick_row("left", ["left"]), pick_row("right", ["right"])])
+    assert decided["entropy"] is None and decided["switched_within"] is None and decided["switched_within_ci"] is None
+
+
+def test_the_pick_place_switching_has_its_interval_with_and_without_a_change():
+    unchanged = pick_rates([pick_row("left", ["left"], switches=1), *[pick_row("left", ["left"])] * 19])
+    assert unchanged["switching"] == 0.05 and unchanged["switching_ci"] == rounded(wilson(1, 20))
+    changed = [
+        pick_row("right", ["right"], switches=1, change_step=10, switch_step=12),
+        pick_row("right", ["right"], switches=1, change_step=10, switch_step=18),
+        pick_row("left", ["right"], success=False, change_step=10),
+    ]
+    r = pick_rates(changed)
+    assert r["switched_within"] == 0.3333 and r["switched_within_ci"] == rounded(wilson(1, 3))
+    assert r["switching"] == 0.6667 and r["switching_ci"] == rounded(wilson(2, 3))
+
+
+def test_the_tables_show_the_intervals_and_the_entropy_compactly():
+    rows = [*[obstacle_row("left")] * 23, *[obstacle_row("right")] * 23, *[obstacle_row("left", success=False)] * 4]
+    table = format_table({"CNEP-seed0": {PLANNED: rates(rows)}}, find_task("obstacle")).splitlines()
+    assert table[0].split()[:6] == ["policy", "protocol", "episodes", "success", "collision", "left"]
+    assert "92% [81-97]" in table[2] and " 1.00 " in table[2] and "0% [0-7]" in table[2]
+    assert len(table[0]) <= 130
+    pick = {PLANNED: {"free": pick_rates([pick_row("left", ["left", "right"])] * 10)}}
+    line = format_table({"CNEP-seed0": pick}, find_task("pick-place")).splitlines()[2]
+    assert "100% [72-100]" in line and " 0.00 " in line and "left:10" in line
+
+
+def test_a_policy_s_episodes_give_the_same_rows_again_and_the_rates_of_them():
+    task, settings = find_task("obstacle"), LoopSettings(episodes=4, max_steps=12, protocol=PLANNED, record=0)
+    policy = scripted_policy(gate=(0.5, 0.5), first_expert="sample")
+    first, again = (evaluate_policy(policy, task, settings, label="scripted")[PLANNED] for _ in range(2))
+    rows = first["per_episode"]
+    assert all(set(row) == OBSTACLE_ROW_KEYS for row in rows)
+    assert [{**row, "ms": None} for row in rows] == [{**row, "ms": None} for row in again["per_episode"]]
+    assert first["left"] == round(sum(row["side"] == "left" for row in rows) / len(rows), 4)
+    assert first["left_ci"] == rounded(wilson(sum(row["side"] == "left" for row in rows), len(rows)))
