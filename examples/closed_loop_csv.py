@@ -7,7 +7,9 @@ Each RUN is a folder written by `cnep sim obstacle` (its summary.json holds ever
 `cnep sim obstacle` names them; the demonstrations' seed and training steps from the summary of the `cnep sim
 obstacle` run found in a folder above RUN, if any). A row: the run's folder, the demonstrations' seed (`set`), the cue
 variant, the first expert's rule, the training steps, model, training seed, protocol, episodes, the rates (success,
-collision, left, switching, followed_cue) and the smallest gripper-box distance (cm); `usage`: the experts' shares of
+collision, left, switching, followed_cue), the Wilson 95% intervals of success and switching (`_lo`, `_hi`), the
+behaviour entropy of the side passed (empty where it is not defined: with a cue) and the smallest gripper-box
+distance (cm); `usage`: the experts' shares of
 the training samples at the last step (the last line of training_log.jsonl in the checkpoint `checkpoints/NAME`
 beside the policy's folder `policies/NAME`, as `cnep sim obstacle` lays them out), `/`-separated.
 """
@@ -21,7 +23,8 @@ from pathlib import Path
 
 COLUMNS = (
     "run", "set", "cue", "first_expert", "train_steps", "model", "train_seed", "protocol", "episodes", "success",
-    "collision", "left", "switching", "followed_cue", "min_gap_cm", "usage",
+    "success_lo", "success_hi", "collision", "left", "switching", "switching_lo", "switching_hi", "followed_cue",
+    "entropy", "min_gap_cm", "usage",
 )  # fmt: skip
 
 
@@ -32,6 +35,12 @@ def usage(checkpoint: Path) -> str:
         return ""
     last = json.loads(log.read_text().splitlines()[-1])
     return "/".join(f"{share:.2f}" for share in last["usage"])
+
+
+def bounds(rates: dict, key: str) -> dict:
+    """The Wilson interval of the rate under `key` as `KEY_lo` and `KEY_hi` (empty where the rates hold none)."""
+    lo, hi = rates.get(f"{key}_ci") or ("", "")
+    return {f"{key}_lo": lo, f"{key}_hi": hi}
 
 
 def obstacle_run(run: Path) -> dict:
@@ -64,8 +73,10 @@ def rows_of(run: Path) -> list[dict]:
                     "run": run.name, "set": made.get("seed", ""), "cue": settings["cue"],
                     "first_expert": settings["first_expert"], "train_steps": made.get("train_steps", ""),
                     "model": model, "train_seed": seed, "protocol": protocol, "episodes": r["episodes"],
-                    "success": r["success"], "collision": r["collision"], "left": r["left"],
-                    "switching": r["switching"], "followed_cue": "" if r["followed_cue"] is None else r["followed_cue"],
+                    "success": r["success"], **bounds(r, "success"), "collision": r["collision"], "left": r["left"],
+                    "switching": r["switching"], **bounds(r, "switching"),
+                    "followed_cue": "" if r["followed_cue"] is None else r["followed_cue"],
+                    "entropy": "" if r.get("entropy") is None else r["entropy"],
                     "min_gap_cm": round(r["min_clearance_m"] * 100, 1), "usage": usage(checkpoint),
                 }
             )  # fmt: skip

@@ -2,9 +2,11 @@
 
     python examples/pick_place_table.py OUT/summary.json [OUT2/summary.json ...] [--csv FILE]
 
-One row per summary, model, training seed, protocol (planned, online) and condition: episodes, success,
-collision, lifted, dropped, the share of changed episodes that switched within 5 steps, the median switch latency
-(steps) and the places the bar ended on (name:count). Prints the headline table in markdown, one row per model,
+One row per summary, model, training seed, protocol (planned, online) and condition: episodes, success and its
+Wilson 95% interval (`_lo`, `_hi`), collision, lifted, dropped, the share of episodes with an expert switch and its
+interval (in decided and free scenes: the switching without a change), the share of changed episodes that switched
+within 5 steps, the median switch latency (steps), the behaviour entropy of the place (free scenes; empty where it
+is not defined) and the places the bar ended on (name:count). Prints the headline table in markdown, one row per model,
 protocol and condition with a value per training seed (success, collision, switch within 5 steps); --csv FILE writes
 every column (docs/results/pick-place.csv).
 """
@@ -17,8 +19,15 @@ import io
 import json
 from pathlib import Path
 
-COLUMNS = ("run", "model", "train_seed", "protocol", "condition", "episodes", "success", "collision", "lifted",
-           "dropped", "switched_within_5", "switch_latency_p50", "places")  # fmt: skip
+COLUMNS = ("run", "model", "train_seed", "protocol", "condition", "episodes", "success", "success_lo", "success_hi",
+           "collision", "lifted", "dropped", "switching", "switching_lo", "switching_hi", "switched_within_5",
+           "switch_latency_p50", "entropy", "places")  # fmt: skip
+
+
+def bounds(rates: dict, key: str) -> dict:
+    """The Wilson interval of the rate under `key` as `KEY_lo` and `KEY_hi` (None where the rates hold none)."""
+    lo, hi = rates.get(f"{key}_ci") or (None, None)
+    return {f"{key}_lo": lo, f"{key}_hi": hi}
 
 
 def rows(summary: Path) -> list[dict]:
@@ -38,11 +47,15 @@ def rows(summary: Path) -> list[dict]:
                             "condition": condition,
                             "episodes": r["episodes"],
                             "success": r["success"],
+                            **bounds(r, "success"),
                             "collision": r["collision"],
                             "lifted": r["lifted"],
                             "dropped": r["dropped"],
+                            "switching": r["switching"],
+                            **bounds(r, "switching"),
                             "switched_within_5": r["switched_within"],
                             "switch_latency_p50": r["switch_latency_p50"],
+                            "entropy": r.get("entropy"),
                             "places": " ".join(f"{k}:{v}" for k, v in r["places"].items()),
                         }
                     )

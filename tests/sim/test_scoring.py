@@ -1,8 +1,10 @@
 """Each task's rates on hand-made rows: every share with its Wilson interval, the behaviour entropy where the scene
 leaves a choice and None where it does not, the switching without a change beside the switching after one; the
-tables show them; a policy's episodes give the same rows as a rerun and the documented rates of them."""
+tables and the results' CSVs (examples/closed_loop_csv.py, examples/pick_place_table.py) show them; a policy's
+episodes give the same rows as a rerun and the documented rates of them."""
 
 import importlib.util
+import json
 
 import pytest
 
@@ -20,6 +22,7 @@ from cnep.sim.tasks import find_task  # noqa: E402
 from cnep.sim.tasks.obstacle.scoring import rates  # noqa: E402
 from cnep.sim.tasks.pick_place.scoring import pick_rates  # noqa: E402
 from tests.sim.scripted import scripted_policy  # noqa: E402
+from tests.test_examples import load  # noqa: E402
 
 MS = {name: {"p50": 1.0, "p99": 2.0} for name in ("policy", "render", "physics")}
 OBSTACLE_ROW_KEYS = {"seed", "success", "collision", "side", "cue_side", "clearance_m", "distance_to_goal_m", "steps",
@@ -99,3 +102,22 @@ def test_a_policy_s_episodes_give_the_same_rows_again_and_the_rates_of_them():
     assert [{**row, "ms": None} for row in rows] == [{**row, "ms": None} for row in again["per_episode"]]
     assert first["left"] == round(sum(row["side"] == "left" for row in rows) / len(rows), 4)
     assert first["left_ci"] == rounded(wilson(sum(row["side"] == "left" for row in rows), len(rows)))
+
+
+def test_the_results_csvs_carry_the_intervals_and_the_entropy(tmp_path):
+    obstacle = rates([*[obstacle_row("left")] * 3, obstacle_row("right")])
+    run = tmp_path / "set0"
+    run.mkdir()
+    settings = {"seed": 0, "cue": False, "first_expert": "sample", "train_steps": 10}
+    (run / "summary.json").write_text(
+        json.dumps({"settings": settings, "models": {"CNEP": {"0": {PLANNED: obstacle}}}})
+    )
+    (row,) = load("closed_loop_csv").main([str(run), "--csv", str(tmp_path / "closed-loop.csv")])
+    assert [row["success_lo"], row["success_hi"]] == obstacle["success_ci"] and row["entropy"] == 0.8113
+    free = pick_rates([pick_row("left", ["left", "right"]), pick_row("right", ["left", "right"])])
+    pick = tmp_path / "pick" / "summary.json"
+    pick.parent.mkdir()
+    pick.write_text(json.dumps({"models": {"CNEP": {"0": {PLANNED: {"free": free}}}}}))
+    (row,) = load("pick_place_table").main([str(pick), "--csv", str(tmp_path / "pick.csv")])
+    assert [row["switching"], row["switching_lo"], row["switching_hi"]] == [0.0, 0.0, free["switching_ci"][1]]
+    assert row["entropy"] == 1.0 and "switching_lo" in (tmp_path / "pick.csv").read_text().splitlines()[0]
