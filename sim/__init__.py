@@ -3,7 +3,8 @@
     import gymnasium, cnep.sim
     env = gymnasium.make("cnep/Obstacle-v0")          # or "cnep/ObstacleCue-v0": a tile shows the side to pass
     env = gymnasium.make("cnep/PickPlace-v0")         # pick a bar, put it on a free mat it fits (condition=...)
-    observation, info = env.reset(seed=0)
+    env = gymnasium.make("cnep/PickPlace-v1")         # -v1 of each: a robot's limits and noise, wider scenes, a change
+    observation, info = env.reset(seed=0)             #   during the motion (sim.robot, each task's versions)
 
 Rendering is headless: MUJOCO_GL defaults to `egl` here, before MuJoCo loads (sim.render). This package imports
 the standard library, numpy, MuJoCo, Gymnasium and cnep.runtime only (tests/test_architecture.py checks it).
@@ -18,6 +19,8 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 ENV_ID, CUE_ENV_ID = "cnep/Obstacle-v0", "cnep/ObstacleCue-v0"
 PICK_ENV_ID = "cnep/PickPlace-v0"
+# The versions with a robot's constraints: the arm's limits, sensing noise, wider scenes, a change during the motion.
+ENV_V1_ID, CUE_ENV_V1_ID, PICK_ENV_V1_ID = "cnep/Obstacle-v1", "cnep/ObstacleCue-v1", "cnep/PickPlace-v1"
 EXTRA = ("mujoco", "gymnasium")  # what the `sim` extra installs
 
 _MODULES = {
@@ -30,7 +33,10 @@ _MODULES = {
     "tasks.pick_place.demonstrator": ("PickDraw", "draw_pick", "pick_path"),
 }
 _WHERE = {name: module for module, names in _MODULES.items() for name in names}
-__all__ = sorted([*_WHERE, "CUE_ENV_ID", "ENV_ID", "PICK_ENV_ID", "SimError", "require_extra"])
+__all__ = sorted(
+    [*_WHERE, "CUE_ENV_ID", "CUE_ENV_V1_ID", "ENV_ID", "ENV_V1_ID", "PICK_ENV_ID", "PICK_ENV_V1_ID", "SimError",
+     "require_extra"]
+)  # fmt: skip
 
 
 def require_extra() -> None:
@@ -49,9 +55,21 @@ def __getattr__(name: str) -> object:
     return getattr(importlib.import_module(f"{__name__}.{_WHERE[name]}"), name)
 
 
-if importlib.util.find_spec("gymnasium") is not None:  # registered by name: nothing is imported until made
+def _register() -> None:
+    """Every environment registered with Gymnasium by its id (nothing is imported until one is made)."""
     import gymnasium
 
-    gymnasium.register(id=ENV_ID, entry_point="cnep.sim.tasks.obstacle.env:ObstacleEnv")
-    gymnasium.register(id=CUE_ENV_ID, entry_point="cnep.sim.tasks.obstacle.env:ObstacleEnv", kwargs={"cue": True})
-    gymnasium.register(id=PICK_ENV_ID, entry_point="cnep.sim.tasks.pick_place.env:PickPlaceEnv")
+    obstacle, pick = "cnep.sim.tasks.obstacle.env:ObstacleEnv", "cnep.sim.tasks.pick_place.env:PickPlaceEnv"
+    for env_id, entry_point, kwargs in (
+        (ENV_ID, obstacle, {}),
+        (CUE_ENV_ID, obstacle, {"cue": True}),
+        (PICK_ENV_ID, pick, {}),
+        (ENV_V1_ID, obstacle, {"version": 1}),
+        (CUE_ENV_V1_ID, obstacle, {"cue": True, "version": 1}),
+        (PICK_ENV_V1_ID, pick, {"version": 1}),
+    ):
+        gymnasium.register(id=env_id, entry_point=entry_point, kwargs=kwargs)
+
+
+if importlib.util.find_spec("gymnasium") is not None:
+    _register()

@@ -34,6 +34,13 @@ DETOUR = (
 )  # m: the detour's |x| at the box (the box's edge is at BOX_HALF[0], the gripper's GRIPPER_HALF_WIDTH)
 DETOUR_SHAPE = (0.5, 1.0)  # the bump's exponent: x = detour * sin(pi * s) ** shape along the path's progress s
 DETOUR_PEAK = (0.42, 0.58)  # the progress s at which the detour peaks
+# The v1 demonstrator (a robot's: the box and the goal moved, a cue that shows during the motion) moves in phases, each
+# a minimum-jerk move of its own drawn steps (or more, within the arm's limits): `approach` straight towards the box,
+# stopping HOLD_BEFORE short of its centre, until the cue shows (the cue variant only); `out` to beside the box, DETOUR
+# from its centre across and REACH before it; `past` to as far beyond it; `in` to the goal.
+DETOUR_PHASES = {"approach": (10, 16), "out": (8, 14), "past": (5, 9), "in": (8, 14)}
+REACH = (0.10, 0.13)  # m: along y from the box's centre (its corners reach 0.07 at 20 degrees, the palm 0.015)
+HOLD_BEFORE = 0.18  # m: along y from the box's centre
 # The camera: fixed, in front of the table, looking down at it; a real camera's 4:3 frames.
 CAMERA = "front"
 IMAGE_WIDTH, IMAGE_HEIGHT = 160, 120

@@ -4,23 +4,31 @@ put it down, leave; with natural variation.
 A demonstration (`PickDraw`, drawn by `draw_pick` from a generator and the scene) has a place (one of the grasp's
 free places, drawn uniformly: the scene decides where one is taken and leaves the choice where both are free), a
 number of steps per phase (its speed: one pace within the scene's PHASE_STEPS' ranges for the whole motion, so each
-stage comes at about the same share of every demonstration), the grasp point along the bar, the place point on the
-mat and the carrying height. Its waypoints (`pick_path`) are the actions (8,): xyz, the quaternion xyzw (the
-grasp's yaw, turned during the approach) and the gripper command (FINGER_OPEN open, 0 closed); each phase moves
-with a minimum-jerk timing. `demonstrations` drives the environment with them, as a robot records a demonstration.
+stage comes at about the same share of every demonstration; in v1 each phase's pace drawn apart), the grasp point
+along the bar, the place point on the mat and the carrying height. Its waypoints (`pick_path`) are the actions (8,):
+xyz, the quaternion xyzw (the grasp's yaw, turned during the approach) and the gripper command (FINGER_OPEN open, 0
+closed); each phase moves with a minimum-jerk timing, lengthened where a robot's limits need (sim.controller).
+`PickExpert` is the demonstrator in closed loop: when the place it heads for is taken during the motion, it carries
+the bar on to the place valid then. `demonstrations` drives the environment with them, as a robot records a
+demonstration.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from cnep.runtime import STATE_KEY
+from cnep.sim.paths import Plan, through
+from cnep.sim.robot import TELEPORT, RobotSettings
 from cnep.sim.task import Demonstration, demonstration_seed, recorded
 from cnep.sim.tasks.pick_place import scene as P
-from cnep.sim.tasks.pick_place.env import PickPlaceEnv, grasp_places, yaw_quaternion
+from cnep.sim.tasks.pick_place.env import PickPlaceEnv, grasp_places
+
+CARRY = list(P.PHASE_STEPS).index("carry")  # the phase from which a demonstrator heads for its place
 
 
 @dataclass(frozen=True)
@@ -35,12 +43,18 @@ class PickDraw:
     carry_z: float
 
 
-def draw_pick(rng: np.random.Generator, orientation: str, taken: list[bool]) -> PickDraw:
-    """A demonstration's choices from `rng` for a bar lying `orientation` and the places `taken`."""
+def draw_pick(rng: np.random.Generator, orientation: str, taken: list[bool], pace_per_phase: bool = False) -> PickDraw:
+    """A demonstration's choices from `rng` for a bar lying `orientation` and the places `taken`; `pace_per_phase`:
+    each phase's steps drawn apart within PHASE_STEPS (v1), else one pace for the whole motion (phase_steps)."""
     free = [i for i in grasp_places(orientation) if not taken[i]]
+    place = free[int(rng.integers(len(free)))]
+    if pace_per_phase:
+        steps = tuple(int(rng.integers(lo, hi + 1)) for lo, hi in P.PHASE_STEPS.values())
+    else:
+        steps = phase_steps(float(rng.uniform()))
     return PickDraw(
-        place=free[int(rng.integers(len(free)))],
-        steps=phase_steps(float(rng.uniform())),
+        place=place,
+        steps=steps,
         grasp=float(rng.uniform(-P.GRASP_OFFSET, P.GRASP_OFFSET)),
         target=tuple(float(v) for v in rng.uniform(-P.PLACE_OFFSET, P.PLACE_OFFSET, 2)),
         carry_z=float(P.CARRY_Z + rng.uniform(-P.CARRY_JITTER, P.CARRY_JITTER)),
@@ -54,16 +68,24 @@ def phase_steps(pace: float) -> tuple[int, ...]:
     return tuple(int(round(lo + pace * (hi - lo))) for lo, hi in P.PHASE_STEPS.values())
 
 
-def pick_path(draw: PickDraw, start: np.ndarray, object_xy: np.ndarray, object_yaw: float) -> np.ndarray:
-    """The waypoints (sum of draw.steps, 8) after the gripper's `start` (x, y, z): waypoint k is the action at step
-    k; `object_xy` (m) and `object_yaw` (degrees) the bar's pose."""
+def pick_path(
+    draw: PickDraw, start: np.ndarray, object_xy: np.ndarray, object_yaw: float, robot: RobotSettings = TELEPORT
+) -> np.ndarray:
+    """The waypoints (steps, 8) after the gripper's `start` (x, y, z): waypoint k is the action at step k;
+    `object_xy` (m) and `object_yaw` (degrees) the bar's pose; each phase takes draw.steps' steps, or more where
+    `robot`'s limits need them (sim.controller.min_jerk_steps)."""
+    return through(_phases(draw, object_xy, object_yaw), draw.steps, np.asarray(start, np.float64), 0.0, robot)
+
+
+def _phases(draw: PickDraw, object_xy: np.ndarray, object_yaw: float) -> list[tuple[tuple, float, float]]:
+    """The phases of `draw` (PHASE_STEPS' order), each where it ends (xyz, m), the yaw at its end (degrees) and the
+    gripper command during it."""
     orientation_yaw = P.ORIENTATIONS[P.PLACES[draw.place][2]]
     grasp_xy = np.asarray(object_xy) + draw.grasp * _along(object_yaw)
     place_xy = np.asarray(P.PLACES[draw.place][1]) + draw.target + draw.grasp * _along(orientation_yaw)
     up, down = draw.carry_z, P.GRASP_Z
     open_, closed = P.FINGER_OPEN, 0.0
-    # Each phase: where it ends (xyz), the yaw at its end, the gripper command during it.
-    phases = [
+    return [
         ((*grasp_xy, up), object_yaw, open_),
         ((*grasp_xy, down), object_yaw, open_),
         ((*grasp_xy, down), object_yaw, closed),
@@ -73,15 +95,42 @@ def pick_path(draw: PickDraw, start: np.ndarray, object_xy: np.ndarray, object_y
         ((*place_xy, down + 0.003), orientation_yaw, open_),
         ((*place_xy, up), orientation_yaw, open_),
     ]
-    rows, xyz, yaw = [], np.asarray(start, np.float64), 0.0
-    for (end, end_yaw, grip), n in zip(phases, draw.steps):
-        tau = np.arange(1, n + 1) / n
-        s = 10 * tau**3 - 15 * tau**4 + 6 * tau**5  # minimum-jerk progress, 0 -> 1
-        for progress in s:
-            point = xyz + progress * (np.asarray(end) - xyz)
-            rows.append([*point, *yaw_quaternion(yaw + progress * (end_yaw - yaw)), grip])
-        xyz, yaw = np.asarray(end, np.float64), end_yaw
-    return np.asarray(rows)
+
+
+class PickExpert:
+    """The scripted demonstrator in closed loop: the path of `draw` (pick_path) from the reset's `start` (x, y, z) in
+    the environment's `scene` (PickPlaceEnv.scene) within `robot`'s limits; when the place it heads for is taken
+    during the motion (the changed scene), the path to the place valid then: before the bar is lifted its own path's
+    rest, after, a new path from its last waypoint on (carry, lower, open, leave)."""
+
+    def __init__(self, draw: PickDraw, start: np.ndarray, scene: dict, robot: RobotSettings = TELEPORT) -> None:
+        self.draw, self.start, self.scene, self.robot = draw, np.asarray(start, np.float64), scene, robot
+        self.plan = Plan(self._path())
+
+    def action(self, info: dict) -> np.ndarray:
+        """The action (8,) float32 after `info` (the reset's, then each step's)."""
+        valid, last = info.get("valid_after_change") or [], self.plan.last()
+        if valid and self.draw.place not in valid and last is not None:
+            self.draw = replace(self.draw, place=valid[0])
+            if not info["lifted"]:  # the path so far is the new one's too
+                self.plan.replan(self._path()[self.plan.given :])
+            else:
+                yaw = math.degrees(2 * math.atan2(last[5], last[6]))  # the quaternion xyzw's turn about z
+                # The phases from the carry on, to the new place: they do not depend on where the bar lay.
+                phases = _phases(self.draw, np.zeros(2), 0.0)[CARRY:]
+                self.plan.replan(through(phases, self.draw.steps[CARRY:], last[:3], yaw, self.robot))
+        return self.plan.next()
+
+    def _path(self) -> np.ndarray:
+        return pick_path(self.draw, self.start, self.scene["object_xy"], self.scene["object_yaw"], self.robot)
+
+
+def pick_expert(env: PickPlaceEnv, info: dict, rng: np.random.Generator) -> PickExpert:
+    """The scripted demonstrator of `env` just reset (its reset's `info`), its choices drawn from `rng` (draw_pick) as
+    the environment's version has them, within its robot's limits."""
+    version, scene = env.version, env.scene
+    draw = draw_pick(rng, scene["orientation"], scene["taken"], version.pace_per_phase)
+    return PickExpert(draw, np.array([*info["start"], version.start[2]]), scene, version.robot)
 
 
 def _along(yaw_deg: float) -> np.ndarray:

@@ -1,4 +1,5 @@
-"""`PickPlaceEnv`: the pick-and-place task as a Gymnasium environment (`gymnasium.make("cnep/PickPlace-v0")`).
+"""`PickPlaceEnv`: the pick-and-place task as a Gymnasium environment (`gymnasium.make("cnep/PickPlace-v0")`, or
+`"cnep/PickPlace-v1"`: a robot's constraints and a change during the carry, sim.tasks.pick_place.versions).
 
 Observation and action as every tabletop task's (sim.tabletop), the camera `observation.images.overhead`. The
 action's gripper is a two-state gripper's command: below CLOSE_BELOW the fingers close (driven to 0, so they
@@ -6,36 +7,38 @@ squeeze what they hold), else they open to FINGER_OPEN; the state reports the fi
 
 An episode (`reset(seed=)`) draws the gripper's start, the bar's pose and orientation (which decides the grasp and
 so its two places), the places the `condition` takes (its scene's CONDITIONS: `decided`, `free`, `changed`; or
-`mixed`: decided or free with equal chance, the demonstrations' scenes) and, for `changed`, the step at which the
-cup moves to the grasp's other place. It ends (`terminated`) once the bar was lifted and rests, released, on the
+`mixed`: decided or free with equal chance, the demonstrations' scenes) and, for `changed`, when the cup moves to the
+grasp's other place: v0 at a drawn step (before the grasp closes); v1 during the carry, once the bar is lifted and
+the gripper has covered a drawn share of the way from where it lifted the bar to the valid place (a policy heading
+elsewhere never changes it). It ends (`terminated`) once the bar was lifted and rests, released, on the
 table (on a mat or not), else is truncated after `max_steps`. Judged by the physics (`info`): `lifted` (the bar
 rose LIFTED_Z), `dropped` (out of the fingers with its bottom DROP_HEIGHT above the table), `collision` (the
 gripper or the bar touched a cup), `place` (the mat whose footprint holds the bar's whole footprint at the end,
 or None), `valid` (the places free now that fit the bar's orientation), `is_success` (lifted, not dropped, no
-collision, at rest in a valid place, released). `env.timings` holds the last step's physics and render seconds.
+collision, at rest in a valid place, released); the change: `change_step` (v0: the step drawn; v1: the step at which
+the cup moved, None until it does: the table changes before that step's action acts) and `valid_after_change` (the
+valid places right after it, None before). `env.timings` holds the last step's physics and render seconds.
+
+`version` (0 or 1) chooses the robot and the scenes (sim.tasks.pick_place.versions); `latency_steps` and `frames`
+are sim.tabletop's.
 """
 
 from __future__ import annotations
-
-import math
 
 import mujoco
 import numpy as np
 
 from cnep.runtime.constants import IMAGE_KEY_PREFIX
+from cnep.sim import scene as S
+from cnep.sim.paths import yaw_quaternion
 from cnep.sim.tabletop import TabletopEnv
 from cnep.sim.tasks.pick_place import scene as P
 from cnep.sim.tasks.pick_place.scoring import PickEpisode, judge
+from cnep.sim.tasks.pick_place.versions import IN_CARRY, version_of
 
 MIXED = "mixed"
 PICK_IMAGE_KEY = IMAGE_KEY_PREFIX + P.CAMERA
 FOOTPRINT_TOLERANCE = 0.005  # m: how far the bar's corners may lie outside a mat's edge
-
-
-def yaw_quaternion(yaw_deg: float) -> np.ndarray:
-    """The quaternion xyzw (4,) of a turn by `yaw_deg` degrees about z."""
-    half = math.radians(yaw_deg) / 2
-    return np.array([0.0, 0.0, math.sin(half), math.cos(half)])
 
 
 def grasp_places(orientation: str) -> tuple[int, ...]:
@@ -44,19 +47,33 @@ def grasp_places(orientation: str) -> tuple[int, ...]:
 
 
 class PickPlaceEnv(TabletopEnv):
-    """Pick the bar and put it on a free mat it fits (module docstring); `condition`: the scenes drawn."""
+    """Pick the bar and put it on a free mat it fits (module docstring); `condition`: the scenes drawn; `max_steps`
+    None: the version's."""
 
-    def __init__(self, condition: str = MIXED, render_mode: str | None = None, max_steps: int = P.MAX_STEPS) -> None:
+    def __init__(
+        self,
+        condition: str = MIXED,
+        render_mode: str | None = None,
+        max_steps: int | None = None,
+        version: int = 0,
+        latency_steps: int = 0,
+        frames: bool = True,
+    ) -> None:
         if condition not in (MIXED, *P.CONDITIONS):
             raise ValueError(f"condition must be one of {MIXED}, {', '.join(P.CONDITIONS)}, got {condition!r}")
+        self.version = version_of(version)
+        v = self.version
         super().__init__(
-            P.scene_xml(),
+            P.scene_xml(v.object_mass, v.grip),
             height=P.IMAGE_HEIGHT,
             width=P.IMAGE_WIDTH,
             camera=P.CAMERA,
             finger_open=P.FINGER_OPEN,
-            max_steps=max_steps,
+            max_steps=v.max_steps if max_steps is None else max_steps,
             render_mode=render_mode,
+            robot=v.robot,
+            latency_steps=latency_steps,
+            frames=frames,
         )
         self.condition = condition
         m = self.model
@@ -68,53 +85,54 @@ class PickPlaceEnv(TabletopEnv):
 
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
         """A new episode. options override the draws: `start` (x, y) m, `orientation` (an ORIENTATIONS key),
-        `taken` (a bool per place), `change_step` (int, or None for no change)."""
+        `taken` (a bool per place), `change_step` (v0: int, or None for no change), `change_share` (v1: float, or None
+        for no change)."""
         super().reset(seed=seed)
         options = options or {}
         m, d, rng = self.model, self.data, self.np_random
         mujoco.mj_resetData(m, d)
-        jitter = rng.uniform(-P.START_JITTER, P.START_JITTER, 2)
-        start = np.asarray(options.get("start", (P.START[0] + jitter[0], P.START[1] + jitter[1])), np.float64)
+        jitter = rng.uniform(-self.version.start_jitter, self.version.start_jitter, 2)
+        home = self.version.start
+        start = np.asarray(options.get("start", (home[0] + jitter[0], home[1] + jitter[1])), np.float64)
         scene = self._draw_scene(options)
         self.scene = scene
-        self.place_gripper((*start, P.START[2]), P.FINGER_OPEN)
+        self.place_gripper((*start, home[2]), P.FINGER_OPEN)
         root = m.jnt_qposadr[self._object_joint]
         d.qpos[root : root + 3] = (*scene["object_xy"], P.OBJECT_HALF[2])
         d.qpos[root + 3 : root + 7] = np.roll(yaw_quaternion(scene["object_yaw"]), 1)
         self._set_cups(scene["taken"])
         mujoco.mj_forward(m, d)
         self._steps, self._lifted, self._dropped, self._collision = 0, False, False, False
+        self._lift_xy, self._valid_after_change = None, None
         return self.observe(0.0), {**self._info(), "start": start.copy()}
 
     def _draw_scene(self, options: dict) -> dict:
-        """The episode's scene: object_xy, object_yaw (deg), orientation, taken (per place), change_step."""
-        rng = self.np_random
+        """The episode's scene: object_xy, object_yaw (deg), orientation, taken (per place), change_step (v0) or
+        change_share (v1)."""
+        rng, v = self.np_random, self.version
         orientation = options.get("orientation", tuple(P.ORIENTATIONS)[int(rng.integers(2))])
-        xy = np.asarray(P.OBJECT_XY) + rng.uniform(-P.OBJECT_JITTER, P.OBJECT_JITTER, 2)
-        yaw = P.ORIENTATIONS[orientation] + rng.uniform(-P.YAW_JITTER_DEG, P.YAW_JITTER_DEG)
+        xy = np.asarray(P.OBJECT_XY) + rng.uniform(-v.object_jitter, v.object_jitter, 2)
+        yaw = P.ORIENTATIONS[orientation] + rng.uniform(-v.yaw_jitter_deg, v.yaw_jitter_deg)
         condition = self.condition if self.condition != MIXED else (P.DECIDED, P.FREE)[int(rng.integers(2))]
         taken = list(rng.random(len(P.PLACES)) < P.OTHER_TAKEN)
         ours = grasp_places(orientation)
         blocked = int(rng.integers(2))
         for j, place in enumerate(ours):
             taken[place] = condition != P.FREE and j == blocked
+        taken = [bool(t) for t in options.get("taken", taken)]
+        scene = {"condition": condition, "object_xy": xy, "object_yaw": yaw, "orientation": orientation, "taken": taken}
+        if v.change == IN_CARRY:
+            share = float(rng.uniform(*v.change_share)) if condition == P.CHANGED else None
+            return {**scene, "change_share": options.get("change_share", share), "change_step": None}
         lo, hi = P.CHANGE_STEPS
         change = int(rng.integers(lo, hi + 1)) if condition == P.CHANGED else None
-        taken = [bool(t) for t in options.get("taken", taken)]
-        return {
-            "condition": condition,
-            "object_xy": xy,
-            "object_yaw": yaw,
-            "orientation": orientation,
-            "taken": taken,
-            "change_step": options.get("change_step", change),
-        }
+        return {**scene, "change_step": options.get("change_step", change)}
 
     def step(self, action: np.ndarray) -> tuple[dict, float, bool, bool, dict]:
         """Move towards the waypoint `action` (8,) for one control period, the gripper by its command;
         (observation, reward, terminated, truncated, info), reward 1 at the step that succeeds."""
-        action = np.asarray(action, dtype=np.float64).reshape(-1)
-        if self._steps == self.scene["change_step"]:
+        action = self.delayed(np.asarray(action, dtype=np.float64).reshape(-1))
+        if self._changes_now():
             self._change_scene()
         fingers = 0.0 if action[7] < P.CLOSE_BELOW else P.FINGER_OPEN
         physics_s = self.drive(action, fingers, self._judge)
@@ -125,6 +143,22 @@ class PickPlaceEnv(TabletopEnv):
         truncated = not terminated and self._steps >= self.max_steps
         return observation, float(info["is_success"] and terminated), terminated, truncated, info
 
+    def _changes_now(self) -> bool:
+        """Whether the table changes before this step acts: v0 at the drawn step; v1 once the bar is lifted and the
+        gripper has covered the drawn share of the way from where it lifted the bar to the place valid until now."""
+        if self.version.change != IN_CARRY:
+            return self._steps == self.scene["change_step"]
+        share = self.scene["change_share"]
+        if share is None or self.scene["change_step"] is not None or self._lift_xy is None:
+            return False
+        valid = self._valid()
+        if not valid:
+            return False
+        place = np.asarray(P.PLACES[valid[0]][1])
+        gripper = self.data.body(S.GRIPPER_BODY).xpos[:2]
+        way = float(np.linalg.norm(place - self._lift_xy))
+        return way > 0 and 1 - float(np.linalg.norm(place - gripper)) / way >= share
+
     def _change_scene(self) -> None:
         """The cup on the grasp's taken place moves to its other place (the `changed` condition)."""
         ours = grasp_places(self.scene["orientation"])
@@ -132,7 +166,9 @@ class PickPlaceEnv(TabletopEnv):
         for place in ours:
             taken[place] = not taken[place]
         self.scene["taken"] = taken
+        self.scene["change_step"] = self._steps
         self._set_cups(taken)
+        self._valid_after_change = self._valid()
 
     def _set_cups(self, taken: list[bool]) -> None:
         for i, (_, xy, _) in enumerate(P.PLACES):
@@ -141,7 +177,10 @@ class PickPlaceEnv(TabletopEnv):
     def _judge(self) -> None:
         """After a physics step: lifted, dropped, a collision with a cup."""
         z = self.data.body(P.OBJECT_BODY).xpos[2]
+        lifted = self._lifted
         self._lifted = self._lifted or z > P.OBJECT_HALF[2] + P.LIFTED_Z
+        if self._lifted and not lifted:
+            self._lift_xy = self.data.body(S.GRIPPER_BODY).xpos[:2].copy()
         high = z > P.OBJECT_HALF[2] + P.DROP_HEIGHT
         self._dropped = self._dropped or (high and not self.touching(self.gripper_geoms, self._object_geom))
         holder = self.gripper_geoms | self._object_geom
@@ -174,9 +213,13 @@ class PickPlaceEnv(TabletopEnv):
                 return i
         return None
 
+    def _valid(self) -> list[int]:
+        """The places free now that fit the bar's orientation."""
+        return [i for i in grasp_places(self.scene["orientation"]) if not self.scene["taken"][i]]
+
     def _info(self) -> dict:
         place = self.place_of_object()
-        valid = [i for i in grasp_places(self.scene["orientation"]) if not self.scene["taken"][i]]
+        valid = self._valid()
         z = float(self.data.body(P.OBJECT_BODY).xpos[2])
         released = not self.touching(self.gripper_geoms, self._object_geom)
         at_rest = bool(np.linalg.norm(self.object_velocity()) < P.REST_SPEED and z < P.OBJECT_HALF[2] + 0.005)
@@ -194,4 +237,5 @@ class PickPlaceEnv(TabletopEnv):
             "orientation": self.scene["orientation"],
             "taken": list(self.scene["taken"]),
             "change_step": self.scene["change_step"],
+            "valid_after_change": self._valid_after_change,
         }

@@ -91,8 +91,14 @@ def mat_half(place: int) -> tuple[float, float]:
     return (across, along) if PLACES[place][2] == "along_y" else (along, across)
 
 
-def scene_xml() -> str:
-    """The MJCF: table, mats, cups (hidden), the bar (free), the gripper of sim.scene, the camera."""
+# A real grip's friction holds without creeping (MuJoCo's soft contacts let a squeezed part slide slowly otherwise):
+# elliptic friction cones, made stiffer than the normal force's.
+GRIP_OPTIONS = ' cone="elliptic" impratio="10"'
+
+
+def scene_xml(object_mass: float = OBJECT_MASS, grip: S.Grip | None = None) -> str:
+    """The MJCF: table, mats, cups (hidden), the bar (free, `object_mass` kg; its friction OBJECT_FRICTION, or the
+    real `grip`'s), the gripper of sim.scene (a real `grip`'s, or the idealised one), the camera."""
     v = S.v
     pitch = math.radians(CAMERA_PITCH_DEG)
     mats = "".join(
@@ -107,7 +113,7 @@ def scene_xml() -> str:
         for i, (_, xy, _) in enumerate(PLACES)
     )
     return f"""<mujoco model="cnep-pick-place">
-  <option timestep="{S.TIMESTEP_S:g}"/>
+  <option timestep="{S.TIMESTEP_S:g}"{"" if grip is None else GRIP_OPTIONS}/>
   {S.visual_xml(IMAGE_WIDTH, IMAGE_HEIGHT)}
   <worldbody>
     <geom name="{S.TABLE_GEOM}" type="box" pos="0 0 {-S.TABLE_HALF[2]:g}" size="{v(S.TABLE_HALF)}"
@@ -118,11 +124,11 @@ def scene_xml() -> str:
       fovy="{CAMERA_FOVY:g}"/>
     <body name="{OBJECT_BODY}" pos="{v(OBJECT_XY)} {OBJECT_HALF[2]:g}">
       <freejoint/>
-      <geom name="{OBJECT_GEOM}" type="box" size="{v(OBJECT_HALF)}" mass="{OBJECT_MASS:g}"
-        friction="{OBJECT_FRICTION:g} 0.005 0.0001" rgba="{v(OBJECT_RGBA)}"/>
+      <geom name="{OBJECT_GEOM}" type="box" size="{v(OBJECT_HALF)}" mass="{object_mass:g}"
+        friction="{OBJECT_FRICTION if grip is None else grip.friction:g} 0.005 0.0001" rgba="{v(OBJECT_RGBA)}"/>
     </body>
-    {S.gripper_xml(FINGER_OPEN)}
+    {S.gripper_xml(FINGER_OPEN, grip)}
   </worldbody>
-  {S.gripper_constraints_xml(FINGER_OPEN)}
+  {S.gripper_constraints_xml(FINGER_OPEN, grip)}
 </mujoco>
 """

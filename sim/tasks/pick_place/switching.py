@@ -1,0 +1,37 @@
+"""Whether a policy's switch after the table changed counts: the first switch of the active expert after the change
+whose new plan ends on a place valid after the change (`counted_switch`), where the plan's end is the mat its last
+waypoint stands over (`plan_place`). A switch to the expert of a place still taken, or of no place, does not count.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from cnep.sim.tasks.pick_place import scene as P
+
+
+def plan_place(plan: np.ndarray) -> int | None:
+    """The place (index of PLACES) whose mat holds the xy of `plan`'s last waypoint (plan (W, >= 2), m), or None."""
+    end = np.asarray(plan, np.float64)[-1, :2]
+    for i, (_, xy, _) in enumerate(P.PLACES):
+        if np.all(np.abs(end - xy) <= P.mat_half(i)):
+            return i
+    return None
+
+
+def counted_switch(
+    experts: np.ndarray, predicted: np.ndarray, change_step: int | None, valid_after: list[int] | None
+) -> int | None:
+    """The first step after the change at which the active expert changed to one whose plan ends on a valid place.
+
+    experts (reads,): the active expert at each read of the policy (a read per step); predicted (reads, W, >= 2): each
+    read's waypoints (m); change_step: the step before whose action the table changed (None: it did not; the policy
+    first sees it at the read of step change_step + 1); valid_after: the places valid after the change (indices of
+    PLACES). None without a change or such a switch.
+    """
+    if change_step is None or not valid_after:
+        return None
+    for step in range(change_step + 1, len(experts)):
+        if experts[step] != experts[step - 1] and plan_place(predicted[step]) in valid_after:
+            return step
+    return None
