@@ -137,3 +137,12 @@ def test_switch_margin_applies_each_rule_to_the_demos_gates(quick_demo, capsys, 
     assert len(rows) == len(load("switch_margin").RULES) and "| 0.3 | 3 |" in capsys.readouterr().out
     for row in rows:  # a rule only hands over to the gate's leader: never more switches than the argmax
         assert sum(row["free_choice"]) <= sum(argmax["free_choice"]) and sum(row["heldout"]) <= sum(argmax["heldout"])
+
+
+def test_demonstrators_reports_each_versions_scenes(capsys):
+    pytest.importorskip("mujoco")
+    rows = load("demonstrators").main(["--seeds", "1", "--versions", "1"])
+    assert [(r["task"], r["scene"]) for r in rows] == load("demonstrators").SCENES
+    assert all(r["version"] == 1 and r["episodes"] == 1 and r["success"] == 1 for r in rows)
+    assert [r["changed"] for r in rows] == [0, 0, 1, 0, 1]  # the changed scene and the cue that shows
+    assert "| pick-place | changed | v1 | 1 | 1 | 1 |" in capsys.readouterr().out
