@@ -1,5 +1,6 @@
 """Whether a switch after a change counts: in pick-and-place the new expert's plan ends on a place valid after the
-change, in the obstacle task it passes the box on the cue's side."""
+change, in the obstacle task it passes the box on the cue's side; an episode records the places valid after the
+change and the switch that counts."""
 
 import importlib.util
 
@@ -11,9 +12,13 @@ import cnep.sim
 if not all(importlib.util.find_spec(name) for name in cnep.sim.EXTRA):
     pytest.skip("the sim extra is not installed", allow_module_level=True)
 
+from cnep.runtime import STATE_NAMES, PolicyStep  # noqa: E402
+from cnep.sim.episode import ONLINE, run_episode  # noqa: E402
 from cnep.sim.tasks.obstacle.switching import counted_switch as counted_cue_switch  # noqa: E402
 from cnep.sim.tasks.obstacle.switching import side_of  # noqa: E402
 from cnep.sim.tasks.pick_place import scene as P  # noqa: E402
+from cnep.sim.tasks.pick_place.demonstrator import pick_expert  # noqa: E402
+from cnep.sim.tasks.pick_place.env import PickPlaceEnv  # noqa: E402
 from cnep.sim.tasks.pick_place.switching import counted_switch, plan_place  # noqa: E402
 
 LEFT, RIGHT, FAR_LEFT = 0, 1, 2  # indices of P.PLACES
@@ -61,3 +66,46 @@ def test_only_a_switch_after_the_cue_to_a_plan_passing_on_its_side_counts():
     assert counted_cue_switch(experts, predicted, 1, "left", box) == 2
     assert counted_cue_switch(experts, predicted, 1, "right", box) == 4
     assert counted_cue_switch(experts, predicted, None, "left", box) is None
+
+
+class _Recorded(PickPlaceEnv):
+    """The pick-and-place environment keeping its last info for the demonstrator behind the policy's interface."""
+
+    def reset(self, **kwargs):
+        observation, self.last_info = super().reset(**kwargs)
+        return observation, self.last_info
+
+    def step(self, action):
+        *rest, self.last_info = super().step(action)
+        return (*rest, self.last_info)
+
+
+class _ExpertPolicy:
+    """The closed-loop demonstrator as a policy: its next waypoint first, the rest of its plan the prediction (held
+    at its end, as many waypoints as the episode's steps), the place it heads for the active expert."""
+
+    action_names, gripper = STATE_NAMES, None
+
+    def __init__(self, env: _Recorded) -> None:
+        self.env = env
+
+    def reset(self, seed: int) -> None:
+        self.expert, self.k = pick_expert(self.env, self.env.last_info, np.random.default_rng(seed)), 0
+
+    def step(self, observation: dict) -> PolicyStep:
+        action = self.expert.action(self.env.last_info)
+        plan = np.vstack([action, self.expert.plan.waypoints[self.expert.plan.given :]])
+        plan = np.vstack([plan, np.repeat(plan[-1:], self.env.max_steps - len(plan), axis=0)])  # W: held at its end
+        places = np.eye(len(P.PLACES))
+        self.k += 1
+        return PolicyStep(self.k - 1, 0.0, 0.0, plan, np.zeros_like(plan), np.zeros(len(plan)),
+                          places[self.expert.draw.place], self.expert.draw.place, None)  # fmt: skip
+
+
+def test_an_episode_records_the_places_valid_after_the_change_and_the_switch_to_one():
+    env = _Recorded(P.CHANGED, version=1, frames=False)
+    ep = run_episode(env, _ExpertPolicy(env), seed=3, protocol=ONLINE)
+    assert ep.success and ep.change_step is not None
+    assert ep.valid_after_change == ep.valid and ep.place in ep.valid_after_change
+    assert ep.switch_step == ep.valid_switch_step == ep.change_step + 1  # it saw the change at its next read
+    env.close()

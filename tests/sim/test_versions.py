@@ -34,6 +34,7 @@ from cnep.sim import (  # noqa: E402
 )
 from cnep.sim import scene as S  # noqa: E402
 from cnep.sim.paths import rollout  # noqa: E402
+from cnep.sim.tasks.obstacle import scene as O  # noqa: E402
 from cnep.sim.tasks.obstacle.demonstrator import obstacle_expert  # noqa: E402
 from cnep.sim.tasks.pick_place import scene as P  # noqa: E402
 from cnep.sim.tasks.pick_place.demonstrator import pick_expert  # noqa: E402
@@ -122,7 +123,7 @@ def test_with_latency_each_action_acts_a_step_late():
     for latency in (0, 1):
         env = ObstacleEnv(version=1, latency_steps=latency, frames=False)
         observation, info = env.reset(seed=0)
-        target = np.array([*info["start"] + [0.0, 0.05], S.EE_HEIGHT, 0, 0, 0, 1, S.FINGER_OPEN], np.float32)
+        target = np.array([*info["start"] + [0.0, 0.05], O.EE_HEIGHT, 0, 0, 0, 1, S.FINGER_OPEN], np.float32)
         ys = []
         for _ in range(3):
             env.step(target)
@@ -173,7 +174,7 @@ def test_in_v1_the_cup_stays_while_the_gripper_does_not_head_for_its_place():
 
 def test_in_v1_the_cue_shows_once_the_gripper_has_moved_or_at_the_latest_step():
     env = ObstacleEnv(cue=True, version=1, frames=False)
-    cue = env.model.geom(S.CUE_GEOM).id
+    cue = env.model.geom(O.CUE_GEOM).id
     _, info = env.reset(seed=0)
     assert info["cue_step"] is None and env.model.geom_pos[cue][2] < 0  # hidden at the start
     expert = obstacle_expert(env, np.random.default_rng(0))
@@ -183,7 +184,7 @@ def test_in_v1_the_cue_shows_once_the_gripper_has_moved_or_at_the_latest_step():
     assert 0 < info["cue_step"] <= env.version.cue_latest_step and shown[2] > 0
     assert (shown[0] < box_x) == (info["cue_side"] == "left")
     _, info = env.reset(seed=0)
-    still = np.r_[info["start"], S.EE_HEIGHT, 0, 0, 0, 1, S.FINGER_OPEN].astype(np.float32)
+    still = np.r_[info["start"], O.EE_HEIGHT, 0, 0, 0, 1, S.FINGER_OPEN].astype(np.float32)
     steps = [env.step(still)[4]["cue_step"] for _ in range(env.version.cue_latest_step + 1)]
     assert steps[-2] is None and steps[-1] == env.version.cue_latest_step  # a gripper that waits sees it too
     env.close()

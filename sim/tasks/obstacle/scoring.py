@@ -15,12 +15,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numpy as np
-
 from cnep.sim.episode import EpisodeResult
 from cnep.sim.scoring import PERCENT_CI_WIDTH, Column, decimals, percent, percent_ci, pooled_ms, shares, timings_ms
 from cnep.sim.statistics import behaviour_entropy
 from cnep.sim.tasks.obstacle import scene as O
+from cnep.sim.tasks.obstacle.switching import counted_switch, side_of
 
 
 @dataclass(kw_only=True)
@@ -28,32 +27,35 @@ class ObstacleEpisode(EpisodeResult):
     """An obstacle episode (sim.episode.EpisodeResult, its object the box): side, where the end effector passed the
     box ("left" / "right", facing the goal); clearance_m, the smallest gripper-box distance; distance_to_goal_m, at
     the end (xy); cue_side, the side the cue showed (None without a cue); contact_step, the first step touching the
-    box, or None."""
+    box, or None; cue_step, the step before whose action the cue showed (0: from the reset; None without a cue);
+    cue_switch_step, the first switch after a cue that showed during the motion to an expert whose plan passes on its
+    side (switching.counted_switch; None: none)."""
 
     side: str
     clearance_m: float
     distance_to_goal_m: float
     cue_side: str | None
     contact_step: int | None = None
+    cue_step: int | None = None
+    cue_switch_step: int | None = None
 
 
 def judge(infos: list[dict], **recorded) -> ObstacleEpisode:
     """The episode's result from the environment's `infos` (the reset's, then one per step) and what
     sim.episode.run_episode `recorded`."""
     info = infos[-1]
+    box = recorded["object_poses"][0, :2]  # where the box stood
+    shown = info["cue_step"] or None  # a cue shown from the reset changes nothing during the motion
     return ObstacleEpisode(
         **recorded,
-        side=side_passed(recorded["states"]),
+        side=side_of(recorded["states"][:, :2], box),
         clearance_m=float(info["clearance"]),
         distance_to_goal_m=float(info["distance_to_goal"]),
         cue_side=info["cue_side"],
         contact_step=next((k for k, step in enumerate(infos) if step["collision"]), None),
+        cue_step=info["cue_step"],
+        cue_switch_step=counted_switch(recorded["experts"], recorded["predicted"], shown, info["cue_side"], box),
     )
-
-
-def side_passed(states: np.ndarray) -> str:
-    """Where a path of states (n, >= 2) passed the box: "left" (x < 0) or "right", at the step nearest the box's y."""
-    return "left" if states[int(np.abs(states[:, 1]).argmin()), 0] < 0 else "right"
 
 
 def episode_row(ep: ObstacleEpisode) -> dict:

@@ -24,6 +24,7 @@ from cnep.sim.episode import EpisodeResult
 from cnep.sim.scoring import PERCENT_CI_WIDTH, Column, decimals, percent, percent_ci, pooled_ms, shares, timings_ms
 from cnep.sim.statistics import behaviour_entropy
 from cnep.sim.tasks.pick_place import scene as P
+from cnep.sim.tasks.pick_place.switching import counted_switch
 
 SWITCH_WITHIN = 5  # steps: a switch this soon after the change counts as prompt
 
@@ -34,7 +35,9 @@ class PickEpisode(EpisodeResult):
     changed): lifted, dropped, the environment's verdicts at the end; place, the mat the bar ended on (a PLACES name)
     or None; valid, the valid places' names at the end; taken_start, taken_end, the places taken at the start and at
     the end (a bool each); change_step, the step at which the table changed (None: it did not); switch_step, the
-    first step at or after the change at which the active expert changed (None: none did, no change, or PLANNED).
+    first step at or after the change at which the active expert changed (None: none did, no change, or PLANNED);
+    valid_after_change, the valid places' names right after the change (None without one); valid_switch_step, the
+    first switch after the change to an expert whose plan ends on one of them (switching.counted_switch; None: none).
     """
 
     lifted: bool
@@ -45,6 +48,8 @@ class PickEpisode(EpisodeResult):
     taken_end: list[bool]
     change_step: int | None
     switch_step: int | None
+    valid_after_change: list[str] | None = None
+    valid_switch_step: int | None = None
 
 
 def judge(infos: list[dict], **recorded) -> PickEpisode:
@@ -53,6 +58,7 @@ def judge(infos: list[dict], **recorded) -> PickEpisode:
     info = infos[-1]
     steps = len(recorded["states"]) - 1
     change = info["change_step"] if info["change_step"] is not None and info["change_step"] < steps else None
+    after = info["valid_after_change"] if change is not None else None
     return PickEpisode(
         **recorded,
         lifted=bool(info["lifted"]),
@@ -63,6 +69,8 @@ def judge(infos: list[dict], **recorded) -> PickEpisode:
         taken_end=list(info["taken"]),
         change_step=change,
         switch_step=first_switch(recorded["experts"], change),
+        valid_after_change=None if after is None else [P.PLACES[i][0] for i in after],
+        valid_switch_step=counted_switch(recorded["experts"], recorded["predicted"], change, after),
     )
 
 
