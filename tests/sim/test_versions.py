@@ -5,6 +5,7 @@ seed, the grip's margin, and the changes during the motion: the cup during the c
 import hashlib
 import importlib.util
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -37,6 +38,7 @@ from cnep.sim.paths import rollout  # noqa: E402
 from cnep.sim.tasks.obstacle import scene as O  # noqa: E402
 from cnep.sim.tasks.obstacle.demonstrator import obstacle_expert  # noqa: E402
 from cnep.sim.tasks.pick_place import scene as P  # noqa: E402
+from cnep.sim.tasks.pick_place import versions  # noqa: E402
 from cnep.sim.tasks.pick_place.demonstrator import pick_expert  # noqa: E402
 from cnep.sim.tasks.pick_place.versions import V0, V1, grip_margin  # noqa: E402
 
@@ -137,11 +139,21 @@ def test_with_latency_each_action_acts_a_step_late():
         ObstacleEnv(latency_steps=-1, frames=False)
 
 
-def test_the_v1_grip_holds_a_few_times_the_bars_weight_where_v0s_held_28():
+def test_the_v1_grip_holds_a_few_times_the_bars_weight_where_v0s_held_28_and_the_physics_agrees(monkeypatch):
     assert 3.0 < grip_margin(V1) <= 5.0
     assert 28.0 < grip_margin(V0) < 29.0
     with pytest.raises(ValueError, match="versions 0 to 1"):
         PickPlaceEnv(version=2)
+    lifted = {}
+    for margin in (1.3, 0.9):  # the bar made heavier until the grip holds 1.3, then 0.9 times its weight
+        heavy = replace(V1, object_mass=V1.object_mass * grip_margin(V1) / margin)
+        monkeypatch.setattr(versions, "VERSIONS", (V0, heavy))
+        env = PickPlaceEnv(P.DECIDED, version=1, frames=False)
+        _, info = env.reset(seed=1)
+        info, _ = rollout(env, pick_expert(env, info, np.random.default_rng(1)).action, info)
+        lifted[margin] = info["lifted"] and info["is_success"]
+        env.close()
+    assert lifted == {1.3: True, 0.9: False}  # the friction holds the bar, up to its margin
 
 
 def test_in_v1_the_cup_moves_during_the_carry_towards_it_and_the_info_records_what_was_valid_after():
