@@ -26,8 +26,12 @@ def noisy_pose(state: np.ndarray, rng: np.random.Generator, robot: RobotSettings
 
 def noisy_frame(frame: np.ndarray, rng: np.random.Generator, sigma: float) -> np.ndarray:
     """`frame` (H, W, 3) uint8 with Gaussian sensor noise of `sigma` levels per pixel and channel, a new array."""
-    noisy = frame.astype(np.float32) + rng.normal(0.0, sigma, frame.shape).astype(np.float32)
-    return np.clip(np.rint(noisy), 0, 255).astype(np.uint8)
+    noisy = rng.standard_normal(frame.shape, dtype=np.float32)  # float32 in place: a frame a control step
+    noisy *= sigma
+    noisy += frame
+    np.rint(noisy, out=noisy)
+    np.clip(noisy, 0, 255, out=noisy)
+    return noisy.astype(np.uint8)
 
 
 class CameraDraw:
