@@ -49,7 +49,7 @@ from cnep.pipeline.sim.baselines import BASELINES, baseline_policy
 from cnep.pipeline.sim.config import PickPlaceConfig, SimConfig
 from cnep.pipeline.sim.figure import FIGURE_FILE
 from cnep.pipeline.sim.generate import TIME_UNIT, generate_demonstrations
-from cnep.pipeline.sim.loop import episodes_of, evaluate_policy, open_task_policy
+from cnep.pipeline.sim.loop import episodes_of, evaluate_policy, for_task, open_task_policy
 from cnep.pipeline.sim.summary import format_table
 from cnep.pipeline.train.stage import TrainStageConfig
 from cnep.pipeline.workers import single_thread_processes
@@ -72,6 +72,7 @@ def run_sim(config: SimConfig | PickPlaceConfig) -> dict:
     OUT/summary.json)."""
     require_extra()
     task = find_task(config.TASK)
+    config = for_task(config, task)
     return run_in_new_folder(Path(config.out), f"cnep sim {task.name}", lambda out: _run_stages(config, task, out))
 
 
