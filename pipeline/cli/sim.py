@@ -47,9 +47,6 @@ def config_of(cls: type, args: argparse.Namespace, **given):
 
 
 def run(args: argparse.Namespace) -> int:
-    from cnep.sim import require_extra
-
-    require_extra()  # one line naming the extra, before the stage imports MuJoCo
     return args._sim(args)
 
 
@@ -58,6 +55,9 @@ def run_task(args: argparse.Namespace) -> int:
 
     config = config_of(args._config, args, out=args.out)  # checked before the stage loads
     from cnep.pipeline.progress import heartbeat
+    from cnep.pipeline.sim.extras import require_extras
+
+    require_extras(config, f"cnep sim {config.TASK}")  # one line naming the missing extras, before any work
 
     with heartbeat("loading torch and the simulator", args.quiet):
         from cnep.pipeline.sim.stage import SUMMARY_FILE, run_sim
@@ -72,8 +72,11 @@ def run_task(args: argparse.Namespace) -> int:
 
 def run_eval(args: argparse.Namespace) -> int:
     config = config_of(EvalConfig, args, policy=args.policy, out=args.out, extractor=args.extractor)
-    config = with_task(config)  # not a policy folder, or not its task: refused before the stage loads
     from cnep.pipeline.progress import heartbeat
+    from cnep.pipeline.sim.extras import require_extras
+
+    require_extras(config, "cnep sim eval")  # not a policy folder, or the extras missing: refused before any work
+    config = with_task(config)  # not the policy's task: refused before the stage loads
 
     with heartbeat("loading torch and the simulator", args.quiet):
         from cnep.pipeline.sim.evaluate import run_eval as evaluate

@@ -13,17 +13,17 @@ from pathlib import Path
 from cnep.outputs import write_atomically
 from cnep.pipeline.progress import progress_bar
 from cnep.pipeline.sim.config import EvalConfig, with_task
+from cnep.pipeline.sim.extras import require_extras
 from cnep.pipeline.sim.figure import FIGURE_FILE
 from cnep.pipeline.sim.loop import episodes_of, evaluate_policy, for_task, open_task_policy
 from cnep.pipeline.sim.stage import SUMMARY_FILE, new_output_folder
 from cnep.pipeline.sim.summary import format_table
-from cnep.sim import require_extra
 from cnep.sim.tasks import find_task
 
 
 def run_eval(config: EvalConfig) -> dict:
     """Evaluate `config.policy` (module docstring); returns the summary written to OUT/summary.json."""
-    require_extra()
+    require_extras(config, "cnep sim eval")
     config = with_task(config)
     config = for_task(config, find_task(config.task))
     label = Path(config.policy).name

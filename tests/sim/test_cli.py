@@ -1,4 +1,5 @@
-"""`cnep sim`: its arguments become the stage's settings, and a missing `sim` extra is one clear line."""
+"""`cnep sim`: its arguments become the stage's settings, a policy runs on the task it was trained on, `--help` loads
+no simulator, and a missing extra is one clear line before any work."""
 
 import builtins
 import importlib.util
@@ -13,6 +14,7 @@ from cnep.pipeline.cli.main import build_parser, main
 from cnep.pipeline.cli.sim import config_of
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.sim.config import PROTOCOLS, TASKS, EvalConfig, PickPlaceConfig, SimConfig, with_task
+from cnep.pipeline.sim.extras import require_extras
 from cnep.pipeline.sim.loop import for_task
 from cnep.sim.tasks import TASK_NAMES
 
@@ -152,3 +154,24 @@ def test_without_the_sim_extra_the_command_says_how_to_install_it(monkeypatch, c
     assert not (tmp_path / "o").exists()
     with pytest.raises(Exception, match="mujoco"):
         import mujoco  # noqa: F401
+
+
+def test_a_run_checks_every_extra_it_will_need_before_any_work(monkeypatch, capsys, tmp_path):
+    real_find_spec = importlib.util.find_spec
+    hidden = {"gmr", "onnxruntime"}
+    monkeypatch.setattr(
+        importlib.util, "find_spec", lambda name, *a: None if name in hidden else real_find_spec(name, *a)
+    )
+    assert main(["sim", "pick-place", "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "needs the onnx and baselines extras (onnxruntime, gmr not installed)" in err[0], err
+    assert "pip install 'cnep-pipeline[onnx,baselines]', or leave the baselines out: --no-baselines" in err[0]
+    assert not (tmp_path / "o").exists()
+    hidden.discard("onnxruntime")
+    require_extras(PickPlaceConfig(out=tmp_path / "o", baselines=False), "cnep sim pick-place")  # none missing
+    require_extras(SimConfig(out=tmp_path / "o"), "cnep sim obstacle")  # the obstacle runs no baselines by default
+    hidden.add("onnxruntime")
+    exported = _policy_folder(tmp_path / "exported", "obstacle")
+    with pytest.raises(PipelineError, match=r"cnep sim eval needs the onnx extra \(onnxruntime not installed\)"):
+        require_extras(EvalConfig(policy=exported), "cnep sim eval")
+    require_extras(EvalConfig(policy=_policy_folder(tmp_path / "ckpt", "obstacle", "checkpoint")), "cnep sim eval")
