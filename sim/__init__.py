@@ -5,8 +5,10 @@
     env = gymnasium.make("cnep/PickPlace-v0")         # pick a bar, put it on a free mat it fits (condition=...)
     observation, info = env.reset(seed=0)
 
-Rendering is headless: MUJOCO_GL defaults to `egl` here, before MuJoCo loads (sim.render). This package imports
-the standard library, numpy, MuJoCo, Gymnasium and cnep.runtime only (tests/test_architecture.py checks it).
+Each task is a folder of sim/tasks (its scene, environment, demonstrator, scoring and drawing) and a `Task`
+(sim.task) the pipeline runs: `cnep.sim.tasks.find_task("pick-place")`. Rendering is headless: MUJOCO_GL defaults
+to `egl` here, before MuJoCo loads (sim.render). This package imports the standard library, numpy, MuJoCo,
+Gymnasium and cnep.runtime only (tests/test_architecture.py checks it).
 """
 
 import importlib
