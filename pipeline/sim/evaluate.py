@@ -2,7 +2,8 @@
 trained on (or `task`: pipeline.sim.config.with_task); the table on screen, and with `out` a folder holding
 `summary.json` (per protocol, and condition where the task has conditions, the rates and every episode's row), the
 recordings of the first episodes and `episode.png` (pipeline.sim.figure). The same settings and episode seeds as
-the `cnep sim` run that trained the policy give the same rows as its summary."""
+the `cnep sim` run that trained the policy give the same rows as its summary, where the run conditioned the policy as
+its export does (`cnep sim pick-place --window/--anchors` are the run's alone: its policies carry the defaults)."""
 
 from __future__ import annotations
 
