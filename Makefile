@@ -9,12 +9,12 @@ BENCH  ?=
 # the demo extracts features with ONNX Runtime (its fastest fp32 backend here, and its int8 one) and draws its
 # summary figure with matplotlib; the evaluation adds the baselines (movement-primitives, gmr);
 # the tests and the linter everything: pytest and ruff, OpenVINO, pyarrow + PyAV (LeRobot), rosbags, MuJoCo +
-# Gymnasium (the simulator); `make sim`, the closed loop in the simulator, ONNX Runtime (the exported policies) and
-# MuJoCo + Gymnasium.
+# Gymnasium (the simulator); `make sim`, the closed loop in the simulator, ONNX Runtime (the exported policies),
+# MuJoCo + Gymnasium and the baselines (`cnep sim pick-place` runs them).
 EXTRAS_demo     := onnx,plots
 EXTRAS_evaluate := onnx,baselines,plots
 EXTRAS_test     := dev,onnx,openvino,baselines,plots,lerobot,ros,sim,dask
-EXTRAS_sim      := onnx,sim
+EXTRAS_sim      := onnx,sim,baselines
 
 .PHONY: demo view sim test test-fast lint docs evaluate bench install clean
 

@@ -7,7 +7,8 @@
     extractor         identity of the features the model was trained on ({} for a model without a camera)
     features          precision -> {"file": ONNX graph, "identity": the identity of the features it makes}
     graphs            {"encoder": ENCODER_FILE, "decoder": DECODER_FILE}
-    checkpoint        {"config_sha256": the checkpoint's own checksum, "layout": its layout preset}
+    checkpoint        {"config_sha256": the checkpoint's own checksum, "preset": its layout preset, "task": the task its
+                      training demonstrations name ("" where none, or several)}
     files             relative path -> sha256 (hex) of every file in the folder but the manifest
 
 The folder is closed: every file the manifest names is a plain file name in the folder (`runtime/` source files: a

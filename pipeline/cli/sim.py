@@ -7,7 +7,7 @@ from __future__ import annotations
 import argparse
 
 from cnep.pipeline.cli.fields import add_options, build, options
-from cnep.pipeline.sim.config import EvalConfig, PickPlaceConfig, SimConfig
+from cnep.pipeline.sim.config import SHOWN, EvalConfig, PickPlaceConfig, SimConfig, with_task
 
 HELP = (
     "closed loop in a simulator: `obstacle` and `pick-place` from nothing to the table, `eval` a given policy (the "
@@ -30,13 +30,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     for cls, help in ((SimConfig, OBSTACLE_HELP), (PickPlaceConfig, PICK_PLACE_HELP)):
         task = sub.add_parser(cls.TASK, help=help, description=help)
         task.add_argument("--out", required=True, help="a new or empty folder for everything")
-        add_options(task, options(cls))
+        add_options(task, options(cls), defaults=SHOWN)
         task.set_defaults(_sim=run_task, _config=cls)
     evaluate = sub.add_parser("eval", help=EVAL_HELP, description=EVAL_HELP)
     evaluate.add_argument("policy", help="a folder written by `cnep export` (runs without torch) or `cnep train`")
     evaluate.add_argument("--out", help="a new or empty folder for summary.json and the recordings (default: none)")
     evaluate.add_argument("--extractor", metavar="FILE", help="a checkpoint's feature weights (as `cnep export` takes)")
-    add_options(evaluate, options(EvalConfig))
+    add_options(evaluate, options(EvalConfig), defaults=SHOWN)
     evaluate.set_defaults(_sim=run_eval)
 
 
@@ -47,9 +47,6 @@ def config_of(cls: type, args: argparse.Namespace, **given):
 
 
 def run(args: argparse.Namespace) -> int:
-    from cnep.sim import require_extra
-
-    require_extra()  # one line naming the extra, before the stage imports MuJoCo
     return args._sim(args)
 
 
@@ -58,6 +55,9 @@ def run_task(args: argparse.Namespace) -> int:
 
     config = config_of(args._config, args, out=args.out)  # checked before the stage loads
     from cnep.pipeline.progress import heartbeat
+    from cnep.pipeline.sim.extras import require_extras
+
+    require_extras(config, f"cnep sim {config.TASK}")  # one line naming the missing extras, before any work
 
     with heartbeat("loading torch and the simulator", args.quiet):
         from cnep.pipeline.sim.stage import SUMMARY_FILE, run_sim
@@ -72,10 +72,11 @@ def run_task(args: argparse.Namespace) -> int:
 
 def run_eval(args: argparse.Namespace) -> int:
     config = config_of(EvalConfig, args, policy=args.policy, out=args.out, extractor=args.extractor)
-    from cnep.pipeline.run.config import policy_kind
-
-    policy_kind(config.policy)  # refused before the stage loads
     from cnep.pipeline.progress import heartbeat
+    from cnep.pipeline.sim.extras import require_extras
+
+    require_extras(config, "cnep sim eval")  # not a policy folder, or the extras missing: refused before any work
+    config = with_task(config)  # not the policy's task: refused before the stage loads
 
     with heartbeat("loading torch and the simulator", args.quiet):
         from cnep.pipeline.sim.evaluate import run_eval as evaluate

@@ -37,6 +37,7 @@ from cnep.pipeline.extract.stage import calibration_frames
 from cnep.pipeline.folders import assembled_folder
 from cnep.pipeline.inputs import find_demonstration_files
 from cnep.pipeline.ownership import OutputKind
+from cnep.pipeline.train.data import data_task
 from cnep.runtime.constants import (
     DECODER_FILE,
     ENCODER_FILE,
@@ -127,6 +128,7 @@ def write_policy(folder: Path, loaded: LoadedCheckpoint, config: ExportConfig, c
         checkpoint={
             "config_sha256": config_checksum(config_json),
             "preset": (config_json.get("layout") or {}).get("name", ""),
+            "task": data_task(config_json.get("files") or []),
         },
         producer=f"cnep-pipeline {package_version()}",
         files=files,

@@ -1,11 +1,13 @@
-"""The closed loop's settings: `SimConfig` (`cnep sim obstacle`: from nothing to the table) and `EvalConfig`
-(`cnep sim eval`: one given policy). Importable without torch, MuJoCo or rerun: the CLI builds them (and so checks
-its options) before the stage loads.
+"""The closed loop's settings: `SimConfig` (`cnep sim obstacle`: from nothing to the table), `PickPlaceConfig` (`cnep
+sim pick-place`) and `EvalConfig` (`cnep sim eval`: one given policy, on the task it was trained on: `with_task`).
+Importable without torch, MuJoCo, Gymnasium or rerun: the CLI builds them (and so checks its options) before the
+stage loads; the tasks are the folders of cnep/sim/tasks, found without importing the simulator.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import importlib.util
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import ClassVar
 
@@ -14,12 +16,21 @@ from cnep.models.config import setting
 from cnep.pipeline.demo.config import AUTO_WEIGHTS
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.inputs import coerce_paths
+from cnep.pipeline.run.config import CHECKPOINT, CONFIG_FILE, policy_kind
 from cnep.runtime.conditioning import FIRST_EXPERTS, ConditioningPolicy
-from cnep.sim.tasks.obstacle import scene
-from cnep.sim.tasks.pick_place import scene as pick_scene
+from cnep.runtime.constants import MANIFEST_FILE
+from cnep.runtime.jsonfile import read_json
 
-OBSTACLE, PICK_PLACE = "obstacle", "pick-place"
-TASKS = (OBSTACLE,)
+
+def task_names() -> tuple[str, ...]:
+    """The simulator's tasks, one per folder of cnep/sim/tasks (`pick_place`: "pick-place", as sim.tasks names them),
+    found without importing cnep.sim, which loads Gymnasium."""
+    tasks = Path(importlib.util.find_spec("cnep.sim").submodule_search_locations[0]) / "tasks"
+    return tuple(sorted(p.name.replace("_", "-") for p in tasks.iterdir() if (p / "__init__.py").is_file()))
+
+
+TASKS = task_names()
+OBSTACLE, PICK_PLACE = "obstacle", "pick-place"  # the tasks with a `cnep sim` command of their own
 PLANNED, ONLINE = "planned", "online"  # cnep.sim.episode's protocols, named here without importing MuJoCo
 PROTOCOLS = (PLANNED, ONLINE)
 BOTH = "both"
@@ -28,14 +39,18 @@ PROTOCOL_HELP = (
     "conditioning on every new frame and pose; both = each in turn"
 )
 MODELS = ("CNEP", "CNMP")
+VARIANTS = ("cue",)  # LoopSettings' fields that choose a variant of a task (sim.task.Task.variants)
 
 
-def _max_steps_help(task_steps: int) -> str:
-    """The help of a task's `max_steps`, whose default is the task's own `task_steps`."""
-    return (
-        f"control steps an episode gets before it is truncated (the planned protocol's plan spans the task's "
-        f"{task_steps} steps whatever the limit, its last waypoint held after them)"
-    )
+MAX_STEPS_HELP = (
+    "control steps an episode gets before it is truncated (the planned protocol's plan spans the task's episode "
+    "whatever the limit, its last waypoint held after them)"
+)
+# What a None default means, as `--help` shows it.
+SHOWN = {
+    "max_steps": "the task's episode, sim.task.Task.max_steps",
+    "task": "the one the policy was trained on, as its export or checkpoint records",
+}
 
 
 def protocols_of(protocol: str) -> tuple[str, ...]:
@@ -47,12 +62,11 @@ def protocols_of(protocol: str) -> tuple[str, ...]:
 
 @dataclass(frozen=True)
 class LoopSettings:
-    """What every closed-loop evaluation takes: the task and its variant, the episodes and the recordings of them."""
+    """What every closed-loop evaluation takes: the task's variant, the episodes and the recordings of them."""
 
-    task: str = setting(OBSTACLE, "the task", choices=TASKS)
-    cue: bool = setting(False, "the variant where a tile on one side of the box shows the side to pass")
+    cue: bool = setting(False, "the obstacle task's variant where a tile on one side of the box shows the side to pass")
     episodes: int = setting(20, "closed-loop episodes per policy and protocol")
-    max_steps: int = setting(scene.MAX_STEPS, _max_steps_help(scene.MAX_STEPS))
+    max_steps: int | None = setting(None, MAX_STEPS_HELP)
     episode_seed: int = setting(0, "seed of the first episode (episode i is reset with seed + i)")
     protocol: str = setting(BOTH, PROTOCOL_HELP, choices=(BOTH, *PROTOCOLS))
     record: int = setting(2, "episodes per policy and protocol written as Rerun recordings (the first ones)")
@@ -70,10 +84,8 @@ class LoopSettings:
 
     def check(self) -> None:
         """PipelineError for a setting out of range."""
-        if self.task not in TASKS:
-            raise PipelineError(f"task must be one of {', '.join(TASKS)}, got {self.task!r}")
         protocols_of(self.protocol)
-        if self.episodes < 1 or self.max_steps < 1 or self.record < 0:
+        if self.episodes < 1 or (self.max_steps is not None and self.max_steps < 1) or self.record < 0:
             raise PipelineError(
                 f"episodes and max_steps must be >= 1 and record >= 0, got {self.episodes}, {self.max_steps} and "
                 f"{self.record}"
@@ -127,13 +139,43 @@ class EvalConfig(LoopSettings):
 
     policy: Path
     out: Path | None = None
-    episodes: int = setting(50, "closed-loop episodes per protocol")
+    task: str | None = setting(None, "the task", choices=TASKS)
+    episodes: int = setting(50, "closed-loop episodes per protocol (and condition, where the task has conditions)")
     extractor: Path | None = None
     quiet: bool = False
 
     def __post_init__(self) -> None:
         coerce_paths(self)
         self.check()
+        if self.task is not None and self.task not in TASKS:
+            raise PipelineError(f"task must be one of {', '.join(TASKS)}, got {self.task!r}")
+
+
+def with_task(config: EvalConfig) -> EvalConfig:
+    """`config` with its task: the one given, else the one the policy was trained on (policy_task); PipelineError
+    when the two differ, or when neither names a task of the simulator."""
+    trained = policy_task(Path(config.policy))
+    if config.task is None:
+        if trained not in TASKS:
+            named = f"names the task {trained!r}, not one of the simulator's" if trained else "names no task"
+            raise PipelineError(f"{config.policy}: the policy {named}; choose its scene with --task {'|'.join(TASKS)}")
+        return replace(config, task=trained)
+    if trained in TASKS and trained != config.task:
+        raise PipelineError(
+            f"{config.policy}: the policy was trained on the {trained} task, --task {config.task} runs it in another "
+            f"scene; leave --task out (or give --task {trained})"
+        )
+    return config
+
+
+def policy_task(policy: Path) -> str:
+    """The task a policy folder was trained on: its export's record (the manifest's `checkpoint.task`), or a
+    checkpoint's (the task every training file names, pipeline.train.data.data_task); "" where it records none."""
+    from cnep.pipeline.train.data import data_task  # reads recordings: imported when a policy is named
+
+    if policy_kind(policy) == CHECKPOINT:
+        return data_task(read_json(policy / CONFIG_FILE).get("files") or [])
+    return str((read_json(policy / MANIFEST_FILE).get("checkpoint") or {}).get("task", ""))
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -165,7 +207,7 @@ class PickPlaceConfig:
     )
     anchors: int = setting(0, "first observations kept in that set for the whole episode (ConditioningPolicy.anchors)")
     episodes: int = setting(20, "closed-loop episodes per policy, protocol and condition (decided, free, changed)")
-    max_steps: int = setting(pick_scene.MAX_STEPS, _max_steps_help(pick_scene.MAX_STEPS))
+    max_steps: int | None = setting(None, MAX_STEPS_HELP)
     episode_seed: int = setting(0, "seed of the first episode (episode i is reset with seed + i)")
     protocol: str = setting(BOTH, PROTOCOL_HELP, choices=(BOTH, *PROTOCOLS))
     record: int = setting(1, "episodes per policy, protocol and condition written as Rerun recordings (the first ones)")
@@ -190,7 +232,7 @@ class PickPlaceConfig:
             )
         if self.window < 1 or self.anchors < 0:
             raise PipelineError(f"window must be >= 1 and anchors >= 0, got {self.window} and {self.anchors}")
-        if self.episodes < 1 or self.max_steps < 1 or self.record < 0 or self.pca < 1:
+        if self.episodes < 1 or (self.max_steps is not None and self.max_steps < 1) or self.record < 0 or self.pca < 1:
             raise PipelineError(
                 f"episodes, max_steps and pca must be >= 1 and record >= 0, got {self.episodes}, {self.max_steps}, "
                 f"{self.pca} and {self.record}"

@@ -1,6 +1,9 @@
-"""`cnep sim eval POLICY`: one given policy (an exported folder or a checkpoint) in closed loop; the table on screen,
-and with `out` a folder holding `summary.json` (per protocol the rates and every episode's row), the recordings
-of the first episodes and `episode.png` (pipeline.sim.figure)."""
+"""`cnep sim eval POLICY`: one given policy (an exported folder or a checkpoint) in closed loop, on the task it was
+trained on (or `task`: pipeline.sim.config.with_task); the table on screen, and with `out` a folder holding
+`summary.json` (per protocol, and condition where the task has conditions, the rates and every episode's row), the
+recordings of the first episodes and `episode.png` (pipeline.sim.figure). The same settings and episode seeds as
+the `cnep sim` run that trained the policy give the same rows as its summary, where the run conditioned the policy as
+its export does (`cnep sim pick-place --window/--anchors` are the run's alone: its policies carry the defaults)."""
 
 from __future__ import annotations
 
@@ -10,18 +13,20 @@ from pathlib import Path
 
 from cnep.outputs import write_atomically
 from cnep.pipeline.progress import progress_bar
-from cnep.pipeline.sim.config import EvalConfig
+from cnep.pipeline.sim.config import EvalConfig, with_task
+from cnep.pipeline.sim.extras import require_extras
 from cnep.pipeline.sim.figure import FIGURE_FILE
-from cnep.pipeline.sim.loop import episodes_of, evaluate_policy, open_task_policy
+from cnep.pipeline.sim.loop import episodes_of, evaluate_policy, for_task, open_task_policy
 from cnep.pipeline.sim.stage import SUMMARY_FILE, new_output_folder
 from cnep.pipeline.sim.summary import format_table
-from cnep.sim import require_extra
 from cnep.sim.tasks import find_task
 
 
 def run_eval(config: EvalConfig) -> dict:
     """Evaluate `config.policy` (module docstring); returns the summary written to OUT/summary.json."""
-    require_extra()
+    require_extras(config, "cnep sim eval")
+    config = with_task(config)
+    config = for_task(config, find_task(config.task))
     label = Path(config.policy).name
     if config.out is None:
         results = {label: _evaluate(config, label, None)}

@@ -1,6 +1,6 @@
 """The simulator's demonstrations as a user's robot would write them: per demonstration a folder of PNG frames and a
 pose CSV (`t,x,y,z,qx,qy,qz,qw,gripper`, seconds and metres), which `cnep ingest` takes as it takes a user's
-(docs/how-to/own-csv-and-video.md).
+(docs/how-to/own-csv-and-video.md); `ingest_demonstrations` runs it.
 
 The task's scripted demonstrator (Task.demonstrations) drives the environment itself: the frames and poses are what
 the camera saw and the robot reported while it moved, not the plan.
@@ -14,14 +14,16 @@ from pathlib import Path
 import cv2
 
 from cnep.outputs import temporary_path
+from cnep.pipeline.ingest.stage import IngestConfig, ingest
 from cnep.pipeline.progress import progress_bar
+from cnep.recordings.csv_motion import CsvColumns
 from cnep.runtime import STATE_NAMES
 from cnep.sim import scene as S
 from cnep.sim.task import Demonstration, Task
 
 CSV_FILE = "poses.csv"
 CSV_HEADER = ("t", *STATE_NAMES)
-TIME_UNIT = "s"  # the CSV's time column (what `cnep ingest --column time_unit=` states)
+TIME_UNIT = "s"  # the CSV's time column, stated to the ingest (`cnep ingest --column time_unit=s`)
 
 
 @dataclass(frozen=True)
@@ -44,6 +46,13 @@ def generate_demonstrations(task: Task, out: Path, n: int, seed: int, quiet: boo
         behaviours.append(demo.behaviour)
         successes += demo.clean
     return Generated(folders, behaviours, successes)
+
+
+def ingest_demonstrations(recorded: Path, out: Path, task: str, quiet: bool = False) -> None:
+    """`cnep ingest` of the folders `generate_demonstrations` wrote into `recorded`, into `out`: the CSV's time unit
+    stated (nothing to infer, nothing said per file), each demonstration's task `task`."""
+    columns = CsvColumns(time_unit=TIME_UNIT)
+    ingest(IngestConfig(src=recorded, out=out, columns=columns, task=task, quiet=quiet))
 
 
 def _write(folder: Path, demo: Demonstration) -> None:

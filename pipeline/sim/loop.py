@@ -14,8 +14,11 @@ import logging
 from collections.abc import Callable
 from dataclasses import fields, replace
 from pathlib import Path
+from typing import TypeVar
 
+from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.run.stage import open_policy
+from cnep.pipeline.sim.config import VARIANTS
 from cnep.pipeline.sim.figure import draw_episode
 from cnep.pipeline.sim.rerun_log import write_episode
 from cnep.runtime import ConditioningPolicy, Policy
@@ -25,6 +28,16 @@ from cnep.sim.task import Task
 log = logging.getLogger(__name__)
 
 POLICY_THREADS = 1  # intra-op threads of the policy's graphs: one episode steps them one frame at a time
+S = TypeVar("S")
+
+
+def for_task(settings: S, task: Task) -> S:
+    """`settings` (a config of pipeline.sim.config) with the task's episode length where they leave max_steps to the
+    task; PipelineError for a variant the task does not have."""
+    for name in VARIANTS:
+        if getattr(settings, name, False) and name not in task.variants:
+            raise PipelineError(f"--{name} is a variant of another task; the {task.name} task has none")
+    return settings if settings.max_steps is not None else replace(settings, max_steps=task.max_steps)
 
 
 def episodes_of(task: Task, settings) -> int:

@@ -43,19 +43,17 @@ from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.export.config import ExportConfig
 from cnep.pipeline.export.stage import export
 from cnep.pipeline.extract.stage import ExtractConfig, extract
-from cnep.pipeline.ingest.stage import IngestConfig, ingest
 from cnep.pipeline.progress import REPORT_INTERVAL_S, RemoteBar, StageClock, follow_total, progress_bar
 from cnep.pipeline.sim.baselines import BASELINES, baseline_policy
 from cnep.pipeline.sim.config import PickPlaceConfig, SimConfig
+from cnep.pipeline.sim.extras import require_extras
 from cnep.pipeline.sim.figure import FIGURE_FILE
-from cnep.pipeline.sim.generate import TIME_UNIT, generate_demonstrations
-from cnep.pipeline.sim.loop import episodes_of, evaluate_policy, open_task_policy
+from cnep.pipeline.sim.generate import generate_demonstrations, ingest_demonstrations
+from cnep.pipeline.sim.loop import episodes_of, evaluate_policy, for_task, open_task_policy
 from cnep.pipeline.sim.summary import format_table
 from cnep.pipeline.train.stage import TrainStageConfig
 from cnep.pipeline.workers import single_thread_processes
 from cnep.recordings import read_trajectory
-from cnep.recordings.csv_motion import CsvColumns
-from cnep.sim import require_extra
 from cnep.sim.task import Task
 from cnep.sim.tasks import find_task
 
@@ -70,8 +68,9 @@ WORKERS = 2  # processes training the models, then running the policies in close
 def run_sim(config: SimConfig | PickPlaceConfig) -> dict:
     """Run every stage of the task `config.TASK` into `config.out` (module docstring); returns the summary (also
     OUT/summary.json)."""
-    require_extra()
+    require_extras(config, f"cnep sim {config.TASK}")
     task = find_task(config.TASK)
+    config = for_task(config, task)
     return run_in_new_folder(Path(config.out), f"cnep sim {task.name}", lambda out: _run_stages(config, task, out))
 
 
@@ -114,10 +113,7 @@ def _run_stages(config: SimConfig | PickPlaceConfig, task: Task, out: Path) -> d
             task, out / "recorded", config.demonstrations, config.seed, config.quiet, **variants
         )
     with timed("ingest", 2):
-        columns = CsvColumns(time_unit=TIME_UNIT)
-        ingest(
-            IngestConfig(src=out / "recorded", out=out / "demos", columns=columns, task=task.name, quiet=config.quiet)
-        )
+        ingest_demonstrations(out / "recorded", out / "demos", task.name, config.quiet)
     with timed("extract", 3):
         extract_features(config, out, chosen.weights)
     with timed("train", 4):
@@ -189,7 +185,6 @@ def export_policies(checkpoints: dict[str, Path], out: Path) -> dict[str, Path]:
     for label, checkpoint in checkpoints.items():
         policies[label] = out / "policies" / checkpoint.name
         export(ExportConfig(checkpoint, policies[label], extractor=out / EXTRACTOR_FILE, quiet=True))
-        log.info("exported %s", policies[label])
     return policies
 
 

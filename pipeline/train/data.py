@@ -8,7 +8,7 @@ columns themselves are read once, by the process that trains on them (`pipeline.
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -39,7 +39,15 @@ class TrainingFile:
             "sha256": sha256,
             "episode_id": self.episode_id,
             "n_steps": self.n_steps,
+            "task": self.task,
         }
+
+
+def data_task(files: Sequence[Mapping]) -> str:
+    """The task every one of a checkpoint's training files names (config.json's `files`, TrainingFile.describe); ""
+    where they name none, or several."""
+    tasks = {str(f.get("task", "")) for f in files}
+    return tasks.pop() if len(tasks) == 1 else ""
 
 
 @dataclass(frozen=True)

@@ -1,7 +1,11 @@
-"""`cnep sim`: its arguments become the stage's settings, and a missing `sim` extra is one clear line."""
+"""`cnep sim`: its arguments become the stage's settings, a policy runs on the task it was trained on, `--help` loads
+no simulator, and a missing extra is one clear line before any work."""
 
 import builtins
 import importlib.util
+import json
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -9,9 +13,22 @@ import pytest
 from cnep.pipeline.cli.main import build_parser, main
 from cnep.pipeline.cli.sim import config_of
 from cnep.pipeline.errors import PipelineError
-from cnep.pipeline.sim.config import PROTOCOLS, EvalConfig, PickPlaceConfig, SimConfig
-from cnep.sim.tasks.obstacle import scene as O
-from cnep.sim.tasks.pick_place import scene as P
+from cnep.pipeline.sim.config import PROTOCOLS, TASKS, EvalConfig, PickPlaceConfig, SimConfig, with_task
+from cnep.pipeline.sim.extras import require_extras
+from cnep.pipeline.sim.loop import for_task
+from cnep.sim.tasks import TASK_NAMES
+
+
+@pytest.fixture
+def find_task():
+    """sim.tasks.find_task, where the `sim` extra is installed (a task's folder imports MuJoCo)."""
+    import cnep.sim
+
+    if not all(importlib.util.find_spec(name) for name in cnep.sim.EXTRA):
+        pytest.skip("the sim extra is not installed")
+    from cnep.sim.tasks import find_task
+
+    return find_task
 
 
 def test_obstacle_arguments_become_its_settings_and_the_others_keep_their_defaults():
@@ -49,17 +66,63 @@ def test_eval_arguments_become_its_settings():
     assert config_of(EvalConfig, args, policy=args.policy).episodes == EvalConfig.episodes == 50
 
 
-def test_max_steps_defaults_to_each_tasks_episode_and_must_be_at_least_one():
-    for command, cls, given, task_steps in (
-        (["obstacle", "--out", "x"], SimConfig, {"out": "x"}, O.MAX_STEPS),
-        (["pick-place", "--out", "x"], PickPlaceConfig, {"out": "x"}, P.MAX_STEPS),
-        (["eval", "p"], EvalConfig, {"policy": "p"}, O.MAX_STEPS),
+def test_max_steps_defaults_to_each_tasks_episode_and_must_be_at_least_one(find_task):
+    for command, cls, given, task in (
+        (["obstacle", "--out", "x"], SimConfig, {"out": "x"}, "obstacle"),
+        (["pick-place", "--out", "x"], PickPlaceConfig, {"out": "x"}, "pick-place"),
+        (["eval", "p", "--task", "pick-place"], EvalConfig, {"policy": "p"}, "pick-place"),
     ):
-        assert config_of(cls, build_parser().parse_args(["sim", *command]), **given).max_steps == task_steps
+        config = config_of(cls, build_parser().parse_args(["sim", *command]), **given)
+        assert config.max_steps is None and for_task(config, find_task(task)).max_steps == find_task(task).max_steps
         args = build_parser().parse_args(["sim", *command, "--max-steps", "12"])
-        assert config_of(cls, args, **given).max_steps == 12
+        assert for_task(config_of(cls, args, **given), find_task(task)).max_steps == 12
         with pytest.raises(PipelineError, match="max_steps (and pca )?must be >= 1"):
             cls(**given, max_steps=0)
+    assert (find_task("obstacle").max_steps, find_task("pick-place").max_steps) == (60, 90)  # 6 s, 9 s
+
+
+def test_a_task_is_a_folder_and_the_commands_know_every_one_without_importing_the_simulator(find_task):
+    assert TASKS == TASK_NAMES == ("obstacle", "pick-place")
+    assert all(find_task(name).name == name for name in TASKS)
+    assert (SimConfig.TASK, PickPlaceConfig.TASK) == TASKS
+    code = (
+        "import sys\nfrom cnep.pipeline.cli.main import main\n"
+        "for argv in (['--help'], ['sim', '--help'], ['sim', 'pick-place', '--help'], ['sim', 'eval', '--help']):\n"
+        "    try:\n        main(argv)\n    except SystemExit:\n        pass\n"
+        "print('loaded:', ','.join(m for m in ('gymnasium', 'mujoco', 'cnep.sim', 'torch') if m in sys.modules))"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True)
+    assert done.stdout.splitlines()[-1] == "loaded: "  # a fresh interpreter: --help loads none of them
+
+
+def _policy_folder(path: Path, task: str, kind: str = "exported") -> Path:
+    """A policy folder as `with_task` reads it: a manifest naming `task`, or a checkpoint whose files name it."""
+    path.mkdir()
+    if kind == "exported":
+        (path / "manifest.json").write_text(json.dumps({"checkpoint": {"task": task}}))
+    else:
+        (path / "config.json").write_text(json.dumps({"files": [{"task": task}, {"task": task}]}))
+    return path
+
+
+def test_eval_runs_a_policy_on_the_task_it_was_trained_on_and_refuses_another(tmp_path, capsys, find_task):
+    pick = _policy_folder(tmp_path / "pick", "pick-place")
+    assert with_task(EvalConfig(policy=pick)).task == "pick-place"
+    assert with_task(EvalConfig(policy=pick, task="pick-place")).task == "pick-place"
+    assert with_task(EvalConfig(policy=_policy_folder(tmp_path / "ckpt", "obstacle", "checkpoint"))).task == "obstacle"
+    assert main(["sim", "eval", str(pick), "--task", "obstacle"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "trained on the pick-place task, --task obstacle runs it in another scene" in err[0], err
+    own = _policy_folder(tmp_path / "own", "pick up the cup")  # a user's task: the scene is the user's choice
+    with pytest.raises(PipelineError, match="names the task 'pick up the cup', not one of the simulator's; choose"):
+        with_task(EvalConfig(policy=own))
+    assert with_task(EvalConfig(policy=own, task="obstacle")).task == "obstacle"
+    with pytest.raises(
+        PipelineError, match="the policy names no task; choose its scene with --task obstacle|pick-place"
+    ):
+        with_task(EvalConfig(policy=_policy_folder(tmp_path / "old", "")))
+    with pytest.raises(PipelineError, match="--cue is a variant of another task; the pick-place task has none"):
+        for_task(EvalConfig(policy=pick, task="pick-place", cue=True), find_task("pick-place"))
 
 
 def test_an_unknown_protocol_is_refused(capsys, tmp_path):
@@ -91,3 +154,24 @@ def test_without_the_sim_extra_the_command_says_how_to_install_it(monkeypatch, c
     assert not (tmp_path / "o").exists()
     with pytest.raises(Exception, match="mujoco"):
         import mujoco  # noqa: F401
+
+
+def test_a_run_checks_every_extra_it_will_need_before_any_work(monkeypatch, capsys, tmp_path):
+    real_find_spec = importlib.util.find_spec
+    hidden = {"gmr", "onnxruntime"}
+    monkeypatch.setattr(
+        importlib.util, "find_spec", lambda name, *a: None if name in hidden else real_find_spec(name, *a)
+    )
+    assert main(["sim", "pick-place", "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "needs the onnx and baselines extras (onnxruntime, gmr not installed)" in err[0], err
+    assert "pip install 'cnep-pipeline[onnx,baselines]', or leave the baselines out: --no-baselines" in err[0]
+    assert not (tmp_path / "o").exists()
+    hidden.discard("onnxruntime")
+    require_extras(PickPlaceConfig(out=tmp_path / "o", baselines=False), "cnep sim pick-place")  # none missing
+    require_extras(SimConfig(out=tmp_path / "o"), "cnep sim obstacle")  # the obstacle runs no baselines by default
+    hidden.add("onnxruntime")
+    exported = _policy_folder(tmp_path / "exported", "obstacle")
+    with pytest.raises(PipelineError, match=r"cnep sim eval needs the onnx extra \(onnxruntime not installed\)"):
+        require_extras(EvalConfig(policy=exported), "cnep sim eval")
+    require_extras(EvalConfig(policy=_policy_folder(tmp_path / "ckpt", "obstacle", "checkpoint")), "cnep sim eval")

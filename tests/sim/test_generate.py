@@ -1,6 +1,7 @@
 """The simulator's demonstrations are what a user's robot writes (frames + pose CSV), and `cnep ingest` takes them."""
 
 import importlib.util
+import logging
 
 import pytest
 
@@ -9,21 +10,22 @@ import cnep.sim
 if not all(importlib.util.find_spec(name) for name in cnep.sim.EXTRA):
     pytest.skip("the sim extra is not installed", allow_module_level=True)
 
-from cnep.pipeline.ingest.stage import IngestConfig, ingest  # noqa: E402
-from cnep.pipeline.sim.generate import CSV_FILE, generate_demonstrations  # noqa: E402
+from cnep.pipeline.sim.generate import CSV_FILE, generate_demonstrations, ingest_demonstrations  # noqa: E402
 from cnep.recordings import read_demonstration  # noqa: E402
 from cnep.sim.tasks import find_task  # noqa: E402
 from cnep.sim.tasks.obstacle import scene as O  # noqa: E402
 
 
-def test_generated_demonstrations_are_balanced_clean_and_ingested_as_a_users_recordings(tmp_path):
+def test_generated_demonstrations_are_balanced_clean_and_ingested_as_a_users_recordings_quietly(tmp_path, caplog):
     made = generate_demonstrations(find_task("obstacle"), tmp_path / "recorded", 2, seed=3, quiet=True)
     assert sorted(made.behaviours) == ["left", "right"] and made.successes == 2
     folder = made.folders[0]
     frames = sorted(folder.glob("frame_*.png"))
     rows = (folder / CSV_FILE).read_text().splitlines()
     assert rows[0] == "t,x,y,z,qx,qy,qz,qw,gripper" and len(rows) == len(frames) + 1
-    ingest(IngestConfig(src=tmp_path / "recorded", out=tmp_path / "demos", quiet=True))
+    with caplog.at_level(logging.INFO, logger="cnep.recordings"):
+        ingest_demonstrations(tmp_path / "recorded", tmp_path / "demos", "obstacle", quiet=True)
+    assert not caplog.records  # the time unit is stated: no line per file about inferring it
     demo = read_demonstration(tmp_path / "demos" / f"{folder.name}.mcap")
-    assert demo.frames is not None and len(demo.frames) == len(frames)
+    assert demo.frames is not None and len(demo.frames) == len(frames) and demo.episode.task == "obstacle"
     assert abs(demo.pose[-1, 1] - O.GOAL_Y) < O.GOAL_TOLERANCE

@@ -1,12 +1,11 @@
 """`cnep sim obstacle` end to end on the smallest data that runs every stage (2 demonstrations, random features
 calibrated on one batch of frames, 20 training steps, one episode per protocol cut after a third of the task's steps):
-summary.json holds the documented keys, the exported policies repeat their episodes with the same seeds, and
-examples/closed_loop_csv.py turns the run into its rows. The training pool runs its jobs in this process
-(tests/sim/conftest.py)."""
+summary.json holds the documented keys, `cnep sim eval` of each exported policy (its task read from the policy) repeats
+the run's rows with the same settings and episode seeds, and examples/closed_loop_csv.py turns the run into its rows.
+The stage's pools (training, closed loop) run their jobs in this process (tests/sim/conftest.py)."""
 
 import importlib.util
 import json
-from dataclasses import fields
 
 import pytest
 
@@ -15,18 +14,15 @@ import cnep.sim
 if not all(importlib.util.find_spec(name) for name in cnep.sim.EXTRA):
     pytest.skip("the sim extra is not installed", allow_module_level=True)
 
-from cnep.pipeline.sim.config import MODELS, PROTOCOLS, LoopSettings, SimConfig  # noqa: E402
-from cnep.pipeline.sim.loop import evaluate_policy, open_task_policy  # noqa: E402
+from cnep.pipeline.cli.main import main  # noqa: E402
+from cnep.pipeline.sim.config import MODELS, PROTOCOLS, SimConfig  # noqa: E402
 from cnep.pipeline.sim.stage import SUMMARY_FILE, run_sim  # noqa: E402
-from cnep.sim.tasks import find_task  # noqa: E402
 from tests.test_examples import load  # noqa: E402
 
-EPISODE_KEYS = ("seed", "success", "collision", "side", "clearance_m", "distance_to_goal_m", "steps", "switches")
 
-
-def outcome(rates: dict) -> list[tuple]:
-    """The episodes' outcomes (every row's value but its timings)."""
-    return [tuple(row[k] for k in EPISODE_KEYS) for row in rates["per_episode"]]
+def episode_rows(rates: dict) -> list[dict]:
+    """The episodes' rows without their timings."""
+    return [{k: v for k, v in row.items() if k != "ms"} for row in rates["per_episode"]]
 
 
 @pytest.mark.slow  # MobileNet-v2 features, two trainings, two exports, two policies in the loop
@@ -45,19 +41,24 @@ def test_cnep_sim_obstacle_writes_the_documented_summary_and_its_policies_repeat
     assert summary["features"].startswith("random") and summary["settings"]["assignment"] == config.assignment
     assert summary["settings"]["max_steps"] == config.max_steps
     assert set(summary["models"]) == set(MODELS) and all(set(seeds) == {"0"} for seeds in summary["models"].values())
-    settings, task = (
-        LoopSettings(**{f.name: getattr(config, f.name) for f in fields(LoopSettings)}),
-        find_task("obstacle"),
-    )
     for model, seeds in summary["models"].items():
         assert set(seeds["0"]) == set(PROTOCOLS)
         for rates in seeds["0"].values():
             assert rates["episodes"] == 1 and {"success", "collision", "left", "switching"} <= set(rates)
             assert {"policy", "render", "physics"} == set(rates["per_episode"][0]["ms"])
             assert rates["per_episode"][0]["steps"] <= config.max_steps
-        policy = open_task_policy(out / "policies" / f"{model.lower()}-seed0", task, settings)
-        again = evaluate_policy(policy, task, settings, label=model)
-        assert {p: outcome(r) for p, r in again.items()} == {p: outcome(r) for p, r in seeds["0"].items()}
+        # `cnep sim eval` on the exported policy, its task read from the policy, the run's settings and episode seeds
+        evaluated = tmp_path / f"eval-{model}"
+        policy = out / "policies" / f"{model.lower()}-seed0"
+        assert (
+            main(["-q", "sim", "eval", str(policy), "--episodes", "1", "--max-steps", "20", "--out", str(evaluated)])
+            == 0
+        )
+        again = json.loads((evaluated / SUMMARY_FILE).read_text())
+        assert again["settings"]["task"] == "obstacle" and again["settings"]["max_steps"] == config.max_steps
+        assert {p: episode_rows(r) for p, r in again["results"].items()} == {
+            p: episode_rows(r) for p, r in seeds["0"].items()
+        }
     rows = load("closed_loop_csv").main([str(out), "--csv", str(tmp_path / "closed-loop.csv")])
     assert [(r["model"], r["protocol"]) for r in rows] == [(m, p) for m in MODELS for p in PROTOCOLS]
     assert rows[0]["success"] == summary["models"]["CNEP"]["0"][PROTOCOLS[0]]["success"] and rows[0]["set"] == 0
