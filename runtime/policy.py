@@ -12,7 +12,11 @@ k * period_s of the time base). Each value may carry LeRobot's leading batch dim
 has it too. Anything else is one PolicyError saying which key and what to do: a wrong type, shape or dtype, a value
 that is not finite, a time that does not move forward or lies a day or more after the episode's start
 (MAX_TIME_S), a position beyond MAX_POSITION_M metres on an axis, a zero quaternion or one whose length is not 1
-within QUATERNION_TOLERANCE (one within it is normalised). Only the state entries the model reads are checked.
+within QUATERNION_TOLERANCE (one within it is normalised), a gripper more than GRIPPER_DEVIATIONS of the training
+demonstrations' standard deviations from their mean (a "no reading" sentinel such as 3e38, another unit), a camera
+other than the training recordings' or frames of another size than theirs (where the spec names them). Only the
+state entries the model reads are checked. Whatever the network gives that is not finite is a PolicyError too
+(runtime.conditioning): no step hands out NaN.
 
 One class for both backends: the network (`runtime.conditioning.Network`) and the feature function are the
 torch model and extractor (`cnep.pipeline.export.checkpoint_policy`) or the exported ONNX graphs
@@ -31,6 +35,7 @@ import numpy as np
 from cnep.runtime.conditioning import Conditioner, ConditioningPolicy, ExpertSwitch, Network
 from cnep.runtime.constants import (
     DEFAULT_WAYPOINTS,
+    GRIPPER_DEVIATIONS,
     IMAGE_KEY_PREFIX,
     MAX_POSITION_M,
     MAX_TIME_S,
@@ -48,6 +53,7 @@ from cnep.runtime.timebase import TimeBase
 Features = Callable[[np.ndarray], np.ndarray]  # uint8 pixels (1, 224, 224, 3) -> float32 features (1, F)
 POSITION = [STATE_NAMES.index(name) for name in ("x", "y", "z")]  # where the state holds the position (m)
 QUATERNION = [STATE_NAMES.index(name) for name in ("qx", "qy", "qz", "qw")]  # and the orientation
+GRIPPER_INDEX = STATE_NAMES.index(GRIPPER)
 
 
 @dataclass(frozen=True)
@@ -116,6 +122,7 @@ class Policy:
         used = span_indices([s for s, _ in spec.state])
         self._position = [i for i in POSITION if i in used]  # the state's xyz entries the model reads
         self._quaternion = any(i in used for i in QUATERNION)
+        self._gripper_range = gripper_range(spec)  # (low, high) the gripper may read, None if the model reads none
         self._conditioner = Conditioner(network, spec.columns, conditioning or spec.conditioning)
         self._pixels = pixel_buffer(1)  # (1, 224, 224, 3) uint8
         self._row = np.zeros(spec.columns.width, dtype=np.float32)  # (width,) the model row of this step
@@ -191,7 +198,7 @@ class Policy:
             return None
         previous = self._command
         if previous is None:
-            previous = self.gripper.nearest(float(state[STATE_NAMES.index(GRIPPER)]))
+            previous = self.gripper.nearest(float(state[GRIPPER_INDEX]))
         self._command = self.gripper.command(float(mean[0, self._gripper_col]), previous)
         return self._command
 
@@ -217,6 +224,13 @@ class Policy:
             raise PolicyError(
                 f"{STATE_KEY}: {STATE_NAMES[far[0]]} = {state[far[0]]:g} m is beyond the {MAX_POSITION_M:g} m a "
                 f"position may lie from the robot's origin; give the end effector's position in metres"
+            )
+        low, high = self._gripper_range or (-np.inf, np.inf)
+        if not low <= state[GRIPPER_INDEX] <= high:
+            raise PolicyError(
+                f"{STATE_KEY}: gripper = {state[GRIPPER_INDEX]:g} lies outside {low:.4g} to {high:.4g}, "
+                f"{GRIPPER_DEVIATIONS:g} standard deviations of the training demonstrations' gripper around their "
+                f"mean (a 'no reading' value, or another unit?); give the gripper's reading in the recordings' unit"
             )
         if self._quaternion:
             quat = state[QUATERNION]  # (4,) xyzw
@@ -256,11 +270,19 @@ class Policy:
 
     def _read_image(self, observation: Mapping) -> np.ndarray:
         keys = [key for key in observation if isinstance(key, str) and key.startswith(IMAGE_KEY_PREFIX)]
-        key = IMAGE_KEY_PREFIX + self.camera if self.camera is not None else (keys[0] if len(keys) == 1 else None)
+        trained = self.spec.image_key
+        if self.camera is not None:
+            key = IMAGE_KEY_PREFIX + self.camera
+        elif trained is not None:
+            key = trained
+        else:
+            key = keys[0] if len(keys) == 1 else None
         if key is None or key not in observation:
             wanted = f"{key!r}" if key else f"one {IMAGE_KEY_PREFIX}<camera> (or camera= to choose)"
+            why = " (the training recordings' camera)" if key == trained and self.camera is None else ""
             raise PolicyError(
-                f"this policy sees the camera: the observation needs {wanted}, it has {', '.join(keys) or 'no image'}"
+                f"this policy sees the camera: the observation needs {wanted}{why}, it has "
+                f"{', '.join(keys) or 'no image'}; camera='NAME' reads {IMAGE_KEY_PREFIX}NAME instead"
             )
         frame = np.asarray(observation[key])
         if frame.ndim == 4 and frame.shape[0] == 1:
@@ -272,7 +294,25 @@ class Policy:
                 f"{key} must be an RGB frame (H, W, 3) uint8, or (3, H, W) float in [0, 1] as LeRobot hands images "
                 f"(a leading batch dimension of 1 is allowed), got shape {frame.shape} dtype {frame.dtype}"
             )
+        size = self.spec.image_size
+        if size is not None and frame.shape[:2] != size:
+            raise PolicyError(
+                f"{key}: a frame of {frame.shape[1]}x{frame.shape[0]} pixels, but this policy was trained on frames of "
+                f"{size[1]}x{size[0]} (width x height); give the training camera's frames at that size"
+            )
         return frame
+
+
+def gripper_range(spec: PolicySpec) -> tuple[float, float] | None:
+    """(low, high): the gripper readings a policy of `spec` takes, GRIPPER_DEVIATIONS of the training demonstrations'
+    standard deviations (its normaliser's scale) around their mean; None where the model does not read the
+    gripper."""
+    index = STATE_NAMES.index(GRIPPER)
+    for (s0, s1), (r0, _) in spec.state:
+        if s0 <= index < s1:
+            loc, scale = float(spec.columns.loc[r0 + index - s0]), float(spec.columns.scale[r0 + index - s0])
+            return loc - GRIPPER_DEVIATIONS * scale, loc + GRIPPER_DEVIATIONS * scale
+    return None
 
 
 def lerobot_image(image: np.ndarray, key: str) -> np.ndarray:

@@ -132,6 +132,7 @@ def run(config: RunConfig) -> list[RecordingRun]:
     for path, demo in zip(paths, demos):
         if policy.uses_camera and demo.frames is None:
             raise PipelineError(f"{path}: has no {TOPIC_IMAGE} frames, but the policy sees the camera")
+    warn_other_tasks(policy, paths, demos)
     run_id = uuid.uuid4().hex[:8]
     runs = []
     with contextlib.ExitStack() as stack:  # a failure removes the folders made for the outputs, and what was staged
@@ -167,6 +168,19 @@ def run(config: RunConfig) -> list[RecordingRun]:
     return runs
 
 
+def warn_other_tasks(policy: Policy, paths: list[Path], demos: list[Demonstration]) -> None:
+    """One warning line when recordings name a task that the policy was not trained on (where both name tasks)."""
+    trained = policy.spec.tasks
+    other = {demo.episode.task: path for path, demo in zip(paths, demos) if demo.episode.task not in (*trained, "")}
+    if trained and other:
+        given = ", ".join(f"{task!r} ({path})" for task, path in other.items())
+        log.warning(
+            "the recordings' task %s is not one the policy was trained on (%s); it may not do it",
+            given,
+            ", ".join(map(repr, trained)),
+        )
+
+
 def _run_output(path: Path) -> bool:
     """What --force may replace: a Rerun .rrd, or a summary this stage wrote."""
     return RRD(path) if path.suffix == ".rrd" else SUMMARY(path)
@@ -199,7 +213,8 @@ def run_recording(policy: Policy, demo: Demonstration, path: Path, rec, realtime
     switches = 0
     policy.reset()
     start, shown, labels = time.perf_counter(), None, expert_labels(policy)
-    for k, observation in enumerate(observations(demo, path, camera=policy.uses_camera)):
+    key = camera_key(policy) if policy.uses_camera else None
+    for k, observation in enumerate(observations(demo, path, camera=policy.uses_camera, key=key)):
         if realtime:
             wait_until(start + observation[TIMESTAMP_KEY])
         before = time.perf_counter()
@@ -215,9 +230,16 @@ def wait_until(deadline_s: float) -> None:
     time.sleep(max(0.0, deadline_s - time.perf_counter()))
 
 
-def observations(demo: Demonstration, path: Path, camera: bool = True) -> Iterator[dict]:
+def camera_key(policy: Policy) -> str:
+    """The observation key a recording's frames go under for `policy`: the training recordings' camera where its spec
+    names one, else observation.images.rgb."""
+    return policy.spec.image_key or IMAGE_KEY_PREFIX + CAMERA_NAME
+
+
+def observations(demo: Demonstration, path: Path, camera: bool = True, key: str | None = None) -> Iterator[dict]:
     """The recording (read from `path`) step by step as a robot hands it to a policy: the state (8,), the seconds
-    since its first step and, with `camera`, the frame decoded to (H, W, 3) uint8 RGB (one frame at a time)."""
+    since its first step and, with `camera`, the frame decoded to (H, W, 3) uint8 RGB (one frame at a time) under
+    `key` (None: observation.images.rgb)."""
     ts = demo.timestamps_ns
     state = np.concatenate([demo.pose, demo.gripper[:, None]], axis=1).astype(np.float32)  # (T, 8)
     for k in range(demo.n_steps):
@@ -226,7 +248,7 @@ def observations(demo: Demonstration, path: Path, camera: bool = True) -> Iterat
             frame = decode_frame(demo.frames[k])
             if frame is None:
                 raise PipelineError(f"{path}: step {k} on {TOPIC_IMAGE}: the frame does not decode; re-ingest it")
-            observation[IMAGE_KEY_PREFIX + CAMERA_NAME] = frame
+            observation[key or IMAGE_KEY_PREFIX + CAMERA_NAME] = frame
         yield observation
 
 

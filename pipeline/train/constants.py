@@ -16,3 +16,6 @@ DEVICES = ("cpu", "cuda")
 STATE_FILE = "state.pt"
 LOG_FILE = "training_log.jsonl"
 EXPERT_LABELS = "expert_labels"  # config.json: expert number -> the task of most of its training demonstrations
+TASKS = "tasks"  # config.json: the tasks of the training demonstrations, sorted
+IMAGE_KEY = "image_key"  # config.json: the observation key of the demonstrations' camera (None: not named)
+IMAGE_SIZE = "image_size"  # config.json: (height, width) of the training frames in pixels (None: no camera)

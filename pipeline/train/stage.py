@@ -14,7 +14,8 @@ DistributedDataParallel (pipeline.train.parallel), each rank on its share of the
 rank 0 writes the checkpoint.
 
 OUT gets `config.json` (model, layout, training settings, extractor identity, files with sha256, the
-time base: the demonstrations' median duration and step period in seconds, best step and error),
+time base: the demonstrations' median duration and step period in seconds, the gripper command, the tasks
+trained on, the camera's observation key and frame size, best step and error),
 `model.safetensors` and `training_log.jsonl` (one line per validation).
 """
 
@@ -48,8 +49,8 @@ from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.inputs import find_trajectory_files
 from cnep.pipeline.ownership import CHECKPOINT_FILES
 from cnep.pipeline.train.config import TrainStageConfig
-from cnep.pipeline.train.constants import EXPERT_LABELS, LOG_FILE, STATE_FILE
-from cnep.pipeline.train.data import TrainingSet, load_training_set
+from cnep.pipeline.train.constants import EXPERT_LABELS, IMAGE_KEY, IMAGE_SIZE, LOG_FILE, STATE_FILE, TASKS
+from cnep.pipeline.train.data import TrainingSet, frame_size, load_training_set
 from cnep.pipeline.train.experts import demonstration_experts, expert_labels
 from cnep.pipeline.train.packed import PackedColumns, pack_columns
 from cnep.pipeline.train.parallel import (
@@ -75,7 +76,7 @@ from cnep.pipeline.train.state import (
     work_dir,
     write_log,
 )
-from cnep.recordings.constants import BLOCK_GRIPPER
+from cnep.recordings.constants import BLOCK_FEATURES, BLOCK_GRIPPER
 from cnep.runtime.gripper import GripperCommand
 
 log = logging.getLogger(__name__)
@@ -322,6 +323,8 @@ def _publish(
     time_base = run.data.time_base().to_dict()  # the robot's seconds -> t (runtime.timebase)
     policy = {"time_base": time_base, "gripper": run.gripper.to_dict() if run.gripper else None}
     policy[EXPERT_LABELS] = {str(expert): label for expert, label in labels.items()}
+    policy[TASKS] = run.data.tasks()
+    policy.update(camera_layout(run))
     save_checkpoint(model, work, {**extra, **policy, "result": summary, "log": LOG_FILE})
     record_written([work / n for n in CHECKPOINT_FILES if (work / n).is_file()], forget=[work / STATE_FILE])
     publish(work, config.out)
@@ -333,6 +336,15 @@ def _publish(
         elapsed,
         config.out,
     )
+
+
+def camera_layout(run: _Run) -> dict:
+    """What a policy's camera must give, for a model that sees it (runtime.PolicySpec): the observation key the
+    demonstrations name (None: any one image) and the size of their frames (the first training file's first)."""
+    if BLOCK_FEATURES not in run.layout.blocks:
+        return {IMAGE_KEY: None, IMAGE_SIZE: None}
+    size = frame_size(run.data.files[run.train_idx[0]].path)
+    return {IMAGE_KEY: run.data.camera_key(), IMAGE_SIZE: list(size) if size else None}
 
 
 def diverged(trainer: Trainer, config: TrainStageConfig, fresh: bool) -> None:

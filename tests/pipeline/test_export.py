@@ -11,6 +11,8 @@ from cnep.models import load_checkpoint, read_checkpoint_config
 from cnep.models.checkpoint import CHECKSUM_KEY, CONFIG_FILE, config_checksum
 from cnep.models.online import TorchNetwork
 from cnep.pipeline.cli.main import main
+from cnep.pipeline.export.policy import checkpoint_policy
+from cnep.pipeline.run.stage import observations
 from cnep.recordings import read_demonstration, read_trajectory
 from cnep.recordings.constants import BLOCK_GRIPPER
 from cnep.runtime import (
@@ -26,7 +28,7 @@ from cnep.runtime.constants import RUNTIME_REQUIREMENTS
 from cnep.runtime.exported import ENCODER_INPUT
 from cnep.runtime.frames import decode_frame
 from cnep.runtime.manifest import file_sha256
-from cnep.runtime.sessions import onnxruntime_graph
+from cnep.runtime.sessions import installed_backends, onnxruntime_graph
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -211,3 +213,117 @@ def test_a_checkpoint_without_a_time_base_exports_with_one_given(policy_world, t
     assert str(checkpoint / CONFIG_FILE) in err and "--time-base" in err and not out.exists()
     assert main(["-q", "export", str(checkpoint), "--out", str(out), "--time-base", "3.9,0.1"]) == 0
     assert read_manifest(out).spec.time_base == TimeBase(3.9, 0.1)
+
+
+def policies(policy_world):
+    """The demo's policy exported (ONNX Runtime) and as its checkpoint (torch), with an observation of the held-out
+    recording's first step."""
+    exported = load_policy(policy_world.exported, threads=1)
+    checkpoint = checkpoint_policy(policy_world.checkpoint, policy_world.extractor, backend="eager", threads=1)
+    observation = next(observations(read_demonstration(policy_world.heldout), policy_world.heldout))
+    return {"exported": exported, "checkpoint": checkpoint}, observation
+
+
+@pytest.mark.parametrize("reading", [3e38, 1e300, -3e38, 1e6])
+def test_a_gripper_reading_far_outside_the_training_is_refused_by_both_policies_never_a_nan(policy_world, reading):
+    found, observation = policies(policy_world)
+    for kind, policy in found.items():
+        state = np.array(observation[STATE_KEY], dtype=np.float64)
+        state[-1] = reading  # a sensor's "no reading" value, or another unit
+        with pytest.raises(PolicyError, match=f"{STATE_KEY}: gripper = .* lies outside"):
+            policy.select_action({**observation, STATE_KEY: state})
+        action = policy.select_action(observation)
+        assert np.isfinite(action).all(), kind
+
+
+def damaged(folder: Path, graph: str, how: str) -> None:
+    """Damage `graph` of the exported `folder` as `how` says, and list the new bytes in the manifest (so that the
+    sha256 check passes and the graph reaches its backend)."""
+    onnx = pytest.importorskip("onnx")
+    path = folder / graph
+    if how == "corrupt":
+        data = bytearray(path.read_bytes())
+        data[100:200] = b"\x07" * 100
+        path.write_bytes(bytes(data))
+    elif how == "swapped":
+        other = folder / ("decoder.onnx" if graph == "encoder.onnx" else "encoder.onnx")
+        first, second = path.read_bytes(), other.read_bytes()
+        path.write_bytes(second)
+        other.write_bytes(first)
+    else:  # external data beside the folder, which the graph points to: outside it
+        model = onnx.load(str(path))
+        onnx.save_model(model, str(path), save_as_external_data=True, location="weights.bin", size_threshold=0)
+        shutil.move(folder / "weights.bin", folder.parent / "weights.bin")
+        model = onnx.load(str(path), load_external_data=False)
+        for tensor in model.graph.initializer:
+            for entry in tensor.external_data:
+                if entry.key == "location":
+                    entry.value = "../weights.bin"
+        path.write_bytes(model.SerializeToString())
+    manifest = json.loads((folder / "manifest.json").read_text())
+    manifest["files"] = {name: file_sha256(folder / name) for name in manifest["files"]}
+    (folder / "manifest.json").write_text(json.dumps(manifest))
+
+
+@pytest.mark.parametrize("backend", installed_backends())
+@pytest.mark.parametrize(
+    "graph, how, says",
+    [
+        ("encoder.onnx", "corrupt", "cannot load it"),
+        ("features.onnx", "corrupt", "cannot load it"),
+        ("encoder.onnx", "swapped", "cannot run it"),
+        ("decoder.onnx", "outside", "cannot load it .*(outside|escapes)"),
+    ],
+)
+def test_a_damaged_swapped_or_escaping_graph_is_one_policy_error_naming_it(
+    policy_world, tmp_path, backend, graph, how, says
+):
+    folder = tmp_path / "policy"
+    shutil.copytree(policy_world.exported, folder)
+    damaged(folder, graph, how)
+    with pytest.raises(PolicyError, match=f"^{folder / graph}: {backend} {says}.*export the checkpoint again$"):
+        load_policy(folder, backend=backend, threads=1)
+
+
+def test_a_graph_of_another_model_is_refused_when_loaded(policy_world, tmp_path):
+    """The motion model's decoder in the demo's folder: valid ONNX, the names a decoder takes, another model's
+    shapes."""
+    other = tmp_path / "motion"
+    assert main(["-q", "export", str(policy_world.motion_checkpoint), "--out", str(other)]) == 0
+    folder = tmp_path / "policy"
+    shutil.copytree(policy_world.exported, folder)
+    shutil.copy(other / "decoder.onnx", folder / "decoder.onnx")
+    manifest = json.loads((folder / "manifest.json").read_text())
+    manifest["files"]["decoder.onnx"] = file_sha256(folder / "decoder.onnx")
+    (folder / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(PolicyError, match=f"^{folder / 'decoder.onnx'}: (gives a gate of shape|onnxruntime cannot)"):
+        load_policy(folder, threads=1)
+
+
+def test_the_manifest_records_the_tasks_and_the_camera_trained_on_and_a_frame_of_another_size_is_refused(
+    policy_world, tmp_path
+):
+    config = read_checkpoint_config(policy_world.checkpoint)
+    demo = read_demonstration(sorted(policy_world.demos.glob("*.mcap"))[0])
+    height, width = decode_frame(demo.frames[0]).shape[:2]
+    tasks = {read_demonstration(p).episode.task for p in policy_world.demos.glob("*.mcap")}
+    assert config["tasks"] == sorted(tasks - {""})
+    assert config["image_size"] == [height, width] and config["image_key"] is None  # generated: no camera named
+    spec = read_manifest(policy_world.exported).spec
+    assert spec.tasks == tuple(config["tasks"]) and spec.image_size == (height, width) and spec.image_key is None
+    found, observation = policies(policy_world)
+    key = next(k for k in observation if k.startswith("observation.images."))
+    half = observation[key][::2, ::2]
+    for policy in found.values():
+        assert policy.spec.tasks == spec.tasks and policy.spec.image_size == spec.image_size
+        with pytest.raises(PolicyError, match=f"a frame of {width // 2}x{height // 2} pixels, but this policy was "
+                           f"trained on frames of {width}x{height}"):  # fmt: skip
+            policy.step({**observation, key: half})
+    assert read_checkpoint_config(policy_world.motion_checkpoint)["image_size"] is None  # sees no camera
+    folder = tmp_path / "policy"  # a manifest written before the tasks and the camera were stored: any frame size
+    shutil.copytree(policy_world.exported, folder)
+    manifest = json.loads((folder / "manifest.json").read_text())
+    manifest["spec"] = {k: v for k, v in manifest["spec"].items() if k not in ("tasks", "image_key", "image_size")}
+    (folder / "manifest.json").write_text(json.dumps(manifest))
+    older = load_policy(folder, threads=1)
+    assert older.spec.tasks == () and np.isfinite(older.step({**observation, key: half}).waypoints).all()
