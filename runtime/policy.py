@@ -18,6 +18,11 @@ other than the training recordings' or frames of another size than theirs (where
 state entries the model reads are checked. Whatever the network gives that is not finite is a PolicyError too
 (runtime.conditioning): no step hands out NaN.
 
+A switch of expert continues from where the end effector is: from the step the active expert changes until the
+new expert's first waypoint lies within one step of the state, each waypoint's pose entries move at most the
+training demonstrations' largest step (`PolicySpec.max_step`, per entry) from the one before it, the first from the
+observed state; the new expert's path is never jumped to.
+
 One class for both backends: the network (`runtime.conditioning.Network`) and the feature function are the
 torch model and extractor (`cnep.pipeline.export.checkpoint_policy`) or the exported ONNX graphs
 (`runtime.exported.load_policy`); everything else (reading the observation, the time base, the conditioning
@@ -47,7 +52,7 @@ from cnep.runtime.errors import PolicyError
 from cnep.runtime.frames import pixel_buffer, resize_frame
 from cnep.runtime.gripper import GripperCommand
 from cnep.runtime.spans import span_indices
-from cnep.runtime.spec import GRIPPER, STATE_NAMES, PolicySpec
+from cnep.runtime.spec import GRIPPER, POSE_NAMES, STATE_NAMES, PolicySpec
 from cnep.runtime.timebase import TimeBase
 
 Features = Callable[[np.ndarray], np.ndarray]  # uint8 pixels (1, 224, 224, 3) -> float32 features (1, F)
@@ -123,6 +128,14 @@ class Policy:
         self._position = [i for i in POSITION if i in used]  # the state's xyz entries the model reads
         self._quaternion = any(i in used for i in QUATERNION)
         self._gripper_range = gripper_range(spec)  # (low, high) the gripper may read, None if the model reads none
+        # The pose entries a switch bounds: their columns among the predicted, their state entries and largest steps.
+        bounded = [
+            (col, STATE_NAMES.index(name), (spec.max_step or {}).get(name, 0.0))
+            for col, name in enumerate(names)
+            if name in POSE_NAMES and STATE_NAMES.index(name) in used
+        ]
+        bounded = [(c, i, step) for c, i, step in bounded if step > 0]  # a pose entry that never moved: unbound
+        self._bounded = tuple(np.array(x) for x in zip(*bounded)) if bounded else None  # columns, entries, steps
         self._conditioner = Conditioner(network, spec.columns, conditioning or spec.conditioning)
         self._pixels = pixel_buffer(1)  # (1, 224, 224, 3) uint8
         self._row = np.zeros(spec.columns.width, dtype=np.float32)  # (width,) the model row of this step
@@ -140,6 +153,11 @@ class Policy:
         return self.spec.n_experts
 
     @property
+    def conditioning(self) -> ConditioningPolicy:
+        """The conditioning this policy runs with: its spec's, or the one it was given."""
+        return self._conditioner.policy
+
+    @property
     def uses_camera(self) -> bool:
         """True if the model sees the camera (an observation must then carry an image)."""
         return self._features is not None
@@ -153,6 +171,7 @@ class Policy:
         self._conditioner.reset(seed)
         self._last_time_s: float | None = None
         self._command: float | None = None  # the gripper command of the last step
+        self._switching = False  # between a switch of expert and the new expert's path reached
 
     def select_action(self, observation: Mapping) -> np.ndarray:
         """The next waypoint (dy,) for `observation`, or (1, dy) when its state came with a batch dimension; its
@@ -188,8 +207,28 @@ class Policy:
         k, t = self._conditioner.k, tb.phase(time_s)
         gate, expert, switch, mean, std = self._conditioner.step(self._row, t, self._query_t, round(time_s * 1e9))
         self._last_time_s = time_s
+        mean = self._continued(mean, state, switch is not None)
         command = self._gripper_command(state, mean)
         return PolicyStep(k, time_s, t, mean, std, times, gate, expert, switch, command), batched
+
+    def _continued(self, mean: np.ndarray, state: np.ndarray, switched: bool) -> np.ndarray:
+        """The waypoints (W, dy) to hand out for the active expert's `mean` at the observed `state` (8,): `mean`
+        itself, but from a switch of expert until its first waypoint lies within the largest step of the state on
+        every bounded entry, each waypoint's bounded entries moved at most that step from the one before it (the
+        first from the state)."""
+        self._switching = (self._switching or switched) and self._bounded is not None
+        if not self._switching:
+            return mean
+        cols, entries, steps = self._bounded  # (n,) each
+        position = state[entries]  # (n,) where the end effector is
+        if (np.abs(mean[0, cols] - position) <= steps).all():  # the new expert's path is reached
+            self._switching = False
+            return mean
+        continued = mean.copy()
+        for i in range(len(continued)):
+            position = position + np.clip(continued[i, cols] - position, -steps, steps)
+            continued[i, cols] = position
+        return continued
 
     def _gripper_command(self, state: np.ndarray, mean: np.ndarray) -> float | None:
         """The command for the first waypoint's predicted gripper (mean (W, dy)), from the last command, or at the

@@ -85,6 +85,9 @@ def export(config: ExportConfig) -> Path:
     loaded = with_time_base(
         load_for_policy(config.checkpoint, config.extractor, backend=EXPORT_BACKEND, threads=1), config.time_base
     )
+    loaded = replace(
+        loaded, spec=replace(loaded.spec, conditioning=config.conditioning.applied(loaded.spec.conditioning))
+    )
     with output_folder(out.parent), output_lock(out):
         check_writable_folder(out.parent)
         recover_replaced(out)

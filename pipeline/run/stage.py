@@ -14,7 +14,8 @@ written with the summary when the run completes, under the lock on `out` (cnep.o
 replaces only .rrd files and run summaries.
 
 The summary (`summarise`): steps, p50 / p99 / max step time, steps over the recording's frame period,
-switches, per recording and in total; written beside `out` as `<out stem>.summary.json`.
+switches, per recording and in total; written beside `out` as `<out stem>.summary.json` with the conditioning the
+policy ran with and the settings of it that were given (`conditioning`: they replace the policy's own).
 """
 
 from __future__ import annotations
@@ -47,7 +48,7 @@ from cnep.pipeline.replay.rerun_log import (
     shown_state,
     viewer_reachable,
 )
-from cnep.pipeline.run.config import EXPORTED, RunConfig, policy_kind
+from cnep.pipeline.run.config import EXPORTED, RunConfig, own_conditioning, policy_kind
 from cnep.recordings import Demonstration, read_demonstration
 from cnep.recordings.constants import TOPIC_IMAGE
 from cnep.runtime import STATE_KEY, TIMESTAMP_KEY, ConditioningPolicy, Policy, PolicyStep, TimeBase, load_policy
@@ -120,6 +121,7 @@ def run(config: RunConfig) -> list[RecordingRun]:
         )
     with heartbeat(f"reading {len(paths)} recording(s) and loading the policy", config.quiet):
         demos = [read_demonstration(p) for p in paths]
+        given = config.conditioning.given()
         policy = open_policy(
             Path(config.policy),
             extractor=config.extractor,
@@ -128,6 +130,7 @@ def run(config: RunConfig) -> list[RecordingRun]:
             threads=config.threads,
             waypoints=config.waypoints,
             time_base=config.time_base,
+            conditioning=config.conditioning.applied(own_conditioning(config.policy)) if given else None,
         )
     for path, demo in zip(paths, demos):
         if policy.uses_camera and demo.frames is None:
@@ -164,7 +167,8 @@ def run(config: RunConfig) -> list[RecordingRun]:
                 staging.write(files[i], data or b"")
             log.info("%s: %d steps, %d switch(es)", path, demo.n_steps, runs[-1].switches)
         if config.out is not None:
-            staging.write(summary_path(config.out), json.dumps(summarise(runs), indent=1).encode())
+            summary = {**summarise(runs), "conditioning": policy.conditioning.to_dict(), "conditioning_given": given}
+            staging.write(summary_path(config.out), json.dumps(summary, indent=1).encode())
     return runs
 
 

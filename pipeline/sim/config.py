@@ -5,15 +5,14 @@ its options) before the stage loads.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from cnep.models.assignments import ASSIGNMENTS
-from cnep.models.config import setting
+from cnep.models.config import ConditioningOverrides, setting
 from cnep.pipeline.demo.config import AUTO_WEIGHTS
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.inputs import coerce_paths
-from cnep.runtime.conditioning import FIRST_EXPERTS, ConditioningPolicy
 from cnep.sim import pick_scene, scene
 
 OBSTACLE = "obstacle"
@@ -45,7 +44,8 @@ def protocols_of(protocol: str) -> tuple[str, ...]:
 
 @dataclass(frozen=True)
 class LoopSettings:
-    """What every closed-loop evaluation takes: the task and its variant, the episodes and the recordings of them."""
+    """What every closed-loop evaluation takes: the task and its variant, the episodes and the recordings of them, and
+    the conditioning settings given to replace the policy's own."""
 
     task: str = setting(OBSTACLE, "the task", choices=TASKS)
     cue: bool = setting(False, "the variant where a tile on one side of the box shows the side to pass")
@@ -54,12 +54,8 @@ class LoopSettings:
     episode_seed: int = setting(0, "seed of the first episode (episode i is reset with seed + i)")
     protocol: str = setting(BOTH, PROTOCOL_HELP, choices=(BOTH, *PROTOCOLS))
     record: int = setting(2, "episodes per policy and protocol written as Rerun recordings (the first ones)")
-    first_expert: str = setting(
-        ConditioningPolicy.first_expert,
-        "the first active expert of an episode: argmax (the gate's winner, every episode alike) or sample (drawn "
-        "from the gate with the episode's seed: episodes split between behaviours as the demonstrations do)",
-        choices=FIRST_EXPERTS,
-    )
+    # What replaces the policy's own conditioning (its manifest's, its checkpoint's) in these episodes.
+    conditioning: ConditioningOverrides = field(default_factory=ConditioningOverrides)
 
     @property
     def protocols(self) -> tuple[str, ...]:

@@ -10,10 +10,11 @@ from __future__ import annotations
 
 import importlib.util
 import logging
-from dataclasses import replace
 from pathlib import Path
 
+from cnep.models.config import ConditioningOverrides
 from cnep.pipeline.progress import progress_bar
+from cnep.pipeline.run.config import own_conditioning
 from cnep.pipeline.run.stage import open_policy
 from cnep.pipeline.sim.config import LoopSettings
 from cnep.pipeline.sim.figure import draw_episode
@@ -41,7 +42,7 @@ def evaluate_policy(
     """Protocol -> rates (pipeline.sim.summary.rates) of the policy in `policy_path` (exported or checkpoint);
     recordings: the folder for `<label>-<protocol>-seed<N>.rrd` (None: none written); figure: the PNG of the last
     protocol's first episode (pipeline.sim.figure; None, or matplotlib missing: none drawn)."""
-    policy = _policy(policy_path, extractor, settings.first_expert)
+    policy = _policy(policy_path, extractor, settings.conditioning)
     env = ObstacleEnv(cue=settings.cue, max_steps=settings.max_steps)
     results = {}
     try:
@@ -65,14 +66,10 @@ def evaluate_policy(
     return results
 
 
-def _policy(path: Path, extractor: Path | None, first_expert: str) -> Policy:
+def _policy(path: Path, extractor: Path | None, given: ConditioningOverrides) -> Policy:
     """The policy in `path`, its waypoints covering the task's episode (a plan: a limit of steps cuts it short or
-    holds its end, and never rescales it), its first expert chosen by `first_expert`; the rest of its conditioning
-    its own."""
-    policy = open_policy(path, extractor=extractor, threads=POLICY_THREADS, waypoints=S.MAX_STEPS)
-    if policy.spec.conditioning.first_expert == first_expert:
-        return policy
-    conditioning = replace(policy.spec.conditioning, first_expert=first_expert)
+    holds its end, and never rescales it), its conditioning its own but for the settings `given`."""
+    conditioning = given.applied(own_conditioning(path)) if given.given() else None
     return open_policy(
         path, extractor=extractor, threads=POLICY_THREADS, waypoints=S.MAX_STEPS, conditioning=conditioning
     )

@@ -19,3 +19,5 @@ EXPERT_LABELS = "expert_labels"  # config.json: expert number -> the task of mos
 TASKS = "tasks"  # config.json: the tasks of the training demonstrations, sorted
 IMAGE_KEY = "image_key"  # config.json: the observation key of the demonstrations' camera (None: not named)
 IMAGE_SIZE = "image_size"  # config.json: (height, width) of the training frames in pixels (None: no camera)
+CONDITIONING = "conditioning"  # config.json: the policy's conditioning (runtime.ConditioningPolicy.to_dict)
+MAX_STEP = "max_step"  # config.json: state name -> the largest step of that pose entry in the demonstrations
