@@ -70,7 +70,9 @@ class PolicyStep:
     sums to 1; expert: the active expert (the policy's rule: runtime.conditioning.hand_over); switch: set when
     the active expert changed at this step (never at the first); time_s and t: this step's seconds and phase;
     gripper: the command for the next step, one of the gripper's two values (runtime.gripper), None when the
-    policy has no gripper command.
+    policy has no gripper command; gripper_closed: that command as a two-state gripper executes it, True to close
+    (with the gripper's own force: the closed value of a recorded opening is the width of the objects held) and
+    False to open, None without a command.
     """
 
     step: int
@@ -83,6 +85,7 @@ class PolicyStep:
     expert: int
     switch: ExpertSwitch | None
     gripper: float | None = None
+    gripper_closed: bool | None = None
 
 
 class Policy:
@@ -209,7 +212,8 @@ class Policy:
         self._last_time_s = time_s
         mean = self._continued(mean, state, switch is not None)
         command = self._gripper_command(state, mean)
-        return PolicyStep(k, time_s, t, mean, std, times, gate, expert, switch, command), batched
+        closed = None if command is None else self.gripper.is_closed(command)
+        return PolicyStep(k, time_s, t, mean, std, times, gate, expert, switch, command, closed), batched
 
     def _continued(self, mean: np.ndarray, state: np.ndarray, switched: bool) -> np.ndarray:
         """The waypoints (W, dy) to hand out for the active expert's `mean` at the observed `state` (8,): `mean`

@@ -400,13 +400,15 @@ def packed_hashes(packed: PackedColumns) -> dict[int, tuple[str, str]]:
 
 
 def gripper_command(packed: PackedColumns, layout: TrainingColumns, procs: Processes) -> GripperCommand | None:
-    """The two-state gripper's command chosen from every file's gripper values (runtime.gripper), gathered from the
-    ranks' packs; None when the model has no gripper column. All ranks must call this."""
+    """The two-state gripper's command chosen from every file's gripper values (runtime.gripper; the closed one: the
+    value the files do not start at), gathered from the ranks' packs; None when the model has no gripper column. All
+    ranks must call this."""
     span = layout.blocks.get(BLOCK_GRIPPER)
     if span is None:
         return None
     values = {i: v for part in gather(procs, packed.columns(packed.indices, span)) for i, v in part.items()}
-    return GripperCommand.from_demonstrations(np.concatenate([values[i] for i in sorted(values)]))
+    starts = [values[i][0] for i in sorted(values) if len(values[i])]  # each demonstration starts open
+    return GripperCommand.from_demonstrations(np.concatenate([values[i] for i in sorted(values)]), starts)
 
 
 def largest_steps(packed: PackedColumns, layout: TrainingColumns, procs: Processes) -> dict[str, float]:

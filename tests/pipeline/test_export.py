@@ -52,11 +52,13 @@ def test_the_folder_holds_what_the_manifest_lists_with_the_checkpoints_spec(poli
     assert manifest.spec.action_names == ("x", "y", "z", "qx", "qy", "qz", "qw", "gripper")
     trained = [read_trajectory(f["path"]) for f in config["files"]]  # every file cnep train was given
     values = np.concatenate([t.data[:, slice(*t.blocks[BLOCK_GRIPPER])].ravel() for t in trained])
+    starts = [t.data[0, t.blocks[BLOCK_GRIPPER][0]] for t in trained]
     assert (
         manifest.spec.gripper
-        == GripperCommand.from_demonstrations(values)
+        == GripperCommand.from_demonstrations(values, starts)
         == GripperCommand.from_dict(config["gripper"])
     )
+    assert manifest.spec.gripper.closed == "low"  # the demo's gripper is an opening: its demonstrations start open
     assert manifest.spec.gripper.high - manifest.spec.gripper.low > 0.5 * (values.max() - values.min())
     np.testing.assert_array_equal(
         manifest.spec.columns.loc, load_checkpoint(policy_world.checkpoint).normaliser.loc.numpy()
