@@ -6,12 +6,12 @@ Each RUN is a folder written by `cnep sim obstacle` (its summary.json holds ever
 `cnep sim eval` (one policy: its model and seed are read from the policy folder's name, `cnep-seed0`, as
 `cnep sim obstacle` names them; the demonstrations' seed and training steps from the summary of the `cnep sim
 obstacle` run found in a folder above RUN, if any). A row: the run's folder, the demonstrations' seed (`set`), the cue
-variant, the first expert's rule, the training steps, model, training seed, protocol, episodes, the rates (success,
-collision, left, switching, followed_cue), the Wilson 95% intervals of success and switching (`_lo`, `_hi`), the
-behaviour entropy of the side passed (empty where it is not defined: with a cue) and the smallest gripper-box
-distance (cm); `usage`: the experts' shares of
-the training samples at the last step (the last line of training_log.jsonl in the checkpoint `checkpoints/NAME`
-beside the policy's folder `policies/NAME`, as `cnep sim obstacle` lays them out), `/`-separated.
+variant, the first expert's rule (`own`: the policy's, as trained), the training steps, model, training seed,
+protocol, episodes, the rates (success, collision, left, switching, followed_cue), the Wilson 95% intervals of
+success and switching (`_lo`, `_hi`), the behaviour entropy of the side passed (empty where it is not defined: with
+a cue) and the smallest gripper-box distance (cm); `usage`: the experts' shares of the training samples at the last
+step (the last line of training_log.jsonl in the checkpoint `checkpoints/NAME` beside the policy's folder
+`policies/NAME`, as `cnep sim obstacle` lays them out), `/`-separated.
 """
 
 from __future__ import annotations
@@ -26,6 +26,13 @@ COLUMNS = (
     "success_lo", "success_hi", "collision", "left", "switching", "switching_lo", "switching_hi", "followed_cue",
     "entropy", "min_gap_cm", "usage",
 )  # fmt: skip
+
+
+def first_expert(settings: dict) -> str:
+    """The first expert's rule the run gave its policies ("own": each policy's own, as trained); a summary written
+    before the conditioning settings were grouped holds it at the top."""
+    given = settings["first_expert"] if "first_expert" in settings else settings["conditioning"]["first_expert"]
+    return given or "own"
 
 
 def usage(checkpoint: Path) -> str:
@@ -71,7 +78,7 @@ def rows_of(run: Path) -> list[dict]:
             rows.append(
                 {
                     "run": run.name, "set": made.get("seed", ""), "cue": settings["cue"],
-                    "first_expert": settings["first_expert"], "train_steps": made.get("train_steps", ""),
+                    "first_expert": first_expert(settings), "train_steps": made.get("train_steps", ""),
                     "model": model, "train_seed": seed, "protocol": protocol, "episodes": r["episodes"],
                     "success": r["success"], **bounds(r, "success"), "collision": r["collision"], "left": r["left"],
                     "switching": r["switching"], **bounds(r, "switching"),

@@ -11,7 +11,14 @@ import importlib
 _MODULES = {
     "checkpoint": ("load_checkpoint", "read_checkpoint_config", "save_checkpoint"),
     "cnep": ("CNEP", "Prediction"),
-    "config": ("CNEPConfig", "ColumnRoles", "ConditioningPolicy", "TrainConfig", "authors_coefficients"),
+    "config": (
+        "CNEPConfig",
+        "ColumnRoles",
+        "ConditioningOverrides",
+        "ConditioningPolicy",
+        "TrainConfig",
+        "authors_coefficients",
+    ),
     "errors": ("ConfigError",),
     "matched": ("matched_cnmp", "parameter_count"),
     "online": ("ExpertSwitch", "OnlineConditioner", "OnlineStep"),

@@ -9,7 +9,7 @@ time) and which columns the experts predict (`CNEPConfig.columns`). Columns are 
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field, fields, replace
+from dataclasses import asdict, dataclass, field, fields, make_dataclass, replace
 
 from cnep.models.assignments import ASSIGNMENTS, Assignment, assignment_named
 from cnep.models.errors import ConfigError
@@ -56,13 +56,52 @@ class ColumnRoles:
         return len(span_indices(self.predicted))
 
 
-def setting(default: object, help: str, *, option: str | None = None, choices: tuple[str, ...] | None = None) -> object:
+def setting(
+    default: object,
+    help: str,
+    *,
+    option: str | None = None,
+    choices: tuple[str, ...] | None = None,
+    shown: str | None = None,
+) -> object:
     """A dataclass field with its default and the one line that `cnep` shows for it (`--help`, metadata "help").
 
-    The command line (pipeline.cli.fields) offers it as `--NAME` (`option`: another name) within `choices`.
+    The command line (pipeline.cli.fields) offers it as `--NAME` (`option`: another name) within `choices`, its
+    default written as `shown` where the value does not say it (None: the policy's own).
     """
-    metadata = {"help": help, "option": option, "choices": choices}
+    metadata = {"help": help, "option": option, "choices": choices, "shown": shown}
     return field(default=default, metadata={k: v for k, v in metadata.items() if v is not None})
+
+
+def optional_settings(cls: type, name: str, shown: str) -> type:
+    """A frozen dataclass `name` with a field for every setting of the config class `cls` (those with a help text),
+    defaulting to None: not given, `cls`'s value stays. Each field keeps the setting's help and choices, its default
+    shown as `shown`; `given()` is the settings that are set (name -> value) and `applied(config)` the `cls` instance
+    `config` with them replaced. So the options that replace a setting come from its one definition."""
+    made = [
+        (f.name, f"{f.type} | None", setting(None, f.metadata["help"], choices=f.metadata.get("choices"), shown=shown))
+        for f in fields(cls)
+        if "help" in f.metadata
+    ]
+
+    def given(self) -> dict[str, object]:
+        return {f.name: getattr(self, f.name) for f in fields(self) if getattr(self, f.name) is not None}
+
+    def applied(self, config):
+        return replace(config, **given(self))
+
+    def check(self) -> None:
+        cls(**given(self))  # the class's own checks, on the given values
+
+    namespace = {"given": given, "applied": applied, "__post_init__": check, "__doc__": optional_settings.__doc__}
+    made_cls = make_dataclass(name, made, frozen=True, namespace=namespace)
+    made_cls.__module__ = __name__  # where it is defined: pickled and shown by its place here
+    return made_cls
+
+
+# The conditioning settings given where a trained policy runs (`cnep export`, `cnep run`, `cnep sim eval`): each
+# replaces the one the policy was trained with (its checkpoint's config.json, its manifest).
+ConditioningOverrides = optional_settings(ConditioningPolicy, "ConditioningOverrides", "the policy's own")
 
 
 def authors_coefficients(n_experts: int) -> tuple[float, float, float]:

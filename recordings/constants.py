@@ -42,6 +42,8 @@ METADATA_EPISODE = "episode"  # written when a writer opens: survives a killed r
 METADATA_STEPS = "steps"  # written when a writer closes cleanly: n_steps, start/end/duration in ns
 METADATA_EXTRACTOR = "extractor"  # feature extractor identity (trajectories with features only), at open
 METADATA_REPAIR = "repair"  # written by `cnep repair`: source file, bytes and chunks used, what was lost
+EPISODE_CAMERA = "camera"  # a key of `episode` metadata: the camera's observation key (a LeRobot dataset's feature)
+NO_CAMERA = "none"  # its value for a recording without a camera
 
 # Channel metadata keys of TOPIC_TRAJECTORY.
 CHANNEL_KEY_BLOCKS = "layout"  # JSON {block: [start, stop]}: the column blocks (the key in the file is "layout")

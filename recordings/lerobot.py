@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from cnep.recordings.constants import EPISODE_CAMERA, NO_CAMERA
 from cnep.recordings.errors import RecordingError
 from cnep.recordings.lerobot_columns import (
     NS_PER_S,
@@ -280,7 +281,7 @@ def plan_lerobot(root: str | os.PathLike, mapping: LerobotMapping = LerobotMappi
         extra = {
             "format": f"lerobot {version}",
             "episode_index": str(index),
-            "camera": camera or "none",
+            EPISODE_CAMERA: camera or NO_CAMERA,
             "columns": columns.described,
             "frame_times": "Parquet timestamp" + (" + video offset" if video else ""),
             "interpolation": "none",

@@ -31,7 +31,7 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from typing import Protocol
 
 import numpy as np
@@ -57,7 +57,8 @@ class ConditioningPolicy:
         default="argmax",
         metadata={
             "help": "the first active expert of an episode: argmax (the gate's winner) or sample (drawn from the "
-            "gate's probabilities with the episode's seed: episodes split as the demonstrations do)"
+            "gate's probabilities with the episode's seed: episodes split as the demonstrations do)",
+            "choices": FIRST_EXPERTS,
         },
     )
     switch_margin: float = field(
@@ -91,8 +92,26 @@ class ConditioningPolicy:
             raise PolicyError(f"ConditioningPolicy.switch_window must be >= 0, got {self.switch_window}.")
 
     def to_dict(self) -> dict:
-        """JSON-able: the manifest's `spec.conditioning`."""
+        """JSON-able: the manifest's `spec.conditioning` and the checkpoint's `conditioning`."""
         return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict | None) -> ConditioningPolicy:
+        """The policy of `to_dict` (a setting it lacks keeps its default; None: every default, as a checkpoint or
+        manifest written before it was stored reads); PolicyError naming an unknown setting or a wrong value."""
+        data = {} if data is None else data
+        if not isinstance(data, dict):
+            raise PolicyError(f"the conditioning settings are a JSON object, got {type(data).__name__}")
+        names = [f.name for f in fields(cls)]
+        unknown = sorted(set(data) - set(names))
+        if unknown:
+            raise PolicyError(f"unknown conditioning setting(s) {unknown}; known: {names}")
+        kinds = {f.name: type(f.default) for f in fields(cls)}
+        for name, value in data.items():
+            number = kinds[name] is float and isinstance(value, int)
+            if isinstance(value, bool) or not (isinstance(value, kinds[name]) or number):
+                raise PolicyError(f"conditioning setting {name} must be a {kinds[name].__name__}, got {value!r}")
+        return cls(**data)
 
 
 @dataclass(frozen=True)
@@ -119,6 +138,13 @@ def hand_over(policy: ConditioningPolicy, recent: Sequence[np.ndarray], active: 
     margin = policy.switch_margin
     fell = len(recent) > policy.switch_window > 0 and recent[-1 - policy.switch_window][active] - gate[active] >= margin
     return leader if gate[leader] - gate[active] >= margin or fell else active
+
+
+def checked_seed(seed: object) -> int:
+    """`seed` as an episode's seed: an integer >= 0 (numpy's too); PolicyError for anything else."""
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise PolicyError(f"an episode's seed is an integer >= 0 (or None: the policy's own generator), got {seed!r}")
+    return int(seed)
 
 
 class Network(Protocol):
@@ -191,9 +217,10 @@ class Conditioner:
 
         seed: the generator of the episode's draws (`first_expert="sample"`): the same seed, the same draw; None
         continues the conditioner's generator (seeded 0 when it is made, so a run of episodes is reproducible).
+        PolicyError for a seed that is not an integer >= 0.
         """
         if seed is not None:
-            self._rng = np.random.default_rng(seed)
+            self._rng = np.random.default_rng(checked_seed(seed))
         self.k = 0  # index of the next step
         self._sum: np.ndarray | None = None  # (H,) float64 running sum of the encodings in the set
         self._n = 0  # observations in the set
@@ -226,9 +253,20 @@ class Conditioner:
         np.take(row, self._query_cols, out=self._query_values)
         np.subtract(self._query_values, self._q_loc, out=self._query_values)
         np.divide(self._query_values, self._q_scale, out=self._query_values)
-        self._add(self.network.encode(obs)[0])  # (H,)
+        encoding = self.network.encode(obs)[0]  # (H,)
+        if not np.isfinite(encoding).all():  # checked before it joins the set, which it would spoil for the episode
+            raise PolicyError(
+                f"step {self.k}: the encoder gave values that are not finite for this observation; it was left out "
+                f"of the conditioning set"
+            )
+        self._add(encoding)
         np.divide(self._sum, self._n, out=self._r[0], casting="same_kind")  # (1, H) the mean over the set
         gate, mean, std = self.network.decode(self._r, self._fill_queries(query_t))  # (d,), (d, M, dy) x 2
+        if not (np.isfinite(gate).all() and np.isfinite(mean).all() and np.isfinite(std).all()):
+            raise PolicyError(
+                f"step {self.k}: the model's gate or predictions are not finite (its graphs or weights are damaged); "
+                f"no action was given: reset() and export the checkpoint again"
+            )
         self._gates.append(gate)
         expert = self._active(gate)
         switch = None

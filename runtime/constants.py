@@ -14,6 +14,10 @@ TIMESTAMP_KEY = "timestamp"
 MAX_TIME_S = 86_400.0
 MAX_POSITION_M = 1_000.0
 QUATERNION_TOLERANCE = 0.1
+# The gripper is in the recordings' unit (an opening in m, a command in [0, 1], a motor's ticks), so its bound is the
+# training demonstrations' own: within this many of their standard deviations of their mean. Further off, a reading
+# is a sensor's "no reading" value (3e38, -1) or another unit, which the model would turn into a wild motion.
+GRIPPER_DEVIATIONS = 100.0
 
 IMAGE_SIZE = 224  # frames are resized to IMAGE_SIZE x IMAGE_SIZE pixels before the feature network
 

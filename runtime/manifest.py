@@ -3,12 +3,11 @@
     format            "cnep-policy"; format_version: FORMAT_VERSION (READ_VERSIONS are read, others refused)
     producer          the cnep-pipeline that exported it
     spec              runtime.spec.PolicySpec.to_dict(): model row, normaliser, state mapping, time base,
-                      conditioning, gripper command
+                      conditioning, gripper command, the tasks and the camera (key, frame size) trained on
     extractor         identity of the features the model was trained on ({} for a model without a camera)
     features          precision -> {"file": ONNX graph, "identity": the identity of the features it makes}
     graphs            {"encoder": ENCODER_FILE, "decoder": DECODER_FILE}
-    checkpoint        {"config_sha256": the checkpoint's own checksum, "preset": its layout preset, "task": the task its
-                      training demonstrations name ("" where none, or several)}
+    checkpoint        {"config_sha256": the checkpoint's own checksum, "preset": its layout preset}
     files             relative path -> sha256 (hex) of every file in the folder but the manifest
 
 The folder is closed: every file the manifest names is a plain file name in the folder (`runtime/` source files: a

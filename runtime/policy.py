@@ -12,7 +12,16 @@ k * period_s of the time base). Each value may carry LeRobot's leading batch dim
 has it too. Anything else is one PolicyError saying which key and what to do: a wrong type, shape or dtype, a value
 that is not finite, a time that does not move forward or lies a day or more after the episode's start
 (MAX_TIME_S), a position beyond MAX_POSITION_M metres on an axis, a zero quaternion or one whose length is not 1
-within QUATERNION_TOLERANCE (one within it is normalised). Only the state entries the model reads are checked.
+within QUATERNION_TOLERANCE (one within it is normalised), a gripper more than GRIPPER_DEVIATIONS of the training
+demonstrations' standard deviations from their mean (a "no reading" sentinel such as 3e38, another unit), a camera
+other than the training recordings' or frames of another size than theirs (where the spec names them). Only the
+state entries the model reads are checked. Whatever the network gives that is not finite is a PolicyError too
+(runtime.conditioning): no step hands out NaN.
+
+A switch of expert continues from where the end effector is: from the step the active expert changes until the
+new expert's first waypoint lies within one step of the state, each waypoint's pose entries move at most the
+training demonstrations' largest step (`PolicySpec.max_step`, per entry) from the one before it, the first from the
+observed state; the new expert's path is never jumped to.
 
 One class for both backends: the network (`runtime.conditioning.Network`) and the feature function are the
 torch model and extractor (`cnep.pipeline.export.checkpoint_policy`) or the exported ONNX graphs
@@ -31,6 +40,7 @@ import numpy as np
 from cnep.runtime.conditioning import Conditioner, ConditioningPolicy, ExpertSwitch, Network
 from cnep.runtime.constants import (
     DEFAULT_WAYPOINTS,
+    GRIPPER_DEVIATIONS,
     IMAGE_KEY_PREFIX,
     MAX_POSITION_M,
     MAX_TIME_S,
@@ -42,12 +52,13 @@ from cnep.runtime.errors import PolicyError
 from cnep.runtime.frames import pixel_buffer, resize_frame
 from cnep.runtime.gripper import GripperCommand
 from cnep.runtime.spans import span_indices
-from cnep.runtime.spec import GRIPPER, STATE_NAMES, PolicySpec
+from cnep.runtime.spec import GRIPPER, POSE_NAMES, STATE_NAMES, PolicySpec
 from cnep.runtime.timebase import TimeBase
 
 Features = Callable[[np.ndarray], np.ndarray]  # uint8 pixels (1, 224, 224, 3) -> float32 features (1, F)
 POSITION = [STATE_NAMES.index(name) for name in ("x", "y", "z")]  # where the state holds the position (m)
 QUATERNION = [STATE_NAMES.index(name) for name in ("qx", "qy", "qz", "qw")]  # and the orientation
+GRIPPER_INDEX = STATE_NAMES.index(GRIPPER)
 
 
 @dataclass(frozen=True)
@@ -59,7 +70,9 @@ class PolicyStep:
     sums to 1; expert: the active expert (the policy's rule: runtime.conditioning.hand_over); switch: set when
     the active expert changed at this step (never at the first); time_s and t: this step's seconds and phase;
     gripper: the command for the next step, one of the gripper's two values (runtime.gripper), None when the
-    policy has no gripper command.
+    policy has no gripper command; gripper_closed: that command as a two-state gripper executes it, True to close
+    (with the gripper's own force: the closed value of a recorded opening is the width of the objects held) and
+    False to open, None without a command.
     """
 
     step: int
@@ -72,6 +85,7 @@ class PolicyStep:
     expert: int
     switch: ExpertSwitch | None
     gripper: float | None = None
+    gripper_closed: bool | None = None
 
 
 class Policy:
@@ -116,6 +130,15 @@ class Policy:
         used = span_indices([s for s, _ in spec.state])
         self._position = [i for i in POSITION if i in used]  # the state's xyz entries the model reads
         self._quaternion = any(i in used for i in QUATERNION)
+        self._gripper_range = gripper_range(spec)  # (low, high) the gripper may read, None if the model reads none
+        # The pose entries a switch bounds: their columns among the predicted, their state entries and largest steps.
+        bounded = [
+            (col, STATE_NAMES.index(name), (spec.max_step or {}).get(name, 0.0))
+            for col, name in enumerate(names)
+            if name in POSE_NAMES and STATE_NAMES.index(name) in used
+        ]
+        bounded = [(c, i, step) for c, i, step in bounded if step > 0]  # a pose entry that never moved: unbound
+        self._bounded = tuple(np.array(x) for x in zip(*bounded)) if bounded else None  # columns, entries, steps
         self._conditioner = Conditioner(network, spec.columns, conditioning or spec.conditioning)
         self._pixels = pixel_buffer(1)  # (1, 224, 224, 3) uint8
         self._row = np.zeros(spec.columns.width, dtype=np.float32)  # (width,) the model row of this step
@@ -133,6 +156,11 @@ class Policy:
         return self.spec.n_experts
 
     @property
+    def conditioning(self) -> ConditioningPolicy:
+        """The conditioning this policy runs with: its spec's, or the one it was given."""
+        return self._conditioner.policy
+
+    @property
     def uses_camera(self) -> bool:
         """True if the model sees the camera (an observation must then carry an image)."""
         return self._features is not None
@@ -146,6 +174,7 @@ class Policy:
         self._conditioner.reset(seed)
         self._last_time_s: float | None = None
         self._command: float | None = None  # the gripper command of the last step
+        self._switching = False  # between a switch of expert and the new expert's path reached
 
     def select_action(self, observation: Mapping) -> np.ndarray:
         """The next waypoint (dy,) for `observation`, or (1, dy) when its state came with a batch dimension; its
@@ -181,8 +210,29 @@ class Policy:
         k, t = self._conditioner.k, tb.phase(time_s)
         gate, expert, switch, mean, std = self._conditioner.step(self._row, t, self._query_t, round(time_s * 1e9))
         self._last_time_s = time_s
+        mean = self._continued(mean, state, switch is not None)
         command = self._gripper_command(state, mean)
-        return PolicyStep(k, time_s, t, mean, std, times, gate, expert, switch, command), batched
+        closed = None if command is None else self.gripper.is_closed(command)
+        return PolicyStep(k, time_s, t, mean, std, times, gate, expert, switch, command, closed), batched
+
+    def _continued(self, mean: np.ndarray, state: np.ndarray, switched: bool) -> np.ndarray:
+        """The waypoints (W, dy) to hand out for the active expert's `mean` at the observed `state` (8,): `mean`
+        itself, but from a switch of expert until its first waypoint lies within the largest step of the state on
+        every bounded entry, each waypoint's bounded entries moved at most that step from the one before it (the
+        first from the state)."""
+        self._switching = (self._switching or switched) and self._bounded is not None
+        if not self._switching:
+            return mean
+        cols, entries, steps = self._bounded  # (n,) each
+        position = state[entries]  # (n,) where the end effector is
+        if (np.abs(mean[0, cols] - position) <= steps).all():  # the new expert's path is reached
+            self._switching = False
+            return mean
+        continued = mean.copy()
+        for i in range(len(continued)):
+            position = position + np.clip(continued[i, cols] - position, -steps, steps)
+            continued[i, cols] = position
+        return continued
 
     def _gripper_command(self, state: np.ndarray, mean: np.ndarray) -> float | None:
         """The command for the first waypoint's predicted gripper (mean (W, dy)), from the last command, or at the
@@ -191,7 +241,7 @@ class Policy:
             return None
         previous = self._command
         if previous is None:
-            previous = self.gripper.nearest(float(state[STATE_NAMES.index(GRIPPER)]))
+            previous = self.gripper.nearest(float(state[GRIPPER_INDEX]))
         self._command = self.gripper.command(float(mean[0, self._gripper_col]), previous)
         return self._command
 
@@ -217,6 +267,13 @@ class Policy:
             raise PolicyError(
                 f"{STATE_KEY}: {STATE_NAMES[far[0]]} = {state[far[0]]:g} m is beyond the {MAX_POSITION_M:g} m a "
                 f"position may lie from the robot's origin; give the end effector's position in metres"
+            )
+        low, high = self._gripper_range or (-np.inf, np.inf)
+        if not low <= state[GRIPPER_INDEX] <= high:
+            raise PolicyError(
+                f"{STATE_KEY}: gripper = {state[GRIPPER_INDEX]:g} lies outside {low:.4g} to {high:.4g}, "
+                f"{GRIPPER_DEVIATIONS:g} standard deviations of the training demonstrations' gripper around their "
+                f"mean (a 'no reading' value, or another unit?); give the gripper's reading in the recordings' unit"
             )
         if self._quaternion:
             quat = state[QUATERNION]  # (4,) xyzw
@@ -256,11 +313,19 @@ class Policy:
 
     def _read_image(self, observation: Mapping) -> np.ndarray:
         keys = [key for key in observation if isinstance(key, str) and key.startswith(IMAGE_KEY_PREFIX)]
-        key = IMAGE_KEY_PREFIX + self.camera if self.camera is not None else (keys[0] if len(keys) == 1 else None)
+        trained = self.spec.image_key
+        if self.camera is not None:
+            key = IMAGE_KEY_PREFIX + self.camera
+        elif trained is not None:
+            key = trained
+        else:
+            key = keys[0] if len(keys) == 1 else None
         if key is None or key not in observation:
             wanted = f"{key!r}" if key else f"one {IMAGE_KEY_PREFIX}<camera> (or camera= to choose)"
+            why = " (the training recordings' camera)" if key == trained and self.camera is None else ""
             raise PolicyError(
-                f"this policy sees the camera: the observation needs {wanted}, it has {', '.join(keys) or 'no image'}"
+                f"this policy sees the camera: the observation needs {wanted}{why}, it has "
+                f"{', '.join(keys) or 'no image'}; camera='NAME' reads {IMAGE_KEY_PREFIX}NAME instead"
             )
         frame = np.asarray(observation[key])
         if frame.ndim == 4 and frame.shape[0] == 1:
@@ -272,7 +337,25 @@ class Policy:
                 f"{key} must be an RGB frame (H, W, 3) uint8, or (3, H, W) float in [0, 1] as LeRobot hands images "
                 f"(a leading batch dimension of 1 is allowed), got shape {frame.shape} dtype {frame.dtype}"
             )
+        size = self.spec.image_size
+        if size is not None and frame.shape[:2] != size:
+            raise PolicyError(
+                f"{key}: a frame of {frame.shape[1]}x{frame.shape[0]} pixels, but this policy was trained on frames of "
+                f"{size[1]}x{size[0]} (width x height); give the training camera's frames at that size"
+            )
         return frame
+
+
+def gripper_range(spec: PolicySpec) -> tuple[float, float] | None:
+    """(low, high): the gripper readings a policy of `spec` takes, GRIPPER_DEVIATIONS of the training demonstrations'
+    standard deviations (its normaliser's scale) around their mean; None where the model does not read the
+    gripper."""
+    index = STATE_NAMES.index(GRIPPER)
+    for (s0, s1), (r0, _) in spec.state:
+        if s0 <= index < s1:
+            loc, scale = float(spec.columns.loc[r0 + index - s0]), float(spec.columns.scale[r0 + index - s0])
+            return loc - GRIPPER_DEVIATIONS * scale, loc + GRIPPER_DEVIATIONS * scale
+    return None
 
 
 def lerobot_image(image: np.ndarray, key: str) -> np.ndarray:

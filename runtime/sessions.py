@@ -2,7 +2,9 @@
 
 ONNX Runtime sessions never spin idle threads: a spinning session on a shared machine burns the cores its
 neighbours need; OpenVINO's idle threads sleep. Both take `threads` intra-op threads (None: one per core).
-The libraries are imported when a graph is loaded, not with this module.
+The libraries are imported when a graph is loaded, not with this module. `load_graph` turns whatever a backend
+raises while loading or running a graph (a damaged file, external data outside its folder, inputs it does not take)
+into one PolicyError naming the file.
 """
 
 from __future__ import annotations
@@ -24,14 +26,32 @@ def installed_backends() -> list[str]:
 
 
 def load_graph(model: bytes | str, backend: str = DEFAULT_BACKEND, threads: int | None = None) -> Graph:
-    """Graph `model` (ONNX bytes or a file path) on `backend` (one of BACKENDS)."""
+    """Graph `model` (ONNX bytes or a file path) on `backend` (one of BACKENDS); what the backend raises loading or
+    running it is a PolicyError naming the file."""
     if backend not in BACKENDS:
         raise PolicyError(f"backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
     if backend not in installed_backends():
         raise PolicyError(f"backend {backend!r} is not installed here; pip install {backend}")
-    if backend == "openvino":
-        return openvino_graph(model, threads)
-    return onnxruntime_graph(model, threads)
+    name = model if isinstance(model, str) else "an ONNX graph"
+    try:
+        graph = openvino_graph(model, threads) if backend == "openvino" else onnxruntime_graph(model, threads)
+    except Exception as exc:  # the backends raise their own classes (pybind11's, RuntimeError, ...)
+        raise PolicyError(f"{name}: {backend} cannot load it ({said(exc)}); export the checkpoint again") from None
+
+    def run(inputs: Mapping[str, np.ndarray]) -> list[np.ndarray]:
+        try:
+            return graph(inputs)
+        except Exception as exc:
+            raise PolicyError(f"{name}: {backend} cannot run it ({said(exc)}); export the checkpoint again") from None
+
+    return run
+
+
+def said(exc: Exception) -> str:
+    """What a backend's exception says, in one line: its last line that says something (OpenVINO's messages end with
+    the reason, after lines of where it was raised), at most 300 characters."""
+    lines = [line.strip() for line in str(exc).splitlines() if line.strip()]
+    return (lines[-1] if lines else type(exc).__name__)[:300]
 
 
 def session_options(threads: int | None):

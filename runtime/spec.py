@@ -9,6 +9,7 @@ into the manifest, and loading a checkpoint builds the same spec, so both backen
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -21,6 +22,7 @@ from cnep.runtime.timebase import TimeBase
 
 STATE_NAMES = ("x", "y", "z", "qx", "qy", "qz", "qw", "gripper")  # observation.state, in the recordings' order
 GRIPPER = STATE_NAMES[-1]
+POSE_NAMES = STATE_NAMES[:7]  # the end effector's position (m) and orientation
 
 
 @dataclass(frozen=True)
@@ -33,7 +35,12 @@ class PolicySpec:
     conditioning: the conditioning set and the active expert's rule; gripper: the two-state gripper's command from
     the predicted gripper (None: the prediction is the action); expert_labels: what each expert stands for, one
     entry per expert ("" where unknown; empty where the training named none: the task of most of its training
-    demonstrations).
+    demonstrations); tasks: the tasks of the training demonstrations (their episodes' `task`; empty where none
+    named one); image_key: the observation key of the training recordings' camera where they name it (a LeRobot
+    dataset's, `observation.images.top`; None: any one image); image_size: (height, width) in pixels of the training
+    frames (None: unknown, any size is resized); max_step: state name -> the largest change of that pose entry
+    between two steps of the training demonstrations (the data's unit: m for x y z), which bounds each step after a
+    switch of expert (runtime.Policy; None: unknown, unbounded).
     """
 
     columns: Columns
@@ -44,9 +51,35 @@ class PolicySpec:
     conditioning: ConditioningPolicy = ConditioningPolicy()
     gripper: GripperCommand | None = None
     expert_labels: tuple[str, ...] = ()
+    tasks: tuple[str, ...] = ()
+    image_key: str | None = None
+    image_size: tuple[int, int] | None = None
+    max_step: dict[str, float] | None = None
 
     def __post_init__(self) -> None:
         width = self.columns.width
+        if isinstance(self.tasks, str) or not all(isinstance(task, str) for task in self.tasks):
+            raise PolicyError(f"tasks must be a list of the training demonstrations' tasks, got {self.tasks!r}")
+        object.__setattr__(self, "tasks", tuple(self.tasks))
+        if self.image_key is not None and not (isinstance(self.image_key, str) and self.image_key):
+            raise PolicyError(
+                f"image_key must be an observation key (a non-empty string) or None, got {self.image_key!r}"
+            )
+        if self.image_size is not None:
+            size = tuple(self.image_size)
+            if len(size) != 2 or not all(isinstance(n, int) and not isinstance(n, bool) and n > 0 for n in size):
+                raise PolicyError(f"image_size must be (height, width) in pixels or None, got {self.image_size!r}")
+            object.__setattr__(self, "image_size", size)
+        if self.max_step is not None:
+            steps = dict(self.max_step)
+            if not all(
+                name in POSE_NAMES and isinstance(v, (int, float)) and not isinstance(v, bool) and 0 <= v < math.inf
+                for name, v in steps.items()
+            ):
+                raise PolicyError(
+                    f"max_step maps pose entries ({', '.join(POSE_NAMES)}) to finite steps >= 0, got {self.max_step!r}"
+                )
+            object.__setattr__(self, "max_step", {name: float(v) for name, v in steps.items()})
         if int(self.n_experts) < 1:
             raise PolicyError(f"a policy needs at least one expert, got n_experts={self.n_experts}")
         object.__setattr__(self, "n_experts", int(self.n_experts))
@@ -102,12 +135,17 @@ class PolicySpec:
             "conditioning": self.conditioning.to_dict(),
             "gripper": self.gripper.to_dict() if self.gripper else None,
             "expert_labels": list(self.expert_labels),
+            "tasks": list(self.tasks),
+            "image_key": self.image_key,
+            "image_size": list(self.image_size) if self.image_size else None,
+            "max_step": self.max_step,
         }
 
     @classmethod
     def from_dict(cls, data: dict) -> PolicySpec:
-        """The spec of `to_dict` (`gripper` may be absent: a format 1 manifest has none; `expert_labels` too: a
-        manifest written before it has none); a PolicyError names the entry that is missing or wrong."""
+        """The spec of `to_dict` (`gripper` may be absent: a format 1 manifest has none; `expert_labels`, `tasks`,
+        `image_key`, `image_size` and `max_step` too, as a manifest written before they were stored has none); a
+        PolicyError names the entry that is missing or wrong."""
         try:
             if tuple(data["state_names"]) != STATE_NAMES:
                 raise PolicyError(
@@ -130,9 +168,13 @@ class PolicySpec:
                 features=tuple(data["features"]) if data["features"] else None,
                 state=tuple((tuple(s), tuple(r)) for s, r in data["state"]),
                 time_base=TimeBase.from_dict(data["time_base"]) if data["time_base"] else None,
-                conditioning=ConditioningPolicy(**data["conditioning"]),
+                conditioning=ConditioningPolicy.from_dict(data["conditioning"]),
                 gripper=GripperCommand.from_dict(data["gripper"]) if data.get("gripper") else None,
                 expert_labels=tuple(data.get("expert_labels", ())),
+                tasks=data.get("tasks", ()),
+                image_key=data.get("image_key"),
+                image_size=tuple(data["image_size"]) if data.get("image_size") else None,
+                max_step=data.get("max_step"),
             )
         except (KeyError, TypeError, ValueError) as exc:
             if isinstance(exc, PolicyError):

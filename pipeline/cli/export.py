@@ -4,6 +4,10 @@ from __future__ import annotations
 
 import argparse
 
+from cnep.models.config import ConditioningOverrides
+from cnep.pipeline.cli.fields import add_options, build, chosen_options, options
+
+CONDITIONING = "conditioning"  # the options' group in --help
 HELP = "export a checkpoint as a policy folder (ONNX graphs + manifest + runtime) that runs without torch"
 
 
@@ -28,7 +32,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="demonstration files or folders whose frames calibrate the int8 graph (e.g. the training demos)",
     )
     add_time_base(parser, "default: the checkpoint's, from its training demonstrations")
+    add_conditioning(parser)
     parser.add_argument("--force", action="store_true", help="replace an existing --out folder")
+
+
+def add_conditioning(parser: argparse.ArgumentParser) -> None:
+    """The options that replace a policy's own conditioning settings (`cnep export`, `cnep run`, `cnep replay`)."""
+    add_options(parser, options(ConditioningOverrides, CONDITIONING))
+
+
+def conditioning_given(args: argparse.Namespace) -> ConditioningOverrides:
+    """The conditioning settings given on the parsed command line `args`."""
+    return build(ConditioningOverrides, chosen_options(ConditioningOverrides, args))
 
 
 def time_base(text: str):
@@ -56,10 +71,12 @@ def add_time_base(parser: argparse.ArgumentParser, default: str) -> None:
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from cnep.models.checkpoint import read_checkpoint_config
+    from cnep.models.checkpoint import CONFIG_FILE, read_checkpoint_config
     from cnep.pipeline.contract import refuse_existing
     from cnep.pipeline.export.config import ExportConfig
     from cnep.pipeline.inputs import existing_files, find_demonstration_files
+    from cnep.pipeline.run.config import conditioning_line
+    from cnep.pipeline.train.config import checkpoint_conditioning
 
     config = ExportConfig(
         checkpoint=Path(args.checkpoint),
@@ -68,10 +85,13 @@ def run(args: argparse.Namespace) -> int:
         int8=args.int8,
         calibration=tuple(Path(p) for p in args.calibration),
         time_base=args.time_base,
+        conditioning=conditioning_given(args),
         force=args.force,
         quiet=args.quiet,
     )
-    read_checkpoint_config(config.checkpoint)  # the inputs are refused before torch and onnx load with the stage
+    checkpoint = read_checkpoint_config(
+        config.checkpoint
+    )  # inputs are refused before torch and onnx load with the stage
     if config.extractor is not None:
         existing_files([config.extractor], "the weights file the training features were made with")
     find_demonstration_files(config.calibration)
@@ -84,8 +104,10 @@ def run(args: argparse.Namespace) -> int:
 
     out = export(config)
     manifest = read_manifest(out)
+    own = checkpoint_conditioning(checkpoint, config.checkpoint / CONFIG_FILE)
     for name in [*(f["file"] for f in manifest.features.values()), *manifest.graphs.values()]:
         print(f"{out / name}: {(out / name).stat().st_size / 1e6:.1f} MB")
+    print(conditioning_line(own, config.conditioning, "the checkpoint's"))
     print(
         f"exported {config.checkpoint} -> {out}; run it with `cnep run {out} RECORDING... --out run.rrd`, or on a "
         f"robot without torch: `pip install {out}/runtime` and `cnep.runtime.load_policy('{out}')`"

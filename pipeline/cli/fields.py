@@ -90,6 +90,11 @@ def build(make: Callable[..., object], chosen: dict[str, object], **given: objec
     return make(**values)
 
 
+def chosen_options(cls: type, args: argparse.Namespace) -> dict[str, object]:
+    """The options of config class `cls` given on the parsed command line `args` (option name -> value)."""
+    return {option.name: getattr(args, option.name) for option in options(cls) if hasattr(args, option.name)}
+
+
 def field_of(cls: type, name: str) -> Field:
     """The dataclass field `name` of `cls`."""
     return next(f for f in fields(cls) if f.name == name)
@@ -103,6 +108,11 @@ def default_of(cls: type, name: str) -> object:
 def shown(value: object) -> str:
     """A default as the command line writes it: `128,128` for a tuple of widths."""
     return ",".join(map(str, value)) if isinstance(value, tuple) else str(value)
+
+
+def shown_default(option: Option) -> str:
+    """How an option's default reads: as its field says to show it (a setting's `shown`), else its value."""
+    return option.field.metadata.get("shown") or shown(option.default)
 
 
 def help_of(cls: type, name: str, note: str | None = None, default: str | None = None) -> str:
@@ -150,5 +160,5 @@ def add_options(
             type=widths if option.kind is tuple else option.kind,
             default=argparse.SUPPRESS,
             choices=option.field.metadata.get("choices"),
-            help=_help(option.field, notes.get(option.name), defaults.get(option.name) or shown(option.default)),
+            help=_help(option.field, notes.get(option.name), defaults.get(option.name) or shown_default(option)),
         )

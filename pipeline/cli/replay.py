@@ -4,17 +4,8 @@ from __future__ import annotations
 
 import argparse
 
-from cnep.models.config import ConditioningPolicy
-from cnep.pipeline.cli.fields import default_of, help_of
-from cnep.runtime.conditioning import FIRST_EXPERTS
+from cnep.pipeline.cli.export import add_conditioning, conditioning_given
 
-CONDITIONING = (
-    ("window", int),
-    ("anchors", int),
-    ("first_expert", str),
-    ("switch_margin", float),
-    ("switch_window", int),
-)
 HELP = "replay trajectory files through a trained CNEP: expert probabilities over time, written to a Rerun .rrd"
 
 
@@ -49,14 +40,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     live.add_argument("--no-live", action="store_true", help="write the .rrd only, do not look for a viewer")
     parser.add_argument("--port", type=int, default=9876, help="port of --serve (default 9876)")
-    for name, kind in CONDITIONING:
-        parser.add_argument(
-            f"--{name.replace('_', '-')}",
-            type=kind,
-            choices=FIRST_EXPERTS if name == "first_expert" else None,
-            default=default_of(ConditioningPolicy, name),
-            help=help_of(ConditioningPolicy, name),
-        )
+    add_conditioning(parser)
     parser.add_argument(
         "--events-out",
         metavar="DIR",
@@ -73,11 +57,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     import shlex
+    from pathlib import Path
 
-    from cnep.models.checkpoint import read_checkpoint_config
+    from cnep.models.checkpoint import CONFIG_FILE, read_checkpoint_config
     from cnep.pipeline.inputs import TRAJECTORIES, existing_files
+    from cnep.pipeline.run.config import conditioning_line
+    from cnep.pipeline.train.config import checkpoint_conditioning
 
-    read_checkpoint_config(args.checkpoint)  # refused before torch and rerun load with the stage
+    checkpoint = read_checkpoint_config(args.checkpoint)  # refused before torch and rerun load with the stage
+    given = conditioning_given(args)
+    own = checkpoint_conditioning(checkpoint, Path(args.checkpoint) / CONFIG_FILE)
     existing_files(args.recordings, TRAJECTORIES)
     from cnep.pipeline.progress import heartbeat
 
@@ -95,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
         args.checkpoint,
         args.recordings,
         args.out,
-        policy=ConditioningPolicy(**{name: getattr(args, name) for name, _ in CONDITIONING}),
+        policy=given.applied(own),
         connect=connect,
         events_dir=args.events_out,
         merge=args.merge,
@@ -108,6 +97,7 @@ def run(args: argparse.Namespace) -> int:
             f"{rec['recording']}: expert {rec['majority_expert']} (steps per expert: {share}), "
             f"{len(rec['switches'])} switch(es)" + (f" -> {rec['rrd']}" if len(files) > 1 else "")
         )
+    print(conditioning_line(own, given, "the checkpoint's"))
     print(
         f"wrote {files[0] if len(files) == 1 else f'{len(files)} .rrd files'} and {decisions_path(args.out)}; "
         f"open one with `cnep view {shlex.quote(str(files[0]))}`"

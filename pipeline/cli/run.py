@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from cnep.pipeline.cli.export import add_time_base
+from cnep.pipeline.cli.export import add_conditioning, add_time_base, conditioning_given
 from cnep.pipeline.cli.fields import default_of, help_of
 from cnep.pipeline.run.config import RunConfig
 from cnep.runtime.constants import BACKENDS, FEATURES_FILES
@@ -55,6 +55,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--waypoints", type=int, default=default_of(RunConfig, "waypoints"), help=help_of(RunConfig, "waypoints")
     )
     add_time_base(parser, "default: the policy's own")
+    add_conditioning(parser)
     parser.add_argument("--force", action="store_true", help="replace existing outputs (the .rrd files, the summary)")
 
 
@@ -63,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from cnep.pipeline.inputs import existing_files, find_demonstration_files
-    from cnep.pipeline.run.config import policy_kind
+    from cnep.pipeline.run.config import conditioning_line, own_conditioning, policy_kind
 
     policy_kind(args.policy)  # the paths are refused before torch or rerun load with the stage
     find_demonstration_files(args.recordings)
@@ -90,12 +91,14 @@ def run(args: argparse.Namespace) -> int:
         threads=args.threads,
         waypoints=args.waypoints,
         time_base=args.time_base,
+        conditioning=conditioning_given(args),
         realtime=not args.fast,
         force=args.force,
         quiet=args.quiet,
     )
     runs = run(config)
     print(format_summary(summarise(runs)))
+    print(conditioning_line(own_conditioning(config.policy), config.conditioning))
     if args.out:
         from cnep.pipeline.replay.rerun_log import rrd_files
 

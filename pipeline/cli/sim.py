@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import argparse
 
-from cnep.pipeline.cli.fields import add_options, build, options
+from cnep.pipeline.cli.fields import add_options, build, chosen_options, options
 from cnep.pipeline.sim.config import SHOWN, EvalConfig, PickPlaceConfig, SimConfig, with_task
 
 HELP = (
@@ -42,8 +42,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def config_of(cls: type, args: argparse.Namespace, **given):
     """The settings `cls` of the parsed command line: the options given, the others the dataclass's defaults."""
-    chosen = {option.name: getattr(args, option.name) for option in options(cls) if hasattr(args, option.name)}
-    return build(cls, chosen, quiet=args.quiet, **given)
+    return build(cls, chosen_options(cls, args), quiet=args.quiet, **given)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -73,6 +72,7 @@ def run_task(args: argparse.Namespace) -> int:
 def run_eval(args: argparse.Namespace) -> int:
     config = config_of(EvalConfig, args, policy=args.policy, out=args.out, extractor=args.extractor)
     from cnep.pipeline.progress import heartbeat
+    from cnep.pipeline.run.config import conditioning_line, own_conditioning
     from cnep.pipeline.sim.extras import require_extras
 
     require_extras(config, "cnep sim eval")  # not a policy folder, or the extras missing: refused before any work
@@ -83,4 +83,6 @@ def run_eval(args: argparse.Namespace) -> int:
 
     summary = evaluate(config)
     print(summary["table"])
+    own = own_conditioning(config.policy)
+    print(conditioning_line(own, config.conditioning))
     return 0

@@ -6,9 +6,10 @@ and checks its input paths before it loads the stage.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
+from cnep.models.config import ConditioningOverrides
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.inputs import coerce_paths
 from cnep.runtime.timebase import TimeBase
@@ -19,7 +20,8 @@ class ExportConfig:
     """checkpoint: folder written by `cnep train` (read only); out: the policy folder (must not exist unless
     `force`); extractor: weights file of the training features (None: ImageNet); int8: add the int8 feature
     graph, calibrated on the frames of the demonstration files or folders `calibration`; time_base: the policy's
-    seconds -> phase (None: the checkpoint's, from its training demonstrations)."""
+    seconds -> phase (None: the checkpoint's, from its training demonstrations); conditioning: the conditioning
+    settings that replace the checkpoint's in the manifest (those given)."""
 
     checkpoint: Path
     out: Path
@@ -27,6 +29,7 @@ class ExportConfig:
     int8: bool = False
     calibration: tuple[Path, ...] = ()
     time_base: TimeBase | None = None
+    conditioning: ConditioningOverrides = field(default_factory=ConditioningOverrides)
     force: bool = False
     quiet: bool = False
 

@@ -37,7 +37,6 @@ from cnep.pipeline.extract.stage import calibration_frames
 from cnep.pipeline.folders import assembled_folder
 from cnep.pipeline.inputs import find_demonstration_files
 from cnep.pipeline.ownership import OutputKind
-from cnep.pipeline.train.data import data_task
 from cnep.runtime.constants import (
     DECODER_FILE,
     ENCODER_FILE,
@@ -84,6 +83,9 @@ def export(config: ExportConfig) -> Path:
     loaded = with_time_base(
         load_for_policy(config.checkpoint, config.extractor, backend=EXPORT_BACKEND, threads=1), config.time_base
     )
+    loaded = replace(
+        loaded, spec=replace(loaded.spec, conditioning=config.conditioning.applied(loaded.spec.conditioning))
+    )
     with assembled_folder(
         out, lambda: refuse_existing([out], config.force, "exported policy", kind=POLICY_FOLDER)
     ) as work:
@@ -128,7 +130,6 @@ def write_policy(folder: Path, loaded: LoadedCheckpoint, config: ExportConfig, c
         checkpoint={
             "config_sha256": config_checksum(config_json),
             "preset": (config_json.get("layout") or {}).get("name", ""),
-            "task": data_task(config_json.get("files") or []),
         },
         producer=f"cnep-pipeline {package_version()}",
         files=files,

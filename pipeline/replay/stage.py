@@ -65,7 +65,7 @@ def replay(
     recording_paths: list[str | os.PathLike],
     out_rrd: str | os.PathLike,
     *,
-    policy: ConditioningPolicy = ConditioningPolicy(),
+    policy: ConditioningPolicy | None = None,
     connect: str | None = DEFAULT_VIEWER_URL,
     events_dir: str | os.PathLike | None = None,
     prediction_points: int = DEFAULT_PREDICTION_POINTS,
@@ -79,6 +79,7 @@ def replay(
 
     One recording goes to `out_rrd`; several go to one file each beside it (`merge`: all into `out_rrd`,
     where the viewer opens one of them, which one is not fixed).
+    `policy`: the conditioning (None: the checkpoint's own, from its training).
     `connect`: a viewer URL, streamed to only if reachable (None: file only). `expert_labels`: what experts stand
     for (expert -> a behaviour's name), shown beside their numbers (None: the checkpoint's, the task of most of each
     expert's training demonstrations where they named tasks); `marks`: per recording
@@ -96,6 +97,7 @@ def replay(
     refuse_inputs(outputs, [*paths, checkpoint], "--out or --events-out")
     refuse_existing(outputs, force, "replay output", kind=replay_kind)
     inputs = _load(checkpoint, paths)
+    policy = inputs.conditioning if policy is None else policy
     live = _live_viewer(connect, files[0])
     with contextlib.ExitStack() as held:  # a failure removes the folders made for the outputs, and what was staged
         staging = _hold_outputs(held, out, events, [*files, decisions_path(out), *parts], outputs, force)
@@ -164,7 +166,8 @@ def _checked_recordings(
 @dataclass(frozen=True)
 class _Inputs:
     """The checkpoint's model and the recordings it replays: paths, trajectories, the model's rows of each (T, width),
-    the predicted columns that are the end-effector's xyz, and what the checkpoint says its experts stand for."""
+    the predicted columns that are the end-effector's xyz, what the checkpoint says its experts stand for and the
+    conditioning it was trained for."""
 
     model: CNEP
     paths: list[Path]
@@ -172,6 +175,7 @@ class _Inputs:
     rows: list[np.ndarray]
     xyz: list[int] | None
     expert_labels: dict[int, str]
+    conditioning: ConditioningPolicy
 
 
 def _load(checkpoint: Path, paths: list[Path]) -> _Inputs:
@@ -187,7 +191,7 @@ def _load(checkpoint: Path, paths: list[Path]) -> _Inputs:
                 f"{p}: {traj.n_steps} step(s); replay needs at least 2 (time runs from the first to the last)"
             )
     xyz = trained.mapping.predicted_xyz(trained.model)
-    return _Inputs(trained.model, paths, trajectories, rows, xyz, trained.expert_labels)
+    return _Inputs(trained.model, paths, trajectories, rows, xyz, trained.expert_labels, trained.conditioning)
 
 
 def _live_viewer(connect: str | None, first: Path) -> str | None:

@@ -14,7 +14,8 @@ written with the summary when the run completes, under the lock on `out` (cnep.o
 replaces only .rrd files and run summaries.
 
 The summary (`summarise`): steps, p50 / p99 / max step time, steps over the recording's frame period,
-switches, per recording and in total; written beside `out` as `<out stem>.summary.json`.
+switches, per recording and in total; written beside `out` as `<out stem>.summary.json` with the conditioning the
+policy ran with and the settings of it that were given (`conditioning`: they replace the policy's own).
 """
 
 from __future__ import annotations
@@ -47,7 +48,7 @@ from cnep.pipeline.replay.rerun_log import (
     shown_state,
     viewer_reachable,
 )
-from cnep.pipeline.run.config import EXPORTED, RunConfig, policy_kind
+from cnep.pipeline.run.config import EXPORTED, RunConfig, own_conditioning, policy_kind
 from cnep.recordings import Demonstration, read_demonstration
 from cnep.recordings.constants import CAMERA_NAME, TOPIC_IMAGE
 from cnep.runtime import STATE_KEY, TIMESTAMP_KEY, ConditioningPolicy, Policy, PolicyStep, TimeBase, load_policy
@@ -119,6 +120,7 @@ def run(config: RunConfig) -> list[RecordingRun]:
         )
     with heartbeat(f"reading {len(paths)} recording(s) and loading the policy", config.quiet):
         demos = [read_demonstration(p) for p in paths]
+        given = config.conditioning.given()
         policy = open_policy(
             Path(config.policy),
             extractor=config.extractor,
@@ -127,10 +129,12 @@ def run(config: RunConfig) -> list[RecordingRun]:
             threads=config.threads,
             waypoints=config.waypoints,
             time_base=config.time_base,
+            conditioning=config.conditioning.applied(own_conditioning(config.policy)) if given else None,
         )
     for path, demo in zip(paths, demos):
         if policy.uses_camera and demo.frames is None:
             raise PipelineError(f"{path}: has no {TOPIC_IMAGE} frames, but the policy sees the camera")
+    warn_other_tasks(policy, paths, demos)
     run_id = uuid.uuid4().hex[:8]
     runs = []
     with contextlib.ExitStack() as stack:  # a failure removes the folders made for the outputs, and what was staged
@@ -162,8 +166,22 @@ def run(config: RunConfig) -> list[RecordingRun]:
                 staging.write(files[i], data or b"")
             log.info("%s: %d steps, %d switch(es)", path, demo.n_steps, runs[-1].switches)
         if config.out is not None:
-            staging.write(summary_path(config.out), json.dumps(summarise(runs), indent=1).encode())
+            summary = {**summarise(runs), "conditioning": policy.conditioning.to_dict(), "conditioning_given": given}
+            staging.write(summary_path(config.out), json.dumps(summary, indent=1).encode())
     return runs
+
+
+def warn_other_tasks(policy: Policy, paths: list[Path], demos: list[Demonstration]) -> None:
+    """One warning line when recordings name a task that the policy was not trained on (where both name tasks)."""
+    trained = policy.spec.tasks
+    other = {demo.episode.task: path for path, demo in zip(paths, demos) if demo.episode.task not in (*trained, "")}
+    if trained and other:
+        given = ", ".join(f"{task!r} ({path})" for task, path in other.items())
+        log.warning(
+            "the recordings' task %s is not one the policy was trained on (%s); it may not do it",
+            given,
+            ", ".join(map(repr, trained)),
+        )
 
 
 def _run_output(path: Path) -> bool:
@@ -198,7 +216,8 @@ def run_recording(policy: Policy, demo: Demonstration, path: Path, rec, realtime
     switches = 0
     policy.reset()
     start, shown, labels = time.perf_counter(), None, expert_labels(policy)
-    for k, observation in enumerate(observations(demo, path, camera=policy.uses_camera)):
+    key = camera_key(policy) if policy.uses_camera else None
+    for k, observation in enumerate(observations(demo, path, camera=policy.uses_camera, key=key)):
         if realtime:
             wait_until(start + observation[TIMESTAMP_KEY])
         before = time.perf_counter()
@@ -214,9 +233,16 @@ def wait_until(deadline_s: float) -> None:
     time.sleep(max(0.0, deadline_s - time.perf_counter()))
 
 
-def observations(demo: Demonstration, path: Path, camera: bool = True) -> Iterator[dict]:
+def camera_key(policy: Policy) -> str:
+    """The observation key a recording's frames go under for `policy`: the training recordings' camera where its spec
+    names one, else observation.images.rgb."""
+    return policy.spec.image_key or IMAGE_KEY_PREFIX + CAMERA_NAME
+
+
+def observations(demo: Demonstration, path: Path, camera: bool = True, key: str | None = None) -> Iterator[dict]:
     """The recording (read from `path`) step by step as a robot hands it to a policy: the state (8,), the seconds
-    since its first step and, with `camera`, the frame decoded to (H, W, 3) uint8 RGB (one frame at a time)."""
+    since its first step and, with `camera`, the frame decoded to (H, W, 3) uint8 RGB (one frame at a time) under
+    `key` (None: observation.images.rgb)."""
     ts = demo.timestamps_ns
     state = np.concatenate([demo.pose, demo.gripper[:, None]], axis=1).astype(np.float32)  # (T, 8)
     for k in range(demo.n_steps):
@@ -225,7 +251,7 @@ def observations(demo: Demonstration, path: Path, camera: bool = True) -> Iterat
             frame = decode_frame(demo.frames[k])
             if frame is None:
                 raise PipelineError(f"{path}: step {k} on {TOPIC_IMAGE}: the frame does not decode; re-ingest it")
-            observation[IMAGE_KEY_PREFIX + CAMERA_NAME] = frame
+            observation[key or IMAGE_KEY_PREFIX + CAMERA_NAME] = frame
         yield observation
 
 

@@ -7,17 +7,18 @@ stage loads; the tasks are the folders of cnep/sim/tasks, found without importin
 from __future__ import annotations
 
 import importlib.util
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import ClassVar
 
 from cnep.models.assignments import ASSIGNMENTS
-from cnep.models.config import setting
+from cnep.models.config import ConditioningOverrides, setting
 from cnep.pipeline.demo.config import AUTO_WEIGHTS
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.inputs import coerce_paths
 from cnep.pipeline.run.config import CHECKPOINT, CONFIG_FILE, policy_kind
-from cnep.runtime.conditioning import FIRST_EXPERTS, ConditioningPolicy
+from cnep.pipeline.train.constants import TASKS as TASKS_KEY
+from cnep.runtime.conditioning import ConditioningPolicy
 from cnep.runtime.constants import MANIFEST_FILE
 from cnep.runtime.jsonfile import read_json
 
@@ -62,7 +63,8 @@ def protocols_of(protocol: str) -> tuple[str, ...]:
 
 @dataclass(frozen=True)
 class LoopSettings:
-    """What every closed-loop evaluation takes: the task's variant, the episodes and the recordings of them."""
+    """What every closed-loop evaluation takes: the task's variant, the episodes and the recordings of them, and
+    the conditioning settings given to replace the policy's own."""
 
     cue: bool = setting(False, "the obstacle task's variant where a tile on one side of the box shows the side to pass")
     episodes: int = setting(20, "closed-loop episodes per policy and protocol")
@@ -70,12 +72,8 @@ class LoopSettings:
     episode_seed: int = setting(0, "seed of the first episode (episode i is reset with seed + i)")
     protocol: str = setting(BOTH, PROTOCOL_HELP, choices=(BOTH, *PROTOCOLS))
     record: int = setting(2, "episodes per policy and protocol written as Rerun recordings (the first ones)")
-    first_expert: str = setting(
-        ConditioningPolicy.first_expert,
-        "the first active expert of an episode: argmax (the gate's winner, every episode alike) or sample (drawn "
-        "from the gate with the episode's seed: episodes split between behaviours as the demonstrations do)",
-        choices=FIRST_EXPERTS,
-    )
+    # What replaces the policy's own conditioning (its manifest's, its checkpoint's) in these episodes.
+    conditioning: ConditioningOverrides = field(default_factory=ConditioningOverrides)
 
     @property
     def protocols(self) -> tuple[str, ...]:
@@ -169,13 +167,13 @@ def with_task(config: EvalConfig) -> EvalConfig:
 
 
 def policy_task(policy: Path) -> str:
-    """The task a policy folder was trained on: its export's record (the manifest's `checkpoint.task`), or a
-    checkpoint's (the task every training file names, pipeline.train.data.data_task); "" where it records none."""
-    from cnep.pipeline.train.data import data_task  # reads recordings: imported when a policy is named
-
+    """The task a policy folder was trained on: the one task its training demonstrations name (an export's
+    `spec.tasks` in its manifest, a checkpoint's `tasks` in its config.json); "" where they name none or several."""
     if policy_kind(policy) == CHECKPOINT:
-        return data_task(read_json(policy / CONFIG_FILE).get("files") or [])
-    return str((read_json(policy / MANIFEST_FILE).get("checkpoint") or {}).get("task", ""))
+        tasks = read_json(policy / CONFIG_FILE).get(TASKS_KEY) or []
+    else:
+        tasks = (read_json(policy / MANIFEST_FILE).get("spec") or {}).get("tasks") or []
+    return str(tasks[0]) if len(tasks) == 1 else ""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -203,7 +201,9 @@ class PickPlaceConfig:
     # showing the old table, and a long window dilutes the change's evidence; a short window of recent steps alone
     # switches expert within a few steps of the change.
     window: int = setting(
-        4, "latest observations in the CNEP's and the CNMP's conditioning set (runtime.ConditioningPolicy.window)"
+        4,
+        "latest observations in the conditioning set the CNEP and the CNMP are trained with and carry into their "
+        "export (runtime.ConditioningPolicy.window)",
     )
     anchors: int = setting(0, "first observations kept in that set for the whole episode (ConditioningPolicy.anchors)")
     episodes: int = setting(20, "closed-loop episodes per policy, protocol and condition (decided, free, changed)")
@@ -237,3 +237,12 @@ class PickPlaceConfig:
                 f"episodes, max_steps and pca must be >= 1 and record >= 0, got {self.episodes}, {self.max_steps}, "
                 f"{self.pca} and {self.record}"
             )
+
+
+def trained_conditioning(config: SimConfig | PickPlaceConfig) -> ConditioningPolicy:
+    """The conditioning a `cnep sim` run trains into its models (config.json, and so the exported manifest and every
+    Policy of them): ConditioningPolicy's defaults with the run's own settings (the obstacle task's conditioning
+    options, pick-place's window and anchors)."""
+    if isinstance(config, PickPlaceConfig):
+        return replace(ConditioningPolicy(), window=config.window, anchors=config.anchors)
+    return config.conditioning.applied(ConditioningPolicy())

@@ -2,8 +2,8 @@
 trained on (or `task`: pipeline.sim.config.with_task); the table on screen, and with `out` a folder holding
 `summary.json` (per protocol, and condition where the task has conditions, the rates and every episode's row), the
 recordings of the first episodes and `episode.png` (pipeline.sim.figure). The same settings and episode seeds as
-the `cnep sim` run that trained the policy give the same rows as its summary, where the run conditioned the policy as
-its export does (`cnep sim pick-place --window/--anchors` are the run's alone: its policies carry the defaults)."""
+the `cnep sim` run that trained the policy give the same rows as its summary: the run trains its conditioning into
+its policies (pipeline.sim.config.trained_conditioning)."""
 
 from __future__ import annotations
 
@@ -42,7 +42,7 @@ def run_eval(config: EvalConfig) -> dict:
 def _evaluate(config: EvalConfig, label: str, out: Path | None) -> dict:
     """The policy's results on its task (pipeline.sim.loop), its first episodes recorded into `out` (None: none)."""
     task = find_task(config.task)
-    policy = open_task_policy(config.policy, task, config, extractor=config.extractor)
+    policy = open_task_policy(config.policy, task, config.conditioning, extractor=config.extractor)
     figure = out / FIGURE_FILE if out is not None else None
     with progress_bar(total=episodes_of(task, config), desc=label, unit="episode", quiet=config.quiet) as bar:
         return evaluate_policy(

@@ -12,16 +12,18 @@ from __future__ import annotations
 import importlib.util
 import logging
 from collections.abc import Callable
-from dataclasses import fields, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import TypeVar
 
+from cnep.models.config import ConditioningOverrides
 from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.run.config import own_conditioning
 from cnep.pipeline.run.stage import open_policy
 from cnep.pipeline.sim.config import VARIANTS
 from cnep.pipeline.sim.figure import draw_episode
 from cnep.pipeline.sim.rerun_log import write_episode
-from cnep.runtime import ConditioningPolicy, Policy
+from cnep.runtime import Policy
 from cnep.sim.episode import run_episode
 from cnep.sim.task import Task
 
@@ -94,23 +96,16 @@ def evaluate_policy(
     return results
 
 
-def open_task_policy(path: Path, task: Task, settings, extractor: Path | None = None) -> Policy:
+def open_task_policy(
+    path: Path, task: Task, given: ConditioningOverrides | None = None, extractor: Path | None = None
+) -> Policy:
     """The policy in `path` (exported or checkpoint), its waypoints covering the task's episode (a plan: a limit of
-    steps cuts it short or holds its end, and never rescales it), its conditioning its own but for the settings'
-    conditioning fields that are set (runtime.ConditioningPolicy's: window, anchors, first_expert, ...)."""
-    policy = open_policy(path, extractor=extractor, threads=POLICY_THREADS, waypoints=task.max_steps)
-    conditioning = conditioning_of(policy.spec.conditioning, settings)
-    if conditioning == policy.spec.conditioning:
-        return policy
+    steps cuts it short or holds its end, and never rescales it), its conditioning its own (the checkpoint's
+    config.json, the manifest's) but for the settings `given`."""
+    conditioning = given.applied(own_conditioning(path)) if given is not None and given.given() else None
     return open_policy(
         path, extractor=extractor, threads=POLICY_THREADS, waypoints=task.max_steps, conditioning=conditioning
     )
-
-
-def conditioning_of(own: ConditioningPolicy, settings) -> ConditioningPolicy:
-    """`own` with each of its fields that `settings` sets (not None) replaced by the settings' value."""
-    changed = {f.name: getattr(settings, f.name) for f in fields(own) if getattr(settings, f.name, None) is not None}
-    return replace(own, **changed)
 
 
 def _plots() -> bool:

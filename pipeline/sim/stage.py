@@ -45,7 +45,7 @@ from cnep.pipeline.export.stage import export
 from cnep.pipeline.extract.stage import ExtractConfig, extract
 from cnep.pipeline.progress import REPORT_INTERVAL_S, RemoteBar, StageClock, follow_total, progress_bar
 from cnep.pipeline.sim.baselines import BASELINES, baseline_policy
-from cnep.pipeline.sim.config import PickPlaceConfig, SimConfig
+from cnep.pipeline.sim.config import PickPlaceConfig, SimConfig, trained_conditioning
 from cnep.pipeline.sim.extras import require_extras
 from cnep.pipeline.sim.figure import FIGURE_FILE
 from cnep.pipeline.sim.generate import generate_demonstrations, ingest_demonstrations
@@ -171,8 +171,8 @@ def train_models(config: SimConfig | PickPlaceConfig, out: Path, started: float)
             label = f"{name}-seed{seed}"
             checkpoints[label] = out / "checkpoints" / f"{name.lower()}-seed{seed}"
             jobs[label] = TrainStageConfig(
-                inputs=(out / "trajectories",), out=checkpoints[label], layout=LAYOUT, training=training, quiet=True,
-                **network,
+                inputs=(out / "trajectories",), out=checkpoints[label], layout=LAYOUT, training=training,
+                conditioning=trained_conditioning(config), quiet=True, **network,
             )  # fmt: skip
     log.info("training %d models, %d at a time (%d steps each)", len(jobs), WORKERS, config.train_steps)
     train_side_by_side(jobs, config.quiet, started, workers=WORKERS)
@@ -236,7 +236,7 @@ def _evaluate(
     short or holds at its end; ONLINE acts on the first)."""
     task = find_task(task_name)
     if baseline is None:
-        policy = open_task_policy(path, task, config)
+        policy = open_task_policy(path, task)  # the conditioning it was trained with
     else:
         trajectories = sorted((out / "trajectories").glob("*.mcap"))
         policy = baseline_policy(baseline, path, trajectories, config.pca, waypoints=task.max_steps)

@@ -24,9 +24,11 @@ from cnep.models import CNEP, load_checkpoint, read_checkpoint_config
 from cnep.models.checkpoint import CONFIG_FILE
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.identity import Identity, check_checkpoint_extractor
+from cnep.pipeline.train.config import checkpoint_conditioning
 from cnep.pipeline.train.constants import EXPERT_LABELS
 from cnep.recordings import Trajectory
 from cnep.recordings.constants import BLOCK_FEATURES, BLOCK_POSE_XYZ, BLOCKS_BY_WIDTH
+from cnep.runtime.conditioning import ConditioningPolicy
 
 Span = tuple[int, int]
 
@@ -114,6 +116,12 @@ class TrainedModel:
         """Expert -> the task of most of its training demonstrations, where they named tasks (`pipeline.train.experts`;
         {} otherwise)."""
         return {int(expert): label for expert, label in (self.config.get(EXPERT_LABELS) or {}).items()}
+
+    @property
+    def conditioning(self) -> ConditioningPolicy:
+        """How a policy of the model conditions and picks its active expert, as trained (config.json's; a checkpoint
+        written before it was stored: the defaults)."""
+        return checkpoint_conditioning(self.config, self.path / CONFIG_FILE)
 
     def check_extractor(self, identities: Mapping[Path, Identity]) -> None:
         """Refuse recordings (path -> extractor identity) whose features come from another extractor than the

@@ -9,10 +9,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from cnep.models.config import CNEPConfig, TrainConfig, setting
+from cnep.models.config import CNEPConfig, ConditioningPolicy, TrainConfig, setting
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.inputs import coerce_paths
-from cnep.pipeline.train.constants import DEVICES, PRESET_NAMES, SCENE
+from cnep.pipeline.train.constants import CONDITIONING, DEVICES, PRESET_NAMES, SCENE
+from cnep.runtime.errors import PolicyError
 
 
 @dataclass(frozen=True)
@@ -22,7 +23,9 @@ class TrainStageConfig:
     layout: preset name (wine-glass, scene, motion, all), which gives the model its columns; model: the network
     and its loss (models.CNEPConfig; its `columns` are the layout's); matched_cnmp: train instead the one-expert
     CNMP with that network's parameter count (models.matched_cnmp); training: steps, batch size (per process), lr,
-    schedule, val_every, patience (validations), seed, threads (models.TrainConfig); val_fraction: share of the
+    schedule, val_every, patience (validations), seed, threads (models.TrainConfig); conditioning: how a policy of
+    the model conditions online and picks its active expert (runtime.ConditioningPolicy: window, anchors, first
+    expert, switch margin and window), stored in config.json and in every policy made of it; val_fraction: share of the
     demonstrations held out for validation (whole demonstrations, at least one); save_every: steps between
     resumable saves; device: cpu or cuda; resume: continue the unfinished run writing to `out`; force: replace
     an existing `out` when the run completes.
@@ -45,6 +48,7 @@ class TrainStageConfig:
         "widened; the comparison the paper makes)",
     )
     training: TrainConfig = field(default_factory=TrainConfig)
+    conditioning: ConditioningPolicy = field(default_factory=ConditioningPolicy)
     val_fraction: float = setting(0.2, "share of the demonstrations held out for validation")
     save_every: int = setting(500, "steps between resumable saves")
     device: str = setting("cpu", "where the network trains", choices=DEVICES)
@@ -62,3 +66,12 @@ class TrainStageConfig:
             raise PipelineError(f"val_fraction must be in (0, 1), got {self.val_fraction}")
         if self.save_every < 1:
             raise PipelineError(f"save_every must be >= 1 step, got {self.save_every}")
+
+
+def checkpoint_conditioning(config: dict, path: Path) -> ConditioningPolicy:
+    """The conditioning a checkpoint's config.json (`config`, read from `path`) stores: a policy of its model runs with
+    it (a checkpoint written before it was stored: the defaults); PipelineError naming the file if it is malformed."""
+    try:
+        return ConditioningPolicy.from_dict(config.get(CONDITIONING))
+    except PolicyError as exc:
+        raise PipelineError(f"{path}: {exc}; retrain with `cnep train`") from None

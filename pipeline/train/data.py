@@ -8,14 +8,15 @@ columns themselves are read once, by the process that trains on them (`pipeline.
 from __future__ import annotations
 
 import logging
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 from cnep.pipeline.errors import PipelineError, listed
 from cnep.pipeline.identity import check_identities
-from cnep.recordings import read_summary
-from cnep.recordings.constants import KIND_TRAJECTORY
+from cnep.recordings import read_summary, read_trajectory
+from cnep.recordings.constants import EPISODE_CAMERA, KIND_TRAJECTORY, NO_CAMERA
+from cnep.runtime.frames import decode_frame
 from cnep.runtime.timebase import TimeBase
 
 log = logging.getLogger(__name__)
@@ -23,14 +24,16 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class TrainingFile:
-    """One trajectory file trained on: where, its episode id, steps, seconds from its first to its last step, and its
-    episode's task ("" for none: `pipeline.train.experts` names experts by the tasks)."""
+    """One trajectory file trained on: where, its episode id, steps, seconds from its first to its last step, its
+    episode's task ("" for none: `pipeline.train.experts` names experts by the tasks) and the observation key of the
+    camera its episode names ("" for none: a LeRobot dataset's is kept by `cnep ingest`)."""
 
     path: Path
     episode_id: str
     n_steps: int
     duration_s: float
     task: str = ""
+    camera: str = ""
 
     def describe(self, sha256: str) -> dict:
         """JSON-able entry for config.json, with the file's `sha256` (hex)."""
@@ -41,13 +44,6 @@ class TrainingFile:
             "n_steps": self.n_steps,
             "task": self.task,
         }
-
-
-def data_task(files: Sequence[Mapping]) -> str:
-    """The task every one of a checkpoint's training files names (config.json's `files`, TrainingFile.describe); ""
-    where they name none, or several."""
-    tasks = {str(f.get("task", "")) for f in files}
-    return tasks.pop() if len(tasks) == 1 else ""
 
 
 @dataclass(frozen=True)
@@ -64,6 +60,26 @@ class TrainingSet:
         timed = [f for f in self.files if f.n_steps >= 2]
         return TimeBase.from_demonstrations([f.duration_s for f in timed], [f.n_steps for f in timed])
 
+    def tasks(self) -> list[str]:
+        """The tasks the demonstrations' episodes name, sorted ([] where none names one)."""
+        return sorted({f.task for f in self.files if f.task})
+
+    def camera_key(self) -> str | None:
+        """The observation key of the camera every demonstration's episode names, None where they name none or
+        several (a policy then reads any one image)."""
+        named = {f.camera for f in self.files}
+        key = named.pop() if len(named) == 1 else ""
+        return key if key not in ("", NO_CAMERA) else None
+
+
+def frame_size(path: Path) -> tuple[int, int] | None:
+    """(height, width) in pixels of the first camera frame of the trajectory file `path`; None if it has no frames."""
+    frames = read_trajectory(path).frames
+    frame = decode_frame(frames[0]) if frames else None
+    if frames and frame is None:
+        raise PipelineError(f"{path}: its first camera frame does not decode; extract it again")
+    return None if frame is None else (int(frame.shape[0]), int(frame.shape[1]))
+
 
 def load_training_set(paths: Sequence[Path]) -> TrainingSet:
     """Every file's summary, requiring one width and one extractor."""
@@ -71,8 +87,11 @@ def load_training_set(paths: Sequence[Path]) -> TrainingSet:
     for path in paths:
         summary = read_summary(path, KIND_TRAJECTORY)
         episode = summary.episode
+        camera = episode.extra.get(EPISODE_CAMERA, "")
         files.append(
-            TrainingFile(Path(path), episode.episode_id, summary.n_steps, summary.duration_ns / 1e9, episode.task)
+            TrainingFile(
+                Path(path), episode.episode_id, summary.n_steps, summary.duration_ns / 1e9, episode.task, camera
+            )
         )
         extractors[path] = summary.extractor
         widths.setdefault(summary.width, []).append(path)

@@ -14,7 +14,9 @@ DistributedDataParallel (pipeline.train.parallel), each rank on its share of the
 rank 0 writes the checkpoint.
 
 OUT gets `config.json` (model, layout, training settings, extractor identity, files with sha256, the
-time base: the demonstrations' median duration and step period in seconds, best step and error),
+time base: the demonstrations' median duration and step period in seconds, the gripper command, the tasks
+trained on, the camera's observation key and frame size, the conditioning a policy of it runs with, the largest
+step of each pose entry in the demonstrations, best step and error),
 `model.safetensors` and `training_log.jsonl` (one line per validation).
 """
 
@@ -48,8 +50,17 @@ from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.inputs import find_trajectory_files
 from cnep.pipeline.ownership import CHECKPOINT_FILES
 from cnep.pipeline.train.config import TrainStageConfig
-from cnep.pipeline.train.constants import EXPERT_LABELS, LOG_FILE, STATE_FILE
-from cnep.pipeline.train.data import TrainingSet, load_training_set
+from cnep.pipeline.train.constants import (
+    CONDITIONING,
+    EXPERT_LABELS,
+    IMAGE_KEY,
+    IMAGE_SIZE,
+    LOG_FILE,
+    MAX_STEP,
+    STATE_FILE,
+    TASKS,
+)
+from cnep.pipeline.train.data import TrainingSet, frame_size, load_training_set
 from cnep.pipeline.train.experts import demonstration_experts, expert_labels
 from cnep.pipeline.train.packed import PackedColumns, pack_columns
 from cnep.pipeline.train.parallel import (
@@ -75,8 +86,9 @@ from cnep.pipeline.train.state import (
     work_dir,
     write_log,
 )
-from cnep.recordings.constants import BLOCK_GRIPPER
+from cnep.recordings.constants import BLOCK_FEATURES, BLOCK_GRIPPER, BLOCK_POSE_QUAT, BLOCK_POSE_XYZ, BLOCKS_MOTION
 from cnep.runtime.gripper import GripperCommand
+from cnep.runtime.spec import STATE_NAMES
 
 log = logging.getLogger(__name__)
 
@@ -139,7 +151,8 @@ def train(config: TrainStageConfig, remote: progress.RemoteBar | None = None) ->
 class _Run:
     """What a run reads before it builds the model, alike on every rank: the files and their columns, the split of
     whole demonstrations (all of it, and this rank's share), the packed columns of that share, the gripper command
-    they give, the run's identity and the state saved by an earlier run of it (None: a fresh run)."""
+    and the largest steps they give, the run's identity and the state saved by an earlier run of it (None: a fresh
+    run)."""
 
     data: TrainingSet
     layout: TrainingColumns
@@ -150,6 +163,7 @@ class _Run:
     my_val: list[int]
     packed: PackedColumns
     gripper: GripperCommand | None
+    max_step: dict[str, float]
     identity: dict
     saved: dict | None
 
@@ -191,13 +205,16 @@ def _load(config: TrainStageConfig, procs: Processes, held: ExitStack) -> _Run:
     packed = pack_columns(data, my_train + my_val, layout, pack_base(config.out, procs))
     hashes = {i: h for part in gather(procs, packed_hashes(packed)) for i, h in part.items()}  # (sha256, rows)
     gripper = gripper_command(packed, layout, procs)
+    max_step = largest_steps(packed, layout, procs)
     sha256 = [hashes[i][0] for i in range(len(inputs))]
     identity = run_identity(config, data, sha256, layout, model_config, train_idx, procs)
     if saved is not None:
         check_same_run(saved["identity"], identity, work_dir(config.out) / STATE_FILE)
     if procs.is_main:
         warn_identical(data, [hashes[i][1] for i in range(len(inputs))], train_idx, val_idx)
-    return _Run(data, layout, model_config, train_idx, val_idx, my_train, my_val, packed, gripper, identity, saved)
+    return _Run(
+        data, layout, model_config, train_idx, val_idx, my_train, my_val, packed, gripper, max_step, identity, saved
+    )
 
 
 def _build(
@@ -322,6 +339,10 @@ def _publish(
     time_base = run.data.time_base().to_dict()  # the robot's seconds -> t (runtime.timebase)
     policy = {"time_base": time_base, "gripper": run.gripper.to_dict() if run.gripper else None}
     policy[EXPERT_LABELS] = {str(expert): label for expert, label in labels.items()}
+    policy[TASKS] = run.data.tasks()
+    policy.update(camera_layout(run))
+    policy[CONDITIONING] = config.conditioning.to_dict()
+    policy[MAX_STEP] = run.max_step
     save_checkpoint(model, work, {**extra, **policy, "result": summary, "log": LOG_FILE})
     record_written([work / n for n in CHECKPOINT_FILES if (work / n).is_file()], forget=[work / STATE_FILE])
     publish(work, config.out)
@@ -333,6 +354,15 @@ def _publish(
         elapsed,
         config.out,
     )
+
+
+def camera_layout(run: _Run) -> dict:
+    """What a policy's camera must give, for a model that sees it (runtime.PolicySpec): the observation key the
+    demonstrations name (None: any one image) and the size of their frames (the first training file's first)."""
+    if BLOCK_FEATURES not in run.layout.blocks:
+        return {IMAGE_KEY: None, IMAGE_SIZE: None}
+    size = frame_size(run.data.files[run.train_idx[0]].path)
+    return {IMAGE_KEY: run.data.camera_key(), IMAGE_SIZE: list(size) if size else None}
 
 
 def diverged(trainer: Trainer, config: TrainStageConfig, fresh: bool) -> None:
@@ -370,13 +400,32 @@ def packed_hashes(packed: PackedColumns) -> dict[int, tuple[str, str]]:
 
 
 def gripper_command(packed: PackedColumns, layout: TrainingColumns, procs: Processes) -> GripperCommand | None:
-    """The two-state gripper's command chosen from every file's gripper values (runtime.gripper), gathered from the
-    ranks' packs; None when the model has no gripper column. All ranks must call this."""
+    """The two-state gripper's command chosen from every file's gripper values (runtime.gripper; the closed one: the
+    value the files do not start at), gathered from the ranks' packs; None when the model has no gripper column. All
+    ranks must call this."""
     span = layout.blocks.get(BLOCK_GRIPPER)
     if span is None:
         return None
     values = {i: v for part in gather(procs, packed.columns(packed.indices, span)) for i, v in part.items()}
-    return GripperCommand.from_demonstrations(np.concatenate([values[i] for i in sorted(values)]))
+    starts = [values[i][0] for i in sorted(values) if len(values[i])]  # each demonstration starts open
+    return GripperCommand.from_demonstrations(np.concatenate([values[i] for i in sorted(values)]), starts)
+
+
+def largest_steps(packed: PackedColumns, layout: TrainingColumns, procs: Processes) -> dict[str, float]:
+    """State name -> the largest change of that pose entry between two consecutive steps of any demonstration (the
+    data's unit: m for x y z), over every file's packed rows, gathered from the ranks' packs: how far a policy's step
+    may go after a switch of expert (runtime.Policy). All ranks must call this."""
+    found = {}
+    for block in (BLOCK_POSE_XYZ, BLOCK_POSE_QUAT):
+        span = layout.blocks.get(block)
+        if span is None:
+            continue
+        values = packed.columns(packed.indices, span).values()  # each (T, k)
+        mine = [np.abs(np.diff(v.astype(np.float64), axis=0)).max(axis=0, initial=0.0) for v in values]  # each (k,)
+        ranks = gather(procs, np.max(mine, axis=0) if mine else np.zeros(span[1] - span[0]))
+        first = BLOCKS_MOTION[block][0]  # where the block's entries lie in the state vector
+        found.update({STATE_NAMES[first + i]: float(v) for i, v in enumerate(np.max(ranks, axis=0))})
+    return found
 
 
 def remove_pack(packed: PackedColumns, out: Path, procs: Processes) -> None:

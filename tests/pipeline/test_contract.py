@@ -71,6 +71,7 @@ class World:
     demos: Path
     trajs: Path
     ckpt: Path
+    ckpt_demo: Path  # a demonstration like the checkpoint's training ones (the gripper in their range)
     truncated_demo: Path  # cut inside its second chunk: `cnep repair` salvages the first
     truncated_traj: Path
     empty_chunks: Path  # cut inside its first chunk: nothing to salvage
@@ -110,6 +111,7 @@ def world(tmp_path_factory, motion_world) -> World:
         demos=root / "demos",
         trajs=root / "trajs",
         ckpt=motion_world.ckpt,  # a motion checkpoint: it replays these trajectories
+        ckpt_demo=motion_world.demos / "demo_0.mcap",
         truncated_demo=cut(big, root / "bad" / "truncated-demo.mcap", 0.9),
         truncated_traj=cut(root / "trajs" / "t0.mcap", root / "bad" / "truncated-traj.mcap", 0.6),
         empty_chunks=cut(big, root / "bad" / "no-chunk.mcap", inside_first_chunk(big)),
@@ -215,7 +217,7 @@ EXISTING_OUTPUT = {  # argv, the output path to pre-fill, whether --force is qui
     ),
     "export": lambda w, t: (["export", w.ckpt, "--out", t / "out" / "policy"], t / "out" / "policy", True),
     "run": lambda w, t: (
-        ["run", w.ckpt, w.demos / "d0.mcap", "--out", t / "out" / "r.rrd", "--fast"],
+        ["run", w.ckpt, w.ckpt_demo, "--out", t / "out" / "r.rrd", "--fast"],
         t / "out" / "r.summary.json",
         True,
     ),
@@ -285,7 +287,7 @@ READ_ONLY_OUTPUT = {
     "train": lambda w, ro: ["train", w.trajs, "--out", ro / "ckpt", *TINY_TRAINING],
     "replay": lambda w, ro: ["replay", w.ckpt, w.trajs / "t0.mcap", "--out", ro / "r.rrd", "--no-live"],
     "export": lambda w, ro: ["export", w.ckpt, "--out", ro / "policy"],
-    "run": lambda w, ro: ["run", w.ckpt, w.demos / "d0.mcap", "--out", ro / "r.rrd", "--fast"],
+    "run": lambda w, ro: ["run", w.ckpt, w.ckpt_demo, "--out", ro / "r.rrd", "--fast"],
     "evaluate": lambda w, ro: ["evaluate", *QUICK_EVALUATE, "--out", ro / "tables"],
     "demo": lambda w, ro: ["demo", "--quick", "--out", ro / "demo"],
 }
@@ -336,7 +338,7 @@ INTERRUPTED = {  # argv, and the function replaced by one that interrupts (Ctrl-
         "write_runtime",
     ),
     "run": lambda w, t: (
-        ["run", w.ckpt, w.demos / "d0.mcap", "--out", t / "out" / "r.rrd", "--fast"],
+        ["run", w.ckpt, w.ckpt_demo, "--out", t / "out" / "r.rrd", "--fast"],
         "cnep.pipeline.run.stage",
         "run_recording",
     ),

@@ -7,8 +7,9 @@ from pathlib import Path
 
 import pytest
 
-from cnep.models.config import CNEPConfig, ConditioningPolicy, TrainConfig
+from cnep.models.config import CNEPConfig, ConditioningOverrides, ConditioningPolicy, TrainConfig
 from cnep.pipeline.cli.demo import demo_config
+from cnep.pipeline.cli.export import conditioning_given
 from cnep.pipeline.cli.main import build_parser
 from cnep.pipeline.cli.train import settings_of, stage_config
 from cnep.pipeline.demo.config import CNEP_EXPERTS, DemoConfig
@@ -29,17 +30,21 @@ def test_the_cli_the_stage_config_and_the_model_configs_agree_on_every_shared_se
     assert model.assignment == "bounded" and training.patience == 10 and training.threads == 1
     args = build_parser().parse_args(["train", "data", "--out", "ckpt"])
     chosen = stage_config(args)
-    held = {TrainStageConfig: chosen, CNEPConfig: chosen.model, TrainConfig: chosen.training}
+    held = {
+        TrainStageConfig: chosen,
+        CNEPConfig: chosen.model,
+        TrainConfig: chosen.training,
+        ConditioningPolicy: chosen.conditioning,
+    }
     for option in settings_of().values():
         owner = next(cls for cls in held if option.field in fields(cls))
         assert getattr(held[owner], option.field.name) == option.field.default, option.name
     demo = demo_config(build_parser().parse_args(["demo", "--out", "d"]))
     assert demo == DemoConfig(out=Path("d")) and demo.model.assignment == model.assignment
     assert demo.model.n_experts == CNEP_EXPERTS and demo.seed == 0
-    replay = build_parser().parse_args(["replay", "ckpt", "r.mcap"])
-    assert ConditioningPolicy(**{f.name: getattr(replay, f.name) for f in fields(ConditioningPolicy)}) == (
-        ConditioningPolicy()
-    )
+    assert chosen.conditioning == ConditioningPolicy()
+    for argv in (["replay", "ckpt", "r.mcap"], ["run", "p", "r.mcap", "--out", "r.rrd"], ["export", "c", "--out", "p"]):
+        assert conditioning_given(build_parser().parse_args(argv)) == ConditioningOverrides()  # the policy's own
 
 
 def test_nested_options_reach_the_config_they_belong_to():

@@ -61,6 +61,7 @@ def test_training_names_its_experts_by_their_demonstrations_tasks_and_replay_and
     spec = policy_spec(trained)
     assert spec.expert_labels == tuple(trained.expert_labels.get(e, "") for e in range(spec.n_experts))
     assert PolicySpec.from_dict(spec.to_dict()).expert_labels == spec.expert_labels
+    assert trained.config["tasks"] == ["left", "right"] and spec.tasks == ("left", "right")  # what it was trained on
 
 
 def test_demonstrations_of_one_task_leave_the_experts_their_numbers(tmp_path):
@@ -68,3 +69,4 @@ def test_demonstrations_of_one_task_leave_the_experts_their_numbers(tmp_path):
     train(stage_config(paths, tmp_path / "ckpt", layout="motion", steps=10))
     trained = load_trained(tmp_path / "ckpt")
     assert trained.expert_labels == {} and policy_spec(trained).expert_labels == ()
+    assert policy_spec(trained).tasks == ("pick",)

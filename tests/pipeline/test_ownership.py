@@ -85,7 +85,7 @@ FILE_OUTPUTS = {
         lambda p: p.write_text(json.dumps({"checkpoint": "mine", "recordings": []})),
     ),
     "run": lambda w, t: (
-        ["run", w.ckpt, w.demos / "d0.mcap", "--out", t / "out" / "r.rrd", "--fast"],
+        ["run", w.ckpt, w.ckpt_demo, "--out", t / "out" / "r.rrd", "--fast"],
         t / "out" / "r.rrd",
         lambda p: p.write_bytes(b"RRF2" + bytes(100)),
     ),

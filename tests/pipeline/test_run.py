@@ -4,6 +4,7 @@ import json
 import shutil
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -14,9 +15,12 @@ from cnep.pipeline.cli.main import build_parser, main
 from cnep.pipeline.replay.rerun_log import first_read_text
 from cnep.pipeline.run import RunConfig, run, summarise
 from cnep.pipeline.run.stage import open_policy
+from cnep.pipeline.train.stage import train
 from cnep.recordings import read_demonstration, write_demonstration
 from cnep.runtime import TimeBase
+from tests.pipeline.test_expert_labels import _labelled_set
 from tests.pipeline.test_replay import column
+from tests.pipeline.test_train import stage_config
 from tests.recordings.factories import demonstration_factory
 from tests.runtime.test_torch_free import run_without_torch
 
@@ -125,3 +129,21 @@ def test_cnep_run_of_an_exported_policy_needs_no_torch(policy_world, tmp_path):
     assert done.returncode == 0, done.stderr
     steps = read_demonstration(policy_world.heldout).n_steps
     assert json.loads((tmp_path / "r.summary.json").read_text())["total"]["steps"] == steps
+
+
+def test_run_warns_in_one_line_when_a_recording_names_a_task_the_policy_was_not_trained_on(
+    tmp_path, caplog, one_thread
+):
+    checkpoint = tmp_path / "ckpt"
+    train(stage_config(_labelled_set(tmp_path / "data", ["left", "right"] * 2), checkpoint, layout="motion", steps=10))
+    for task in ("left", "pour"):
+        demo = demonstration_factory(8, frames=False, seed=1)
+        write_demonstration(tmp_path / f"{task}.mcap", replace(demo, episode=replace(demo.episode, task=task)))
+    caplog.clear()
+    run(RunConfig(checkpoint, (tmp_path / "left.mcap",), tmp_path / "a.rrd", realtime=False, quiet=True))
+    assert not [r for r in caplog.records if r.levelname == "WARNING"]
+    run(RunConfig(checkpoint, (tmp_path / "left.mcap", tmp_path / "pour.mcap"), tmp_path / "b.rrd", realtime=False,
+                  quiet=True))  # fmt: skip
+    (warning,) = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    assert "'pour'" in warning and "'left', 'right'" in warning and "'left' (" not in warning
+    assert len(warning.splitlines()) == 1

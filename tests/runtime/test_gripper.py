@@ -1,5 +1,7 @@
 """The gripper command: two values and a threshold with hysteresis from the demonstrations, applied by the Policy."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -97,3 +99,71 @@ def test_the_spec_carries_the_command_through_its_dict_and_reads_one_without_it(
     old = {key: value for key, value in spec.to_dict().items() if key != "gripper"}
     old["conditioning"] = {"window": 10, "anchors": 1}  # as a format 1 manifest has it
     assert PolicySpec.from_dict(old).gripper is None
+
+
+def measured_openings(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """20 demonstrations whose gripper is the measured opening (m): open at 0.08, closed on an object it reads the
+    object's width, 0.02 to 0.04 m, ramps of 5 steps between; their values and each one's first."""
+    episodes = []
+    for width in np.linspace(0.02, 0.04, 20):
+        held = width + rng.normal(0, 5e-4, 20)
+        episodes.append(np.r_[np.full(15, 0.08), np.linspace(0.08, width, 5), held, np.linspace(width, 0.08, 5)])
+    return np.concatenate(episodes), np.array([e[0] for e in episodes])
+
+
+def stepped(command: GripperCommand, predicted: list[float], observed: float) -> list:
+    """The steps of a policy with `command` whose gripper prediction is `predicted[k]` at step k, the gripper reading
+    `observed`."""
+    spec = camera_spec()
+    loc, scale = spec.columns.loc[WIDTH - 1], spec.columns.scale[WIDTH - 1]
+    network = ScriptedNetwork([[1, 0, 0]], last=(np.array(predicted) - loc) / scale)
+    policy = Policy(network, replace(spec, gripper=command), mean_colour_features)
+    steps = []
+    for k in range(len(predicted)):
+        obs = observation(k)
+        obs[STATE_KEY][7] = observed
+        steps.append(policy.step(obs))
+    return steps
+
+
+def test_a_measured_opening_closed_on_an_object_says_closed_whatever_the_objects_width():
+    values, starts = measured_openings(np.random.default_rng(0))
+    command = GripperCommand.from_demonstrations(values, starts)
+    assert command.closed == "low" and command.low == pytest.approx(0.03, abs=3e-3) and command.high == 0.08
+    # open, then closing on objects of the training widths, a wider one (between the thresholds), a narrower one
+    predicted = [0.08, 0.03, 0.02, 0.05, 0.01, 0.03, 0.08]
+    steps = stepped(command, predicted, observed=0.08)
+    assert [s.gripper_closed for s in steps] == [False, True, True, True, True, True, False]
+    assert [s.gripper for s in steps] == [command.high] + [command.low] * 5 + [command.high]
+    # an episode that starts holding an object: its reading, the object's width, is closed
+    held = stepped(command, [0.05, 0.05], observed=0.045)
+    assert [s.gripper_closed for s in held] == [True, True]
+
+
+def test_a_command_that_starts_low_closes_high():
+    """A gripper recorded as a command in [0, 1] where 1 closes: the demonstrations start at 0."""
+    episodes = [np.r_[np.zeros(10), np.ones(10), np.zeros(5)] + 0.01 * k for k in range(6)]
+    command = GripperCommand.from_demonstrations(np.concatenate(episodes), [e[0] for e in episodes])
+    assert command.closed == "high" and command.is_closed(command.high) and not command.is_closed(command.low)
+    assert [s.gripper_closed for s in stepped(command, [0.1, 0.9, 0.6, 0.2], observed=0.0)] == [
+        False,
+        True,
+        True,
+        False,
+    ]
+    assert GripperCommand.from_demonstrations(np.concatenate(episodes)).closed == "low"  # no starts: an opening's
+
+
+def test_the_closed_value_travels_with_the_command_and_an_older_one_closes_low():
+    command = GripperCommand.from_levels(0.0, 1.0, closed="high")
+    assert GripperCommand.from_dict(command.to_dict()) == command
+    older = {k: v for k, v in command.to_dict().items() if k != "closed"}
+    assert GripperCommand.from_dict(older).closed == "low"
+    with pytest.raises(PolicyError, match="closed value is 'low' or 'high'"):
+        GripperCommand.from_dict({**command.to_dict(), "closed": "shut"})
+    spec = replace(camera_spec(), gripper=command)
+    assert PolicySpec.from_dict(spec.to_dict()).gripper.closed == "high"
+    assert (
+        Policy(ScriptedNetwork([[1, 0, 0]]), camera_spec(), mean_colour_features).step(observation(0)).gripper_closed
+        is None
+    )

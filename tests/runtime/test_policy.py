@@ -1,5 +1,7 @@
 """The runtime's Policy on a numpy network: LeRobot's interface, the time base, the conditioning set, input checks."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -16,6 +18,7 @@ from cnep.runtime import (
     PolicySpec,
     TimeBase,
 )
+from cnep.runtime.constants import GRIPPER_DEVIATIONS
 from tests.runtime.fakes import (
     EXPERTS,
     FEATURES,
@@ -171,6 +174,9 @@ BAD = [
     ("z -2 km", lambda o: with_state(o, z=-2000.0), "z = -2000 m is beyond"),
     ("zero quaternion", lambda o: with_state(o, qx=0, qy=0, qz=0, qw=0), "has length 0, not 1.*no orientation"),
     ("quaternion of length 2", lambda o: with_state(o, qx=0, qy=0, qz=0, qw=2), "has length 2, not 1"),
+    ("gripper 3e38", lambda o: with_state(o, gripper=3e38), "gripper = 3e\\+38 lies outside .* standard deviations"),
+    ("gripper 1e300", lambda o: with_state(o, gripper=1e300), "gripper = 1e\\+300 lies outside"),
+    ("gripper -3e38", lambda o: with_state(o, gripper=-3e38), "gripper = -3e\\+38 lies outside"),
 ]
 
 
@@ -262,3 +268,103 @@ def test_the_bounds_apply_to_the_state_entries_the_model_reads_only():
     assert policy.step(unrotated).waypoints.shape == (10, 3)
     with pytest.raises(PolicyError, match="x = 1e\\+30 m"):
         policy.step(with_state(unrotated, x=1e30))
+
+
+def test_the_gripper_may_lie_within_its_bound_of_the_training_spread_and_no_further():
+    spec = camera_spec()
+    loc, scale = float(spec.columns.loc[WIDTH - 1]), float(spec.columns.scale[WIDTH - 1])
+    policy = make_policy()
+    inside = loc + 0.99 * GRIPPER_DEVIATIONS * scale
+    assert np.isfinite(policy.step(with_state(observation(0), gripper=inside)).waypoints).all()
+    with pytest.raises(PolicyError, match="gripper = .* lies outside"):
+        policy.step(with_state(observation(1), gripper=loc - 1.01 * GRIPPER_DEVIATIONS * scale))
+    assert policy.step(observation(1)).step == 1  # the refused observation took no step
+
+
+class Broken(LinearNetwork):
+    """A network whose encoder (`where="encode"`) or decoder gives NaN from its `after`-th call on."""
+
+    def __init__(self, where: str, after: int = 0) -> None:
+        super().__init__(WIDTH, 0, 4)
+        self.where, self.after, self.calls = where, after, 0
+
+    def encode(self, obs):
+        encoded = super().encode(obs)
+        self.calls += self.where == "encode"
+        return encoded * np.nan if self.where == "encode" and self.calls > self.after else encoded
+
+    def decode(self, r, query):
+        gate, mean, std = super().decode(r, query)
+        self.calls += self.where == "decode"
+        if self.where == "decode" and self.calls > self.after:
+            mean[0, -1] = np.inf
+        return gate, mean, std
+
+
+@pytest.mark.parametrize("where", ["encode", "decode"])
+def test_a_network_that_gives_values_that_are_not_finite_is_a_policy_error_never_an_action(where):
+    policy = Policy(Broken(where, after=2), camera_spec(), mean_colour_features)
+    for k in range(2):
+        assert np.isfinite(policy.select_action(observation(k))).all()
+    with pytest.raises(PolicyError, match="not finite"):
+        policy.select_action(observation(2))
+
+
+def test_an_encoding_that_is_not_finite_stays_out_of_the_conditioning_set():
+    """The step is refused before its encoding joins the set: the next steps condition as if it never came."""
+    broken, reference = Broken("encode", after=1), LinearNetwork(WIDTH, 0, 4)
+    a = Policy(broken, camera_spec(), mean_colour_features)
+    b = Policy(reference, camera_spec(), mean_colour_features)
+    a.step(observation(0, time_s=0.0)), b.step(observation(0, time_s=0.0))
+    with pytest.raises(PolicyError, match="left out of the conditioning set"):
+        a.step(observation(1, time_s=0.1))
+    broken.after = 10**9  # healthy again
+    np.testing.assert_array_equal(a.step(observation(2, time_s=0.2)).gate, b.step(observation(2, time_s=0.2)).gate)
+
+
+@pytest.mark.parametrize("seed", [-1, 1.5, True, "3", -(10**23)])
+def test_an_episode_seed_that_is_not_an_integer_of_zero_or_more_is_one_clear_error(seed):
+    policy = make_policy()
+    with pytest.raises(PolicyError, match="an episode's seed is an integer >= 0"):
+        policy.reset(seed)
+    policy.reset(10**23)  # numpy's generators take any integer >= 0
+    policy.reset(np.int64(7))
+    assert policy.step(observation(0)).step == 0
+
+
+TOP = IMAGE_KEY_PREFIX + "top"
+
+
+def trained_on(image_key: str | None = TOP, image_size: tuple[int, int] | None = (48, 64)) -> Policy:
+    """The fake policy whose spec says its training frames came from `image_key` at `image_size` (height, width)."""
+    spec = replace(camera_spec(), image_key=image_key, image_size=image_size)
+    return Policy(camera_network(), spec, mean_colour_features)
+
+
+def test_a_policy_reads_the_training_cameras_key_and_refuses_another_camera_or_frame_size():
+    obs = observation(0)
+    frame = obs[CAMERA]  # (48, 64, 3)
+    front_only = {STATE_KEY: obs[STATE_KEY], CAMERA: frame}
+    with pytest.raises(PolicyError, match="needs 'observation.images.top' \\(the training recordings' camera\\)"):
+        trained_on().step(front_only)
+    reference = make_policy().step(front_only)
+    for given in ({STATE_KEY: obs[STATE_KEY], TOP: frame}, {**front_only, TOP: frame}):  # the training camera's key
+        np.testing.assert_array_equal(trained_on().step(given).waypoints, reference.waypoints)
+    named = Policy(camera_network(), trained_on().spec, mean_colour_features, camera="front")
+    np.testing.assert_array_equal(named.step(front_only).waypoints, reference.waypoints)  # camera= reads another
+    with pytest.raises(PolicyError, match="a frame of 32x24 pixels, but this policy was trained on frames of 64x48"):
+        trained_on().step({STATE_KEY: obs[STATE_KEY], TOP: frame[::2, ::2]})
+    lerobot = {STATE_KEY: obs[STATE_KEY][None], TOP: (frame.transpose(2, 0, 1) / 255.0)[None]}  # (1, 3, 48, 64)
+    assert trained_on().select_action(lerobot).shape == (1, 4)
+    assert trained_on(image_key=None, image_size=None).step({**front_only}).step == 0  # older specs: any image
+
+
+def test_the_spec_carries_the_tasks_and_the_camera_through_its_dict_and_reads_one_without_them():
+    spec = replace(camera_spec(), tasks=("pick the red cup", "stack"), image_key=TOP, image_size=(48, 64))
+    again = PolicySpec.from_dict(spec.to_dict())
+    assert (again.tasks, again.image_key, again.image_size) == (spec.tasks, TOP, (48, 64))
+    older = {k: v for k, v in spec.to_dict().items() if k not in ("tasks", "image_key", "image_size")}
+    assert (PolicySpec.from_dict(older).tasks, PolicySpec.from_dict(older).image_size) == ((), None)
+    for wrong in ({"image_size": [48]}, {"image_size": [0, 64]}, {"tasks": "stack"}, {"image_key": ""}):
+        with pytest.raises(PolicyError):
+            PolicySpec.from_dict({**spec.to_dict(), **wrong})

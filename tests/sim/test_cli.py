@@ -96,12 +96,14 @@ def test_a_task_is_a_folder_and_the_commands_know_every_one_without_importing_th
 
 
 def _policy_folder(path: Path, task: str, kind: str = "exported") -> Path:
-    """A policy folder as `with_task` reads it: a manifest naming `task`, or a checkpoint whose files name it."""
+    """A policy folder as `with_task` reads it: a manifest whose spec names `task`, or a checkpoint's config.json
+    naming it ("" for none)."""
     path.mkdir()
+    tasks = [task] if task else []
     if kind == "exported":
-        (path / "manifest.json").write_text(json.dumps({"checkpoint": {"task": task}}))
+        (path / "manifest.json").write_text(json.dumps({"spec": {"tasks": tasks}}))
     else:
-        (path / "config.json").write_text(json.dumps({"files": [{"task": task}, {"task": task}]}))
+        (path / "config.json").write_text(json.dumps({"tasks": tasks}))
     return path
 
 
