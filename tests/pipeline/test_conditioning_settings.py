@@ -2,7 +2,7 @@
 replaced only where `cnep export`, `cnep run`, `cnep replay` or `cnep sim eval` are given a setting (and say so)."""
 
 import json
-from dataclasses import fields
+from dataclasses import fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -110,12 +110,13 @@ def test_an_older_checkpoint_without_conditioning_loads_with_the_defaults(traine
 
 def test_the_closed_loop_takes_the_policys_own_conditioning_unless_given(trained, monkeypatch):
     import cnep.pipeline.sim.loop as loop
+    from cnep.sim.tasks import find_task
 
     checkpoint, chosen = trained
-    opened = []
+    opened, task = [], find_task("obstacle")
     monkeypatch.setattr(loop, "open_policy", lambda path, **kwargs: opened.append(kwargs["conditioning"]))
-    loop._policy(checkpoint, None, ConditioningOverrides())
-    loop._policy(checkpoint, None, ConditioningOverrides(window=2, first_expert="argmax"))
+    loop.open_task_policy(checkpoint, task, ConditioningOverrides())
+    loop.open_task_policy(checkpoint, task, ConditioningOverrides(window=2, first_expert="argmax"))
     assert opened[0] is None  # the policy's own
     assert opened[1].to_dict() == {**chosen, "window": 2, "first_expert": "argmax"}
     assert open_policy(checkpoint, conditioning=opened[1]).conditioning == opened[1]
@@ -127,3 +128,14 @@ def test_a_bad_conditioning_setting_is_refused_in_one_line(trained, tmp_path, ca
     assert main(["-q", "export", str(checkpoint), "--out", str(tmp_path / "p"), "--window", "0"]) == 2
     err = capsys.readouterr().err.strip()
     assert "window must be >= 1" in err and len(err.splitlines()) == 1 and not (tmp_path / "p").exists()
+
+
+def test_a_sim_run_trains_its_conditioning_into_its_policies(tmp_path):
+    from cnep.pipeline.sim.config import PickPlaceConfig, SimConfig, trained_conditioning
+
+    pick = trained_conditioning(PickPlaceConfig(out=tmp_path / "p", window=3, anchors=0))
+    assert (pick.window, pick.anchors) == (3, 0)
+    given = ConditioningOverrides(first_expert="sample", window=6)
+    obstacle = trained_conditioning(SimConfig(out=tmp_path / "o", conditioning=given))
+    assert obstacle == replace(ConditioningPolicy(), first_expert="sample", window=6)
+    assert trained_conditioning(SimConfig(out=tmp_path / "d")) == ConditioningPolicy()
