@@ -18,6 +18,7 @@ import numpy as np
 
 from cnep.models.baselines import GMMGMR, NearestDemo, ProMP
 from cnep.models.baselines.base import Method, resample
+from cnep.pipeline.errors import PipelineError
 from cnep.recordings import read_trajectory
 from cnep.recordings.constants import BLOCK_FEATURES
 from cnep.runtime import ConditioningPolicy, Policy
@@ -57,6 +58,11 @@ class Reduction:
         rest_at = np.array([i for i, c in enumerate(cols) if c not in features])
         mean = observed[:, feature_at].mean(axis=0)
         _, _, vt = np.linalg.svd(observed[:, feature_at] - mean, full_matrices=False)
+        if components > len(vt):  # at most one per feature and one per frame
+            raise PipelineError(
+                f"--pca {components}: the training frames' features have {len(vt)} principal components "
+                f"({len(observed)} frames of {len(feature_at)} features); choose --pca {len(vt)} or fewer"
+            )
         return cls(feature_at, rest_at, mean, vt[:components].T)
 
     def __call__(self, observed: np.ndarray) -> np.ndarray:
