@@ -7,7 +7,7 @@ context for a renderer (`Camera`): where either fails, `SimError` names the back
 
 from __future__ import annotations
 
-import functools
+import logging
 import os
 from types import ModuleType
 from typing import TYPE_CHECKING
@@ -23,14 +23,13 @@ if TYPE_CHECKING:
 BACKENDS = {"egl": "libegl1 (and libgl1-mesa-dri for software rendering)", "osmesa": "libosmesa6"}
 
 
-@functools.cache
 def load_mujoco() -> ModuleType:
-    """The `mujoco` module, imported with the backend MUJOCO_GL names, which has made a context once in this process;
-    SimError naming it where it cannot (a name MuJoCo does not know, a backend whose library is missing)."""
+    """The `mujoco` module, imported with the backend MUJOCO_GL names; SimError naming it where that cannot load (a
+    name MuJoCo does not know, a backend whose library is missing). No context is made here: one made before torch
+    loads its libraries can crash the process (a renderer's, made later, cannot)."""
+    logging.getLogger("OpenGL").setLevel(logging.WARNING)  # its INFO lines name each library it tried to load
     try:
         import mujoco
-
-        mujoco.GLContext(1, 1).free()  # a backend that could not load fails here, if not at the import
     except Exception as exc:  # MuJoCo and PyOpenGL raise several kinds of error for a backend that cannot load
         raise _unavailable(exc) from None
     return mujoco

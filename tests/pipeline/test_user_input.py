@@ -181,6 +181,7 @@ def test_a_mujoco_backend_that_cannot_load_is_one_line_naming_it(tmp_path, backe
         if ctypes.util.find_library("OSMesa"):
             pytest.skip("OSMesa is installed here")
     env = {**os.environ, "MUJOCO_GL": backend, "HOME": str(tmp_path), "CI": "1"}
+    env.pop("PYOPENGL_PLATFORM", None)  # as in a user's shell (MuJoCo sets it in this process when it loads)
     argv = [sys.executable, "-m", "cnep.pipeline", "sim", "eval", str(tmp_path / "none")]
     done = subprocess.run(argv, capture_output=True, text=True, env=env, cwd=ROOT, timeout=120)
     err = done.stderr.strip().splitlines()
