@@ -124,7 +124,9 @@ def integer(text: str) -> int:
     """An integer option's value, as argparse reads it (ValueError: argparse says "invalid integer value")."""
     value = int(text)
     if not -INT_LIMIT < value < INT_LIMIT:
-        raise argparse.ArgumentTypeError(f"expected an integer of at most 18 digits, got {in_message(value)}")
+        raise argparse.ArgumentTypeError(
+            f"expected an integer from {-(INT_LIMIT - 1)} to {INT_LIMIT - 1}, got {in_message(value)}"
+        )
     return value
 
 

@@ -14,7 +14,7 @@ import dataclasses
 
 from cnep.models.assignments import ASSIGNMENTS
 from cnep.models.config import TrainConfig
-from cnep.pipeline.cli.fields import Option, add_options, build, options
+from cnep.pipeline.cli.fields import INT_LIMIT, Option, add_options, build, options
 from cnep.pipeline.train.config import TrainStageConfig
 
 HELP = "train a CNEP on trajectory files (resumable; multi-process with torchrun)"
@@ -93,15 +93,14 @@ def _checked(path: str, name: str, value):
     else:
         fits = isinstance(value, kind)
     if not fits:
-        what = {tuple: "a list of integers", int: "an integer of at most 18 digits"}.get(kind, kind.__name__)
-        raise PipelineError(f"{path}: setting {name} must be {what}, got {in_message(value)}")
+        what = {tuple: "a list of integers", int: "an integer"}.get(kind, kind.__name__)
+        within = f" from {-(INT_LIMIT - 1)} to {INT_LIMIT - 1}" if kind in (int, tuple) else ""
+        raise PipelineError(f"{path}: setting {name} must be {what}{within}, got {in_message(value)}")
     return tuple(value) if kind is tuple else float(value) if kind is float else value
 
 
 def _an_integer(value: object) -> bool:
     """Whether a --config value is an integer a setting can hold (within pipeline.cli.fields.INT_LIMIT)."""
-    from cnep.pipeline.cli.fields import INT_LIMIT
-
     return isinstance(value, int) and not isinstance(value, bool) and -INT_LIMIT < value < INT_LIMIT
 
 

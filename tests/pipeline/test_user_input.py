@@ -83,7 +83,8 @@ def test_a_seed_past_any_integer_setting_is_refused_by_the_parser(inputs, capsys
         main(argv)
     err = capsys.readouterr().err.strip().splitlines()
     assert (
-        raised.value.code == 2 and f"argument --seed: expected an integer of at most 18 digits, got {HUGE}" in err[-1]
+        raised.value.code == 2
+        and f"argument --seed: expected an integer from -{2**63 - 1} to {2**63 - 1}, got {HUGE}" in err[-1]
     )
     assert not (inputs / "out").exists()
 
