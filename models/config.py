@@ -17,6 +17,25 @@ from cnep.models.threads import SMALL_MODEL_THREADS
 from cnep.runtime.conditioning import ConditioningPolicy as ConditioningPolicy  # in the runtime: it needs no torch
 from cnep.runtime.spans import Spans, span_indices
 
+# The seeds a setting takes: every generator a seed reaches takes these (numpy's legacy ones take 32 bits; torch's and
+# Gymnasium's more), so a seed is refused where it is given, not where it first reaches a generator.
+SEED_MAX = 2**32 - 1
+
+
+def in_message(value: object) -> str:
+    """`value` as an error message shows it: its repr, at most 60 characters (an integer too long to print is named by
+    its size, as Python refuses to print one of more than 4300 digits)."""
+    if isinstance(value, int) and not -(10**30) < value < 10**30:
+        return f"an integer of {value.bit_length()} bits"
+    text = repr(value)
+    return text if len(text) <= 60 else f"{text[:57]}..."
+
+
+def check_seed(option: str, seed: object, error: type[Exception] = ConfigError) -> None:
+    """`error` naming `option` unless `seed` is a whole number from 0 to SEED_MAX."""
+    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= SEED_MAX:
+        raise error(f"{option} must be a whole number from 0 to {SEED_MAX}, got {in_message(seed)}")
+
 
 def _spans(value, name: str, width: int) -> Spans:
     spans = tuple((int(a), int(b)) for a, b in value)
@@ -265,6 +284,7 @@ class TrainConfig:
         for name in ("patience", "threads"):
             if getattr(self, name) is not None and getattr(self, name) < 1:
                 raise ConfigError(f"TrainConfig.{name} must be >= 1 or None, got {getattr(self, name)}.")
+        check_seed("--seed", self.seed)
 
     def for_assignment(self, assignment: Assignment) -> TrainConfig:
         """This config with `gate_lr_scale` filled in with `assignment`'s when it was left None."""

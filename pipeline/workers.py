@@ -60,7 +60,9 @@ def process_pool(
     first; a worker stopped while writing leaves only a temporary file, which the output's next run removes.
     With `wait` False a block that ends normally does not wait for the idle workers to exit (a worker that has
     loaded torch takes seconds to): they exit beside what comes next."""
-    pool = ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=initializer, initargs=initargs)
+    pool = ProcessPoolExecutor(
+        workers, mp_context=get_context("spawn"), initializer=_worker_start, initargs=(initializer, initargs)
+    )
     try:
         yield pool
     except BaseException:
@@ -72,6 +74,22 @@ def process_pool(
             process.join()
         raise
     pool.shutdown(wait=wait)
+
+
+def _worker_start(initializer, initargs: tuple) -> None:
+    """What a pool's worker runs first: tqdm's lock made for this process alone, then `initializer(*initargs)`.
+
+    tqdm's own lock is a semaphore that processes share; a worker stopped with a failed run never frees one it made,
+    and the multiprocessing resource tracker would say so in a warning after the run's error line. The workers'
+    bars are drawn by the process that started them (`pipeline.progress`), so they need no lock between processes.
+    """
+    import threading
+
+    from tqdm import tqdm
+
+    tqdm.set_lock(threading.RLock())
+    if initializer is not None:
+        initializer(*initargs)
 
 
 def thread_environment(threads: int):

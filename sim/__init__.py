@@ -42,12 +42,14 @@ __all__ = sorted(
 
 
 def require_extra() -> None:
-    """Raise SimError, one line saying how to install them, when MuJoCo or Gymnasium is missing."""
+    """Raise SimError, one line saying how to install them, when MuJoCo or Gymnasium is missing, or naming MUJOCO_GL
+    when MuJoCo cannot load the backend it names (sim.render.load_mujoco)."""
     missing = [name for name in EXTRA if importlib.util.find_spec(name) is None]
     if missing:
         raise SimError(
             f"the simulator needs {' and '.join(missing)}, which are not installed: pip install 'cnep-pipeline[sim]'"
         )
+    importlib.import_module(f"{__name__}.render").load_mujoco()
 
 
 def __getattr__(name: str) -> object:

@@ -15,6 +15,8 @@ import argparse
 from collections.abc import Callable
 from dataclasses import MISSING, Field, dataclass, fields, is_dataclass
 
+from cnep.models.config import in_message
+
 
 @dataclass(frozen=True)
 class Option:
@@ -125,13 +127,26 @@ def _help(f: Field, note: str | None = None, default: str | None = None) -> str:
     return f"{text} (default {default})".replace("%", "%%")
 
 
-def widths(text: str) -> tuple[int, ...]:
-    """Comma-separated layer widths (`128,128`), as argparse reads them."""
-    try:
-        return tuple(int(w) for w in text.split(","))
-    except ValueError:
+INT_LIMIT = 2**63  # an integer setting lies strictly within +-this (int64, what numpy and torch take)
+
+
+def integer(text: str) -> int:
+    """An integer option's value, as argparse reads it (ValueError: argparse says "invalid integer value")."""
+    value = int(text)
+    if not -INT_LIMIT < value < INT_LIMIT:
         raise argparse.ArgumentTypeError(
-            f"expected comma-separated layer widths such as 128,128, got {text!r}"
+            f"expected an integer from {-(INT_LIMIT - 1)} to {INT_LIMIT - 1}, got {in_message(value)}"
+        )
+    return value
+
+
+def integers(text: str) -> tuple[int, ...]:
+    """A list option's value, comma-separated integers (`128,128`), as argparse reads it."""
+    try:
+        return tuple(integer(w) for w in text.split(","))
+    except (ValueError, argparse.ArgumentTypeError):
+        raise argparse.ArgumentTypeError(
+            f"expected comma-separated whole numbers such as 128,128 or 0, got {in_message(text)}"
         ) from None
 
 
@@ -157,7 +172,7 @@ def add_options(
             continue
         group.add_argument(
             option.flag,
-            type=widths if option.kind is tuple else option.kind,
+            type={tuple: integers, int: integer}.get(option.kind, option.kind),
             default=argparse.SUPPRESS,
             choices=option.field.metadata.get("choices"),
             help=_help(option.field, notes.get(option.name), defaults.get(option.name) or shown_default(option)),

@@ -14,7 +14,7 @@ import dataclasses
 
 from cnep.models.assignments import ASSIGNMENTS
 from cnep.models.config import TrainConfig
-from cnep.pipeline.cli.fields import Option, add_options, build, options
+from cnep.pipeline.cli.fields import INT_LIMIT, Option, add_options, build, options
 from cnep.pipeline.train.config import TrainStageConfig
 
 HELP = "train a CNEP on trajectory files (resumable; multi-process with torchrun)"
@@ -77,22 +77,31 @@ def read_settings(path: str) -> dict:
 
 
 def _checked(path: str, name: str, value):
+    """The --config file `path`'s `value` of setting `name`, as the setting's type; PipelineError otherwise."""
+    from cnep.models.config import in_message
     from cnep.pipeline.errors import PipelineError
 
     kind = settings_of()[name].kind
     if value is None and default(name) is None:
         return value
-    if kind is bool and isinstance(value, bool):
-        return value
-    if kind is tuple and isinstance(value, list) and all(isinstance(v, int) for v in value):
-        return tuple(value)
-    if kind is float and isinstance(value, int) and not isinstance(value, bool) and abs(value) < 2**1023:
-        return float(value)
-    if isinstance(value, kind) and not isinstance(value, bool):
-        return value
-    raise PipelineError(
-        f"{path}: setting {name} must be {'a list of integers' if kind is tuple else kind.__name__}, got {value!r}"
-    )
+    if kind is tuple:
+        fits = isinstance(value, list) and all(_an_integer(v) for v in value)
+    elif kind is int:
+        fits = _an_integer(value)
+    elif kind is float:
+        fits = _an_integer(value) or isinstance(value, float)
+    else:
+        fits = isinstance(value, kind)
+    if not fits:
+        what = {tuple: "a list of integers", int: "an integer"}.get(kind, kind.__name__)
+        within = f" from {-(INT_LIMIT - 1)} to {INT_LIMIT - 1}" if kind in (int, tuple) else ""
+        raise PipelineError(f"{path}: setting {name} must be {what}{within}, got {in_message(value)}")
+    return tuple(value) if kind is tuple else float(value) if kind is float else value
+
+
+def _an_integer(value: object) -> bool:
+    """Whether a --config value is an integer a setting can hold (within pipeline.cli.fields.INT_LIMIT)."""
+    return isinstance(value, int) and not isinstance(value, bool) and -INT_LIMIT < value < INT_LIMIT
 
 
 def fit_warmup(training: TrainConfig, warmup_given: bool) -> TrainConfig:

@@ -6,7 +6,8 @@ from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
 
-from cnep.models.config import CNEPConfig, TrainConfig, setting
+from cnep.models.config import CNEPConfig, TrainConfig, check_seed, setting
+from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.inputs import coerce_paths
 
 # `weights` by name (anything else is the path of a state dict): `auto` is ImageNet's where they can be had, else
@@ -95,6 +96,7 @@ class DemoConfig:
 
     def __post_init__(self) -> None:
         coerce_paths(self)
+        check_seed("--seed", self.seed, PipelineError)
 
     @property
     def size(self) -> DemoSize:

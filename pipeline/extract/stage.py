@@ -39,6 +39,7 @@ import numpy as np
 from tqdm import tqdm
 from tqdm.contrib.logging import logging_redirect_tqdm
 
+from cnep.models.config import check_seed
 from cnep.outputs import output_lock, record_written
 from cnep.perception import FeatureExtractor, PerceptionError, compatibility_key
 from cnep.perception.constants import CALIBRATION_FRAMES, FEATURE_DIM
@@ -111,6 +112,7 @@ class ExtractConfig:
             raise PipelineError(f"--shard I/N needs 0 <= I < N, got {index}/{count}")
         if self.workers != "auto" and (not isinstance(self.workers, int) or self.workers < 1):
             raise PipelineError(f"--workers must be >= 1, got {self.workers} (or `auto`: as many as the job pays for)")
+        check_seed("--seed", self.seed, PipelineError)
 
 
 @dataclass(frozen=True)

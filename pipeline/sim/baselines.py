@@ -20,6 +20,7 @@ import numpy as np
 from cnep.models.baselines import GMMGMR, NearestDemo, ProMP
 from cnep.models.baselines.base import resample
 from cnep.models.baselines.network import BaselineNetwork, Reduction
+from cnep.pipeline.errors import PipelineError
 from cnep.recordings import read_trajectory
 from cnep.recordings.constants import BLOCK_FEATURES
 from cnep.runtime import ConditioningPolicy, Policy
@@ -45,6 +46,12 @@ def baseline_policy(name: str, cnep: Path, trajectories: list[Path], components:
     spec = read_manifest(cnep).spec
     cols = span_indices(spec.columns.observed)
     demos = [_normalised_rows(spec, read_trajectory(path))[:, cols] for path in trajectories]
+    frames, features = len(np.concatenate(demos)), spec.features[1] - spec.features[0]
+    if components > min(frames, features):  # at most one principal component per feature and one per frame
+        raise PipelineError(
+            f"--pca {components}: the training frames' features have {min(frames, features)} principal components "
+            f"({frames} frames of {features} features); choose --pca {min(frames, features)} or fewer"
+        )
     reduction = Reduction.fit(spec, np.concatenate(demos), components)
     make, steps = BASELINES[name]
     grid = np.linspace(0.0, 1.0, steps)

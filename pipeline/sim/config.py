@@ -12,7 +12,8 @@ from pathlib import Path
 from typing import ClassVar
 
 from cnep.models.assignments import ASSIGNMENTS
-from cnep.models.config import ConditioningOverrides, setting
+from cnep.models.config import SEED_MAX, ConditioningOverrides, check_seed, setting
+from cnep.perception.constants import FEATURE_DIM
 from cnep.pipeline.demo.config import AUTO_WEIGHTS
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.inputs import coerce_paths
@@ -61,6 +62,23 @@ def protocols_of(protocol: str) -> tuple[str, ...]:
     return PROTOCOLS if protocol == BOTH else (protocol,)
 
 
+def check_episode_seeds(first: int, episodes: int) -> None:
+    """PipelineError unless the episode seeds `first` .. `first + episodes - 1` are seeds (models.config.SEED_MAX)."""
+    check_seed("--episode-seed", first, PipelineError)
+    if first + episodes - 1 > SEED_MAX:
+        raise PipelineError(
+            f"--episode-seed {first} and --episodes {episodes} give episode seeds up to {first + episodes - 1}, more "
+            f"than the largest seed, {SEED_MAX}"
+        )
+
+
+def check_seeds(seed: int, train_seeds: tuple[int, ...]) -> None:
+    """PipelineError unless the demonstrations' `seed` and every one of `train_seeds` is a seed."""
+    check_seed("--seed", seed, PipelineError)
+    for train_seed in train_seeds:
+        check_seed("--train-seeds", train_seed, PipelineError)
+
+
 @dataclass(frozen=True)
 class LoopSettings:
     """What every closed-loop evaluation takes: the task's variant, the episodes and the recordings of them, and
@@ -88,6 +106,7 @@ class LoopSettings:
                 f"episodes and max_steps must be >= 1 and record >= 0, got {self.episodes}, {self.max_steps} and "
                 f"{self.record}"
             )
+        check_episode_seeds(self.episode_seed, self.episodes)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -121,13 +140,14 @@ class SimConfig(LoopSettings):
     def __post_init__(self) -> None:
         coerce_paths(self)
         self.check()
+        check_seeds(self.seed, self.train_seeds)
         if self.demonstrations < 2 or self.train_steps < 1 or self.experts < 2 or not self.train_seeds:
             raise PipelineError(
                 f"need >= 2 demonstrations, >= 1 training step, >= 2 experts and a training seed, got "
                 f"{self.demonstrations}, {self.train_steps}, {self.experts} and {self.train_seeds}"
             )
-        if self.pca < 1:
-            raise PipelineError(f"pca must be >= 1, got {self.pca}")
+        if not 1 <= self.pca <= FEATURE_DIM:
+            raise PipelineError(f"--pca must be from 1 to {FEATURE_DIM} (the features' width), got {self.pca}")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -237,6 +257,10 @@ class PickPlaceConfig:
                 f"episodes, max_steps and pca must be >= 1 and record >= 0, got {self.episodes}, {self.max_steps}, "
                 f"{self.pca} and {self.record}"
             )
+        if self.pca > FEATURE_DIM:
+            raise PipelineError(f"--pca must be from 1 to {FEATURE_DIM} (the features' width), got {self.pca}")
+        check_seeds(self.seed, self.train_seeds)
+        check_episode_seeds(self.episode_seed, self.episodes)
 
 
 def trained_conditioning(config: SimConfig | PickPlaceConfig) -> ConditioningPolicy:

@@ -22,6 +22,7 @@ import numpy as np
 
 from cnep.models import CNEP, load_checkpoint, read_checkpoint_config
 from cnep.models.checkpoint import CONFIG_FILE
+from cnep.models.config import in_message
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.identity import Identity, check_checkpoint_extractor
 from cnep.pipeline.train.config import checkpoint_conditioning
@@ -114,8 +115,17 @@ class TrainedModel:
     @property
     def expert_labels(self) -> dict[int, str]:
         """Expert -> the task of most of its training demonstrations, where they named tasks (`pipeline.train.experts`;
-        {} otherwise)."""
-        return {int(expert): label for expert, label in (self.config.get(EXPERT_LABELS) or {}).items()}
+        {} otherwise); PipelineError naming the config file if its entry is not such a mapping."""
+        labels = self.config.get(EXPERT_LABELS) or {}
+        experts = {str(expert) for expert in range(self.model.n_experts)}
+        if not isinstance(labels, dict) or not all(
+            expert in experts and isinstance(label, str) for expert, label in labels.items()
+        ):
+            raise PipelineError(
+                f"{self.path / CONFIG_FILE}: {EXPERT_LABELS} must map expert numbers (0 to {self.model.n_experts - 1}) "
+                f"to task names, got {in_message(labels)}; retrain with `cnep train` instead of editing it"
+            )
+        return {int(expert): label for expert, label in labels.items()}
 
     @property
     def conditioning(self) -> ConditioningPolicy:

@@ -350,7 +350,10 @@ def test_bad_config_file_is_one_clear_error(full_set, tmp_path, capsys):
     assert "settings.json: unknown setting(s) colour" in capsys.readouterr().err
     settings.write_text(json.dumps({"steps": "many"}))
     assert main(["train", *map(str, full_set), "--out", str(tmp_path / "ckpt"), "--config", str(settings)]) == 2
-    assert "setting steps must be int, got 'many'" in capsys.readouterr().err
+    assert (
+        "setting steps must be an integer from -9223372036854775807 to 9223372036854775807, got 'many'"
+        in capsys.readouterr().err
+    )
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")

@@ -1,4 +1,9 @@
+import errno
 import os
+import subprocess
+import sys
+import time
+from pathlib import Path
 
 import pytest
 
@@ -44,3 +49,48 @@ def test_torch_threads_is_restored():
     with torch_threads(3):
         assert torch.get_num_threads() == 3
     assert torch.get_num_threads() == before
+
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def bar_then_wait(ready: str) -> None:
+    """A worker's job that opens a progress bar (tqdm makes a lock that processes share), says so in the file `ready`
+    and waits to be stopped."""
+    from tqdm import tqdm
+
+    tqdm(total=1, disable=True).close()
+    Path(ready).touch()
+    time.sleep(120)
+
+
+def disk_full() -> None:
+    raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), "out/state.pt")
+
+
+FAILING_POOL = """
+import sys, time
+from pathlib import Path
+from cnep.pipeline.contract import run_command
+from cnep.pipeline.workers import single_thread_processes
+from tests.pipeline.test_workers import bar_then_wait, disk_full
+
+def run():
+    with single_thread_processes(2) as pool:
+        pool.submit(bar_then_wait, sys.argv[1])
+        while not Path(sys.argv[1]).exists():
+            time.sleep(0.05)
+        pool.submit(disk_full).result()
+
+sys.exit(run_command("sim", run))
+"""
+
+
+def test_the_error_line_of_a_failed_pool_is_the_last_line(tmp_path):
+    """A job fails while another worker holds a lock it made: the workers are stopped, and nothing (such as the
+    multiprocessing resource tracker's warning about the lock) is printed after the error line."""
+    argv = [sys.executable, "-c", FAILING_POOL, str(tmp_path / "ready")]
+    done = subprocess.run(argv, capture_output=True, text=True, cwd=ROOT, timeout=120)
+    assert done.returncode == 2 and done.stderr.strip().splitlines() == [
+        "cnep sim: error: out/state.pt: No space left on device; free some disk space, or choose a path on another disk"
+    ], done.stderr
