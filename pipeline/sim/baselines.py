@@ -46,12 +46,7 @@ def baseline_policy(name: str, cnep: Path, trajectories: list[Path], components:
     spec = read_manifest(cnep).spec
     cols = span_indices(spec.columns.observed)
     demos = [_normalised_rows(spec, read_trajectory(path))[:, cols] for path in trajectories]
-    frames, features = len(np.concatenate(demos)), spec.features[1] - spec.features[0]
-    if components > min(frames, features):  # at most one principal component per feature and one per frame
-        raise PipelineError(
-            f"--pca {components}: the training frames' features have {min(frames, features)} principal components "
-            f"({frames} frames of {features} features); choose --pca {min(frames, features)} or fewer"
-        )
+    check_components(components, len(np.concatenate(demos)), spec.features[1] - spec.features[0])
     reduction = Reduction.fit(spec, np.concatenate(demos), components)
     make, steps = BASELINES[name]
     grid = np.linspace(0.0, 1.0, steps)
@@ -61,6 +56,17 @@ def baseline_policy(name: str, cnep: Path, trajectories: list[Path], components:
     network = BaselineNetwork(make().fit(reduced), reduction, predicted)
     one = replace(spec, n_experts=1)
     return Policy(network, one, load_features(cnep, threads=1), waypoints=waypoints, conditioning=CURRENT_ONLY)
+
+
+def check_components(components: int, frames: int, features: int) -> None:
+    """PipelineError naming --pca unless `frames` training frames of `features` features have `components` principal
+    components (at most one per feature and one per frame)."""
+    most = min(frames, features)
+    if components > most:
+        raise PipelineError(
+            f"--pca {components}: the training frames' features have {most} principal components ({frames} frames "
+            f"of {features} features); choose --pca {most} or fewer"
+        )
 
 
 def _normalised_rows(spec: PolicySpec, trajectory) -> np.ndarray:

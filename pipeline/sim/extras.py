@@ -30,13 +30,15 @@ def needed_extras(config: SimConfig | PickPlaceConfig | EvalConfig) -> tuple[str
 
 def require_extras(config: SimConfig | PickPlaceConfig | EvalConfig, command: str) -> None:
     """PipelineError, one line naming what `command` misses and how to install it, when an extra it needs is not
-    installed."""
+    installed; then cnep.sim.SimError, one line naming MUJOCO_GL, when MuJoCo cannot load the backend it names."""
     absent = {
         extra: [m for m in MODULES[extra] if importlib.util.find_spec(m) is None] for extra in needed_extras(config)
     }
     missing = {extra: modules for extra, modules in absent.items() if modules}
     if not missing:
-        return
+        from cnep.sim import require_extra  # loads MuJoCo: only once the extras are known to be there
+
+        return require_extra()
     extras = f"the {' and '.join(missing)} extra{'s' if len(missing) > 1 else ''}"
     modules = ", ".join(m for ms in missing.values() for m in ms)
     hint = ", or leave the baselines out: --no-baselines" if "baselines" in missing else ""

@@ -10,7 +10,6 @@ import subprocess
 import sys
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from cnep.models.checkpoint import CHECKSUM_KEY, CONFIG_FILE, config_checksum
@@ -165,12 +164,11 @@ def test_pca_past_the_features_width_is_one_line_before_any_work(tmp_path, capsy
 
 @pytest.mark.skipif(not SIM, reason="the sim extra is not installed")
 def test_pca_past_the_training_frames_is_one_line():
-    from cnep.pipeline.sim.pick_baselines import Reduction
-    from tests.runtime.fakes import WIDTH, camera_spec
+    from cnep.pipeline.sim.baselines import check_components
 
-    rows = np.random.default_rng(0).normal(size=(3, WIDTH))  # 3 frames: 3 components at most
+    check_components(3, frames=3, features=1280)
     with pytest.raises(PipelineError, match="--pca 5: the training frames' features have 3 principal components"):
-        Reduction.fit(camera_spec(), rows, 5)
+        check_components(5, frames=3, features=1280)
 
 
 @pytest.mark.skipif(not SIM, reason="the sim extra is not installed")
@@ -183,8 +181,9 @@ def test_a_mujoco_backend_that_cannot_load_is_one_line_naming_it(tmp_path, backe
             pytest.skip("OSMesa is installed here")
     env = {**os.environ, "MUJOCO_GL": backend, "HOME": str(tmp_path), "CI": "1"}
     env.pop("PYOPENGL_PLATFORM", None)  # as in a user's shell (MuJoCo sets it in this process when it loads)
-    argv = [sys.executable, "-m", "cnep.pipeline", "sim", "eval", str(tmp_path / "none")]
+    argv = [sys.executable, "-m", "cnep.pipeline", "sim", "obstacle", "--out", str(tmp_path / "run")]
     done = subprocess.run(argv, capture_output=True, text=True, env=env, cwd=ROOT, timeout=120)
     err = done.stderr.strip().splitlines()
     assert done.returncode == 2 and len(err) == 1 and f"MUJOCO_GL={backend}" in err[0], done.stderr
     assert ("libosmesa6" if backend == "osmesa" else "set MUJOCO_GL to egl or osmesa") in err[0], err
+    assert not (tmp_path / "run").exists()  # refused before any work
