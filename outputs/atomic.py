@@ -12,6 +12,8 @@ import logging
 import os
 import re
 import secrets
+import signal
+import threading
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import IO
@@ -86,24 +88,76 @@ class Staging:
 @contextlib.contextmanager
 def staged(record: bool = False) -> Iterator[Staging]:
     """Stage several files (`Staging.open`, `write`, `path`); when the block completes they are renamed into place,
-    in the order staged, and with `record` added to their folders' records (`cnep.outputs.record`); on any exception
-    (Ctrl-C and SIGTERM included) every staged file is removed and no target changes. Targets' folders must exist."""
+    in the order staged; on any exception (Ctrl-C and SIGTERM included) every staged file is removed and no target
+    changes. Targets' folders must exist.
+
+    With `record`, they are outputs of the command writing (`cnep.outputs.record.writer`): each target must then be
+    absent or that command's recorded, unchanged file at the moment of the rename (else OutputError, and nothing is
+    renamed), and the targets are added to their folders' records with the rename, SIGINT and SIGTERM held off
+    between the two."""
     staging = Staging()
     try:
         yield staging
-        for tmp, target in staging._staged:
-            if target is not None:
+        kept = [(tmp, target) for tmp, target in staging._staged if target is not None]
+        if record:
+            from cnep.outputs.record import file_entry, record_entries, refuse_unowned, required_writer
+
+            command = required_writer()
+            entries = {target: file_entry(tmp, command) for tmp, target in kept}  # hashed before: only the rename waits
+        with signals_held() if record else contextlib.nullcontext():
+            if record:
+                refuse_unowned([target for _, target in kept], command)
+            for tmp, target in kept:
                 try:
                     os.replace(tmp, target)
                 except OSError as exc:
                     raise _named(exc, target) from None
-        if record:
-            from cnep.outputs.record import record_written
-
-            record_written(target for _, target in staging._staged if target is not None)
+            if record:
+                record_entries(entries)
     finally:
         for tmp, _ in staging._staged:
             _remove(tmp)
+
+
+@contextlib.contextmanager
+def signals_held() -> Iterator[None]:
+    """SIGINT and SIGTERM that arrive in the block take effect when it ends, so that what it does is done whole (a
+    rename and its record). Only the main thread can hold them, and only where Python installed their handlers."""
+    signals = (signal.SIGINT, signal.SIGTERM)
+    if threading.current_thread() is not threading.main_thread() or None in map(signal.getsignal, signals):
+        yield
+        return
+    received: list[int] = []
+    saved = {signum: signal.signal(signum, lambda signum, frame: received.append(signum)) for signum in signals}
+    try:
+        yield
+    finally:
+        for signum, handler in saved.items():
+            signal.signal(signum, handler)
+        if received:
+            signal.raise_signal(received[0])  # its own handler runs now
+
+
+@contextlib.contextmanager
+def output_file(target: str | os.PathLike) -> Iterator[Path]:
+    """A temporary name for the writing command's output `target` (a writer that takes a path writes it there),
+    renamed to `target` and recorded when the block completes (`staged(record=True)`)."""
+    target = Path(target)
+    with staged(record=True) as staging:
+        tmp = staging.path(target)
+        try:
+            yield tmp
+        except OSError as exc:  # a full disk while writing the temporary name: say so of the file the user asked for
+            if exc.filename is None or not TEMPORARY.match(Path(exc.filename).name):
+                raise
+            raise OSError(exc.errno, exc.strerror, str(target)) from None
+
+
+def write_output(target: str | os.PathLike, data: bytes) -> Path:
+    """Write `data` as the writing command's output `target` (`staged(record=True)`); returns the target."""
+    with staged(record=True) as staging:
+        staging.write(target, data)
+    return Path(target)
 
 
 @contextlib.contextmanager

@@ -28,7 +28,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="demonstration files or folders whose frames calibrate the int8 graph (e.g. the training demos)",
     )
     add_time_base(parser, "default: the checkpoint's, from its training demonstrations")
-    parser.add_argument("--force", action="store_true", help="replace an existing --out folder")
+    parser.add_argument(
+        "--force",
+        action="store_true",
+        help="replace an existing --out policy folder (one `cnep export` wrote: its manifest names every file in it, "
+        "unchanged)",
+    )
 
 
 def time_base(text: str):

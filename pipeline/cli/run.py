@@ -55,7 +55,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--waypoints", type=int, default=default_of(RunConfig, "waypoints"), help=help_of(RunConfig, "waypoints")
     )
     add_time_base(parser, "default: the policy's own")
-    parser.add_argument("--force", action="store_true", help="replace existing outputs (the .rrd files, the summary)")
+    parser.add_argument(
+        "--force",
+        action="store_true",
+        help="replace existing outputs (the .rrd files, the summary; only files `cnep run` recorded writing)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:

@@ -24,7 +24,6 @@ import contextlib
 import json
 import logging
 import math
-import shutil
 import time
 from collections.abc import Callable
 from contextlib import ExitStack
@@ -41,14 +40,13 @@ from cnep.models.normaliser import Moments
 from cnep.models.sampler import TrajectoryStack
 from cnep.models.threads import torch_threads
 from cnep.models.train import split_validation
-from cnep.outputs import record_written
+from cnep.outputs import record_written, writing_as
 from cnep.pipeline import progress
 from cnep.pipeline.contract import deferred_interrupts, interruption
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.inputs import find_trajectory_files
-from cnep.pipeline.ownership import CHECKPOINT_FILES
 from cnep.pipeline.train.config import TrainStageConfig
-from cnep.pipeline.train.constants import EXPERT_LABELS, LOG_FILE, STATE_FILE
+from cnep.pipeline.train.constants import CHECKPOINT_FILES, EXPERT_LABELS, LOG_FILE, STATE_FILE
 from cnep.pipeline.train.data import TrainingSet, load_training_set
 from cnep.pipeline.train.experts import demonstration_experts, expert_labels
 from cnep.pipeline.train.packed import PackedColumns, pack_columns
@@ -71,6 +69,7 @@ from cnep.pipeline.train.state import (
     check_same_run,
     prepare_work_dir,
     publish,
+    remove_work_dir,
     save_state,
     work_dir,
     write_log,
@@ -117,6 +116,7 @@ class StageTrainer(Trainer):
         return stop
 
 
+@writing_as("train")
 def train(config: TrainStageConfig, remote: progress.RemoteBar | None = None) -> Path:
     """Train a CNEP on the trajectory files of `config`; returns the checkpoint folder (config.out).
 
@@ -186,7 +186,8 @@ def _load(config: TrainStageConfig, procs: Processes, held: ExitStack) -> _Run:
         model_config = matched_cnmp(model_config)
     train_idx, val_idx = split_validation(list(range(len(data.files))), config.val_fraction, config.training.seed)
     inputs = [f.path for f in data.files]
-    saved = from_main(procs, lambda: prepare_work_dir(config.out, config.resume, config.force, inputs, held))
+    given = [*map(Path, config.inputs), *inputs]  # no output inside a folder given as input either
+    saved = from_main(procs, lambda: prepare_work_dir(config.out, config.resume, config.force, given, held))
     my_train, my_val = share(train_idx, procs), share(val_idx, procs)
     packed = pack_columns(data, my_train + my_val, layout, pack_base(config.out, procs))
     hashes = {i: h for part in gather(procs, packed_hashes(packed)) for i, h in part.items()}  # (sha256, rows)
@@ -323,7 +324,7 @@ def _publish(
     policy = {"time_base": time_base, "gripper": run.gripper.to_dict() if run.gripper else None}
     policy[EXPERT_LABELS] = {str(expert): label for expert, label in labels.items()}
     save_checkpoint(model, work, {**extra, **policy, "result": summary, "log": LOG_FILE})
-    record_written([work / n for n in CHECKPOINT_FILES if (work / n).is_file()], forget=[work / STATE_FILE])
+    record_written([work / n for n in CHECKPOINT_FILES if (work / n).is_file()])
     publish(work, config.out)
     log.info(
         "best validation error %.4g at step %d; %d steps in %.1f s -> %s",
@@ -352,7 +353,7 @@ def diverged(trainer: Trainer, config: TrainStageConfig, fresh: bool) -> None:
         )
         return
     if fresh:
-        shutil.rmtree(work_dir(config.out), ignore_errors=True)
+        remove_work_dir(work_dir(config.out))
     raise PipelineError(f"{config.out}: training diverged before any weights could be kept ({trainer.diverged}); {fix}")
 
 
