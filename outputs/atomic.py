@@ -28,7 +28,7 @@ def temporary_path(target: Path) -> Path:
     return target.parent / f".{target.name}.{os.getpid()}-{secrets.token_hex(3)}.tmp"
 
 
-def _named(exc: OSError, target: Path) -> OSError:
+def named(exc: OSError, target: Path) -> OSError:
     """`exc` naming `target` when it names no file (a write or fsync on a full disk says only "No space left")."""
     if exc.filename is not None or exc.errno is None:
         return exc
@@ -41,10 +41,10 @@ def naming(target: str | os.PathLike) -> Iterator[None]:
     try:
         yield
     except OSError as exc:
-        named = _named(exc, Path(target))
-        if named is exc:
+        renamed = named(exc, Path(target))
+        if renamed is exc:
             raise
-        raise named from None
+        raise renamed from None
 
 
 class Staging:
@@ -76,7 +76,7 @@ class Staging:
                 stream.flush()
                 os.fsync(stream.fileno())
         except OSError as exc:
-            raise _named(exc, target) from None
+            raise named(exc, target) from None
 
     def write(self, target: str | os.PathLike, data: bytes, keep: bool = True) -> Path:
         """Write `data` under a temporary name beside `target` (`open`); returns that name."""
@@ -93,27 +93,20 @@ def staged(record: bool = False) -> Iterator[Staging]:
 
     With `record`, they are outputs of the command writing (`cnep.outputs.record.writer`): each target must then be
     absent or that command's recorded, unchanged file at the moment of the rename (else OutputError, and nothing is
-    renamed), and the targets are added to their folders' records with the rename, SIGINT and SIGTERM held off
-    between the two."""
+    renamed), and the targets are added to their folders' records with the renames (`record.rename_recorded`)."""
     staging = Staging()
     try:
         yield staging
         kept = [(tmp, target) for tmp, target in staging._staged if target is not None]
         if record:
-            from cnep.outputs.record import file_entry, record_entries, refuse_unowned, required_writer
+            from cnep.outputs.record import rename_recorded, required_writer
 
-            command = required_writer()
-            entries = {target: file_entry(tmp, command) for tmp, target in kept}  # hashed before: only the rename waits
-        with signals_held() if record else contextlib.nullcontext():
-            if record:
-                refuse_unowned([target for _, target in kept], command)
-            for tmp, target in kept:
-                try:
-                    os.replace(tmp, target)
-                except OSError as exc:
-                    raise _named(exc, target) from None
-            if record:
-                record_entries(entries)
+            rename_recorded(kept, required_writer())
+        for tmp, target in [] if record else kept:
+            try:
+                os.replace(tmp, target)
+            except OSError as exc:
+                raise named(exc, target) from None
     finally:
         for tmp, _ in staging._staged:
             _remove(tmp)
@@ -197,6 +190,14 @@ def is_stale_temporary(path: Path) -> bool:
     return match is not None and not pid_alive(int(match["pid"]))
 
 
+def _target_name(name: str) -> str:
+    """The name a temporary file is for, through temporaries of temporaries (a writer that writes atomically itself,
+    given the temporary name of `output_file`)."""
+    while (match := TEMPORARY.match(name)) is not None:
+        name = match["name"]
+    return name
+
+
 def remove_stale_temporaries(folder: Path, names: Iterable[str] | None = None, recursive: bool = False) -> int:
     """Remove the temporary files of runs that no longer run: those of `names` in `folder` (None: of any name),
     or with `recursive` everywhere under `folder`. Returns how many were removed (a note is logged)."""
@@ -207,7 +208,7 @@ def remove_stale_temporaries(folder: Path, names: Iterable[str] | None = None, r
     removed = 0
     for path in candidates:
         match = TEMPORARY.match(path.name)
-        if match is None or (wanted is not None and match["name"] not in wanted) or not path.is_file():
+        if match is None or (wanted is not None and _target_name(path.name) not in wanted) or not path.is_file():
             continue
         if is_stale_temporary(path):
             with contextlib.suppress(FileNotFoundError):

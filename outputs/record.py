@@ -13,8 +13,8 @@ the files of its own folder (no separators), so a folder and its record travel t
 The command writing is the one whose stage runs (`writing_as`); the stages it runs for itself write as it (the
 demo's ingest writes the demo's files), and so do its worker processes, which inherit it through the environment
 (`WRITER_ENV`). The record is updated atomically under an OS lock on the folder, so concurrent writers (worker
-processes) never lose each other's entries; `staged(record=True)` renames and records together, with SIGINT and
-SIGTERM held off between the two.
+processes) never lose each other's entries; `staged(record=True)` renames and records together (`rename_recorded`),
+so that a process killed at any moment leaves no output of its own unrecorded.
 """
 
 from __future__ import annotations
@@ -23,10 +23,10 @@ import contextlib
 import hashlib
 import json
 import os
-from collections.abc import Callable, Iterable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 
-from cnep.outputs.atomic import TEMPORARY, is_stale_temporary, write_atomically
+from cnep.outputs.atomic import TEMPORARY, is_stale_temporary, named, signals_held, write_atomically
 from cnep.outputs.errors import OutputError
 from cnep.outputs.lock import is_cnep_lock
 
@@ -100,13 +100,19 @@ def read_record(folder: Path) -> dict[str, dict] | None:
 
 def is_recorded(path: Path, command: str, record: dict[str, dict] | None = None) -> bool:
     """True if `path` is a regular file that its folder's record (or `record`, read from it) names as written by
-    `command`, with the same size and sha256: a file that command wrote there and nobody changed since."""
+    `command`, with the same size and sha256 (or those of the file it replaces, while a rename is under way:
+    `rename_recorded`): a file that command wrote there and nobody changed since."""
     path = Path(path)
     record = read_record(path.parent) if record is None else record
     entry = (record or {}).get(path.name)
     if entry is None or entry.get("command") != command or path.is_symlink() or not path.is_file():
         return False
-    return entry.get("size") == path.stat().st_size and entry == file_entry(path, command)
+    versions = [entry, entry.get("previous") or {}]
+    size = path.stat().st_size
+    if all(version.get("size") != size for version in versions):
+        return False  # no need to read it
+    digest = file_entry(path, command)["sha256"]
+    return any(version.get("size") == size and version.get("sha256") == digest for version in versions)
 
 
 def recorded_by(command: str) -> Owns:
@@ -146,8 +152,12 @@ def record_written(paths: Iterable[str | os.PathLike], forget: Iterable[str | os
     record_entries({Path(p): file_entry(Path(p), command) for p in paths}, forget)
 
 
-def record_entries(entries: Mapping[Path, dict], forget: Iterable[str | os.PathLike] = ()) -> None:
-    """Set the entries {path: file_entry} in their folders' records and drop `forget` from theirs."""
+def record_entries(
+    entries: Mapping[Path, dict], forget: Iterable[str | os.PathLike] = (), previous: Iterable[Path] = ()
+) -> None:
+    """Set the entries {path: file_entry} in their folders' records and drop `forget` from theirs; for the paths in
+    `previous`, the entry they had is kept beside the new one (`is_recorded` takes either) until they are set again."""
+    kept = set(map(Path, previous))
     by_folder: dict[Path, tuple[dict[str, dict], list[str]]] = {}
     for path, entry in entries.items():
         by_folder.setdefault(path.parent, ({}, []))[0][path.name] = entry
@@ -155,11 +165,35 @@ def record_entries(entries: Mapping[Path, dict], forget: Iterable[str | os.PathL
         by_folder.setdefault(path.parent, ({}, []))[1].append(path.name)
     for folder, (written, dropped) in by_folder.items():
         with _folder_locked(folder):
-            files = {**(read_record(folder) or {}), **written}
+            files = read_record(folder) or {}
+            for name, entry in written.items():
+                old = files.get(name)
+                if folder / name in kept and old is not None:
+                    entry = {**entry, "previous": {"size": old.get("size"), "sha256": old.get("sha256")}}
+                files[name] = entry
             for name in dropped:
                 files.pop(name, None)
             body = {"format_version": RECORD_VERSION, "files": dict(sorted(files.items()))}
             write_atomically(folder / RECORD_FILE, (json.dumps(body, indent=1) + "\n").encode())
+
+
+def rename_recorded(staged: Sequence[tuple[Path, Path]], command: str) -> None:
+    """Rename each (temporary file, target) into place as `command`'s output: every target must be absent or the
+    command's recorded, unchanged file (else OutputError, and nothing is renamed). The record names each new file
+    before its rename, and a file it replaces too until the renames are done, with SIGINT and SIGTERM held off: a
+    process killed at any moment (kill -9 included) leaves every target recorded, whichever file it holds."""
+    entries = {target: file_entry(tmp, command) for tmp, target in staged}  # hashed before: only the renames wait
+    with signals_held():
+        refuse_unowned(entries, command)
+        replaced = [target for target in entries if os.path.lexists(target)]
+        record_entries(entries, previous=replaced)
+        for tmp, target in staged:
+            try:
+                os.replace(tmp, target)
+            except OSError as exc:
+                raise named(exc, target) from None
+        if replaced:
+            record_entries({target: entries[target] for target in replaced})
 
 
 def refuse_unowned(targets: Iterable[Path], command: str) -> None:

@@ -145,3 +145,36 @@ def test_signals_held_take_effect_when_the_block_ends():
         done.append("renamed")
         done.append("recorded")
     assert done == ["renamed", "recorded"]
+
+
+class Killed(BaseException):
+    """A process killed at this point (kill -9): nothing after it runs, no clean-up but the interpreter's."""
+
+
+@pytest.mark.parametrize("at", ["rename", "second record"])
+def test_a_file_replaced_stays_the_commands_whichever_version_a_kill_leaves(tmp_path, monkeypatch, at):
+    import cnep.outputs.record as record
+
+    target = tmp_path / "a.mcap"
+    first = record.record_entries
+    calls = []
+
+    def record_once(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 2:
+            raise Killed
+        return first(*args, **kwargs)
+
+    def killed(*args):
+        raise Killed
+
+    with writing_as("ingest"):
+        write_output(target, b"old")
+        with monkeypatch.context() as patched, pytest.raises(Killed):
+            if at == "rename":
+                patched.setattr(record.os, "replace", killed)  # after the record names both, before the rename
+            else:
+                patched.setattr(record, "record_entries", record_once)  # after the rename, before the final record
+            write_output(target, b"new")
+    assert target.read_bytes() == (b"old" if at == "rename" else b"new")
+    assert is_recorded(target, "ingest")
