@@ -33,6 +33,7 @@ from cnep.outputs.folders import NotOwned, discard, publish_folder, recover_set_
 from cnep.outputs.lock import FOLDER_LOCK, is_cnep_lock, is_lock_name, lock_path, output_lock, remove_stale_locks
 from cnep.outputs.record import (
     RECORD_FILE,
+    WRITER_ENV,
     Owns,
     foreign_files,
     is_bookkeeping,
@@ -52,6 +53,7 @@ __all__ = [
     "Owns",
     "RECORD_FILE",
     "Staging",
+    "WRITER_ENV",
     "atomic_file",
     "discard",
     "foreign_files",

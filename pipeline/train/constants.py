@@ -15,5 +15,4 @@ DEVICES = ("cpu", "cuda")
 # Files in the work folder `.<OUT>.partial/` and in the finished checkpoint folder.
 STATE_FILE = "state.pt"
 LOG_FILE = "training_log.jsonl"
-CHECKPOINT_FILES = ("config.json", "model.safetensors", LOG_FILE)
 EXPERT_LABELS = "expert_labels"  # config.json: expert number -> the task of most of its training demonstrations

@@ -46,7 +46,7 @@ from cnep.pipeline.contract import deferred_interrupts, interruption
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.inputs import find_trajectory_files
 from cnep.pipeline.train.config import TrainStageConfig
-from cnep.pipeline.train.constants import CHECKPOINT_FILES, EXPERT_LABELS, LOG_FILE, STATE_FILE
+from cnep.pipeline.train.constants import EXPERT_LABELS, LOG_FILE, STATE_FILE
 from cnep.pipeline.train.data import TrainingSet, load_training_set
 from cnep.pipeline.train.experts import demonstration_experts, expert_labels
 from cnep.pipeline.train.packed import PackedColumns, pack_columns
@@ -323,8 +323,7 @@ def _publish(
     time_base = run.data.time_base().to_dict()  # the robot's seconds -> t (runtime.timebase)
     policy = {"time_base": time_base, "gripper": run.gripper.to_dict() if run.gripper else None}
     policy[EXPERT_LABELS] = {str(expert): label for expert, label in labels.items()}
-    save_checkpoint(model, work, {**extra, **policy, "result": summary, "log": LOG_FILE})
-    record_written([work / n for n in CHECKPOINT_FILES if (work / n).is_file()])
+    save_checkpoint(model, work, {**extra, **policy, "result": summary, "log": LOG_FILE}, record=True)
     publish(work, config.out)
     log.info(
         "best validation error %.4g at step %d; %d steps in %.1f s -> %s",
