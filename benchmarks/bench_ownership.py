@@ -37,8 +37,9 @@ def main(argv: list[str] | None = None) -> int:
         [sys.executable, "-m", "pytest", "-q", "-s", "-p", "no:cacheprovider", TEST], env=env, cwd=ROOT
     )
     minutes = (time.perf_counter() - start) / 60
-    rate = args.examples / minutes
-    print(f"{args.examples} histories of up to {args.steps} steps in {minutes:.1f} min ({rate:.1f} per minute)")
+    if done.returncode == 0:
+        rate = args.examples / minutes
+        print(f"{args.examples} histories of up to {args.steps} steps in {minutes:.1f} min ({rate:.1f} per minute)")
     return done.returncode
 
 
