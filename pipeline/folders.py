@@ -68,9 +68,9 @@ def assembled_folder(out: Path, refuse: Callable[[], None], owns: Owns | None = 
         except NotOwned as exc:
             shutil.rmtree(work, ignore_errors=True)
             raise PipelineError(
-                f"{exc.path}: --force replaces {out} only when `cnep {writer()}` wrote every file in it, and this "
-                f"appeared in it while the run worked; cnep never deletes your own files: {out} is kept as it was; "
-                f"move the file away and run the command again"
+                f"{exc.path}: this appeared in {out} (--out) while `cnep {writer()}` ran, and a command replaces a "
+                f"folder only when it wrote every file in it; cnep never deletes your own files: {out} is kept as it "
+                f"was; move the file away and run the command again"
             ) from None
         except BaseException:
             shutil.rmtree(work, ignore_errors=True)
