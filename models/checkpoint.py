@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 
 from cnep.models.config import CNEPConfig
 from cnep.models.errors import ConfigError
-from cnep.outputs import write_atomically
+from cnep.outputs import staged
 from cnep.runtime.jsonfile import read_json
 
 if TYPE_CHECKING:
@@ -36,19 +36,22 @@ _JSON_KINDS = {
 }
 
 
-def save_checkpoint(model: CNEP, directory: str | Path, extra: dict | None = None) -> Path:
-    """Save weights and config (plus any JSON-able `extra` entries) into `directory`."""
+def save_checkpoint(model: CNEP, directory: str | Path, extra: dict | None = None, record: bool = False) -> Path:
+    """Save weights and config (plus any JSON-able `extra` entries) into `directory`, the two files renamed into place
+    together; with `record`, as outputs of the command writing (cnep.outputs.staged: checked, renamed and recorded
+    together)."""
     from safetensors.torch import save
 
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     state = {k: v.detach().cpu().contiguous() for k, v in model.state_dict().items()}
-    write_atomically(directory / WEIGHTS_FILE, save(state, metadata={"format_version": str(FORMAT_VERSION)}))
     config = json.loads(
         json.dumps({"format_version": FORMAT_VERSION, "model": model.config.to_dict(), **(extra or {})})
     )
     config[CHECKSUM_KEY] = config_checksum(config)  # of the config as read back (tuples are lists there)
-    write_atomically(directory / CONFIG_FILE, json.dumps(config, indent=2).encode())
+    with staged(record=record) as staging:
+        staging.write(directory / WEIGHTS_FILE, save(state, metadata={"format_version": str(FORMAT_VERSION)}))
+        staging.write(directory / CONFIG_FILE, json.dumps(config, indent=2).encode())
     return directory
 
 

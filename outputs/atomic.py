@@ -12,6 +12,8 @@ import logging
 import os
 import re
 import secrets
+import signal
+import threading
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import IO
@@ -26,7 +28,7 @@ def temporary_path(target: Path) -> Path:
     return target.parent / f".{target.name}.{os.getpid()}-{secrets.token_hex(3)}.tmp"
 
 
-def _named(exc: OSError, target: Path) -> OSError:
+def named(exc: OSError, target: Path) -> OSError:
     """`exc` naming `target` when it names no file (a write or fsync on a full disk says only "No space left")."""
     if exc.filename is not None or exc.errno is None:
         return exc
@@ -39,10 +41,10 @@ def naming(target: str | os.PathLike) -> Iterator[None]:
     try:
         yield
     except OSError as exc:
-        named = _named(exc, Path(target))
-        if named is exc:
+        renamed = named(exc, Path(target))
+        if renamed is exc:
             raise
-        raise named from None
+        raise renamed from None
 
 
 class Staging:
@@ -74,7 +76,7 @@ class Staging:
                 stream.flush()
                 os.fsync(stream.fileno())
         except OSError as exc:
-            raise _named(exc, target) from None
+            raise named(exc, target) from None
 
     def write(self, target: str | os.PathLike, data: bytes, keep: bool = True) -> Path:
         """Write `data` under a temporary name beside `target` (`open`); returns that name."""
@@ -86,24 +88,69 @@ class Staging:
 @contextlib.contextmanager
 def staged(record: bool = False) -> Iterator[Staging]:
     """Stage several files (`Staging.open`, `write`, `path`); when the block completes they are renamed into place,
-    in the order staged, and with `record` added to their folders' records (`cnep.outputs.record`); on any exception
-    (Ctrl-C and SIGTERM included) every staged file is removed and no target changes. Targets' folders must exist."""
+    in the order staged; on any exception (Ctrl-C and SIGTERM included) every staged file is removed and no target
+    changes. Targets' folders must exist.
+
+    With `record`, they are outputs of the command writing (`cnep.outputs.record.writer`): each target must then be
+    absent or that command's recorded, unchanged file at the moment of the rename (else OutputError, and nothing is
+    renamed), and the targets are added to their folders' records with the renames (`record.rename_recorded`)."""
     staging = Staging()
     try:
         yield staging
-        for tmp, target in staging._staged:
-            if target is not None:
-                try:
-                    os.replace(tmp, target)
-                except OSError as exc:
-                    raise _named(exc, target) from None
+        kept = [(tmp, target) for tmp, target in staging._staged if target is not None]
         if record:
-            from cnep.outputs.record import record_written
+            from cnep.outputs.record import rename_recorded, required_writer
 
-            record_written(target for _, target in staging._staged if target is not None)
+            rename_recorded(kept, required_writer())
+        for tmp, target in [] if record else kept:
+            try:
+                os.replace(tmp, target)
+            except OSError as exc:
+                raise named(exc, target) from None
     finally:
         for tmp, _ in staging._staged:
             _remove(tmp)
+
+
+@contextlib.contextmanager
+def signals_held() -> Iterator[None]:
+    """SIGINT and SIGTERM that arrive in the block take effect when it ends, so that what it does is done whole (a
+    rename and its record). Only the main thread can hold them, and only where Python installed their handlers."""
+    signals = (signal.SIGINT, signal.SIGTERM)
+    if threading.current_thread() is not threading.main_thread() or None in map(signal.getsignal, signals):
+        yield
+        return
+    received: list[int] = []
+    saved = {signum: signal.signal(signum, lambda signum, frame: received.append(signum)) for signum in signals}
+    try:
+        yield
+    finally:
+        for signum, handler in saved.items():
+            signal.signal(signum, handler)
+        if received:
+            signal.raise_signal(received[0])  # its own handler runs now
+
+
+@contextlib.contextmanager
+def output_file(target: str | os.PathLike) -> Iterator[Path]:
+    """A temporary name for the writing command's output `target` (a writer that takes a path writes it there),
+    renamed to `target` and recorded when the block completes (`staged(record=True)`)."""
+    target = Path(target)
+    with staged(record=True) as staging:
+        tmp = staging.path(target)
+        try:
+            yield tmp
+        except OSError as exc:  # a full disk while writing the temporary name: say so of the file the user asked for
+            if exc.filename is None or not TEMPORARY.match(Path(exc.filename).name):
+                raise
+            raise OSError(exc.errno, exc.strerror, str(target)) from None
+
+
+def write_output(target: str | os.PathLike, data: bytes) -> Path:
+    """Write `data` as the writing command's output `target` (`staged(record=True)`); returns the target."""
+    with staged(record=True) as staging:
+        staging.write(target, data)
+    return Path(target)
 
 
 @contextlib.contextmanager
@@ -143,6 +190,14 @@ def is_stale_temporary(path: Path) -> bool:
     return match is not None and not pid_alive(int(match["pid"]))
 
 
+def _target_name(name: str) -> str:
+    """The name a temporary file is for, through temporaries of temporaries (a writer that writes atomically itself,
+    given the temporary name of `output_file`)."""
+    while (match := TEMPORARY.match(name)) is not None:
+        name = match["name"]
+    return name
+
+
 def remove_stale_temporaries(folder: Path, names: Iterable[str] | None = None, recursive: bool = False) -> int:
     """Remove the temporary files of runs that no longer run: those of `names` in `folder` (None: of any name),
     or with `recursive` everywhere under `folder`. Returns how many were removed (a note is logged)."""
@@ -153,7 +208,7 @@ def remove_stale_temporaries(folder: Path, names: Iterable[str] | None = None, r
     removed = 0
     for path in candidates:
         match = TEMPORARY.match(path.name)
-        if match is None or (wanted is not None and match["name"] not in wanted) or not path.is_file():
+        if match is None or (wanted is not None and _target_name(path.name) not in wanted) or not path.is_file():
             continue
         if is_stale_temporary(path):
             with contextlib.suppress(FileNotFoundError):

@@ -36,6 +36,18 @@ def is_lock_name(name: str) -> bool:
     return name == FOLDER_LOCK or (name.startswith(".") and name.endswith(".lock"))
 
 
+def is_cnep_lock(path: Path) -> bool:
+    """True for a lock file a cnep run wrote (`output_lock`): a lock file's name, and empty or naming its holder."""
+    if not is_lock_name(path.name) or path.is_symlink() or not path.is_file():
+        return False
+    try:
+        with open(path, "rb") as f:
+            head = f.read(len(_SIGNATURE))
+    except OSError:
+        return False
+    return head in (b"", _SIGNATURE)
+
+
 def lock_path(output: Path, folder: bool) -> Path:
     """Where the lock of `output` lives: inside it for a folder of outputs, beside it for a file (or checkpoint)."""
     return output / FOLDER_LOCK if folder else output.parent / f".{output.name}.lock"

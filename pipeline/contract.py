@@ -40,9 +40,9 @@ import traceback
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
-from cnep.outputs import RECORD_FILE
+from cnep.outputs import RECORD_FILE, Owns, recorded_by, writer
 from cnep.pipeline.errors import PipelineError, loaded_user_errors
-from cnep.pipeline.ownership import OutputKind, not_written
+from cnep.pipeline.ownership import not_written
 
 EXIT_OK = 0
 EXIT_BUG = 1
@@ -196,59 +196,73 @@ def _stdout_to_devnull() -> None:
 
 
 def refuse_existing(
-    paths: Sequence[Path], force: bool, what: str = "output", why: str = "", kind: OutputKind | None = None
+    paths: Sequence[Path], force: bool, what: str = "output", why: str = "", owns: Owns | None = None
 ) -> None:
     """Raise PipelineError if any of `paths` exists and `force` is not set (naming the first and the count).
 
-    With `force`, an existing path must be cnep's to replace (`pipeline.ownership.not_written`: named by its
-    folder's record, or, in a folder without one, of `kind` in a folder holding nothing else); the line names
-    the first file that is not. `--force` replaces what cnep wrote, never a user's own file.
-    `why` (e.g. " and was made from other weights") is said after "already exists".
+    With `force`, an existing path must be the command's to replace (`pipeline.ownership.not_written`): `owns` says
+    what it owns, by default the files the command writing now (`cnep.outputs.writing_as`) recorded writing; the line
+    names the first file that is not. Before a stage says which command it is, only existence is checked (the stage
+    checks again). `why` (e.g. " and was made from other weights") is said after "already exists".
     """
     existing = [Path(p) for p in paths if os.path.lexists(p)]
     if not existing:
         return
+    command = writer()
+    who = f"`cnep {command}`" if command else "this command"
+    owns = recorded_by(command) if owns is None and command is not None else owns
     if not force:
-        foreign = not_written(existing[0], kind) if kind is not None else []
+        foreign = not_written(existing[0], owns) if owns is not None else []
         if foreign:  # --force would refuse it too: say so, and suggest only what works
             raise PipelineError(
                 f"{existing[0]}: the {what} already exists{why}, and --force would not replace it either "
-                f"({foreign[0]} is not a file cnep recorded writing); choose another output, or move it away"
+                f"({foreign[0]} is not a file {who} recorded writing); choose another output, or move it away"
             )
         more = f" (and {len(existing) - 1} more)" if len(existing) > 1 else ""
         raise PipelineError(
             f"{existing[0]}: the {what} already exists{why}{more}; add --force to replace it, or choose another output"
         )
-    if kind is None:
+    if owns is None:
         return
     for path in existing:
-        foreign = not_written(path, kind)
+        foreign = not_written(path, owns)
         if not foreign:
             continue
         first, more = foreign[0], f" (and {len(foreign) - 1} more)" if len(foreign) > 1 else ""
         if path.is_dir():
-            said = f"replaces the folder {path} only when a cnep command recorded writing every file in it"
-        elif first == path:
-            said = f"replaces only what a cnep command recorded writing (its folder's {RECORD_FILE})"
-        else:  # an unrecorded folder (older outputs) that holds more than cnep's kind of file
-            said = f"cannot tell {path.name} is cnep's: {path.parent} holds no record of cnep's files, and holds this"
+            said = f"replaces the folder {path} only when {who} recorded writing every file in it"
+        else:
+            said = f"replaces only what {who} recorded writing (its folder's {RECORD_FILE})"
         raise PipelineError(
-            f"{first}: --force {said}, and this file is not cnep's{more}; cnep never deletes your own files: move it "
-            f"away, or choose another output"
+            f"{first}: --force {said}, and this is a file of yours or another command's output{more}; cnep never "
+            f"deletes your own files: move it away, or choose another output"
         )
 
 
-def refuse_inputs(outputs: Sequence[Path], inputs: Sequence[Path], option: str = "--out") -> None:
-    """Raise PipelineError if an output (a file, or a folder replaced as a whole) is an input or holds one."""
+def refuse_inputs(
+    outputs: Sequence[Path],
+    inputs: Sequence[Path],
+    option: str = "--out",
+    what: str = "this output",
+    whole: bool = True,
+) -> None:
+    """Raise PipelineError if an output is an input or is inside one (a folder given as input: a checkpoint, a folder
+    of recordings): no command writes inside what it reads. With `whole` (a file, or a folder replaced as a whole),
+    an output that holds an input is refused too; a folder only written into (`whole` False) may hold one."""
     resolved = [(Path(i), Path(i).resolve()) for i in inputs]
     for out in map(Path, outputs):
         target = out.resolve()
         for given, source in resolved:
-            if source == target or source.is_relative_to(target):
+            if source == target or (whole and source.is_relative_to(target)):
                 how = "is" if source == target else "holds"
                 raise PipelineError(
-                    f"{out}: this output {how} the input {given}, and cnep never replaces or deletes its inputs; "
+                    f"{out}: {what} {how} the input {given}, and cnep never replaces or deletes its inputs; "
                     f"choose another {option}"
+                )
+            if target.is_relative_to(source):
+                raise PipelineError(
+                    f"{out}: {what} is inside the input {given}, and cnep never writes inside its inputs; choose "
+                    f"another {option}, outside it"
                 )
 
 

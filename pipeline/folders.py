@@ -1,13 +1,16 @@
 """An output folder assembled under a temporary name beside it and renamed into place when complete.
 
-    with assembled_folder(out, refuse) as work:  # `.OUT.<pid>-<random>.tmp`, the run holding the lock on OUT
+    with assembled_folder(out, refuse, owns) as work:  # `.OUT.<pid>-<random>.tmp`, the run holding the lock on OUT
         ...write everything into work...
     # OUT is the complete folder; on any error (Ctrl-C included) the work folder goes and OUT is as it was
 
-An existing OUT, replaced only where the caller's `refuse` lets it (`contract.refuse_existing`), waits as
-`.OUT.replaced` while the new folder is renamed in, and is removed after; a run killed in between leaves one of
-the two, which the next run into OUT puts right (`recover_replaced`). `cnep export` and `cnep to-lerobot` write
-their folders so; `cnep train` publishes its resumable work folder the same way (`publish`).
+The work folder is new and unique to the run (made, never reused), so it holds only what the run wrote. An existing
+OUT, replaced only where the caller's `refuse` lets it (`contract.refuse_existing`), is set aside under a name unique
+to the run and checked again there before the new folder takes its name: `owns` says what in it the command may
+replace (cnep.outputs.publish_folder); a file that appeared in it meanwhile keeps it in place. A run killed in
+between leaves the set-aside folder, which the next run into OUT puts right (cnep.outputs.recover_set_aside), and
+its work folder, which the next run removes (`remove_stale_work`). `cnep export` and `cnep to-lerobot` write their
+folders so; `cnep train` publishes its resumable work folder with cnep.outputs.publish_folder too.
 """
 
 from __future__ import annotations
@@ -18,40 +21,22 @@ import shutil
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
-from cnep.outputs import is_stale_temporary, naming, output_lock, temporary_path
+from cnep.outputs import (
+    NotOwned,
+    Owns,
+    is_stale_temporary,
+    naming,
+    output_lock,
+    publish_folder,
+    recorded_by,
+    recover_set_aside,
+    temporary_path,
+    writer,
+)
 from cnep.pipeline.contract import check_writable_folder, output_folder
+from cnep.pipeline.errors import PipelineError
 
 log = logging.getLogger(__name__)
-
-
-def replaced_dir(out: Path) -> Path:
-    """Where the folder that `--force` replaces waits while the new one is renamed into place (`publish`)."""
-    return out.parent / f".{out.name}.replaced"
-
-
-def recover_replaced(out: Path) -> None:
-    """After a run killed while publishing (`publish`): put the replaced folder back if OUT is missing, else drop it.
-
-    Call it holding the lock on OUT."""
-    old = replaced_dir(out)
-    if not old.is_dir() or old.is_symlink():
-        return
-    if out.exists():
-        log.warning("%s: removing the folder a finished run replaced", old)
-        shutil.rmtree(old)
-    else:
-        log.warning("%s: a run was stopped while replacing %s; restoring the previous one", old, out)
-        old.rename(out)
-
-
-def publish(work: Path, out: Path) -> None:
-    """Rename the finished work folder to `out`, replacing an existing `out` (moved aside first, removed after)."""
-    old = replaced_dir(out)
-    if out.exists():
-        out.rename(old)
-    work.rename(out)
-    if old.is_dir() and not old.is_symlink():
-        shutil.rmtree(old)
 
 
 def remove_stale_work(out: Path) -> None:
@@ -63,13 +48,15 @@ def remove_stale_work(out: Path) -> None:
 
 
 @contextlib.contextmanager
-def assembled_folder(out: Path, refuse: Callable[[], None]) -> Iterator[Path]:
+def assembled_folder(out: Path, refuse: Callable[[], None], owns: Owns | None = None) -> Iterator[Path]:
     """A new work folder for `out` (module docstring), renamed to `out` when the block completes.
 
-    `refuse` raises when `out` may not be replaced; it is called again here, under the lock on `out`."""
+    `refuse` raises when `out` may not be replaced; it is called again here, under the lock on `out`, and `owns`
+    (default: the files the command writing recorded) decides again when the new folder replaces it."""
+    owns = recorded_by(writer()) if owns is None else owns
     with output_folder(out.parent), output_lock(out):
         check_writable_folder(out.parent)
-        recover_replaced(out)
+        recover_set_aside(out, owns)
         refuse()
         remove_stale_work(out)
         work = temporary_path(out)
@@ -77,7 +64,14 @@ def assembled_folder(out: Path, refuse: Callable[[], None]) -> Iterator[Path]:
         try:
             with naming(out):  # a full disk: said of the folder the user asked for, not of the work folder
                 yield work
-            publish(work, out)
+            publish_folder(work, out, owns)
+        except NotOwned as exc:
+            shutil.rmtree(work, ignore_errors=True)
+            raise PipelineError(
+                f"{exc.path}: this appeared in {out} (--out) while `cnep {writer()}` ran, and a command replaces a "
+                f"folder only when it wrote every file in it; cnep never deletes your own files: {out} is kept as it "
+                f"was; move the file away and run the command again"
+            ) from None
         except BaseException:
             shutil.rmtree(work, ignore_errors=True)
             raise

@@ -33,7 +33,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     add_time_base(parser, "default: the checkpoint's, from its training demonstrations")
     add_conditioning(parser)
-    parser.add_argument("--force", action="store_true", help="replace an existing --out folder")
+    parser.add_argument(
+        "--force",
+        action="store_true",
+        help="replace an existing --out policy folder (one `cnep export` wrote: its manifest names every file in it, "
+        "unchanged)",
+    )
 
 
 def add_conditioning(parser: argparse.ArgumentParser) -> None:

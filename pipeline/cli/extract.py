@@ -76,7 +76,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--force",
         action="store_true",
         help="re-extract outputs that are already up to date, and replace existing outputs made otherwise (other "
-        "weights); only files cnep recorded writing, never a file of yours",
+        "weights); only files `cnep extract` recorded writing, never a file of yours or another command's",
     )
     parser.add_argument(
         "--keep-going",

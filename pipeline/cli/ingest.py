@@ -28,7 +28,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--force",
         action="store_true",
-        help="redo demonstration files that already exist in --out (only files cnep recorded writing)",
+        help="redo demonstration files that already exist in --out (only files `cnep ingest` recorded writing)",
     )
     parser.add_argument(
         "--keep-going",

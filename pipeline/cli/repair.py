@@ -18,23 +18,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="where to write the salvaged file (must differ from IN; its folder is created if missing)",
     )
     parser.add_argument(
-        "--force", action="store_true", help="replace OUT if it exists (only a file cnep recorded writing)"
+        "--force", action="store_true", help="replace OUT if it exists (only a file `cnep repair` recorded writing)"
     )
 
 
 def run(args: argparse.Namespace) -> int:
+    from dataclasses import replace
     from pathlib import Path
 
-    from cnep.outputs import output_lock, record_written
+    from cnep.outputs import output_file, output_lock, writing_as
     from cnep.pipeline.contract import output_folder, refuse_existing
-    from cnep.pipeline.ownership import MCAP
     from cnep.recordings.container import refuse_overwrite_input
     from cnep.recordings.repair import repair
 
-    refuse_overwrite_input(args.src, args.dst)
-    refuse_existing([Path(args.dst)], args.force, "repaired file", kind=MCAP)
-    with output_folder(Path(args.dst).parent, "OUT's folder"), output_lock(Path(args.dst)):
-        report = repair(args.src, args.dst)
-        record_written([args.dst])
+    dst = Path(args.dst)
+    refuse_overwrite_input(args.src, dst)
+    with writing_as("repair"):
+        refuse_existing([dst], args.force, "repaired file")
+        with output_folder(dst.parent, "OUT's folder"), output_lock(dst), output_file(dst) as staged:
+            report = replace(repair(args.src, staged), dst=dst)
     print(report.summary())
     return 0

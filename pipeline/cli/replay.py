@@ -50,8 +50,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--force",
         action="store_true",
-        help="replace existing outputs (the .rrd files, the .experts.json, the copies in --events-out; only files a "
-        "replay wrote)",
+        help="replace existing outputs (the .rrd files, the .experts.json, the copies in --events-out; only files "
+        "`cnep replay` recorded writing)",
     )
 
 

@@ -56,7 +56,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     add_time_base(parser, "default: the policy's own")
     add_conditioning(parser)
-    parser.add_argument("--force", action="store_true", help="replace existing outputs (the .rrd files, the summary)")
+    parser.add_argument(
+        "--force",
+        action="store_true",
+        help="replace existing outputs (the .rrd files, the summary; only files `cnep run` recorded writing)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:

@@ -78,7 +78,7 @@ class DemoConfig:
     force: bool = setting(
         False,
         "use a non-empty --out folder: first delete what an earlier demo recorded writing there (refused if the "
-        "folder holds anything else)",
+        "folder holds anything else, another command's outputs included)",
     )
     quiet: bool = False
     model: CNEPConfig = field(default_factory=partial(CNEPConfig, n_experts=CNEP_EXPERTS))

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cnep.outputs import record_written, write_atomically
+from cnep.outputs import write_output
 from cnep.pipeline.demo.measures import first_step_prediction, trained_rows
 from cnep.pipeline.replay.viewer import PALETTE
 from cnep.recordings import read_trajectory
@@ -82,6 +82,5 @@ def draw_summary(scenes: list[Scene], checkpoints: dict[str, Path], expert_label
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", dpi=DPI)
     plt.close(fig)
-    write_atomically(png, buffer.getvalue())
-    record_written([png])
+    write_output(png, buffer.getvalue())
     return png

@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cnep.outputs import record_written
+from cnep.outputs import output_file, writing_as
 from cnep.pipeline.demo.scene import (
     BEHAVIOURS,
     FREE_CHOICE,
@@ -230,6 +230,7 @@ class DemoSet:
     labels: dict[Path, str]
 
 
+@writing_as("demo")  # the demo's recordings, also when generated on their own
 def generate(config: DemoSetConfig) -> DemoSet:
     """Write the demonstration set under `config.out/<split>/demo_NNN.mcap`; returns the files and labels.
 
@@ -268,8 +269,8 @@ def generate(config: DemoSetConfig) -> DemoSet:
                     demo = make(int(kind), config.steps, config.fps, rng, episode_id)
                 path = Path(config.out) / f"{episode_id}.mcap"
                 path.parent.mkdir(parents=True, exist_ok=True)
-                write_demonstration(path, demo)
-                record_written([path])
+                with output_file(path) as staged:
+                    write_demonstration(staged, demo)
                 files[split].append(path)
                 labels[path] = demo.episode.extra[LABEL_KEY]
                 bar.update(1)

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import json
 import logging
-import shutil
 import time
 from concurrent.futures import FIRST_COMPLETED, wait
 from contextlib import contextmanager
@@ -36,7 +35,7 @@ import numpy as np
 
 from cnep.models import TrainConfig
 from cnep.models.threads import torch_threads
-from cnep.outputs import is_lock_name, output_lock, record_written, write_atomically
+from cnep.outputs import foreign_files, output_lock, recorded_by, remove_owned, write_output, writer, writing_as
 from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_file_as_folder
 from cnep.pipeline.demo.config import DemoConfig, DemoSize
 from cnep.pipeline.demo.figure import FIGURE_FILE, Scene, draw_summary
@@ -57,18 +56,8 @@ from cnep.pipeline.demo.weights import WeightsChoice, choose_weights
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.extract.stage import ExtractConfig, extract
 from cnep.pipeline.ingest.stage import IngestConfig, ingest
-from cnep.pipeline.ownership import (
-    CHECKPOINT,
-    DECISIONS,
-    MCAP,
-    RRD,
-    WEIGHTS,
-    foreign_files,
-    json_with,
-    png_by_matplotlib,
-)
 from cnep.pipeline.progress import REPORT_INTERVAL_S, BarQueue, RemoteBar, StageClock, follow_reports, progress_bar
-from cnep.pipeline.replay.decisions import decisions_path, read_decisions
+from cnep.pipeline.replay.decisions import read_decisions
 from cnep.pipeline.replay.stage import replay
 from cnep.pipeline.train.constants import SCENE
 from cnep.pipeline.train.stage import BAR_LEGEND, TrainStageConfig, train
@@ -106,16 +95,18 @@ class DemoResult:
     figure: Path | None = None  # FIGURE_FILE, None without matplotlib
 
 
+@writing_as("demo")
 def run_demo(config: DemoConfig) -> DemoResult:
     """Run every stage into `config.out` (see the module docstring); returns what was made and measured."""
     out, size = Path(config.out), config.size
     refuse_file_as_folder(out)
     seconds: dict[str, float] = {}
+    owns = recorded_by(writer())
     with output_folder(out), output_lock(out, folder=True) as lock:  # the lock also clears a killed run's leftovers
         check_writable_folder(out)
         fresh = not any(p != lock for p in out.iterdir())
         if not fresh and not config.force:
-            foreign = foreign_files(out, _demo_file(out))  # --force would refuse those: it is suggested only without
+            foreign = foreign_files(out, owns, keep=[lock])  # --force would refuse those: it is suggested only without
             raise PipelineError(
                 f"{out}: the demo writes into a new folder and this one is not empty; give another --out, remove it"
                 + (
@@ -125,57 +116,31 @@ def run_demo(config: DemoConfig) -> DemoResult:
                 )
             )
         if config.force and not fresh:
-            remove_outputs(out)
+            remove_outputs(out, lock)
         try:
             with quiet_per_file_logs():
                 result = _run_stages(config, out, size, seconds)
-            write_atomically(out / SUMMARY_FILE, json.dumps(_jsonable(asdict(result)), indent=1).encode())
-            record_written([out / SUMMARY_FILE])
+            write_output(out / SUMMARY_FILE, json.dumps(_jsonable(asdict(result)), indent=1).encode())
         except BaseException:
-            if fresh:  # the folder was new or empty: a failed or interrupted demo leaves nothing in it
-                for child in out.iterdir():
-                    if child != lock:
-                        shutil.rmtree(child) if child.is_dir() and not child.is_symlink() else child.unlink()
+            if fresh:  # the folder was new or empty: a failed or interrupted demo leaves none of its files in it
+                remove_owned(out, owns, keep=[lock])
             raise
     return result
 
 
-def remove_outputs(out: Path) -> None:
-    """Delete what an earlier demo wrote into `out`: refused, before anything goes, if the folder holds anything a
-    cnep command did not record writing (pipeline.ownership), at any depth; the run's lock stays."""
-    foreign = foreign_files(out, _demo_file(out))
+def remove_outputs(out: Path, lock: Path) -> None:
+    """Delete what an earlier demo wrote into `out`: refused, before anything goes, if the folder holds anything, at any
+    depth, that a demo did not record writing (another command's outputs included), each file checked again as it
+    goes (cnep.outputs.remove_owned); the run's `lock` stays."""
+    owns = recorded_by(writer())
+    foreign = foreign_files(out, owns, keep=[lock])
     if foreign:
         raise PipelineError(
-            f"{foreign[0]}: --force deletes only what an earlier demo recorded writing in {out}, and this is not one; "
-            f"cnep never deletes your own files: move it away, or give another --out"
+            f"{foreign[0]}: --force deletes only what an earlier demo recorded writing in {out}, and this is not one "
+            f"(a file of yours, or another command's output); cnep never deletes your own files: move it away, or "
+            f"give another --out"
         )
-    for path in out.iterdir():
-        if path.is_dir() and not path.is_symlink():
-            shutil.rmtree(path)
-        elif not is_lock_name(path.name):
-            path.unlink()
-
-
-def _demo_file(out: Path):
-    """For a demo folder written before records existed: is this file one the demo writes, by place and kind?"""
-
-    def test(path: Path) -> bool:
-        parts = path.relative_to(out).parts
-        if parts[0] in ("recorded", "demos", "trajectories"):
-            return path.suffix == ".mcap" and MCAP(path)
-        if parts[0] == "checkpoints":
-            return len(parts) == 3 and parts[1] in CHECKPOINT_NAMES and CHECKPOINT(path)
-        if parts[0] == Path(REPLAYS_RRD).parent.name:
-            return len(parts) == 2 and (RRD(path) if path.suffix == ".rrd" else DECISIONS(path))
-        tops = {EXTRACTOR_FILE: WEIGHTS, RRD_FILE: RRD, decisions_path(RRD_FILE).name: DECISIONS, SUMMARY_FILE: SUMMARY}
-        if len(parts) == 1 and parts[0] in tops:
-            return tops[parts[0]](path)
-        return parts == (FIGURE_FILE,) and png_by_matplotlib(path)
-
-    return test
-
-
-SUMMARY = json_with("the demo's summary", ("out", "rrd", "checkpoints"))
+    remove_owned(out, owns, keep=[lock])
 
 
 @contextmanager

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cnep.outputs import record_written, write_atomically
+from cnep.outputs import write_output
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.evaluate.jobs import queries
 
@@ -75,5 +75,4 @@ def plot_set(
     fig.savefig(buffer, format="png", dpi=110)
     plt.close(fig)
     path.parent.mkdir(parents=True, exist_ok=True)
-    write_atomically(path, buffer.getvalue())
-    record_written([path])
+    write_output(path, buffer.getvalue())

@@ -27,7 +27,7 @@ from queue import Empty
 import numpy as np
 
 from cnep.models.assignments import ASSIGNMENTS
-from cnep.outputs import output_lock
+from cnep.outputs import output_lock, writing_as
 from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_existing
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.evaluate.addresses import parse_address
@@ -53,7 +53,6 @@ from cnep.pipeline.evaluate.constants import (
 from cnep.pipeline.evaluate.executors import run_on_cluster
 from cnep.pipeline.evaluate.jobs import PROTOCOLS, Job, ModelSpec, run_unit, unit_key
 from cnep.pipeline.inputs import coerce_paths
-from cnep.pipeline.ownership import OutputKind, json_with, markdown_titled, png_by_matplotlib
 from cnep.pipeline.workers import single_thread_processes
 
 log = logging.getLogger(__name__)
@@ -379,6 +378,7 @@ def examples(table: str, done: dict[tuple, dict], set_name: str) -> dict[str, np
     return {row.label: done[(set_name, 0, row.spec)][row.method][key] for row in table_rows(table, set_name)}
 
 
+@writing_as("evaluate")
 def evaluate(config: EvaluateConfig) -> dict[str, Path]:
     """Run the tables; returns {table: path of its Markdown file} (JSON and figures beside it).
 
@@ -400,13 +400,13 @@ def evaluate(config: EvaluateConfig) -> dict[str, Path]:
         tables += [
             figure_path(config, table, set_name) for table in config.tables for set_name in config.table_sets(table)
         ]
-    refuse_existing(tables, config.force, "table or figure", kind=TABLE)
+    refuse_existing(tables, config.force, "table or figure")
     pending = {table: needs(table, config) for table in config.tables}
     done: dict[tuple, dict] = {}  # Job.key -> results
     written = {}
     with output_folder(config.out), output_lock(config.out, folder=True):
         check_writable_folder(config.out)
-        refuse_existing(tables, config.force, "table or figure", kind=TABLE)  # again, under the lock
+        refuse_existing(tables, config.force, "table or figure")  # again, under the lock
         for job, result in run_jobs(jobs, config.jobs, config.quiet, config.executor, config.address):
             done[job.key] = result
             for table in [t for t, keys in pending.items() if not keys - done.keys()]:
@@ -419,20 +419,6 @@ def evaluate(config: EvaluateConfig) -> dict[str, Path]:
 def figure_path(config: EvaluateConfig, table: str, set_name: str) -> Path:
     """Where the figure of `table` on `set_name` goes."""
     return config.out / "figures" / f"{table}-{set_name}.png"
-
-
-def _table_file(path: Path) -> bool:
-    """A table `evaluate` wrote: its JSON (with the paper's note), its Markdown (with a table's title), a figure."""
-    from cnep.pipeline.evaluate.tables import TITLES
-
-    if path.suffix == ".png":
-        return png_by_matplotlib(path)
-    if path.suffix == ".json":
-        return json_with("", ("table", "settings", "paper_note"))(path)
-    return any(markdown_titled("", title)(path) for title in TITLES.values())
-
-
-TABLE = OutputKind("a table written by `cnep evaluate`", _table_file)
 
 
 def write_table(table: str, config: EvaluateConfig, done: dict[tuple, dict], wall: float) -> Path:

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cnep.outputs import record_written, write_atomically
+from cnep.outputs import write_output
 from cnep.pipeline.evaluate.constants import PAPER, SET_TITLES
 
 TITLES = {
@@ -38,8 +38,7 @@ PAPER_NOTE = (
 
 def write_text(path: Path, text: str) -> None:
     """Write a text file atomically (temporary name in the same folder, then rename), named in its folder's record."""
-    write_atomically(path, text.encode())
-    record_written([path])
+    write_output(path, text.encode())
 
 
 def _pm(mean: float, std: float, digits: int) -> str:

@@ -12,8 +12,9 @@ OUT gets
                            cnep.runtime with numpy, onnxruntime and opencv only
 
 The graphs are checked against torch before anything is written; the run holds the lock on OUT
-(cnep.outputs), assembles the folder under a temporary name beside it and renames it when complete. An
-existing OUT is replaced only with `force`, and only if it is a policy folder `cnep export` wrote.
+(cnep.outputs), assembles the folder under a temporary name beside it and renames it when complete
+(`pipeline.folders`). An existing OUT is replaced only with `force`, and only if its manifest, the policy folder's
+record, names every file in it unchanged (`in_manifest`), checked again at the moment it is replaced.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from pathlib import Path
 
 import cnep.runtime
 from cnep.models.checkpoint import CONFIG_FILE, config_checksum
+from cnep.outputs import writing_as
 from cnep.perception import FeatureExtractor
 from cnep.perception.constants import CALIBRATION_FRAMES
 from cnep.pipeline.contract import refuse_existing, refuse_inputs
@@ -36,7 +38,6 @@ from cnep.pipeline.export.policy import LoadedCheckpoint, load_for_policy
 from cnep.pipeline.extract.stage import calibration_frames
 from cnep.pipeline.folders import assembled_folder
 from cnep.pipeline.inputs import find_demonstration_files
-from cnep.pipeline.ownership import OutputKind
 from cnep.runtime.constants import (
     DECODER_FILE,
     ENCODER_FILE,
@@ -54,41 +55,36 @@ log = logging.getLogger(__name__)
 EXPORT_BACKEND = "onnxruntime"  # the export checks its graphs on ONNX Runtime (the `onnx` extra)
 
 
-def _not_in_manifest(folder: Path) -> list[Path]:
-    """The files and links in a policy folder that its manifest (the folder's record: every file with its sha256)
-    does not name unchanged; all of them when it has no readable manifest. An empty folder holds none."""
-    found = sorted(p for p in folder.rglob("*") if p.is_file() or p.is_symlink())
+def in_manifest(root: Path, path: Path) -> bool:
+    """Whether `path`, in the policy folder `root`, is the folder's readable manifest or a file it names (the
+    folder's record: every file with its sha256) unchanged."""
     try:
-        listed = read_manifest(folder).files
+        listed = read_manifest(root).files
     except PolicyError:
-        return [p for p in found if p.name != MANIFEST_FILE or p.parent != folder] or found
-    return [
-        p
-        for p in found
-        if p != folder / MANIFEST_FILE and (p.is_symlink() or listed.get(str(p.relative_to(folder))) != file_sha256(p))
-    ]
+        return False
+    if path == root / MANIFEST_FILE:
+        return True
+    return not path.is_symlink() and listed.get(path.relative_to(root).as_posix()) == file_sha256(path)
 
 
-POLICY_FOLDER = OutputKind(
-    "a policy folder written by `cnep export` (its manifest names every file)", lambda p: False, _not_in_manifest
-)
-
-
+@writing_as("export")
 def export(config: ExportConfig) -> Path:
     """Write the exported policy folder `config.out` from `config.checkpoint`; returns `config.out`."""
     out = Path(config.out)
     calibration = find_demonstration_files(config.calibration)
     refuse_inputs([out], [Path(config.checkpoint), *calibration, *([config.extractor] if config.extractor else [])])
-    refuse_existing([out], config.force, "exported policy", kind=POLICY_FOLDER)
+
+    def refuse() -> None:
+        refuse_existing([out], config.force, "exported policy", owns=in_manifest)
+
+    refuse()
     loaded = with_time_base(
         load_for_policy(config.checkpoint, config.extractor, backend=EXPORT_BACKEND, threads=1), config.time_base
     )
     loaded = replace(
         loaded, spec=replace(loaded.spec, conditioning=config.conditioning.applied(loaded.spec.conditioning))
     )
-    with assembled_folder(
-        out, lambda: refuse_existing([out], config.force, "exported policy", kind=POLICY_FOLDER)
-    ) as work:
+    with assembled_folder(out, refuse, in_manifest) as work:
         write_policy(work, loaded, config, calibration)
     log.info("exported %s -> %s", config.checkpoint, out)
     return out

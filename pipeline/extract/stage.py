@@ -40,7 +40,7 @@ from tqdm import tqdm
 from tqdm.contrib.logging import logging_redirect_tqdm
 
 from cnep.models.config import check_seed
-from cnep.outputs import output_lock, record_written
+from cnep.outputs import output_file, output_lock, writing_as
 from cnep.perception import FeatureExtractor, PerceptionError, compatibility_key
 from cnep.perception.constants import CALIBRATION_FRAMES, FEATURE_DIM
 from cnep.perception.frames import decode_image, resize_frames
@@ -48,7 +48,6 @@ from cnep.perception.weights import find_imagenet_weights
 from cnep.pipeline.contract import output_folder, raise_if_skipped, refuse_existing, refuse_inputs
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.inputs import DEMONSTRATIONS, coerce_paths, mcap_files
-from cnep.pipeline.ownership import MCAP, WEIGHTS
 from cnep.pipeline.progress import heartbeat, progress_bar
 from cnep.pipeline.workers import cpu_cores, inference_threads, process_pool, thread_environment
 from cnep.recordings import (
@@ -125,19 +124,21 @@ class Extracted:
     skipped: bool
 
 
+@writing_as("extract")
 def extract(config: ExtractConfig) -> list[Extracted]:
     """Run the stage; returns one Extracted per input demonstration of this rank's share, in input order.
 
     The extractor is built (and for random weights calibrated) only once a file needs it, so inputs
     without frames or outputs already up to date with fixed weights cost no network.
     """
+    refuse_inputs([config.out], config.inputs, what="the output folder", whole=False)
     all_pairs = plan_outputs(config.inputs, config.out)
     rank, world_size = torchrun_rank()
     pairs = shard_of(all_pairs, *config.shard)[rank::world_size]  # this job's share; all calibrate on every input
     first = rank == 0 and config.shard[0] == 0  # the one job that saves the weights
     if config.save_weights is not None:
         refuse_inputs([config.save_weights], [src for src, _ in all_pairs], "--save-weights")
-        refuse_existing([config.save_weights], config.force, "weights file", kind=WEIGHTS)
+        refuse_existing([config.save_weights], config.force, "weights file")
     extractor = _lazy_extractor(config, [src for src, _ in all_pairs])
     skipped: list[str] = []
 
@@ -200,17 +201,15 @@ def _current_outputs(
         config.force,
         "output",
         " and is not this input's trajectory file from these weights",
-        kind=MCAP,
     )
-    refuse_existing(sorted(stale), True, kind=MCAP)  # redone without --force, but only if cnep wrote it
+    refuse_existing(sorted(stale), True)  # redone without --force, but only if cnep wrote it
     return current
 
 
 def _save_weights(path: Path, extractor: Callable[[], FeatureExtractor]) -> None:
     """The extractor's weights to `path`, under its lock (`--save-weights`)."""
-    with output_lock(path):
-        extractor().save_weights(path)
-        record_written([path])
+    with output_lock(path), output_file(path) as staged:
+        extractor().save_weights(staged)
     log.info("saved the extractor weights to %s (reuse them with --weights %s)", path, path)
 
 
@@ -381,8 +380,8 @@ def extract_file(src: Path, dst: Path, extractor: Callable[[], FeatureExtractor]
         features = features_of_frames(demo.frames, extractor(), src, bar)  # (T, 1280)
         with in_file(src):
             trajectory = Trajectory.from_demonstration(demo, features, extractor().identity)
-    write_trajectory(dst, trajectory)
-    record_written([dst])
+    with output_file(dst) as staged:
+        write_trajectory(staged, trajectory)
     log.info("%s -> %s (%d steps)", src, dst, demo.n_steps)
     return Extracted(src, dst, demo.n_steps, skipped=False)
 

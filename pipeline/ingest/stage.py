@@ -24,11 +24,10 @@ from pathlib import Path
 
 from tqdm.contrib.logging import logging_redirect_tqdm
 
-from cnep.outputs import output_lock, record_written
-from cnep.pipeline.contract import output_folder, raise_if_skipped, refuse_existing
+from cnep.outputs import output_file, output_lock, writing_as
+from cnep.pipeline.contract import output_folder, raise_if_skipped, refuse_existing, refuse_inputs
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.inputs import SUFFIX, coerce_paths
-from cnep.pipeline.ownership import MCAP
 from cnep.pipeline.progress import progress_bar
 from cnep.recordings import FORMAT_VERSION, Demonstration, DemonstrationReader, RecordingError, write_demonstration
 from cnep.recordings.adapters import FrameTiming, demonstration_from_csv, demonstration_from_folder, media_of
@@ -165,6 +164,7 @@ def _load(source: Source, config: IngestConfig) -> Demonstration:
     return demonstration_from_mcap(source.path, source.episode_id, config.topics, config.task)
 
 
+@writing_as("ingest")
 def ingest(config: IngestConfig) -> list[Ingested]:
     """Convert every source under `config.src`; returns what was written, in source order.
 
@@ -174,8 +174,8 @@ def ingest(config: IngestConfig) -> list[Ingested]:
     """
     src, out = Path(config.src), Path(config.out)
     sources = discover(src, config.format, config.lerobot)
-    if src.is_dir() and out.resolve().is_relative_to(src.resolve()):
-        raise RecordingError(f"{out}: the output folder is inside the source folder {src}; choose one outside it")
+    if src.is_dir():
+        refuse_inputs([out], [src], what="the output folder", whole=False)
     targets = [out / f"{source.episode_id}{SUFFIX}" for source in sources]
     for source, target in zip(sources, targets):
         if target.resolve() == source.path.resolve():
@@ -190,9 +190,8 @@ def ingest(config: IngestConfig) -> list[Ingested]:
             config.force,
             "demonstration file",
             " and is not this source's demonstration file from these options",
-            kind=MCAP,
         )
-        refuse_existing(sorted(stale), True, kind=MCAP)  # redone without --force, but only if cnep wrote it
+        refuse_existing(sorted(stale), True)  # redone without --force, but only if cnep wrote it
         for source, target in zip(progress_bar(sources, desc="ingest", unit="demo", quiet=config.quiet), targets):
             if current[target] is not None:
                 log.info("%s is up to date, skipped", target)
@@ -210,8 +209,8 @@ def ingest(config: IngestConfig) -> list[Ingested]:
                 continue
             demo.episode = replace(demo.episode, extra={**demo.episode.extra, OPTIONS_KEY: options})
             target.parent.mkdir(parents=True, exist_ok=True)  # inside `out`, which we could create
-            write_demonstration(target, demo)
-            record_written([target])
+            with output_file(target) as staged:
+                write_demonstration(staged, demo)
             kind = "frames" if demo.has_frames else "motion-only"
             origin = source.path if source.plan is None else f"{source.path} ({source.episode_id})"
             log.info("%s -> %s: %d steps, %s, %.1f Hz", origin, target, demo.n_steps, kind, demo.episode.fps)

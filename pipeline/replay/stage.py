@@ -38,13 +38,12 @@ import numpy as np
 
 from cnep.models import CNEP, ConditioningPolicy
 from cnep.models.threads import torch_threads
-from cnep.outputs import Staging, output_lock, record_written, staged
+from cnep.outputs import Staging, output_file, output_lock, staged, writing_as
 from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_existing, refuse_inputs
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.inputs import TRAJECTORIES, existing_files
-from cnep.pipeline.ownership import DECISIONS, MCAP, RRD, OutputKind
 from cnep.pipeline.replay.conditioning import DEFAULT_PREDICTION_POINTS, decide
-from cnep.pipeline.replay.decisions import DECISIONS_SUFFIX, decision_events, decisions_path, summarise
+from cnep.pipeline.replay.decisions import decision_events, decisions_path, summarise
 from cnep.pipeline.replay.rerun_log import (
     DEFAULT_VIEWER_URL,
     merge_rrd,
@@ -60,6 +59,7 @@ from cnep.recordings import Trajectory, add_events, read_trajectory
 log = logging.getLogger(__name__)
 
 
+@writing_as("replay")
 def replay(
     checkpoint_dir: str | os.PathLike,
     recording_paths: list[str | os.PathLike],
@@ -95,7 +95,7 @@ def replay(
     parts = [files[0].with_name(f"{files[0].name}-{i}") for i in range(len(paths))] if len(files) < len(paths) else []
     outputs = [*files, decisions_path(out), *([events / p.name for p in paths] if events else [])]
     refuse_inputs(outputs, [*paths, checkpoint], "--out or --events-out")
-    refuse_existing(outputs, force, "replay output", kind=replay_kind)
+    refuse_existing(outputs, force, "replay output")
     inputs = _load(checkpoint, paths)
     policy = inputs.conditioning if policy is None else policy
     live = _live_viewer(connect, files[0])
@@ -221,7 +221,7 @@ def _hold_outputs(
     held.enter_context(output_lock(out, names=[p.name for p in names]))
     if events is not None:
         held.enter_context(output_lock(events, folder=True))
-    refuse_existing(outputs, force, "replay output", kind=replay_kind)
+    refuse_existing(outputs, force, "replay output")
     held.enter_context(torch_threads())  # one small step at a time: one thread is fastest
     return held.enter_context(staged(record=True))
 
@@ -266,7 +266,8 @@ def _replay_each(
         else:
             staging.write(files[i], data)
         if events is not None:
-            record_written([add_events(path, events / path.name, decision_events(traj, decisions))])
+            with output_file(events / path.name) as copy:
+                add_events(path, copy, decision_events(traj, decisions))
         summaries.append(summarise(path, traj, decisions))
     bar.close()
     if parts:
@@ -274,12 +275,3 @@ def _replay_each(
     for i, summary in enumerate(summaries):
         summary["rrd"] = files[min(i, len(files) - 1)].name
     return summaries
-
-
-def _replay_output(path: Path) -> bool:
-    """What --force may replace: a .rrd, a decisions file or a copy with events that a replay wrote."""
-    kind = RRD if path.suffix == ".rrd" else DECISIONS if path.name.endswith(DECISIONS_SUFFIX) else MCAP
-    return kind(path)
-
-
-replay_kind = OutputKind("a replay's .rrd, decisions file or copy with events", _replay_output)

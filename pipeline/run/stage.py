@@ -33,11 +33,10 @@ from pathlib import Path
 import numpy as np
 
 import cnep.pipeline.replay.viewer as L
-from cnep.outputs import output_lock, staged
+from cnep.outputs import output_lock, staged, writing_as
 from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_existing, refuse_inputs
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.inputs import find_demonstration_files
-from cnep.pipeline.ownership import RRD, OutputKind, json_with
 from cnep.pipeline.progress import heartbeat
 from cnep.pipeline.replay.rerun_log import (
     FLUSH_TIMEOUT_S,
@@ -106,13 +105,14 @@ def open_policy(
     )
 
 
+@writing_as("run")
 def run(config: RunConfig) -> list[RecordingRun]:
     """Step every recording through the policy into Rerun; returns each recording's step times and switches."""
     paths = find_demonstration_files(config.recordings)
     files = rrd_files(Path(config.out), paths, merge=False) if config.out is not None else []
     outputs = [*files, summary_path(config.out)] if config.out is not None else []
-    refuse_inputs(outputs, paths)
-    refuse_existing(outputs, config.force, "run output", kind=RUN_OUTPUT)
+    refuse_inputs(outputs, [*paths, Path(config.policy), *([Path(config.extractor)] if config.extractor else [])])
+    refuse_existing(outputs, config.force, "run output")
     if config.connect is not None and not viewer_reachable(config.connect):
         raise PipelineError(
             f"{config.connect}: no Rerun viewer answers there; start one with `rerun`, or write a file with --out "
@@ -143,7 +143,7 @@ def run(config: RunConfig) -> list[RecordingRun]:
             stack.enter_context(output_folder(out.parent))
             check_writable_folder(out.parent)
             stack.enter_context(output_lock(out, names=[p.name for p in outputs]))
-            refuse_existing(outputs, config.force, "run output", kind=RUN_OUTPUT)  # again: a run may have ended
+            refuse_existing(outputs, config.force, "run output")  # again: a run may have ended
         staging = stack.enter_context(
             staged(record=True)
         )  # the .rrd files and the summary are renamed into place together
@@ -182,15 +182,6 @@ def warn_other_tasks(policy: Policy, paths: list[Path], demos: list[Demonstratio
             given,
             ", ".join(map(repr, trained)),
         )
-
-
-def _run_output(path: Path) -> bool:
-    """What --force may replace: a Rerun .rrd, or a summary this stage wrote."""
-    return RRD(path) if path.suffix == ".rrd" else SUMMARY(path)
-
-
-SUMMARY = json_with("a run's summary", ("recordings", "total"))
-RUN_OUTPUT = OutputKind("a run's .rrd file or summary", _run_output)
 
 
 def recording_stream(recording_id: str, connect: str | None):

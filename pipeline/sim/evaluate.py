@@ -1,7 +1,8 @@
 """`cnep sim eval POLICY`: one given policy (an exported folder or a checkpoint) in closed loop, on the task it was
 trained on (or `task`: pipeline.sim.config.with_task); the table on screen, and with `out` a folder holding
 `summary.json` (per protocol, and condition where the task has conditions, the rates and every episode's row), the
-recordings of the first episodes and `episode.png` (pipeline.sim.figure). The same settings and episode seeds as
+recordings of the first episodes and `episode.png` (pipeline.sim.figure), assembled beside it and renamed into place
+when complete (pipeline.folders), never inside the policy it reads. The same settings and episode seeds as
 the `cnep sim` run that trained the policy give the same rows as its summary: the run trains its conditioning into
 its policies (pipeline.sim.config.trained_conditioning)."""
 
@@ -11,17 +12,20 @@ import json
 from dataclasses import asdict
 from pathlib import Path
 
-from cnep.outputs import write_atomically
+from cnep.outputs import write_output, writing_as
+from cnep.pipeline.contract import refuse_inputs
+from cnep.pipeline.folders import assembled_folder
 from cnep.pipeline.progress import progress_bar
 from cnep.pipeline.sim.config import EvalConfig, with_task
 from cnep.pipeline.sim.extras import require_extras
 from cnep.pipeline.sim.figure import FIGURE_FILE
 from cnep.pipeline.sim.loop import episodes_of, evaluate_policy, for_task, open_task_policy
-from cnep.pipeline.sim.stage import SUMMARY_FILE, new_output_folder
+from cnep.pipeline.sim.stage import SUMMARY_FILE, refuse_unless_new
 from cnep.pipeline.sim.summary import format_table
 from cnep.sim.tasks import find_task
 
 
+@writing_as("sim eval")
 def run_eval(config: EvalConfig) -> dict:
     """Evaluate `config.policy` (module docstring); returns the summary written to OUT/summary.json."""
     require_extras(config, "cnep sim eval")
@@ -32,10 +36,11 @@ def run_eval(config: EvalConfig) -> dict:
         results = {label: _evaluate(config, label, None)}
         return _summary(config, results)
     out = Path(config.out)
-    with new_output_folder(out, "cnep sim eval"):
-        results = {label: _evaluate(config, label, out)}
+    refuse_inputs([out], [Path(config.policy), *([Path(config.extractor)] if config.extractor else [])])
+    with assembled_folder(out, lambda: refuse_unless_new(out)) as work:  # complete or absent, as `cnep sim` writes
+        results = {label: _evaluate(config, label, work)}
         summary = _summary(config, results)
-        write_atomically(out / SUMMARY_FILE, json.dumps(summary, indent=1).encode())
+        write_output(work / SUMMARY_FILE, json.dumps(summary, indent=1).encode())
     return summary
 
 

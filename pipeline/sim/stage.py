@@ -19,30 +19,30 @@ Stages (each logs its progress), all under OUT:
               `episode.png` (pipeline.sim.figure, with matplotlib): the first CNEP's first episode of the last
               protocol and condition.
 
-A failed or interrupted run leaves the folder as empty as it found it.
+The stages write into a work folder beside OUT, renamed to OUT when all are complete (pipeline.folders): a failed or
+interrupted run leaves OUT as it found it, and running it again starts over.
 """
 
 from __future__ import annotations
 
 import json
 import logging
-import shutil
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, wait
-from contextlib import contextmanager
 from dataclasses import asdict, replace
 from multiprocessing import get_context
 from pathlib import Path
 
 from cnep.models import CNEPConfig, TrainConfig
-from cnep.outputs import output_lock, write_atomically
-from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_file_as_folder
+from cnep.outputs import write_output, writer, writing_as
+from cnep.pipeline.contract import refuse_file_as_folder
 from cnep.pipeline.demo.stage import CNMP_ASSIGNMENT, LAYOUT, quiet_per_file_logs, train_side_by_side
 from cnep.pipeline.demo.weights import choose_weights
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.export.config import ExportConfig
 from cnep.pipeline.export.stage import export
 from cnep.pipeline.extract.stage import ExtractConfig, extract
+from cnep.pipeline.folders import assembled_folder
 from cnep.pipeline.progress import REPORT_INTERVAL_S, RemoteBar, StageClock, follow_total, progress_bar
 from cnep.pipeline.sim.baselines import BASELINES, baseline_policy
 from cnep.pipeline.sim.config import PickPlaceConfig, SimConfig, trained_conditioning
@@ -71,35 +71,27 @@ def run_sim(config: SimConfig | PickPlaceConfig) -> dict:
     require_extras(config, f"cnep sim {config.TASK}")
     task = find_task(config.TASK)
     config = for_task(config, task)
-    return run_in_new_folder(Path(config.out), f"cnep sim {task.name}", lambda out: _run_stages(config, task, out))
+    with writing_as(f"sim {task.name}"):
+        return run_in_new_folder(Path(config.out), lambda work: _run_stages(config, task, work))
 
 
-def run_in_new_folder(out: Path, command: str, stages: Callable[[Path], dict]) -> dict:
-    """`stages(out)` run in the new or empty folder `out` (locked for `command`), its summary written to
-    OUT/summary.json; a failure or an interruption leaves the folder as empty as it found it."""
-    with new_output_folder(out, command) as lock:
-        try:
-            with quiet_per_file_logs():
-                summary = stages(out)
-            write_atomically(out / SUMMARY_FILE, json.dumps(summary, indent=1).encode())
-        except BaseException:
-            for child in out.iterdir():
-                if child != lock:
-                    shutil.rmtree(child) if child.is_dir() and not child.is_symlink() else child.unlink()
-            raise
+def run_in_new_folder(out: Path, stages: Callable[[Path], dict]) -> dict:
+    """`stages(work)` run in a work folder unique to the run beside `out`, its summary written there as SUMMARY_FILE,
+    and the work folder renamed to `out` (a new or empty folder) when all is complete (pipeline.folders); a failure or
+    an interruption leaves `out` as it was, with anything the user put there, and nothing of the run's (a kill -9
+    leaves the work folder, which the next run into `out` removes)."""
+    with assembled_folder(out, lambda: refuse_unless_new(out)) as work:
+        with quiet_per_file_logs():
+            summary = stages(work)
+        write_output(work / SUMMARY_FILE, json.dumps(summary, indent=1).encode())
     return summary
 
 
-@contextmanager
-def new_output_folder(out: Path, command: str) -> Iterator[Path]:
-    """`out` made (or found empty) and locked for `command`, which writes into a new folder only; yields the lock's
-    path (the one entry of the folder that is not an output)."""
+def refuse_unless_new(out: Path) -> None:
+    """PipelineError unless `out` is missing or an empty folder: the command writes into a new folder only."""
     refuse_file_as_folder(out)
-    with output_folder(out), output_lock(out, folder=True) as lock:
-        check_writable_folder(out)
-        if any(p != lock for p in out.iterdir()):
-            raise PipelineError(f"{out}: `{command} --out` writes into a new folder and this one is not empty")
-        yield lock
+    if out.is_dir() and any(out.iterdir()):
+        raise PipelineError(f"{out}: `cnep {writer()} --out` writes into a new folder and this one is not empty")
 
 
 def _run_stages(config: SimConfig | PickPlaceConfig, task: Task, out: Path) -> dict:

@@ -5,8 +5,8 @@
 The demonstrations are checked from their summaries first (each a demonstration file, one rate, camera
 frames in all or none), so a set that cannot make one dataset is refused before anything is written. Then
 each is read in turn and written by `recordings.lerobot_writer` into a work folder beside OUT, which is
-renamed to OUT when complete (`pipeline.folders`); every file is named in its folder's record, so `force`
-may replace the dataset later, and replaces nothing else.
+renamed to OUT when complete (`pipeline.folders`); every file is named in its folder's record as
+`cnep to-lerobot`'s, so `force` may replace the dataset later, and replaces nothing else.
 """
 
 from __future__ import annotations
@@ -17,12 +17,11 @@ from pathlib import Path
 import numpy as np
 from tqdm.contrib.logging import logging_redirect_tqdm
 
-from cnep.outputs import record_written
+from cnep.outputs import record_written, writing_as
 from cnep.pipeline.contract import refuse_existing, refuse_inputs
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.folders import assembled_folder
 from cnep.pipeline.inputs import find_demonstration_files
-from cnep.pipeline.ownership import OutputKind
 from cnep.pipeline.progress import progress_bar
 from cnep.pipeline.to_lerobot.config import ToLerobotConfig
 from cnep.recordings import Demonstration, FileSummary, read_demonstration, read_summary
@@ -33,17 +32,16 @@ from cnep.recordings.lerobot_writer import LerobotWriter
 
 log = logging.getLogger(__name__)
 
-LEROBOT_DATASET = OutputKind("a LeRobot dataset written by `cnep to-lerobot`", lambda path: False)
 
-
+@writing_as("to-lerobot")
 def to_lerobot(config: ToLerobotConfig) -> dict:
     """Write the dataset `config.out` from `config.demos`; returns its meta/info.json."""
     out = Path(config.out)
     files = find_demonstration_files(config.demos)
-    refuse_inputs([out], files)
+    refuse_inputs([out], [*map(Path, config.demos), *files])
 
     def refuse() -> None:
-        refuse_existing([out], config.force, "LeRobot dataset", kind=LEROBOT_DATASET)
+        refuse_existing([out], config.force, "LeRobot dataset")
 
     refuse()
     summaries = [read_summary(path, KIND_DEMONSTRATION) for path in files]

@@ -55,8 +55,8 @@ class TrainStageConfig:
     resume: bool = setting(False, "continue the interrupted run writing to --out")
     force: bool = setting(
         False,
-        "replace an existing --out checkpoint (one cnep train recorded writing, holding nothing else) when training "
-        "completes",
+        "replace an existing --out checkpoint (one `cnep train` recorded writing, holding nothing else, checked "
+        "again) when training completes",
     )
     quiet: bool = False
 

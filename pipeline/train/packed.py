@@ -21,11 +21,12 @@ from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
+from typing import IO
 
 import numpy as np
 
 from cnep.models.normaliser import Moments
-from cnep.outputs import atomic_file, record_written, write_atomically
+from cnep.outputs import staged
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.train.data import TrainingFile, TrainingSet
 from cnep.pipeline.train.presets import TrainingColumns
@@ -84,9 +85,10 @@ def pack_columns(data: TrainingSet, indices: Sequence[int], layout: TrainingColu
     table, rows_file = base.with_suffix(".json"), base.with_suffix(".npy")
     digests = _reusable(table, rows_file, index)
     if digests is None:
-        digests = _write(files, layout, rows_file)
-        write_atomically(table, json.dumps({**index, "digests": digests}).encode())
-        record_written([rows_file, table])  # the work folder's record: a failed run's folder may be removed
+        with staged(record=True) as staging:  # renamed and recorded together: a stopped run's folder may be removed
+            with staging.open(rows_file) as stream:
+                digests = _write(files, layout, stream)
+            staging.write(table, json.dumps({**index, "digests": digests}).encode())
     else:
         log.info("%s: the columns of these %d files are packed already", rows_file, len(files))
     lengths = np.array([f.n_steps for f in files], dtype=np.int64)
@@ -111,12 +113,12 @@ def _reusable(table: Path, rows_file: Path, index: dict) -> list[str] | None:
     return saved["digests"]
 
 
-def _write(files: Sequence[TrainingFile], layout: TrainingColumns, rows_file: Path) -> list[str]:
-    """Append each file's layout columns to `rows_file` (atomically); returns the sha256 of each file's rows."""
+def _write(files: Sequence[TrainingFile], layout: TrainingColumns, stream: IO[bytes]) -> list[str]:
+    """Write each file's layout columns to `stream` as one .npy array; returns the sha256 of each file's rows."""
     width, total = sum(b - a for a, b in layout.columns), sum(f.n_steps for f in files)
     digests = []
     threads = cpu_cores()
-    with atomic_file(rows_file) as stream, ThreadPoolExecutor(threads, thread_name_prefix="pack") as pool:
+    with ThreadPoolExecutor(threads, thread_name_prefix="pack") as pool:
         header = {"descr": DTYPE.str, "fortran_order": False, "shape": (total, width)}
         np.lib.format.write_array_header_1_0(stream, header)
         for start in range(0, len(files), READ_AHEAD * threads):  # a few files in memory at a time

@@ -26,7 +26,6 @@ import contextlib
 import json
 import logging
 import math
-import shutil
 import time
 from collections.abc import Callable
 from contextlib import ExitStack
@@ -43,12 +42,11 @@ from cnep.models.normaliser import Moments
 from cnep.models.sampler import TrajectoryStack
 from cnep.models.threads import torch_threads
 from cnep.models.train import split_validation
-from cnep.outputs import record_written
+from cnep.outputs import record_written, writing_as
 from cnep.pipeline import progress
 from cnep.pipeline.contract import deferred_interrupts, interruption
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.inputs import find_trajectory_files
-from cnep.pipeline.ownership import CHECKPOINT_FILES
 from cnep.pipeline.train.config import TrainStageConfig
 from cnep.pipeline.train.constants import (
     CONDITIONING,
@@ -82,6 +80,7 @@ from cnep.pipeline.train.state import (
     check_same_run,
     prepare_work_dir,
     publish,
+    remove_work_dir,
     save_state,
     work_dir,
     write_log,
@@ -129,6 +128,7 @@ class StageTrainer(Trainer):
         return stop
 
 
+@writing_as("train")
 def train(config: TrainStageConfig, remote: progress.RemoteBar | None = None) -> Path:
     """Train a CNEP on the trajectory files of `config`; returns the checkpoint folder (config.out).
 
@@ -200,7 +200,8 @@ def _load(config: TrainStageConfig, procs: Processes, held: ExitStack) -> _Run:
         model_config = matched_cnmp(model_config)
     train_idx, val_idx = split_validation(list(range(len(data.files))), config.val_fraction, config.training.seed)
     inputs = [f.path for f in data.files]
-    saved = from_main(procs, lambda: prepare_work_dir(config.out, config.resume, config.force, inputs, held))
+    given = [*map(Path, config.inputs), *inputs]  # no output inside a folder given as input either
+    saved = from_main(procs, lambda: prepare_work_dir(config.out, config.resume, config.force, given, held))
     my_train, my_val = share(train_idx, procs), share(val_idx, procs)
     packed = pack_columns(data, my_train + my_val, layout, pack_base(config.out, procs))
     hashes = {i: h for part in gather(procs, packed_hashes(packed)) for i, h in part.items()}  # (sha256, rows)
@@ -343,8 +344,7 @@ def _publish(
     policy.update(camera_layout(run))
     policy[CONDITIONING] = config.conditioning.to_dict()
     policy[MAX_STEP] = run.max_step
-    save_checkpoint(model, work, {**extra, **policy, "result": summary, "log": LOG_FILE})
-    record_written([work / n for n in CHECKPOINT_FILES if (work / n).is_file()], forget=[work / STATE_FILE])
+    save_checkpoint(model, work, {**extra, **policy, "result": summary, "log": LOG_FILE}, record=True)
     publish(work, config.out)
     log.info(
         "best validation error %.4g at step %d; %d steps in %.1f s -> %s",
@@ -382,7 +382,7 @@ def diverged(trainer: Trainer, config: TrainStageConfig, fresh: bool) -> None:
         )
         return
     if fresh:
-        shutil.rmtree(work_dir(config.out), ignore_errors=True)
+        remove_work_dir(work_dir(config.out))
     raise PipelineError(f"{config.out}: training diverged before any weights could be kept ({trainer.diverged}); {fix}")
 
 

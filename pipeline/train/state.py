@@ -5,7 +5,8 @@ A run holds the lock on OUT (`cnep.outputs`) and works in `.<OUT name>.partial/`
 (torch.save of the Trainer's state: model, optimiser, batch generators of every rank, step, best
 weights, history; plus the run's identity) and `training_log.jsonl`, each atomically (temporary name +
 rename), so a kill at any moment leaves the previous state readable. When training ends the
-checkpoint files are written into the work folder, which is then renamed to OUT."""
+checkpoint files are written into the work folder, which then takes OUT's name (`publish`: an existing OUT is set
+aside and checked again there, cnep.outputs.publish_folder)."""
 
 from __future__ import annotations
 
@@ -13,20 +14,30 @@ import io
 import json
 import logging
 import math
-import shutil
 from collections.abc import Sequence
 from contextlib import ExitStack
 from pathlib import Path
 
 import torch
 
-from cnep.outputs import output_lock, record_written, remove_stale_temporaries, write_atomically
+from cnep.outputs import (
+    NotOwned,
+    Owns,
+    foreign_files,
+    output_lock,
+    publish_folder,
+    record_written,
+    recorded_by,
+    recover_set_aside,
+    remove_owned,
+    remove_stale_temporaries,
+    write_output,
+    writer,
+)
 from cnep.perception.errors import torch_load_problem
 from cnep.pipeline.contract import output_folder, refuse_existing, refuse_inputs
 from cnep.pipeline.errors import PipelineError
-from cnep.pipeline.folders import publish as publish_folder
-from cnep.pipeline.folders import recover_replaced
-from cnep.pipeline.ownership import CHECKPOINT, CHECKPOINT_FILES, foreign_files, not_written
+from cnep.pipeline.ownership import not_written
 from cnep.pipeline.train.constants import STATE_FILE
 
 log = logging.getLogger(__name__)
@@ -37,6 +48,11 @@ STATE_VERSION = 1
 def work_dir(out: Path) -> Path:
     """Folder of an unfinished run writing to `out`."""
     return out.parent / f".{out.name}.partial"
+
+
+def owns() -> Owns:
+    """What this run may replace or delete: the files its command recorded writing (`cnep.outputs.recorded_by`)."""
+    return recorded_by(writer())
 
 
 def prepare_work_dir(out: Path, resume: bool, force: bool, inputs: Sequence[Path], held: ExitStack) -> dict | None:
@@ -51,12 +67,12 @@ def prepare_work_dir(out: Path, resume: bool, force: bool, inputs: Sequence[Path
     held.enter_context(output_folder(out.parent))
     held.enter_context(output_lock(out))
     remove_stale_temporaries(work)
-    recover_replaced(out)
-    if out.exists() and not force and not not_written(out, CHECKPOINT):  # else refuse_existing says why not --force
+    recover_set_aside(out, owns())
+    if out.exists() and not force and not not_written(out, owns()):  # else refuse_existing says why not --force
         raise PipelineError(
             f"{out} already exists; choose another --out, or add --force to replace it when the new run completes"
         )
-    refuse_existing([out], force, "checkpoint", kind=CHECKPOINT)
+    refuse_existing([out], force, "checkpoint")
     if not resume:
         if (work / STATE_FILE).is_file():
             raise PipelineError(
@@ -65,7 +81,7 @@ def prepare_work_dir(out: Path, resume: bool, force: bool, inputs: Sequence[Path
             )
         if work.exists():  # stopped before its first save: nothing in it can be resumed
             log.warning("%s: removing the work folder of a run that stopped before saving anything", work)
-            _remove_work_dir(work)
+            remove_work_dir(work)
         work.mkdir()
         held.push(_remove_if_failed(out))
         return None
@@ -77,15 +93,17 @@ def prepare_work_dir(out: Path, resume: bool, force: bool, inputs: Sequence[Path
     return load_state(work / STATE_FILE)
 
 
-def _remove_work_dir(work: Path) -> None:
-    """Delete a work folder, which holds only what a training run wrote (refused otherwise)."""
-    foreign = foreign_files(work, lambda path: path.name in (STATE_FILE, *CHECKPOINT_FILES))
+def remove_work_dir(work: Path) -> None:
+    """Delete a work folder, which holds only what this command recorded writing (refused, before anything goes,
+    otherwise)."""
+    foreign = foreign_files(work, owns())
     if foreign:
         raise PipelineError(
             f"{foreign[0]}: the work folder {work} holds a file that training did not write; move it away, or "
             f"choose another --out"
         )
-    shutil.rmtree(work)
+    remove_owned(work, owns())
+    work.rmdir()
 
 
 def _remove_if_failed(out: Path):
@@ -96,7 +114,7 @@ def _remove_if_failed(out: Path):
         work = work_dir(out)
         failed = exc_type is not None and not issubclass(exc_type, KeyboardInterrupt)
         if failed and work.is_dir() and not (work / STATE_FILE).is_file():
-            _remove_work_dir(work)
+            remove_work_dir(work)
         return False
 
     return remove
@@ -106,8 +124,7 @@ def save_state(path: Path, state: dict) -> None:
     """torch.save `state` to `path` atomically."""
     buffer = io.BytesIO()
     torch.save({"state_version": STATE_VERSION, **state}, buffer)
-    write_atomically(path, buffer.getvalue())
-    record_written([path])
+    write_output(path, buffer.getvalue())
 
 
 def load_state(path: Path) -> dict:
@@ -145,14 +162,23 @@ def check_same_run(saved: dict, current: dict, path: Path) -> None:
 def write_log(path: Path, history: list[dict]) -> None:
     """The validation history as JSON lines (one object per validation), atomically."""
     lines = [json.dumps({k: _jsonable(v) for k, v in entry.items()}) for entry in history]
-    write_atomically(path, ("\n".join(lines) + "\n" if lines else "").encode())
-    record_written([path])
+    write_output(path, ("\n".join(lines) + "\n" if lines else "").encode())
 
 
 def publish(work: Path, out: Path) -> None:
-    """Rename the finished work folder to `out` (replacing an existing `out`), then drop the resumable state."""
-    publish_folder(work, out)
+    """Rename the finished work folder to `out` (an existing `out` is checked again and replaced only if the command
+    recorded writing everything in it: cnep.outputs.publish_folder), then drop the resumable state."""
+    try:
+        publish_folder(work, out, owns())
+    except NotOwned as exc:
+        raise PipelineError(
+            f"{exc.path}: --force replaces {out} only when `cnep {writer()}` recorded writing every file in it, and "
+            f"this appeared in it while the run worked; cnep never deletes your own files: {out} is kept as it was "
+            f"and the new checkpoint waits in {work}; move the file away, then run the same command with --resume "
+            f"to put it in place"
+        ) from None
     (out / STATE_FILE).unlink(missing_ok=True)
+    record_written([], forget=[out / STATE_FILE])
 
 
 def _jsonable(value):

@@ -9,7 +9,7 @@ import pytest
 
 from cnep.outputs import RECORD_FILE, OutputError, output_lock, read_record
 from cnep.outputs.lock import lock_path
-from cnep.outputs.record import MAX_RECORD_BYTES
+from cnep.outputs.record import MAX_RECORD_BYTES, RECORD_VERSION
 
 
 def peak_of(read) -> tuple[object, int]:
@@ -23,7 +23,7 @@ def peak_of(read) -> tuple[object, int]:
 
 def test_a_record_larger_than_the_limit_is_no_record_and_is_not_read_whole(tmp_path):
     entries = {f"f{k}.mcap": {"size": 1, "sha256": "0" * 64} for k in range(3)}
-    text = json.dumps({"format_version": 1, "files": entries})
+    text = json.dumps({"format_version": RECORD_VERSION, "files": entries})
     with open(tmp_path / RECORD_FILE, "w") as f:
         f.write(text[:-2] + ', "pad": "')  # a valid start, then a string run out to four times the limit
         f.truncate(4 * MAX_RECORD_BYTES)  # sparse: costs no disk
@@ -33,7 +33,7 @@ def test_a_record_larger_than_the_limit_is_no_record_and_is_not_read_whole(tmp_p
 
 def test_a_record_within_the_limit_is_read(tmp_path):
     entries = {"a.mcap": {"size": 1, "sha256": "0" * 64}}
-    (tmp_path / RECORD_FILE).write_text(json.dumps({"format_version": 1, "files": entries}))
+    (tmp_path / RECORD_FILE).write_text(json.dumps({"format_version": RECORD_VERSION, "files": entries}))
     assert read_record(tmp_path) == entries
 
 

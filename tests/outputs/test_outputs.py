@@ -81,11 +81,12 @@ def test_only_temporaries_of_dead_processes_are_removed(tmp_path, caplog):
     live = tmp_path / f".a.mcap.{os.getpid()}-abcdef.tmp"
     other = tmp_path / f".b.mcap.{dead_pid()}-abcdef.tmp"
     user = tmp_path / ".notes.tmp"  # not one of ours
-    for path in (dead, live, other, user):
+    nested = tmp_path / f".{dead.name}.{dead.name.split('.')[-2]}.tmp"  # a writer's own temporary of one
+    for path in (dead, live, other, user, nested):
         path.write_bytes(b"x")
     with caplog.at_level(logging.WARNING):
-        assert remove_stale_temporaries(tmp_path, ["a.mcap"]) == 1
-    assert "removed 1 temporary file(s) left by an interrupted run" in caplog.text
+        assert remove_stale_temporaries(tmp_path, ["a.mcap"]) == 2
+    assert "removed 2 temporary file(s) left by an interrupted run" in caplog.text
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(p.name for p in (live, other, user))
     (tmp_path / "sub").mkdir()
     (tmp_path / "sub" / dead.name).write_bytes(b"x")

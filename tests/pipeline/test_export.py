@@ -33,6 +33,7 @@ from cnep.runtime.exported import ENCODER_INPUT
 from cnep.runtime.frames import decode_frame
 from cnep.runtime.manifest import file_sha256
 from cnep.runtime.sessions import installed_backends, onnxruntime_graph
+from tests.outputs.test_outputs import dead_pid
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -196,11 +197,12 @@ def test_an_export_stopped_while_replacing_a_folder_leaves_it_restored(policy_wo
     argv = ["-q", "export", str(policy_world.motion_checkpoint), "--out", str(out)]
     assert main(argv) == 0
     before = read_manifest(out).files
-    out.rename(tmp_path / ".p.replaced")  # killed between moving the old folder aside and renaming the new one in
+    aside = tmp_path / f".p.replaced-{dead_pid()}-abcdef"  # where a killed run set the old folder aside
+    out.rename(aside)  # killed between moving the old folder aside and renaming the new one in
     assert main(argv) == 2  # the old folder is back in place, so without --force it is refused
     assert read_manifest(out).files == before and [p.name for p in tmp_path.iterdir()] == ["p"]
-    out.rename(tmp_path / ".p.replaced")
-    shutil.copytree(tmp_path / ".p.replaced", out)  # killed after the new folder was renamed in
+    out.rename(aside)
+    shutil.copytree(aside, out)  # killed after the new folder was renamed in
     assert main([*argv, "--force"]) == 0
     assert read_manifest(out).files == before and [p.name for p in tmp_path.iterdir()] == ["p"]
 

@@ -308,6 +308,7 @@ def test_repair_killed_writes_no_output_and_runs_again(world, tmp_path):
 
 
 def test_demo_killed_leaves_a_folder_a_forced_run_can_take_over(tmp_path, capsys):
+    from cnep.outputs import FOLDER_LOCK, writing_as
     from cnep.pipeline.demo.stage import remove_outputs
 
     stopped = both(  # random weights: no warning that ImageNet weights are missing
@@ -323,7 +324,8 @@ def test_demo_killed_leaves_a_folder_a_forced_run_can_take_over(tmp_path, capsys
     capsys.readouterr()
     assert main(["-q", "demo", "--quick", "--out", str(out)]) == 2  # the lock is taken over; the files need --force
     assert "is not empty" in capsys.readouterr().err and stray(out) == []
-    remove_outputs(out)  # what --force does first: everything there was the demo's
+    with writing_as("demo"):
+        remove_outputs(out, out / FOLDER_LOCK)  # what --force does first: everything there was the demo's
     assert list(out.iterdir()) == []
 
 

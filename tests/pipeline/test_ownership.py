@@ -1,9 +1,11 @@
-"""`--force` replaces only what a cnep command recorded writing (pipeline/ownership.py, cnep.outputs.record).
+"""`--force` replaces only what the same command recorded writing (pipeline/ownership.py, cnep.outputs.record).
 
 Per command: a user's files of every kind the command writes (a JSON object, JSON lines, an MCAP written by cnep,
 torch and safetensors weights, a Rerun file, a PNG signed by matplotlib, a folder) planted in its output survive
 `--force`; one at an output's path, or inside a folder the command replaces, is refused with one line naming a
-file cnep did not write; the command's own recorded outputs are replaced.
+file the command did not write; the command's own recorded outputs are replaced. Another command's outputs, a file
+that appears while a command runs, a folder named like the one a run sets an output aside in, and anything inside a
+command's input are never deleted or written.
 """
 
 from __future__ import annotations
@@ -14,8 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from cnep.outputs import RECORD_FILE, read_record, record_written
-from cnep.pipeline.ownership import foreign_files
+from cnep.outputs import RECORD_FILE, foreign_files, read_record, record_written, recorded_by, writing_as
 from cnep.recordings import write_demonstration
 from tests.pipeline.test_contract import QUICK_EVALUATE, TINY_TRAINING, assert_one_line, run_cli, world  # noqa: F401
 from tests.recordings.factories import demonstration_factory
@@ -65,10 +66,6 @@ def refused(argv: list, capsys, command: str, named: list[Path]) -> str:
     return line
 
 
-def never(path: Path) -> bool:
-    return False
-
-
 # One output file per command that writes files into a folder: (argv, the output the test plants a file at, the
 # user's own content for that path).
 FILE_OUTPUTS = {
@@ -103,19 +100,20 @@ def test_force_replaces_only_the_files_the_command_recorded(world, tmp_path, cap
     planted = plant(tmp_path / "out")
     mine(target)  # the user's own file of the output's kind, where the command writes
     before = snapshot(tmp_path / "out")
-    refused(argv, capsys, command, [target, *planted])  # no record: the folder holds more than cnep's kind
+    refused(argv, capsys, command, [target, *planted])  # no record: the folder is the user's
     assert snapshot(tmp_path / "out") == before
 
     if command == "evaluate":  # too slow to run twice here: a table recorded as its run records it
         target.write_text(json.dumps({"table": "comparison", "settings": {}, "paper_note": "cnep's"}))
-        record_written([target])
+        with writing_as(command):
+            record_written([target])
     else:
         target.unlink()
         code, err = run_cli([*argv, "--force"], capsys)
         assert code == 0, err
         assert unchanged(planted) and target.is_file()
         assert target.name in read_record(target.parent)  # what it wrote is on the folder's record
-        assert foreign_files(tmp_path / "out", never) == sorted(planted)  # and nothing else is
+        assert foreign_files(tmp_path / "out", recorded_by(command)) == sorted(planted)  # and nothing else is
 
         code, err = run_cli([*argv, "--force"], capsys)  # its own recorded output: replaced
         assert code == 0, err
@@ -151,17 +149,14 @@ def test_force_replaces_a_folder_only_when_it_holds_nothing_else(world, tmp_path
     assert code == 0, err
 
 
-def test_a_checkpoint_written_before_records_is_replaced_only_when_it_holds_nothing_else(world, tmp_path, capsys):  # noqa: F811
+def test_a_checkpoint_without_a_record_is_the_users(world, tmp_path, capsys):  # noqa: F811
+    """A folder without a record (an older cnep's, a copy without its record) is the user's, however it looks."""
     out = tmp_path / "ckpt"
     shutil.copytree(world.ckpt, out)
     (out / RECORD_FILE).unlink()
-    (out / "my_notes.json").write_text('{"a": 1}')
-    argv = ["train", world.trajs, "--out", out, *TINY_TRAINING]
-    refused(argv, capsys, "train", [out / "my_notes.json"])
-    (out / "my_notes.json").unlink()
-    code, err = run_cli([*argv, "--force"], capsys)
-    assert code == 0, err
-    assert set(read_record(out)) == {"config.json", "model.safetensors", "training_log.jsonl"}
+    before = snapshot(out)
+    refused(["train", world.trajs, "--out", out, *TINY_TRAINING], capsys, "train", list(before))
+    assert snapshot(out) == before
 
 
 def test_extract_save_weights_replaces_only_its_recorded_weights(world, tmp_path, capsys):  # noqa: F811
@@ -198,34 +193,135 @@ def test_the_demo_never_deletes_a_home_like_folder(world, tmp_path, capsys):  # 
     assert unchanged(planted)
 
 
+@writing_as("demo")
 def test_a_demo_folder_is_all_recorded_and_nothing_else_is_deleted(quick_demo, tmp_path):
+    from cnep.outputs import FOLDER_LOCK
     from cnep.pipeline.demo.stage import remove_outputs
     from cnep.pipeline.errors import PipelineError
 
     copy = tmp_path / "demo"
     shutil.copytree(quick_demo, copy)
-    assert foreign_files(copy, never) == []  # every file the demo wrote is on its folder's record
+    assert foreign_files(copy, recorded_by("demo")) == []  # every file the demo wrote is on its folder's record
     for name, data in plant(tmp_path / "kinds").items():  # each kind, at each depth the demo writes, is refused
         for into in (copy, copy / "checkpoints", copy / "checkpoints" / "cnep", copy / "demos" / "train"):
             path = into / name.relative_to(tmp_path / "kinds")
             path.parent.mkdir(exist_ok=True)
             path.write_bytes(data)
             with pytest.raises(PipelineError, match=f"^{path}: --force deletes only what an earlier demo"):
-                remove_outputs(copy)
+                remove_outputs(copy, copy / FOLDER_LOCK)
             assert path.read_bytes() == data
             shutil.rmtree(path.parent) if path.parent.name == "mine" else path.unlink()
-    remove_outputs(copy)
+    remove_outputs(copy, copy / FOLDER_LOCK)
     assert [p.name for p in copy.iterdir()] == []
 
 
-def test_deeply_nested_json_is_a_users_file_not_a_crash(tmp_path):
-    """A record or an output-like JSON nested thousands of levels deep is read with a limit: not cnep's, no
+def test_a_deeply_nested_record_is_no_record_not_a_crash(tmp_path):
+    """A record nested thousands of levels deep is read with a limit: the folder holds nothing of cnep's, no
     RecursionError."""
-    from cnep.pipeline.ownership import json_with
-
     deep = "[" * 5000 + "]" * 5000
     (tmp_path / RECORD_FILE).write_text(deep)
     (tmp_path / "summary.json").write_text(deep)
     assert read_record(tmp_path) is None
-    assert not json_with("a summary", ())(tmp_path / "summary.json")
-    assert foreign_files(tmp_path, json_with("a summary", ())) == [tmp_path / "summary.json"]
+    assert foreign_files(tmp_path, recorded_by("demo")) == [tmp_path / "summary.json"]
+
+
+# --- what no command deletes: another command's outputs, a file that appears while it runs, a user's folder beside an
+# --- output, anything inside its input --------------------------------------------------------------------------
+
+
+def test_the_demo_replaces_only_what_a_demo_recorded_writing(quick_demo, world, tmp_path, capsys):  # noqa: F811
+    """Another command's recorded outputs inside a demo folder, and a cnep MCAP copied into one of its folders that
+    holds no record, are not the demo's: `cnep demo --force` refuses, and deletes nothing."""
+    demo = tmp_path / "d"
+    shutil.copytree(quick_demo, demo)
+    assert run_cli(["ingest", world.csv, "--out", demo / "mydata"], capsys)[0] == 0  # recorded, by `cnep ingest`
+    mine = snapshot(demo / "mydata")
+    before = snapshot(demo)
+    refused(["demo", "--quick", "--out", demo], capsys, "demo", list(mine))
+    assert snapshot(demo) == before
+    shutil.rmtree(demo / "mydata")
+    shutil.copy(next((demo / "demos" / "train").glob("*.mcap")), demo / "demos" / "copied.mcap")
+    before = snapshot(demo)
+    refused(["demo", "--quick", "--out", demo], capsys, "demo", [demo / "demos" / "copied.mcap"])
+    assert snapshot(demo) == before
+
+
+def trained_copy(world, folder: Path) -> Path:  # noqa: F811
+    """A checkpoint `cnep train` wrote (the world's, copied with its record) at `folder`."""
+    shutil.copytree(world.ckpt, folder)
+    return folder
+
+
+def test_train_force_keeps_another_commands_outputs_inside_the_checkpoint(world, tmp_path, capsys, one_thread):  # noqa: F811
+    ckpt = trained_copy(world, tmp_path / "ckpt")
+    elsewhere = tmp_path / "runs" / "r.rrd"
+    assert run_cli(["run", ckpt, world.demos / "d0.mcap", "--out", elsewhere, "--fast"], capsys)[0] == 0
+    shutil.move(tmp_path / "runs", ckpt / "runs")  # a run's outputs, with their record, moved into the checkpoint
+    before = snapshot(ckpt)
+    refused(["train", world.trajs, "--out", ckpt, *TINY_TRAINING], capsys, "train", list(snapshot(ckpt / "runs")))
+    assert snapshot(ckpt) == before
+
+
+def test_a_file_written_into_the_checkpoint_while_training_is_kept(world, tmp_path, capsys, monkeypatch, one_thread):  # noqa: F811
+    """Ownership is checked again when the new checkpoint replaces the old one, not only when the run starts: a file
+    that appeared meanwhile keeps the old checkpoint in place, and the finished one waits in the work folder."""
+    import cnep.pipeline.train.stage as stage
+
+    ckpt = trained_copy(world, tmp_path / "ckpt")
+    save = stage.save_progress
+
+    def save_and_write(*args, **kwargs):
+        (ckpt / "thesis.tex").write_text("mine")
+        return save(*args, **kwargs)
+
+    monkeypatch.setattr(stage, "save_progress", save_and_write)
+    argv = ["train", world.trajs, "--out", ckpt, *TINY_TRAINING]
+    before = {**snapshot(ckpt), ckpt / "thesis.tex": b"mine"}
+    line = refused(argv, capsys, "train", [ckpt / "thesis.tex"])
+    assert "--resume" in line
+    assert snapshot(ckpt) == before
+    monkeypatch.setattr(stage, "save_progress", save)
+    (ckpt / "thesis.tex").unlink()
+    code, err = run_cli([*argv, "--force", "--resume"], capsys)  # the trained checkpoint is published
+    assert code == 0, err
+    assert snapshot(ckpt) != {p: b for p, b in before.items() if p.name != "thesis.tex"}
+    assert not (tmp_path / ".ckpt.partial").exists()
+
+
+@pytest.mark.parametrize("present", [True, False], ids=["output-present", "output-missing"])
+def test_a_users_replaced_folder_beside_the_output_is_never_touched(world, tmp_path, capsys, present, one_thread):  # noqa: F811
+    """A folder named like the one a run sets the old output aside in is the user's: neither deleted nor renamed."""
+    ckpt = tmp_path / "ckpt"
+    if present:
+        trained_copy(world, ckpt)
+    mine = {}
+    for name in (".ckpt.replaced", ".policy.replaced"):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "thesis.tex").write_text("mine")
+        mine[tmp_path / name / "thesis.tex"] = b"mine"
+    code, err = run_cli(["train", world.trajs, "--out", ckpt, *TINY_TRAINING, "--force"], capsys)
+    assert code == 0, err
+    code, err = run_cli(["export", ckpt, "--out", tmp_path / "policy", "--force"], capsys)
+    assert code == 0, err
+    assert unchanged(mine) and (ckpt / "config.json").is_file() and (tmp_path / "policy" / "manifest.json").is_file()
+
+
+INSIDE_INPUT = {  # argv writing into the checkpoint or policy it reads
+    "run": lambda w, ck: ["run", ck, w.demos / "d0.mcap", "--out", ck / "runs" / "r.rrd", "--fast"],
+    "replay": lambda w, ck: ["replay", ck, w.trajs / "t0.mcap", "--out", ck / "r.rrd", "--no-live"],
+    "export": lambda w, ck: ["export", ck, "--out", ck / "policy"],
+    "extract": lambda w, ck: ["extract", w.demos, "--out", w.demos / "trajectories"],
+    "train": lambda w, ck: ["train", w.trajs, "--out", w.trajs / "ckpt", *TINY_TRAINING],
+}
+
+
+@pytest.mark.parametrize("command", INSIDE_INPUT)
+def test_no_command_writes_inside_its_input(world, tmp_path, capsys, command, one_thread):  # noqa: F811
+    ckpt = trained_copy(world, tmp_path / "ckpt")
+    inputs = [ckpt, world.demos, world.trajs]
+    before = {folder: snapshot(folder) for folder in inputs}
+    code, err = run_cli(INSIDE_INPUT[command](world, ckpt), capsys)
+    assert code == 2, err
+    assert_one_line(err, command, "--out", "inside the input")
+    assert {folder: snapshot(folder) for folder in inputs} == before
+    assert not any(p.name.startswith(".") and "lock" in p.name for folder in inputs for p in folder.rglob("*"))

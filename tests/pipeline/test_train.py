@@ -183,7 +183,7 @@ def test_existing_output_is_refused_unless_forced(full_set, tmp_path):
         train(stage_config(full_set, out, steps=10))
     with pytest.raises(
         PipelineError,
-        match="keep.txt: --force replaces the folder .* only when a cnep command recorded writing every file in it",
+        match="keep.txt: --force replaces the folder .* only when `cnep train` recorded writing every file in it",
     ):
         train(stage_config(full_set, out, steps=10, force=True))  # a folder of the user's own files is never deleted
     assert (out / "keep.txt").read_text() == "mine" and not work_dir(out).exists()

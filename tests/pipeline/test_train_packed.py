@@ -4,12 +4,20 @@ import numpy as np
 import pytest
 
 from cnep.models.normaliser import Moments
+from cnep.outputs import writing_as
 from cnep.pipeline.train.data import load_training_set
 from cnep.pipeline.train.packed import pack_columns
 from cnep.pipeline.train.parallel import Processes, disjoint, share
 from cnep.pipeline.train.presets import resolve_preset
 from cnep.recordings import read_trajectory, readers, write_trajectory
 from tests.recordings.factories import trajectory_factory
+
+
+@pytest.fixture(autouse=True)
+def as_train():
+    """A pack is the train stage's work file, recorded as the command's."""
+    with writing_as("train"):
+        yield
 
 
 @pytest.fixture

@@ -212,7 +212,7 @@ def test_bad_csv(tmp_path, line, column, value, words):
 
 def test_output_inside_source_is_refused(tmp_path):
     baxter_csv(tmp_path / "a.csv", baxter_times(5))
-    with pytest.raises(RecordingError, match="inside the source folder"):
+    with pytest.raises(PipelineError, match="the output folder is inside the input"):
         ingest(IngestConfig(src=tmp_path, out=tmp_path / "out", quiet=True))
 
 
@@ -377,4 +377,4 @@ def test_force_never_replaces_a_file_cnep_did_not_write(tmp_path, capsys):
     for force in ([], ["--force"]):
         assert main(["-q", "ingest", str(tmp_path / "a.csv"), "--out", str(tmp_path / "out"), *force]) == 2
         assert (tmp_path / "out" / "a.mcap").read_text() == "my own notes"
-    assert "a.mcap: --force replaces only what a cnep command recorded writing" in capsys.readouterr().err
+    assert "a.mcap: --force replaces only what `cnep ingest` recorded writing" in capsys.readouterr().err
