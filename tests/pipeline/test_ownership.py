@@ -255,7 +255,7 @@ def trained_copy(world, folder: Path) -> Path:  # noqa: F811
 def test_train_force_keeps_another_commands_outputs_inside_the_checkpoint(world, tmp_path, capsys, one_thread):  # noqa: F811
     ckpt = trained_copy(world, tmp_path / "ckpt")
     elsewhere = tmp_path / "runs" / "r.rrd"
-    assert run_cli(["run", ckpt, world.demos / "d0.mcap", "--out", elsewhere, "--fast"], capsys)[0] == 0
+    assert run_cli(["run", ckpt, world.ckpt_demo, "--out", elsewhere, "--fast"], capsys)[0] == 0
     shutil.move(tmp_path / "runs", ckpt / "runs")  # a run's outputs, with their record, moved into the checkpoint
     before = snapshot(ckpt)
     refused(["train", world.trajs, "--out", ckpt, *TINY_TRAINING], capsys, "train", list(snapshot(ckpt / "runs")))

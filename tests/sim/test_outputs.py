@@ -119,19 +119,19 @@ def test_a_stopped_sim_eval_keeps_nothing_half_made_and_runs_again(world_ckpt, t
     out = tmp_path / "eval"
     error, status, said = STOPS[stop]
     monkeypatch.setattr(sim_eval, "_evaluate", lambda config, label, folder: half_done(folder, error))
-    code, err = run_cli(["sim", "eval", world_ckpt, "--out", out], capsys)
+    code, err = run_cli(["sim", "eval", world_ckpt, "--task", "obstacle", "--out", out], capsys)
     assert code == status and said in assert_one_line(err, "sim")
     assert names(tmp_path) == []  # no .rrd or episode.png without summary.json: nothing at all
     monkeypatch.setattr(sim_eval, "_evaluate", lambda config, label, folder: half_done(folder, None))
     monkeypatch.setattr(sim_eval, "_summary", lambda config, results: {"table": "the table"})
-    code, err = run_cli(["sim", "eval", world_ckpt, "--out", out], capsys)
+    code, err = run_cli(["sim", "eval", world_ckpt, "--task", "obstacle", "--out", out], capsys)
     assert code == 0, err
     assert {FIGURE_FILE, SUMMARY_FILE, "episodes"} <= set(os.listdir(out))
     assert sorted(p.name for p in tmp_path.iterdir()) == ["eval"]
 
 
 def test_sim_eval_never_writes_inside_its_input(world_ckpt, tmp_path, capsys):
-    code, err = run_cli(["sim", "eval", world_ckpt, "--out", world_ckpt / "eval"], capsys)
+    code, err = run_cli(["sim", "eval", world_ckpt, "--task", "obstacle", "--out", world_ckpt / "eval"], capsys)
     assert code == 2
     assert_one_line(err, "sim", f"{world_ckpt / 'eval'}: ", "inside the input", "--out")
     assert not (world_ckpt / "eval").exists()
