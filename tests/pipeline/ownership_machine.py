@@ -143,6 +143,13 @@ def commands(w: World, r: Path) -> dict[str, Command]:
 COMMANDS = ("train", "export", "demo", "ingest", "extract", "run", "replay", "repair", "train its own")
 COMMANDS += ("run inside its input",)
 FORCE = st.sampled_from([True, False])
+STOP = {  # a command in a process of its own, and where to stop it: `Command.points[point]`, at its `hit`-th call
+    "command": st.sampled_from([c for c in COMMANDS if c != "demo"]),
+    "force": FORCE,
+    "signum": st.sampled_from([signal.SIGKILL, signal.SIGTERM, signal.SIGINT]),
+    "point": st.integers(0, 99),
+    "hit": st.integers(1, 3),
+}
 NAMES = ("notes.txt", "demo_0.mcap", CONFIG, "model.safetensors", "state.pt", "r.rrd", MANIFEST_FILE, "summary.json")
 # Where a user's file goes, relative to a command's outputs: at an output's own path, inside its folder (deeper too),
 # beside it, in folders named like the ones a run sets an output aside in, and in a training's work folder.
@@ -180,14 +187,17 @@ class Ownership(RuleBasedStateMachine):
         self.user: dict[Path, bytes] = {}
         self.interrupted: list | None = None
 
-    @initialize(outputs=st.sampled_from([True, False]))
-    def start(self, outputs: bool) -> None:
-        """An empty folder, or one holding outputs already (the world's, copied with their records)."""
+    @initialize(outputs=st.sampled_from([True, False]), stopped=st.sampled_from([True, False]), **STOP)
+    def start(self, outputs: bool, stopped: bool, **stop) -> None:
+        """An empty folder, or one holding outputs already (the world's, copied with their records); in half the
+        histories (those Hypothesis tries first among them), a command stopped by a signal first."""
         if outputs:
             for name, source in (("demos", self.world.demos), ("trajs", self.world.trajs), ("ckpt", self.world.ckpt)):
                 shutil.copytree(source, self.root / name)
             if self.world.demo is not None:
                 shutil.copytree(self.world.demo, self.root / "demo")
+        if stopped and self.server is not None:
+            self.stop_a_command(**stop)
 
     # --- what the user does ---------------------------------------------------------------------------------------
 
@@ -212,9 +222,7 @@ class Ownership(RuleBasedStateMachine):
     @rule(
         command=st.sampled_from(COMMANDS),
         force=FORCE,
-        mine=st.lists(
-            st.tuples(st.sampled_from(WHERE), st.sampled_from(NAMES), st.binary(max_size=8)), min_size=1, max_size=2
-        ),
+        mine=st.lists(st.tuples(st.sampled_from(WHERE), st.sampled_from(NAMES), st.binary(max_size=8)), max_size=2),
     )
     def run_a_command(self, command: str, force: bool, mine: list) -> None:
         chosen = commands(self.world, self.root)[command]
@@ -248,13 +256,7 @@ class Ownership(RuleBasedStateMachine):
         return sorted(p for p in found if p not in self.user and not bookkeeping(p.name))
 
     @precondition(lambda self: self.server is not None)
-    @rule(
-        command=st.sampled_from([c for c in COMMANDS if c != "demo"]),
-        force=FORCE,
-        signum=st.sampled_from([signal.SIGKILL, signal.SIGTERM, signal.SIGINT]),
-        point=st.integers(0, 99),
-        hit=st.integers(1, 3),
-    )
+    @rule(**STOP)
     def stop_a_command(self, command: str, force: bool, signum: int, point: int, hit: int) -> None:
         chosen = commands(self.world, self.root)[command]
         argv = [*chosen.argv, *(["--force"] if force else [])]
