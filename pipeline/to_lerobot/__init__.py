@@ -5,4 +5,4 @@
 
 from cnep.pipeline import exports
 
-__getattr__, __all__ = exports(__name__, {"config": ("ToLerobotConfig",), "stage": ("to_lerobot", "LEROBOT_DATASET")})
+__getattr__, __all__ = exports(__name__, {"config": ("ToLerobotConfig",), "stage": ("to_lerobot",)})
