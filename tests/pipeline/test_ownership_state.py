@@ -15,7 +15,7 @@ from tests.pipeline.ownership_machine import World, run_machine
 from tests.pipeline.preloaded import Preloaded
 from tests.recordings.factories import demonstration_factory
 
-EXAMPLES = int(os.environ.get("CNEP_OWNERSHIP_EXAMPLES", "8"))
+EXAMPLES = int(os.environ.get("CNEP_OWNERSHIP_EXAMPLES", "4"))
 STEPS = int(os.environ.get("CNEP_OWNERSHIP_STEPS", "8"))
 DEMO_RUNS = os.environ.get("CNEP_OWNERSHIP_DEMO") == "1"
 
