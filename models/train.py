@@ -5,7 +5,8 @@ learning-rate warm-up then cosine decay, and the gate held uniform (zero-initial
 the first `gate_freeze_fraction` of the steps, so that the experts learn to reconstruct before the
 gate starts to commit, and then learning at `gate_lr_scale` times the learning rate (by default the
 assignment's own: `models.assignments`). The best model by validation error is kept, from the step where the
-assignment's posterior has settled on (`Assignment.settled_fraction`).
+assignment's posterior has settled on (`Assignment.settled_fraction`); with `keep_candidates`, also the best of
+each part of training (models.candidates), for a choice made after it in closed loop.
 
 Adam runs fused (one kernel over all parameters, faster than the per-tensor `foreach` path for a network this
 small: benchmarks/bench_training.py). `models.batched` trains several

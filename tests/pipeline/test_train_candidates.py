@@ -12,18 +12,18 @@ from cnep.models.candidates import Candidates
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.train.constants import CANDIDATES_DIR, LOG_FILE
 from cnep.pipeline.train.stage import train
-from tests.pipeline.test_train import full_set, stage_config  # noqa: F401 (a fixture)
+from tests.pipeline.test_train import full_set, interrupt_at, stage_config  # noqa: F401 (a fixture)
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 def test_candidates_are_complete_checkpoints_each_the_best_of_its_part(full_set, tmp_path):  # noqa: F811
-    out = train(stage_config(full_set, tmp_path / "ckpt", steps=60, assignment="mixture", candidates=3))
+    out = train(stage_config(full_set, tmp_path / "ckpt", steps=40, assignment="mixture", candidates=2))
     config = read_checkpoint_config(out)
-    assert config["training"]["candidates"] == 3
+    assert config["training"]["candidates"] == 2
     log = [json.loads(line) for line in (out / LOG_FILE).read_text().splitlines()]
     folders = sorted((out / CANDIDATES_DIR).iterdir())
-    assert len(folders) == 3  # validations at 10, 20, ... 60: steps 0-20, 21-40, 41-60 (mixture keeps from 0)
+    assert len(folders) == 2  # validations at 10, 20, 30, 40: parts 0-20 and 21-40 (mixture keeps from step 0)
     steps = []
     for folder in folders:
         candidate = read_checkpoint_config(folder)
@@ -47,3 +47,18 @@ def test_one_candidate_writes_none_and_zero_is_refused(full_set, tmp_path):  # n
     with pytest.raises(PipelineError, match="candidates must be >= 1"):
         stage_config(full_set, tmp_path / "other", candidates=0)
     assert Candidates(n=2, first=0, last=9).part(9) == 1
+
+
+def test_an_interrupted_run_resumes_to_the_same_candidates(full_set, tmp_path, monkeypatch):  # noqa: F811
+    whole = train(stage_config(full_set, tmp_path / "whole", steps=40, assignment="mixture", candidates=2))
+    out = tmp_path / "resumed"
+    with monkeypatch.context() as patch:
+        interrupt_at(patch, 25)  # the last save was at step 20: the first part's candidate is in the saved state
+        with pytest.raises(KeyboardInterrupt):
+            train(stage_config(full_set, out, steps=40, assignment="mixture", candidates=2))
+    train(stage_config(full_set, out, steps=40, assignment="mixture", candidates=2, resume=True))
+    names = sorted(p.name for p in (whole / CANDIDATES_DIR).iterdir())
+    assert names == sorted(p.name for p in (out / CANDIDATES_DIR).iterdir()) and len(names) == 2
+    for name in names:
+        expected, got = (load_file(d / CANDIDATES_DIR / name / "model.safetensors") for d in (whole, out))
+        assert all(torch.equal(expected[key], got[key]) for key in expected)
