@@ -146,3 +146,12 @@ def test_each_checkpoint_keeps_the_candidate_that_succeeds_most_and_records_the_
 def test_one_candidate_is_no_choice(tmp_path):
     config = SimConfig(out=tmp_path / "o", selection=SelectionSettings(candidates=1))
     assert select_checkpoints(config, find_task("obstacle"), tmp_path, {"CNEP-seed0": tmp_path}, tmp_path, 2) == {}
+
+
+def test_the_command_refuses_reported_seeds_that_meet_the_validation_seeds_in_one_line(tmp_path, capsys):
+    from cnep.pipeline.cli.main import main
+
+    code = main(["sim", "obstacle", "--out", str(tmp_path / "o"), "--episode-seed", str(VALIDATION_SEED_OFFSET - 1),
+                 "--episodes", "2"])  # fmt: skip
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "meet the validation seeds" in err[0] and not (tmp_path / "o").exists()
