@@ -101,9 +101,9 @@ def select_checkpoints(
         winner = choose(candidates, [s["success"] for s in scored])
         records[label] = selection_record(config, task, candidates, scored, winner)
         keep(checkpoints[label], winner, records[label])
-        log.info("%s: kept the weights of step %d (validation success %.2f)", label, winner.step, max(
-            s["success"] for s in scored))  # fmt: skip
-    shutil.rmtree(out / SELECTION_DIR, ignore_errors=True)
+        best = max(s["success"] for s in scored)
+        log.info("%s: kept the weights of step %d (validation success %.2f)", label, winner.step, best)
+    shutil.rmtree(out / SELECTION_DIR)
     return records
 
 
