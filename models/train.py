@@ -5,7 +5,8 @@ learning-rate warm-up then cosine decay, and the gate held uniform (zero-initial
 the first `gate_freeze_fraction` of the steps, so that the experts learn to reconstruct before the
 gate starts to commit, and then learning at `gate_lr_scale` times the learning rate (by default the
 assignment's own: `models.assignments`). The best model by validation error is kept, from the step where the
-assignment's posterior has settled on (`Assignment.settled_fraction`).
+assignment's posterior has settled on (`Assignment.settled_fraction`); with `keep_candidates`, also the best of
+each part of training (models.candidates), for a choice made after it in closed loop.
 
 Adam runs fused (one kernel over all parameters, faster than the per-tensor `foreach` path for a network this
 small: benchmarks/bench_training.py). `models.batched` trains several
@@ -24,6 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from cnep.models.candidates import Candidates
 from cnep.models.cnep import CNEP
 from cnep.models.config import CNEPConfig, TrainConfig
 from cnep.models.errors import ConfigError
@@ -168,6 +170,8 @@ class Trainer:
     best_step: int = 0
     history: list[dict] = field(default_factory=list)
     diverged: str | None = None  # why training stopped on a validation error that is not finite or far too large
+    # candidates kept besides the best weights (models.candidates): the best of each of this many parts of training
+    keep_candidates: int = 0
 
     def __post_init__(self) -> None:
         self.cfg = self.cfg.for_assignment(self.model.config.assigned)
@@ -201,6 +205,9 @@ class Trainer:
         assignment = self.model.config.assigned
         # validations before this step are logged but never kept as the best model (Assignment.settled_fraction)
         self.keep_from = int(assignment.settled_fraction * self.cfg.steps)
+        self.candidates = (
+            Candidates(self.keep_candidates, self.keep_from, self.cfg.steps) if self.keep_candidates else None
+        )
         balanced = assignment.balancing is not None and self.model.n_experts > 1
         # the steps at which an idle expert may take a copy of a busy one (models.split)
         self.split_at = (
@@ -289,11 +296,15 @@ class Trainer:
         return error
 
     def validate(self) -> float:
-        """`validation_error`, keeping the weights when it is the best so far (from `keep_from` on)."""
+        """`validation_error`, keeping the weights when it is the best so far (from `keep_from` on), and offering
+        them to the candidates (`keep_candidates`)."""
         error = self.validation_error()
-        if error < self.best_error and error <= DIVERGED_ERROR and self.step >= self.keep_from:
-            self.best_error, self.best_step = error, self.step
-            self.best_state = copy.deepcopy(self.model.state_dict())
+        if error <= DIVERGED_ERROR and self.step >= self.keep_from:
+            if error < self.best_error:
+                self.best_error, self.best_step = error, self.step
+                self.best_state = copy.deepcopy(self.model.state_dict())
+            if self.candidates is not None:
+                self.candidates.offer(self.step, error, self.model.state_dict())
         return error
 
     def state_dict(self) -> dict:
@@ -308,6 +319,7 @@ class Trainer:
             "best_step": self.best_step,
             "history": self.history,
             "diverged": self.diverged,
+            "candidates": self.candidates.state_dict() if self.candidates is not None else None,
         }
 
     def load_state_dict(self, state: dict) -> None:
@@ -318,6 +330,8 @@ class Trainer:
         self.step, self.best_error = state["step"], state["best_error"]
         self.best_state, self.history = state["best_state"], state["history"]
         self.diverged = state.get("diverged")
+        if self.candidates is not None and state.get("candidates") is not None:
+            self.candidates.load_state_dict(state["candidates"])
         if "best_step" in state:
             self.best_step = state["best_step"]
         elif self.history:  # saved before best_step was recorded: every validation could be kept then

@@ -14,13 +14,15 @@ HELP = (
     "`sim` extra)"
 )
 OBSTACLE_HELP = (
-    "generate demonstrations in the simulator, ingest, extract, train the CNEP and the matched CNMP, export, run "
-    "them in closed loop and print the table"
+    "generate demonstrations in the simulator, ingest, extract, train the CNEP and the matched CNMP, keep the "
+    "checkpoint of each that succeeds most on validation episodes, export, run them in closed loop on other episodes "
+    "and print the table"
 )
 PICK_PLACE_HELP = (
-    "the pick-and-place task: generate demonstrations, ingest, extract, train the CNEP and the matched CNMP, export, "
-    "run them and the baselines in closed loop (scenes that decide the place, leave it free, change during the "
-    "motion) and print the table"
+    "the pick-and-place task: generate demonstrations, ingest, extract, train the CNEP and the matched CNMP, keep "
+    "the checkpoint of each that succeeds most on validation episodes, export, run them and the baselines in closed "
+    "loop on other episodes (scenes that decide the place, leave it free, change during the motion) and print the "
+    "table"
 )
 EVAL_HELP = "run a policy (exported folder or checkpoint) in closed loop in the simulator and print its rates"
 

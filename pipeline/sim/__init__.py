@@ -1,6 +1,6 @@
 """Stage `sim`: policies in closed loop in the simulator (cnep.sim, the `sim` extra): `run_sim` from nothing to the
 table for any task (`cnep sim obstacle`, `cnep sim pick-place`), `run_eval` for a given policy (`cnep sim eval`),
-`evaluate_policy` the loop itself.
+`evaluate_policy` the loop itself, `SelectionSettings` how `cnep sim` chooses the checkpoint it keeps.
 """
 
 from cnep.pipeline import exports
@@ -12,5 +12,6 @@ __getattr__, __all__ = exports(
         "evaluate": ("run_eval",),
         "loop": ("evaluate_policy",),
         "stage": ("run_sim",),
+        "validation": ("SelectionSettings",),
     },
 )

@@ -18,6 +18,7 @@ from cnep.pipeline.demo.config import AUTO_WEIGHTS
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.inputs import coerce_paths
 from cnep.pipeline.run.config import CHECKPOINT, CONFIG_FILE, policy_kind
+from cnep.pipeline.sim.validation import SelectionSettings, check_reported
 from cnep.pipeline.train.constants import TASKS as TASKS_KEY
 from cnep.runtime.conditioning import ConditioningPolicy
 from cnep.runtime.constants import MANIFEST_FILE
@@ -63,13 +64,15 @@ def protocols_of(protocol: str) -> tuple[str, ...]:
 
 
 def check_episode_seeds(first: int, episodes: int) -> None:
-    """PipelineError unless the episode seeds `first` .. `first + episodes - 1` are seeds (models.config.SEED_MAX)."""
+    """PipelineError unless the episode seeds `first` .. `first + episodes - 1` are seeds (models.config.SEED_MAX)
+    outside the validation seeds (pipeline.sim.validation)."""
     check_seed("--episode-seed", first, PipelineError)
     if first + episodes - 1 > SEED_MAX:
         raise PipelineError(
             f"--episode-seed {first} and --episodes {episodes} give episode seeds up to {first + episodes - 1}, more "
             f"than the largest seed, {SEED_MAX}"
         )
+    check_reported(first, episodes)
 
 
 def check_seeds(seed: int, train_seeds: tuple[int, ...]) -> None:
@@ -135,6 +138,7 @@ class SimConfig(LoopSettings):
         False, "also run ProMP and GMM-GMR (on PCA-reduced features) and nearest-demonstration retrieval in the loop"
     )
     pca: int = setting(8, "principal components of the features the baselines see (PCA fitted on the training frames)")
+    selection: SelectionSettings = field(default_factory=SelectionSettings)  # the kept checkpoint's choice
     quiet: bool = False
 
     def __post_init__(self) -> None:
@@ -235,6 +239,7 @@ class PickPlaceConfig:
         True, "also run ProMP and GMM-GMR (on PCA-reduced features) and nearest-demonstration retrieval in the loop"
     )
     pca: int = setting(8, "principal components of the features the baselines see (PCA fitted on the training frames)")
+    selection: SelectionSettings = field(default_factory=SelectionSettings)  # the kept checkpoint's choice
     quiet: bool = False
 
     @property

@@ -1,6 +1,7 @@
 """`cnep sim eval POLICY`: one given policy (an exported folder or a checkpoint) in closed loop, on the task it was
 trained on (or `task`: pipeline.sim.config.with_task); the table on screen, and with `out` a folder holding
-`summary.json` (per protocol, and condition where the task has conditions, the rates and every episode's row), the
+`summary.json` (the episode seeds it reports, which never meet the validation seeds of pipeline.sim.validation; per
+protocol, and condition where the task has conditions, the rates and every episode's row), the
 recordings of the first episodes and `episode.png` (pipeline.sim.figure), assembled beside it and renamed into place
 when complete (pipeline.folders), never inside the policy it reads. The same settings and episode seeds as
 the `cnep sim` run that trained the policy give the same rows as its summary: the run trains its conditioning into
@@ -22,6 +23,7 @@ from cnep.pipeline.sim.figure import FIGURE_FILE
 from cnep.pipeline.sim.loop import episodes_of, evaluate_policy, for_task, open_task_policy
 from cnep.pipeline.sim.stage import SUMMARY_FILE, refuse_unless_new
 from cnep.pipeline.sim.summary import format_table
+from cnep.pipeline.sim.validation import seeds_record
 from cnep.sim.tasks import find_task
 
 
@@ -58,4 +60,5 @@ def _evaluate(config: EvalConfig, label: str, out: Path | None) -> dict:
 def _summary(config: EvalConfig, results: dict) -> dict:
     settings = {k: str(v) if isinstance(v, Path) else v for k, v in asdict(config).items() if k != "quiet"}
     table = format_table(results, find_task(config.task))
-    return {"settings": settings, "results": next(iter(results.values())), "table": table}
+    seeds = seeds_record(config.episode_seed, config.episodes, None)  # it chooses nothing: reported seeds only
+    return {"settings": settings, "seeds": seeds, "results": next(iter(results.values())), "table": table}

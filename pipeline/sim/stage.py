@@ -10,9 +10,13 @@ Stages (each logs its progress), all under OUT:
               ImageNet's where they can be had, else seeded random ones calibrated on these frames), saved to
               `extractor.pt`;
 4. train      `checkpoints/{cnep,cnmp}-seedN`: per training seed the CNEP and the parameter-matched CNMP, two at a
-              time (layout `scene`: observe features + pose + gripper, query with time, predict pose + gripper);
-5. export     `policies/{cnep,cnmp}-seedN`: each checkpoint as a torch-free policy folder (`cnep export`);
-6. closed loop `episodes/*.rrd` (the first `record` episodes of each policy, protocol and condition) and
+              time (layout `scene`: observe features + pose + gripper, query with time, predict pose + gripper),
+              each with `selection.candidates` candidate checkpoints (`cnep train --candidates`);
+5. select     each checkpoint's weights: the candidate that succeeds most in validation episodes
+              (pipeline.sim.selection, on seeds never reported: pipeline.sim.validation), recorded in its config.json
+              and the summary;
+6. export     `policies/{cnep,cnmp}-seedN`: each checkpoint as a torch-free policy folder (`cnep export`);
+7. closed loop `episodes/*.rrd` (the first `record` episodes of each policy, protocol and condition) and
               `summary.json`: every exported policy (and with `baselines` ProMP, GMM-GMR and the nearest
               demonstration, pipeline.sim.baselines) in closed loop (cnep.runtime.load_policy) by each protocol, in
               each of the task's conditions (pipeline.sim.loop), two policies at a time in single-threaded processes;
@@ -50,6 +54,7 @@ from cnep.pipeline.sim.extras import require_extras
 from cnep.pipeline.sim.figure import FIGURE_FILE
 from cnep.pipeline.sim.generate import generate_demonstrations, ingest_demonstrations
 from cnep.pipeline.sim.loop import episodes_of, evaluate_policy, for_task, open_task_policy
+from cnep.pipeline.sim.selection import run_seeds, select_checkpoints
 from cnep.pipeline.sim.summary import format_table
 from cnep.pipeline.train.stage import TrainStageConfig
 from cnep.pipeline.workers import single_thread_processes
@@ -61,7 +66,7 @@ log = logging.getLogger(__name__)
 
 SUMMARY_FILE = "summary.json"
 EXTRACTOR_FILE = "extractor.pt"
-STAGES = ("generate", "ingest", "extract", "train", "export", "closed loop")
+STAGES = ("generate", "ingest", "extract", "train", "select", "export", "closed loop")
 WORKERS = 2  # processes training the models, then running the policies in closed loop
 
 
@@ -95,7 +100,7 @@ def refuse_unless_new(out: Path) -> None:
 
 
 def _run_stages(config: SimConfig | PickPlaceConfig, task: Task, out: Path) -> dict:
-    """The six stages (STAGES) in order, each timed; returns the summary."""
+    """The stages (STAGES) in order, each timed; returns the summary."""
     seconds: dict[str, float] = {}
     timed = StageClock(seconds, len(STAGES), log)
     chosen = choose_weights(config.weights, config.offline)  # before anything is made: `imagenet` may be refused
@@ -110,9 +115,11 @@ def _run_stages(config: SimConfig | PickPlaceConfig, task: Task, out: Path) -> d
         extract_features(config, out, chosen.weights)
     with timed("train", 4):
         checkpoints = train_models(config, out, started=seconds["train"])
-    with timed("export", 5):
+    with timed("select", 5):
+        selected = select_checkpoints(config, task, out, checkpoints, out / EXTRACTOR_FILE, WORKERS)
+    with timed("export", 6):
         policies = export_policies(checkpoints, out)
-    with timed("closed loop", 6):
+    with timed("closed loop", 7):
         results = _closed_loop(config, task, out, policies)
     return {
         "task": task.name,
@@ -125,6 +132,8 @@ def _run_stages(config: SimConfig | PickPlaceConfig, task: Task, out: Path) -> d
             **task.describe_demonstrations(made.behaviours),
             "clean": made.successes,
         },
+        "seeds": run_seeds(config),
+        "selection": selected,
         "models": by_model(results),
         "table": format_table(results, task),
         "seconds": seconds,
@@ -164,7 +173,8 @@ def train_models(config: SimConfig | PickPlaceConfig, out: Path, started: float)
             checkpoints[label] = out / "checkpoints" / f"{name.lower()}-seed{seed}"
             jobs[label] = TrainStageConfig(
                 inputs=(out / "trajectories",), out=checkpoints[label], layout=LAYOUT, training=training,
-                conditioning=trained_conditioning(config), quiet=True, **network,
+                conditioning=trained_conditioning(config), candidates=config.selection.candidates, quiet=True,
+                **network,
             )  # fmt: skip
     log.info("training %d models, %d at a time (%d steps each)", len(jobs), WORKERS, config.train_steps)
     train_side_by_side(jobs, config.quiet, started, workers=WORKERS)

@@ -26,9 +26,10 @@ class TrainStageConfig:
     schedule, val_every, patience (validations), seed, threads (models.TrainConfig); conditioning: how a policy of
     the model conditions online and picks its active expert (runtime.ConditioningPolicy: window, anchors, first
     expert, switch margin and window), stored in config.json and in every policy made of it; val_fraction: share of the
-    demonstrations held out for validation (whole demonstrations, at least one); save_every: steps between
-    resumable saves; device: cpu or cuda; resume: continue the unfinished run writing to `out`; force: replace
-    an existing `out` when the run completes.
+    demonstrations held out for validation (whole demonstrations, at least one); candidates: with 2 or more, the
+    checkpoint also holds that many candidate checkpoints for a choice after training (models.candidates);
+    save_every: steps between resumable saves; device: cpu or cuda; resume: continue the unfinished run writing to
+    `out`; force: replace an existing `out` when the run completes.
     """
 
     inputs: tuple[Path, ...]
@@ -50,6 +51,12 @@ class TrainStageConfig:
     training: TrainConfig = field(default_factory=TrainConfig)
     conditioning: ConditioningPolicy = field(default_factory=ConditioningPolicy)
     val_fraction: float = setting(0.2, "share of the demonstrations held out for validation")
+    candidates: int = setting(
+        1,
+        "checkpoints kept for a choice after training: with N >= 2, OUT/candidates/ also holds N complete checkpoints, "
+        "the weights with the lowest validation error in each of N equal parts of training (`cnep sim` chooses among "
+        "them in closed loop); 1: the one checkpoint",
+    )
     save_every: int = setting(500, "steps between resumable saves")
     device: str = setting("cpu", "where the network trains", choices=DEVICES)
     resume: bool = setting(False, "continue the interrupted run writing to --out")
@@ -64,6 +71,8 @@ class TrainStageConfig:
         coerce_paths(self)
         if not 0 < self.val_fraction < 1:
             raise PipelineError(f"val_fraction must be in (0, 1), got {self.val_fraction}")
+        if self.candidates < 1:
+            raise PipelineError(f"candidates must be >= 1 checkpoint, got {self.candidates}")
         if self.save_every < 1:
             raise PipelineError(f"save_every must be >= 1 step, got {self.save_every}")
 

@@ -15,6 +15,7 @@ DEVICES = ("cpu", "cuda")
 # Files in the work folder `.<OUT>.partial/` and in the finished checkpoint folder.
 STATE_FILE = "state.pt"
 LOG_FILE = "training_log.jsonl"
+CANDIDATES_DIR = "candidates"  # the checkpoint's folder of candidate checkpoints (TrainStageConfig.candidates)
 EXPERT_LABELS = "expert_labels"  # config.json: expert number -> the task of most of its training demonstrations
 TASKS = "tasks"  # config.json: the tasks of the training demonstrations, sorted
 IMAGE_KEY = "image_key"  # config.json: the observation key of the demonstrations' camera (None: not named)

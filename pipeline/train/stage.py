@@ -17,7 +17,9 @@ OUT gets `config.json` (model, layout, training settings, extractor identity, fi
 time base: the demonstrations' median duration and step period in seconds, the gripper command, the tasks
 trained on, the camera's observation key and frame size, the conditioning a policy of it runs with, the largest
 step of each pose entry in the demonstrations, best step and error),
-`model.safetensors` and `training_log.jsonl` (one line per validation).
+`model.safetensors` and `training_log.jsonl` (one line per validation); with `candidates` N >= 2, also
+`candidates/step-S/` for each of the N parts of training that kept weights (models.candidates): a complete
+checkpoint each, its weights those with the lowest validation error in its part (S, the step they were validated at).
 """
 
 from __future__ import annotations
@@ -36,7 +38,8 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from cnep.models import CNEP, CNEPConfig, Trainer, build_model, save_checkpoint
+from cnep.models import CNEP, CNEPConfig, Trainer, build_model, read_checkpoint_config, save_checkpoint
+from cnep.models.candidates import Kept
 from cnep.models.matched import matched_cnmp
 from cnep.models.normaliser import Moments
 from cnep.models.sampler import TrajectoryStack
@@ -49,6 +52,7 @@ from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.inputs import find_trajectory_files
 from cnep.pipeline.train.config import TrainStageConfig
 from cnep.pipeline.train.constants import (
+    CANDIDATES_DIR,
     CONDITIONING,
     EXPERT_LABELS,
     IMAGE_KEY,
@@ -182,12 +186,13 @@ def _train(
     _log_start(run, config, procs)
     elapsed = _loop(trainer, run, config, procs, elapsed, remote)
     labels = name_experts(model, trainer, run, procs)
+    candidates = [(kept, experts_of(model, kept.state, run, procs)) for kept in kept_candidates(trainer)]
     remove_pack(run.packed, config.out, procs)
     barrier(procs)  # every rank's pack is gone before rank 0 renames the work folder into the checkpoint
     if trainer.diverged is not None and procs.is_main:
         diverged(trainer, config, run.saved is None)
     if procs.is_main:
-        _publish(model, trainer, run, config, elapsed, labels)
+        _publish(model, trainer, run, config, elapsed, labels, candidates)
     return config.out
 
 
@@ -228,7 +233,10 @@ def _build(
     model = build_model(run.model_config, fitted_on, config.training.seed)
     train_stack = TrajectoryStack.from_rows(run.packed.rows, *run.packed.span(run.my_train), model)
     val_stack = TrajectoryStack.from_rows(run.packed.rows, *run.packed.span(run.my_val), model)
-    trainer = StageTrainer(PlacedModel(model, device, procs), train_stack, val_stack, config.training)
+    keep = config.candidates if config.candidates > 1 else 0
+    trainer = StageTrainer(
+        PlacedModel(model, device, procs), train_stack, val_stack, config.training, keep_candidates=keep
+    )
     if procs.distributed and disjoint(run.val_idx, procs):  # validation errors are means over the ranks' shares
         trainer.ranks = procs
         trainer.mean_error = mean_over_ranks(procs, trainer.mean_error)
@@ -304,7 +312,12 @@ def name_experts(model: CNEP, trainer: StageTrainer, run: _Run, procs: Processes
     ranks; returns what each expert stands for where the demonstrations name tasks (`pipeline.train.experts`)."""
     if not trainer.best_state:  # no weights kept (a run that diverged before its first validation)
         return {}
-    model.load_state_dict(trainer.best_state)
+    return experts_of(model, trainer.best_state, run, procs)
+
+
+def experts_of(model: CNEP, state: dict, run: _Run, procs: Processes) -> dict[int, str]:
+    """`name_experts` under the weights `state` (a state_dict of `model`, loaded into it). All ranks must call this."""
+    model.load_state_dict(state)
     model.eval()
     mine = demonstration_experts(model, run.packed, run.my_train)
     experts = {index: expert for part in gather(procs, mine) for index, expert in part.items()}
@@ -318,9 +331,11 @@ def _publish(
     config: TrainStageConfig,
     elapsed: float,
     labels: dict[int, str],
+    candidates: list[tuple[Kept, dict[int, str]]],
 ) -> None:
     """Rank 0: the best weights, the run's result, what a policy needs (time base, gripper command) and what the
-    experts stand for (`labels`) into the work folder's checkpoint, recorded and renamed to OUT."""
+    experts stand for (`labels`) into the work folder's checkpoint, and the `candidates` beside them
+    (`write_candidates`), recorded and renamed to OUT."""
     work = work_dir(config.out)
     model.load_state_dict(trainer.best_state)
     not_learned = trainer.not_learned()
@@ -345,6 +360,7 @@ def _publish(
     policy[CONDITIONING] = config.conditioning.to_dict()
     policy[MAX_STEP] = run.max_step
     save_checkpoint(model, work, {**extra, **policy, "result": summary, "log": LOG_FILE}, record=True)
+    write_candidates(model, work, candidates)
     publish(work, config.out)
     log.info(
         "best validation error %.4g at step %d; %d steps in %.1f s -> %s",
@@ -354,6 +370,26 @@ def _publish(
         elapsed,
         config.out,
     )
+
+
+def kept_candidates(trainer: Trainer) -> list[Kept]:
+    """The run's candidates (models.candidates), earliest first; none when it keeps none."""
+    return trainer.candidates.in_order() if trainer.candidates is not None else []
+
+
+def write_candidates(model: CNEP, work: Path, candidates: list[tuple[Kept, dict[int, str]]]) -> None:
+    """Each candidate (its weights and what its experts stand for) as a complete checkpoint in the checkpoint `work`'s
+    CANDIDATES_DIR, `step-N` (N its step): the checkpoint's config.json with the candidate's step, validation error
+    and expert labels in place of the best weights' (and no training log of its own)."""
+    if not candidates:
+        return
+    config_json = read_checkpoint_config(work)
+    for kept, labels in candidates:
+        model.load_state_dict(kept.state)
+        result = {**config_json["result"], "best_step": kept.step, "best_val_error": kept.error}
+        extra = {k: v for k, v in config_json.items() if k not in ("format_version", "model", "log")}
+        extra.update({EXPERT_LABELS: {str(e): label for e, label in labels.items()}, "result": result})
+        save_checkpoint(model, work / CANDIDATES_DIR / f"step-{kept.step}", extra, record=True)
 
 
 def camera_layout(run: _Run) -> dict:
@@ -485,6 +521,7 @@ def run_identity(
         "training": {
             **asdict(config.training.for_assignment(model_config.assigned)),
             "val_fraction": config.val_fraction,
+            "candidates": config.candidates,
             "world_size": procs.world_size,
             "batch_size_total": config.training.batch_size * procs.world_size,
         },

@@ -19,6 +19,7 @@ from cnep.pipeline.cli.main import main  # noqa: E402
 from cnep.pipeline.sim.baselines import BASELINES  # noqa: E402
 from cnep.pipeline.sim.config import PROTOCOLS, PickPlaceConfig  # noqa: E402
 from cnep.pipeline.sim.stage import SUMMARY_FILE, run_sim  # noqa: E402
+from cnep.pipeline.sim.validation import SelectionSettings  # noqa: E402
 from cnep.runtime import ConditioningPolicy  # noqa: E402
 from cnep.sim.tasks.pick_place import scene as P  # noqa: E402
 from tests.test_examples import load  # noqa: E402
@@ -52,11 +53,13 @@ def test_cnep_sim_pick_place_writes_the_documented_summary(
         record=1,
         offline=True,
         quiet=True,
+        selection=SelectionSettings(candidates=1),  # no choice: tests/sim/test_selection.py tests it
     )
     summary = run_sim(config)
     assert json.loads((out / SUMMARY_FILE).read_text()) == json.loads(json.dumps(summary))
     assert summary["demonstrations"]["n"] == 2 and summary["demonstrations"]["clean"] == 2
     assert summary["settings"]["max_steps"] == config.max_steps
+    assert summary["seeds"]["reported"] == {"first": 0, "last": 0} and summary["selection"] == {}
     assert set(summary["models"]) == {"CNEP", "CNMP", *BASELINES}
     for seeds in summary["models"].values():
         assert set(seeds) == {"0"} and list(seeds["0"]) == list(PROTOCOLS)
@@ -70,7 +73,7 @@ def test_cnep_sim_pick_place_writes_the_documented_summary(
     assert main(["-q", "sim", "eval", str(out / "policies" / "cnep-seed0"), "--max-steps", steps, "--episodes", "1",
                  "--record", "0", "--out", str(evaluated)]) == 0  # fmt: skip
     again = json.loads((evaluated / SUMMARY_FILE).read_text())
-    assert again["settings"]["task"] == "pick-place"
+    assert again["settings"]["task"] == "pick-place" and again["seeds"] == summary["seeds"]
     assert episode_rows(again["results"]) == episode_rows(summary["models"]["CNEP"]["0"])
     assert len(list((out / "episodes").glob("*-planned-changed-seed0.rrd"))) == 5
     assert len(list((out / "episodes").glob("*.rrd"))) == 5 * len(PROTOCOLS) * len(P.CONDITIONS)

@@ -17,6 +17,7 @@ if not all(importlib.util.find_spec(name) for name in cnep.sim.EXTRA):
 from cnep.pipeline.cli.main import main  # noqa: E402
 from cnep.pipeline.sim.config import MODELS, PROTOCOLS, SimConfig  # noqa: E402
 from cnep.pipeline.sim.stage import SUMMARY_FILE, run_sim  # noqa: E402
+from cnep.pipeline.sim.validation import SelectionSettings  # noqa: E402
 from tests.test_examples import load  # noqa: E402
 
 
@@ -33,13 +34,23 @@ def test_cnep_sim_obstacle_writes_the_documented_summary_and_its_policies_repeat
     monkeypatch.setenv("TORCH_HOME", str(tmp_path / "torch"))
     out = tmp_path / "sim"
     config = SimConfig(
-        out=out, demonstrations=2, train_steps=20, episodes=1, max_steps=20, record=0, offline=True, quiet=True
+        out=out,
+        demonstrations=2,
+        train_steps=20,
+        episodes=1,
+        max_steps=20,
+        record=0,
+        offline=True,
+        quiet=True,
+        selection=SelectionSettings(candidates=1),  # no choice: tests/sim/test_selection.py tests it
     )
     summary = run_sim(config)
     assert json.loads((out / SUMMARY_FILE).read_text()) == json.loads(json.dumps(summary))
     assert summary["demonstrations"] == {"n": 2, "left": 1, "right": 1, "clean": 2}
     assert summary["features"].startswith("random") and summary["settings"]["assignment"] == config.assignment
     assert summary["settings"]["max_steps"] == config.max_steps
+    assert summary["seeds"]["reported"] == {"first": 0, "last": 0} and summary["seeds"]["validation"] is None
+    assert summary["selection"] == {}
     assert set(summary["models"]) == set(MODELS) and all(set(seeds) == {"0"} for seeds in summary["models"].values())
     for model, seeds in summary["models"].items():
         assert set(seeds["0"]) == set(PROTOCOLS)
@@ -56,6 +67,7 @@ def test_cnep_sim_obstacle_writes_the_documented_summary_and_its_policies_repeat
         )
         again = json.loads((evaluated / SUMMARY_FILE).read_text())
         assert again["settings"]["task"] == "obstacle" and again["settings"]["max_steps"] == config.max_steps
+        assert again["seeds"] == summary["seeds"]  # the same reported seeds; neither chose anything
         assert {p: episode_rows(r) for p, r in again["results"].items()} == {
             p: episode_rows(r) for p, r in seeds["0"].items()
         }
