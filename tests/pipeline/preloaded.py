@@ -12,6 +12,7 @@ and ends through the interpreter's own exit (exit handlers and all). The fault t
 from __future__ import annotations
 
 import contextlib
+import gc
 import importlib
 import json
 import os
@@ -159,6 +160,9 @@ if __name__ == "__main__":
 
     for name in PRELOAD:
         importlib.import_module(name)
+    # what the libraries made is kept out of the cyclic collector's passes: a child's collections, its exit's above
+    # all, would otherwise walk every object torch made and copy the pages they are on
+    gc.freeze()
     argv = serve(socket.socket(fileno=int(sys.argv[1])))
     if argv is None:
         sys.exit(0)

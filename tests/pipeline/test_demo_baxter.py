@@ -66,7 +66,7 @@ def test_geometry_helpers():
 
 @pytest.mark.slow
 def test_example_reports_every_start_point(data, tmp_path):
-    config = BaxterConfig(data=data, work=tmp_path / "work", steps=20, samples=30, quiet=True)
+    config = BaxterConfig(data=data, work=tmp_path / "work", steps=10, samples=30, quiet=True)
     demos, tests = load_paths(config)
     assert (tmp_path / "work" / "demos" / "demo_a.mcap").is_file()  # went through the ingest stage
     models = train_models(demos, config)
