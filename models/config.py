@@ -205,7 +205,7 @@ class CNEPConfig:
 
 
 # How `cnep train --help` shows the default of a setting the training schedule fills (models.schedule).
-SCHEDULE_SHOWN = "the training schedule's, from the training demonstrations (docs/how-to/train.md)"
+SCHEDULE_SHOWN = "the training schedule's, a rule of the training demonstrations (docs/reference/training-recipe.md)"
 
 
 @dataclass(frozen=True)
