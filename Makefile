@@ -70,9 +70,10 @@ lint: $(VENV)/.installed-test
 	$(BIN)/ruff format --check .
 	$(BIN)/ruff check .
 
-# The CLI reference page, generated from the parsers (tests/test_docs.py checks it is current).
+# The reference pages generated from the code: the CLI's, the training recipe's (tests/test_docs.py checks them).
 docs: $(VENV)/.installed-demo
 	$(BIN)/python -m cnep.pipeline.cli.reference docs/reference/cli.md
+	$(BIN)/python -m cnep.pipeline.sim.recipe docs/reference/training-recipe.md
 
 # `make bench` lists the benchmarks; `make bench BENCH=replay` runs one, `make bench BENCH=all` every one.
 bench: $(VENV)/.installed-test

@@ -23,7 +23,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--goal", action="store_true", help="also condition on each test recording's last sample at t = 1"
     )
-    parser.add_argument("--steps", type=int, default=4000, help="training steps per model (default 4000)")
+    parser.add_argument(
+        "--steps", type=int, default=None, help="training steps per model (default: the training schedule's, 4000 here)"
+    )
     parser.add_argument("--seed", type=int, default=0, help="training seed (default 0)")
     parser.add_argument("--work", default=None, help="keep the ingested files in this folder (default: temporary)")
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
@@ -52,7 +54,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"baxter_obstacle: error: {exc}", file=sys.stderr)
         return 2
     conditioned = "start (t = 0) and goal (t = 1)" if args.goal else "start (t = 0)"
-    print(f"conditioned on each test recording's {conditioned}; {args.steps} steps, seed {args.seed}")
+    steps = "the schedule's steps" if args.steps is None else f"{args.steps} steps"
+    print(f"conditioned on each test recording's {conditioned}; {steps}, seed {args.seed}")
     print(format_table(results))
     return 0
 

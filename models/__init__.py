@@ -23,6 +23,7 @@ _MODULES = {
     "matched": ("matched_cnmp", "parameter_count"),
     "online": ("ExpertSwitch", "OnlineConditioner", "OnlineStep"),
     "pid": ("PIDGains", "pid_track"),
+    "schedule": ("Schedule", "schedule_of", "scheduled"),
     "train": ("Trainer", "build_model", "fit"),
 }
 _WHERE = {name: module for module, names in _MODULES.items() for name in names}

@@ -204,11 +204,18 @@ class CNEPConfig:
         return cls(**{"assignment": "paper", **_known(cls, data)})
 
 
+# How `cnep train --help` shows the default of a setting the training schedule fills (models.schedule).
+SCHEDULE_SHOWN = "the training schedule's, a rule of the training demonstrations (docs/reference/training-recipe.md)"
+
+
 @dataclass(frozen=True)
 class TrainConfig:
-    """How `fit` trains. Steps and widths follow the spec's CPU recipe (see docs/concepts.md)."""
+    """How `fit` trains. Steps and widths follow the spec's CPU recipe (see docs/concepts.md); `steps`,
+    `warmup_steps` and `val_every` left None are the training schedule's (models.schedule.scheduled), which a
+    trainer fills from its data before it starts."""
 
-    steps: int = setting(4_000, "training steps")
+    # None: the schedule's, a rule of the training data (models.schedule), as are warmup_steps and val_every.
+    steps: int | None = setting(None, "training steps", shown=SCHEDULE_SHOWN)
     batch_size: int = setting(32, "samples per step and process")
     n_max: int = setting(10, "most observations per sample (n ~ U{1..n_max})")
     m_max: int = setting(10, "most targets per sample (m ~ U{1..m_max})")
@@ -243,18 +250,18 @@ class TrainConfig:
         "paper's plain NLL, 0.5 the usual beta-NLL",
     )
     lr: float = setting(1e-3, "peak learning rate of Adam")
-    warmup_steps: int = setting(2_000, "steps of linear learning-rate warm-up")
+    warmup_steps: int | None = setting(None, "steps of linear learning-rate warm-up", shown=SCHEDULE_SHOWN)
     gate_freeze_fraction: float = setting(0.3, "share of the steps with the gate held uniform")
     gate_lr_scale: float | None = setting(None, "the gate's learning rate as a fraction of the learning rate")
     grad_clip: float = 10.0
-    val_every: int = setting(500, "steps between validations")
+    val_every: int | None = setting(None, "steps between validations", shown=SCHEDULE_SHOWN)
     patience: int | None = setting(10, "validations without improvement before stopping early")
     seed: int = setting(0, "seed of the initial weights, the validation split and the batches")
     threads: int | None = setting(SMALL_MODEL_THREADS, "torch threads per process while training")
 
     def __post_init__(self) -> None:
         for name in ("steps", "batch_size", "n_max", "m_max", "val_every"):
-            if getattr(self, name) < 1:
+            if getattr(self, name) is not None and getattr(self, name) < 1:
                 raise ConfigError(f"TrainConfig.{name} must be >= 1, got {getattr(self, name)}.")
         if not 0 <= self.gate_freeze_fraction < 1:
             raise ConfigError(f"gate_freeze_fraction must be in [0, 1), got {self.gate_freeze_fraction}.")
@@ -273,7 +280,7 @@ class TrainConfig:
             )
         if not self.obs_noise >= 0:
             raise ConfigError(f"obs_noise must be >= 0 (a standard deviation), got {self.obs_noise}.")
-        if not self.lr > 0 or self.warmup_steps < 0:
+        if not self.lr > 0 or (self.warmup_steps is not None and self.warmup_steps < 0):
             raise ConfigError(f"lr must be > 0 and warmup_steps >= 0, got {self.lr} and {self.warmup_steps}.")
         if not self.observed_only_decay >= 0:
             raise ConfigError(f"observed_only_decay must be >= 0 (0 turns it off), got {self.observed_only_decay}.")

@@ -6,7 +6,8 @@ the first `gate_freeze_fraction` of the steps, so that the experts learn to reco
 gate starts to commit, and then learning at `gate_lr_scale` times the learning rate (by default the
 assignment's own: `models.assignments`). The best model by validation error is kept, from the step where the
 assignment's posterior has settled on (`Assignment.settled_fraction`); with `keep_candidates`, also the best of
-each part of training (models.candidates), for a choice made after it in closed loop.
+each part of training (models.candidates), for a choice made after it in closed loop. Steps, warm-up and validation
+interval left unset are the training schedule's for the trajectories it trains on (models.schedule).
 
 Adam runs fused (one kernel over all parameters, faster than the per-tensor `foreach` path for a network this
 small: benchmarks/bench_training.py). `models.batched` trains several
@@ -32,6 +33,7 @@ from cnep.models.errors import ConfigError
 from cnep.models.loss import cnep_loss, expert_nll
 from cnep.models.normaliser import Moments
 from cnep.models.sampler import Batch, TrajectoryStack, sample_batch
+from cnep.models.schedule import scheduled
 from cnep.models.split import split_if_idle, split_steps
 from cnep.models.threads import torch_threads
 
@@ -174,7 +176,7 @@ class Trainer:
     keep_candidates: int = 0
 
     def __post_init__(self) -> None:
-        self.cfg = self.cfg.for_assignment(self.model.config.assigned)
+        self.cfg = scheduled(self.cfg.for_assignment(self.model.config.assigned), len(self.train))
         gate = {id(p) for p in self.model.gate.parameters()}
         self.optimizer = make_optimizer(
             [

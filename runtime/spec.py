@@ -40,7 +40,9 @@ class PolicySpec:
     dataset's, `observation.images.top`; None: any one image); image_size: (height, width) in pixels of the training
     frames (None: unknown, any size is resized); max_step: state name -> the largest change of that pose entry
     between two steps of the training demonstrations (the data's unit: m for x y z), which bounds each step after a
-    switch of expert (runtime.Policy; None: unknown, unbounded).
+    switch of expert (runtime.Policy; None: unknown, unbounded); recipe: the settings the model was trained with, as
+    its checkpoint's config.json holds them (`model`: models.CNEPConfig, `training`: models.TrainConfig with its
+    schedule; None: unknown).
     """
 
     columns: Columns
@@ -55,6 +57,7 @@ class PolicySpec:
     image_key: str | None = None
     image_size: tuple[int, int] | None = None
     max_step: dict[str, float] | None = None
+    recipe: dict | None = None
 
     def __post_init__(self) -> None:
         width = self.columns.width
@@ -139,13 +142,14 @@ class PolicySpec:
             "image_key": self.image_key,
             "image_size": list(self.image_size) if self.image_size else None,
             "max_step": self.max_step,
+            "recipe": self.recipe,
         }
 
     @classmethod
     def from_dict(cls, data: dict) -> PolicySpec:
         """The spec of `to_dict` (`gripper` may be absent: a format 1 manifest has none; `expert_labels`, `tasks`,
-        `image_key`, `image_size` and `max_step` too, as a manifest written before they were stored has none); a
-        PolicyError names the entry that is missing or wrong."""
+        `image_key`, `image_size`, `max_step` and `recipe` too, as a manifest written before they were stored has
+        none); a PolicyError names the entry that is missing or wrong."""
         try:
             if tuple(data["state_names"]) != STATE_NAMES:
                 raise PolicyError(
@@ -175,6 +179,7 @@ class PolicySpec:
                 image_key=data.get("image_key"),
                 image_size=tuple(data["image_size"]) if data.get("image_size") else None,
                 max_step=data.get("max_step"),
+                recipe=data.get("recipe"),
             )
         except (KeyError, TypeError, ValueError) as exc:
             if isinstance(exc, PolicyError):

@@ -25,10 +25,12 @@ from mktestdocs import check_md_file, grab_code_blocks
 from cnep.pipeline.cli.main import main
 from cnep.pipeline.cli.reference import render
 from cnep.pipeline.run import stage as run_stage
+from cnep.pipeline.sim import recipe
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
 GENERATED = DOCS / "reference" / "cli.md"
+RECIPE = DOCS / "reference" / "training-recipe.md"
 PAGES = [ROOT / "README.md", *sorted(DOCS.rglob("*.md"))]
 MAX_LINES = 400
 # A line only bash runs: variables, pipes, redirections, lists, sub-shells, globs.
@@ -191,6 +193,12 @@ def run_commands(page: Path) -> None:
 def test_cli_reference_is_generated_from_the_parsers():
     assert GENERATED.read_text() == render(), (
         f"{GENERATED.relative_to(ROOT)} differs from the parsers; regenerate it with `make docs`"
+    )
+
+
+def test_the_training_recipe_page_is_generated_from_the_code():
+    assert RECIPE.read_text() == recipe.render(), (
+        f"{RECIPE.relative_to(ROOT)} differs from the code; regenerate it with `make docs`"
     )
 
 

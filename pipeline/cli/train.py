@@ -10,10 +10,8 @@ fields this module walks (pipeline.cli.fields, without importing torch); it keep
 from __future__ import annotations
 
 import argparse
-import dataclasses
 
 from cnep.models.assignments import ASSIGNMENTS
-from cnep.models.config import TrainConfig
 from cnep.pipeline.cli.fields import INT_LIMIT, Option, add_options, build, options
 from cnep.pipeline.train.config import TrainStageConfig
 
@@ -104,42 +102,13 @@ def _an_integer(value: object) -> bool:
     return isinstance(value, int) and not isinstance(value, bool) and -INT_LIMIT < value < INT_LIMIT
 
 
-def fit_warmup(training: TrainConfig, warmup_given: bool) -> TrainConfig:
-    """A TrainConfig whose warm-up ends before its last step: scaled like the defaults when not given, else a warning.
-
-    With `--steps 1000` and the default 2000 warm-up steps the learning rate would never reach its peak.
-    """
-    import logging
-
-    if training.warmup_steps < training.steps:
-        return training
-    log = logging.getLogger("cnep.pipeline.train")
-    if warmup_given:
-        log.warning(
-            "--warmup-steps %d >= --steps %d: the learning rate never reaches its peak --lr",
-            training.warmup_steps,
-            training.steps,
-        )
-        return training
-    warmup = training.steps * TrainConfig.warmup_steps // TrainConfig.steps
-    log.warning(
-        "--steps %d is not more than the default warm-up of %d steps: warming up over %d steps instead (the "
-        "defaults' share of the steps); set --warmup-steps to choose",
-        training.steps,
-        training.warmup_steps,
-        warmup,
-    )
-    return dataclasses.replace(training, warmup_steps=warmup)
-
-
 def stage_config(args: argparse.Namespace) -> TrainStageConfig:
     """The train stage's settings for the parsed command line (with its --config file)."""
     from pathlib import Path
 
-    chosen, given = settings(args)
+    chosen, _ = settings(args)
     chosen["patience"] = chosen["patience"] or None  # 0: never stop early
-    config = build(STAGE, chosen, inputs=tuple(Path(p) for p in args.inputs), out=Path(args.out), quiet=args.quiet)
-    return dataclasses.replace(config, training=fit_warmup(config.training, warmup_given="warmup_steps" in given))
+    return build(STAGE, chosen, inputs=tuple(Path(p) for p in args.inputs), out=Path(args.out), quiet=args.quiet)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
 
-from cnep.models.config import CNEPConfig, TrainConfig, check_seed, setting
+from cnep.models.config import CNEPConfig, check_seed, setting
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.inputs import coerce_paths
 
@@ -21,7 +21,8 @@ class DemoSize:
     """How much the demo generates and trains: demonstrations per behaviour, steps per episode, training steps.
 
     free_choice_per_side / heldout_free_choice_per_side: training / held-out free-choice demonstrations
-    per cup side; warmup_steps: the learning-rate warm-up (the models' default unless a size needs less);
+    per cup side; train_steps, val_every, warmup_steps: the training's, None where the training schedule's
+    (models.schedule: a rule of the training demonstrations, as `cnep train` without those options);
     side_by_side: train the CNEP and the CNMP at once, in a process each (a process takes seconds to start, more than
     a few training steps take: a small size trains them one after the other in the demo's own process).
     """
@@ -31,9 +32,9 @@ class DemoSize:
     free_choice_per_side: int
     heldout_free_choice_per_side: int
     steps: int
-    train_steps: int
-    val_every: int
-    warmup_steps: int = TrainConfig.warmup_steps
+    train_steps: int | None = None
+    val_every: int | None = None
+    warmup_steps: int | None = None
     side_by_side: bool = True
 
 
@@ -43,8 +44,6 @@ FULL = DemoSize(
     free_choice_per_side=20,
     heldout_free_choice_per_side=10,
     steps=40,
-    train_steps=4000,
-    val_every=250,
 )
 QUICK = DemoSize(
     per_behaviour=2,

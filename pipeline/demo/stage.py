@@ -229,7 +229,6 @@ def _train(config: DemoConfig, out: Path, size: DemoSize, started: float) -> dic
         steps=size.train_steps,
         warmup_steps=size.warmup_steps,
         val_every=size.val_every,
-        patience=None,  # every step: the demo's sizes were measured training to the end
         seed=config.seed,
     )
     checkpoints = {"CNEP": out / "checkpoints" / CHECKPOINT_NAMES[0], "CNMP": out / "checkpoints" / CHECKPOINT_NAMES[1]}
@@ -238,7 +237,8 @@ def _train(config: DemoConfig, out: Path, size: DemoSize, started: float) -> dic
         "CNMP": {"model": replace(config.model, assignment=CNMP_ASSIGNMENT), "matched_cnmp": True},
     }
     how = "side by side, one process each" if size.side_by_side else "one after the other, in this process"
-    log.info("training the CNEP and the CNMP %s (%d steps each)", how, size.train_steps)
+    steps = "the schedule's steps" if size.train_steps is None else f"{size.train_steps} steps"
+    log.info("training the CNEP and the CNMP %s (%s each)", how, steps)
     if not config.quiet:
         log.info("%s", BAR_LEGEND)
     jobs = {

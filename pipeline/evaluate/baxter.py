@@ -52,11 +52,12 @@ COLUMNS_XY = ColumnRoles(width=2, observed=((0, 2),), query=(), predicted=((0, 2
 @dataclass(frozen=True)
 class BaxterConfig:
     """data: the folder with `start_end/*.csv` and the test CSVs; work: where ingested files go (a temporary
-    folder when None); steps / seed: training; goal: also condition on each test recording's last sample."""
+    folder when None); steps / seed: training (steps None: the training schedule's, models.schedule); goal: also
+    condition on each test recording's last sample."""
 
     data: Path
     work: Path | None = None
-    steps: int = 4000
+    steps: int | None = None
     seed: int = 0
     samples: int = SAMPLES
     goal: bool = False
@@ -131,19 +132,13 @@ def load_recordings(config: BaxterConfig, work: Path) -> tuple[list[Path], list[
 def train_models(demos: np.ndarray, config: BaxterConfig) -> dict:
     """A 2-expert CNEP per assignment ("CNEP (paper)", "CNEP (mixture)", "CNEP (annealed)", "CNEP (bounded)") and
     a parameter-matched "CNMP" on (N, T, 2) paths; all seeded."""
-    train = TrainConfig(
-        steps=config.steps,
-        warmup_steps=config.steps // 10,
-        val_every=max(1, config.steps // 20),
-        patience=None,  # every step, as the harness's measured runs
-        seed=config.seed,
-    )
+    train = TrainConfig(steps=config.steps, seed=config.seed)  # the rest the training schedule's (models.schedule)
     trajectories = list(demos)
     models = {}
     configs = {"CNMP": matched_cnmp(CNEPConfig(columns=COLUMNS_XY, n_experts=2, assignment="paper"))}
     configs.update({cnep_name(a): CNEPConfig(columns=COLUMNS_XY, n_experts=2, assignment=a) for a in ASSIGNMENTS})
     for name, cfg in configs.items():
-        log.info("training %s on %d demonstrations for %d steps", name, len(demos), config.steps)
+        log.info("training %s on %d demonstrations", name, len(demos))
         models[name], _ = fit(trajectories, cfg, train, val_trajectories=trajectories, progress=not config.quiet)
     return models
 

@@ -19,7 +19,7 @@ from cnep.perception import FeatureExtractor
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.identity import check_identities
 from cnep.pipeline.train.checkpoint import TrainedModel, load_trained
-from cnep.pipeline.train.constants import IMAGE_KEY, IMAGE_SIZE, MAX_STEP, TASKS
+from cnep.pipeline.train.constants import IMAGE_KEY, IMAGE_SIZE, MAX_STEP, RECIPE, TASKS
 from cnep.recordings.constants import BLOCK_FEATURES, BLOCK_GRIPPER, BLOCKS_MOTION
 from cnep.runtime import DEFAULT_WAYPOINTS, ConditioningPolicy, GripperCommand, Policy, PolicySpec, TimeBase
 
@@ -82,8 +82,8 @@ def checkpoint_policy(
 def policy_spec(trained: TrainedModel) -> PolicySpec:
     """The spec of the checkpoint's model: its row's features block and state blocks, normaliser, time base and
     gripper command (a checkpoint without one, or a model without the gripper block, has none), the tasks and the
-    camera it was trained on, its conditioning and the demonstrations' largest steps (a checkpoint written before
-    they were stored: none, any camera, the default conditioning, no bound)."""
+    camera it was trained on, its conditioning, the demonstrations' largest steps and the recipe it was trained with
+    (a checkpoint written before they were stored: none, any camera, the default conditioning, no bound)."""
     model, blocks, config = trained.model, trained.mapping.blocks, trained.config
     state = tuple((BLOCKS_MOTION[name], blocks[name]) for name in BLOCKS_MOTION if name in blocks)
     time_base, gripper = config.get("time_base"), config.get("gripper")
@@ -102,6 +102,7 @@ def policy_spec(trained: TrainedModel) -> PolicySpec:
             image_size=tuple(config[IMAGE_SIZE]) if sees and config.get(IMAGE_SIZE) else None,
             conditioning=trained.conditioning,
             max_step=config.get(MAX_STEP),
+            recipe={key: config[key] for key in RECIPE if key in config} or None,
         )
     except (ValueError, TypeError) as exc:
         raise PipelineError(f"{trained.path / CONFIG_FILE}: cannot be run as a policy: {exc}") from None

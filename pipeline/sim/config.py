@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import ClassVar
 
 from cnep.models.assignments import ASSIGNMENTS
-from cnep.models.config import SEED_MAX, ConditioningOverrides, check_seed, setting
+from cnep.models.config import SCHEDULE_SHOWN, SEED_MAX, ConditioningOverrides, check_seed, setting
 from cnep.perception.constants import FEATURE_DIM
 from cnep.pipeline.demo.config import AUTO_WEIGHTS
 from cnep.pipeline.errors import PipelineError
@@ -45,6 +45,7 @@ MODELS = ("CNEP", "CNMP")
 VARIANTS = ("cue",)  # LoopSettings' fields that choose a variant of a task (sim.task.Task.variants)
 
 
+TRAIN_STEPS_HELP = "training steps of each model, as `cnep train --steps` takes them"
 MAX_STEPS_HELP = (
     "control steps an episode gets before it is truncated (the planned protocol's plan spans the task's episode "
     "whatever the limit, its last waypoint held after them)"
@@ -123,7 +124,7 @@ class SimConfig(LoopSettings):
     demonstrations: int = setting(40, "demonstrations generated (half pass left, half right)")
     seed: int = setting(0, "seed of the demonstrations (and of the feature network's random weights)")
     train_seeds: tuple[int, ...] = setting((0,), "training seeds: one CNEP and one matched CNMP trained per seed")
-    train_steps: int = setting(3000, "training steps of each model")
+    train_steps: int | None = setting(None, TRAIN_STEPS_HELP, shown=SCHEDULE_SHOWN)
     experts: int = setting(2, "the CNEP's experts (the CNMP: one, parameter-matched)")
     # The demonstrations pass left and right alike, and an expert that reads the side from a start it has memorised
     # takes both sides where a share left free to drift allows it: equal shares until the experts commit keep them
@@ -145,7 +146,12 @@ class SimConfig(LoopSettings):
         coerce_paths(self)
         self.check()
         check_seeds(self.seed, self.train_seeds)
-        if self.demonstrations < 2 or self.train_steps < 1 or self.experts < 2 or not self.train_seeds:
+        if (
+            self.demonstrations < 2
+            or (self.train_steps is not None and self.train_steps < 1)
+            or self.experts < 2
+            or not self.train_seeds
+        ):
             raise PipelineError(
                 f"need >= 2 demonstrations, >= 1 training step, >= 2 experts and a training seed, got "
                 f"{self.demonstrations}, {self.train_steps}, {self.experts} and {self.train_seeds}"
@@ -211,7 +217,7 @@ class PickPlaceConfig:
     demonstrations: int = setting(96, "demonstrations generated (each a scene drawn decided or free, its place drawn)")
     seed: int = setting(0, "seed of the demonstrations (and of the feature network's random weights)")
     train_seeds: tuple[int, ...] = setting((0,), "training seeds: one CNEP and one matched CNMP trained per seed")
-    train_steps: int = setting(3000, "training steps of each model")
+    train_steps: int | None = setting(None, TRAIN_STEPS_HELP, shown=SCHEDULE_SHOWN)
     experts: int = setting(4, "the CNEP's experts (the CNMP: one, parameter-matched)")
     assignment: str = setting(
         "annealed", "the CNEP's assignment, as `cnep train --assignment` takes it", choices=tuple(ASSIGNMENTS)
@@ -250,7 +256,12 @@ class PickPlaceConfig:
     def __post_init__(self) -> None:
         coerce_paths(self)
         protocols_of(self.protocol)
-        if self.demonstrations < 2 or self.train_steps < 1 or self.experts < 2 or not self.train_seeds:
+        if (
+            self.demonstrations < 2
+            or (self.train_steps is not None and self.train_steps < 1)
+            or self.experts < 2
+            or not self.train_seeds
+        ):
             raise PipelineError(
                 f"need >= 2 demonstrations, >= 1 training step, >= 2 experts and a training seed, got "
                 f"{self.demonstrations}, {self.train_steps}, {self.experts} and {self.train_seeds}"

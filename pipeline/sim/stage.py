@@ -11,7 +11,8 @@ Stages (each logs its progress), all under OUT:
               `extractor.pt`;
 4. train      `checkpoints/{cnep,cnmp}-seedN`: per training seed the CNEP and the parameter-matched CNMP, two at a
               time (layout `scene`: observe features + pose + gripper, query with time, predict pose + gripper),
-              each with `selection.candidates` candidate checkpoints (`cnep train --candidates`);
+              with `cnep train`'s defaults and schedule but the task's settings (pipeline.sim.recipe), each with
+              `selection.candidates` candidate checkpoints (`cnep train --candidates`);
 5. select     each checkpoint's weights: the candidate that succeeds most in validation episodes
               (pipeline.sim.selection, on seeds never reported: pipeline.sim.validation), recorded in its config.json
               and the summary;
@@ -165,9 +166,7 @@ def train_models(config: SimConfig | PickPlaceConfig, out: Path, started: float)
     }
     checkpoints, jobs = {}, {}
     for seed in config.train_seeds:
-        training = replace(TrainConfig(), steps=config.train_steps, warmup_steps=config.train_steps // 6,
-                           val_every=max(1, config.train_steps // 12), patience=None, seed=seed,
-                           nll_beta=config.nll_beta)  # fmt: skip
+        training = TrainConfig(steps=config.train_steps, seed=seed, nll_beta=config.nll_beta)  # the schedule's rest
         for name, network in networks.items():
             label = f"{name}-seed{seed}"
             checkpoints[label] = out / "checkpoints" / f"{name.lower()}-seed{seed}"
@@ -176,7 +175,8 @@ def train_models(config: SimConfig | PickPlaceConfig, out: Path, started: float)
                 conditioning=trained_conditioning(config), candidates=config.selection.candidates, quiet=True,
                 **network,
             )  # fmt: skip
-    log.info("training %d models, %d at a time (%d steps each)", len(jobs), WORKERS, config.train_steps)
+    steps = "the schedule's steps" if config.train_steps is None else f"{config.train_steps} steps"
+    log.info("training %d models, %d at a time (%s each)", len(jobs), WORKERS, steps)
     train_side_by_side(jobs, config.quiet, started, workers=WORKERS)
     return checkpoints
 

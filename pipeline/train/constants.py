@@ -22,3 +22,6 @@ IMAGE_KEY = "image_key"  # config.json: the observation key of the demonstration
 IMAGE_SIZE = "image_size"  # config.json: (height, width) of the training frames in pixels (None: no camera)
 CONDITIONING = "conditioning"  # config.json: the policy's conditioning (runtime.ConditioningPolicy.to_dict)
 MAX_STEP = "max_step"  # config.json: state name -> the largest step of that pose entry in the demonstrations
+# config.json: the settings a model was trained with (models.CNEPConfig, models.TrainConfig with its schedule), which
+# a policy of it carries as its recipe (runtime.PolicySpec.recipe).
+RECIPE = ("model", "training")

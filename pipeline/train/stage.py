@@ -4,7 +4,8 @@
 
 Steps: find the trajectory files and read their summaries (one width, one feature extractor, else an
 error naming the files); pick the model's columns by layout preset (pipeline.train.presets); split whole
-demonstrations into training and validation; pack the model's columns of this process's share of them
+demonstrations into training and validation; fill in the training schedule the settings leave unset from the number
+of training demonstrations (models.schedule); pack the model's columns of this process's share of them
 into one memory-mapped file in the work folder (pipeline.train.packed: each file read once, its frames
 left unread); fit the normaliser on the training demonstrations from running moments;
 train with `models.Trainer` (time normalised per demonstration to [0, 1] by its sampler), saving a
@@ -13,10 +14,10 @@ early after `patience` validations without improvement. Under torchrun the same 
 DistributedDataParallel (pipeline.train.parallel), each rank on its share of the demonstrations; only
 rank 0 writes the checkpoint.
 
-OUT gets `config.json` (model, layout, training settings, extractor identity, files with sha256, the
-time base: the demonstrations' median duration and step period in seconds, the gripper command, the tasks
-trained on, the camera's observation key and frame size, the conditioning a policy of it runs with, the largest
-step of each pose entry in the demonstrations, best step and error),
+OUT gets `config.json` (model, layout, training settings with the schedule's inputs and the settings given,
+extractor identity, files with sha256, the time base: the demonstrations' median duration and step period in
+seconds, the gripper command, the tasks trained on, the camera's observation key and frame size, the conditioning a
+policy of it runs with, the largest step of each pose entry in the demonstrations, best step and error),
 `model.safetensors` and `training_log.jsonl` (one line per validation); with `candidates` N >= 2, also
 `candidates/step-S/` for each of the N parts of training that kept weights (models.candidates): a complete
 checkpoint each, its weights those with the lowest validation error in its part (S, the step they were validated at).
@@ -38,11 +39,12 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from cnep.models import CNEP, CNEPConfig, Trainer, build_model, read_checkpoint_config, save_checkpoint
+from cnep.models import CNEP, CNEPConfig, TrainConfig, Trainer, build_model, read_checkpoint_config, save_checkpoint
 from cnep.models.candidates import Kept
 from cnep.models.matched import matched_cnmp
 from cnep.models.normaliser import Moments
 from cnep.models.sampler import TrajectoryStack
+from cnep.models.schedule import Schedule, schedule_of, scheduled
 from cnep.models.threads import torch_threads
 from cnep.models.train import split_validation
 from cnep.outputs import record_written, writing_as
@@ -154,13 +156,15 @@ def train(config: TrainStageConfig, remote: progress.RemoteBar | None = None) ->
 @dataclass(frozen=True)
 class _Run:
     """What a run reads before it builds the model, alike on every rank: the files and their columns, the split of
-    whole demonstrations (all of it, and this rank's share), the packed columns of that share, the gripper command
+    whole demonstrations (all of it, and this rank's share), the training settings with the schedule of that split
+    filled in (models.schedule), the packed columns of that share, the gripper command
     and the largest steps they give, the run's identity and the state saved by an earlier run of it (None: a fresh
     run)."""
 
     data: TrainingSet
     layout: TrainingColumns
     model_config: CNEPConfig
+    training: TrainConfig
     train_idx: list[int]
     val_idx: list[int]
     my_train: list[int]
@@ -182,6 +186,7 @@ def _train(
     """The run; rank 0 claims OUT into `held` (its folder and lock, released when the run ends)."""
     with progress.heartbeat("reading the training files and building the model", config.quiet or not procs.is_main):
         run = _load(config, procs, held)
+        config = replace(config, training=run.training)
         model, trainer, elapsed = _build(run, config, procs, device)
     _log_start(run, config, procs)
     elapsed = _loop(trainer, run, config, procs, elapsed, remote)
@@ -204,6 +209,8 @@ def _load(config: TrainStageConfig, procs: Processes, held: ExitStack) -> _Run:
     if config.matched_cnmp:
         model_config = matched_cnmp(model_config)
     train_idx, val_idx = split_validation(list(range(len(data.files))), config.val_fraction, config.training.seed)
+    schedule = schedule_of(config.training, len(train_idx), procs.world_size)
+    config = replace(config, training=scheduled(config.training, len(train_idx), procs.world_size))
     inputs = [f.path for f in data.files]
     given = [*map(Path, config.inputs), *inputs]  # no output inside a folder given as input either
     saved = from_main(procs, lambda: prepare_work_dir(config.out, config.resume, config.force, given, held))
@@ -213,13 +220,25 @@ def _load(config: TrainStageConfig, procs: Processes, held: ExitStack) -> _Run:
     gripper = gripper_command(packed, layout, procs)
     max_step = largest_steps(packed, layout, procs)
     sha256 = [hashes[i][0] for i in range(len(inputs))]
-    identity = run_identity(config, data, sha256, layout, model_config, train_idx, procs)
+    identity = run_identity(config, data, sha256, layout, model_config, train_idx, procs, schedule)
     if saved is not None:
         check_same_run(saved["identity"], identity, work_dir(config.out) / STATE_FILE)
     if procs.is_main:
         warn_identical(data, [hashes[i][1] for i in range(len(inputs))], train_idx, val_idx)
     return _Run(
-        data, layout, model_config, train_idx, val_idx, my_train, my_val, packed, gripper, max_step, identity, saved
+        data,
+        layout,
+        model_config,
+        config.training,
+        train_idx,
+        val_idx,
+        my_train,
+        my_val,
+        packed,
+        gripper,
+        max_step,
+        identity,
+        saved,
     )
 
 
@@ -507,9 +526,10 @@ def run_identity(
     model_config: CNEPConfig,
     train_idx: list[int],
     procs: Processes,
+    schedule: Schedule,
 ) -> dict:
     """What makes a run: saved in config.json and compared on --resume (JSON-able, as JSON reads it back); `sha256`:
-    each file's."""
+    each file's; `schedule`: the training schedule's inputs, values and the settings given instead."""
     trained = set(train_idx)
     files = [
         dict(f.describe(sha256[i]), split="train" if i in trained else "validation") for i, f in enumerate(data.files)
@@ -524,6 +544,7 @@ def run_identity(
             "candidates": config.candidates,
             "world_size": procs.world_size,
             "batch_size_total": config.training.batch_size * procs.world_size,
+            "schedule": schedule.to_dict(),
         },
         "extractor": data.extractor,
         "files": files,

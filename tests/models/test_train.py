@@ -9,6 +9,7 @@ from cnep.models.cnep import CNEP
 from cnep.models.config import CNEPConfig, ColumnRoles, TrainConfig
 from cnep.models.errors import ConfigError
 from cnep.models.sampler import TrajectoryStack
+from cnep.models.schedule import scheduled
 from cnep.models.split import SPLIT_CHECKS
 from cnep.models.synthetic import make_set
 from cnep.models.train import (
@@ -108,12 +109,15 @@ def test_learning_rate_warms_up_then_decays():
 
 
 def test_the_defaults_train_the_schedule_that_commits_the_demo_s_and_the_commitment_table_s():
-    """`fit`'s and `cnep train`'s defaults are the schedule `cnep demo` trains and the commitment table measures
-    (docs/results.md): the learning rate still warming up when the gate unfreezes and at the first split check."""
+    """The schedule of the demo's and the commitment table's data (docs/results.md, from 51 to 307 training
+    demonstrations), which `fit`, `cnep train` and `cnep demo` leave to it: the learning rate still warming up when
+    the gate unfreezes and at the first split check."""
     from cnep.pipeline.demo.config import FULL
 
-    cfg = TrainConfig()
-    assert (cfg.steps, cfg.warmup_steps) == (FULL.train_steps, FULL.warmup_steps) == (4000, 2000)
+    assert FULL.train_steps is FULL.warmup_steps is FULL.val_every is None  # the schedule's
+    for demonstrations in (51, 160, 307):
+        cfg = scheduled(TrainConfig(), demonstrations)
+        assert (cfg.steps, cfg.warmup_steps, cfg.val_every) == (4000, 2000, 500)
     assert lr_factor(int(cfg.gate_freeze_fraction * cfg.steps), cfg) < lr_factor(int(SPLIT_CHECKS[0] * cfg.steps), cfg)
     assert lr_factor(int(SPLIT_CHECKS[0] * cfg.steps), cfg) < 1.0 == lr_factor(cfg.warmup_steps, cfg)
 

@@ -74,9 +74,10 @@ def test_cnep_train_help_shows_each_dataclass_default(option, capsys):
     with pytest.raises(SystemExit):
         build_parser().parse_args(["train", "--help"])
     shown = option_help(capsys.readouterr().out, f"--{option.replace('_', '-')}")
-    default = settings_of()[option].field.default
+    field = settings_of()[option].field
+    default = field.default
     expected = (
-        "the assignment's"
+        field.metadata.get("shown", "the assignment's")
         if default is None
         else ",".join(map(str, default))
         if isinstance(default, tuple)

@@ -340,6 +340,10 @@ def test_settings_precedence_is_defaults_then_config_file_then_command_line(full
     assert (training["steps"], training["lr"], config["layout"]["name"]) == (10, 0.002, "motion")  # file
     assert (training["seed"], training["val_every"]) == (7, 5)  # command line over file and defaults
     assert training["patience"] == 10 and training["batch_size"] == TrainConfig().batch_size  # defaults
+    # the schedule fills the warm-up from the steps given, and says from what and which values were given
+    assert training["warmup_steps"] == 5 and training["schedule"]["given"] == ["steps", "val_every"]
+    trained = sum(f["split"] == "train" for f in config["files"])
+    assert training["schedule"]["inputs"] == {"demonstrations": trained, "batch_size": training["batch_size"]}
     assert config["model"]["encoder_widths"] == [8, 8] and config["model"]["n_experts"] == 2
     assert config["model"]["assignment"] == "mixture"  # the loss's assignment travels with the checkpoint
 

@@ -1,0 +1,94 @@
+"""The training recipe's reference page, generated from the code: the schedule the training data sets and what each
+`cnep sim` task trains on.
+
+`python -m cnep.pipeline.sim.recipe docs/reference/training-recipe.md` writes it (`make docs`; without a path: to
+stdout). tests/test_docs.py fails when the committed page differs from `render()`. Importable without torch or the
+simulator.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from cnep.models.config import CNEPConfig, ConditioningPolicy, TrainConfig
+from cnep.models.schedule import (
+    BASE_STEPS,
+    DRAWS_PER_DEMONSTRATION,
+    MAX_VAL_EVERY,
+    MAX_WARMUP,
+    VALIDATIONS,
+    WARMUP_SHARE,
+    schedule_of,
+)
+from cnep.pipeline.sim.config import PickPlaceConfig, SimConfig, trained_conditioning
+from cnep.pipeline.train.config import TrainStageConfig
+
+SIM_COMMANDS = (SimConfig, PickPlaceConfig)  # `cnep sim TASK`'s configs, one per task with a command of its own
+EXAMPLE_SIZES = (2, 40, 77, 160, 307, 1_000, 5_000)  # training demonstrations the schedule's table shows
+
+HEADER = """\
+# The training recipe
+
+What every trainer trains with (`cnep train` without options, `cnep sim`, `cnep demo`, the Baxter example),
+generated from the code (`make docs` regenerates this page; do not edit it by hand). How to change a setting:
+[training](../how-to/train.md); every option: [the CLI reference](cli.md).
+"""
+
+
+def render() -> str:
+    """The whole page (Markdown)."""
+    model, training = CNEPConfig(), TrainConfig()
+    lines = [
+        HEADER,
+        "## The schedule",
+        "",
+        f"Left unset, the training steps, the warm-up and the validation interval follow from the number of "
+        f"demonstrations trained on (those not held out for validation; models.schedule): {BASE_STEPS} steps, or "
+        f"more where each training demonstration would be drawn fewer than {DRAWS_PER_DEMONSTRATION} times in "
+        f"batches of {training.batch_size} samples; a warm-up of {WARMUP_SHARE:.0%} of the steps, at most "
+        f"{MAX_WARMUP}; {VALIDATIONS} validations, at most every {MAX_VAL_EVERY} steps. Given steps keep the rule "
+        f"for the other two; config.json records the schedule's inputs, its values and which were given "
+        f"([checkpoint format](checkpoint.md)). Early stopping after {training.patience} validations without "
+        f"improvement only cuts runs longer than the schedule's {VALIDATIONS} validations.",
+        "",
+        "| training demonstrations | steps | warm-up | validation every |",
+        "|---|---|---|---|",
+    ]
+    for size in EXAMPLE_SIZES:
+        made = schedule_of(training, size)
+        lines.append(f"| {size} | {made.steps} | {made.warmup_steps} | {made.val_every} |")
+    lines += [
+        "",
+        "## `cnep sim`: what differs per task",
+        "",
+        "Each task's CNEP and matched CNMP train with `cnep train`'s defaults and schedule "
+        f"(layout `{TrainStageConfig.layout}`) but for the settings below; the conditioning is what their policies "
+        "run with (config.json, the manifest). `cnep train`'s own are in the first row.",
+        "",
+        "| | demonstrations | CNEP experts | assignment | beta-NLL | conditioning window | anchors |",
+        "|---|---|---|---|---|---|---|",
+        f"| `cnep train` | yours | {model.n_experts} | {model.assignment} | {training.nll_beta:g} | "
+        f"{ConditioningPolicy().window} | {ConditioningPolicy().anchors} |",
+    ]
+    for command in SIM_COMMANDS:
+        default = command(out=Path("out"))
+        conditioning = trained_conditioning(default)
+        lines.append(
+            f"| `cnep sim {command.TASK}` | {default.demonstrations} | {default.experts} | {default.assignment} | "
+            f"{default.nll_beta:g} | {conditioning.window} | {conditioning.anchors} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str]) -> int:
+    page = render()
+    if argv:
+        Path(argv[0]).write_text(page)
+    else:
+        sys.stdout.write(page)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv[1:]))
