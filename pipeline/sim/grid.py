@@ -43,7 +43,7 @@ from cnep.pipeline.sim.baselines import BASELINES
 from cnep.pipeline.sim.config import MODELS, PICK_PLACE, PickPlaceConfig, SimConfig
 from cnep.pipeline.sim.extras import require_extras
 from cnep.pipeline.sim.generate import generate_demonstrations, ingest_demonstrations
-from cnep.pipeline.sim.grid_config import GridConfig
+from cnep.pipeline.sim.grid_config import GridConfig, subset
 from cnep.pipeline.sim.grid_table import cell_rows, csv_text, pooled_table
 from cnep.pipeline.sim.grid_unit import Unit, link_subset, run_grid_unit
 from cnep.pipeline.sim.loop import episodes_of, for_task
@@ -170,13 +170,6 @@ def make_set(config: GridConfig, task: Task, set_seed: int, folder: Path, weight
             extract_features(replace(settings, out=work), work, weights)
             write_output(work / SET_FILE, json.dumps({"behaviours": made.behaviours, "clean": made.successes}).encode())
     return json.loads((folder / SET_FILE).read_text())["behaviours"]
-
-
-def subset(behaviours: list[str], names: tuple[str, ...], d: int) -> list[int]:
-    """The indices of the first `d` demonstrations of each behaviour in `names` (fewer where the set has fewer of
-    one), in the set's order."""
-    chosen = [i for name in names for i in [k for k, b in enumerate(behaviours) if b == name][:d]]
-    return sorted(chosen)
 
 
 def trajectory_of(set_folder: Path, i: int) -> Path:

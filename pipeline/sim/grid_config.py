@@ -118,3 +118,10 @@ def check_reported_seeds(seeds: range) -> None:
             f"{seeds.stop - 1}, which overlap the validation seeds {VALIDATION_EPISODE_SEEDS.start}-"
             f"{VALIDATION_EPISODE_SEEDS.stop - 1} (settings and checkpoints are chosen on those); report others"
         )
+
+
+def subset(behaviours: list[str], names: tuple[str, ...], d: int) -> list[int]:
+    """The indices of the first `d` demonstrations of each behaviour in `names` (fewer where the set has fewer of
+    one), in the set's order."""
+    chosen = [i for name in names for i in [k for k, b in enumerate(behaviours) if b == name][:d]]
+    return sorted(chosen)

@@ -15,7 +15,7 @@ from cnep.pipeline.cli.main import build_parser, main
 from cnep.pipeline.cli.sim import config_of
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.sim.config import TASKS, VALIDATION_EPISODE_SEEDS
-from cnep.pipeline.sim.grid_config import GridConfig
+from cnep.pipeline.sim.grid_config import GridConfig, subset
 from cnep.pipeline.sim.grid_table import cell_rows, csv_text, pooled_table, read_rows
 from cnep.sim.statistics import wilson
 
@@ -46,6 +46,8 @@ def test_grid_refuses_reported_seeds_among_the_validation_seeds_and_other_bad_se
         GridConfig(out=Path("g"), train_seeds=(1, 1))
     with pytest.raises(PipelineError, match="--executor local takes no address"):
         GridConfig(out=Path("g"), address="tcp://h:1")
+    with pytest.raises(PipelineError, match="--executor dask tcp://h: no port"):
+        GridConfig(out=Path("g"), executor="dask", address="tcp://h")
     with pytest.raises(PipelineError, match="--tasks must name tasks"):
         GridConfig(out=Path("g"), tasks=("juggling",))
     out = tmp_path / "g"
@@ -80,10 +82,7 @@ def test_csv_rows_hold_each_cell_and_the_table_pools_its_runs_with_a_wilson_inte
 needs_sim = pytest.mark.skipif(not SIM, reason="the sim extra is not installed")
 
 
-@needs_sim
 def test_a_subset_takes_the_first_demonstrations_of_each_behaviour():
-    from cnep.pipeline.sim.grid import subset
-
     behaviours = ["left", "left", "right", "left", "right", "right"]
     assert subset(behaviours, ("left", "right"), 2) == [0, 1, 2, 4]
     assert subset(behaviours, ("left", "right", "up"), 4) == [0, 1, 2, 3, 4, 5]
