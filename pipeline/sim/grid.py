@@ -74,8 +74,7 @@ def run_grid(config: GridConfig) -> GridResult:
     out = Path(config.out)
     with writing_as("sim grid"), output_folder(out), output_lock(out, folder=True):
         check_grid_folder(out, config)
-        weights = choose_weights(config.weights, config.offline).weights
-        units = {name: unit for name, unit in plan(config, out, weights).items() if unit.models}
+        units = plan(config, out)
         cells = len(config.tasks) * len(config.sets) * len(config.per_behaviour) * len(config.train_seeds)
         cells *= len(models_of(config))
         ran = sum(len(unit.models) for unit in units.values())
@@ -116,9 +115,9 @@ def models_of(config: GridConfig) -> tuple[str, ...]:
     return (*MODELS, *BASELINES) if config.baselines else MODELS
 
 
-def plan(config: GridConfig, out: Path, weights: str) -> dict[str, Unit]:
-    """Every unit of the grid, by name, its `models` those whose cell file is missing; the sets they need made first
-    and their folders linked (a unit without a missing cell gets no folder)."""
+def plan(config: GridConfig, out: Path) -> dict[str, Unit]:
+    """The units of the grid with a missing cell, by name, their `models` those cells; the sets they need made first
+    and their folders linked."""
     units = {}
     for task_name in config.tasks:
         task = find_task(task_name)
@@ -132,7 +131,7 @@ def plan(config: GridConfig, out: Path, weights: str) -> dict[str, Unit]:
                     if not missing:
                         continue
                     if behaviours is None:
-                        behaviours = make_set(config, task, set_seed, set_folder, weights)
+                        behaviours = make_set(config, task, set_seed, set_folder)
                     chosen = subset(behaviours, task.behaviours, d)
                     trajectories = [trajectory_of(set_folder, i) for i in chosen]
                     run = out / "runs" / name
@@ -157,10 +156,12 @@ def task_config(
     return for_task(settings, task)
 
 
-def make_set(config: GridConfig, task: Task, set_seed: int, folder: Path, weights: str) -> list[str]:
-    """The demonstration set `folder` (made now where it is missing: generate, ingest, extract, SET_FILE); returns
-    what each of its demonstrations did (Task.behaviours' names), in order."""
+def make_set(config: GridConfig, task: Task, set_seed: int, folder: Path) -> list[str]:
+    """The demonstration set `folder` (made now where it is missing: generate, ingest, extract with the weights
+    `config.weights` chooses, SET_FILE: each demonstration's behaviour, the clean ones, the weights); returns what
+    each of its demonstrations did (Task.behaviours' names), in order."""
     if not folder.is_dir():
+        weights = choose_weights(config.weights, config.offline).weights  # before anything is made
         n = max(config.per_behaviour) * len(task.behaviours)
         log.info("demonstration set %s: %d demonstrations", folder.name, n)
         settings = task_config(config, task, folder, set_seed, config.train_seeds[0], n)
@@ -168,7 +169,8 @@ def make_set(config: GridConfig, task: Task, set_seed: int, folder: Path, weight
             made = generate_demonstrations(task, work / "recorded", n, set_seed, config.quiet)
             ingest_demonstrations(work / "recorded", work / "demos", task.name, config.quiet)
             extract_features(replace(settings, out=work), work, weights)
-            write_output(work / SET_FILE, json.dumps({"behaviours": made.behaviours, "clean": made.successes}).encode())
+            made_set = {"behaviours": made.behaviours, "clean": made.successes, "weights": weights}
+            write_output(work / SET_FILE, json.dumps(made_set).encode())
     return json.loads((folder / SET_FILE).read_text())["behaviours"]
 
 
