@@ -81,7 +81,8 @@ def run_grid_unit(unit: Unit, reports=None) -> dict[str, dict]:
     queue of the parent's bar, fed the episodes done per cell (`RemoteBar`; None: nobody draws it)."""
     reports = Discard() if reports is None else reports
     run = unit.run
-    wanted = {"CNMP"} & set(unit.models) | ({"CNEP"} if set(unit.models) - {"CNMP"} else set())  # baselines: the CNEP's
+    models = set(unit.models)
+    wanted = (models & {"CNMP"}) | ({"CNEP"} if models - {"CNMP"} else set())  # a baseline is fitted beside the CNEP
     jobs = {label: job for label, job in training_jobs(unit.config, run).items() if label.split("-seed")[0] in wanted}
     train_one_after_another(
         {label: job for label, job in jobs.items() if not Path(job.out).is_dir()},
