@@ -63,11 +63,6 @@ def protocols_of(protocol: str) -> tuple[str, ...]:
     return PROTOCOLS if protocol == BOTH else (protocol,)
 
 
-# Episode seeds kept for choosing settings and checkpoints in closed loop (validation, tuning): a reported episode
-# (`cnep sim grid`) never has one. Below sim.task.DEMO_SEED_OFFSET, where the demonstrations' seeds begin.
-VALIDATION_EPISODE_SEEDS = range(900_000, 1_000_000)
-
-
 def check_episode_seeds(first: int, episodes: int) -> None:
     """PipelineError unless the episode seeds `first` .. `first + episodes - 1` are seeds (models.config.SEED_MAX)
     outside the validation seeds (pipeline.sim.validation)."""

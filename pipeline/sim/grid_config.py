@@ -21,11 +21,11 @@ from cnep.pipeline.sim.config import (
     PROTOCOL_HELP,
     PROTOCOLS,
     TASKS,
-    VALIDATION_EPISODE_SEEDS,
     check_episode_seeds,
     check_seeds,
     protocols_of,
 )
+from cnep.pipeline.sim.validation import VALIDATION_RANGE
 
 # The settings every cell of one grid folder shares (GRID_FILE): a rerun into the folder with another value of one
 # would mix cells of two benchmarks in its table.
@@ -55,7 +55,7 @@ class GridConfig:
     episode_seed: int = setting(
         0,
         f"seed of the first reported episode (episode i is reset with seed + i); the reported seeds may not overlap "
-        f"the validation seeds, {VALIDATION_EPISODE_SEEDS.start}-{VALIDATION_EPISODE_SEEDS.stop - 1}",
+        f"the validation seeds, {VALIDATION_RANGE[0]}-{VALIDATION_RANGE[-1]} (pipeline.sim.validation)",
     )
     max_steps: int | None = setting(None, MAX_STEPS_HELP)
     protocol: str = setting(ONLINE, PROTOCOL_HELP, choices=(BOTH, *PROTOCOLS))
@@ -94,8 +94,7 @@ class GridConfig:
                 f"{self.workers}"
             )
         protocols_of(self.protocol)
-        check_episode_seeds(self.episode_seed, self.episodes)
-        check_reported_seeds(self.reported_seeds)
+        check_episode_seeds(self.episode_seed, self.episodes)  # refuses the validation seeds too
         check_executor(self.executor, self.address)
 
     @property
@@ -106,18 +105,6 @@ class GridConfig:
     def shared(self) -> dict:
         """The settings every cell of the grid's folder shares (SHARED), as JSON writes them."""
         return {name: value for name, value in asdict(self).items() if name in SHARED}
-
-
-def check_reported_seeds(seeds: range) -> None:
-    """PipelineError when the reported episode seeds `seeds` overlap VALIDATION_EPISODE_SEEDS, the ones settings and
-    checkpoints are chosen on."""
-    first, last = max(seeds.start, VALIDATION_EPISODE_SEEDS.start), min(seeds.stop, VALIDATION_EPISODE_SEEDS.stop)
-    if first < last:
-        raise PipelineError(
-            f"--episode-seed {seeds.start} and --episodes {len(seeds)} report episode seeds {seeds.start}-"
-            f"{seeds.stop - 1}, which overlap the validation seeds {VALIDATION_EPISODE_SEEDS.start}-"
-            f"{VALIDATION_EPISODE_SEEDS.stop - 1} (settings and checkpoints are chosen on those); report others"
-        )
 
 
 def subset(behaviours: list[str], names: tuple[str, ...], d: int) -> list[int]:

@@ -6,9 +6,12 @@ set) and one training seed, its cells the models evaluated on it.
 
 It composes `cnep sim TASK`'s stages (pipeline.sim.stage) in the unit's folder, RUN: the trajectories of the subset
 (linked from the set's folder, as is its extractor), then train (`training_jobs`: the CNEP and the matched CNMP of
-the seed, one after the other in this process), export and the closed loop (`evaluate_one`: each model, and each
-baseline fitted beside the CNEP). A checkpoint or a policy folder already in RUN is complete (each stage renames its
-work folder into place when done) and is used as it is, so a unit interrupted after training resumes at the export.
+the seed, one after the other in this process, each keeping its candidate checkpoints), the choice of each model's
+kept checkpoint on the validation episodes (pipeline.sim.selection, in this process), export and the closed loop
+(`evaluate_one`: each model, and each baseline fitted beside the CNEP). A checkpoint or a policy folder already in
+RUN is complete (each stage renames its work folder into place when done) and is used as it is (a checkpoint still
+holding its candidates is chosen from first), so a unit interrupted after training resumes at the choice or the
+export.
 """
 
 from __future__ import annotations
@@ -23,7 +26,10 @@ from cnep.outputs import temporary_path
 from cnep.pipeline.demo.stage import train_one_after_another
 from cnep.pipeline.progress import RemoteBar
 from cnep.pipeline.sim.config import MODELS, PickPlaceConfig, SimConfig
+from cnep.pipeline.sim.selection import select_checkpoints
 from cnep.pipeline.sim.stage import EXTRACTOR_FILE, evaluate_one, export_policies, training_jobs
+from cnep.pipeline.train.constants import CANDIDATES_DIR
+from cnep.sim.tasks import find_task
 
 
 @dataclass(frozen=True)
@@ -90,6 +96,9 @@ def run_grid_unit(unit: Unit, reports=None) -> dict[str, dict]:
         started=time.perf_counter(),
     )
     checkpoints = {label: Path(job.out) for label, job in jobs.items()}
+    unselected = {label: c for label, c in checkpoints.items() if (c / CANDIDATES_DIR).is_dir()}  # trained, not chosen
+    if unselected:
+        select_checkpoints(unit.config, find_task(unit.task), run, unselected, run / EXTRACTOR_FILE, workers=0)
     export_policies({label: c for label, c in checkpoints.items() if not (run / "policies" / c.name).is_dir()}, run)
     policies = {label: run / "policies" / checkpoint.name for label, checkpoint in checkpoints.items()}
     results = {}

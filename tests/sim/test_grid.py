@@ -1,8 +1,8 @@
 """`cnep sim grid`: its options become GridConfig and bad ones are refused in one line (the reported episode seeds
 never the validation seeds); a set's subset takes the first demonstrations of each behaviour; the CSV and the pooled
 table from cells' rates; and a tiny grid end to end (1 task, 1 set, 1 seed, 2 demonstrations per behaviour, a few
-training steps, 1 episode of a few steps), run again with no work, and a lost cell made again from the unit's kept
-checkpoints."""
+training steps, 1 episode of a few steps, each model's checkpoint chosen on the validation episodes), run again with
+no work, and a lost cell made again from the unit's kept checkpoints."""
 
 import importlib.util
 import json
@@ -14,9 +14,10 @@ import cnep.sim
 from cnep.pipeline.cli.main import build_parser, main
 from cnep.pipeline.cli.sim import config_of
 from cnep.pipeline.errors import PipelineError
-from cnep.pipeline.sim.config import TASKS, VALIDATION_EPISODE_SEEDS
+from cnep.pipeline.sim.config import TASKS
 from cnep.pipeline.sim.grid_config import GridConfig, subset
 from cnep.pipeline.sim.grid_table import cell_rows, csv_text, pooled_table, read_rows
+from cnep.pipeline.sim.validation import VALIDATION_RANGE, SelectionSettings
 from cnep.sim.statistics import wilson
 
 SIM = all(importlib.util.find_spec(name) for name in cnep.sim.EXTRA)
@@ -38,8 +39,10 @@ def test_grid_arguments_become_its_settings_and_the_executor_its_address():
 
 
 def test_grid_refuses_reported_seeds_among_the_validation_seeds_and_other_bad_settings(tmp_path, capsys):
-    start = VALIDATION_EPISODE_SEEDS.start
-    with pytest.raises(PipelineError, match=f"report episode seeds {start - 5}-{start + 4}, which overlap"):
+    start = VALIDATION_RANGE[0]
+    with pytest.raises(
+        PipelineError, match=f"episode seeds {start - 5} to {start + 4}, which meet the validation seeds"
+    ):
         GridConfig(out=Path("g"), episode_seed=start - 5, episodes=10)
     assert GridConfig(out=Path("g"), episode_seed=start - 10, episodes=10).reported_seeds.stop == start
     with pytest.raises(PipelineError, match="--train-seeds takes distinct values"):
@@ -52,7 +55,7 @@ def test_grid_refuses_reported_seeds_among_the_validation_seeds_and_other_bad_se
         GridConfig(out=Path("g"), tasks=("juggling",))
     out = tmp_path / "g"
     assert main(["sim", "grid", "--out", str(out), "--episode-seed", str(start)]) == 2
-    assert "overlap the validation seeds" in capsys.readouterr().err and not out.exists()
+    assert "which meet the validation seeds" in capsys.readouterr().err and not out.exists()
 
 
 def cell(seed: int, successes: int, entropy: float | None) -> dict:
@@ -107,7 +110,13 @@ def test_a_tiny_grid_runs_end_to_end_and_a_rerun_does_no_work(tmp_path, monkeypa
         ("CNMP", 4, 1, "0-0"),
     ]
     assert json.loads((out / "sets/obstacle-set0/set.json").read_text())["behaviours"].count("left") == 2
-    assert len(list((out / "runs/obstacle-set0-d2-seed0/trajectories").glob("*.mcap"))) == 4
+    run = out / "runs/obstacle-set0-d2-seed0"
+    assert len(list((run / "trajectories").glob("*.mcap"))) == 4
+    for model in ("cnep", "cnmp"):  # each kept checkpoint chosen from its candidates on the validation episodes
+        kept = json.loads((run / "checkpoints" / f"{model}-seed0" / "config.json").read_text())["selection"]
+        assert (
+            kept["seeds"]["first"] == VALIDATION_RANGE[0] and len(kept["candidates"]) == SelectionSettings().candidates
+        )
     table = (out / grid.TABLE_FILE).read_text()
     assert read_rows((out / grid.CSV_FILE).read_text()) == read_rows(csv_text(first.rows)) and "| CNMP | 2 |" in table
 
@@ -121,7 +130,7 @@ def test_a_tiny_grid_runs_end_to_end_and_a_rerun_does_no_work(tmp_path, monkeypa
     assert (again.cells, again.ran, again.table) == (2, 0, first.table)
 
     (out / "cells/obstacle-set0-d2-seed0-CNMP.json").unlink()  # a cell lost: made again from the kept checkpoint
-    checkpoint = out / "runs/obstacle-set0-d2-seed0/checkpoints/cnmp-seed0/model.safetensors"
+    checkpoint = run / "checkpoints/cnmp-seed0/model.safetensors"
     trained = checkpoint.stat().st_mtime_ns
     with monkeypatch.context() as patched:
         patched.setattr(grid, "generate_demonstrations", no_work)
