@@ -55,7 +55,7 @@ class GridConfig:
     episode_seed: int = setting(
         0,
         f"seed of the first reported episode (episode i is reset with seed + i); the reported seeds may not overlap "
-        f"the validation seeds, {VALIDATION_RANGE[0]}-{VALIDATION_RANGE[-1]} (pipeline.sim.validation)",
+        f"the validation seeds, {VALIDATION_RANGE[0]}-{VALIDATION_RANGE[-1]}, which choose the kept checkpoints",
     )
     max_steps: int | None = setting(None, MAX_STEPS_HELP)
     protocol: str = setting(ONLINE, PROTOCOL_HELP, choices=(BOTH, *PROTOCOLS))
