@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import argparse
 
-from cnep.pipeline.evaluate.constants import EXECUTORS, SET_TITLES
+from cnep.pipeline.cli.executor import add_executor, executor_of
+from cnep.pipeline.evaluate.constants import SET_TITLES
 
 HELP = "reproduce the paper's tables (CNEP vs CNMP, ProMP, GMM-GMR, nearest demo) on its synthetic sets"
 
@@ -59,15 +60,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--out", default="cnep-evaluation", help="folder for the Markdown, JSON and PNG outputs")
     parser.add_argument("--jobs", type=int, default=2, help="worker processes, one thread each (0: this process only)")
-    parser.add_argument(
-        "--executor",
-        nargs="+",
-        default=(EXECUTORS[0],),
-        metavar=("KIND", "ADDRESS"),
-        help="where the fits run: local (default: --jobs processes here), or dask or ray followed by the cluster's "
-        "address (a Dask scheduler's tcp://host:8786, a Ray head's host:6379 or ray://host:10001; without one, a "
-        "cluster of --jobs processes on this machine); needs pip install 'cnep-pipeline[dask]' or '[ray]'",
-    )
+    add_executor(parser, "the fits", "--jobs")
     parser.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     parser.add_argument(
         "--force",
@@ -79,13 +72,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from cnep.pipeline.errors import PipelineError
     from cnep.pipeline.evaluate.constants import PATIENCE, QUICK_NOTE, QUICK_QUERIES, QUICK_SEEDS, QUICK_STEPS, TABLES
     from cnep.pipeline.evaluate.stage import EvaluateConfig, evaluate
 
-    kind, *address = args.executor
-    if kind not in EXECUTORS or len(address) > 1:
-        raise PipelineError(f"--executor takes local, dask [ADDRESS] or ray [ADDRESS], got {' '.join(args.executor)}")
+    kind, address = executor_of(args)
     config = EvaluateConfig(
         tables=TABLES if args.table == "all" else (args.table,),
         quick=args.quick,
@@ -100,7 +90,7 @@ def run(args: argparse.Namespace) -> int:
         force=args.force,
         quiet=args.quiet,
         executor=kind,
-        address=address[0] if address else None,
+        address=address,
     )
     written = evaluate(config)
     for path in written.values():

@@ -1,17 +1,20 @@
-"""`cnep sim obstacle --out DIR`, `cnep sim pick-place --out DIR` and `cnep sim eval POLICY`: policies in closed loop
-in the simulator (the `sim` extra), each task's run by the one stage (pipeline.sim.stage.run_sim). The options are
-the fields of SimConfig, PickPlaceConfig and EvalConfig (pipeline.cli.fields)."""
+"""`cnep sim obstacle --out DIR`, `cnep sim pick-place --out DIR`, `cnep sim grid --out DIR` and `cnep sim eval
+POLICY`: policies in closed loop in the simulator (the `sim` extra), each task's run by the one stage
+(pipeline.sim.stage.run_sim), the benchmark's grid of them by pipeline.sim.grid. The options are the fields of
+SimConfig, PickPlaceConfig, GridConfig and EvalConfig (pipeline.cli.fields)."""
 
 from __future__ import annotations
 
 import argparse
 
+from cnep.pipeline.cli.executor import add_executor, executor_of
 from cnep.pipeline.cli.fields import add_options, build, chosen_options, options
-from cnep.pipeline.sim.config import SHOWN, EvalConfig, PickPlaceConfig, SimConfig, with_task
+from cnep.pipeline.sim.config import SHOWN, TASKS, EvalConfig, PickPlaceConfig, SimConfig, with_task
+from cnep.pipeline.sim.grid_config import GridConfig
 
 HELP = (
-    "closed loop in a simulator: `obstacle` and `pick-place` from nothing to the table, `eval` a given policy (the "
-    "`sim` extra)"
+    "closed loop in a simulator: `obstacle` and `pick-place` from nothing to the table, `grid` the benchmark over "
+    "sets, seeds and numbers of demonstrations, `eval` a given policy (the `sim` extra)"
 )
 OBSTACLE_HELP = (
     "generate demonstrations in the simulator, ingest, extract, train the CNEP and the matched CNMP, keep the "
@@ -24,6 +27,11 @@ PICK_PLACE_HELP = (
     "loop on other episodes (scenes that decide the place, leave it free, change during the motion) and print the "
     "table"
 )
+GRID_HELP = (
+    "the closed-loop benchmark: every task x demonstration set x training seed x demonstrations per behaviour x model "
+    "trained and run on the same reported episode seeds, resumable; writes a CSV and a table with Wilson intervals"
+)
+GRID_SHOWN = {**SHOWN, "train_steps": "the task's, as `cnep sim TASK` trains its models"}
 EVAL_HELP = "run a policy (exported folder or checkpoint) in closed loop in the simulator and print its rates"
 
 
@@ -34,6 +42,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         task.add_argument("--out", required=True, help="a new or empty folder for everything")
         add_options(task, options(cls), defaults=SHOWN)
         task.set_defaults(_sim=run_task, _config=cls)
+    grid = sub.add_parser("grid", help=GRID_HELP, description=GRID_HELP)
+    grid.add_argument("--out", required=True, help="the grid's folder: a new one, or a grid's to resume or extend")
+    grid.add_argument(
+        "--tasks", nargs="+", choices=TASKS, default=argparse.SUPPRESS, help=f"the tasks (default: {' '.join(TASKS)})"
+    )
+    add_options(grid, options(GridConfig), defaults=GRID_SHOWN)
+    add_executor(grid, "the cells", "--workers")
+    grid.set_defaults(_sim=run_grid)
     evaluate = sub.add_parser("eval", help=EVAL_HELP, description=EVAL_HELP)
     evaluate.add_argument("policy", help="a folder written by `cnep export` (runs without torch) or `cnep train`")
     evaluate.add_argument("--out", help="a new or empty folder for summary.json and the recordings (default: none)")
@@ -68,6 +84,25 @@ def run_task(args: argparse.Namespace) -> int:
     print(summary["table"])
     print(f"features: {summary['features']}; wrote {config.out}/{SUMMARY_FILE} and the recordings in "
           f"{config.out}/episodes; done in {time.perf_counter() - start:.0f} s")  # fmt: skip
+    return 0
+
+
+def run_grid(args: argparse.Namespace) -> int:
+    kind, address = executor_of(args)
+    tasks = {"tasks": tuple(args.tasks)} if "tasks" in args else {}
+    config = config_of(GridConfig, args, out=args.out, executor=kind, address=address, **tasks)
+    from cnep.pipeline.progress import heartbeat
+    from cnep.pipeline.sim.extras import require_extras
+
+    require_extras(config, "cnep sim grid")
+
+    with heartbeat("loading torch and the simulator", args.quiet):
+        from cnep.pipeline.sim.grid import CSV_FILE, TABLE_FILE
+        from cnep.pipeline.sim.grid import run_grid as grid
+
+    result = grid(config)
+    print(result.table)
+    print(f"{result.ran} of {result.cells} cells run now; wrote {config.out}/{CSV_FILE} and {config.out}/{TABLE_FILE}")
     return 0
 
 

@@ -18,12 +18,24 @@ import struct
 import time
 
 from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.evaluate.constants import EXECUTORS, LOCAL
 
 CONNECT_SECONDS = 10.0  # the time to connect and, for Dask, to receive the scheduler's first bytes
 SCHEMES = {"dask": ("tcp", "tls"), "ray": ("ray",)}  # the schemes an address may name; without one, the first
 RAY_AUTO = "auto"  # Ray's name for the cluster that `ray start` began on this machine
 _HANDSHAKE_LENGTH = struct.Struct("Q")  # how Dask's TCP messages start: their length (bytes), in the machine's order
 MAX_HANDSHAKE_BYTES = 1 << 20  # a Dask handshake is a few hundred bytes
+
+
+def check_executor(executor: str, address: str | None) -> None:
+    """PipelineError unless `executor` is one of EXECUTORS and `address` fits it: none for the local pool, a
+    well-formed one (`parse_address`) or none for a cluster."""
+    if executor not in EXECUTORS:
+        raise PipelineError(f"unknown executor {executor!r}; choose one of {', '.join(EXECUTORS)}")
+    if address is not None and executor == LOCAL:
+        raise PipelineError(f"--executor local takes no address, got {address!r}; name dask or ray with it")
+    if address is not None:
+        parse_address(executor, address)
 
 
 def parse_address(executor: str, address: str) -> tuple[str, str, int]:

@@ -30,11 +30,10 @@ from cnep.models.assignments import ASSIGNMENTS
 from cnep.outputs import output_lock, writing_as
 from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_existing
 from cnep.pipeline.errors import PipelineError
-from cnep.pipeline.evaluate.addresses import parse_address
+from cnep.pipeline.evaluate.addresses import check_executor
 from cnep.pipeline.evaluate.constants import (
     CNEP_EXPERTS,
     DEFAULT_OUT,
-    EXECUTORS,
     EXPERT_COUNTS,
     JOBS,
     LOCAL,
@@ -86,12 +85,7 @@ class EvaluateConfig:
 
     def __post_init__(self) -> None:
         coerce_paths(self)
-        if self.executor not in EXECUTORS:
-            raise PipelineError(f"unknown executor {self.executor!r}; choose one of {', '.join(EXECUTORS)}")
-        if self.address is not None and self.executor == LOCAL:
-            raise PipelineError(f"--executor local takes no address, got {self.address!r}; name dask or ray with it")
-        if self.address is not None:
-            parse_address(self.executor, self.address)
+        check_executor(self.executor, self.address)
         unknown = [t for t in self.tables if t not in TABLES]
         if unknown or not self.tables:
             raise PipelineError(f"unknown table(s) {unknown or self.tables}; choose from {', '.join(TABLES)} or all")
@@ -247,7 +241,7 @@ def run_jobs(
 
     try:
         if executor != LOCAL:
-            for unit, results in run_on_cluster(units(jobs), executor, address, workers):
+            for unit, results in run_on_cluster(run_unit, units(jobs), executor, address, workers):
                 bar.update(sum(job.steps for job in unit if job.spec is not None))
                 for job, result in zip(unit, results):
                     done(job)

@@ -1,6 +1,7 @@
 """Stage `sim`: policies in closed loop in the simulator (cnep.sim, the `sim` extra): `run_sim` from nothing to the
-table for any task (`cnep sim obstacle`, `cnep sim pick-place`), `run_eval` for a given policy (`cnep sim eval`),
-`evaluate_policy` the loop itself, `SelectionSettings` how `cnep sim` chooses the checkpoint it keeps.
+table for any task (`cnep sim obstacle`, `cnep sim pick-place`), `run_grid` the benchmark's grid of them (`cnep sim
+grid`), `run_eval` for a given policy (`cnep sim eval`), `evaluate_policy` the loop itself, `SelectionSettings` how
+`cnep sim` chooses the checkpoint it keeps.
 """
 
 from cnep.pipeline import exports
@@ -10,6 +11,8 @@ __getattr__, __all__ = exports(
     {
         "config": ("EvalConfig", "LoopSettings", "PickPlaceConfig", "SimConfig"),
         "evaluate": ("run_eval",),
+        "grid": ("run_grid",),
+        "grid_config": ("GridConfig",),
         "loop": ("evaluate_policy",),
         "stage": ("run_sim",),
         "validation": ("SelectionSettings",),

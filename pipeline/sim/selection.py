@@ -20,6 +20,7 @@ from concurrent.futures import FIRST_COMPLETED, wait
 from dataclasses import dataclass
 from multiprocessing import get_context
 from pathlib import Path
+from queue import SimpleQueue
 from types import SimpleNamespace
 
 from cnep.models import load_checkpoint, read_checkpoint_config, save_checkpoint
@@ -88,8 +89,9 @@ def select_checkpoints(
     workers: int,
 ) -> dict[str, dict]:
     """The stage: every candidate of every checkpoint (label -> checkpoint folder) scored in closed loop, `workers` at
-    a time in single-threaded processes under one bar, and each checkpoint's winner kept (`keep`); returns label ->
-    the record its config.json holds. Nothing to choose (SelectionSettings.candidates 1): {}."""
+    a time in single-threaded processes (0: in this process) under one bar, and each checkpoint's winner kept
+    (`keep`); returns label -> the record its config.json holds. Nothing to choose (SelectionSettings.candidates 1):
+    {}."""
     if not config.selection.selects:
         return {}
     found = {label: candidates_of(path) for label, path in checkpoints.items()}
@@ -150,11 +152,18 @@ def validation_settings(config: SimConfig | PickPlaceConfig, task: Task) -> Simp
 def _score_all(
     config: SimConfig | PickPlaceConfig, task: Task, out: Path, jobs: dict[str, Path], extractor: Path, workers: int
 ) -> dict[str, dict]:
-    """Every candidate of `jobs` (name -> candidate checkpoint) scored by `_score` in `workers` processes, one bar
-    counting their episodes; name -> score."""
+    """Every candidate of `jobs` (name -> candidate checkpoint) scored by `_score` in `workers` processes (0: in this
+    one, one after another), one bar counting their episodes; name -> score."""
     (out / SELECTION_DIR).mkdir()
     total = episodes_of(task, validation_settings(config, task)) * len(jobs)
     scores: dict[str, dict] = {}
+    if workers == 0:
+        with progress_bar(total=total, desc="select", unit="episode", quiet=config.quiet) as bar:
+            reports, counts = SimpleQueue(), {}
+            for name, path in jobs.items():
+                scores[name] = _score(config, task.name, out, name, path, extractor, RemoteBar(reports, name))
+                follow_total(reports, bar, counts)
+        return scores
     with (
         progress_bar(total=total, desc="select", unit="episode", quiet=config.quiet) as bar,
         get_context("spawn").Manager() as manager,

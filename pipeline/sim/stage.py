@@ -157,28 +157,33 @@ def extract_features(config: SimConfig | PickPlaceConfig, out: Path, weights: st
 
 
 def train_models(config: SimConfig | PickPlaceConfig, out: Path, started: float) -> dict[str, Path]:
-    """Stage 4: the CNEP and the matched CNMP for every training seed, WORKERS at a time, a bar each; label ->
-    checkpoint. started: the stage's start (time.perf_counter), for the log."""
+    """Stage 4: the CNEP and the matched CNMP for every training seed (`training_jobs`), WORKERS at a time, a bar
+    each; label -> checkpoint. started: the stage's start (time.perf_counter), for the log."""
+    jobs = training_jobs(config, out)
+    steps = "the schedule's steps" if config.train_steps is None else f"{config.train_steps} steps"
+    log.info("training %d models, %d at a time (%s each)", len(jobs), WORKERS, steps)
+    train_side_by_side(jobs, config.quiet, started, workers=WORKERS)
+    return {label: Path(job.out) for label, job in jobs.items()}
+
+
+def training_jobs(config: SimConfig | PickPlaceConfig, out: Path) -> dict[str, TrainStageConfig]:
+    """The training of the CNEP and the matched CNMP for every training seed, on OUT/trajectories: label
+    (`MODEL-seedN`) -> its job, the checkpoint OUT/checkpoints/`model-seedN`."""
     model = CNEPConfig(n_experts=config.experts, assignment=config.assignment)
     networks = {
         "CNEP": {"model": model},
         "CNMP": {"model": replace(model, assignment=CNMP_ASSIGNMENT), "matched_cnmp": True},
     }
-    checkpoints, jobs = {}, {}
+    jobs = {}
     for seed in config.train_seeds:
         training = TrainConfig(steps=config.train_steps, seed=seed, nll_beta=config.nll_beta)  # the schedule's rest
         for name, network in networks.items():
-            label = f"{name}-seed{seed}"
-            checkpoints[label] = out / "checkpoints" / f"{name.lower()}-seed{seed}"
-            jobs[label] = TrainStageConfig(
-                inputs=(out / "trajectories",), out=checkpoints[label], layout=LAYOUT, training=training,
-                conditioning=trained_conditioning(config), candidates=config.selection.candidates, quiet=True,
-                **network,
+            jobs[f"{name}-seed{seed}"] = TrainStageConfig(
+                inputs=(out / "trajectories",), out=out / "checkpoints" / f"{name.lower()}-seed{seed}", layout=LAYOUT,
+                training=training, conditioning=trained_conditioning(config),
+                candidates=config.selection.candidates, quiet=True, **network,
             )  # fmt: skip
-    steps = "the schedule's steps" if config.train_steps is None else f"{config.train_steps} steps"
-    log.info("training %d models, %d at a time (%s each)", len(jobs), WORKERS, steps)
-    train_side_by_side(jobs, config.quiet, started, workers=WORKERS)
-    return checkpoints
+    return jobs
 
 
 def export_policies(checkpoints: dict[str, Path], out: Path) -> dict[str, Path]:
@@ -212,8 +217,9 @@ def _closed_loop(
     ):
         reports, counts = manager.Queue(), {}
         pending = {
-            pool.submit(_evaluate, config, task.name, out, label, *job, RemoteBar(reports, label), figure.get(label)):
-            label for label, job in jobs.items()
+            pool.submit(
+                evaluate_one, config, task.name, out, label, *job, RemoteBar(reports, label), figure.get(label)
+            ): label for label, job in jobs.items()
         }  # fmt: skip
         while pending:
             finished, _ = wait(pending, timeout=REPORT_INTERVAL_S, return_when=FIRST_COMPLETED)
@@ -223,7 +229,7 @@ def _closed_loop(
     return {label: results[label] for label in jobs}
 
 
-def _evaluate(
+def evaluate_one(
     config: SimConfig | PickPlaceConfig,
     task_name: str,
     out: Path,

@@ -164,3 +164,15 @@ def test_a_dask_scheduler_passes_the_probe():
         n_workers=0, processes=False, protocol="tcp", host="127.0.0.1", dashboard_address=None
     ) as cluster:
         addresses.reach("dask", cluster.scheduler_address)
+
+
+def test_a_dask_cluster_runs_any_units_function():
+    """The executors hand each unit to the function they are given (`cnep evaluate`'s jobs, `cnep sim grid`'s units)."""
+    distributed = pytest.importorskip("distributed")
+    from cnep.pipeline.evaluate.executors import run_on_cluster
+
+    with distributed.LocalCluster(
+        n_workers=1, processes=False, protocol="tcp", host="127.0.0.1", dashboard_address=None
+    ) as cluster:
+        done = sorted(run_on_cluster(str.upper, ["a", "b"], "dask", cluster.scheduler_address, workers=1))
+    assert done == [("a", "A"), ("b", "B")]

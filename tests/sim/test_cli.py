@@ -87,7 +87,8 @@ def test_a_task_is_a_folder_and_the_commands_know_every_one_without_importing_th
     assert (SimConfig.TASK, PickPlaceConfig.TASK) == TASKS
     code = (
         "import sys\nfrom cnep.pipeline.cli.main import main\n"
-        "for argv in (['--help'], ['sim', '--help'], ['sim', 'pick-place', '--help'], ['sim', 'eval', '--help']):\n"
+        "for argv in (['--help'], ['sim', '--help'], ['sim', 'pick-place', '--help'], ['sim', 'grid', '--help'],\n"
+        "             ['sim', 'eval', '--help']):\n"
         "    try:\n        main(argv)\n    except SystemExit:\n        pass\n"
         "print('loaded:', ','.join(m for m in ('gymnasium', 'mujoco', 'cnep.sim', 'torch') if m in sys.modules))"
     )
