@@ -166,6 +166,9 @@ def main() -> None:
         "--venv", type=Path, default=ROOT / "runs" / "lerobot-venv", help="LeRobot's virtual environment"
     )
     parser.add_argument("--out", type=Path, default=ROOT / "runs" / "lerobot-policies")
+    parser.add_argument(
+        "--pretrained-backbone", action="store_true", help="ACT's ImageNet ResNet-18 (downloaded; default: random)"
+    )
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     python = ensure_venv(args.venv)
