@@ -210,8 +210,9 @@ def main() -> None:
         if "training" in result:
             t = result["training"]
             print(
-                f"{name}: {t['steps']} steps on {result['frames']} frames, {t['s_per_step']} s/step; "
-                f"LeRobot's default {DEFAULT_STEPS} steps: about {t['default_steps_s_estimate']} s (estimate)"
+                f"{name}: {t['steps']} steps on {result['frames']} frames in {t['wall_s']} s ({t['cpu_s']} CPU s), "
+                f"{t['s_per_step']} s/step; LeRobot's default {DEFAULT_STEPS} steps at that rate, on this machine as "
+                f"loaded during the run: about {t['default_steps_s_estimate']} s (an estimate)"
             )
     (args.out / "results.json").write_text(json.dumps(results, indent=1) + "\n")
 
