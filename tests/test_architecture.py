@@ -67,6 +67,25 @@ def test_runtime_imports_only_numpy_opencv_onnx_runtimes_and_itself():
     assert not bad, bad
 
 
+# The LeRobot plugin (integrations/): LeRobot and torch besides what the runtime and the simulator import, and of cnep
+# those two alone, so that it installs beside LeRobot without the pipeline's dependencies; its adapter on numpy alone,
+# so that the suite tests it where LeRobot is not installed.
+PLUGIN = "integrations/lerobot_policy_cnep"
+PLUGIN_IMPORTS = {"lerobot", "torch", "lerobot_policy_cnep", "numpy", "gymnasium"}
+
+
+def test_the_lerobot_plugin_imports_only_lerobot_torch_and_cnep_runtime_and_sim():
+    allowed = PLUGIN_IMPORTS | set(sys.stdlib_module_names)
+    bad = [
+        f"{p.relative_to(ROOT)}: {m}"
+        for p, m in imports(PLUGIN)
+        if not (top(m) in ("sim", "runtime") and m.startswith("cnep.") or m.split(".")[0] in allowed)
+    ]
+    assert not bad, bad
+    adapter = [m for p, m in imports(PLUGIN) if p.name == "adapter.py"]
+    assert {top(m) for m in adapter} <= {"numpy", "runtime", "__future__", "collections"}, adapter
+
+
 # What the simulator may import besides the standard library and itself: its extra, numpy and the runtime it runs.
 SIM_IMPORTS = {"numpy", "mujoco", "gymnasium"}
 
