@@ -19,6 +19,7 @@ from cnep.sim.paths import rollout  # noqa: E402
 from cnep.sim.tasks import TASK_NAMES, find_task  # noqa: E402
 from cnep.sim.tasks.pick_place import scene as P  # noqa: E402
 from cnep.sim.tasks.pick_place.demonstrator import pick_expert  # noqa: E402
+from cnep.sim.tasks.pick_place.layout import TILE_BODY  # noqa: E402
 
 VARIANTS = ("pick-cube", "pick-can")
 SEEDS = 2  # per task and kind of scene
@@ -48,4 +49,18 @@ def test_the_demonstrator_solves_every_scene(name, condition):
 def test_the_environment_passes_gymnasiums_checker(env_id):
     env = gymnasium.make(env_id)
     check_env(env.unwrapped, skip_render_check=True)
+    env.close()
+
+
+def test_the_tile_takes_the_colour_of_the_valid_mat_and_hides_when_any_will_do():
+    env = gymnasium.make(cnep.sim.PICK_CUBE_ENV_ID, condition=P.DECIDED, frames=False).unwrapped
+    layout, tile = env.layout, env.model.geom(TILE_BODY)
+    for seed in range(3):
+        _, info = env.reset(seed=seed)
+        assert tuple(env.model.geom_rgba[tile.id]) == pytest.approx(layout.mat_rgba[info["valid"][0]])
+        assert env.data.geom(TILE_BODY).xpos[2] > 0
+    env.close()
+    env = gymnasium.make(cnep.sim.PICK_CUBE_ENV_ID, condition=P.FREE, frames=False).unwrapped
+    _, info = env.reset(seed=0)
+    assert len(info["valid"]) == 3 and env.data.geom(TILE_BODY).xpos[2] < 0
     env.close()
