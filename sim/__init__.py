@@ -5,6 +5,8 @@
     env = gymnasium.make("cnep/PickPlace-v0")         # pick a bar, put it on a free mat it fits (condition=...)
     env = gymnasium.make("cnep/PickPlace-v1")         # -v1 of each: a robot's limits and noise, wider scenes, a change
     observation, info = env.reset(seed=0)             #   during the motion (sim.robot, each task's versions)
+    env = gymnasium.make("cnep/PickCube-v1")          # other pick-and-place scenes on v1's robot: a cube, three mats
+    env = gymnasium.make("cnep/PickCan-v1")           #   and a tile's colour; a can, two mats and a cup
 
 Each task is a folder of sim/tasks (its scene, environment, demonstrator, scoring and drawing) and a `Task`
 (sim.task) the pipeline runs: `cnep.sim.tasks.find_task("pick-place")`. Rendering is headless: MUJOCO_GL defaults
@@ -23,6 +25,7 @@ ENV_ID, CUE_ENV_ID = "cnep/Obstacle-v0", "cnep/ObstacleCue-v0"
 PICK_ENV_ID = "cnep/PickPlace-v0"
 # The versions with a robot's constraints: the arm's limits, sensing noise, wider scenes, a change during the motion.
 ENV_V1_ID, CUE_ENV_V1_ID, PICK_ENV_V1_ID = "cnep/Obstacle-v1", "cnep/ObstacleCue-v1", "cnep/PickPlace-v1"
+PICK_CUBE_ENV_ID, PICK_CAN_ENV_ID = "cnep/PickCube-v1", "cnep/PickCan-v1"  # pick and place in other layouts
 EXTRA = ("mujoco", "gymnasium")  # what the `sim` extra installs
 
 _MODULES = {
@@ -36,8 +39,8 @@ _MODULES = {
 }
 _WHERE = {name: module for module, names in _MODULES.items() for name in names}
 __all__ = sorted(
-    [*_WHERE, "CUE_ENV_ID", "CUE_ENV_V1_ID", "ENV_ID", "ENV_V1_ID", "PICK_ENV_ID", "PICK_ENV_V1_ID", "SimError",
-     "require_extra"]
+    [*_WHERE, "CUE_ENV_ID", "CUE_ENV_V1_ID", "ENV_ID", "ENV_V1_ID", "PICK_CAN_ENV_ID", "PICK_CUBE_ENV_ID",
+     "PICK_ENV_ID", "PICK_ENV_V1_ID", "SimError", "require_extra"]
 )  # fmt: skip
 
 
@@ -71,6 +74,8 @@ def _register() -> None:
         (ENV_V1_ID, obstacle, {"version": 1}),
         (CUE_ENV_V1_ID, obstacle, {"cue": True, "version": 1}),
         (PICK_ENV_V1_ID, pick, {"version": 1}),
+        (PICK_CUBE_ENV_ID, "cnep.sim.tasks.pick_cube.env:PickCubeEnv", {}),
+        (PICK_CAN_ENV_ID, "cnep.sim.tasks.pick_can.env:PickCanEnv", {}),
     ):
         gymnasium.register(id=env_id, entry_point=entry_point, kwargs=kwargs)
 

@@ -9,7 +9,9 @@ The policy is a `cnep.runtime.Policy` (`step(observation) -> PolicyStep`: waypoi
 `action_names`, the gate and the active expert), or anything with the same `reset`, `step`, `action_names` and
 `gripper` (a baseline behind its interface), loaded for PLANNED with waypoints spanning the task's motion.
 An action is the state with the predicted columns replaced by the waypoint's, the gripper by the policy's gripper
-command where it has one (`Policy.gripper`: a threshold with hysteresis, applied to each planned waypoint in turn).
+command where it has one (`Policy.gripper`: a threshold with hysteresis, applied to each planned waypoint in turn),
+executed as a two-state gripper executes it: the environment's closed command (its action's lowest gripper value: the
+fingers squeeze) or its open one (the highest), whatever width the recordings' closed value reads.
 `Policy.reset(seed)` starts each episode with the episode's seed (the draw of `first_expert="sample"`).
 
 `run_episode` records what every task records (`EpisodeResult`); the environment judges the episode
@@ -78,7 +80,8 @@ def run_episode(
     environment's task judges it (its result type)."""
     observation, info = env.reset(seed=seed)
     policy.reset(seed=seed)
-    driver = Driver(policy, protocol, observation)
+    gripper_states = (float(env.action_space.low[GRIPPER_INDEX]), float(env.action_space.high[GRIPPER_INDEX]))
+    driver = Driver(policy, protocol, observation, gripper_states)
     infos = [info]
     trace: dict[str, list] = {k: [] for k in ("states", "object_poses", "frames")}
     times: dict[str, list] = {"render_s": [env.timings["render_s"]], "physics_s": []}
@@ -120,10 +123,13 @@ class Driver:
     policy's columns replaced by the waypoint's and the gripper by the policy's command where it has one. Per read:
     gates (d,), experts (the active expert), predicted (W, 3) the waypoints' xyz, policy_s (seconds).
     Made at the episode's first observation, the policy reset: no plan yet, the gripper command the nearest to where
-    the gripper is.
+    the gripper is. gripper_states: the environment's closed and open gripper commands, which the action carries as
+    the policy's command closes or opens (None: the command's own value).
     """
 
-    def __init__(self, policy: Policy, protocol: str, observation: dict) -> None:
+    def __init__(
+        self, policy: Policy, protocol: str, observation: dict, gripper_states: tuple[float, float] | None = None
+    ) -> None:
         if protocol not in PROTOCOLS:
             raise ValueError(f"protocol must be one of {', '.join(PROTOCOLS)}, got {protocol!r}")
         self.policy, self.protocol = policy, protocol
@@ -135,6 +141,7 @@ class Driver:
         self.predicted: list[np.ndarray] = []
         self.policy_s: list[float] = []
         self._plan: PolicyStep | None = None
+        self.gripper_states = gripper_states
         gripper = float(observation[STATE_KEY][GRIPPER_INDEX])
         self._command = policy.gripper.nearest(gripper) if self.commands_gripper else None
 
@@ -147,8 +154,17 @@ class Driver:
         action[self.columns] = waypoints[0 if self.protocol == ONLINE else min(k, len(waypoints) - 1)]
         if self.commands_gripper:
             self._command = self.policy.gripper.command(float(action[GRIPPER_INDEX]), self._command)
-            action[GRIPPER_INDEX] = self._command
+            action[GRIPPER_INDEX] = self._executed(self._command)
         return action
+
+    def _executed(self, command: float) -> float:
+        """The gripper value the action carries for the policy's `command` (one of its two values; a gripper the
+        demonstrations never moved stays open, as they started)."""
+        if self.gripper_states is None:
+            return command
+        closed, opened = self.gripper_states
+        gripper = self.policy.gripper
+        return closed if gripper.low < gripper.high and gripper.is_closed(command) else opened
 
     def _read(self, observation: dict, k: int) -> PolicyStep:
         start = time.perf_counter()

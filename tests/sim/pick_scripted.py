@@ -36,11 +36,12 @@ class PickNetwork:
         return self.gate, mean, np.full_like(mean, 0.01)
 
 
-def pick_policy(gate: tuple[float, ...], waypoints: int = 1) -> Policy:
+def pick_policy(gate: tuple[float, ...], waypoints: int = 1, closed: float = 0.0) -> Policy:
     """The scripted pick-and-place policy (motion only: it sees no camera) with a fixed `gate` over the places,
-    predicting `waypoints` steps ahead (a whole episode's plan for the planned protocol)."""
+    predicting `waypoints` steps ahead (a whole episode's plan for the planned protocol); `closed`: its gripper
+    command's closed value (m, as recordings that measure the opening read it on an object)."""
     columns = Columns(((0, 8),), (), ((0, 8),), np.zeros(8, np.float32), np.ones(8, np.float32))
     time_base = TimeBase(sum(STEPS) * S.CONTROL_PERIOD_S, S.CONTROL_PERIOD_S)
-    gripper = GripperCommand.from_demonstrations(np.array([0.0, P.FINGER_OPEN]))
+    gripper = GripperCommand.from_demonstrations(np.array([closed, P.FINGER_OPEN]))
     spec = PolicySpec(columns, len(P.PLACES), None, (((0, 8), (0, 8)),), time_base, gripper=gripper)
     return Policy(PickNetwork(gate), spec, waypoints=waypoints, conditioning=ConditioningPolicy())

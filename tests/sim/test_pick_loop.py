@@ -67,6 +67,21 @@ def test_the_planned_protocol_reads_the_policy_once_and_executes_its_waypoints_i
     assert ep.gates.shape == (1, 4) and ep.predicted.shape == (1, P.MAX_STEPS, 3) and ep.switches == 0
 
 
+def test_the_driver_executes_the_policys_gripper_command_as_the_environment_closes_and_opens_it():
+    env = PickPlaceEnv(P.FREE, max_steps=P.MAX_STEPS, frames=False)
+    observation, _ = env.reset(seed=3)
+    env.close()
+    wide = P.CLOSE_BELOW + 0.003  # closed on a wider object, the recordings read more than the environment closes below
+    grippers = {}
+    for states in (None, (0.0, P.FINGER_OPEN)):
+        policy = pick_policy(gate=(0.1, 0.7, 0.1, 0.1), waypoints=P.MAX_STEPS, closed=wide)
+        policy.reset(seed=3)
+        driver = Driver(policy, PLANNED, observation, states)
+        grippers[states] = {round(float(driver.action(observation, k)[7]), 4) for k in range(P.MAX_STEPS)}
+    assert grippers[None] == {round(wide, 4), P.FINGER_OPEN}  # the command's own values: the environment would open
+    assert grippers[(0.0, P.FINGER_OPEN)] == {0.0, P.FINGER_OPEN}  # a two-state gripper's: closed squeezes
+
+
 @pytest.mark.slow
 def test_a_planned_episode_puts_the_bar_where_its_one_read_says(monkeypatch):
     env = PickPlaceEnv(P.FREE)

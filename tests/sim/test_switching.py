@@ -35,7 +35,7 @@ def test_a_plans_place_is_the_mat_under_its_end():
     assert plan_place(_plan_to(RIGHT)) == RIGHT and plan_place(_plan_to(FAR_LEFT)) == FAR_LEFT
     assert plan_place(_plan_to(None)) is None
     beside = _plan_to(LEFT)
-    beside[-1, 0] += P.mat_half(LEFT)[0] + 0.01  # just off the mat's long edge
+    beside[-1, 0] += P.BAR.place_half(LEFT)[0] + 0.01  # just off the mat's long edge
     assert plan_place(beside) is None
 
 

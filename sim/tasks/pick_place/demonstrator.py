@@ -16,7 +16,7 @@ demonstration.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -26,7 +26,8 @@ from cnep.sim.paths import Plan, through
 from cnep.sim.robot import TELEPORT, RobotSettings
 from cnep.sim.task import Demonstration, demonstration_seed, recorded
 from cnep.sim.tasks.pick_place import scene as P
-from cnep.sim.tasks.pick_place.env import PickPlaceEnv, grasp_places
+from cnep.sim.tasks.pick_place.env import PickPlaceEnv
+from cnep.sim.tasks.pick_place.layout import PickLayout
 
 CARRY = list(P.PHASE_STEPS).index("carry")  # the phase from which a demonstrator heads for its place
 
@@ -43,10 +44,17 @@ class PickDraw:
     carry_z: float
 
 
-def draw_pick(rng: np.random.Generator, orientation: str, taken: list[bool], pace_per_phase: bool = False) -> PickDraw:
-    """A demonstration's choices from `rng` for a bar lying `orientation` and the places `taken`; `pace_per_phase`:
-    each phase's steps drawn apart within PHASE_STEPS (v1), else one pace for the whole motion (phase_steps)."""
-    free = [i for i in grasp_places(orientation) if not taken[i]]
+def draw_pick(
+    rng: np.random.Generator,
+    orientation: str,
+    taken: list[bool],
+    pace_per_phase: bool = False,
+    layout: PickLayout = P.BAR,
+) -> PickDraw:
+    """A demonstration's choices from `rng` for a bar lying `orientation` and the places `taken` of `layout`;
+    `pace_per_phase`: each phase's steps drawn apart within PHASE_STEPS (v1), else one pace for the whole motion
+    (phase_steps)."""
+    free = [i for i in layout.grasp_places(orientation) if not taken[i]]
     place = free[int(rng.integers(len(free)))]
     if pace_per_phase:
         steps = tuple(int(rng.integers(lo, hi + 1)) for lo, hi in P.PHASE_STEPS.values())
@@ -55,7 +63,7 @@ def draw_pick(rng: np.random.Generator, orientation: str, taken: list[bool], pac
     return PickDraw(
         place=place,
         steps=steps,
-        grasp=float(rng.uniform(-P.GRASP_OFFSET, P.GRASP_OFFSET)),
+        grasp=float(rng.uniform(-layout.grasp_offset, layout.grasp_offset)),
         target=tuple(float(v) for v in rng.uniform(-P.PLACE_OFFSET, P.PLACE_OFFSET, 2)),
         carry_z=float(P.CARRY_Z + rng.uniform(-P.CARRY_JITTER, P.CARRY_JITTER)),
     )
@@ -69,20 +77,27 @@ def phase_steps(pace: float) -> tuple[int, ...]:
 
 
 def pick_path(
-    draw: PickDraw, start: np.ndarray, object_xy: np.ndarray, object_yaw: float, robot: RobotSettings = TELEPORT
+    draw: PickDraw,
+    start: np.ndarray,
+    object_xy: np.ndarray,
+    object_yaw: float,
+    robot: RobotSettings = TELEPORT,
+    layout: PickLayout = P.BAR,
 ) -> np.ndarray:
     """The waypoints (steps, 8) after the gripper's `start` (x, y, z): waypoint k is the action at step k;
-    `object_xy` (m) and `object_yaw` (degrees) the bar's pose; each phase takes draw.steps' steps, or more where
-    `robot`'s limits need them (sim.controller.min_jerk_steps)."""
-    return through(_phases(draw, object_xy, object_yaw), draw.steps, np.asarray(start, np.float64), 0.0, robot)
+    `object_xy` (m) and `object_yaw` (degrees) the bar's pose in `layout`; each phase takes draw.steps' steps, or more
+    where `robot`'s limits need them (sim.controller.min_jerk_steps)."""
+    phases = _phases(draw, object_xy, object_yaw, layout)
+    return through(phases, draw.steps, np.asarray(start, np.float64), 0.0, robot)
 
 
-def _phases(draw: PickDraw, object_xy: np.ndarray, object_yaw: float) -> list[tuple[tuple, float, float]]:
-    """The phases of `draw` (PHASE_STEPS' order), each where it ends (xyz, m), the yaw at its end (degrees) and the
-    gripper command during it."""
-    orientation_yaw = P.ORIENTATIONS[P.PLACES[draw.place][2]]
+def _phases(draw: PickDraw, object_xy: np.ndarray, object_yaw: float, layout: PickLayout) -> list[tuple]:
+    """The phases of `draw` (PHASE_STEPS' order) in `layout`, each where it ends (xyz, m), the yaw at its end
+    (degrees) and the gripper command during it."""
+    _, place, orientation = layout.places[draw.place]
+    orientation_yaw = layout.orientations[orientation]
     grasp_xy = np.asarray(object_xy) + draw.grasp * _along(object_yaw)
-    place_xy = np.asarray(P.PLACES[draw.place][1]) + draw.target + draw.grasp * _along(orientation_yaw)
+    place_xy = np.asarray(place) + draw.target + draw.grasp * _along(orientation_yaw)
     up, down = draw.carry_z, P.GRASP_Z
     open_, closed = P.FINGER_OPEN, 0.0
     return [
@@ -101,10 +116,18 @@ class PickExpert:
     """The scripted demonstrator in closed loop: the path of `draw` (pick_path) from the reset's `start` (x, y, z) in
     the environment's `scene` (PickPlaceEnv.scene) within `robot`'s limits; when the place it heads for is taken
     during the motion (the changed scene), the path to the place valid then: before the bar is lifted its own path's
-    rest, after, a new path from its last waypoint on (carry, lower, open, leave)."""
+    rest, after, a new path from its last waypoint on (carry, lower, open, leave); `layout` the scene's."""
 
-    def __init__(self, draw: PickDraw, start: np.ndarray, scene: dict, robot: RobotSettings = TELEPORT) -> None:
+    def __init__(
+        self,
+        draw: PickDraw,
+        start: np.ndarray,
+        scene: dict,
+        robot: RobotSettings = TELEPORT,
+        layout: PickLayout = P.BAR,
+    ) -> None:
         self.draw, self.start, self.scene, self.robot = draw, np.asarray(start, np.float64), scene, robot
+        self.layout = layout
         self.plan = Plan(self._path())
 
     def action(self, info: dict) -> np.ndarray:
@@ -117,20 +140,21 @@ class PickExpert:
             else:
                 yaw = math.degrees(2 * math.atan2(last[5], last[6]))  # the quaternion xyzw's turn about z
                 # The phases from the carry on, to the new place: they do not depend on where the bar lay.
-                phases = _phases(self.draw, np.zeros(2), 0.0)[CARRY:]
+                phases = _phases(self.draw, np.zeros(2), 0.0, self.layout)[CARRY:]
                 self.plan.replan(through(phases, self.draw.steps[CARRY:], last[:3], yaw, self.robot))
         return self.plan.next()
 
     def _path(self) -> np.ndarray:
-        return pick_path(self.draw, self.start, self.scene["object_xy"], self.scene["object_yaw"], self.robot)
+        scene = self.scene
+        return pick_path(self.draw, self.start, scene["object_xy"], scene["object_yaw"], self.robot, self.layout)
 
 
 def pick_expert(env: PickPlaceEnv, info: dict, rng: np.random.Generator) -> PickExpert:
     """The scripted demonstrator of `env` just reset (its reset's `info`), its choices drawn from `rng` (draw_pick) as
     the environment's version has them, within its robot's limits."""
     version, scene = env.version, env.scene
-    draw = draw_pick(rng, scene["orientation"], scene["taken"], version.pace_per_phase)
-    return PickExpert(draw, np.array([*info["start"], version.start[2]]), scene, version.robot)
+    draw = draw_pick(rng, scene["orientation"], scene["taken"], version.pace_per_phase, env.layout)
+    return PickExpert(draw, np.array([*info["start"], version.start[2]]), scene, version.robot, env.layout)
 
 
 def _along(yaw_deg: float) -> np.ndarray:
@@ -153,5 +177,24 @@ def demonstrations(n: int, seed: int) -> Iterator[Demonstration]:
                 observation, _, _, _, info = env.step(action.astype(np.float32))
                 steps.append(observation)
             yield recorded(steps, env.image_key, P.PLACES[draw.place][0], bool(info["is_success"]))
+    finally:
+        env.close()
+
+
+def expert_demonstrations(n: int, seed: int, make_env: Callable[[], PickPlaceEnv]) -> Iterator[Demonstration]:
+    """`n` demonstrations drawn with `seed` by the scripted demonstrator in closed loop (pick_expert) in the
+    environment `make_env()` makes (its scenes decided or free, its version's robot), each from its own reset, until
+    its plan runs out (the episode's step limit at most): the place it chose its behaviour (a layout's place name);
+    clean when the object ended on a valid place."""
+    rng = np.random.default_rng(seed)
+    env = make_env()
+    try:
+        for i in range(n):
+            observation, info = env.reset(seed=demonstration_seed(seed, i))
+            expert, steps, truncated = pick_expert(env, info, rng), [observation], False
+            while expert.plan.given < len(expert.plan.waypoints) and not truncated:
+                observation, _, _, truncated, info = env.step(expert.action(info))
+                steps.append(observation)
+            yield recorded(steps, env.image_key, env.layout.names[expert.draw.place], bool(info["is_success"]))
     finally:
         env.close()

@@ -33,8 +33,9 @@ from cnep.sim import scene as S
 from cnep.sim.paths import yaw_quaternion
 from cnep.sim.tabletop import TabletopEnv
 from cnep.sim.tasks.pick_place import scene as P
+from cnep.sim.tasks.pick_place.layout import CUPS, TILE_BODY, PickLayout, cup_body
 from cnep.sim.tasks.pick_place.scoring import PickEpisode, judge
-from cnep.sim.tasks.pick_place.versions import IN_CARRY, version_of
+from cnep.sim.tasks.pick_place.versions import IN_CARRY, PickPlaceVersion, version_of
 
 MIXED = "mixed"
 PICK_IMAGE_KEY = IMAGE_KEY_PREFIX + P.CAMERA
@@ -43,28 +44,31 @@ FOOTPRINT_TOLERANCE = 0.005  # m: how far the bar's corners may lie outside a ma
 
 def grasp_places(orientation: str) -> tuple[int, ...]:
     """The places (indices of PLACES) a bar lying `orientation` fits."""
-    return tuple(i for i, (_, _, fits) in enumerate(P.PLACES) if fits == orientation)
+    return P.BAR.grasp_places(orientation)
 
 
 class PickPlaceEnv(TabletopEnv):
     """Pick the bar and put it on a free mat it fits (module docstring); `condition`: the scenes drawn; `max_steps`
-    None: the version's."""
+    None: the version's; `layout`: the scene (sim.tasks.pick_place.layout; the bar's, P.BAR, unless another task's);
+    `version`: a number or the version itself (another task's settings of a version)."""
 
     def __init__(
         self,
         condition: str = MIXED,
         render_mode: str | None = None,
         max_steps: int | None = None,
-        version: int = 0,
+        version: int | PickPlaceVersion = 0,
         latency_steps: int = 0,
         frames: bool = True,
+        layout: PickLayout = P.BAR,
     ) -> None:
         if condition not in (MIXED, *P.CONDITIONS):
             raise ValueError(f"condition must be one of {MIXED}, {', '.join(P.CONDITIONS)}, got {condition!r}")
-        self.version = version_of(version)
+        self.version = version if isinstance(version, PickPlaceVersion) else version_of(version)
+        self.layout = layout
         v = self.version
         super().__init__(
-            P.scene_xml(v.object_mass, v.grip),
+            P.scene_xml(layout, v.object_mass, v.grip),
             height=P.IMAGE_HEIGHT,
             width=P.IMAGE_WIDTH,
             camera=P.CAMERA,
@@ -79,8 +83,10 @@ class PickPlaceEnv(TabletopEnv):
         m = self.model
         self._object_joint = m.body(P.OBJECT_BODY).jntadr[0]
         self._object_geom = {m.geom(P.OBJECT_GEOM).id}
-        self._cup_geoms = {m.geom(P.cup_body(i)).id for i in range(len(P.PLACES))}
-        self._cups = [m.body(P.cup_body(i)).mocapid[0] for i in range(len(P.PLACES))]
+        cues = [cup_body(i) for i in range(len(layout.places))] if layout.cue == CUPS else [TILE_BODY]
+        self._cup_geoms = {m.geom(name).id for name in cues} if layout.cue == CUPS else set()
+        self._cups = [m.body(name).mocapid[0] for name in cues]
+        self._tile_geom = m.geom(cues[0]).id
         self.scene: dict = {}
 
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
@@ -98,7 +104,7 @@ class PickPlaceEnv(TabletopEnv):
         self.scene = scene
         self.place_gripper((*start, home[2]), P.FINGER_OPEN)
         root = m.jnt_qposadr[self._object_joint]
-        d.qpos[root : root + 3] = (*scene["object_xy"], P.OBJECT_HALF[2])
+        d.qpos[root : root + 3] = (*scene["object_xy"], self.layout.object_half[2])
         d.qpos[root + 3 : root + 7] = np.roll(yaw_quaternion(scene["object_yaw"]), 1)
         self._set_cups(scene["taken"])
         mujoco.mj_forward(m, d)
@@ -109,16 +115,17 @@ class PickPlaceEnv(TabletopEnv):
     def _draw_scene(self, options: dict) -> dict:
         """The episode's scene: object_xy, object_yaw (deg), orientation, taken (per place), change_step (v0) or
         change_share (v1)."""
-        rng, v = self.np_random, self.version
-        orientation = options.get("orientation", tuple(P.ORIENTATIONS)[int(rng.integers(2))])
-        xy = np.asarray(P.OBJECT_XY) + rng.uniform(-v.object_jitter, v.object_jitter, 2)
-        yaw = P.ORIENTATIONS[orientation] + rng.uniform(-v.yaw_jitter_deg, v.yaw_jitter_deg)
+        rng, v, layout = self.np_random, self.version, self.layout
+        orientations = tuple(layout.orientations)
+        orientation = options.get("orientation", orientations[int(rng.integers(len(orientations)))])
+        xy = np.asarray(layout.object_xy) + rng.uniform(-v.object_jitter, v.object_jitter, 2)
+        yaw = layout.orientations[orientation] + rng.uniform(-v.yaw_jitter_deg, v.yaw_jitter_deg)
         condition = self.condition if self.condition != MIXED else (P.DECIDED, P.FREE)[int(rng.integers(2))]
-        taken = list(rng.random(len(P.PLACES)) < P.OTHER_TAKEN)
-        ours = grasp_places(orientation)
-        blocked = int(rng.integers(2))
+        taken = list(rng.random(len(layout.places)) < P.OTHER_TAKEN)
+        ours = layout.grasp_places(orientation)
+        chosen = (int(rng.integers(len(ours))) + 1) % len(ours)  # the one valid place where the scene decides it
         for j, place in enumerate(ours):
-            taken[place] = condition != P.FREE and j == blocked
+            taken[place] = condition != P.FREE and j != chosen
         taken = [bool(t) for t in options.get("taken", taken)]
         scene = {"condition": condition, "object_xy": xy, "object_yaw": yaw, "orientation": orientation, "taken": taken}
         if v.change == IN_CARRY:
@@ -154,41 +161,54 @@ class PickPlaceEnv(TabletopEnv):
         valid = self._valid()
         if not valid:
             return False
-        place = np.asarray(P.PLACES[valid[0]][1])
+        place = np.asarray(self.layout.places[valid[0]][1])
         gripper = self.data.body(S.GRIPPER_BODY).xpos[:2]
         way = float(np.linalg.norm(place - self._lift_xy))
         return way > 0 and 1 - float(np.linalg.norm(place - gripper)) / way >= share
 
     def _change_scene(self) -> None:
-        """The cup on the grasp's taken place moves to its other place (the `changed` condition)."""
-        ours = grasp_places(self.scene["orientation"])
+        """The cue shows the grasp's next place as the valid one (the `changed` condition): with two places, the cup on
+        the taken one moves to the other."""
+        ours = self.layout.grasp_places(self.scene["orientation"])
         taken = list(self.scene["taken"])
-        for place in ours:
-            taken[place] = not taken[place]
+        valid = [j for j, place in enumerate(ours) if not taken[place]]
+        following = (valid[0] + 1) % len(ours)
+        for j, place in enumerate(ours):
+            taken[place] = j != following
         self.scene["taken"] = taken
         self.scene["change_step"] = self._steps
         self._set_cups(taken)
         self._valid_after_change = self._valid()
 
     def _set_cups(self, taken: list[bool]) -> None:
-        for i, (_, xy, _) in enumerate(P.PLACES):
-            self.data.mocap_pos[self._cups[i]] = (*xy, P.CUP_HALF_HEIGHT if taken[i] else P.HIDDEN_Z)
+        """The cue of the places `taken` (a bool per place): a cup on each (CUPS), or the tile in the colour of the
+        grasp's one valid place (TILE; hidden when it has several)."""
+        layout = self.layout
+        if layout.cue == CUPS:
+            for i, (_, xy, _) in enumerate(layout.places):
+                self.data.mocap_pos[self._cups[i]] = (*xy, P.CUP_HALF_HEIGHT if taken[i] else P.HIDDEN_Z)
+            return
+        valid = [i for i in layout.grasp_places(self.scene["orientation"]) if not taken[i]]
+        shown = len(valid) == 1
+        self.data.mocap_pos[self._cups[0]] = (*layout.tile_xy, P.TILE_HALF_HEIGHT if shown else P.HIDDEN_Z)
+        if shown:
+            self.model.geom_rgba[self._tile_geom] = layout.mat_rgba[valid[0]]
 
     def _judge(self) -> None:
         """After a physics step: lifted, dropped, a collision with a cup."""
         z = self.data.body(P.OBJECT_BODY).xpos[2]
-        lifted = self._lifted
-        self._lifted = self._lifted or z > P.OBJECT_HALF[2] + P.LIFTED_Z
+        lifted, half_z = self._lifted, self.layout.object_half[2]
+        self._lifted = self._lifted or z > half_z + P.LIFTED_Z
         if self._lifted and not lifted:
             self._lift_xy = self.data.body(S.GRIPPER_BODY).xpos[:2].copy()
-        high = z > P.OBJECT_HALF[2] + P.DROP_HEIGHT
+        high = z > half_z + P.DROP_HEIGHT
         self._dropped = self._dropped or (high and not self.touching(self.gripper_geoms, self._object_geom))
         holder = self.gripper_geoms | self._object_geom
         self._collision = self._collision or self.touching(holder, self._cup_geoms)
 
     def judge(self, infos: list[dict], **recorded) -> PickEpisode:
         """The episode's result (sim.tasks.pick_place.scoring.judge)."""
-        return judge(infos, **recorded)
+        return judge(infos, self.layout, **recorded)
 
     def object_velocity(self) -> np.ndarray:
         """The bar's linear velocity (3,) m/s."""
@@ -204,25 +224,25 @@ class PickPlaceEnv(TabletopEnv):
         """The place whose mat holds the bar's whole footprint (its corners, FOOTPRINT_TOLERANCE out at most),
         or None."""
         xmat = self.data.body(P.OBJECT_BODY).xmat.reshape(3, 3)
-        hx, hy, _ = P.OBJECT_HALF
+        hx, hy, _ = self.layout.object_half
         corners = np.array([[sx * hx, sy * hy, 0.0] for sx in (-1, 1) for sy in (-1, 1)]) @ xmat.T
         corners = corners[:, :2] + self.data.body(P.OBJECT_BODY).xpos[:2]
-        for i, (_, xy, _) in enumerate(P.PLACES):
-            half = np.asarray(P.mat_half(i)) + FOOTPRINT_TOLERANCE
+        for i, (_, xy, _) in enumerate(self.layout.places):
+            half = np.asarray(self.layout.place_half(i)) + FOOTPRINT_TOLERANCE
             if np.all(np.abs(corners - xy) <= half):
                 return i
         return None
 
     def _valid(self) -> list[int]:
         """The places free now that fit the bar's orientation."""
-        return [i for i in grasp_places(self.scene["orientation"]) if not self.scene["taken"][i]]
+        return [i for i in self.layout.grasp_places(self.scene["orientation"]) if not self.scene["taken"][i]]
 
     def _info(self) -> dict:
         place = self.place_of_object()
         valid = self._valid()
         z = float(self.data.body(P.OBJECT_BODY).xpos[2])
         released = not self.touching(self.gripper_geoms, self._object_geom)
-        at_rest = bool(np.linalg.norm(self.object_velocity()) < P.REST_SPEED and z < P.OBJECT_HALF[2] + 0.005)
+        at_rest = bool(np.linalg.norm(self.object_velocity()) < P.REST_SPEED and z < self.layout.object_half[2] + 0.005)
         success = self._lifted and not self._dropped and not self._collision and at_rest and released
         return {
             "is_success": bool(success and place in valid),

@@ -11,9 +11,8 @@ kilograms; the table's top is z = 0; facing +y, left is -x.
 
 from __future__ import annotations
 
-import math
-
 from cnep.sim import scene as S
+from cnep.sim.tasks.pick_place.layout import BOX, CUPS, TILE_BODY, PickLayout, camera_xml, cup_body
 
 # The bar to pick: half sizes in its own frame (long along its y), on the table near OBJECT_XY.
 OBJECT_HALF = (0.0175, 0.07, 0.025)
@@ -32,6 +31,7 @@ PLACES = (
 )
 MAT_HALF = (0.04, 0.095)  # m: a mat's half sizes across and along its long side (the bar's: 0.0175, 0.07)
 CUP_RADIUS, CUP_HALF_HEIGHT = 0.032, 0.05  # m: the cup that takes a place stands on its mat's centre
+TILE_HALF_HEIGHT = 0.002  # m: the tile cue's (sim.tasks.pick_place.layout.TILE)
 HIDDEN_Z = -1.0  # m: where a cup waits when no place needs it (under the table, out of view and of reach)
 # The gripper: sim.scene's, opening wider so a grasp that misses the bar's centre by a little still takes it.
 FINGER_OPEN = 0.04  # m: each finger's travel (the open gripper's gap: 0.08 m)
@@ -80,52 +80,70 @@ CUP_RGBA = (0.9, 0.9, 0.85, 1)
 OBJECT_BODY, OBJECT_GEOM = "bar", "bar"
 
 
-def cup_body(place: int) -> str:
-    """The name of the cup (a mocap body) that takes place `place`."""
-    return f"cup_{PLACES[place][0]}"
-
-
-def mat_half(place: int) -> tuple[float, float]:
-    """Place `place`'s mat's half sizes along x and y (m)."""
-    across, along = MAT_HALF
-    return (across, along) if PLACES[place][2] == "along_y" else (along, across)
-
-
 # A real grip's friction holds without creeping (MuJoCo's soft contacts let a squeezed part slide slowly otherwise):
 # elliptic friction cones, made stiffer than the normal force's.
 GRIP_OPTIONS = ' cone="elliptic" impratio="10"'
 
 
-def scene_xml(object_mass: float = OBJECT_MASS, grip: S.Grip | None = None) -> str:
-    """The MJCF: table, mats, cups (hidden), the bar (free, `object_mass` kg; its friction OBJECT_FRICTION, or the
-    real `grip`'s), the gripper of sim.scene (a real `grip`'s, or the idealised one), the camera."""
+BAR = PickLayout(
+    model="cnep-pick-place",
+    shape=BOX,
+    object_half=OBJECT_HALF,
+    object_rgba=OBJECT_RGBA,
+    object_xy=OBJECT_XY,
+    orientations=ORIENTATIONS,
+    places=PLACES,
+    mat_half=MAT_HALF,
+    mat_rgba=(MAT_RGBA,) * len(PLACES),
+    cue=CUPS,
+    tile_xy=(0.0, 0.0),
+    tile_half=(0.0, 0.0),
+    grasp_offset=GRASP_OFFSET,
+    camera_pos=CAMERA_POS,
+    camera_pitch_deg=CAMERA_PITCH_DEG,
+    camera_yaw_deg=0.0,
+    camera_fovy=CAMERA_FOVY,
+)  # the bar, its four mats and the cups: this task's layout
+
+
+def scene_xml(layout: PickLayout = BAR, object_mass: float = OBJECT_MASS, grip: S.Grip | None = None) -> str:
+    """The MJCF of `layout`: table, mats, the cue (cups or the tile, hidden), the object (free, `object_mass` kg; its
+    friction OBJECT_FRICTION, or the real `grip`'s), the gripper of sim.scene (a real `grip`'s, or the idealised one),
+    the camera."""
     v = S.v
-    pitch = math.radians(CAMERA_PITCH_DEG)
     mats = "".join(
-        f'<geom name="mat_{name}" type="box" pos="{v(xy)} 0.001" size="{v(mat_half(i))} 0.001" '
-        f'rgba="{v(MAT_RGBA)}" contype="0" conaffinity="0"/>'
-        for i, (name, xy, _) in enumerate(PLACES)
+        f'<geom name="mat_{name}" type="box" pos="{v(xy)} 0.001" size="{v(layout.place_half(i))} 0.001" '
+        f'rgba="{v(layout.mat_rgba[i])}" contype="0" conaffinity="0"/>'
+        for i, (name, xy, _) in enumerate(layout.places)
     )
-    cups = "".join(
-        f'<body name="{cup_body(i)}" mocap="true" pos="{v(xy)} {HIDDEN_Z:g}">'
-        f'<geom name="{cup_body(i)}" type="cylinder" size="{CUP_RADIUS:g} {CUP_HALF_HEIGHT:g}" rgba="{v(CUP_RGBA)}"/>'
-        f"</body>"
-        for i, (_, xy, _) in enumerate(PLACES)
-    )
-    return f"""<mujoco model="cnep-pick-place">
+    if layout.cue == CUPS:
+        cue = "".join(
+            f'<body name="{cup_body(i)}" mocap="true" pos="{v(xy)} {HIDDEN_Z:g}">'
+            f'<geom name="{cup_body(i)}" type="cylinder" size="{CUP_RADIUS:g} {CUP_HALF_HEIGHT:g}" '
+            f'rgba="{v(CUP_RGBA)}"/></body>'
+            for i, (_, xy, _) in enumerate(layout.places)
+        )
+    else:
+        cue = (
+            f'<body name="{TILE_BODY}" mocap="true" pos="{v(layout.tile_xy)} {HIDDEN_Z:g}">'
+            f'<geom name="{TILE_BODY}" type="box" size="{v(layout.tile_half)} {TILE_HALF_HEIGHT:g}" '
+            f'contype="0" conaffinity="0"/></body>'
+        )
+    size = layout.object_half if layout.shape == BOX else layout.object_half[1:]
+    friction = OBJECT_FRICTION if grip is None else grip.friction
+    return f"""<mujoco model="{layout.model}">
   <option timestep="{S.TIMESTEP_S:g}"{"" if grip is None else GRIP_OPTIONS}/>
   {S.visual_xml(IMAGE_WIDTH, IMAGE_HEIGHT)}
   <worldbody>
     <geom name="{S.TABLE_GEOM}" type="box" pos="0 0 {-S.TABLE_HALF[2]:g}" size="{v(S.TABLE_HALF)}"
       rgba="{v(S.TABLE_RGBA)}"/>
     {mats}
-    {cups}
-    <camera name="{CAMERA}" pos="{v(CAMERA_POS)}" xyaxes="1 0 0 0 {math.cos(pitch):.4f} {math.sin(pitch):.4f}"
-      fovy="{CAMERA_FOVY:g}"/>
-    <body name="{OBJECT_BODY}" pos="{v(OBJECT_XY)} {OBJECT_HALF[2]:g}">
+    {cue}
+    {camera_xml(CAMERA, layout)}
+    <body name="{OBJECT_BODY}" pos="{v(layout.object_xy)} {layout.object_half[2]:g}">
       <freejoint/>
-      <geom name="{OBJECT_GEOM}" type="box" size="{v(OBJECT_HALF)}" mass="{object_mass:g}"
-        friction="{OBJECT_FRICTION if grip is None else grip.friction:g} 0.005 0.0001" rgba="{v(OBJECT_RGBA)}"/>
+      <geom name="{OBJECT_GEOM}" type="{layout.shape}" size="{v(size)}" mass="{object_mass:g}"
+        friction="{friction:g} 0.005 0.0001" rgba="{v(layout.object_rgba)}"/>
     </body>
     {S.gripper_xml(FINGER_OPEN, grip)}
   </worldbody>

@@ -24,6 +24,7 @@ from cnep.sim.episode import EpisodeResult
 from cnep.sim.scoring import PERCENT_CI_WIDTH, Column, decimals, percent, percent_ci, pooled_ms, shares, timings_ms
 from cnep.sim.statistics import behaviour_entropy
 from cnep.sim.tasks.pick_place import scene as P
+from cnep.sim.tasks.pick_place.layout import PickLayout
 from cnep.sim.tasks.pick_place.switching import counted_switch
 
 SWITCH_WITHIN = 5  # steps: a switch this soon after the change counts as prompt
@@ -52,9 +53,10 @@ class PickEpisode(EpisodeResult):
     valid_switch_step: int | None = None
 
 
-def judge(infos: list[dict], **recorded) -> PickEpisode:
-    """The episode's result from the environment's `infos` (the reset's, then one per step) and what
+def judge(infos: list[dict], layout: PickLayout = P.BAR, **recorded) -> PickEpisode:
+    """The episode's result from the environment's `infos` (the reset's, then one per step) in `layout` and what
     sim.episode.run_episode `recorded`."""
+    names = layout.names
     info = infos[-1]
     steps = len(recorded["states"]) - 1
     change = info["change_step"] if info["change_step"] is not None and info["change_step"] < steps else None
@@ -63,14 +65,14 @@ def judge(infos: list[dict], **recorded) -> PickEpisode:
         **recorded,
         lifted=bool(info["lifted"]),
         dropped=bool(info["dropped"]),
-        place=None if info["place"] is None else P.PLACES[info["place"]][0],
-        valid=[P.PLACES[i][0] for i in info["valid"]],
+        place=None if info["place"] is None else names[info["place"]],
+        valid=[names[i] for i in info["valid"]],
         taken_start=list(infos[0]["taken"]),
         taken_end=list(info["taken"]),
         change_step=change,
         switch_step=first_switch(recorded["experts"], change),
-        valid_after_change=None if after is None else [P.PLACES[i][0] for i in after],
-        valid_switch_step=counted_switch(recorded["experts"], recorded["predicted"], change, after),
+        valid_after_change=None if after is None else [names[i] for i in after],
+        valid_switch_step=counted_switch(recorded["experts"], recorded["predicted"], change, after, layout),
     )
 
 
@@ -146,6 +148,6 @@ COLUMNS = (
 )
 
 
-def describe_demonstrations(places: list[str]) -> dict[str, dict[str, int]]:
-    """How many demonstrations chose each place."""
-    return {"places": {name: places.count(name) for name, _, _ in P.PLACES}}
+def describe_demonstrations(places: list[str], layout: PickLayout = P.BAR) -> dict[str, dict[str, int]]:
+    """How many demonstrations chose each place of `layout`."""
+    return {"places": {name: places.count(name) for name in layout.names}}

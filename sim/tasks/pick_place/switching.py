@@ -8,30 +8,36 @@ from __future__ import annotations
 import numpy as np
 
 from cnep.sim.tasks.pick_place import scene as P
+from cnep.sim.tasks.pick_place.layout import PickLayout
 
 
-def plan_place(plan: np.ndarray) -> int | None:
-    """The place (index of PLACES) whose mat holds the xy of `plan`'s last waypoint (plan (W, >= 2), m), or None."""
+def plan_place(plan: np.ndarray, layout: PickLayout = P.BAR) -> int | None:
+    """The place (index of `layout`'s places) whose mat holds the xy of `plan`'s last waypoint (plan (W, >= 2), m), or
+    None."""
     end = np.asarray(plan, np.float64)[-1, :2]
-    for i, (_, xy, _) in enumerate(P.PLACES):
-        if np.all(np.abs(end - xy) <= P.mat_half(i)):
+    for i, (_, xy, _) in enumerate(layout.places):
+        if np.all(np.abs(end - xy) <= layout.place_half(i)):
             return i
     return None
 
 
 def counted_switch(
-    experts: np.ndarray, predicted: np.ndarray, change_step: int | None, valid_after: list[int] | None
+    experts: np.ndarray,
+    predicted: np.ndarray,
+    change_step: int | None,
+    valid_after: list[int] | None,
+    layout: PickLayout = P.BAR,
 ) -> int | None:
     """The first step after the change at which the active expert changed to one whose plan ends on a valid place.
 
     experts (reads,): the active expert at each read of the policy (a read per step); predicted (reads, W, >= 2): each
     read's waypoints (m); change_step: the step before whose action the table changed (None: it did not; the policy
     first sees it at the read of step change_step + 1); valid_after: the places valid after the change (indices of
-    PLACES). None without a change or such a switch.
+    `layout`'s places). None without a change or such a switch.
     """
     if change_step is None or not valid_after:
         return None
     for step in range(change_step + 1, len(experts)):
-        if experts[step] != experts[step - 1] and plan_place(predicted[step]) in valid_after:
+        if experts[step] != experts[step - 1] and plan_place(predicted[step], layout) in valid_after:
             return step
     return None
