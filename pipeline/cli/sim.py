@@ -9,7 +9,7 @@ import argparse
 
 from cnep.pipeline.cli.executor import add_executor, executor_of
 from cnep.pipeline.cli.fields import add_options, build, chosen_options, options
-from cnep.pipeline.sim.config import SHOWN, TASKS, EvalConfig, PickPlaceConfig, SimConfig, with_task
+from cnep.pipeline.sim.config import SHOWN, SIM_TASKS, EvalConfig, PickPlaceConfig, SimConfig, with_task
 from cnep.pipeline.sim.grid_config import GridConfig
 
 HELP = (
@@ -45,7 +45,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     grid = sub.add_parser("grid", help=GRID_HELP, description=GRID_HELP)
     grid.add_argument("--out", required=True, help="the grid's folder: a new one, or a grid's to resume or extend")
     grid.add_argument(
-        "--tasks", nargs="+", choices=TASKS, default=argparse.SUPPRESS, help=f"the tasks (default: {' '.join(TASKS)})"
+        "--tasks",
+        nargs="+",
+        choices=SIM_TASKS,
+        default=argparse.SUPPRESS,
+        help=f"the tasks, among those with a `cnep sim TASK` command (default: {' '.join(SIM_TASKS)})",
     )
     add_options(grid, options(GridConfig), defaults=GRID_SHOWN)
     add_executor(grid, "the cells", "--workers")

@@ -34,6 +34,7 @@ def task_names() -> tuple[str, ...]:
 
 TASKS = task_names()
 OBSTACLE, PICK_PLACE = "obstacle", "pick-place"  # the tasks with a `cnep sim` command of their own
+SIM_TASKS = (OBSTACLE, PICK_PLACE)  # their settings (SimConfig, PickPlaceConfig) train the grid's models
 PLANNED, ONLINE = "planned", "online"  # cnep.sim.episode's protocols, named here without importing MuJoCo
 PROTOCOLS = (PLANNED, ONLINE)
 BOTH = "both"

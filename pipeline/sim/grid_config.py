@@ -20,7 +20,7 @@ from cnep.pipeline.sim.config import (
     ONLINE,
     PROTOCOL_HELP,
     PROTOCOLS,
-    TASKS,
+    SIM_TASKS,
     check_episode_seeds,
     check_seeds,
     protocols_of,
@@ -35,12 +35,12 @@ SHARED = ("per_behaviour", "train_steps", "episodes", "episode_seed", "max_steps
 @dataclass(frozen=True, kw_only=True)
 class GridConfig:
     """`cnep sim grid`: out, the grid's folder (new, or one this command wrote with the same SHARED settings: a rerun
-    resumes it); tasks, the tasks (all of cnep/sim/tasks by default); every cell's models trained as `cnep sim TASK`
+    resumes it); tasks, the tasks with a `cnep sim TASK` command (both by default), every cell's models trained as it
     trains them; executor, `local` (`workers` processes here), `dask` or `ray` (pipeline.evaluate.executors) at
     `address` (None: a cluster of `workers` processes started on this machine)."""
 
     out: Path
-    tasks: tuple[str, ...] = TASKS
+    tasks: tuple[str, ...] = SIM_TASKS
     sets: tuple[int, ...] = setting(
         (0, 1, 2), "seeds of the demonstration sets (each set generated, ingested and extracted once, for every cell)"
     )
@@ -75,9 +75,9 @@ class GridConfig:
 
     def __post_init__(self) -> None:
         coerce_paths(self)
-        unknown = [t for t in self.tasks if t not in TASKS]
+        unknown = [t for t in self.tasks if t not in SIM_TASKS]
         if unknown or not self.tasks:
-            raise PipelineError(f"--tasks must name tasks among {', '.join(TASKS)}, got {' '.join(self.tasks)}")
+            raise PipelineError(f"--tasks must name tasks among {', '.join(SIM_TASKS)}, got {' '.join(self.tasks)}")
         lists = {"--sets": self.sets, "--train-seeds": self.train_seeds, "--per-behaviour": self.per_behaviour}
         for option, values in lists.items():
             if not values or len(set(values)) < len(values):

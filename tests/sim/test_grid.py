@@ -14,7 +14,7 @@ import cnep.sim
 from cnep.pipeline.cli.main import build_parser, main
 from cnep.pipeline.cli.sim import config_of
 from cnep.pipeline.errors import PipelineError
-from cnep.pipeline.sim.config import TASKS
+from cnep.pipeline.sim.config import SIM_TASKS
 from cnep.pipeline.sim.grid_config import GridConfig, subset
 from cnep.pipeline.sim.grid_table import cell_rows, csv_text, pooled_table, read_rows
 from cnep.pipeline.sim.validation import VALIDATION_RANGE, SelectionSettings
@@ -35,7 +35,7 @@ def test_grid_arguments_become_its_settings_and_the_executor_its_address():
     assert (config.tasks, config.sets, config.per_behaviour) == (("obstacle",), (3, 4), (5, 10))
     assert (config.executor, config.address) == ("dask", "tcp://10.0.0.5:8786")
     assert config.train_seeds == GridConfig.train_seeds and config.reported_seeds == range(0, GridConfig.episodes)
-    assert GridConfig(out=Path("g")).tasks == TASKS
+    assert GridConfig(out=Path("g")).tasks == SIM_TASKS  # the tasks with settings of their own
 
 
 def test_grid_refuses_reported_seeds_among_the_validation_seeds_and_other_bad_settings(tmp_path, capsys):
@@ -53,6 +53,8 @@ def test_grid_refuses_reported_seeds_among_the_validation_seeds_and_other_bad_se
         GridConfig(out=Path("g"), executor="dask", address="tcp://h")
     with pytest.raises(PipelineError, match="--tasks must name tasks"):
         GridConfig(out=Path("g"), tasks=("juggling",))
+    with pytest.raises(PipelineError, match="--tasks must name tasks among obstacle, pick-place"):
+        GridConfig(out=Path("g"), tasks=("pick-cube",))  # a task without settings of its own to train with
     out = tmp_path / "g"
     assert main(["sim", "grid", "--out", str(out), "--episode-seed", str(start)]) == 2
     assert "which meet the validation seeds" in capsys.readouterr().err and not out.exists()
