@@ -17,7 +17,7 @@ from cnep.sim.tasks.obstacle import scene as O  # noqa: E402
 
 
 def test_generated_demonstrations_are_balanced_clean_and_ingested_as_a_users_recordings_quietly(tmp_path, caplog):
-    made = generate_demonstrations(find_task("obstacle"), tmp_path / "recorded", 2, seed=3, quiet=True)
+    made = generate_demonstrations(find_task("obstacle", 0), tmp_path / "recorded", 2, seed=3, quiet=True)
     assert sorted(made.behaviours) == ["left", "right"] and made.successes == 2
     folder = made.folders[0]
     frames = sorted(folder.glob("frame_*.png"))
