@@ -59,7 +59,6 @@ MAX_STEPS_HELP = (
 SHOWN = {
     "max_steps": "the task's episode, sim.task.Task.max_steps",
     "task": "the one the policy was trained on, as its export or checkpoint records",
-    "env_version": "the one the policy was trained on, as its export or checkpoint records",
 }
 
 
@@ -192,7 +191,9 @@ class EvalConfig(LoopSettings):
     policy: Path
     out: Path | None = None
     task: str | None = setting(None, "the task", choices=TASKS)
-    env_version: int | None = setting(None, ENV_VERSION_HELP, choices=ENV_VERSIONS)
+    env_version: int | None = setting(
+        None, ENV_VERSION_HELP, choices=ENV_VERSIONS, shown="the one the policy was trained on, as its task records"
+    )
     episodes: int = setting(50, "closed-loop episodes per protocol (and condition, where the task has conditions)")
     extractor: Path | None = None
     quiet: bool = False
