@@ -1,5 +1,5 @@
 """`cnep sim obstacle` end to end on the smallest data that runs every stage (2 demonstrations, random features
-calibrated on one batch of frames, 20 training steps, one episode per protocol cut after 20 steps) on the environments'
+calibrated on one batch of frames, 20 training steps, one episode per protocol cut after 16 steps) on the environments'
 latest version: summary.json holds the documented keys and the version, `cnep sim eval` of each exported policy (its
 task and version read from the policy) repeats the run's rows with the same settings and episode seeds, and
 examples/closed_loop_csv.py turns the run into its rows. The stage's pools (training, closed loop) run their jobs in
@@ -34,7 +34,7 @@ def test_cnep_sim_obstacle_writes_the_documented_summary_and_its_policies_repeat
     monkeypatch.setenv("TORCH_HOME", str(tmp_path / "torch"))
     out = tmp_path / "sim"
     config = SimConfig(
-        out=out, demonstrations=2, train_steps=20, episodes=1, max_steps=20, record=0, offline=True, quiet=True
+        out=out, demonstrations=2, train_steps=20, episodes=1, max_steps=16, record=0, offline=True, quiet=True
     )
     summary = run_sim(config)
     assert json.loads((out / SUMMARY_FILE).read_text()) == json.loads(json.dumps(summary))
@@ -53,7 +53,7 @@ def test_cnep_sim_obstacle_writes_the_documented_summary_and_its_policies_repeat
         evaluated = tmp_path / f"eval-{model}"
         policy = out / "policies" / f"{model.lower()}-seed0"
         assert (
-            main(["-q", "sim", "eval", str(policy), "--episodes", "1", "--max-steps", "20", "--out", str(evaluated)])
+            main(["-q", "sim", "eval", str(policy), "--episodes", "1", "--max-steps", "16", "--out", str(evaluated)])
             == 0
         )
         again = json.loads((evaluated / SUMMARY_FILE).read_text())
