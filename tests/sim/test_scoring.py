@@ -150,6 +150,7 @@ def test_the_results_csvs_carry_the_intervals_and_the_entropy(tmp_path):
     )
     (row,) = load("closed_loop_csv").main([str(run), "--csv", str(tmp_path / "closed-loop.csv")])
     assert [row["success_lo"], row["success_hi"]] == obstacle["success_ci"] and row["entropy"] == 0.8113
+    assert row["switched_unchanged"] == 0.0 and row["switched_within_5"] == "" and row["env_version"] == 0
     free = pick_rates([pick_row("left", ["left", "right"]), pick_row("right", ["left", "right"])])
     pick = tmp_path / "pick" / "summary.json"
     pick.parent.mkdir()
@@ -157,3 +158,4 @@ def test_the_results_csvs_carry_the_intervals_and_the_entropy(tmp_path):
     (row,) = load("pick_place_table").main([str(pick), "--csv", str(tmp_path / "pick.csv")])
     assert [row["switching"], row["switching_lo"], row["switching_hi"]] == [0.0, 0.0, free["switching_ci"][1]]
     assert row["entropy"] == 1.0 and "switching_lo" in (tmp_path / "pick.csv").read_text().splitlines()[0]
+    assert [row["switched_unchanged"], row["switched_unchanged_hi"]] == [0.0, free["switched_unchanged_ci"][1]]
