@@ -144,9 +144,10 @@ class LoopSettings:
 
 @dataclass(frozen=True, kw_only=True)
 class SimConfig(LoopSettings):
-    """`cnep sim obstacle`: out, a new or empty folder for everything; demonstrations generated with `seed`, the
-    features' `weights` (`auto`: ImageNet's where they can be had, else seeded random ones: pipeline.demo.weights),
-    one CNEP and one matched CNMP per training seed, each exported and run in closed loop."""
+    """`cnep sim obstacle`: out, a new or empty folder for everything; on the environments' version `env_version`,
+    demonstrations generated with `seed`, the features' `weights` (`auto`: ImageNet's where they can be had, else
+    seeded random ones: pipeline.demo.weights), one CNEP and one matched CNMP per training seed, each exported and run
+    in closed loop."""
 
     TASK: ClassVar[str] = OBSTACLE
     out: Path
@@ -235,9 +236,9 @@ def policy_task(policy: Path) -> str:
 
 @dataclass(frozen=True, kw_only=True)
 class PickPlaceConfig:
-    """`cnep sim pick-place`: out, a new or empty folder for everything; demonstrations generated with `seed`, the
-    features' `weights`, one CNEP and one matched CNMP per training seed (and the baselines), each run in closed loop
-    by each protocol in every condition."""
+    """`cnep sim pick-place`: out, a new or empty folder for everything; on the environments' version `env_version`,
+    demonstrations generated with `seed`, the features' `weights`, one CNEP and one matched CNMP per training seed (and
+    the baselines), each run in closed loop by each protocol in every condition."""
 
     TASK: ClassVar[str] = PICK_PLACE
     out: Path
