@@ -5,13 +5,15 @@
 Each RUN is a folder written by `cnep sim obstacle` (its summary.json holds every model and training seed) or by
 `cnep sim eval` (one policy: its model and seed are read from the policy folder's name, `cnep-seed0`, as
 `cnep sim obstacle` names them; the demonstrations' seed and training steps from the summary of the `cnep sim
-obstacle` run found in a folder above RUN, if any). A row: the run's folder, the demonstrations' seed (`set`), the cue
-variant, the first expert's rule (`own`: the policy's, as trained), the training steps, model, training seed,
-protocol, episodes, the rates (success, collision, left, switching, followed_cue), the Wilson 95% intervals of
-success and switching (`_lo`, `_hi`), the behaviour entropy of the side passed (empty where it is not defined: with
-a cue) and the smallest gripper-box distance (cm); `usage`: the experts' shares of the training samples at the last
-step (the last line of training_log.jsonl in the checkpoint `checkpoints/NAME` beside the policy's folder
-`policies/NAME`, as `cnep sim obstacle` lays them out), `/`-separated.
+obstacle` run found in a folder above RUN, if any). A row: the run's folder, the demonstrations' seed (`set`), the
+environments' version (0 for a summary that names none), the cue variant, the first expert's rule (`own`: the
+policy's, as trained), the training steps, model, training seed, protocol, episodes, the rates (success, collision,
+left, switching, followed_cue; the switching while nothing had changed and, with a cue shown during the motion, the
+switch to the cue's side within 5 steps of it: empty in a summary without them), the Wilson 95% intervals of
+success, switching and the switching while nothing had changed (`_lo`, `_hi`), the behaviour entropy of the side
+passed (empty where it is not defined: with a cue) and the smallest gripper-box distance (cm); `usage`: the experts'
+shares of the training samples at the last step (the last line of training_log.jsonl in the checkpoint
+`checkpoints/NAME` beside the policy's folder `policies/NAME`, as `cnep sim obstacle` lays them out), `/`-separated.
 """
 
 from __future__ import annotations
@@ -22,8 +24,9 @@ import json
 from pathlib import Path
 
 COLUMNS = (
-    "run", "set", "cue", "first_expert", "train_steps", "model", "train_seed", "protocol", "episodes", "success",
-    "success_lo", "success_hi", "collision", "left", "switching", "switching_lo", "switching_hi", "followed_cue",
+    "run", "set", "env_version", "cue", "first_expert", "train_steps", "model", "train_seed", "protocol", "episodes",
+    "success", "success_lo", "success_hi", "collision", "left", "switching", "switching_lo", "switching_hi",
+    "switched_unchanged", "switched_unchanged_lo", "switched_unchanged_hi", "switched_within_5", "followed_cue",
     "entropy", "min_gap_cm", "usage",
 )  # fmt: skip
 
@@ -48,6 +51,11 @@ def bounds(rates: dict, key: str) -> dict:
     """The Wilson interval of the rate under `key` as `KEY_lo` and `KEY_hi` (empty where the rates hold none)."""
     lo, hi = rates.get(f"{key}_ci") or ("", "")
     return {f"{key}_lo": lo, f"{key}_hi": hi}
+
+
+def _blank(value: object) -> object:
+    """`value`, or empty where it is None (not defined, or not in the summary)."""
+    return "" if value is None else value
 
 
 def obstacle_run(run: Path) -> dict:
@@ -77,13 +85,15 @@ def rows_of(run: Path) -> list[dict]:
         for protocol, r in protocols.items():
             rows.append(
                 {
-                    "run": run.name, "set": made.get("seed", ""), "cue": settings["cue"],
+                    "run": run.name, "set": made.get("seed", ""), "env_version": settings.get("env_version", 0),
+                    "cue": settings["cue"],
                     "first_expert": first_expert(settings), "train_steps": made.get("train_steps", ""),
                     "model": model, "train_seed": seed, "protocol": protocol, "episodes": r["episodes"],
                     "success": r["success"], **bounds(r, "success"), "collision": r["collision"], "left": r["left"],
                     "switching": r["switching"], **bounds(r, "switching"),
-                    "followed_cue": "" if r["followed_cue"] is None else r["followed_cue"],
-                    "entropy": "" if r.get("entropy") is None else r["entropy"],
+                    "switched_unchanged": _blank(r.get("switched_unchanged")), **bounds(r, "switched_unchanged"),
+                    "switched_within_5": _blank(r.get("switched_within")),
+                    "followed_cue": _blank(r["followed_cue"]), "entropy": _blank(r.get("entropy")),
                     "min_gap_cm": round(r["min_clearance_m"] * 100, 1), "usage": usage(checkpoint),
                 }
             )  # fmt: skip

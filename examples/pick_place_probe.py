@@ -3,11 +3,11 @@
     python examples/pick_place_probe.py OUT [--scenes N] [--json FILE]
 
 OUT is a folder made by `cnep sim pick-place --out OUT`. N fresh scenes (drawn decided or free, as the
-demonstrations are, from seeds no demonstration or episode uses) are rendered at their first step and turned
-into features by the exported CNEP's own feature graph (OUT/policies/cnep-seed0: what the policy sees in the loop).
-On the features, standardised with the fitting rows' mean and std, a ridge probe onto one-hot targets (lambda
-RIDGE, as examples/first_read.py) and the nearest neighbour are fitted on the first two thirds of the scenes and
-scored on the rest, for each label:
+demonstrations are, from seeds no demonstration or episode uses, on the run's version of the environment: its
+summary's `env_version`) are rendered at their first step and turned into features by the exported CNEP's own
+feature graph (OUT/policies/cnep-seed0: what the policy sees in the loop). On the features, standardised with the
+fitting rows' mean and std, a ridge probe onto one-hot targets (lambda RIDGE, as examples/first_read.py) and the
+nearest neighbour are fitted on the first two thirds of the scenes and scored on the rest, for each label:
 
     orientation   how the bar lies (along x or y: the grasp), chance 1/2
     taken <place> whether a cup stands on that mat, chance 1/2 (about: the draw)
@@ -34,9 +34,10 @@ RIDGE = 1.0
 PROBE_SEED = 5_000_000  # above the demonstrations' seeds (pipeline.sim.generate.DEMO_SEED_OFFSET + ...)
 
 
-def scenes(features, n: int) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    """The first frames' features (n, 1280) of n fresh scenes and their labels (name -> (n,) strings)."""
-    env = PickPlaceEnv()
+def scenes(features, n: int, version: int) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """The first frames' features (n, 1280) of n fresh scenes of the environment's `version` and their labels
+    (name -> (n,) strings)."""
+    env = PickPlaceEnv(version=version)
     pixels = pixel_buffer(1)
     rows, labels = [], {"orientation": [], "valid": [], **{f"taken {name}": [] for name, _, _ in P.PLACES}}
     try:
@@ -80,7 +81,8 @@ def main(argv: list[str] | None = None) -> dict[str, dict]:
     args = parser.parse_args(argv)
     cnep.sim.require_extra()
     features = load_features(args.out / "policies" / "cnep-seed0", threads=1)
-    x, labels = scenes(features, args.scenes)
+    version = json.loads((args.out / "summary.json").read_text()).get("env_version", 0)  # none: the first version's
+    x, labels = scenes(features, args.scenes, version)
     fit = 2 * args.scenes // 3
     rows = {name: probe(x, y, fit) for name, y in labels.items()}
     print(f"{args.scenes - fit} held-out scenes (fitted on {fit})\n")

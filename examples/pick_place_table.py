@@ -4,8 +4,9 @@
 
 One row per summary, model, training seed, protocol (planned, online) and condition: episodes, success and its
 Wilson 95% interval (`_lo`, `_hi`), collision, lifted, dropped, the share of episodes with an expert switch and its
-interval (in decided and free scenes: the switching without a change), the share of changed episodes that switched
-within 5 steps, the median switch latency (steps), the behaviour entropy of the place (free scenes; empty where it
+interval, the share that switched while nothing had changed and its interval (empty in a summary without it), the
+share of changed episodes that switched to a valid place's expert within 5 steps, the median latency of such
+switches (steps), the behaviour entropy of the place (free scenes; empty where it
 is not defined) and the places the bar ended on (name:count). Prints the headline table in markdown, one row per model,
 protocol and condition with a value per training seed (success, collision, switch within 5 steps); --csv FILE writes
 every column (docs/results/pick-place.csv).
@@ -20,7 +21,8 @@ import json
 from pathlib import Path
 
 COLUMNS = ("run", "model", "train_seed", "protocol", "condition", "episodes", "success", "success_lo", "success_hi",
-           "collision", "lifted", "dropped", "switching", "switching_lo", "switching_hi", "switched_within_5",
+           "collision", "lifted", "dropped", "switching", "switching_lo", "switching_hi", "switched_unchanged",
+           "switched_unchanged_lo", "switched_unchanged_hi", "switched_within_5",
            "switch_latency_p50", "entropy", "places")  # fmt: skip
 
 
@@ -53,6 +55,8 @@ def rows(summary: Path) -> list[dict]:
                             "dropped": r["dropped"],
                             "switching": r["switching"],
                             **bounds(r, "switching"),
+                            "switched_unchanged": r.get("switched_unchanged"),
+                            **bounds(r, "switched_unchanged"),
                             "switched_within_5": r["switched_within"],
                             "switch_latency_p50": r["switch_latency_p50"],
                             "entropy": r.get("entropy"),

@@ -9,9 +9,9 @@
     env = gymnasium.make("cnep/PickCan-v1")           #   and a tile's colour; a can, two mats and a cup
 
 Each task is a folder of sim/tasks (its scene, environment, demonstrator, scoring and drawing) and a `Task`
-(sim.task) the pipeline runs: `cnep.sim.tasks.find_task("pick-place")`. Rendering is headless: MUJOCO_GL defaults
-to `egl` here, before MuJoCo loads (sim.render). This package imports the standard library, numpy, MuJoCo,
-Gymnasium and cnep.runtime only (tests/test_architecture.py checks it).
+(sim.task) the pipeline runs on one of its environment's versions: `cnep.sim.tasks.find_task("pick-place", 1)`.
+Rendering is headless: MUJOCO_GL defaults to `egl` here, before MuJoCo loads (sim.render). This package imports the
+standard library, numpy, MuJoCo, Gymnasium and cnep.runtime only (tests/test_architecture.py checks it).
 """
 
 import importlib

@@ -75,11 +75,14 @@ class Plan:
         self.waypoints = np.concatenate([self.waypoints[: self.given], waypoints])
 
 
-def rollout(env, act: Callable[[dict], np.ndarray], info: dict) -> tuple[dict, int]:
+def rollout(env, act: Callable[[dict], np.ndarray], info: dict, seen: list[dict] | None = None) -> tuple[dict, int]:
     """Step `env` (just reset, its reset's `info`) with `act(info)`'s actions until the episode ends (terminated, or
-    truncated at its step limit): the last info and the steps taken."""
+    truncated at its step limit): the last info and the steps taken; each step's observation appended to `seen`
+    where one is given."""
     steps, ended = 0, False
     while not ended:
-        _, _, terminated, truncated, info = env.step(act(info))
+        observation, _, terminated, truncated, info = env.step(act(info))
         steps, ended = steps + 1, terminated or truncated
+        if seen is not None:
+            seen.append(observation)
     return info, steps

@@ -2,9 +2,9 @@
 and evaluation read, and the demonstrations its scripted demonstrator makes.
 
     from cnep.sim.tasks import find_task
-    task = find_task("pick-place")
+    task = find_task("pick-place", 1)                    # the task on its environment's version 1
     env = task.make_env("changed", task.max_steps)      # a condition, the episode's steps, the task's variants
-    for demo in task.demonstrations(40, seed=0):        # frames and states as a robot records them
+    for demo in task.demonstrations(40, seed=0):        # frames and states as the robot sensed them
         ...
 """
 
@@ -51,19 +51,23 @@ def recorded(observations: list[dict], image_key: str, behaviour: str, clean: bo
 class Task:
     """A closed-loop task.
 
-    name: as `cnep sim NAME` and `--task` take it; env_id: its Gymnasium id; max_steps: an episode's control steps
-    (the planned protocol's plan spans them); conditions: the scene conditions an evaluation runs in turn (an
+    name: as `cnep sim NAME` and `--task` take it; version: the version of its environment it runs (0: the
+    teleporting gripper; 1: a robot's constraints and a change during the motion; the task folder's versions.py);
+    env_id: its Gymnasium id (of that version); max_steps: an episode's control steps (the version's; the planned
+    protocol's plan spans them); conditions: the scene conditions an evaluation runs in turn (an
     episode's `condition`; none: the environment's own scenes, and the results are not split by condition);
     variants: the boolean options its environment and demonstrator take (the obstacle's `cue`); behaviours: what
     a demonstration can do (Demonstration.behaviour).
-    make_env(condition, max_steps, **variants): an environment (closed by the caller); demonstrations(n, seed,
-    **variants): `n` seeded demonstrations (Demonstration), each from its own reset (demonstration_seed);
+    make_env(condition, max_steps, **variants): an environment of the version (closed by the caller);
+    demonstrations(n, seed, **variants): `n` seeded demonstrations (Demonstration) of the version's scripted
+    demonstrator, each from its own reset (demonstration_seed);
     describe_demonstrations(behaviours): what the summary says of a set's behaviours; row(episode) and
     rates(rows): an episode's JSON-able row and the rates of one policy's rows under one protocol and condition;
     columns: the table's columns over those rates; drawing(episode): how its recordings and figure draw it.
     """
 
     name: str
+    version: int
     env_id: str
     max_steps: int
     conditions: tuple[str, ...]

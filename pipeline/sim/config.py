@@ -1,5 +1,6 @@
 """The closed loop's settings: `SimConfig` (`cnep sim obstacle`: from nothing to the table), `PickPlaceConfig` (`cnep
-sim pick-place`) and `EvalConfig` (`cnep sim eval`: one given policy, on the task it was trained on: `with_task`).
+sim pick-place`) and `EvalConfig` (`cnep sim eval`: one given policy, on the task and the environments' version it
+was trained on: `with_task`).
 Importable without torch, MuJoCo, Gymnasium or rerun: the CLI builds them (and so checks its options) before the
 stage loads; the tasks are the folders of cnep/sim/tasks, found without importing the simulator.
 """
@@ -44,6 +45,12 @@ PROTOCOL_HELP = (
 )
 MODELS = ("CNEP", "CNMP")
 VARIANTS = ("cue",)  # LoopSettings' fields that choose a variant of a task (sim.task.Task.variants)
+ENV_VERSIONS = (0, 1)  # the versions of the simulator's environments (each task folder's versions.py)
+ENV_VERSION_HELP = (
+    "the environments' version: 1 a robot's (an arm's speed and acceleration limits, sensing noise, wider scenes, the "
+    "scene changing during the motion); 0 the first (the gripper jumping to each waypoint, exact sensing), as its "
+    "results were measured"
+)
 
 
 TRAIN_STEPS_HELP = "training steps of each model, as `cnep train --steps` takes them"
@@ -77,6 +84,30 @@ def check_episode_seeds(first: int, episodes: int) -> None:
     check_reported(first, episodes)
 
 
+def check_env_version(version: int | None) -> None:
+    """PipelineError unless `version` is one of ENV_VERSIONS (or None: the policy's own, `cnep sim eval`)."""
+    if version is not None and version not in ENV_VERSIONS:
+        raise PipelineError(
+            f"env_version must be one of {', '.join(map(str, ENV_VERSIONS))} (the environments' versions), got "
+            f"{version!r}"
+        )
+
+
+def demonstrations_task(task: str, version: int) -> str:
+    """The task `cnep sim` names its demonstrations with on the environments' `version` (and so the one its
+    checkpoints and exports record): the task's name on version 0, `NAME-vN` on version N >= 1."""
+    return task if version == 0 else f"{task}-v{version}"
+
+
+def task_and_version(label: str) -> tuple[str, int | None]:
+    """The simulator's task and environments' version a demonstrations' task `label` names (demonstrations_task's
+    inverse: a task's bare name is its version 0); ("", None) for a label that names no task of the simulator."""
+    name, _, version = label.rpartition("-v")
+    if name in TASKS and version.isdigit() and int(version) in ENV_VERSIONS[1:]:
+        return name, int(version)
+    return (label, 0) if label in TASKS else ("", None)
+
+
 def check_seeds(seed: int, train_seeds: tuple[int, ...]) -> None:
     """PipelineError unless the demonstrations' `seed` and every one of `train_seeds` is a seed."""
     check_seed("--seed", seed, PipelineError)
@@ -90,6 +121,7 @@ class LoopSettings:
     the conditioning settings given to replace the policy's own."""
 
     cue: bool = setting(False, "the obstacle task's variant where a tile on one side of the box shows the side to pass")
+    env_version: int | None = setting(ENV_VERSIONS[-1], ENV_VERSION_HELP, choices=ENV_VERSIONS)
     episodes: int = setting(20, "closed-loop episodes per policy and protocol")
     max_steps: int | None = setting(None, MAX_STEPS_HELP)
     episode_seed: int = setting(0, "seed of the first episode (episode i is reset with seed + i)")
@@ -106,6 +138,7 @@ class LoopSettings:
     def check(self) -> None:
         """PipelineError for a setting out of range."""
         protocols_of(self.protocol)
+        check_env_version(self.env_version)
         if self.episodes < 1 or (self.max_steps is not None and self.max_steps < 1) or self.record < 0:
             raise PipelineError(
                 f"episodes and max_steps must be >= 1 and record >= 0, got {self.episodes}, {self.max_steps} and "
@@ -116,9 +149,10 @@ class LoopSettings:
 
 @dataclass(frozen=True, kw_only=True)
 class SimConfig(LoopSettings):
-    """`cnep sim obstacle`: out, a new or empty folder for everything; demonstrations generated with `seed`, the
-    features' `weights` (`auto`: ImageNet's where they can be had, else seeded random ones: pipeline.demo.weights),
-    one CNEP and one matched CNMP per training seed, each exported and run in closed loop."""
+    """`cnep sim obstacle`: out, a new or empty folder for everything; on the environments' version `env_version`,
+    demonstrations generated with `seed`, the features' `weights` (`auto`: ImageNet's where they can be had, else
+    seeded random ones: pipeline.demo.weights), one CNEP and one matched CNMP per training seed, each exported and run
+    in closed loop."""
 
     TASK: ClassVar[str] = OBSTACLE
     out: Path
@@ -169,6 +203,9 @@ class EvalConfig(LoopSettings):
     policy: Path
     out: Path | None = None
     task: str | None = setting(None, "the task", choices=TASKS)
+    env_version: int | None = setting(
+        None, ENV_VERSION_HELP, choices=ENV_VERSIONS, shown="the one the policy was trained on, as its task records"
+    )
     episodes: int = setting(50, "closed-loop episodes per protocol (and condition, where the task has conditions)")
     extractor: Path | None = None
     quiet: bool = False
@@ -181,20 +218,21 @@ class EvalConfig(LoopSettings):
 
 
 def with_task(config: EvalConfig) -> EvalConfig:
-    """`config` with its task: the one given, else the one the policy was trained on (policy_task); PipelineError
-    when the two differ, or when neither names a task of the simulator."""
-    trained = policy_task(Path(config.policy))
-    if config.task is None:
-        if trained not in TASKS:
-            named = f"names the task {trained!r}, not one of the simulator's" if trained else "names no task"
-            raise PipelineError(f"{config.policy}: the policy {named}; choose its scene with --task {'|'.join(TASKS)}")
-        return replace(config, task=trained)
-    if trained in TASKS and trained != config.task:
+    """`config` with its task and environments' version: those given, else those the policy was trained on
+    (policy_task, task_and_version; a policy that names no task of the simulator runs on the latest version);
+    PipelineError when the given task differs from the policy's, or when neither names a task of the simulator."""
+    trained, version = task_and_version(policy_task(Path(config.policy)))
+    if config.task is None and not trained:
+        label = policy_task(Path(config.policy))
+        named = f"names the task {label!r}, not one of the simulator's" if label else "names no task"
+        raise PipelineError(f"{config.policy}: the policy {named}; choose its scene with --task {'|'.join(TASKS)}")
+    if config.task is not None and trained and trained != config.task:
         raise PipelineError(
             f"{config.policy}: the policy was trained on the {trained} task, --task {config.task} runs it in another "
             f"scene; leave --task out (or give --task {trained})"
         )
-    return config
+    chosen = config.env_version if config.env_version is not None else version
+    return replace(config, task=config.task or trained, env_version=ENV_VERSIONS[-1] if chosen is None else chosen)
 
 
 def policy_task(policy: Path) -> str:
@@ -209,9 +247,9 @@ def policy_task(policy: Path) -> str:
 
 @dataclass(frozen=True, kw_only=True)
 class PickPlaceConfig:
-    """`cnep sim pick-place`: out, a new or empty folder for everything; demonstrations generated with `seed`, the
-    features' `weights`, one CNEP and one matched CNMP per training seed (and the baselines), each run in closed loop
-    by each protocol in every condition."""
+    """`cnep sim pick-place`: out, a new or empty folder for everything; on the environments' version `env_version`,
+    demonstrations generated with `seed`, the features' `weights`, one CNEP and one matched CNMP per training seed (and
+    the baselines), each run in closed loop by each protocol in every condition."""
 
     TASK: ClassVar[str] = PICK_PLACE
     out: Path
@@ -220,6 +258,7 @@ class PickPlaceConfig:
     train_seeds: tuple[int, ...] = setting((0,), "training seeds: one CNEP and one matched CNMP trained per seed")
     train_steps: int | None = setting(None, TRAIN_STEPS_HELP, shown=SCHEDULE_SHOWN)
     experts: int = setting(4, "the CNEP's experts (the CNMP: one, parameter-matched)")
+    env_version: int = setting(ENV_VERSIONS[-1], ENV_VERSION_HELP, choices=ENV_VERSIONS)
     assignment: str = setting(
         "annealed", "the CNEP's assignment, as `cnep train --assignment` takes it", choices=tuple(ASSIGNMENTS)
     )
@@ -257,6 +296,7 @@ class PickPlaceConfig:
     def __post_init__(self) -> None:
         coerce_paths(self)
         protocols_of(self.protocol)
+        check_env_version(self.env_version)
         if (
             self.demonstrations < 2
             or (self.train_steps is not None and self.train_steps < 1)

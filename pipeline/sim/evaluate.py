@@ -1,11 +1,11 @@
-"""`cnep sim eval POLICY`: one given policy (an exported folder or a checkpoint) in closed loop, on the task it was
-trained on (or `task`: pipeline.sim.config.with_task); the table on screen, and with `out` a folder holding
-`summary.json` (the episode seeds it reports, which never meet the validation seeds of pipeline.sim.validation; per
-protocol, and condition where the task has conditions, the rates and every episode's row), the
-recordings of the first episodes and `episode.png` (pipeline.sim.figure), assembled beside it and renamed into place
-when complete (pipeline.folders), never inside the policy it reads. The same settings and episode seeds as
-the `cnep sim` run that trained the policy give the same rows as its summary: the run trains its conditioning into
-its policies (pipeline.sim.config.trained_conditioning)."""
+"""`cnep sim eval POLICY`: one given policy (an exported folder or a checkpoint) in closed loop, on the task and the
+environments' version it was trained on (or `task`, `env_version`: pipeline.sim.config.with_task); the table on
+screen, and with `out` a folder holding `summary.json` (the episode seeds it reports, which never meet the validation
+seeds of pipeline.sim.validation; per protocol, and condition where the task has conditions, the rates and every
+episode's row), the recordings of the first episodes and `episode.png` (pipeline.sim.figure), assembled beside it and
+renamed into place when complete (pipeline.folders), never inside the policy it reads. The same settings and episode
+seeds as the `cnep sim` run that trained the policy give the same rows as its summary: the run trains its
+conditioning into its policies (pipeline.sim.config.trained_conditioning)."""
 
 from __future__ import annotations
 
@@ -32,7 +32,7 @@ def run_eval(config: EvalConfig) -> dict:
     """Evaluate `config.policy` (module docstring); returns the summary written to OUT/summary.json."""
     require_extras(config, "cnep sim eval")
     config = with_task(config)
-    config = for_task(config, find_task(config.task))
+    config = for_task(config, find_task(config.task, config.env_version))
     label = Path(config.policy).name
     if config.out is None:
         results = {label: _evaluate(config, label, None)}
@@ -48,7 +48,7 @@ def run_eval(config: EvalConfig) -> dict:
 
 def _evaluate(config: EvalConfig, label: str, out: Path | None) -> dict:
     """The policy's results on its task (pipeline.sim.loop), its first episodes recorded into `out` (None: none)."""
-    task = find_task(config.task)
+    task = find_task(config.task, config.env_version)
     policy = open_task_policy(config.policy, task, config.conditioning, extractor=config.extractor)
     figure = out / FIGURE_FILE if out is not None else None
     with progress_bar(total=episodes_of(task, config), desc=label, unit="episode", quiet=config.quiet) as bar:
@@ -59,6 +59,6 @@ def _evaluate(config: EvalConfig, label: str, out: Path | None) -> dict:
 
 def _summary(config: EvalConfig, results: dict) -> dict:
     settings = {k: str(v) if isinstance(v, Path) else v for k, v in asdict(config).items() if k != "quiet"}
-    table = format_table(results, find_task(config.task))
+    table = format_table(results, find_task(config.task, config.env_version))
     seeds = seeds_record(config.episode_seed, config.episodes, None)  # it chooses nothing: reported seeds only
     return {"settings": settings, "seeds": seeds, "results": next(iter(results.values())), "table": table}

@@ -120,7 +120,7 @@ def plan(config: GridConfig, out: Path) -> dict[str, Unit]:
     and their folders linked."""
     units = {}
     for task_name in config.tasks:
-        task = find_task(task_name)
+        task = find_task(task_name, config.env_version)
         for set_seed in config.sets:
             set_folder = out / "sets" / f"{task.name}-set{set_seed}"
             behaviours = None
@@ -151,6 +151,7 @@ def task_config(
     settings = cls(
         out=run, demonstrations=max(2, demonstrations), seed=set_seed, train_seeds=(seed,), episodes=config.episodes,
         episode_seed=config.episode_seed, max_steps=config.max_steps, protocol=config.protocol, record=0,
+        env_version=config.env_version,
         baselines=config.baselines, weights=config.weights, offline=config.offline, quiet=True, **given,
     )  # fmt: skip
     return for_task(settings, task)
@@ -187,7 +188,7 @@ def run_units(units: list[Unit], config: GridConfig) -> Iterator[tuple[Unit, dic
     another) or on the cluster `config.executor` names, one bar counting the episodes of their cells."""
     if not units:
         return
-    total = sum(episodes_of(find_task(u.task), u.config) * len(u.models) for u in units)
+    total = sum(episodes_of(find_task(u.task, u.config.env_version), u.config) * len(u.models) for u in units)
     with progress_bar(total=total, desc="grid", unit="episode", quiet=config.quiet) as bar:
         done = 0
 
@@ -206,7 +207,7 @@ def run_units(units: list[Unit], config: GridConfig) -> Iterator[tuple[Unit, dic
             return
         if config.executor != LOCAL:
             for unit, results in run_on_cluster(run_grid_unit, units, config.executor, config.address, config.workers):
-                bar.update(episodes_of(find_task(unit.task), unit.config) * len(unit.models))
+                bar.update(episodes_of(find_task(unit.task, unit.config.env_version), unit.config) * len(unit.models))
                 yield finished(unit), results
             return
         with get_context("spawn").Manager() as manager, single_thread_processes(config.workers) as pool:

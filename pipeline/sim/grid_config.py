@@ -16,11 +16,14 @@ from cnep.pipeline.evaluate.constants import LOCAL
 from cnep.pipeline.inputs import coerce_paths
 from cnep.pipeline.sim.config import (
     BOTH,
+    ENV_VERSION_HELP,
+    ENV_VERSIONS,
     MAX_STEPS_HELP,
     ONLINE,
     PROTOCOL_HELP,
     PROTOCOLS,
     SIM_TASKS,
+    check_env_version,
     check_episode_seeds,
     check_seeds,
     protocols_of,
@@ -29,7 +32,7 @@ from cnep.pipeline.sim.validation import VALIDATION_RANGE
 
 # The settings every cell of one grid folder shares (GRID_FILE): a rerun into the folder with another value of one
 # would mix cells of two benchmarks in its table.
-SHARED = ("per_behaviour", "train_steps", "episodes", "episode_seed", "max_steps", "protocol", "weights")
+SHARED = ("env_version", "per_behaviour", "train_steps", "episodes", "episode_seed", "max_steps", "protocol", "weights")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -51,6 +54,7 @@ class GridConfig:
         "behaviour in the set, which holds the largest number of each",
     )
     train_steps: int | None = setting(None, "training steps of each model")
+    env_version: int = setting(ENV_VERSIONS[-1], ENV_VERSION_HELP, choices=ENV_VERSIONS)
     episodes: int = setting(100, "closed-loop episodes per cell, protocol and condition")
     episode_seed: int = setting(
         0,
@@ -94,6 +98,7 @@ class GridConfig:
                 f"{self.workers}"
             )
         protocols_of(self.protocol)
+        check_env_version(self.env_version)
         check_episode_seeds(self.episode_seed, self.episodes)  # refuses the validation seeds too
         check_executor(self.executor, self.address)
 

@@ -98,7 +98,9 @@ def run_grid_unit(unit: Unit, reports=None) -> dict[str, dict]:
     checkpoints = {label: Path(job.out) for label, job in jobs.items()}
     unselected = {label: c for label, c in checkpoints.items() if (c / CANDIDATES_DIR).is_dir()}  # trained, not chosen
     if unselected:
-        select_checkpoints(unit.config, find_task(unit.task), run, unselected, run / EXTRACTOR_FILE, workers=0)
+        select_checkpoints(
+            unit.config, find_task(unit.task, unit.config.env_version), run, unselected, run / EXTRACTOR_FILE, workers=0
+        )
     export_policies({label: c for label, c in checkpoints.items() if not (run / "policies" / c.name).is_dir()}, run)
     policies = {label: run / "policies" / checkpoint.name for label, checkpoint in checkpoints.items()}
     results = {}

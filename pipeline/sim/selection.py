@@ -187,7 +187,7 @@ def _score(
 ) -> dict:
     """One candidate (in a worker): exported with the run's `extractor`, run in the validation episodes; its success
     over them all and per condition (where the task has conditions)."""
-    task = find_task(task_name)
+    task = find_task(task_name, config.env_version)
     policy_dir = out / SELECTION_DIR / name.replace("/", "-")
     export(ExportConfig(path, policy_dir, extractor=extractor, quiet=True))
     settings = validation_settings(config, task)

@@ -4,8 +4,10 @@ any task of the simulator (sim.task.Task).
 Stages (each logs its progress), all under OUT:
 
 1. generate   `recorded/demo_NNN/` frames (PNG) + `poses.csv`: the task's scripted demonstrator driving the simulator
-              (pipeline.sim.generate), as a user's robot would record them;
-2. ingest     `demos/`: `cnep ingest` of those folders (the task's name their task);
+              on the environments' version `config.env_version` (pipeline.sim.generate), as a user's robot would
+              record them;
+2. ingest     `demos/`: `cnep ingest` of those folders, their task the task's name and version
+              (pipeline.sim.config.demonstrations_task, which the checkpoints and exports record);
 3. extract    `trajectories/`: MobileNet-v2 features with the weights `config.weights` chooses (pipeline.demo.weights:
               ImageNet's where they can be had, else seeded random ones calibrated on these frames), saved to
               `extractor.pt`;
@@ -50,7 +52,7 @@ from cnep.pipeline.extract.stage import ExtractConfig, extract
 from cnep.pipeline.folders import assembled_folder
 from cnep.pipeline.progress import REPORT_INTERVAL_S, RemoteBar, StageClock, follow_total, progress_bar
 from cnep.pipeline.sim.baselines import BASELINES, baseline_policy
-from cnep.pipeline.sim.config import PickPlaceConfig, SimConfig, trained_conditioning
+from cnep.pipeline.sim.config import PickPlaceConfig, SimConfig, demonstrations_task, trained_conditioning
 from cnep.pipeline.sim.extras import require_extras
 from cnep.pipeline.sim.figure import FIGURE_FILE
 from cnep.pipeline.sim.generate import generate_demonstrations, ingest_demonstrations
@@ -75,7 +77,7 @@ def run_sim(config: SimConfig | PickPlaceConfig) -> dict:
     """Run every stage of the task `config.TASK` into `config.out` (module docstring); returns the summary (also
     OUT/summary.json)."""
     require_extras(config, f"cnep sim {config.TASK}")
-    task = find_task(config.TASK)
+    task = find_task(config.TASK, config.env_version)
     config = for_task(config, task)
     with writing_as(f"sim {task.name}"):
         return run_in_new_folder(Path(config.out), lambda work: _run_stages(config, task, work))
@@ -111,7 +113,9 @@ def _run_stages(config: SimConfig | PickPlaceConfig, task: Task, out: Path) -> d
             task, out / "recorded", config.demonstrations, config.seed, config.quiet, **variants
         )
     with timed("ingest", 2):
-        ingest_demonstrations(out / "recorded", out / "demos", task.name, config.quiet)
+        ingest_demonstrations(
+            out / "recorded", out / "demos", demonstrations_task(task.name, task.version), config.quiet
+        )
     with timed("extract", 3):
         extract_features(config, out, chosen.weights)
     with timed("train", 4):
@@ -124,6 +128,7 @@ def _run_stages(config: SimConfig | PickPlaceConfig, task: Task, out: Path) -> d
         results = _closed_loop(config, task, out, policies)
     return {
         "task": task.name,
+        "env_version": task.version,
         **variants,
         "settings": {k: v for k, v in asdict(config).items() if k not in ("out", "quiet")},
         "features": read_trajectory(next((out / "trajectories").glob("*.mcap"))).extractor["weights"],
@@ -242,7 +247,7 @@ def evaluate_one(
     """One policy's closed loop (in a worker): the exported policy `path`, or the baseline `baseline` fitted beside
     the exported CNEP `path`, its waypoints covering the task's episode (a plan for PLANNED, which `max_steps` cuts
     short or holds at its end; ONLINE acts on the first)."""
-    task = find_task(task_name)
+    task = find_task(task_name, config.env_version)
     if baseline is None:
         policy = open_task_policy(path, task)  # the conditioning it was trained with
     else:

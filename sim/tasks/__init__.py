@@ -1,5 +1,6 @@
-"""The simulator's tasks, one folder each (its scene, environment, scripted demonstrator, scoring and drawing, and its
-`TASK`: sim.task.Task), named by the folder (`pick_place`: "pick-place"): TASK_NAMES, and `find_task(name)`."""
+"""The simulator's tasks, one folder each (its scene, environment, scripted demonstrator, scoring and drawing, its
+environment's versions, and `task(version)`: its sim.task.Task on that version), named by the folder (`pick_place`:
+"pick-place"): TASK_NAMES, and `find_task(name, version)`."""
 
 from __future__ import annotations
 
@@ -15,8 +16,11 @@ if TYPE_CHECKING:
 TASK_NAMES = tuple(sorted(m.name.replace("_", "-") for m in pkgutil.iter_modules(__path__) if m.ispkg))
 
 
-def find_task(name: str) -> Task:
-    """The task `name` (a TASK_NAMES entry); its folder is imported now."""
+def find_task(name: str, version: int) -> Task:
+    """The task `name` (a TASK_NAMES entry) on its environment's `version`; its folder is imported now."""
     if name not in TASK_NAMES:
         raise SimError(f"there is no task {name!r}; the tasks are {', '.join(TASK_NAMES)}")
-    return importlib.import_module(f"{__name__}.{name.replace('-', '_')}").TASK
+    try:
+        return importlib.import_module(f"{__name__}.{name.replace('-', '_')}").task(version)
+    except ValueError as error:
+        raise SimError(str(error)) from None

@@ -113,7 +113,7 @@ def test_the_closed_loop_takes_the_policys_own_conditioning_unless_given(trained
     from cnep.sim.tasks import find_task
 
     checkpoint, chosen = trained
-    opened, task = [], find_task("obstacle")
+    opened, task = [], find_task("obstacle", 0)
     monkeypatch.setattr(loop, "open_policy", lambda path, **kwargs: opened.append(kwargs["conditioning"]))
     loop.open_task_policy(checkpoint, task, ConditioningOverrides())
     loop.open_task_policy(checkpoint, task, ConditioningOverrides(window=2, first_expert="argmax"))

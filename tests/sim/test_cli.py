@@ -13,7 +13,18 @@ import pytest
 from cnep.pipeline.cli.main import build_parser, main
 from cnep.pipeline.cli.sim import config_of
 from cnep.pipeline.errors import PipelineError
-from cnep.pipeline.sim.config import PROTOCOLS, TASKS, EvalConfig, PickPlaceConfig, SimConfig, with_task
+from cnep.pipeline.sim.config import (
+    ENV_VERSIONS,
+    PROTOCOLS,
+    SIM_TASKS,
+    TASKS,
+    EvalConfig,
+    PickPlaceConfig,
+    SimConfig,
+    demonstrations_task,
+    task_and_version,
+    with_task,
+)
 from cnep.pipeline.sim.extras import require_extras
 from cnep.pipeline.sim.loop import for_task
 from cnep.sim.tasks import TASK_NAMES
@@ -73,18 +84,39 @@ def test_max_steps_defaults_to_each_tasks_episode_and_must_be_at_least_one(find_
         (["eval", "p", "--task", "pick-place"], EvalConfig, {"policy": "p"}, "pick-place"),
     ):
         config = config_of(cls, build_parser().parse_args(["sim", *command]), **given)
-        assert config.max_steps is None and for_task(config, find_task(task)).max_steps == find_task(task).max_steps
+        on = find_task(task, ENV_VERSIONS[-1])
+        assert config.max_steps is None and for_task(config, on).max_steps == on.max_steps
         args = build_parser().parse_args(["sim", *command, "--max-steps", "12"])
-        assert for_task(config_of(cls, args, **given), find_task(task)).max_steps == 12
+        assert for_task(config_of(cls, args, **given), on).max_steps == 12
         with pytest.raises(PipelineError, match="max_steps (and pca )?must be >= 1"):
             cls(**given, max_steps=0)
-    assert (find_task("obstacle").max_steps, find_task("pick-place").max_steps) == (60, 90)  # 6 s, 9 s
+    assert [(find_task("obstacle", v).max_steps, find_task("pick-place", v).max_steps) for v in ENV_VERSIONS] == [
+        (60, 90),  # v0: 6 s, 9 s
+        (80, 120),  # v1: 8 s, 12 s (an arm's limits)
+    ]
+
+
+def test_the_environments_version_is_the_latest_unless_given_and_an_unknown_one_is_refused(capsys, find_task):
+    for command, cls, given in (
+        (["obstacle", "--out", "x"], SimConfig, {"out": "x"}),
+        (["pick-place", "--out", "x"], PickPlaceConfig, {"out": "x"}),
+    ):
+        assert config_of(cls, build_parser().parse_args(["sim", *command]), **given).env_version == ENV_VERSIONS[-1]
+        args = build_parser().parse_args(["sim", *command, "--env-version", "0"])
+        assert config_of(cls, args, **given).env_version == 0
+        with pytest.raises(PipelineError, match="env_version must be one of 0, 1 .*, got 2"):
+            cls(**given, env_version=2)
+    assert [find_task("pick-place", v).version for v in ENV_VERSIONS] == list(ENV_VERSIONS)
+    with pytest.raises(SystemExit) as exited:
+        main(["sim", "obstacle", "--out", "x", "--env-version", "2"])
+    assert exited.value.code == 2 and "--env-version: invalid choice: 2" in capsys.readouterr().err
 
 
 def test_a_task_is_a_folder_and_the_commands_know_every_one_without_importing_the_simulator(find_task):
     assert TASKS == TASK_NAMES == ("obstacle", "pick-can", "pick-cube", "pick-place")
-    assert all(find_task(name).name == name for name in TASKS)
-    assert (SimConfig.TASK, PickPlaceConfig.TASK) == ("obstacle", "pick-place")  # `cnep sim eval` takes every task
+    assert all(find_task(name, ENV_VERSIONS[-1]).name == name for name in TASKS)
+    assert all(find_task(name, 0).name == name for name in SIM_TASKS)  # the first version: the commands' own tasks
+    assert (SimConfig.TASK, PickPlaceConfig.TASK) == SIM_TASKS  # `cnep sim eval` takes every task
     code = (
         "import sys\nfrom cnep.pipeline.cli.main import main\n"
         "for argv in (['--help'], ['sim', '--help'], ['sim', 'pick-place', '--help'], ['sim', 'grid', '--help'],\n"
@@ -125,7 +157,23 @@ def test_eval_runs_a_policy_on_the_task_it_was_trained_on_and_refuses_another(tm
     ):
         with_task(EvalConfig(policy=_policy_folder(tmp_path / "old", "")))
     with pytest.raises(PipelineError, match="--cue is a variant of another task; the pick-place task has none"):
-        for_task(EvalConfig(policy=pick, task="pick-place", cue=True), find_task("pick-place"))
+        for_task(EvalConfig(policy=pick, task="pick-place", cue=True), find_task("pick-place", 1))
+
+
+def test_eval_runs_a_policy_on_the_environments_version_it_was_trained_on_unless_given(tmp_path):
+    for version in ENV_VERSIONS:
+        label = demonstrations_task("pick-place", version)  # the task `cnep sim` names its demonstrations with
+        assert task_and_version(label) == ("pick-place", version)
+        policy = _policy_folder(tmp_path / label, label)
+        assert (with_task(EvalConfig(policy=policy)).task, with_task(EvalConfig(policy=policy)).env_version) == (
+            "pick-place",
+            version,
+        )
+        assert with_task(EvalConfig(policy=policy, env_version=1 - version)).env_version == 1 - version
+    assert demonstrations_task("obstacle", 0) == "obstacle" and demonstrations_task("obstacle", 1) == "obstacle-v1"
+    assert task_and_version("obstacle-v7") == task_and_version("stack-v1") == ("", None)
+    own = _policy_folder(tmp_path / "own", "pick up the cup")  # a user's task runs on the latest version
+    assert with_task(EvalConfig(policy=own, task="obstacle")).env_version == ENV_VERSIONS[-1]
 
 
 def test_an_unknown_protocol_is_refused(capsys, tmp_path):

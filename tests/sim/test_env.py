@@ -114,7 +114,7 @@ def test_the_step_limit_truncates_every_episode_and_leaves_the_plan_spanning_the
         return scripted_policy(gate=(0.2, 0.8), waypoints=waypoints)
 
     monkeypatch.setattr(loop, "open_policy", open_scripted)
-    task, settings = find_task("obstacle"), LoopSettings(episodes=2, max_steps=7)
+    task, settings = find_task("obstacle", 0), LoopSettings(episodes=2, max_steps=7)
     results = loop.evaluate_policy(loop.open_task_policy(Path("scripted"), task), task, settings, label="s")
     assert opened == [O.MAX_STEPS]  # the plan: the task's steps, not the limit's
     assert list(results) == [PLANNED, ONLINE]

@@ -26,8 +26,8 @@ from cnep.sim.episode import (  # noqa: E402
 from cnep.sim.tasks import find_task  # noqa: E402
 from cnep.sim.tasks.pick_place import scene as P  # noqa: E402
 from cnep.sim.tasks.pick_place.scoring import (
-    first_switch,  # noqa: E402
     pick_rates,  # noqa: E402
+    switch_after,  # noqa: E402
 )
 from tests.sim.pick_scripted import pick_policy  # noqa: E402
 
@@ -108,18 +108,40 @@ def test_a_closed_loop_episode_puts_the_bar_where_the_gate_says():
 
 def test_the_switch_step_is_the_first_change_of_expert_after_the_table_changed():
     experts = np.array([2, 2, 3, 2, 2, 0, 0, 1])
-    assert first_switch(experts, 3) == 5
-    assert first_switch(experts, 6) == 7
-    assert first_switch(experts, None) is None
-    assert first_switch(np.array([1, 1, 1]), 0) is None
+    assert switch_after(experts, 3) == 5
+    assert switch_after(experts, 6) == 7
+    assert switch_after(experts, None) is None
+    assert switch_after(np.array([1, 1, 1]), 0) is None
 
 
 def test_the_rates_count_places_and_switch_latency_over_the_changed_episodes():
     row = {"success": True, "collision": False, "lifted": True, "dropped": False, "switches": 1, "ms": {}}
     rows = [
-        {**row, "place": "left", "valid": ["left"], "change_step": 10, "switch_step": 12},
-        {**row, "place": "right", "valid": ["right"], "change_step": 10, "switch_step": 18},
-        {**row, "success": False, "place": None, "valid": ["left"], "change_step": 10, "switch_step": None},
+        {
+            **row,
+            "place": "left",
+            "valid": ["left"],
+            "change_step": 10,
+            "first_switch_step": 12,
+            "valid_switch_step": 12,
+        },
+        {
+            **row,
+            "place": "right",
+            "valid": ["right"],
+            "change_step": 10,
+            "first_switch_step": 18,
+            "valid_switch_step": 18,
+        },
+        {
+            **row,
+            "success": False,
+            "place": None,
+            "valid": ["left"],
+            "change_step": 10,
+            "first_switch_step": None,
+            "valid_switch_step": None,
+        },
     ]
     for r in rows:
         r["ms"] = {name: {"p50": 1.0, "p99": 2.0} for name in ("policy", "render", "physics")}
@@ -131,7 +153,7 @@ def test_the_rates_count_places_and_switch_latency_over_the_changed_episodes():
 
 def test_the_step_limit_truncates_the_episodes_of_either_protocol():
     policy = pick_policy(gate=(0.1, 0.7, 0.1, 0.1), waypoints=P.MAX_STEPS)  # its plan spans the whole task
-    task = replace(find_task("pick-place"), conditions=(P.FREE,))
+    task = replace(find_task("pick-place", 0), conditions=(P.FREE,))
     results = evaluate_policy(policy, task, LoopSettings(episodes=2, max_steps=5), label="scripted")
     for protocol in (PLANNED, ONLINE):
         rows = results[protocol][P.FREE]["per_episode"]
@@ -142,7 +164,7 @@ def test_the_step_limit_truncates_the_episodes_of_either_protocol():
 def test_the_loop_runs_each_protocol_and_condition_and_records_the_first_episode(tmp_path, monkeypatch):
     monkeypatch.setenv("HOME", str(tmp_path))
     policy = pick_policy(gate=(0.4, 0.3, 0.2, 0.1), waypoints=P.MAX_STEPS)
-    task = replace(find_task("pick-place"), conditions=(P.CHANGED,))
+    task = replace(find_task("pick-place", 0), conditions=(P.CHANGED,))
     settings = LoopSettings(episodes=1, max_steps=P.MAX_STEPS, record=1)
     results = evaluate_policy(policy, task, settings, label="scripted", recordings=tmp_path)
     assert list(results) == [PLANNED, ONLINE]

@@ -25,18 +25,22 @@ from tests.sim.scripted import scripted_policy  # noqa: E402
 from tests.test_examples import load  # noqa: E402
 
 MS = {name: {"p50": 1.0, "p99": 2.0} for name in ("policy", "render", "physics")}
-OBSTACLE_ROW_KEYS = {"seed", "success", "collision", "side", "cue_side", "clearance_m", "distance_to_goal_m", "steps",
-                     "switches", "ms"}  # fmt: skip
+OBSTACLE_ROW_KEYS = {"seed", "success", "collision", "side", "cue_side", "cue_step", "clearance_m",
+                     "distance_to_goal_m", "steps", "first_switch_step", "cue_switch_step", "switches",
+                     "ms"}  # fmt: skip
 
 
-def obstacle_row(side: str, success: bool = True, cue_side: str | None = None, switches: int = 0) -> dict:
-    return {"success": success, "collision": not success, "side": side, "cue_side": cue_side, "switches": switches,
-            "clearance_m": 0.05, "ms": MS}  # fmt: skip
+def obstacle_row(side: str, success: bool = True, cue_side: str | None = None, switches: int = 0, **cued) -> dict:
+    row = {"success": success, "collision": not success, "side": side, "cue_side": cue_side, "switches": switches,
+           "clearance_m": 0.05, "cue_step": None, "first_switch_step": 3 if switches else None,
+           "cue_switch_step": None, "ms": MS}  # fmt: skip
+    return {**row, **cued}
 
 
 def pick_row(place: str | None, valid: list[str], success: bool = True, **changed) -> dict:
     row = {"success": success, "collision": False, "lifted": True, "dropped": False, "place": place, "valid": valid,
-           "switches": 0, "change_step": None, "switch_step": None, "ms": MS}  # fmt: skip
+           "switches": 0, "change_step": None, "first_switch_step": None, "switch_step": None,
+           "valid_switch_step": None, "ms": MS}  # fmt: skip
     return {**row, **changed}
 
 
@@ -70,31 +74,63 @@ def test_the_pick_place_entropy_is_over_the_free_scenes_valid_places_per_grasp()
 
 
 def test_the_pick_place_switching_has_its_interval_with_and_without_a_change():
-    unchanged = pick_rates([pick_row("left", ["left"], switches=1), *[pick_row("left", ["left"])] * 19])
+    one = pick_row("left", ["left"], switches=1, first_switch_step=30)
+    unchanged = pick_rates([one, *[pick_row("left", ["left"])] * 19])
     assert unchanged["switching"] == 0.05 and unchanged["switching_ci"] == rounded(wilson(1, 20))
+    assert unchanged["switched_unchanged"] == 0.05 and unchanged["switched_unchanged_ci"] == rounded(wilson(1, 20))
     changed = [
-        pick_row("right", ["right"], switches=1, change_step=10, switch_step=12),
-        pick_row("right", ["right"], switches=1, change_step=10, switch_step=18),
+        pick_row("right", ["right"], switches=1, change_step=10, first_switch_step=12, valid_switch_step=12),
+        pick_row("right", ["right"], switches=1, change_step=10, first_switch_step=18, valid_switch_step=18),
         pick_row("left", ["right"], success=False, change_step=10),
     ]
     r = pick_rates(changed)
     assert r["switched_within"] == 0.3333 and r["switched_within_ci"] == rounded(wilson(1, 3))
     assert r["switching"] == 0.6667 and r["switching_ci"] == rounded(wilson(2, 3))
+    assert r["switched_unchanged"] == 0.0 and r["switch_latency_p50"] == 5.0
+
+
+def test_only_a_switch_to_a_valid_places_expert_after_the_change_counts_and_one_before_it_is_unprompted():
+    changed = [
+        # switched at once, but to the expert of the place just taken; to a valid place's 6 steps later
+        pick_row("right", ["right"], switches=2, change_step=10, first_switch_step=11, switch_step=11,
+                 valid_switch_step=17),
+        # switched before the policy could see the change (its read at step 11 is the first to show it)
+        pick_row("right", ["right"], switches=1, change_step=10, first_switch_step=10, switch_step=10),
+        pick_row("right", ["right"], switches=1, change_step=10, first_switch_step=13, switch_step=13,
+                 valid_switch_step=13),
+    ]  # fmt: skip
+    r = pick_rates(changed)
+    assert r["switched_within"] == 0.3333 and r["switch_latency_p50"] == 5.0  # 7 and 3 steps: counted, not prompt
+    assert r["switched_unchanged"] == 0.3333 and r["switched_unchanged_ci"] == rounded(wilson(1, 3))
+
+
+def test_the_obstacle_cue_during_the_motion_is_its_change_and_a_cue_from_the_reset_is_none():
+    rows = [
+        obstacle_row("left", cue_side="left", switches=1, cue_step=6, first_switch_step=8, cue_switch_step=8),
+        obstacle_row("left", cue_side="left", switches=1, cue_step=6, first_switch_step=4),  # before the cue
+        obstacle_row("left", cue_side="left", cue_step=6),  # never switched
+        obstacle_row("right", cue_side="right", switches=1, cue_step=0, first_switch_step=2),  # v0: from the reset
+    ]
+    r = rates(rows)
+    assert r["switched_within"] == 0.3333 and r["switched_within_ci"] == rounded(wilson(1, 3))
+    assert r["switched_unchanged"] == 0.5 and r["switch_latency_p50"] == 2.0
+    line = format_table({"CNEP-seed0": {PLANNED: r}}, find_task("obstacle", 1)).splitlines()[2]
+    assert "50% [15-85]" in line and "33% [6-79]" in line
 
 
 def test_the_tables_show_the_intervals_and_the_entropy_compactly():
     rows = [*[obstacle_row("left")] * 23, *[obstacle_row("right")] * 23, *[obstacle_row("left", success=False)] * 4]
-    table = format_table({"CNEP-seed0": {PLANNED: rates(rows)}}, find_task("obstacle")).splitlines()
+    table = format_table({"CNEP-seed0": {PLANNED: rates(rows)}}, find_task("obstacle", 0)).splitlines()
     assert table[0].split()[:6] == ["policy", "protocol", "episodes", "success", "collision", "left"]
     assert "92% [81-97]" in table[2] and " 1.00 " in table[2] and "0% [0-7]" in table[2]
     assert len(table[0]) <= 130
     pick = {PLANNED: {"free": pick_rates([pick_row("left", ["left", "right"])] * 10)}}
-    line = format_table({"CNEP-seed0": pick}, find_task("pick-place")).splitlines()[2]
+    line = format_table({"CNEP-seed0": pick}, find_task("pick-place", 0)).splitlines()[2]
     assert "100% [72-100]" in line and " 0.00 " in line and "left:10" in line
 
 
 def test_a_policy_s_episodes_give_the_same_rows_again_and_the_rates_of_them():
-    task, settings = find_task("obstacle"), LoopSettings(episodes=4, max_steps=12, protocol=PLANNED, record=0)
+    task, settings = find_task("obstacle", 0), LoopSettings(episodes=4, max_steps=12, protocol=PLANNED, record=0)
     policy = scripted_policy(gate=(0.5, 0.5), first_expert="sample")
     first, again = (evaluate_policy(policy, task, settings, label="scripted")[PLANNED] for _ in range(2))
     rows = first["per_episode"]
@@ -114,6 +150,7 @@ def test_the_results_csvs_carry_the_intervals_and_the_entropy(tmp_path):
     )
     (row,) = load("closed_loop_csv").main([str(run), "--csv", str(tmp_path / "closed-loop.csv")])
     assert [row["success_lo"], row["success_hi"]] == obstacle["success_ci"] and row["entropy"] == 0.8113
+    assert row["switched_unchanged"] == 0.0 and row["switched_within_5"] == "" and row["env_version"] == 0
     free = pick_rates([pick_row("left", ["left", "right"]), pick_row("right", ["left", "right"])])
     pick = tmp_path / "pick" / "summary.json"
     pick.parent.mkdir()
@@ -121,3 +158,4 @@ def test_the_results_csvs_carry_the_intervals_and_the_entropy(tmp_path):
     (row,) = load("pick_place_table").main([str(pick), "--csv", str(tmp_path / "pick.csv")])
     assert [row["switching"], row["switching_lo"], row["switching_hi"]] == [0.0, 0.0, free["switching_ci"][1]]
     assert row["entropy"] == 1.0 and "switching_lo" in (tmp_path / "pick.csv").read_text().splitlines()[0]
+    assert [row["switched_unchanged"], row["switched_unchanged_hi"]] == [0.0, free["switched_unchanged_ci"][1]]

@@ -75,7 +75,7 @@ def test_a_summary_names_its_reported_seeds_and_the_validation_seeds_that_chose(
 
 
 def test_validation_episodes_run_online_in_every_condition_on_the_validation_seeds(tmp_path, monkeypatch):
-    task = find_task("pick-place")
+    task = find_task("pick-place", 1)
     config = PickPlaceConfig(out=tmp_path / "o", max_steps=3, selection=SelectionSettings(2, 2))
     settings = validation_settings(config, task)
     assert (settings.protocols, settings.episodes, settings.episode_seed) == ((ONLINE,), 2, VALIDATION_SEED_OFFSET)
@@ -125,7 +125,7 @@ def test_each_checkpoint_keeps_the_candidate_that_succeeds_most_and_records_the_
               candidates.items()}  # fmt: skip
     config = SimConfig(out=tmp_path / "o", max_steps=5, selection=SelectionSettings(3, 2))
     with writing_as(COMMAND):
-        records = select_checkpoints(config, find_task("obstacle"), tmp_path, trained, tmp_path / "x.pt", workers=2)
+        records = select_checkpoints(config, find_task("obstacle", 1), tmp_path, trained, tmp_path / "x.pt", workers=2)
     assert not (tmp_path / SELECTION_DIR).exists()
     for label, checkpoint in trained.items():
         found = candidates[label]
@@ -145,7 +145,7 @@ def test_each_checkpoint_keeps_the_candidate_that_succeeds_most_and_records_the_
 
 def test_one_candidate_is_no_choice(tmp_path):
     config = SimConfig(out=tmp_path / "o", selection=SelectionSettings(candidates=1))
-    assert select_checkpoints(config, find_task("obstacle"), tmp_path, {"CNEP-seed0": tmp_path}, tmp_path, 2) == {}
+    assert select_checkpoints(config, find_task("obstacle", 1), tmp_path, {"CNEP-seed0": tmp_path}, tmp_path, 2) == {}
 
 
 def test_the_command_refuses_reported_seeds_that_meet_the_validation_seeds_in_one_line(tmp_path, capsys):

@@ -1,8 +1,9 @@
 """`cnep sim obstacle` end to end on the smallest data that runs every stage (2 demonstrations, random features
-calibrated on one batch of frames, 20 training steps, one episode per protocol cut after a third of the task's steps):
-summary.json holds the documented keys, `cnep sim eval` of each exported policy (its task read from the policy) repeats
-the run's rows with the same settings and episode seeds, and examples/closed_loop_csv.py turns the run into its rows.
-The stage's pools (training, closed loop) run their jobs in this process (tests/sim/conftest.py)."""
+calibrated on one batch of frames, 20 training steps, one episode per protocol cut after 16 steps) on the environments'
+latest version: summary.json holds the documented keys and the version, `cnep sim eval` of each exported policy (its
+task and version read from the policy) repeats the run's rows with the same settings and episode seeds, and
+examples/closed_loop_csv.py turns the run into its rows. The stage's pools (training, closed loop) run their jobs in
+this process (tests/sim/conftest.py)."""
 
 import importlib.util
 import json
@@ -15,7 +16,7 @@ if not all(importlib.util.find_spec(name) for name in cnep.sim.EXTRA):
     pytest.skip("the sim extra is not installed", allow_module_level=True)
 
 from cnep.pipeline.cli.main import main  # noqa: E402
-from cnep.pipeline.sim.config import MODELS, PROTOCOLS, SimConfig  # noqa: E402
+from cnep.pipeline.sim.config import ENV_VERSIONS, MODELS, PROTOCOLS, SimConfig  # noqa: E402
 from cnep.pipeline.sim.stage import SUMMARY_FILE, run_sim  # noqa: E402
 from cnep.pipeline.sim.validation import SelectionSettings  # noqa: E402
 from tests.test_examples import load  # noqa: E402
@@ -38,7 +39,7 @@ def test_cnep_sim_obstacle_writes_the_documented_summary_and_its_policies_repeat
         demonstrations=2,
         train_steps=20,
         episodes=1,
-        max_steps=20,
+        max_steps=16,
         record=0,
         offline=True,
         quiet=True,
@@ -51,23 +52,25 @@ def test_cnep_sim_obstacle_writes_the_documented_summary_and_its_policies_repeat
     assert summary["settings"]["max_steps"] == config.max_steps
     assert summary["seeds"]["reported"] == {"first": 0, "last": 0} and summary["seeds"]["validation"] is None
     assert summary["selection"] == {}
+    assert summary["env_version"] == summary["settings"]["env_version"] == ENV_VERSIONS[-1]
     assert set(summary["models"]) == set(MODELS) and all(set(seeds) == {"0"} for seeds in summary["models"].values())
     for model, seeds in summary["models"].items():
         assert set(seeds["0"]) == set(PROTOCOLS)
         for rates in seeds["0"].values():
-            assert rates["episodes"] == 1 and {"success", "collision", "left", "switching"} <= set(rates)
+            assert rates["episodes"] == 1 and {"success", "collision", "left", "switched_unchanged"} <= set(rates)
             assert {"policy", "render", "physics"} == set(rates["per_episode"][0]["ms"])
             assert rates["per_episode"][0]["steps"] <= config.max_steps
         # `cnep sim eval` on the exported policy, its task read from the policy, the run's settings and episode seeds
         evaluated = tmp_path / f"eval-{model}"
         policy = out / "policies" / f"{model.lower()}-seed0"
         assert (
-            main(["-q", "sim", "eval", str(policy), "--episodes", "1", "--max-steps", "20", "--out", str(evaluated)])
+            main(["-q", "sim", "eval", str(policy), "--episodes", "1", "--max-steps", "16", "--out", str(evaluated)])
             == 0
         )
         again = json.loads((evaluated / SUMMARY_FILE).read_text())
         assert again["settings"]["task"] == "obstacle" and again["settings"]["max_steps"] == config.max_steps
         assert again["seeds"] == summary["seeds"]  # the same reported seeds; neither chose anything
+        assert again["settings"]["env_version"] == ENV_VERSIONS[-1]  # the version it was trained on
         assert {p: episode_rows(r) for p, r in again["results"].items()} == {
             p: episode_rows(r) for p, r in seeds["0"].items()
         }

@@ -4,7 +4,7 @@ A demonstration (`DemoDraw`, drawn by `draw_demonstration` from a generator) has
 speed), the detour's lateral reach at the box and the shape of the bump (scene.DEMO_STEPS, DETOUR, DETOUR_SHAPE,
 DETOUR_PEAK). Its path (`demonstration_path`) runs from the start to the goal with a minimum-jerk timing; the lateral
 offset is a bump that reaches the detour at the peak's progress: x = start_x (1 - s) + sign * detour * bump(s).
-`demonstrations` drives the environment with them, as a robot records a demonstration.
+`demonstrations` drives the environment with them (v1: with `ObstacleExpert`), as a robot records a demonstration.
 
 In v1 (the box and the goal moved, a robot's limits, a cue that shows during the motion) the demonstrator moves in
 phases, each of its own drawn pace (`DetourDraw`, `draw_detour`): out to beside the box, past it, in to the goal; in
@@ -20,11 +20,12 @@ import numpy as np
 
 from cnep.runtime import STATE_KEY
 from cnep.sim import scene as S
-from cnep.sim.paths import Plan, through
+from cnep.sim.paths import Plan, rollout, through
 from cnep.sim.robot import RobotSettings
 from cnep.sim.task import Demonstration, demonstration_seed, recorded
 from cnep.sim.tasks.obstacle import scene as O
 from cnep.sim.tasks.obstacle.env import ObstacleEnv
+from cnep.sim.tasks.obstacle.versions import version_of
 
 
 @dataclass(frozen=True)
@@ -64,26 +65,39 @@ def demonstration_path(draw: DemoDraw, start: np.ndarray) -> np.ndarray:
     return np.stack([x, y, np.full_like(x, O.EE_HEIGHT)], axis=1)
 
 
-def demonstrations(n: int, seed: int, cue: bool = False) -> Iterator[Demonstration]:
-    """`n` demonstrations drawn with `seed`, each driving the environment from its own reset: half pass left, half
-    right, in a seeded order (in the cue variant the cue shows the side); clean when it reached the goal clear of the
-    box."""
+def demonstrations(n: int, seed: int, cue: bool = False, version: int = 0) -> Iterator[Demonstration]:
+    """`n` demonstrations drawn with `seed`, each driving the environment of `version` from its own reset: half pass
+    left, half right, in a seeded order (in the cue variant the cue shows the side); clean when it reached the goal
+    clear of the box. v0 follows its path (demonstration_path) to the end; v1 is the scripted demonstrator in closed
+    loop (obstacle_expert: its phases' paces drawn apart, waiting for the cue in the cue variant) until the episode
+    ends, the states and frames as the robot sensed them."""
     rng = np.random.default_rng(seed)
     sides = [O.SIDES[i % 2] for i in range(n)]
     rng.shuffle(sides)
-    env = ObstacleEnv(cue=cue, max_steps=O.DEMO_STEPS[1] + 1)
+    phases = version_of(version).phases
+    env = ObstacleEnv(cue=cue, version=version, max_steps=None if phases else O.DEMO_STEPS[1] + 1)
     try:
         for i, side in enumerate(sides):
             observation, info = env.reset(seed=demonstration_seed(seed, i), options={"cue_side": side} if cue else None)
             steps = [observation]
-            for waypoint in demonstration_path(draw_demonstration(rng, side), info["start"]):
-                action = np.array([*waypoint, *observation[STATE_KEY][3:7], S.FINGER_OPEN], dtype=np.float32)
-                observation, _, _, _, info = env.step(action)
-                steps.append(observation)
+            if phases:
+                info, _ = rollout(env, obstacle_expert(env, rng, side).action, info, steps)
+            else:
+                info = _follow(env, demonstration_path(draw_demonstration(rng, side), info["start"]), steps)
             clean = bool(info["distance_to_goal"] < O.GOAL_TOLERANCE and not info["collision"])
             yield recorded(steps, env.image_key, side, clean)
     finally:
         env.close()
+
+
+def _follow(env: ObstacleEnv, path: np.ndarray, steps: list[dict]) -> dict:
+    """Step `env` through the waypoints `path` (n, 3) to its end, the orientation the one last observed (steps[-1],
+    the reset's first), each observation appended to `steps`; the last step's info."""
+    for waypoint in path:
+        action = np.array([*waypoint, *steps[-1][STATE_KEY][3:7], S.FINGER_OPEN], dtype=np.float32)
+        observation, _, _, _, info = env.step(action)
+        steps.append(observation)
+    return info
 
 
 @dataclass(frozen=True)

@@ -2,11 +2,16 @@
 (`episode_row`), the rates of a policy's episodes under one protocol (`rates`), the table's COLUMNS and what the
 summary says of the demonstrations (`describe_demonstrations`).
 
-A row: the episode's seed, success, collision, the side it passed, the cue's side (None without a cue), min
-clearance and distance to the goal (m), steps, expert switches and the policy / render / physics time per step
-(p50, p99, ms). The rates: success, collision, the share that followed the cue (of the episodes with a cue), the
-share passing left, the share of episodes with an expert switch (the scene never changes during an episode: every
-switch is one without a change), over `episodes`, each with its Wilson 95% interval under `NAME_ci`
+A row: the episode's seed, success, collision, the side it passed, the cue's side (None without a cue), the step the
+cue showed (0: from the reset; None without a cue), min clearance and distance to the goal (m), steps, the first
+switch of the active expert and the first after the cue to an expert passing on the cue's side (`cue_switch_step`),
+the expert switches and the policy / render / physics time per step (p50, p99, ms). The rates: success, collision,
+the share that followed the cue (of the episodes with a cue), the share passing left, the share of episodes with an
+expert switch (`switching`), and sim.scoring.change_rates' with the cue shown during the motion as the change: the
+share that switched while nothing had changed (`switched_unchanged`: without a cue, or with one shown from the
+reset, every switch; else a switch before the policy could see the cue), the share of the episodes whose cue showed
+during the motion that switched to the cue's side within SWITCH_WITHIN steps (`switched_within`) and the median
+latency of such switches; each share over its episodes with its Wilson 95% interval under `NAME_ci`
 (sim.scoring.shares); `entropy`, the behaviour entropy of the side passed (sim.statistics.behaviour_entropy: over
 the successful episodes without a cue, where either side is free; None with a cue, which leaves one side).
 """
@@ -16,7 +21,19 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from cnep.sim.episode import EpisodeResult
-from cnep.sim.scoring import PERCENT_CI_WIDTH, Column, decimals, percent, percent_ci, pooled_ms, shares, timings_ms
+from cnep.sim.scoring import (
+    CHANGE_COLUMNS,
+    PERCENT_CI_WIDTH,
+    Column,
+    change_rates,
+    decimals,
+    first_switch,
+    percent,
+    percent_ci,
+    pooled_ms,
+    shares,
+    timings_ms,
+)
 from cnep.sim.statistics import behaviour_entropy
 from cnep.sim.tasks.obstacle import scene as O
 from cnep.sim.tasks.obstacle.switching import counted_switch, side_of
@@ -66,9 +83,12 @@ def episode_row(ep: ObstacleEpisode) -> dict:
         "collision": ep.collision,
         "side": ep.side,
         "cue_side": ep.cue_side,
+        "cue_step": ep.cue_step,
         "clearance_m": round(ep.clearance_m, 4),
         "distance_to_goal_m": round(ep.distance_to_goal_m, 4),
         "steps": ep.steps,
+        "first_switch_step": first_switch(ep.experts),
+        "cue_switch_step": ep.cue_switch_step,
         "switches": ep.switches,
         "ms": timings_ms(ep),
     }
@@ -87,6 +107,7 @@ def rates(rows: list[dict]) -> dict:
             switching=lambda r: r["switches"] > 0,
         ),
         **shares(cued, followed_cue=lambda r: r["side"] == r["cue_side"]),
+        **change_rates(rows, change="cue_step", switch="cue_switch_step"),
         "entropy": behaviour_entropy((choice(r), r["side"]) for r in rows if r["success"]),
         "min_clearance_m": min(r["clearance_m"] for r in rows),
         "ms": pooled_ms(rows),
@@ -105,10 +126,9 @@ COLUMNS = (
     Column("collision", 9, percent("collision")),
     Column("left", 6, percent("left")),
     Column("cue", 6, percent("followed_cue")),
-    Column("switching", PERCENT_CI_WIDTH, percent_ci("switching")),
+    *CHANGE_COLUMNS,
     Column("entropy", 7, decimals("entropy")),
-    Column("min gap", 8, lambda r: f"{r['min_clearance_m'] * 100:.1f}cm"),
-    Column("policy ms p50/p99", 18, lambda r: "{p50:.1f}/{p99:.1f}".format(**r["ms"]["policy"])),
+    Column("policy ms", 11, lambda r: "{p50:.1f}/{p99:.1f}".format(**r["ms"]["policy"])),  # p50/p99
 )
 
 

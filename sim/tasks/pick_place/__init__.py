@@ -1,32 +1,41 @@
 """The pick-and-place task: pick a bar and put it on a free mat it fits, the table deciding the place, leaving it
-free, or changing during the motion: `TASK` (sim.task.Task)."""
+free, or changing during the motion: `task(version)` (sim.task.Task) on the environment's version (versions.py)."""
 
-from cnep.sim import PICK_ENV_ID
+from functools import partial
+
+from cnep.sim import PICK_ENV_ID, PICK_ENV_V1_ID
 from cnep.sim.task import Task
 from cnep.sim.tasks.pick_place import scene as P
 from cnep.sim.tasks.pick_place.demonstrator import demonstrations
 from cnep.sim.tasks.pick_place.drawing import drawing
 from cnep.sim.tasks.pick_place.env import PickPlaceEnv
 from cnep.sim.tasks.pick_place.scoring import COLUMNS, describe_demonstrations, pick_rates, pick_row
+from cnep.sim.tasks.pick_place.versions import version_of
+
+ENV_IDS = (PICK_ENV_ID, PICK_ENV_V1_ID)  # per version
 
 
-def make_env(condition: str, max_steps: int) -> PickPlaceEnv:
+def make_env(condition: str, max_steps: int, version: int = 0) -> PickPlaceEnv:
     """The environment of an evaluation in `condition` (decided, free or changed)."""
-    return PickPlaceEnv(condition, max_steps=max_steps)
+    return PickPlaceEnv(condition, max_steps=max_steps, version=version)
 
 
-TASK = Task(
-    name="pick-place",
-    env_id=PICK_ENV_ID,
-    max_steps=P.MAX_STEPS,
-    conditions=P.CONDITIONS,
-    variants=(),
-    behaviours=tuple(name for name, _, _ in P.PLACES),
-    make_env=make_env,
-    demonstrations=demonstrations,
-    describe_demonstrations=describe_demonstrations,
-    row=pick_row,
-    rates=pick_rates,
-    columns=COLUMNS,
-    drawing=drawing,
-)
+def task(version: int) -> Task:
+    """The task on the environment's `version` (ValueError for one it does not have)."""
+    steps = version_of(version).max_steps
+    return Task(
+        name="pick-place",
+        version=version,
+        env_id=ENV_IDS[version],
+        max_steps=steps,
+        conditions=P.CONDITIONS,
+        variants=(),
+        behaviours=tuple(name for name, _, _ in P.PLACES),
+        make_env=partial(make_env, version=version),
+        demonstrations=partial(demonstrations, version=version),
+        describe_demonstrations=describe_demonstrations,
+        row=pick_row,
+        rates=pick_rates,
+        columns=COLUMNS,
+        drawing=drawing,
+    )

@@ -9,8 +9,8 @@ along the bar, the place point on the mat and the carrying height. Its waypoints
 xyz, the quaternion xyzw (the grasp's yaw, turned during the approach) and the gripper command (FINGER_OPEN open, 0
 closed); each phase moves with a minimum-jerk timing, lengthened where a robot's limits need (sim.controller).
 `PickExpert` is the demonstrator in closed loop: when the place it heads for is taken during the motion, it carries
-the bar on to the place valid then. `demonstrations` drives the environment with them, as a robot records a
-demonstration.
+the bar on to the place valid then. `demonstrations` drives the environment with them (v1: with `PickExpert`), as a
+robot records a demonstration.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from cnep.runtime import STATE_KEY
-from cnep.sim.paths import Plan, through
+from cnep.sim.paths import Plan, rollout, through
 from cnep.sim.robot import TELEPORT, RobotSettings
 from cnep.sim.task import Demonstration, demonstration_seed, recorded
 from cnep.sim.tasks.pick_place import scene as P
@@ -162,21 +162,30 @@ def _along(yaw_deg: float) -> np.ndarray:
     return np.array([-np.sin(np.radians(yaw_deg)), np.cos(np.radians(yaw_deg))])
 
 
-def demonstrations(n: int, seed: int) -> Iterator[Demonstration]:
-    """`n` demonstrations drawn with `seed`, each driving the environment from its own reset: the scene drawn decided or
-    free, the place chosen in it (its name the behaviour); clean when the bar ended on a valid place."""
+def demonstrations(n: int, seed: int, version: int = 0) -> Iterator[Demonstration]:
+    """`n` demonstrations drawn with `seed`, each driving the environment of `version` from its own reset: the scene
+    drawn decided or free, the place chosen in it (its name the behaviour); clean when the bar ended on a valid place.
+    v0 follows its path (pick_path, one pace) to the end; v1 is the scripted demonstrator in closed loop (pick_expert:
+    each phase's pace drawn apart, within the arm's limits) until the episode ends, the states and frames as the robot
+    sensed them."""
     rng = np.random.default_rng(seed)
-    env = PickPlaceEnv()
+    env = PickPlaceEnv(version=version)
     try:
         for i in range(n):
             observation, info = env.reset(seed=demonstration_seed(seed, i))
-            scene = env.scene
-            draw = draw_pick(rng, scene["orientation"], scene["taken"])
             steps = [observation]
-            for action in pick_path(draw, observation[STATE_KEY][:3], scene["object_xy"], scene["object_yaw"]):
-                observation, _, _, _, info = env.step(action.astype(np.float32))
-                steps.append(observation)
-            yield recorded(steps, env.image_key, P.PLACES[draw.place][0], bool(info["is_success"]))
+            if version:
+                expert = pick_expert(env, info, rng)
+                info, _ = rollout(env, expert.action, info, steps)
+                place = expert.draw.place
+            else:
+                scene = env.scene
+                draw = draw_pick(rng, scene["orientation"], scene["taken"])
+                for action in pick_path(draw, observation[STATE_KEY][:3], scene["object_xy"], scene["object_yaw"]):
+                    observation, _, _, _, info = env.step(action.astype(np.float32))
+                    steps.append(observation)
+                place = draw.place
+            yield recorded(steps, env.image_key, P.PLACES[place][0], bool(info["is_success"]))
     finally:
         env.close()
 

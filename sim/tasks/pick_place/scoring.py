@@ -3,15 +3,17 @@
 and what the summary says of the demonstrations (`describe_demonstrations`).
 
 A row: the episode's seed, success, collision, lifted, dropped, the place the bar ended on and the valid ones, the
-change's step and the switch's (the changed condition), the expert switches, the steps and the policy / render /
-physics time per step (p50, p99, ms). The rates over `episodes`: success (the bar at rest on a valid place),
-collision (with a cup), lifted, dropped, the places used (episode counts by place), the share of episodes with an
-expert switch (in decided and free scenes, where nothing changes: the switching without a change); in the changed
-condition the switch latency (steps from the change to the first switch after it, p50 over the episodes that
-switched) and the share that switched within SWITCH_WITHIN steps (of the changed episodes). Each share has its
-Wilson 95% interval under `NAME_ci` (sim.scoring.shares). `entropy`: the behaviour entropy of the place
-(sim.statistics.behaviour_entropy) over the successful episodes whose scene left two valid places (free scenes,
-a context per grasp); None where the scene left one (decided, changed).
+change's step (the changed condition, once the table changed), the first switch of the active expert, the first at
+or after the change and the first after it to the expert of a valid place (`valid_switch_step`), the expert
+switches, the steps and the policy / render / physics time per step (p50, p99, ms). The rates over `episodes`:
+success (the bar at rest on a valid place), collision (with a cup), lifted, dropped, the places used (episode
+counts by place), the share of episodes with an expert switch (`switching`), and sim.scoring.change_rates': the
+share that switched while nothing had changed (`switched_unchanged`: in decided and free scenes every switch; in
+changed scenes a switch before the policy could see the change), the share of the changed episodes that switched to
+a valid place's expert within SWITCH_WITHIN steps of the change (`switched_within`) and the median latency of such
+switches. Each share has its Wilson 95% interval under `NAME_ci` (sim.scoring.shares). `entropy`: the behaviour
+entropy of the place (sim.statistics.behaviour_entropy) over the successful episodes whose scene left two valid
+places (free scenes, a context per grasp); None where the scene left one (decided, changed).
 """
 
 from __future__ import annotations
@@ -21,13 +23,23 @@ from dataclasses import dataclass
 import numpy as np
 
 from cnep.sim.episode import EpisodeResult
-from cnep.sim.scoring import PERCENT_CI_WIDTH, Column, decimals, percent, percent_ci, pooled_ms, shares, timings_ms
+from cnep.sim.scoring import (
+    CHANGE_COLUMNS,
+    PERCENT_CI_WIDTH,
+    Column,
+    change_rates,
+    decimals,
+    first_switch,
+    percent,
+    percent_ci,
+    pooled_ms,
+    shares,
+    timings_ms,
+)
 from cnep.sim.statistics import behaviour_entropy
 from cnep.sim.tasks.pick_place import scene as P
 from cnep.sim.tasks.pick_place.layout import PickLayout
 from cnep.sim.tasks.pick_place.switching import counted_switch
-
-SWITCH_WITHIN = 5  # steps: a switch this soon after the change counts as prompt
 
 
 @dataclass(kw_only=True)
@@ -70,13 +82,13 @@ def judge(infos: list[dict], layout: PickLayout = P.BAR, **recorded) -> PickEpis
         taken_start=list(infos[0]["taken"]),
         taken_end=list(info["taken"]),
         change_step=change,
-        switch_step=first_switch(recorded["experts"], change),
+        switch_step=switch_after(recorded["experts"], change),
         valid_after_change=None if after is None else [names[i] for i in after],
         valid_switch_step=counted_switch(recorded["experts"], recorded["predicted"], change, after, layout),
     )
 
 
-def first_switch(experts: np.ndarray, change: int | None) -> int | None:
+def switch_after(experts: np.ndarray, change: int | None) -> int | None:
     """The first step at or after `change` whose active expert (`experts` (n,), one per step) differs from the
     step before's; None without a change or a switch. The table changes before the step `change` acts, so the
     policy first sees the change in its read at step `change + 1`."""
@@ -97,7 +109,9 @@ def pick_row(ep: PickEpisode) -> dict:
         "place": ep.place,
         "valid": ep.valid,
         "change_step": ep.change_step,
+        "first_switch_step": first_switch(ep.experts),
         "switch_step": ep.switch_step,
+        "valid_switch_step": ep.valid_switch_step,
         "switches": ep.switches,
         "steps": ep.steps,
         "ms": timings_ms(ep),
@@ -110,8 +124,6 @@ def pick_rates(rows: list[dict]) -> dict:
     for r in rows:
         if r["place"] is not None:
             places[r["place"]] = places.get(r["place"], 0) + 1
-    changed = [r for r in rows if r["change_step"] is not None]
-    latencies = [latency(r) for r in changed if r["switch_step"] is not None]
     return {
         "episodes": len(rows),
         **shares(
@@ -123,26 +135,18 @@ def pick_rates(rows: list[dict]) -> dict:
         ),
         "places": dict(sorted(places.items())),
         **shares(rows, switching=lambda r: r["switches"] > 0),
-        "switch_latency_p50": float(np.median(latencies)) if latencies else None,
-        **shares(changed, switched_within=lambda r: r["switch_step"] is not None and latency(r) <= SWITCH_WITHIN),
+        **change_rates(rows, change="change_step", switch="valid_switch_step"),
         "entropy": behaviour_entropy((tuple(r["valid"]), r["place"]) for r in rows if r["success"]),
         "ms": pooled_ms(rows),
         "per_episode": rows,
     }
 
 
-def latency(row: dict) -> int:
-    """Steps from a changed episode's change to its first switch after it (the row has both)."""
-    return row["switch_step"] - row["change_step"]
-
-
 COLUMNS = (
     Column("success", PERCENT_CI_WIDTH, percent_ci("success")),
     Column("collision", 9, percent("collision")),
     Column("lifted", 7, percent("lifted")),
-    Column("switching", PERCENT_CI_WIDTH, percent_ci("switching")),
-    Column(f"switch<={SWITCH_WITHIN}", PERCENT_CI_WIDTH, percent_ci("switched_within")),
-    Column("latency", 7, lambda r: "-" if r["switch_latency_p50"] is None else f"{r['switch_latency_p50']:.0f}"),
+    *CHANGE_COLUMNS,
     Column("entropy", 7, decimals("entropy")),
     Column("places", 0, lambda r: " ".join(f"{k}:{v}" for k, v in r["places"].items())),
 )
