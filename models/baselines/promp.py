@@ -7,6 +7,9 @@ import numpy as np
 from cnep.models.baselines.base import check_demos, grid, require, resample
 
 EM_ITERATIONS = 1000  # the library's default: the EM of `imitate` stops earlier when the weights settle
+# Variance (in the data's units) added to every observation's: exact observations at neighbouring steps, each a
+# via-point of the conditional before, leave a covariance too small to invert.
+CONDITION_FLOOR = 1e-6
 
 
 class ProMP:
@@ -25,10 +28,16 @@ class ProMP:
         self.promp.imitate(np.tile(grid(T), (N, 1)), demos, n_iter=self.iterations)
         return self
 
-    def generate(self, obs_t: np.ndarray, obs_y: np.ndarray, query_t: np.ndarray) -> np.ndarray:
+    def generate(
+        self, obs_t: np.ndarray, obs_y: np.ndarray, query_t: np.ndarray, noise: np.ndarray | None = None
+    ) -> np.ndarray:
+        """The mean trajectory conditioned on each observation in turn, with the observations' variance `noise` (dy,)
+        (None: 0) plus CONDITION_FLOOR."""
         obs_y = np.asarray(obs_y, dtype=np.float64).reshape(len(obs_t), -1)  # (n, dy)
+        variance = np.zeros(obs_y.shape[1]) if noise is None else np.asarray(noise, dtype=np.float64)
+        cov = np.diag(variance + CONDITION_FLOOR)  # (dy, dy)
         conditioned = self.promp
-        for t, y in zip(obs_t, obs_y):  # exact via-points: zero observation covariance
-            conditioned = conditioned.condition_position(y, t=float(t), t_max=1.0)
+        for t, y in zip(obs_t, obs_y):
+            conditioned = conditioned.condition_position(y, y_cov=cov, t=float(t), t_max=1.0)
         mean = conditioned.mean_trajectory(grid(self.T))  # (T, dy)
         return resample(mean, np.asarray(query_t, dtype=np.float64))
