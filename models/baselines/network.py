@@ -102,3 +102,27 @@ class BaselineNetwork:
         path = self.method.generate(t, rows, query[:, 0].astype(np.float64), noise=self.noise)
         mean = np.nan_to_num(path[:, self.predicted])[None].astype(np.float32)
         return np.ones(1, np.float32), mean, np.full_like(mean, 1e-3)
+
+
+class ReducedNetwork:
+    """A network trained on reduced rows (a CNEP on the principal components the baselines see) as a `Network` of the
+    full rows: its encoder reads an observation reduced by `reduction` and normalised by its own statistics (`inner`,
+    a runtime.conditioning.Columns of a reduced row), and its predictions of the reduced row's `predicted` columns
+    come back in the full row's normalised units (a reduced row keeps the full row's normalised values outside the
+    features)."""
+
+    def __init__(self, network, reduction: Reduction, inner, predicted: np.ndarray) -> None:
+        self.network, self.reduction = network, reduction
+        self._loc, self._scale = inner.loc.astype(np.float64), inner.scale.astype(np.float64)  # (k + rest,)
+        self._out_loc, self._out_scale = inner.loc[predicted], inner.scale[predicted]  # (dy,)
+
+    def encode(self, obs: np.ndarray) -> np.ndarray:
+        """[t, observed columns] (N, 1 + obs_dim) -> the network's encodings of [t, reduced row normalised] (N, H)."""
+        reduced = (self.reduction(obs[:, 1:].astype(np.float64)) - self._loc) / self._scale  # (N, k + rest)
+        return self.network.encode(np.concatenate([obs[:, :1], reduced], axis=1).astype(np.float32))
+
+    def decode(self, r: np.ndarray, query: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The network's gate (d,), mean and std (d, M, dy), in the full row's normalised units."""
+        gate, mean, std = self.network.decode(r, query)
+        mean = (mean * self._out_scale + self._out_loc).astype(np.float32)
+        return gate, mean, (std * self._out_scale).astype(np.float32)

@@ -44,7 +44,7 @@ from cnep.pipeline.export.stage import export
 from cnep.pipeline.extract.stage import ExtractConfig, extract
 from cnep.pipeline.folders import assembled_folder
 from cnep.pipeline.progress import REPORT_INTERVAL_S, RemoteBar, StageClock, follow_total, progress_bar
-from cnep.pipeline.sim.baselines import baseline_jobs, baseline_policy, environment_pose_noise
+from cnep.pipeline.sim.baselines import CHECKPOINTS, baseline_jobs, baseline_policy, environment_pose_noise
 from cnep.pipeline.sim.config import PickPlaceConfig, SimConfig, trained_conditioning
 from cnep.pipeline.sim.extras import require_extras
 from cnep.pipeline.sim.figure import FIGURE_FILE
@@ -161,7 +161,7 @@ def train_models(config: SimConfig | PickPlaceConfig, out: Path, started: float)
                            nll_beta=config.nll_beta)  # fmt: skip
         for name, network in networks.items():
             label = f"{name}-seed{seed}"
-            checkpoints[label] = out / "checkpoints" / f"{name.lower()}-seed{seed}"
+            checkpoints[label] = out / CHECKPOINTS / f"{name.lower()}-seed{seed}"
             jobs[label] = TrainStageConfig(
                 inputs=(out / "trajectories",), out=checkpoints[label], layout=LAYOUT, training=training,
                 conditioning=trained_conditioning(config), quiet=True, **network,

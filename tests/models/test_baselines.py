@@ -7,7 +7,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from cnep.models.baselines import GMMGMR, BaselineNetwork, NearestDemo, ProMP, Reduction, base
+from cnep.models.baselines import GMMGMR, BaselineNetwork, NearestDemo, ProMP, ReducedNetwork, Reduction, base
 from cnep.models.errors import ConfigError
 from cnep.models.evaluation import paper_queries
 from cnep.models.synthetic import make_set
@@ -180,3 +180,31 @@ def test_promp_and_gmm_condition_with_the_observation_noise():
         noisy = method.generate(t[[20]], demos[0, [20]], t[[30]], noise=np.array([1e6]))[0, 0]
         assert abs(exact - demos[0, 30, 0]) < 0.05
         assert abs(noisy - demos[:, 30, 0].mean()) < 0.05
+
+
+class Echo:
+    """A network whose encoding is its input and whose every expert predicts `mean` (normalised)."""
+
+    def __init__(self, mean: np.ndarray) -> None:
+        self.mean = mean
+
+    def encode(self, obs):
+        return obs
+
+    def decode(self, r, query):
+        mean = np.broadcast_to(self.mean, (2, len(query), len(self.mean))).astype(np.float32)
+        return np.array([0.5, 0.5], np.float32), mean, np.ones_like(mean)
+
+
+def test_the_cnep_on_the_principal_components_reads_reduced_rows_and_predicts_in_the_full_rows_units():
+    rng = np.random.default_rng(0)
+    reduce = reduction(rng)  # an observed row of 5 -> 2 components + 2 other columns
+    inner = Columns(((0, 4),), (), ((2, 4),), rng.normal(size=4), rng.uniform(0.5, 2, 4))  # the reduced rows' stats
+    predicted = np.array([2, 3])
+    network = ReducedNetwork(Echo(np.array([0.5, -1.0])), reduce, inner, predicted)
+    obs = np.concatenate([[[0.3]], rng.normal(size=(1, 5))], axis=1).astype(np.float32)  # [t, observed row]
+    expected = (reduce(obs[:, 1:].astype(np.float64)) - inner.loc) / inner.scale
+    np.testing.assert_allclose(network.encode(obs), np.concatenate([obs[:, :1], expected], axis=1), rtol=1e-5)
+    _, mean, std = network.decode(network.encode(obs), np.zeros((3, 1), np.float32))
+    np.testing.assert_allclose(mean[0, 0], np.array([0.5, -1.0]) * inner.scale[2:] + inner.loc[2:], rtol=1e-6)
+    np.testing.assert_allclose(std[1, 2], inner.scale[2:], rtol=1e-6)

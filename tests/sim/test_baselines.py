@@ -1,6 +1,7 @@
 """The baselines in the closed loop as `cnep sim` fits them: ProMP's basis functions follow the motion's length, every
-baseline runs beside every training seed's CNEP, and the environment's pose noise reaches their conditioning in the
-CNEP's normalised units (tests/models/test_baselines.py: the conditioning set and the gripper command)."""
+baseline (and the CNEP on their inputs) runs beside every training seed's CNEP, and the environment's pose noise
+reaches their conditioning in the CNEP's normalised units (tests/models/test_baselines.py: the conditioning set and
+the gripper command)."""
 
 import math
 
@@ -8,6 +9,8 @@ import numpy as np
 
 from cnep.pipeline.sim.baselines import (
     BASELINES,
+    COMPARED,
+    PCA_CNEP,
     PROMP_STEPS_PER_BASIS,
     baseline_jobs,
     motion_steps,
@@ -31,11 +34,12 @@ def test_promp_has_a_basis_function_per_step_of_the_motion_and_at_least_30_in_ev
     assert motion_steps(TimeBase(6.4, 0.1)) == 65  # a median demonstration of 6.4 s at 10 Hz: 65 steps
 
 
-def test_every_baseline_runs_beside_every_training_seeds_cnep():
+def test_every_baseline_and_the_cnep_on_their_inputs_run_beside_every_training_seeds_cnep():
     policies = {f"{model}-seed{seed}": f"{model.lower()}-{seed}" for model in ("CNEP", "CNMP") for seed in (0, 3)}
     jobs = baseline_jobs((0, 3), policies)
-    assert set(jobs) == {f"{name}-seed{seed}" for name in BASELINES for seed in (0, 3)}
-    for name in BASELINES:
+    assert set(COMPARED) == {*BASELINES, PCA_CNEP}
+    assert set(jobs) == {f"{name}-seed{seed}" for name in COMPARED for seed in (0, 3)}
+    for name in COMPARED:
         assert jobs[f"{name}-seed3"] == ("cnep-3", (name, 3))
     assert BASELINES["GMM-GMR"](40, 3)[0].seed == 3  # a method that draws, draws with the training seed
 
