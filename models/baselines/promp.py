@@ -31,13 +31,17 @@ class ProMP:
     def generate(
         self, obs_t: np.ndarray, obs_y: np.ndarray, query_t: np.ndarray, noise: np.ndarray | None = None
     ) -> np.ndarray:
-        """The mean trajectory conditioned on each observation in turn, with the observations' variance `noise` (dy,)
-        (None: 0) plus CONDITION_FLOOR."""
+        """The mean trajectory conditioned on the observations, each with the variance `noise` (dy,) (None: 0) plus
+        CONDITION_FLOOR: the weights' Gaussian conditioned on all of them at once (the library's `condition_position`
+        on each in turn gives the same mean, but updates the whole weight covariance per observation)."""
         obs_y = np.asarray(obs_y, dtype=np.float64).reshape(len(obs_t), -1)  # (n, dy)
-        variance = np.zeros(obs_y.shape[1]) if noise is None else np.asarray(noise, dtype=np.float64)
-        cov = np.diag(variance + CONDITION_FLOOR)  # (dy, dy)
-        conditioned = self.promp
-        for t, y in zip(obs_t, obs_y):
-            conditioned = conditioned.condition_position(y, y_cov=cov, t=float(t), t_max=1.0)
-        mean = conditioned.mean_trajectory(grid(self.T))  # (T, dy)
-        return resample(mean, np.asarray(query_t, dtype=np.float64))
+        n, dy = obs_y.shape
+        variance = np.zeros(dy) if noise is None else np.asarray(noise, dtype=np.float64)
+        basis = np.stack([self.promp._rbfs_1d_point(float(t), 1.0) for t in obs_t])  # (n, W)
+        psi = np.kron(np.eye(dy), basis.T)  # (dy*W, dy*n): the weights (dimension-major) -> the observations
+        cov, mean = self.promp.weight_cov, self.promp.weight_mean  # (dy*W, dy*W), (dy*W,)
+        gram = psi.T @ cov @ psi + np.kron(np.diag(variance + CONDITION_FLOOR), np.eye(n))  # (dy*n, dy*n)
+        residual = obs_y.T.reshape(-1) - psi.T @ mean  # (dy*n,): dimension-major, as psi's columns
+        weights = mean + cov @ psi @ np.linalg.solve(gram, residual)  # (dy*W,)
+        path = self.promp.trajectory_from_weights(grid(self.T), weights)  # (T, dy)
+        return resample(path, np.asarray(query_t, dtype=np.float64))

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from cnep.models.baselines import GMMGMR, BaselineNetwork, NearestDemo, ProMP, ReducedNetwork, Reduction, base
+from cnep.models.baselines.promp import CONDITION_FLOOR
 from cnep.models.errors import ConfigError
 from cnep.models.evaluation import paper_queries
 from cnep.models.synthetic import make_set
@@ -208,3 +209,15 @@ def test_the_cnep_on_the_principal_components_reads_reduced_rows_and_predicts_in
     _, mean, std = network.decode(network.encode(obs), np.zeros((3, 1), np.float32))
     np.testing.assert_allclose(mean[0, 0], np.array([0.5, -1.0]) * inner.scale[2:] + inner.loc[2:], rtol=1e-6)
     np.testing.assert_allclose(std[1, 2], inner.scale[2:], rtol=1e-6)
+
+
+def test_promp_conditions_on_all_observations_at_once_as_the_library_does_one_by_one():
+    demos, _ = two_modes()
+    method = ProMP(n_weights=8).fit(demos)
+    obs_t, obs_y, noise = np.array([0.2, 0.25, 0.3]), demos[3, [8, 10, 12]], np.array([0.01])
+    step_by_step = method.promp
+    for t, y in zip(obs_t, obs_y):
+        step_by_step = step_by_step.condition_position(y, y_cov=np.diag(noise + CONDITION_FLOOR), t=t, t_max=1.0)
+    t = np.linspace(0, 1, 40)
+    expected = base.resample(step_by_step.mean_trajectory(base.grid(40)), t)
+    np.testing.assert_allclose(method.generate(obs_t, obs_y, t, noise=noise), expected, atol=1e-8)
