@@ -8,7 +8,8 @@
   paper's protocol it scores almost 0).
 
 `BaselineNetwork` runs a fitted method as the runtime's `Network`, inside a `runtime.Policy` (a closed loop's
-policy), on the rows a `Reduction` makes.
+policy), on the rows a `Reduction` makes; `ReducedNetwork` runs a network trained on those rows (a CNEP on the
+same inputs) as one of the full rows.
 
 Demonstrations are `(N, T, dy)` arrays sampled at times `k / (T - 1)`; `generate` returns `(m, dy)` at
 the query times (linear interpolation between the demonstration's steps). ProMP and GMM-GMR need the
@@ -18,7 +19,7 @@ optional extra: `pip install .[baselines]`; their libraries are imported only wh
 from cnep.models.baselines.base import Method
 from cnep.models.baselines.gmm import GMMGMR
 from cnep.models.baselines.nearest import NearestDemo
-from cnep.models.baselines.network import BaselineNetwork, Reduction
+from cnep.models.baselines.network import BaselineNetwork, ReducedNetwork, Reduction
 from cnep.models.baselines.promp import ProMP
 
-__all__ = ["GMMGMR", "BaselineNetwork", "Method", "NearestDemo", "ProMP", "Reduction"]
+__all__ = ["GMMGMR", "BaselineNetwork", "Method", "NearestDemo", "ProMP", "ReducedNetwork", "Reduction"]

@@ -20,8 +20,11 @@ class Method(Protocol):
         """demos: (N, T, dy), step k at time k / (T - 1)."""
         ...
 
-    def generate(self, obs_t: np.ndarray, obs_y: np.ndarray, query_t: np.ndarray) -> np.ndarray:
-        """obs_t (n,) in [0, 1], obs_y (n, dy), query_t (m,) -> (m, dy)."""
+    def generate(
+        self, obs_t: np.ndarray, obs_y: np.ndarray, query_t: np.ndarray, noise: np.ndarray | None = None
+    ) -> np.ndarray:
+        """obs_t (n,) in [0, 1], obs_y (n, dy), query_t (m,) -> (m, dy); noise (dy,): the observations' variance per
+        column (None: exact observations; a method without a noise model ignores it)."""
         ...
 
 

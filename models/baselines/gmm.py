@@ -48,14 +48,17 @@ class GMMGMR:
                 break
         return self
 
-    def generate(self, obs_t: np.ndarray, obs_y: np.ndarray, query_t: np.ndarray) -> np.ndarray:
-        """Conditions on the demonstration steps nearest to `obs_t`; the GMR mean is returned."""
+    def generate(
+        self, obs_t: np.ndarray, obs_y: np.ndarray, query_t: np.ndarray, noise: np.ndarray | None = None
+    ) -> np.ndarray:
+        """Conditions on the demonstration steps nearest to `obs_t`, each observed with the variance `noise` (dy,)
+        added to the components' (None: exactly); the GMR mean is returned."""
         obs_y = np.asarray(obs_y, dtype=np.float64).reshape(len(obs_t), self.dy)
         steps = np.rint(np.asarray(obs_t) * (self.T - 1)).astype(int)  # (n,)
         steps, first = np.unique(steps, return_index=True)  # a step observed twice is conditioned once
         indices = (steps[:, None] * self.dy + np.arange(self.dy)).ravel()  # (n*dy,)
         known = obs_y[first].ravel()  # (n*dy,)
-        conditional = self.gmm.condition(indices, known)  # a GMM over the unobserved steps
+        conditional = self._observed_with(noise).condition(indices, known)  # over the unobserved steps
         if conditional.priors[self.gmm.priors < EMPTY].sum() > EMPTY_WEIGHT:
             return np.full((len(query_t), self.dy), np.nan)  # the conditional picked empty components
         rest = conditional.priors @ conditional.means  # (T*dy - n*dy,): the GMR mean
@@ -63,3 +66,15 @@ class GMMGMR:
         full[indices] = known
         full[np.setdiff1d(np.arange(self.T * self.dy), indices)] = rest
         return resample(full.reshape(self.T, self.dy), np.asarray(query_t, dtype=np.float64))
+
+    def _observed_with(self, noise: np.ndarray | None):
+        """The fitted GMM, or where `noise` (dy,) is given a copy whose components' covariances add that variance to
+        every step's columns: the observed steps' is their observation noise (the conditional's mean and weights read
+        no other)."""
+        if noise is None:
+            return self.gmm
+        gmr = require("gmr", "gmr")
+        covariances = self.gmm.covariances.copy()  # (K, T*dy, T*dy)
+        at = np.arange(self.T * self.dy)
+        covariances[:, at, at] += np.tile(np.asarray(noise, dtype=np.float64), self.T)  # a step's columns alike
+        return gmr.GMM(self.gmm.n_components, self.gmm.priors, self.gmm.means, covariances)

@@ -22,5 +22,8 @@ class NearestDemo:
         dist = ((at_obs - np.asarray(obs_y, dtype=np.float64).reshape(len(obs_t), dy).T) ** 2).sum((1, 2))  # (N,)
         return int(dist.argmin())
 
-    def generate(self, obs_t: np.ndarray, obs_y: np.ndarray, query_t: np.ndarray) -> np.ndarray:
+    def generate(
+        self, obs_t: np.ndarray, obs_y: np.ndarray, query_t: np.ndarray, noise: np.ndarray | None = None
+    ) -> np.ndarray:
+        """The nearest demonstration at `query_t` (noise: unused, every column's distance counts alike)."""
         return resample(self.demos[self.nearest(obs_t, obs_y)], np.asarray(query_t, dtype=np.float64))

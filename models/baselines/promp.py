@@ -7,6 +7,9 @@ import numpy as np
 from cnep.models.baselines.base import check_demos, grid, require, resample
 
 EM_ITERATIONS = 1000  # the library's default: the EM of `imitate` stops earlier when the weights settle
+# Variance (in the data's units) added to every observation's: exact observations at neighbouring steps, each a
+# via-point of the conditional before, leave a covariance too small to invert.
+CONDITION_FLOOR = 1e-6
 
 
 class ProMP:
@@ -25,10 +28,20 @@ class ProMP:
         self.promp.imitate(np.tile(grid(T), (N, 1)), demos, n_iter=self.iterations)
         return self
 
-    def generate(self, obs_t: np.ndarray, obs_y: np.ndarray, query_t: np.ndarray) -> np.ndarray:
+    def generate(
+        self, obs_t: np.ndarray, obs_y: np.ndarray, query_t: np.ndarray, noise: np.ndarray | None = None
+    ) -> np.ndarray:
+        """The mean trajectory conditioned on the observations, each with the variance `noise` (dy,) (None: 0) plus
+        CONDITION_FLOOR: the weights' Gaussian conditioned on all of them at once (the library's `condition_position`
+        on each in turn gives the same mean, but updates the whole weight covariance per observation)."""
         obs_y = np.asarray(obs_y, dtype=np.float64).reshape(len(obs_t), -1)  # (n, dy)
-        conditioned = self.promp
-        for t, y in zip(obs_t, obs_y):  # exact via-points: zero observation covariance
-            conditioned = conditioned.condition_position(y, t=float(t), t_max=1.0)
-        mean = conditioned.mean_trajectory(grid(self.T))  # (T, dy)
-        return resample(mean, np.asarray(query_t, dtype=np.float64))
+        n, dy = obs_y.shape
+        variance = np.zeros(dy) if noise is None else np.asarray(noise, dtype=np.float64)
+        basis = np.stack([self.promp._rbfs_1d_point(float(t), 1.0) for t in obs_t])  # (n, W)
+        psi = np.kron(np.eye(dy), basis.T)  # (dy*W, dy*n): the weights (dimension-major) -> the observations
+        cov, mean = self.promp.weight_cov, self.promp.weight_mean  # (dy*W, dy*W), (dy*W,)
+        gram = psi.T @ cov @ psi + np.kron(np.diag(variance + CONDITION_FLOOR), np.eye(n))  # (dy*n, dy*n)
+        residual = obs_y.T.reshape(-1) - psi.T @ mean  # (dy*n,): dimension-major, as psi's columns
+        weights = mean + cov @ psi @ np.linalg.solve(gram, residual)  # (dy*W,)
+        path = self.promp.trajectory_from_weights(grid(self.T), weights)  # (T, dy)
+        return resample(path, np.asarray(query_t, dtype=np.float64))

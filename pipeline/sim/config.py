@@ -54,6 +54,14 @@ ENV_VERSION_HELP = (
 
 
 TRAIN_STEPS_HELP = "training steps of each model, as `cnep train --steps` takes them"
+BASELINES_HELP = (
+    "also run ProMP, GMM-GMR and nearest-demonstration retrieval per training seed, driven as the CNEP is, and a CNEP "
+    "trained on their inputs (CNEP-PCA) in the loop"
+)
+PCA_HELP = (
+    "principal components of the features the baselines and CNEP-PCA see beside the state (PCA fitted on the "
+    "training frames)"
+)
 MAX_STEPS_HELP = (
     "control steps an episode gets before it is truncated (the planned protocol's plan spans the task's episode "
     "whatever the limit, its last waypoint held after them)"
@@ -170,10 +178,8 @@ class SimConfig(LoopSettings):
     nll_beta: float = setting(0.0, "the training loss's beta-NLL power, as `cnep train --nll-beta` takes it")
     weights: str = setting(AUTO_WEIGHTS, "the feature network's weights, as `cnep demo --weights` takes them")
     offline: bool = setting(False, "never download the ImageNet weights (also: environment variable CNEP_OFFLINE=1)")
-    baselines: bool = setting(
-        False, "also run ProMP and GMM-GMR (on PCA-reduced features) and nearest-demonstration retrieval in the loop"
-    )
-    pca: int = setting(8, "principal components of the features the baselines see (PCA fitted on the training frames)")
+    baselines: bool = setting(False, BASELINES_HELP)
+    pca: int = setting(8, PCA_HELP)
     selection: SelectionSettings = field(default_factory=SelectionSettings)  # the kept checkpoint's choice
     quiet: bool = False
 
@@ -281,10 +287,8 @@ class PickPlaceConfig:
     episode_seed: int = setting(0, "seed of the first episode (episode i is reset with seed + i)")
     protocol: str = setting(BOTH, PROTOCOL_HELP, choices=(BOTH, *PROTOCOLS))
     record: int = setting(1, "episodes per policy, protocol and condition written as Rerun recordings (the first ones)")
-    baselines: bool = setting(
-        True, "also run ProMP and GMM-GMR (on PCA-reduced features) and nearest-demonstration retrieval in the loop"
-    )
-    pca: int = setting(8, "principal components of the features the baselines see (PCA fitted on the training frames)")
+    baselines: bool = setting(True, BASELINES_HELP)
+    pca: int = setting(8, PCA_HELP)
     selection: SelectionSettings = field(default_factory=SelectionSettings)  # the kept checkpoint's choice
     quiet: bool = False
 

@@ -39,7 +39,7 @@ from cnep.pipeline.evaluate.constants import LOCAL
 from cnep.pipeline.evaluate.executors import run_on_cluster
 from cnep.pipeline.folders import assembled_folder
 from cnep.pipeline.progress import REPORT_INTERVAL_S, follow_total, progress_bar
-from cnep.pipeline.sim.baselines import BASELINES
+from cnep.pipeline.sim.baselines import COMPARED
 from cnep.pipeline.sim.config import MODELS, PICK_PLACE, PickPlaceConfig, SimConfig
 from cnep.pipeline.sim.extras import require_extras
 from cnep.pipeline.sim.generate import generate_demonstrations, ingest_demonstrations
@@ -112,7 +112,7 @@ def check_grid_folder(out: Path, config: GridConfig) -> None:
 
 def models_of(config: GridConfig) -> tuple[str, ...]:
     """The models of each unit: the CNEP and the CNMP, and the baselines where asked for."""
-    return (*MODELS, *BASELINES) if config.baselines else MODELS
+    return (*MODELS, *COMPARED) if config.baselines else MODELS
 
 
 def plan(config: GridConfig, out: Path) -> dict[str, Unit]:

@@ -109,6 +109,6 @@ def run_grid_unit(unit: Unit, reports=None) -> dict[str, dict]:
         if model in MODELS:
             path, baseline = policies[unit.label(model)], None
         else:
-            path, baseline = policies[unit.label("CNEP")], model
+            path, baseline = policies[unit.label("CNEP")], (model, unit.seed)
         results[model] = evaluate_one(unit.config, unit.task, run, unit.label(model), path, baseline, bar, None)
     return results

@@ -51,7 +51,7 @@ from cnep.pipeline.export.stage import export
 from cnep.pipeline.extract.stage import ExtractConfig, extract
 from cnep.pipeline.folders import assembled_folder
 from cnep.pipeline.progress import REPORT_INTERVAL_S, RemoteBar, StageClock, follow_total, progress_bar
-from cnep.pipeline.sim.baselines import BASELINES, baseline_policy
+from cnep.pipeline.sim.baselines import CHECKPOINTS, baseline_jobs, baseline_policy, environment_pose_noise
 from cnep.pipeline.sim.config import PickPlaceConfig, SimConfig, demonstrations_task, trained_conditioning
 from cnep.pipeline.sim.extras import require_extras
 from cnep.pipeline.sim.figure import FIGURE_FILE
@@ -184,7 +184,7 @@ def training_jobs(config: SimConfig | PickPlaceConfig, out: Path) -> dict[str, T
         training = TrainConfig(steps=config.train_steps, seed=seed, nll_beta=config.nll_beta)  # the schedule's rest
         for name, network in networks.items():
             jobs[f"{name}-seed{seed}"] = TrainStageConfig(
-                inputs=(out / "trajectories",), out=out / "checkpoints" / f"{name.lower()}-seed{seed}", layout=LAYOUT,
+                inputs=(out / "trajectories",), out=out / CHECKPOINTS / f"{name.lower()}-seed{seed}", layout=LAYOUT,
                 training=training, conditioning=trained_conditioning(config),
                 candidates=config.selection.candidates, quiet=True, **network,
             )  # fmt: skip
@@ -203,15 +203,14 @@ def export_policies(checkpoints: dict[str, Path], out: Path) -> dict[str, Path]:
 def _closed_loop(
     config: SimConfig | PickPlaceConfig, task: Task, out: Path, policies: dict[str, Path]
 ) -> dict[str, dict]:
-    """Stage 6: every policy (and the baselines, fitted with the first training seed's CNEP's normaliser and feature
-    graph: they carry that seed in their label) in closed loop, WORKERS at a time in single-threaded processes, one
-    bar counting their episodes; its first episodes recorded under OUT/episodes, the first policy's drawn into
-    OUT/episode.png; label -> results."""
+    """Stage 6: every policy (and the baselines, per training seed fitted with that seed's CNEP's normaliser, feature
+    graph and conditioning) in closed loop, WORKERS at a time in single-threaded processes, one bar counting their
+    episodes; its first episodes recorded under OUT/episodes, the first policy's drawn into OUT/episode.png; label ->
+    results."""
     (out / "episodes").mkdir()
     jobs = {label: (path, None) for label, path in policies.items()}
     if config.baselines:
-        first = config.train_seeds[0]
-        jobs.update({f"{name}-seed{first}": (policies[f"CNEP-seed{first}"], name) for name in BASELINES})
+        jobs.update(baseline_jobs(config.train_seeds, policies))
     figure = {next(iter(policies)): out / FIGURE_FILE}
     results: dict[str, dict] = {}
     total = episodes_of(task, config) * len(jobs)
@@ -240,19 +239,20 @@ def evaluate_one(
     out: Path,
     label: str,
     path: Path,
-    baseline: str | None,
+    baseline: tuple[str, int] | None,
     bar: RemoteBar,
     figure: Path | None,
 ) -> dict:
-    """One policy's closed loop (in a worker): the exported policy `path`, or the baseline `baseline` fitted beside
-    the exported CNEP `path`, its waypoints covering the task's episode (a plan for PLANNED, which `max_steps` cuts
-    short or holds at its end; ONLINE acts on the first)."""
+    """One policy's closed loop (in a worker): the exported policy `path`, or the baseline `baseline` (its name and
+    training seed) fitted beside the exported CNEP `path`, its waypoints covering the task's episode (a plan for
+    PLANNED, which `max_steps` cuts short or holds at its end; ONLINE acts on the first)."""
     task = find_task(task_name, config.env_version)
     if baseline is None:
         policy = open_task_policy(path, task)  # the conditioning it was trained with
     else:
-        trajectories = sorted((out / "trajectories").glob("*.mcap"))
-        policy = baseline_policy(baseline, path, trajectories, config.pca, waypoints=task.max_steps)
+        (name, seed), trajectories = baseline, sorted((out / "trajectories").glob("*.mcap"))
+        noise = environment_pose_noise(task, config)
+        policy = baseline_policy(name, path, trajectories, config.pca, task.max_steps, seed, noise)
     results = evaluate_policy(
         policy, task, config, label=label, recordings=out / "episodes", figure=figure, progress=bar.update
     )

@@ -18,7 +18,7 @@ if not all(importlib.util.find_spec(name) for name in cnep.sim.EXTRA):
     pytest.skip("the sim extra is not installed", allow_module_level=True)
 
 from cnep.pipeline.cli.main import main  # noqa: E402
-from cnep.pipeline.sim.baselines import BASELINES  # noqa: E402
+from cnep.pipeline.sim.baselines import COMPARED  # noqa: E402
 from cnep.pipeline.sim.config import ENV_VERSIONS, PROTOCOLS, PickPlaceConfig  # noqa: E402
 from cnep.pipeline.sim.stage import SUMMARY_FILE, run_sim  # noqa: E402
 from cnep.pipeline.sim.validation import SelectionSettings  # noqa: E402
@@ -39,7 +39,7 @@ def episode_rows(results: dict) -> dict:
     }
 
 
-@pytest.mark.slow  # MobileNet-v2 features, two trainings, two exports, five policies in the loop
+@pytest.mark.slow  # MobileNet-v2 features, two trainings, two exports, six policies in the loop (one trained there)
 def test_cnep_sim_pick_place_writes_the_documented_summary(
     tmp_path, monkeypatch, few_calibration_frames, sim_pools_in_process
 ):
@@ -68,7 +68,7 @@ def test_cnep_sim_pick_place_writes_the_documented_summary(
     assert summary["seeds"]["reported"] == {"first": 0, "last": 0} and summary["selection"] == {}
     assert summary["env_version"] == summary["settings"]["env_version"] == ENV_VERSIONS[-1] == config.env_version
     assert read_demonstration(next((out / "demos").glob("*.mcap"))).episode.task == "pick-place-v1"
-    assert set(summary["models"]) == {"CNEP", "CNMP", *BASELINES}
+    assert set(summary["models"]) == {"CNEP", "CNMP", *COMPARED}
     for seeds in summary["models"].values():
         assert set(seeds) == {"0"} and list(seeds["0"]) == list(PROTOCOLS)
         for conditions in seeds["0"].values():
@@ -84,10 +84,11 @@ def test_cnep_sim_pick_place_writes_the_documented_summary(
     assert again["settings"]["task"] == "pick-place" and again["seeds"] == summary["seeds"]
     assert again["settings"]["task"] == "pick-place" and again["settings"]["env_version"] == config.env_version
     assert episode_rows(again["results"]) == episode_rows(summary["models"]["CNEP"]["0"])
-    assert len(list((out / "episodes").glob("*-planned-changed-seed0.rrd"))) == 5
-    assert len(list((out / "episodes").glob("*.rrd"))) == 5 * len(PROTOCOLS) * len(P.CONDITIONS)
+    policies = 2 + len(COMPARED)
+    assert len(list((out / "episodes").glob("*-planned-changed-seed0.rrd"))) == policies
+    assert len(list((out / "episodes").glob("*.rrd"))) == policies * len(PROTOCOLS) * len(P.CONDITIONS)
     rows = load("pick_place_table").main([str(out / SUMMARY_FILE), "--csv", str(tmp_path / "pick.csv")])
-    assert len(rows) == 5 * len(PROTOCOLS) * len(P.CONDITIONS) and rows[0]["model"] == "CNEP"
+    assert len(rows) == policies * len(PROTOCOLS) * len(P.CONDITIONS) and rows[0]["model"] == "CNEP"
     assert [r["protocol"] for r in rows[:4]] == [PROTOCOLS[0]] * 3 + [PROTOCOLS[1]]
     assert (tmp_path / "pick.csv").read_text().startswith("run,model,train_seed,protocol,condition,")
     probes = load("pick_place_probe").main([str(out), "--scenes", "9"])
