@@ -26,6 +26,7 @@ import numpy as np
 from cnep.models.baselines import GMMGMR, NearestDemo, ProMP
 from cnep.models.baselines.base import Method, resample
 from cnep.models.baselines.network import BaselineNetwork, ReducedNetwork, Reduction
+from cnep.models.baselines.promp import LEAST_SQUARES
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.run.config import CONFIG_FILE
 from cnep.pipeline.workers import process_pool
@@ -42,7 +43,6 @@ from cnep.runtime.timebase import TimeBase
 if TYPE_CHECKING:  # the simulator loads MuJoCo
     from cnep.sim.task import Task
 
-PROMP_ITERATIONS = 30  # ProMP's EM iterations (each inverts a weight covariance per demonstration)
 PROMP_STEPS_PER_BASIS = 1  # control steps of the motion per ProMP basis function: its fastest phases take 3-5 steps
 GMM_STEPS = 16  # GMM-GMR's Gaussians span a whole demonstration (steps x columns): more and their densities underflow
 GMM_COMPONENTS = 4
@@ -62,7 +62,7 @@ def promp_basis(steps: int) -> int:
 
 # name -> (motion's control steps, training seed) -> a new method and the steps its demonstrations are resampled to.
 BASELINES: dict[str, Callable[[int, int], tuple[Method, int]]] = {
-    "ProMP": lambda steps, seed: (ProMP(n_weights=promp_basis(steps), iterations=PROMP_ITERATIONS), steps),
+    "ProMP": lambda steps, seed: (ProMP(n_weights=promp_basis(steps), estimator=LEAST_SQUARES), steps),
     "GMM-GMR": lambda steps, seed: (GMMGMR(n_components=GMM_COMPONENTS, seed=seed), GMM_STEPS),
     "Nearest": lambda steps, seed: (NearestDemo(), steps),
 }

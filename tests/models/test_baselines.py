@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from cnep.models.baselines import GMMGMR, BaselineNetwork, NearestDemo, ProMP, ReducedNetwork, Reduction, base
-from cnep.models.baselines.promp import CONDITION_FLOOR
+from cnep.models.baselines.promp import CONDITION_FLOOR, LEAST_SQUARES
 from cnep.models.errors import ConfigError
 from cnep.models.evaluation import paper_queries
 from cnep.models.synthetic import make_set
@@ -37,10 +37,25 @@ def conditioned_error(method, demos, obs_steps) -> tuple[float, float]:
     return float(np.abs(out[obs_steps] - obs_y).max()), float(np.mean((out - demos[0]) ** 2))
 
 
-def test_promp_passes_through_the_conditioning_points():
+@pytest.mark.parametrize("estimator", ["em", LEAST_SQUARES])
+def test_promp_passes_through_the_conditioning_points(estimator):
     demos, _ = two_modes()
-    at_points, _ = conditioned_error(ProMP(n_weights=8).fit(demos), demos, [10, 39])
-    assert at_points < 0.05
+    at_points, mse = conditioned_error(ProMP(n_weights=8, estimator=estimator).fit(demos), demos, [10, 39])
+    assert at_points < 0.05 and mse < 0.01  # the end point tells the modes apart: the other mode is ~1 away
+
+
+def test_promp_by_least_squares_learns_the_weights_gaussian_the_em_learns():
+    demos, _ = two_modes()
+    em, least = ProMP(n_weights=8).fit(demos).promp, ProMP(n_weights=8, estimator=LEAST_SQUARES).fit(demos).promp
+    t = np.linspace(0, 1, demos.shape[1])
+    mean_em, mean_least = (p.trajectory_from_weights(t, p.weight_mean) for p in (em, least))
+    assert np.abs(mean_least - demos.mean(axis=0)).max() < 0.02  # the demonstrations' mean, through the basis
+    assert np.abs(mean_least - mean_em).max() < 0.02
+    basis = least._rbfs_nd_sequence(t)  # (W, T)
+    spread = np.sqrt(np.diag(basis.T @ least.weight_cov @ basis))  # (T,)
+    assert abs(spread[-1] - demos[:, -1, 0].std(ddof=1)) < 0.05  # the two modes' spread at the end: about 1
+    with pytest.raises(ValueError, match="estimator must be"):
+        ProMP(estimator="gradient")
 
 
 @pytest.mark.parametrize("ridge", [1e-3, 0.0])
