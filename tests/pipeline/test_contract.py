@@ -570,26 +570,14 @@ def test_train_fits_the_warm_up_into_few_steps_and_says_so(world, tmp_path, capl
 
     with caplog.at_level(logging.WARNING):
         assert main(["-q", "train", str(world.trajs), "--out", str(tmp_path / "ckpt"), *TINY_TRAINING]) == 0
-    assert "warming up over 2 steps instead" in caplog.text  # 4 steps: 4 * 2000 // 4000
-    assert json.loads((tmp_path / "ckpt" / "config.json").read_text())["training"]["warmup_steps"] == 2
+    training = json.loads((tmp_path / "ckpt" / "config.json").read_text())["training"]
+    assert training["warmup_steps"] == 2 and "warmup_steps" not in training["schedule"]["given"]  # half the 4 steps
+    assert "warm-up" not in caplog.text
     caplog.clear()
+    out = str(tmp_path / "ckpt2")
     with caplog.at_level(logging.WARNING):
-        assert (
-            main(
-                [
-                    "-q",
-                    "train",
-                    str(world.trajs),
-                    "--out",
-                    str(tmp_path / "ckpt2"),
-                    *TINY_TRAINING,
-                    "--warmup-steps",
-                    "9",
-                ]
-            )
-            == 0
-        )
-    assert "--warmup-steps 9 >= --steps 4" in caplog.text
+        assert main(["-q", "train", str(world.trajs), "--out", out, *TINY_TRAINING, "--warmup-steps", "9"]) == 0
+    assert "a warm-up of 9 steps in 4 steps: the learning rate never reaches its peak" in caplog.text
 
 
 def test_train_help_shows_the_actual_defaults():
@@ -603,4 +591,4 @@ def test_train_help_shows_the_actual_defaults():
     done = subprocess.run(
         [sys.executable, "-m", "cnep.pipeline", "train", "--help"], capture_output=True, text=True, cwd=ROOT, timeout=60
     )
-    assert "TrainConfig's default" not in done.stdout and "(default 4000)" in done.stdout
+    assert "TrainConfig's default" not in done.stdout and "(default the training schedule's" in done.stdout

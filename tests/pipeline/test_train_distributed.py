@@ -82,7 +82,9 @@ def test_two_process_torchrun_trains_a_loadable_checkpoint(tmp_path):
     alone = tmp_path / "alone"
     assert main(["-q", "train", str(tmp_path / "data"), "--out", str(alone), "--layout", "motion", *ARGS]) == 0
     single = read_checkpoint_config(alone)
-    assert {**single["training"], "world_size": 2, "batch_size_total": 16} == config["training"]
+    schedule = single["training"]["schedule"]  # its batch: the samples a step draws over every process
+    schedule = {**schedule, "inputs": {**schedule["inputs"], "batch_size": 16}}
+    assert {**single["training"], "world_size": 2, "batch_size_total": 16, "schedule": schedule} == config["training"]
     assert single["model"] == config["model"]
     two, one = load_file(out / "model.safetensors"), load_file(alone / "model.safetensors")
     assert any(not torch.equal(two[k], one[k]) for k in one)
