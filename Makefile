@@ -75,7 +75,8 @@ docs: $(VENV)/.installed-demo
 	$(BIN)/python -m cnep.pipeline.cli.reference docs/reference/cli.md
 	$(BIN)/python -m cnep.pipeline.sim.recipe docs/reference/training-recipe.md
 
-# `make bench` lists the benchmarks; `make bench BENCH=replay` runs one, `make bench BENCH=all` every one.
+# `make bench` lists the benchmarks; `make bench BENCH=replay` runs one, `make bench BENCH=all` every one but those
+# that take hours (run by name).
 bench: $(VENV)/.installed-test
 	$(BIN)/python -m benchmarks $(BENCH)
 

@@ -3,7 +3,8 @@
     python -m benchmarks                      # each benchmark's name and what it measures
     python -m benchmarks replay               # python -m benchmarks.bench_replay
     python -m benchmarks replay --steps 500   # the benchmark's own options follow its name (NAME --help)
-    python -m benchmarks all                  # every one with its defaults, one after another (some take minutes)
+    python -m benchmarks all                  # every one with its defaults, one after another (some take minutes),
+                                              # but those that take hours (a module's `IN_ALL = False`): by name only
 
 Each runs in its own process, as `python -m benchmarks.bench_NAME` would: the benchmarks set threads and
 start processes of their own.
@@ -30,6 +31,15 @@ def benchmarks() -> dict[str, str]:
     return found
 
 
+def in_all(name: str) -> bool:
+    """Whether `all` runs benchmark `name`: unless its module sets `IN_ALL = False` (read from the source)."""
+    tree = ast.parse((FOLDER / f"{PREFIX}{name}.py").read_text(encoding="utf-8"))
+    for node in tree.body:
+        if isinstance(node, ast.Assign) and any(getattr(t, "id", None) == "IN_ALL" for t in node.targets):
+            return bool(ast.literal_eval(node.value))
+    return True
+
+
 def run(name: str, options: list[str]) -> int:
     """Run benchmark `name` with `options` in a new process; returns its exit status."""
     command = [sys.executable, "-m", f"benchmarks.{PREFIX}{name}", *options]
@@ -53,7 +63,10 @@ def main(argv: list[str] | None = None) -> int:
         if options:
             print("python -m benchmarks all: takes no options (run one benchmark to give its options)", file=sys.stderr)
             return 2
-        failed = [each for each in known if run(each, [])]
+        skipped = [each for each in known if not in_all(each)]
+        if skipped:
+            print(f"== not in all (hours with their defaults; run each by name): {', '.join(skipped)}", flush=True)
+        failed = [each for each in known if each not in skipped and run(each, [])]
         if failed:
             print(f"failed: {', '.join(failed)}", file=sys.stderr)
         return 1 if failed else 0

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from benchmarks.__main__ import benchmarks, main
+from benchmarks.__main__ import benchmarks, in_all, main
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -18,6 +18,17 @@ def test_the_list_names_every_benchmark_with_its_first_docstring_line(capsys):
     assert sorted(benchmarks()) == files and all(benchmarks().values())
     for name, line in benchmarks().items():
         assert f"{name}" in listed and line in listed
+
+
+def test_all_leaves_out_the_benchmarks_that_take_hours_and_runs_the_rest(monkeypatch, capsys):
+    import benchmarks.__main__ as runner
+
+    ran = []
+    monkeypatch.setattr(runner, "run", lambda name, options: ran.append(name) or 0)
+    assert main(["all"]) == 0
+    assert not in_all("lerobot_policies") and in_all("replay")
+    assert "lerobot_policies" not in ran and sorted(ran) == sorted(n for n in benchmarks() if n != "lerobot_policies")
+    assert "not in all (hours with their defaults; run each by name): lerobot_policies" in capsys.readouterr().out
 
 
 def test_a_benchmark_runs_by_name_and_an_unknown_name_is_refused(capsys):
