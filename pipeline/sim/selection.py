@@ -16,22 +16,19 @@ from __future__ import annotations
 import logging
 import shutil
 from collections.abc import Sequence
-from concurrent.futures import FIRST_COMPLETED, wait
 from dataclasses import dataclass
-from multiprocessing import get_context
+from functools import partial
 from pathlib import Path
-from queue import SimpleQueue
 from types import SimpleNamespace
 
 from cnep.models import load_checkpoint, read_checkpoint_config, save_checkpoint
 from cnep.pipeline.export.config import ExportConfig
 from cnep.pipeline.export.stage import export
-from cnep.pipeline.progress import REPORT_INTERVAL_S, RemoteBar, follow_total, progress_bar
 from cnep.pipeline.sim.config import ONLINE, PickPlaceConfig, SimConfig
 from cnep.pipeline.sim.loop import episodes_of, evaluate_policy, open_task_policy
+from cnep.pipeline.sim.pool import run_counted
 from cnep.pipeline.sim.validation import seeds_record, validation_seeds
 from cnep.pipeline.train.constants import CANDIDATES_DIR
-from cnep.pipeline.workers import single_thread_processes
 from cnep.sim.task import Task
 from cnep.sim.tasks import find_task
 
@@ -156,30 +153,8 @@ def _score_all(
     one, one after another), one bar counting their episodes; name -> score."""
     (out / SELECTION_DIR).mkdir()
     total = episodes_of(task, validation_settings(config, task)) * len(jobs)
-    scores: dict[str, dict] = {}
-    if workers == 0:
-        with progress_bar(total=total, desc="select", unit="episode", quiet=config.quiet) as bar:
-            reports, counts = SimpleQueue(), {}
-            for name, path in jobs.items():
-                scores[name] = _score(config, task.name, out, name, path, extractor, RemoteBar(reports, name))
-                follow_total(reports, bar, counts)
-        return scores
-    with (
-        progress_bar(total=total, desc="select", unit="episode", quiet=config.quiet) as bar,
-        get_context("spawn").Manager() as manager,
-        single_thread_processes(workers) as pool,
-    ):
-        reports, counts = manager.Queue(), {}
-        running = {
-            pool.submit(_score, config, task.name, out, name, path, extractor, RemoteBar(reports, name)): name
-            for name, path in jobs.items()
-        }
-        while running:
-            finished, _ = wait(running, timeout=REPORT_INTERVAL_S, return_when=FIRST_COMPLETED)
-            follow_total(reports, bar, counts)
-            for future in finished:
-                scores[running.pop(future)] = future.result()
-    return scores
+    calls = {name: partial(_score, config, task.name, out, name, path, extractor) for name, path in jobs.items()}
+    return run_counted(calls, total, "select", workers, config.quiet)
 
 
 def _score(

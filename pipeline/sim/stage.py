@@ -35,9 +35,8 @@ from __future__ import annotations
 import json
 import logging
 from collections.abc import Callable
-from concurrent.futures import FIRST_COMPLETED, wait
 from dataclasses import asdict, replace
-from multiprocessing import get_context
+from functools import partial
 from pathlib import Path
 
 from cnep.models import CNEPConfig, TrainConfig
@@ -50,17 +49,17 @@ from cnep.pipeline.export.config import ExportConfig
 from cnep.pipeline.export.stage import export
 from cnep.pipeline.extract.stage import ExtractConfig, extract
 from cnep.pipeline.folders import assembled_folder
-from cnep.pipeline.progress import REPORT_INTERVAL_S, RemoteBar, StageClock, follow_total, progress_bar
+from cnep.pipeline.progress import RemoteBar, StageClock
 from cnep.pipeline.sim.baselines import CHECKPOINTS, baseline_jobs, baseline_policy, environment_pose_noise
 from cnep.pipeline.sim.config import PickPlaceConfig, SimConfig, demonstrations_task, trained_conditioning
 from cnep.pipeline.sim.extras import require_extras
 from cnep.pipeline.sim.figure import FIGURE_FILE
 from cnep.pipeline.sim.generate import generate_demonstrations, ingest_demonstrations
 from cnep.pipeline.sim.loop import episodes_of, evaluate_policy, for_task, open_task_policy
+from cnep.pipeline.sim.pool import run_counted
 from cnep.pipeline.sim.selection import run_seeds, select_checkpoints
 from cnep.pipeline.sim.summary import format_table
 from cnep.pipeline.train.stage import TrainStageConfig
-from cnep.pipeline.workers import single_thread_processes
 from cnep.recordings import read_trajectory
 from cnep.sim.task import Task
 from cnep.sim.tasks import find_task
@@ -212,25 +211,11 @@ def _closed_loop(
     if config.baselines:
         jobs.update(baseline_jobs(config.train_seeds, policies))
     figure = {next(iter(policies)): out / FIGURE_FILE}
-    results: dict[str, dict] = {}
-    total = episodes_of(task, config) * len(jobs)
-    with (
-        progress_bar(total=total, desc="closed loop", unit="episode", quiet=config.quiet) as bar,
-        get_context("spawn").Manager() as manager,
-        single_thread_processes(WORKERS) as pool,
-    ):
-        reports, counts = manager.Queue(), {}
-        pending = {
-            pool.submit(
-                evaluate_one, config, task.name, out, label, *job, RemoteBar(reports, label), figure.get(label)
-            ): label for label, job in jobs.items()
-        }  # fmt: skip
-        while pending:
-            finished, _ = wait(pending, timeout=REPORT_INTERVAL_S, return_when=FIRST_COMPLETED)
-            follow_total(reports, bar, counts)
-            for future in finished:
-                results[pending.pop(future)] = future.result()
-    return {label: results[label] for label in jobs}
+    calls = {
+        label: partial(evaluate_one, config, task.name, out, label, *job, figure=figure.get(label))
+        for label, job in jobs.items()
+    }
+    return run_counted(calls, episodes_of(task, config) * len(jobs), "closed loop", WORKERS, config.quiet)
 
 
 def evaluate_one(

@@ -41,9 +41,8 @@ def sim_pools_in_process(monkeypatch, one_thread):
     in a worker: no process to start, no torch to import again. The pools themselves are pipeline.workers'
     (tests/pipeline/test_workers.py), and the quick demo trains the same `train` jobs in them."""
     import cnep.pipeline.demo.stage as demo_stage
-    import cnep.pipeline.sim.selection as selection
-    import cnep.pipeline.sim.stage as sim_stage
+    import cnep.pipeline.sim.pool as sim_pool
 
-    # the closed loop's pool, the selection's, the training's (demo.stage.train_side_by_side)
-    for module in (sim_stage, selection, demo_stage):
+    # the closed loop's pool and the selection's (pipeline.sim.pool), the training's (demo.stage.train_side_by_side)
+    for module in (sim_pool, demo_stage):
         monkeypatch.setattr(module, "single_thread_processes", in_process)
