@@ -9,8 +9,9 @@ along the bar, the place point on the mat and the carrying height. Its waypoints
 xyz, the quaternion xyzw (the grasp's yaw, turned during the approach) and the gripper command (FINGER_OPEN open, 0
 closed); each phase moves with a minimum-jerk timing, lengthened where a robot's limits need (sim.controller).
 `PickExpert` is the demonstrator in closed loop: when the place it heads for is taken during the motion, it carries
-the bar on to the place valid then. `demonstrations` drives the environment with them (v1: with `PickExpert`), as a
-robot records a demonstration.
+the bar on to the place valid then. `demonstrations` drives the environment with them as a robot records a
+demonstration, each the way its task gives (a `Drive`): v0 the path open loop to its end (follow_path), v1
+`PickExpert` to the episode's end (expert_to_episode_end), another layout's to its plan's end (expert_to_plan_end).
 """
 
 from __future__ import annotations
