@@ -170,6 +170,11 @@ class RemoteBar:
             self.queue.put((self.label, n, figures))
             self._last = now
 
+    def part(self, name: str) -> RemoteBar:
+        """A bar on the same queue under the label `LABEL-name`: a part of this bar's job, whose count `follow_total`
+        adds to the other parts'."""
+        return RemoteBar(self.queue, f"{self.label}-{name}")
+
 
 class BarQueue:
     """The queue of a `RemoteBar` whose job runs in this process: each report moves `bar` at once."""

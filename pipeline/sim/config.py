@@ -123,6 +123,21 @@ def check_seeds(seed: int, train_seeds: tuple[int, ...]) -> None:
         check_seed("--train-seeds", train_seed, PipelineError)
 
 
+def check_training(config: SimConfig | PickPlaceConfig) -> None:
+    """PipelineError unless `config` trains on >= 2 demonstrations, for >= 1 step (where given), with >= 2 experts and
+    a training seed."""
+    if (
+        config.demonstrations < 2
+        or (config.train_steps is not None and config.train_steps < 1)
+        or config.experts < 2
+        or not config.train_seeds
+    ):
+        raise PipelineError(
+            f"need >= 2 demonstrations, >= 1 training step, >= 2 experts and a training seed, got "
+            f"{config.demonstrations}, {config.train_steps}, {config.experts} and {config.train_seeds}"
+        )
+
+
 @dataclass(frozen=True)
 class LoopSettings:
     """What every closed-loop evaluation takes: the task's variant, the episodes and the recordings of them, and
@@ -187,16 +202,7 @@ class SimConfig(LoopSettings):
         coerce_paths(self)
         self.check()
         check_seeds(self.seed, self.train_seeds)
-        if (
-            self.demonstrations < 2
-            or (self.train_steps is not None and self.train_steps < 1)
-            or self.experts < 2
-            or not self.train_seeds
-        ):
-            raise PipelineError(
-                f"need >= 2 demonstrations, >= 1 training step, >= 2 experts and a training seed, got "
-                f"{self.demonstrations}, {self.train_steps}, {self.experts} and {self.train_seeds}"
-            )
+        check_training(self)
         if not 1 <= self.pca <= FEATURE_DIM:
             raise PipelineError(f"--pca must be from 1 to {FEATURE_DIM} (the features' width), got {self.pca}")
 
@@ -301,16 +307,7 @@ class PickPlaceConfig:
         coerce_paths(self)
         protocols_of(self.protocol)
         check_env_version(self.env_version)
-        if (
-            self.demonstrations < 2
-            or (self.train_steps is not None and self.train_steps < 1)
-            or self.experts < 2
-            or not self.train_seeds
-        ):
-            raise PipelineError(
-                f"need >= 2 demonstrations, >= 1 training step, >= 2 experts and a training seed, got "
-                f"{self.demonstrations}, {self.train_steps}, {self.experts} and {self.train_seeds}"
-            )
+        check_training(self)
         if self.window < 1 or self.anchors < 0:
             raise PipelineError(f"window must be >= 1 and anchors >= 0, got {self.window} and {self.anchors}")
         if self.episodes < 1 or (self.max_steps is not None and self.max_steps < 1) or self.record < 0 or self.pca < 1:

@@ -24,21 +24,16 @@ from __future__ import annotations
 import json
 import logging
 from collections.abc import Iterator
-from concurrent.futures import FIRST_COMPLETED, wait
 from dataclasses import dataclass, replace
-from multiprocessing import get_context
+from functools import partial
 from pathlib import Path
-from queue import SimpleQueue
 
 from cnep.outputs import output_lock, write_output, writing_as
 from cnep.pipeline.contract import output_folder
 from cnep.pipeline.demo.stage import quiet_per_file_logs
 from cnep.pipeline.demo.weights import choose_weights
 from cnep.pipeline.errors import PipelineError
-from cnep.pipeline.evaluate.constants import LOCAL
-from cnep.pipeline.evaluate.executors import run_on_cluster
 from cnep.pipeline.folders import assembled_folder
-from cnep.pipeline.progress import REPORT_INTERVAL_S, follow_total, progress_bar
 from cnep.pipeline.sim.baselines import COMPARED
 from cnep.pipeline.sim.config import MODELS, PICK_PLACE, PickPlaceConfig, SimConfig
 from cnep.pipeline.sim.extras import require_extras
@@ -47,8 +42,8 @@ from cnep.pipeline.sim.grid_config import GridConfig, subset
 from cnep.pipeline.sim.grid_table import cell_rows, csv_text, pooled_table
 from cnep.pipeline.sim.grid_unit import Unit, link_subset, run_grid_unit
 from cnep.pipeline.sim.loop import episodes_of, for_task
+from cnep.pipeline.sim.pool import as_finished
 from cnep.pipeline.sim.stage import extract_features
-from cnep.pipeline.workers import single_thread_processes
 from cnep.sim.task import Task
 from cnep.sim.tasks import find_task
 
@@ -185,40 +180,16 @@ def trajectory_of(set_folder: Path, i: int) -> Path:
 
 def run_units(units: list[Unit], config: GridConfig) -> Iterator[tuple[Unit, dict[str, dict]]]:
     """Yield (unit, its results) as the units finish, `config.workers` at a time here (0: in this process, one after
-    another) or on the cluster `config.executor` names, one bar counting the episodes of their cells."""
+    another) or on the cluster `config.executor` names, one bar counting the episodes of their cells
+    (pipeline.sim.pool)."""
     if not units:
         return
+    by_name = {unit.name: unit for unit in units}
+    calls = {unit.name: partial(run_grid_unit, unit) for unit in units}
     total = sum(episodes_of(find_task(u.task, u.config.env_version), u.config) * len(u.models) for u in units)
-    with progress_bar(total=total, desc="grid", unit="episode", quiet=config.quiet) as bar:
-        done = 0
-
-        def finished(unit: Unit) -> Unit:
-            nonlocal done
-            done += 1
-            bar.set_postfix_str(f"{done}/{len(units)} units, last {unit.name}")
-            return unit
-
-        if config.executor == LOCAL and config.workers == 0:
-            reports, counts = SimpleQueue(), {}
-            for unit in units:
-                results = run_grid_unit(unit, reports)
-                follow_total(reports, bar, counts)
-                yield finished(unit), results
-            return
-        if config.executor != LOCAL:
-            for unit, results in run_on_cluster(run_grid_unit, units, config.executor, config.address, config.workers):
-                bar.update(episodes_of(find_task(unit.task, unit.config.env_version), unit.config) * len(unit.models))
-                yield finished(unit), results
-            return
-        with get_context("spawn").Manager() as manager, single_thread_processes(config.workers) as pool:
-            reports, counts = manager.Queue(), {}
-            pending = {pool.submit(run_grid_unit, unit, reports): unit for unit in units}
-            while pending:
-                ready, _ = wait(pending, timeout=REPORT_INTERVAL_S, return_when=FIRST_COMPLETED)
-                follow_total(reports, bar, counts)
-                for future in ready:
-                    unit = pending.pop(future)
-                    yield finished(unit), future.result()
+    finished = as_finished(calls, total, "grid", config.workers, config.quiet, config.executor, config.address)
+    for name, results in finished:
+        yield by_name[name], results
 
 
 def cell(unit: Unit, model: str, results: dict) -> dict:

@@ -2,7 +2,7 @@
 (pipeline.evaluate.executors): one task's demonstration subset (the first `d` demonstrations of each behaviour in a
 set) and one training seed, its cells the models evaluated on it.
 
-    results = run_grid_unit(unit)  # model -> protocol -> rates (or -> condition -> rates), as `cnep sim TASK` has them
+    results = run_grid_unit(unit, bar)  # model -> protocol -> rates (or -> condition -> rates), as `cnep sim` has
 
 It composes `cnep sim TASK`'s stages (pipeline.sim.stage) in the unit's folder, RUN: the trajectories of the subset
 (linked from the set's folder, as is its extractor), then train (`training_jobs`: the CNEP and the matched CNMP of
@@ -58,13 +58,6 @@ class Unit:
         return f"{model}-seed{self.seed}"
 
 
-class Discard:
-    """The queue of a unit's `RemoteBar`s where nobody draws them (a cluster's worker): reports are dropped."""
-
-    def put(self, report: tuple) -> None:
-        pass
-
-
 def link_subset(run: Path, set_folder: Path, trajectories: list[Path]) -> None:
     """RUN/trajectories holding `trajectories` (files of `set_folder`/trajectories) and RUN/extractor.pt the set's,
     as hard links (copies where the file system has none); made under a temporary name and renamed, so RUN is
@@ -82,10 +75,9 @@ def link_subset(run: Path, set_folder: Path, trajectories: list[Path]) -> None:
     work.rename(run)
 
 
-def run_grid_unit(unit: Unit, reports=None) -> dict[str, dict]:
-    """The unit's cells (module docstring): model -> its results (pipeline.sim.loop.evaluate_policy's). reports: the
-    queue of the parent's bar, fed the episodes done per cell (`RemoteBar`; None: nobody draws it)."""
-    reports = Discard() if reports is None else reports
+def run_grid_unit(unit: Unit, bar: RemoteBar) -> dict[str, dict]:
+    """The unit's cells (module docstring): model -> its results (pipeline.sim.loop.evaluate_policy's). bar: where
+    the episodes done go, each cell's under its part MODEL (pipeline.sim.pool)."""
     run = unit.run
     models = set(unit.models)
     wanted = (models & {"CNMP"}) | ({"CNEP"} if models - {"CNMP"} else set())  # a baseline is fitted beside the CNEP
@@ -105,10 +97,11 @@ def run_grid_unit(unit: Unit, reports=None) -> dict[str, dict]:
     policies = {label: run / "policies" / checkpoint.name for label, checkpoint in checkpoints.items()}
     results = {}
     for model in unit.models:
-        bar = RemoteBar(reports, f"{unit.name}-{model}")
         if model in MODELS:
             path, baseline = policies[unit.label(model)], None
         else:
             path, baseline = policies[unit.label("CNEP")], (model, unit.seed)
-        results[model] = evaluate_one(unit.config, unit.task, run, unit.label(model), path, baseline, bar, None)
+        results[model] = evaluate_one(
+            unit.config, unit.task, run, unit.label(model), path, baseline, bar.part(model), None
+        )
     return results

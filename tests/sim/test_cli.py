@@ -69,6 +69,13 @@ def test_pick_place_arguments_become_its_settings_and_bad_ones_are_refused():
         PickPlaceConfig(out=Path("x"), protocol="replanned")
 
 
+@pytest.mark.parametrize("cls", [SimConfig, PickPlaceConfig])
+@pytest.mark.parametrize("bad", [{"demonstrations": 1}, {"train_steps": 0}, {"experts": 1}, {"train_seeds": ()}])
+def test_both_tasks_refuse_too_little_to_train_in_one_line(cls, bad):
+    with pytest.raises(PipelineError, match="need >= 2 demonstrations, >= 1 training step, >= 2 experts and a train"):
+        cls(out=Path("x"), **bad)
+
+
 def test_eval_arguments_become_its_settings():
     args = build_parser().parse_args(["sim", "eval", "policy", "--protocol", "online", "--episodes", "3"])
     config = config_of(EvalConfig, args, policy=args.policy)

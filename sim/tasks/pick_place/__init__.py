@@ -6,13 +6,14 @@ from functools import partial
 from cnep.sim import PICK_ENV_ID, PICK_ENV_V1_ID
 from cnep.sim.task import Task
 from cnep.sim.tasks.pick_place import scene as P
-from cnep.sim.tasks.pick_place.demonstrator import demonstrations
+from cnep.sim.tasks.pick_place.demonstrator import demonstrations, expert_to_episode_end, follow_path
 from cnep.sim.tasks.pick_place.drawing import drawing
 from cnep.sim.tasks.pick_place.env import PickPlaceEnv
 from cnep.sim.tasks.pick_place.scoring import COLUMNS, describe_demonstrations, pick_rates, pick_row
 from cnep.sim.tasks.pick_place.versions import version_of
 
 ENV_IDS = (PICK_ENV_ID, PICK_ENV_V1_ID)  # per version
+DRIVES = (follow_path, expert_to_episode_end)  # per version: how the scripted demonstrator drives the environment
 
 
 def make_env(condition: str, max_steps: int, version: int = 0) -> PickPlaceEnv:
@@ -32,7 +33,7 @@ def task(version: int) -> Task:
         variants=(),
         behaviours=tuple(name for name, _, _ in P.PLACES),
         make_env=partial(make_env, version=version),
-        demonstrations=partial(demonstrations, version=version),
+        demonstrations=partial(demonstrations, make_env=partial(PickPlaceEnv, version=version), drive=DRIVES[version]),
         describe_demonstrations=describe_demonstrations,
         row=pick_row,
         rates=pick_rates,

@@ -9,8 +9,9 @@ along the bar, the place point on the mat and the carrying height. Its waypoints
 xyz, the quaternion xyzw (the grasp's yaw, turned during the approach) and the gripper command (FINGER_OPEN open, 0
 closed); each phase moves with a minimum-jerk timing, lengthened where a robot's limits need (sim.controller).
 `PickExpert` is the demonstrator in closed loop: when the place it heads for is taken during the motion, it carries
-the bar on to the place valid then. `demonstrations` drives the environment with them (v1: with `PickExpert`), as a
-robot records a demonstration.
+the bar on to the place valid then. `demonstrations` drives the environment with them as a robot records a
+demonstration, each the way its task gives (a `Drive`): v0 the path open loop to its end (follow_path), v1
+`PickExpert` to the episode's end (expert_to_episode_end), another layout's to its plan's end (expert_to_plan_end).
 """
 
 from __future__ import annotations
@@ -162,48 +163,53 @@ def _along(yaw_deg: float) -> np.ndarray:
     return np.array([-np.sin(np.radians(yaw_deg)), np.cos(np.radians(yaw_deg))])
 
 
-def demonstrations(n: int, seed: int, version: int = 0) -> Iterator[Demonstration]:
-    """`n` demonstrations drawn with `seed`, each driving the environment of `version` from its own reset: the scene
-    drawn decided or free, the place chosen in it (its name the behaviour); clean when the bar ended on a valid place.
-    v0 follows its path (pick_path, one pace) to the end; v1 is the scripted demonstrator in closed loop (pick_expert:
-    each phase's pace drawn apart, within the arm's limits) until the episode ends, the states and frames as the robot
-    sensed them."""
-    rng = np.random.default_rng(seed)
-    env = PickPlaceEnv(version=version)
-    try:
-        for i in range(n):
-            observation, info = env.reset(seed=demonstration_seed(seed, i))
-            steps = [observation]
-            if version:
-                expert = pick_expert(env, info, rng)
-                info, _ = rollout(env, expert.action, info, steps)
-                place = expert.draw.place
-            else:
-                scene = env.scene
-                draw = draw_pick(rng, scene["orientation"], scene["taken"])
-                for action in pick_path(draw, observation[STATE_KEY][:3], scene["object_xy"], scene["object_yaw"]):
-                    observation, _, _, _, info = env.step(action.astype(np.float32))
-                    steps.append(observation)
-                place = draw.place
-            yield recorded(steps, env.image_key, P.PLACES[place][0], bool(info["is_success"]))
-    finally:
-        env.close()
+Drive = Callable[[PickPlaceEnv, dict, np.random.Generator, list[dict]], tuple[dict, int]]
 
 
-def expert_demonstrations(n: int, seed: int, make_env: Callable[[], PickPlaceEnv]) -> Iterator[Demonstration]:
-    """`n` demonstrations drawn with `seed` by the scripted demonstrator in closed loop (pick_expert) in the
-    environment `make_env()` makes (its scenes decided or free, its version's robot), each from its own reset, until
-    its plan runs out (the episode's step limit at most): the place it chose its behaviour (a layout's place name);
-    clean when the object ended on a valid place."""
+def demonstrations(n: int, seed: int, make_env: Callable[[], PickPlaceEnv], drive: Drive) -> Iterator[Demonstration]:
+    """`n` demonstrations drawn with `seed` in the environment `make_env()` makes, each from its own reset (its scene
+    drawn decided or free), driven by `drive` (follow_path, expert_to_episode_end or expert_to_plan_end), the states
+    and frames as the robot sensed them: the place it chose its behaviour (the layout's name of it); clean when the
+    object ended on a valid place."""
     rng = np.random.default_rng(seed)
     env = make_env()
     try:
         for i in range(n):
             observation, info = env.reset(seed=demonstration_seed(seed, i))
-            expert, steps, truncated = pick_expert(env, info, rng), [observation], False
-            while expert.plan.given < len(expert.plan.waypoints) and not truncated:
-                observation, _, _, truncated, info = env.step(expert.action(info))
-                steps.append(observation)
-            yield recorded(steps, env.image_key, env.layout.names[expert.draw.place], bool(info["is_success"]))
+            steps = [observation]
+            info, place = drive(env, info, rng, steps)
+            yield recorded(steps, env.image_key, env.layout.names[place], bool(info["is_success"]))
     finally:
         env.close()
+
+
+def follow_path(env: PickPlaceEnv, info: dict, rng: np.random.Generator, steps: list[dict]) -> tuple[dict, int]:
+    """A `Drive` (v0's): the path of choices drawn from `rng` (pick_path, one pace) from the sensed start (`steps`'
+    first state) to its end, open loop, each observation appended to `steps`; the last info and the place chosen."""
+    scene = env.scene
+    draw = draw_pick(rng, scene["orientation"], scene["taken"])
+    for action in pick_path(draw, steps[0][STATE_KEY][:3], scene["object_xy"], scene["object_yaw"]):
+        observation, _, _, _, info = env.step(action.astype(np.float32))
+        steps.append(observation)
+    return info, draw.place
+
+
+def expert_to_episode_end(
+    env: PickPlaceEnv, info: dict, rng: np.random.Generator, steps: list[dict]
+) -> tuple[dict, int]:
+    """A `Drive` (v1's): the scripted demonstrator in closed loop (pick_expert) until the episode ends, each
+    observation appended to `steps`; the last info and the place chosen."""
+    expert = pick_expert(env, info, rng)
+    info, _ = rollout(env, expert.action, info, steps)
+    return info, expert.draw.place
+
+
+def expert_to_plan_end(env: PickPlaceEnv, info: dict, rng: np.random.Generator, steps: list[dict]) -> tuple[dict, int]:
+    """A `Drive` (another layout's, sim.tasks.pick_place.variant): the scripted demonstrator in closed loop
+    (pick_expert) until its plan runs out (the episode's step limit at most), each observation appended to `steps`;
+    the last info and the place chosen."""
+    expert, truncated = pick_expert(env, info, rng), False
+    while expert.plan.given < len(expert.plan.waypoints) and not truncated:
+        observation, _, _, truncated, info = env.step(expert.action(info))
+        steps.append(observation)
+    return info, expert.draw.place

@@ -1,8 +1,7 @@
 """Another pick-and-place task from its scene: `layout_task` makes the `task(version)` (sim.task.Task) of an environment
 that runs PickPlaceEnv in another layout (sim.tasks.pick_place.layout) on the v1 robot and scenes (its own settings of
-that version, the only one such a task has), its demonstrations the scripted
-demonstrator's in closed loop (demonstrator.expert_demonstrations), its scoring and drawing the pick-and-place
-task's in that layout."""
+that version, the only one such a task has), its demonstrations the scripted demonstrator's in closed loop to its
+plan's end (demonstrator.expert_to_plan_end), its scoring and drawing the pick-and-place task's in that layout."""
 
 from __future__ import annotations
 
@@ -11,7 +10,7 @@ from functools import partial
 
 from cnep.sim.task import Task
 from cnep.sim.tasks.pick_place import scene as P
-from cnep.sim.tasks.pick_place.demonstrator import expert_demonstrations
+from cnep.sim.tasks.pick_place.demonstrator import demonstrations, expert_to_plan_end
 from cnep.sim.tasks.pick_place.drawing import drawing
 from cnep.sim.tasks.pick_place.env import PickPlaceEnv
 from cnep.sim.tasks.pick_place.layout import PickLayout
@@ -41,7 +40,7 @@ def layout_task(
         variants=(),
         behaviours=layout.names,
         make_env=make_env,
-        demonstrations=partial(expert_demonstrations, make_env=env),
+        demonstrations=partial(demonstrations, make_env=env, drive=expert_to_plan_end),
         describe_demonstrations=partial(describe_demonstrations, layout=layout),
         row=pick_row,
         rates=pick_rates,
