@@ -81,7 +81,8 @@ def run_task(args: argparse.Namespace) -> int:
     require_extras(config, f"cnep sim {config.TASK}")  # one line naming the missing extras, before any work
 
     with heartbeat("loading torch and the simulator", args.quiet):
-        from cnep.pipeline.sim.stage import SUMMARY_FILE, run_sim
+        from cnep.pipeline.sim.partial import SUMMARY_FILE
+        from cnep.pipeline.sim.stage import run_sim
 
     start = time.perf_counter()
     summary = run_sim(config)

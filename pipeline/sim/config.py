@@ -138,6 +138,12 @@ def check_training(config: SimConfig | PickPlaceConfig) -> None:
         )
 
 
+FORCE_HELP = (
+    "start over where the stopped run beside --out (.OUT.partial) cannot be resumed (other settings, or its files "
+    "changed): the files that run wrote are discarded, nothing else"
+)
+
+
 @dataclass(frozen=True)
 class LoopSettings:
     """What every closed-loop evaluation takes: the task's variant, the episodes and the recordings of them, and
@@ -196,6 +202,7 @@ class SimConfig(LoopSettings):
     baselines: bool = setting(False, BASELINES_HELP)
     pca: int = setting(8, PCA_HELP)
     selection: SelectionSettings = field(default_factory=SelectionSettings)  # the kept checkpoint's choice
+    force: bool = setting(False, FORCE_HELP)
     quiet: bool = False
 
     def __post_init__(self) -> None:
@@ -296,6 +303,7 @@ class PickPlaceConfig:
     baselines: bool = setting(True, BASELINES_HELP)
     pca: int = setting(8, PCA_HELP)
     selection: SelectionSettings = field(default_factory=SelectionSettings)  # the kept checkpoint's choice
+    force: bool = setting(False, FORCE_HELP)
     quiet: bool = False
 
     @property
