@@ -66,6 +66,10 @@ MAX_STEPS_HELP = (
     "control steps an episode gets before it is truncated (the planned protocol's plan spans the task's episode "
     "whatever the limit, its last waypoint held after them)"
 )
+FORCE_HELP = (
+    "discard the stopped run that .OUT.partial beside --out holds (only the files it wrote) and start over; without "
+    "it, a stopped run of the same settings resumes and one of other settings is refused"
+)
 # What a None default means, as `--help` shows it.
 SHOWN = {
     "max_steps": "the task's episode, sim.task.Task.max_steps",
@@ -136,12 +140,6 @@ def check_training(config: SimConfig | PickPlaceConfig) -> None:
             f"need >= 2 demonstrations, >= 1 training step, >= 2 experts and a training seed, got "
             f"{config.demonstrations}, {config.train_steps}, {config.experts} and {config.train_seeds}"
         )
-
-
-FORCE_HELP = (
-    "start over where the stopped run beside --out (.OUT.partial) cannot be resumed (other settings, or its files "
-    "changed): the files that run wrote are discarded, nothing else"
-)
 
 
 @dataclass(frozen=True)

@@ -16,7 +16,7 @@ unchanged by its folder's record (cnep.outputs.record) or, in a policy folder, b
 A run into OUT with the same settings resumes the folder: every listed file must be there unchanged; what else the
 command owns in it (the leftovers of the stage that was stopped, the stale work folders of its processes) goes, and a
 file it does not own (a user's) is refused with one line, never deleted. A run with other settings, or whose listed
-files changed, is refused with one line; `force` discards the folder's files that the command owns (a user's stay,
+files changed, is refused with one line. `force` discards the folder's files that the command owns (a user's stay,
 and are refused then) and starts over. A run that fails before its first stage finishes leaves nothing; one stopped
 later keeps the folder and says in one line how to resume.
 """
@@ -199,7 +199,7 @@ def refuse_unless_new(out: Path) -> None:
 def open_partial(work: Path, settings: dict, total: int, force: bool) -> PartialRun:
     """The partial folder `work` made, or resumed (its finished stages' files checked, everything else the command
     owns in it removed), or with `force` emptied of what the command owns and started over; PipelineError where it
-    holds another run, or files the command does not own."""
+    holds another run (without `force`), or files the command does not own."""
     settings = json.loads(json.dumps(settings))
     if not work.is_dir() or work.is_symlink():
         if os.path.lexists(work):
@@ -211,7 +211,7 @@ def open_partial(work: Path, settings: dict, total: int, force: bool) -> Partial
     problem = why_not_resumable(work, saved, settings)
     if problem and not force:
         raise PipelineError(f"{problem}; add --force to discard it (only the files that run wrote go) and start over")
-    if problem or saved is None:
+    if force or saved is None:
         if saved is not None:
             log.warning("%s: discarding the stopped run in it (--force)", work)
         saved = {"stages": {}, "files": {}}

@@ -147,3 +147,11 @@ def test_a_users_file_in_the_stopped_runs_folder_is_kept_and_named(tmp_path, cap
     assert mine.read_text() == "mine"
     mine.unlink()
     assert sim(out, capsys)[0] == 0
+
+
+def test_force_starts_a_stopped_run_of_the_same_settings_over(tmp_path, capsys, monkeypatch):
+    out, _, _ = stopped(tmp_path, capsys, monkeypatch, "train")
+    again = Stages()
+    monkeypatch.setattr(sim_stage, "_run_stages", again)
+    assert sim(out, capsys, "--force")[0] == 0
+    assert again.ran == list(STAGES) and not partial_folder(out).exists()
