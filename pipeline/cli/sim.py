@@ -39,7 +39,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     sub = parser.add_subparsers(dest="sim_command", metavar="TASK", required=True)
     for cls, help in ((SimConfig, OBSTACLE_HELP), (PickPlaceConfig, PICK_PLACE_HELP)):
         task = sub.add_parser(cls.TASK, help=help, description=help)
-        task.add_argument("--out", required=True, help="a new or empty folder for everything")
+        task.add_argument(
+            "--out",
+            required=True,
+            help="a new or empty folder for everything; the stages work in .OUT.partial beside it, which keeps those "
+            "finished when the run is stopped: the same command again resumes after them",
+        )
         add_options(task, options(cls), defaults=SHOWN)
         task.set_defaults(_sim=run_task, _config=cls)
     grid = sub.add_parser("grid", help=GRID_HELP, description=GRID_HELP)

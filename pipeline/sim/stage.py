@@ -45,8 +45,7 @@ from cnep.pipeline.demo.stage import CNMP_ASSIGNMENT, LAYOUT, quiet_per_file_log
 from cnep.pipeline.demo.weights import WeightsChoice, choose_weights
 from cnep.pipeline.export.config import ExportConfig
 from cnep.pipeline.export.stage import export
-from cnep.pipeline.extract.stage import ExtractConfig
-from cnep.pipeline.extract.stage import extract as extract_stage
+from cnep.pipeline.extract.stage import ExtractConfig, extract
 from cnep.pipeline.progress import RemoteBar
 from cnep.pipeline.sim.baselines import CHECKPOINTS, baseline_jobs, baseline_policy, environment_pose_noise
 from cnep.pipeline.sim.config import PickPlaceConfig, SimConfig, demonstrations_task, trained_conditioning
@@ -100,7 +99,7 @@ def _run_stages(config: SimConfig | PickPlaceConfig, task: Task, run: PartialRun
     run.stage("ingest", 2, lambda: ingest_demonstrations(
         out / "recorded", out / "demos", demonstrations_task(task.name, task.version), config.quiet
     ))  # fmt: skip
-    weights = run.stage("extract", 3, lambda: extract(config, out, chosen))
+    weights = run.stage("extract", 3, lambda: extract_chosen(config, out, chosen))
     checkpoints = {label: Path(job.out) for label, job in training_jobs(config, out).items()}
     run.stage("train", 4, lambda: train_models(config, out, started=run.seconds["train"]))
     selected = run.stage(
@@ -125,7 +124,7 @@ def _run_stages(config: SimConfig | PickPlaceConfig, task: Task, run: PartialRun
     }
 
 
-def extract(config: SimConfig | PickPlaceConfig, out: Path, chosen: WeightsChoice) -> dict:
+def extract_chosen(config: SimConfig | PickPlaceConfig, out: Path, chosen: WeightsChoice) -> dict:
     """Stage 3 (`extract_features`) with the weights `chosen`; what the summary says of the choice."""
     extract_features(config, out, chosen.weights)
     return {"imagenet_unavailable": chosen.imagenet_unavailable}
@@ -140,7 +139,7 @@ def generate(config: SimConfig | PickPlaceConfig, task: Task, out: Path, variant
 
 def extract_features(config: SimConfig | PickPlaceConfig, out: Path, weights: str) -> None:
     """Stage 3: the demonstrations' features under OUT/trajectories, the weights saved to OUT/extractor.pt."""
-    extract_stage(
+    extract(
         ExtractConfig(
             inputs=(out / "demos",),
             out=out / "trajectories",
