@@ -1,10 +1,10 @@
 """The folder a `cnep sim TASK --out OUT` run works in, `.OUT.partial` beside OUT, and its record of the stages it
 finished, so that a stopped run resumes where it stopped.
 
-    with partial_run(out, settings, force) as run:    # the lock on OUT held; OUT a new or empty folder
-        made = run.stage("generate", 1, make)          # finished before: its recorded result; else run, timed, recorded
+    with partial_run(out, settings, total, force) as run:  # the lock on OUT held; OUT a new or empty folder
+        made = run.stage("generate", 1, make)  # finished before: its recorded result; else run, timed, recorded
         ...
-        run.publish(summary)                           # summary.json written, the folder renamed to OUT
+        run.publish(out, summary)  # summary.json written, the folder renamed to OUT
 
 STAGES_FILE in the folder (written as the command's output, cnep.outputs) names the run's `settings` (what makes the
 run: its options but --out, -q and --force), each finished stage in order with its wall time (s) and result (what
@@ -12,6 +12,10 @@ the summary takes from it: JSON), and `files`: every file of the folder when the
 relative to the folder, with its size (bytes) and sha256. A file is listed only if it is the command's: named
 unchanged by its folder's record (cnep.outputs.record) or, in a policy folder, by its manifest
 (pipeline.export.stage.in_manifest).
+
+A stage that runs long in parts (the closed loop, a policy at a time) records each finished part under PARTS_DIR
+(`PartialRun.part`: its result and its files with their sizes and sha256); a resumed run keeps the parts of the
+stage that was stopped whose files are unchanged (`PartialRun.kept_parts`), and a finished stage's parts go.
 
 A run into OUT with the same settings resumes the folder: every listed file must be there unchanged; what else the
 command owns in it (the leftovers of the stage that was stopped, the stale work folders of its processes) goes, and a
@@ -60,6 +64,7 @@ log = logging.getLogger(__name__)
 STAGES_FILE = "stages.json"
 SUMMARY_FILE = "summary.json"
 STAGES_VERSION = 1
+PARTS_DIR = "parts"  # PARTS_DIR/<stage>/<part>.json: the finished parts of the stage that runs
 
 
 def partial_folder(out: Path) -> Path:
@@ -91,6 +96,7 @@ class PartialRun:
     finished: dict[str, dict] = field(default_factory=dict)
     files: dict[str, dict] = field(default_factory=dict)
     seconds: dict[str, float] = field(default_factory=dict)  # every stage's wall time (s); its start while it runs
+    parts: dict[str, dict[str, Any]] = field(default_factory=dict)  # stage -> part -> result, kept from a stopped run
     # While a stage runs: what it enters here (cnep.outputs.signals_held, from the moment it changes a finished
     # stage's files) stays held until the stage is recorded as finished.
     held: contextlib.ExitStack | None = None
@@ -110,10 +116,36 @@ class PartialRun:
             with StageClock(self.seconds, self.total, log)(name, number):
                 result = json.loads(json.dumps(make()))
             self.finished[name] = {"seconds": self.seconds[name], "result": result}
+            self._forget_parts(name)
             self.files = listed_files(self.work, self.files)
             self._save()
         self.held = None
         return result
+
+    def kept_parts(self, stage: str) -> dict[str, Any]:
+        """The parts of the stage `stage` a stopped run finished, unchanged since: part -> its result."""
+        return dict(self.parts.get(stage, {}))
+
+    def part(self, stage: str, name: str, result: Any, files: list[Path]) -> None:
+        """Record the part `name` of the running stage `stage` as finished: its result (JSON) and its `files` (under
+        the folder), which a resumed run keeps with it."""
+        entries = {}
+        for path in files:
+            entry = file_entry(path, "")
+            entries[path.relative_to(self.work).as_posix()] = {"size": entry["size"], "sha256": entry["sha256"]}
+        folder = self.work / PARTS_DIR / stage.replace(" ", "-")
+        folder.mkdir(parents=True, exist_ok=True)
+        record = {"stage": stage, "result": result, "files": entries}
+        write_output(folder / f"{name}.json", json.dumps(record).encode())
+
+    def _forget_parts(self, stage: str) -> None:
+        """The parts of `stage`, finished now, go (the stage's record holds them all)."""
+        folder = self.work / PARTS_DIR / stage.replace(" ", "-")
+        if folder.is_dir():
+            remove_owned(folder, owns_partial(writer()))
+            for empty in (folder, folder.parent):
+                with contextlib.suppress(OSError):
+                    empty.rmdir()
 
     def publish(self, out: Path, summary: dict) -> None:
         """Write the summary into the folder and rename the folder to `out` (cnep.outputs.publish_folder: an empty
@@ -216,6 +248,8 @@ def open_partial(work: Path, settings: dict, total: int, force: bool) -> Partial
             log.warning("%s: discarding the stopped run in it (--force)", work)
         saved = {"stages": {}, "files": {}}
     kept = {work / rel for rel in saved["files"]} | ({work / STAGES_FILE} if saved["stages"] else set())
+    parts = [] if force else finished_parts(work, owns)
+    kept |= {path for part in parts for path in (part.path, *part.files)}
     remove_stale_work_folders(work)
     left = remove_owned(work, lambda root, path: path not in kept and owns(root, path))  # records stay with kept files
     foreign = [path for path in left if path not in kept]
@@ -226,7 +260,47 @@ def open_partial(work: Path, settings: dict, total: int, force: bool) -> Partial
         )
     if saved["stages"]:
         log.info("%s: resuming after the stages %s", work, ", ".join(saved["stages"]))
-    return PartialRun(work, settings, total, dict(saved["stages"]), dict(saved["files"]))
+    kept_parts: dict[str, dict[str, Any]] = {}
+    for part in parts:
+        kept_parts.setdefault(part.stage, {})[part.name] = part.result
+    return PartialRun(work, settings, total, dict(saved["stages"]), dict(saved["files"]), parts=kept_parts)
+
+
+@dataclass(frozen=True)
+class Part:
+    """A finished part of a stage (`PartialRun.part`): its record `path`, its stage and name, its result and files."""
+
+    path: Path
+    stage: str
+    name: str
+    result: Any
+    files: tuple[Path, ...]
+
+
+def finished_parts(work: Path, owns: Owns) -> list[Part]:
+    """The parts recorded under `work`/PARTS_DIR that are intact; a record the command does not own, that cannot be
+    read, or whose files changed is left out (its files then go as the stopped stage's leftovers)."""
+    found = []
+    for path in sorted((work / PARTS_DIR).glob("*/*.json")):
+        if path.is_symlink() or not path.is_file() or not owns(work, path):
+            continue
+        try:
+            data = read_json(path)
+        except (OSError, ValueError):
+            continue
+        if not isinstance(data, dict) or not isinstance(data.get("files"), dict) or "result" not in data:
+            continue
+        files = {work / rel: entry for rel, entry in data["files"].items()}
+        if all(isinstance(e, dict) and unchanged(f, e) and owns(work, f) for f, e in files.items()):
+            found.append(Part(path, str(data.get("stage")), path.stem, data["result"], tuple(files)))
+    return found
+
+
+def unchanged(path: Path, entry: dict) -> bool:
+    """Whether `path` is a regular file of the size and sha256 `entry` records."""
+    if path.is_symlink() or not path.is_file() or path.stat().st_size != entry.get("size"):
+        return False
+    return file_entry(path, "")["sha256"] == entry.get("sha256")
 
 
 def read_stages(path: Path) -> dict | None:
@@ -255,11 +329,10 @@ def why_not_resumable(work: Path, saved: dict | None, settings: dict) -> str:
         given = ", ".join(f"{name} {saved['settings'].get(name)!r}" for name in differ[:3])
         return f"{work}: holds a run stopped with other settings ({given}); give the same to resume it"
     for rel, entry in saved["files"].items():
-        path = work / rel
-        if path.is_symlink() or not path.is_file() or path.stat().st_size != entry.get("size"):
-            return f"{path}: changed or missing since the stage that wrote it finished, so {work} cannot be resumed"
-        if file_entry(path, "")["sha256"] != entry.get("sha256"):
-            return f"{path}: changed since the stage that wrote it finished, so {work} cannot be resumed"
+        if not unchanged(work / rel, entry):
+            return (
+                f"{work / rel}: changed or missing since the stage that wrote it finished, so {work} cannot be resumed"
+            )
     return ""
 
 

@@ -28,8 +28,9 @@ Stages (each logs its progress), all under OUT:
 
 The stages write into `.OUT.partial` beside OUT, renamed to OUT when all are complete (pipeline.sim.partial), where
 STAGES_FILE records the run's settings and each finished stage with its result and files. A run stopped after a stage
-leaves OUT as it found it and keeps the stages it finished there: the same command again resumes at the next stage
-(the same seeds: its summary is a straight run's); one with other settings is refused (`--force`: start over).
+leaves OUT as it found it and keeps the stages it finished there (and the closed loop's finished policies): the same
+command again resumes at the next stage (the same seeds: its summary is a straight run's); one with other settings is
+refused (`--force`: start over).
 """
 
 from __future__ import annotations
@@ -54,7 +55,7 @@ from cnep.pipeline.sim.figure import FIGURE_FILE
 from cnep.pipeline.sim.generate import generate_demonstrations, ingest_demonstrations
 from cnep.pipeline.sim.loop import episodes_of, evaluate_policy, for_task, open_task_policy
 from cnep.pipeline.sim.partial import PartialRun, partial_run
-from cnep.pipeline.sim.pool import run_counted
+from cnep.pipeline.sim.pool import as_finished
 from cnep.pipeline.sim.selection import run_seeds, select_checkpoints
 from cnep.pipeline.sim.summary import format_table
 from cnep.pipeline.train.stage import TrainStageConfig
@@ -65,7 +66,8 @@ from cnep.sim.tasks import find_task
 log = logging.getLogger(__name__)
 
 EXTRACTOR_FILE = "extractor.pt"
-STAGES = ("generate", "ingest", "extract", "train", "select", "export", "closed loop")
+CLOSED_LOOP = "closed loop"
+STAGES = ("generate", "ingest", "extract", "train", "select", "export", CLOSED_LOOP)
 WORKERS = 2  # processes training the models, then running the policies in closed loop
 
 
@@ -107,7 +109,7 @@ def _run_stages(config: SimConfig | PickPlaceConfig, task: Task, run: PartialRun
     )  # its choice changes the trained checkpoints: recorded before a signal takes effect
     policies = {label: policy_folder(out, checkpoint) for label, checkpoint in checkpoints.items()}
     run.stage("export", 6, lambda: export_policies(checkpoints, out))
-    results = run.stage("closed loop", 7, lambda: _closed_loop(config, task, out, policies))
+    results = run.stage(CLOSED_LOOP, 7, lambda: _closed_loop(config, task, run, policies))
     return {
         "task": task.name,
         "env_version": task.version,
@@ -193,22 +195,39 @@ def policy_folder(out: Path, checkpoint: Path) -> Path:
 
 
 def _closed_loop(
-    config: SimConfig | PickPlaceConfig, task: Task, out: Path, policies: dict[str, Path]
+    config: SimConfig | PickPlaceConfig, task: Task, run: PartialRun, policies: dict[str, Path]
 ) -> dict[str, dict]:
-    """Stage 6: every policy (and the baselines, per training seed fitted with that seed's CNEP's normaliser, feature
+    """Stage 7: every policy (and the baselines, per training seed fitted with that seed's CNEP's normaliser, feature
     graph and conditioning) in closed loop, WORKERS at a time in single-threaded processes, one bar counting their
     episodes; its first episodes recorded under OUT/episodes, the first policy's drawn into OUT/episode.png; label ->
-    results."""
-    (out / "episodes").mkdir()
+    results. Each policy is a part of the stage (pipeline.sim.partial): recorded with its files when it finishes, and
+    kept where a stopped run finished it."""
+    out = run.work
+    (out / "episodes").mkdir(exist_ok=True)
     jobs = {label: (path, None) for label, path in policies.items()}
     if config.baselines:
         jobs.update(baseline_jobs(config.train_seeds, policies))
+    kept = {label: result for label, result in run.kept_parts(CLOSED_LOOP).items() if label in jobs}
+    if kept:
+        log.info("closed loop: %d of %d policies finished before, kept", len(kept), len(jobs))
     figure = {next(iter(policies)): out / FIGURE_FILE}
     calls = {
         label: partial(evaluate_one, config, task.name, out, label, *job, figure=figure.get(label))
         for label, job in jobs.items()
+        if label not in kept
     }
-    return run_counted(calls, episodes_of(task, config) * len(jobs), "closed loop", WORKERS, config.quiet)
+    done = dict(kept)
+    for label, results in (
+        []
+        if not calls
+        else as_finished(calls, episodes_of(task, config) * len(calls), CLOSED_LOOP, WORKERS, config.quiet)
+    ):
+        files = sorted((out / "episodes").glob(f"{label}-*.rrd")) + [
+            p for p in [figure.get(label)] if p and p.is_file()
+        ]
+        run.part(CLOSED_LOOP, label, results, files)
+        done[label] = results
+    return {label: done[label] for label in jobs}
 
 
 def evaluate_one(

@@ -96,12 +96,12 @@ def _drop_timings(entry: dict) -> dict:
     return {k: v for k, v in entry.items() if k not in ("_ms", "seconds")}
 
 
-@pytest.mark.slow  # the pipeline twice, once stopped after training and resumed
-def test_cnep_sim_stopped_after_training_resumes_to_the_summary_of_a_straight_run(
+@pytest.mark.slow  # the pipeline twice, once stopped after the selection and in the closed loop, and resumed
+def test_cnep_sim_stopped_after_a_stage_and_in_the_closed_loop_resumes_to_the_summary_of_a_straight_run(
     tmp_path, monkeypatch, few_calibration_frames, sim_pools_in_process
 ):
     import cnep.pipeline.sim.stage as sim_stage
-    from cnep.pipeline.sim.partial import STAGES_FILE, partial_folder
+    from cnep.pipeline.sim.partial import STAGES_FILE, PartialRun, partial_folder
 
     monkeypatch.setenv("HOME", str(tmp_path / "home"))
     monkeypatch.setenv("TORCH_HOME", str(tmp_path / "torch"))
@@ -126,7 +126,20 @@ def test_cnep_sim_stopped_after_training_resumes_to_the_summary_of_a_straight_ru
     ]  # fmt: skip
     for finished in ("generate_demonstrations", "train_models", "select_checkpoints"):
         monkeypatch.setattr(sim_stage, finished, None)  # a finished stage is never run again
+    record_part, evaluate = PartialRun.part, sim_stage.evaluate_one
+
+    def part_then_stopped(run, *args, **kwargs):
+        record_part(run, *args, **kwargs)
+        raise KeyboardInterrupt  # Ctrl-C once the closed loop's first policy is recorded
+
+    monkeypatch.setattr(PartialRun, "part", part_then_stopped)
+    with pytest.raises(KeyboardInterrupt, match="run the same command again"):
+        run_sim(replace(config, out=out))
+    monkeypatch.setattr(PartialRun, "part", record_part)
+    evaluated = []
+    monkeypatch.setattr(sim_stage, "evaluate_one", lambda *a, **k: evaluated.append(a[3]) or evaluate(*a, **k))
     resumed = run_sim(replace(config, out=out))
+    assert evaluated == ["CNMP-seed0"]  # the CNEP's episodes were kept
     assert without_timings(resumed) == without_timings(straight)
     assert json.loads((out / SUMMARY_FILE).read_text()) == json.loads(json.dumps(resumed))
     assert sorted(p.name for p in (out / "episodes").iterdir()) == sorted(
