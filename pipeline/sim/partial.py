@@ -172,7 +172,7 @@ def listed_files(work: Path, before: dict[str, dict]) -> dict[str, dict]:
     owns, listed = owns_partial(writer()), {}
     for path in sorted(work.rglob("*")):
         rel = path.relative_to(work).as_posix()
-        if path.is_symlink() or not path.is_file() or path.name in (RECORD_FILE, STAGES_FILE):
+        if path.is_symlink() or not path.is_file() or path.name == RECORD_FILE or path == work / STAGES_FILE:
             continue
         stat, old = path.stat(), before.get(rel)
         if old is not None and (old["size"], old["mtime_ns"]) == (stat.st_size, stat.st_mtime_ns):
