@@ -39,7 +39,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     sub = parser.add_subparsers(dest="sim_command", metavar="TASK", required=True)
     for cls, help in ((SimConfig, OBSTACLE_HELP), (PickPlaceConfig, PICK_PLACE_HELP)):
         task = sub.add_parser(cls.TASK, help=help, description=help)
-        task.add_argument("--out", required=True, help="a new or empty folder for everything")
+        task.add_argument(
+            "--out",
+            required=True,
+            help="a new or empty folder for everything; the stages work in .OUT.partial beside it, which keeps those "
+            "finished when the run is stopped: the same command again resumes after them",
+        )
         add_options(task, options(cls), defaults=SHOWN)
         task.set_defaults(_sim=run_task, _config=cls)
     grid = sub.add_parser("grid", help=GRID_HELP, description=GRID_HELP)
@@ -81,7 +86,8 @@ def run_task(args: argparse.Namespace) -> int:
     require_extras(config, f"cnep sim {config.TASK}")  # one line naming the missing extras, before any work
 
     with heartbeat("loading torch and the simulator", args.quiet):
-        from cnep.pipeline.sim.stage import SUMMARY_FILE, run_sim
+        from cnep.pipeline.sim.partial import SUMMARY_FILE
+        from cnep.pipeline.sim.stage import run_sim
 
     start = time.perf_counter()
     summary = run_sim(config)

@@ -66,6 +66,10 @@ MAX_STEPS_HELP = (
     "control steps an episode gets before it is truncated (the planned protocol's plan spans the task's episode "
     "whatever the limit, its last waypoint held after them)"
 )
+FORCE_HELP = (
+    "discard the stopped run that .OUT.partial beside --out holds (only the files it wrote) and start over; without "
+    "it, a stopped run of the same settings resumes and one of other settings is refused"
+)
 # What a None default means, as `--help` shows it.
 SHOWN = {
     "max_steps": "the task's episode, sim.task.Task.max_steps",
@@ -196,6 +200,7 @@ class SimConfig(LoopSettings):
     baselines: bool = setting(False, BASELINES_HELP)
     pca: int = setting(8, PCA_HELP)
     selection: SelectionSettings = field(default_factory=SelectionSettings)  # the kept checkpoint's choice
+    force: bool = setting(False, FORCE_HELP)
     quiet: bool = False
 
     def __post_init__(self) -> None:
@@ -296,6 +301,7 @@ class PickPlaceConfig:
     baselines: bool = setting(True, BASELINES_HELP)
     pca: int = setting(8, PCA_HELP)
     selection: SelectionSettings = field(default_factory=SelectionSettings)  # the kept checkpoint's choice
+    force: bool = setting(False, FORCE_HELP)
     quiet: bool = False
 
     @property

@@ -21,7 +21,7 @@ from cnep.pipeline.sim.config import EvalConfig, with_task
 from cnep.pipeline.sim.extras import require_extras
 from cnep.pipeline.sim.figure import FIGURE_FILE
 from cnep.pipeline.sim.loop import episodes_of, evaluate_policy, for_task, open_task_policy
-from cnep.pipeline.sim.stage import SUMMARY_FILE, refuse_unless_new
+from cnep.pipeline.sim.partial import SUMMARY_FILE, refuse_unless_new
 from cnep.pipeline.sim.summary import format_table
 from cnep.pipeline.sim.validation import seeds_record
 from cnep.sim.tasks import find_task

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cnep.outputs import write_atomically
+from cnep.outputs import write_output
 from cnep.pipeline.replay.viewer import PALETTE, PATH_COLOR
 from cnep.sim import scene as S
 from cnep.sim.drawing import Drawing, Shape
@@ -59,7 +59,7 @@ def draw_episode(ep: EpisodeResult, title: str, path: Path, drawing: Drawing) ->
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", bbox_inches="tight")
     plt.close(fig)
-    return write_atomically(path, buffer.getvalue())
+    return write_output(path, buffer.getvalue())
 
 
 def _from_above(ax, shape: Shape, alpha: float) -> None:

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import cv2
 
-from cnep.outputs import temporary_path
+from cnep.outputs import record_written, temporary_path, writer
 from cnep.pipeline.ingest.stage import IngestConfig, ingest
 from cnep.pipeline.progress import progress_bar
 from cnep.recordings.csv_motion import CsvColumns
@@ -56,7 +56,8 @@ def ingest_demonstrations(recorded: Path, out: Path, task: str, quiet: bool = Fa
 
 
 def _write(folder: Path, demo: Demonstration) -> None:
-    """One demonstration's frames and CSV, written under a temporary name and renamed when complete."""
+    """One demonstration's frames and CSV, written under a temporary name and renamed when complete; where a command
+    writes (cnep.outputs.writing_as), named in the folder's record as its outputs before the rename."""
     work = temporary_path(folder)
     work.mkdir(parents=True)
     rows = []
@@ -66,4 +67,6 @@ def _write(folder: Path, demo: Demonstration) -> None:
         rows.append([f"{k * S.CONTROL_PERIOD_S:.3f}", *(f"{v:.4f}" for v in state)])
     lines = [",".join(CSV_HEADER), *(",".join(row) for row in rows)]
     (work / CSV_FILE).write_text("\n".join(lines) + "\n")
+    if writer() is not None:
+        record_written(sorted(work.iterdir()))
     work.rename(folder)

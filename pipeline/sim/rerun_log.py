@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 import cnep.pipeline.replay.viewer as L
-from cnep.outputs import write_atomically
+from cnep.outputs import write_output
 from cnep.pipeline.replay.rerun_log import active_expert_states, first_read_text, shown_state
 from cnep.sim import scene as S
 from cnep.sim.drawing import Drawing, Shape
@@ -58,7 +58,7 @@ def write_episode(path: Path, name: str, ep: EpisodeResult, n_experts: int, draw
     rec.log(L.SWITCH_LOG, rr.TextLog(f"outcome: {drawing.outcome}", level="INFO" if ep.success else "WARN"))
     rec.flush()
     rec.disconnect()
-    return write_atomically(path, stream.read(flush=True) or b"")
+    return write_output(path, stream.read(flush=True) or b"")
 
 
 def log_policy_read(rec, k: int, gates, experts, predicted, shown: str | None) -> str | None:

@@ -13,6 +13,7 @@ seeded and run one thread each, so the same seeds give the same choice.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import shutil
 from collections.abc import Sequence
@@ -22,6 +23,7 @@ from pathlib import Path
 from types import SimpleNamespace
 
 from cnep.models import load_checkpoint, read_checkpoint_config, save_checkpoint
+from cnep.outputs import signals_held
 from cnep.pipeline.export.config import ExportConfig
 from cnep.pipeline.export.stage import export
 from cnep.pipeline.sim.config import ONLINE, PickPlaceConfig, SimConfig
@@ -84,24 +86,28 @@ def select_checkpoints(
     checkpoints: dict[str, Path],
     extractor: Path,
     workers: int,
+    held: contextlib.ExitStack | None = None,
 ) -> dict[str, dict]:
     """The stage: every candidate of every checkpoint (label -> checkpoint folder) scored in closed loop, `workers` at
     a time in single-threaded processes (0: in this process) under one bar, and each checkpoint's winner kept
     (`keep`); returns label -> the record its config.json holds. Nothing to choose (SelectionSettings.candidates 1):
-    {}."""
+    {}. SIGINT and SIGTERM wait while the winners are kept, and with `held` until it closes (`cnep sim` records the
+    stage as finished first: pipeline.sim.partial)."""
     if not config.selection.selects:
         return {}
     found = {label: candidates_of(path) for label, path in checkpoints.items()}
     jobs = {f"{label}/{c.path.name}": c.path for label, candidates in found.items() for c in candidates}
     scores = _score_all(config, task, out, jobs, extractor, workers)
     records = {}
-    for label, candidates in found.items():
-        scored = [scores[f"{label}/{c.path.name}"] for c in candidates]
-        winner = choose(candidates, [s["success"] for s in scored])
-        records[label] = selection_record(config, task, candidates, scored, winner)
-        keep(checkpoints[label], winner, records[label])
-        best = max(s["success"] for s in scored)
-        log.info("%s: kept the weights of step %d (validation success %.2f)", label, winner.step, best)
+    with contextlib.ExitStack() as here:  # the checkpoints all as trained or all chosen from, the choice recorded
+        (here if held is None else held).enter_context(signals_held())
+        for label, candidates in found.items():
+            scored = [scores[f"{label}/{c.path.name}"] for c in candidates]
+            winner = choose(candidates, [s["success"] for s in scored])
+            records[label] = selection_record(config, task, candidates, scored, winner)
+            keep(checkpoints[label], winner, records[label])
+            best = max(s["success"] for s in scored)
+            log.info("%s: kept the weights of step %d (validation success %.2f)", label, winner.step, best)
     shutil.rmtree(out / SELECTION_DIR)
     return records
 

@@ -26,37 +26,36 @@ Stages (each logs its progress), all under OUT:
               `episode.png` (pipeline.sim.figure, with matplotlib): the first CNEP's first episode of the last
               protocol and condition.
 
-The stages write into a work folder beside OUT, renamed to OUT when all are complete (pipeline.folders): a failed or
-interrupted run leaves OUT as it found it, and running it again starts over.
+The stages write into `.OUT.partial` beside OUT, renamed to OUT when all are complete (pipeline.sim.partial), where
+STAGES_FILE records the run's settings and each finished stage with its result and files. A run stopped after a stage
+leaves OUT as it found it and keeps the stages it finished there (and the closed loop's finished policies): the same
+command again resumes at the next stage (the same seeds: its summary is a straight run's); one with other settings is
+refused (`--force`: start over).
 """
 
 from __future__ import annotations
 
-import json
 import logging
-from collections.abc import Callable
 from dataclasses import asdict, replace
 from functools import partial
 from pathlib import Path
 
 from cnep.models import CNEPConfig, TrainConfig
-from cnep.outputs import write_output, writer, writing_as
-from cnep.pipeline.contract import refuse_file_as_folder
+from cnep.outputs import writing_as
 from cnep.pipeline.demo.stage import CNMP_ASSIGNMENT, LAYOUT, quiet_per_file_logs, train_side_by_side
-from cnep.pipeline.demo.weights import choose_weights
-from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.demo.weights import WeightsChoice, choose_weights
 from cnep.pipeline.export.config import ExportConfig
 from cnep.pipeline.export.stage import export
 from cnep.pipeline.extract.stage import ExtractConfig, extract
-from cnep.pipeline.folders import assembled_folder
-from cnep.pipeline.progress import RemoteBar, StageClock
+from cnep.pipeline.progress import RemoteBar
 from cnep.pipeline.sim.baselines import CHECKPOINTS, baseline_jobs, baseline_policy, environment_pose_noise
 from cnep.pipeline.sim.config import PickPlaceConfig, SimConfig, demonstrations_task, trained_conditioning
 from cnep.pipeline.sim.extras import require_extras
 from cnep.pipeline.sim.figure import FIGURE_FILE
 from cnep.pipeline.sim.generate import generate_demonstrations, ingest_demonstrations
 from cnep.pipeline.sim.loop import episodes_of, evaluate_policy, for_task, open_task_policy
-from cnep.pipeline.sim.pool import run_counted
+from cnep.pipeline.sim.partial import PartialRun, partial_run
+from cnep.pipeline.sim.pool import as_finished
 from cnep.pipeline.sim.selection import run_seeds, select_checkpoints
 from cnep.pipeline.sim.summary import format_table
 from cnep.pipeline.train.stage import TrainStageConfig
@@ -66,83 +65,78 @@ from cnep.sim.tasks import find_task
 
 log = logging.getLogger(__name__)
 
-SUMMARY_FILE = "summary.json"
 EXTRACTOR_FILE = "extractor.pt"
-STAGES = ("generate", "ingest", "extract", "train", "select", "export", "closed loop")
+CLOSED_LOOP = "closed loop"
+STAGES = ("generate", "ingest", "extract", "train", "select", "export", CLOSED_LOOP)
 WORKERS = 2  # processes training the models, then running the policies in closed loop
 
 
 def run_sim(config: SimConfig | PickPlaceConfig) -> dict:
-    """Run every stage of the task `config.TASK` into `config.out` (module docstring); returns the summary (also
-    OUT/summary.json)."""
+    """Run every stage of the task `config.TASK` into `config.out` (module docstring), resuming the stages a stopped
+    run of the same settings finished; returns the summary (also OUT/summary.json)."""
     require_extras(config, f"cnep sim {config.TASK}")
     task = find_task(config.TASK, config.env_version)
     config = for_task(config, task)
-    with writing_as(f"sim {task.name}"):
-        return run_in_new_folder(Path(config.out), lambda work: _run_stages(config, task, work))
-
-
-def run_in_new_folder(out: Path, stages: Callable[[Path], dict]) -> dict:
-    """`stages(work)` run in a work folder unique to the run beside `out`, its summary written there as SUMMARY_FILE,
-    and the work folder renamed to `out` (a new or empty folder) when all is complete (pipeline.folders); a failure or
-    an interruption leaves `out` as it was, with anything the user put there, and nothing of the run's (a kill -9
-    leaves the work folder, which the next run into `out` removes)."""
-    with assembled_folder(out, lambda: refuse_unless_new(out)) as work:
+    out = Path(config.out)
+    with writing_as(f"sim {task.name}"), partial_run(out, run_settings(config), len(STAGES), config.force) as run:
         with quiet_per_file_logs():
-            summary = stages(work)
-        write_output(work / SUMMARY_FILE, json.dumps(summary, indent=1).encode())
+            summary = _run_stages(config, task, run)
+        run.publish(out, summary)
     return summary
 
 
-def refuse_unless_new(out: Path) -> None:
-    """PipelineError unless `out` is missing or an empty folder: the command writes into a new folder only."""
-    refuse_file_as_folder(out)
-    if out.is_dir() and any(out.iterdir()):
-        raise PipelineError(f"{out}: `cnep {writer()} --out` writes into a new folder and this one is not empty")
+def run_settings(config: SimConfig | PickPlaceConfig) -> dict:
+    """What makes a run (its summary's `settings`, and what a resumed run must share): every setting but where it
+    writes and how it speaks."""
+    return {k: v for k, v in asdict(config).items() if k not in ("out", "quiet", "force")}
 
 
-def _run_stages(config: SimConfig | PickPlaceConfig, task: Task, out: Path) -> dict:
-    """The stages (STAGES) in order, each timed; returns the summary."""
-    seconds: dict[str, float] = {}
-    timed = StageClock(seconds, len(STAGES), log)
-    chosen = choose_weights(config.weights, config.offline)  # before anything is made: `imagenet` may be refused
+def _run_stages(config: SimConfig | PickPlaceConfig, task: Task, run: PartialRun) -> dict:
+    """The stages (STAGES) in order, each timed, those `run` finished before kept; returns the summary."""
+    out = run.work
+    # before anything is made (`imagenet` may be refused); the features' once they are extracted
+    chosen = None if run.done("extract") else choose_weights(config.weights, config.offline)
     variants = {name: getattr(config, name) for name in task.variants}
-    with timed("generate", 1):
-        made = generate_demonstrations(
-            task, out / "recorded", config.demonstrations, config.seed, config.quiet, **variants
-        )
-    with timed("ingest", 2):
-        ingest_demonstrations(
-            out / "recorded", out / "demos", demonstrations_task(task.name, task.version), config.quiet
-        )
-    with timed("extract", 3):
-        extract_features(config, out, chosen.weights)
-    with timed("train", 4):
-        checkpoints = train_models(config, out, started=seconds["train"])
-    with timed("select", 5):
-        selected = select_checkpoints(config, task, out, checkpoints, out / EXTRACTOR_FILE, WORKERS)
-    with timed("export", 6):
-        policies = export_policies(checkpoints, out)
-    with timed("closed loop", 7):
-        results = _closed_loop(config, task, out, policies)
+    made = run.stage("generate", 1, lambda: generate(config, task, out, variants))
+    run.stage("ingest", 2, lambda: ingest_demonstrations(
+        out / "recorded", out / "demos", demonstrations_task(task.name, task.version), config.quiet
+    ))  # fmt: skip
+    weights = run.stage("extract", 3, lambda: extract_chosen(config, out, chosen))
+    checkpoints = {label: Path(job.out) for label, job in training_jobs(config, out).items()}
+    run.stage("train", 4, lambda: train_models(config, out, started=run.seconds["train"]))
+    selected = run.stage(
+        "select", 5, lambda: select_checkpoints(config, task, out, checkpoints, out / EXTRACTOR_FILE, WORKERS, run.held)
+    )  # its choice changes the trained checkpoints: recorded before a signal takes effect
+    policies = {label: policy_folder(out, checkpoint) for label, checkpoint in checkpoints.items()}
+    run.stage("export", 6, lambda: export_policies(checkpoints, out))
+    results = run.stage(CLOSED_LOOP, 7, lambda: _closed_loop(config, task, run, policies))
     return {
         "task": task.name,
         "env_version": task.version,
         **variants,
-        "settings": {k: v for k, v in asdict(config).items() if k not in ("out", "quiet")},
+        "settings": run_settings(config),
         "features": read_trajectory(next((out / "trajectories").glob("*.mcap"))).extractor["weights"],
-        "imagenet_unavailable": chosen.imagenet_unavailable,
-        "demonstrations": {
-            "n": len(made.folders),
-            **task.describe_demonstrations(made.behaviours),
-            "clean": made.successes,
-        },
+        "imagenet_unavailable": weights["imagenet_unavailable"],
+        "demonstrations": {"n": made["n"], **task.describe_demonstrations(made["behaviours"]), "clean": made["clean"]},
         "seeds": run_seeds(config),
         "selection": selected,
         "models": by_model(results),
         "table": format_table(results, task),
-        "seconds": seconds,
+        "seconds": run.seconds,
     }
+
+
+def extract_chosen(config: SimConfig | PickPlaceConfig, out: Path, chosen: WeightsChoice) -> dict:
+    """Stage 3 (`extract_features`) with the weights `chosen`; what the summary says of the choice."""
+    extract_features(config, out, chosen.weights)
+    return {"imagenet_unavailable": chosen.imagenet_unavailable}
+
+
+def generate(config: SimConfig | PickPlaceConfig, task: Task, out: Path, variants: dict) -> dict:
+    """Stage 1: the task's demonstrations under OUT/recorded; what the summary says of them: how many, what each did
+    (Task.behaviours), how many are clean."""
+    made = generate_demonstrations(task, out / "recorded", config.demonstrations, config.seed, config.quiet, **variants)
+    return {"n": len(made.folders), "behaviours": made.behaviours, "clean": made.successes}
 
 
 def extract_features(config: SimConfig | PickPlaceConfig, out: Path, weights: str) -> None:
@@ -160,14 +154,13 @@ def extract_features(config: SimConfig | PickPlaceConfig, out: Path, weights: st
     )
 
 
-def train_models(config: SimConfig | PickPlaceConfig, out: Path, started: float) -> dict[str, Path]:
+def train_models(config: SimConfig | PickPlaceConfig, out: Path, started: float) -> None:
     """Stage 4: the CNEP and the matched CNMP for every training seed (`training_jobs`), WORKERS at a time, a bar
-    each; label -> checkpoint. started: the stage's start (time.perf_counter), for the log."""
+    each. started: the stage's start (time.perf_counter), for the log."""
     jobs = training_jobs(config, out)
     steps = "the schedule's steps" if config.train_steps is None else f"{config.train_steps} steps"
     log.info("training %d models, %d at a time (%s each)", len(jobs), WORKERS, steps)
     train_side_by_side(jobs, config.quiet, started, workers=WORKERS)
-    return {label: Path(job.out) for label, job in jobs.items()}
 
 
 def training_jobs(config: SimConfig | PickPlaceConfig, out: Path) -> dict[str, TrainStageConfig]:
@@ -190,32 +183,51 @@ def training_jobs(config: SimConfig | PickPlaceConfig, out: Path) -> dict[str, T
     return jobs
 
 
-def export_policies(checkpoints: dict[str, Path], out: Path) -> dict[str, Path]:
-    """Stage 5: each checkpoint as a policy folder under OUT/policies; label -> folder."""
-    policies = {}
-    for label, checkpoint in checkpoints.items():
-        policies[label] = out / "policies" / checkpoint.name
-        export(ExportConfig(checkpoint, policies[label], extractor=out / EXTRACTOR_FILE, quiet=True))
-    return policies
+def export_policies(checkpoints: dict[str, Path], out: Path) -> None:
+    """Stage 6: each checkpoint (label -> folder) as a policy folder under OUT/policies (`policy_folder`)."""
+    for checkpoint in checkpoints.values():
+        export(ExportConfig(checkpoint, policy_folder(out, checkpoint), extractor=out / EXTRACTOR_FILE, quiet=True))
+
+
+def policy_folder(out: Path, checkpoint: Path) -> Path:
+    """Where stage 6 exports `checkpoint`: OUT/policies/ under the checkpoint's name."""
+    return out / "policies" / checkpoint.name
 
 
 def _closed_loop(
-    config: SimConfig | PickPlaceConfig, task: Task, out: Path, policies: dict[str, Path]
+    config: SimConfig | PickPlaceConfig, task: Task, run: PartialRun, policies: dict[str, Path]
 ) -> dict[str, dict]:
-    """Stage 6: every policy (and the baselines, per training seed fitted with that seed's CNEP's normaliser, feature
+    """Stage 7: every policy (and the baselines, per training seed fitted with that seed's CNEP's normaliser, feature
     graph and conditioning) in closed loop, WORKERS at a time in single-threaded processes, one bar counting their
     episodes; its first episodes recorded under OUT/episodes, the first policy's drawn into OUT/episode.png; label ->
-    results."""
-    (out / "episodes").mkdir()
+    results. Each policy is a part of the stage (pipeline.sim.partial): recorded with its files when it finishes, and
+    kept where a stopped run finished it."""
+    out = run.work
+    (out / "episodes").mkdir(exist_ok=True)
     jobs = {label: (path, None) for label, path in policies.items()}
     if config.baselines:
         jobs.update(baseline_jobs(config.train_seeds, policies))
+    kept = {label: result for label, result in run.kept_parts(CLOSED_LOOP).items() if label in jobs}
+    if kept:
+        log.info("closed loop: %d of %d policies finished before, kept", len(kept), len(jobs))
     figure = {next(iter(policies)): out / FIGURE_FILE}
     calls = {
         label: partial(evaluate_one, config, task.name, out, label, *job, figure=figure.get(label))
         for label, job in jobs.items()
+        if label not in kept
     }
-    return run_counted(calls, episodes_of(task, config) * len(jobs), "closed loop", WORKERS, config.quiet)
+    done = dict(kept)
+    for label, results in (
+        []
+        if not calls
+        else as_finished(calls, episodes_of(task, config) * len(calls), CLOSED_LOOP, WORKERS, config.quiet)
+    ):
+        files = sorted((out / "episodes").glob(f"{label}-*.rrd")) + [
+            p for p in [figure.get(label)] if p and p.is_file()
+        ]
+        run.part(CLOSED_LOOP, label, results, files)
+        done[label] = results
+    return {label: done[label] for label in jobs}
 
 
 def evaluate_one(

@@ -2,7 +2,8 @@
 beside and inside cnep's outputs (at an output's own path too, an output edited, folders named like the ones cnep sets
 an output aside in or trains in), cnep commands run on them with and without --force (in this process, or in a process
 of their own stopped by SIGTERM, SIGINT or kill -9 at a random point of its writing, then run again), the user
-deleting files of theirs.
+deleting files of theirs; `cnep sim obstacle`, its stages stood in for (`SimStages`: each writes a file as the
+stages write theirs), stopped after a stage and run again with the same or another seed, with and without --force.
 
 After every step: every byte of the user's is where the user put it; every other file under the folder is complete,
 named unchanged by the record of its folder (or, in a policy folder, by its manifest), or the leftover of a killed
@@ -51,6 +52,7 @@ from cnep.outputs import (
     pid_alive,
     read_record,
     recorded_by,
+    write_output,
     writing_as,
 )
 from cnep.pipeline.cli.main import main
@@ -58,6 +60,8 @@ from cnep.pipeline.demo.stage import remove_outputs
 from cnep.pipeline.export.stage import in_manifest
 from cnep.pipeline.replay.decisions import decisions_path
 from cnep.pipeline.run.stage import summary_path
+from cnep.pipeline.sim import stage as sim_stage
+from cnep.pipeline.sim.stage import STAGES as SIM_STAGES
 from cnep.pipeline.train.constants import STATE_FILE
 from cnep.runtime.constants import MANIFEST_FILE
 from tests.pipeline.preloaded import Preloaded
@@ -136,15 +140,22 @@ def commands(w: World, r: Path) -> dict[str, Command]:
         ),
         "repair": Command(["repair", w.truncated, r / "fixed" / "f.mcap"], [r / "fixed" / "f.mcap"], r / "fixed"),
         "demo": Command(["demo", "--quick", "--out", r / "demo"], [r / "demo" / "summary.json"], r / "demo"),
+        **{
+            name: Command(
+                ["sim", "obstacle", "--out", r / "sim", "--seed", seed], [r / "sim" / "summary.json"], r / "sim"
+            )
+            for name, seed in SIM_SEEDS.items()
+        },
     }
 
 
+SIM_SEEDS = {"sim": 0, "sim with another seed": 1}  # `cnep sim obstacle --seed`: a run of other settings
 # The keys of `commands`, and the other choices of a step, riskiest first: Hypothesis tries the first ones first.
-COMMANDS = ("train", "export", "demo", "ingest", "extract", "run", "replay", "repair", "train its own")
-COMMANDS += ("run inside its input",)
+COMMANDS = ("train", "export", "demo", "sim", "ingest", "extract", "run", "replay", "repair", "train its own")
+COMMANDS += ("run inside its input", "sim with another seed")
 FORCE = st.sampled_from([True, False])
 STOP = {  # a command in a process of its own, and where to stop it: `Command.points[point]`, at its `hit`-th call
-    "command": st.sampled_from([c for c in COMMANDS if c != "demo"]),
+    "command": st.sampled_from([c for c in COMMANDS if c != "demo" and c not in SIM_SEEDS]),
     "force": FORCE,
     "signum": st.sampled_from([signal.SIGKILL, signal.SIGTERM, signal.SIGINT]),
     "point": st.integers(0, 99),
@@ -155,7 +166,29 @@ NAMES = ("notes.txt", "demo_0.mcap", CONFIG, "model.safetensors", "state.pt", "r
 # beside it, in folders named like the ones a run sets an output aside in, and in a training's work folder.
 WHERE = ("inside", "at", "deeper", "aside", "aside of a dead run", "work folder", "beside")
 HOMES = {"ckpt": "train", "policy": "export", "demo": "demo", "demos": "ingest", "trajs": "extract", "runs": "run"}
-HOMES |= {"replay": "replay", "fixed": "repair"}  # a command's folder -> the command
+HOMES |= {"replay": "replay", "fixed": "repair", "sim": "sim"}  # a command's folder -> the command
+
+
+class SimStages:
+    """`cnep sim`'s stages stood in for (pipeline.sim.stage._run_stages, while `run_machine` runs): each stage writes
+    `<stage>/made.txt` of the run's seed as the stages write their files (cnep.outputs.write_output); the stage `stop`
+    writes `<stage>/half.txt`, then raises KeyboardInterrupt (Ctrl-C) (None: every stage finishes)."""
+
+    stop: str | None = None
+
+    def __call__(self, config, task, run) -> dict:
+        made = {name: run.stage(name, number, lambda name=name: self.make(run.work, name, config.seed))
+                for number, name in enumerate(SIM_STAGES, 1)}  # fmt: skip
+        return {"table": "", "features": "", "made": made, "seconds": run.seconds}
+
+    def make(self, work: Path, name: str, seed: int) -> dict:
+        folder = work / name.replace(" ", "-")
+        folder.mkdir(exist_ok=True)
+        if name == self.stop:
+            write_output(folder / "half.txt", b"half")
+            raise KeyboardInterrupt
+        write_output(folder / "made.txt", f"{name} of seed {seed}".encode())
+        return {"seed": seed}
 
 
 def place(where: str, command: Command, name: str, dead_pid: int) -> Path:
@@ -267,6 +300,25 @@ class Ownership(RuleBasedStateMachine):
         else:
             self.interrupted = argv
 
+    @rule(
+        command=st.sampled_from(list(SIM_SEEDS)),
+        force=FORCE,
+        stop=st.sampled_from(SIM_STAGES),
+        mine=st.lists(st.tuples(st.sampled_from(WHERE), st.sampled_from(NAMES), st.binary(max_size=8)), max_size=2),
+    )
+    def stop_the_sim(self, command: str, force: bool, stop: str, mine: list) -> None:
+        """`cnep sim` stopped by Ctrl-C in the stage `stop` (in this process: its stages are stood in for here)."""
+        chosen = commands(self.world, self.root)[command]
+        for where, name, data in mine:
+            self.put(place(where, chosen, name, self.world.dead_pid), data)
+        SimStages.stop = stop
+        try:
+            status, _ = self.in_process([*chosen.argv, *(["--force"] if force else [])], stopped=True)
+        finally:
+            SimStages.stop = None
+        if status == 130:
+            self.interrupted = chosen.argv
+
     @precondition(lambda self: self.interrupted is not None)
     @rule()
     def run_it_again(self) -> None:
@@ -311,8 +363,8 @@ class Ownership(RuleBasedStateMachine):
 
     # --- running commands -----------------------------------------------------------------------------------------
 
-    def in_process(self, argv: list) -> tuple[int, list[str]]:
-        """`cnep -q ARGV` in this process: (exit status, stderr lines)."""
+    def in_process(self, argv: list, stopped: bool = False) -> tuple[int, list[str]]:
+        """`cnep -q ARGV` in this process: (exit status, stderr lines); `stopped`: it may end interrupted (130)."""
         err = io.StringIO()
         with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
             status = main(["-q", *map(str, argv)])
@@ -324,8 +376,8 @@ class Ownership(RuleBasedStateMachine):
             for path in self.user:  # a file of the user's may be named anything
                 said = said.replace(str(path), "")
             assert not LEFTOVER.search(said), (argv, lines[-1])
-        assert status in (0, 2), (argv, status, lines)
-        self.seen[argv[0], "done" if status == 0 else "refused"] += 1
+        assert status in (0, 2, *([130] if stopped else [])), (argv, status, lines)
+        self.seen[argv[0], {0: "done", 2: "refused"}.get(status, "SIGINT")] += 1
         return status, lines
 
     def signalled(self, argv: list, signum: int, point: str, hit: int) -> tuple[int, list[str]]:
@@ -405,6 +457,15 @@ def run_machine(
     many times each command ended each way ((command, "done" | "refused" | a signal's name) -> count)."""
     Ownership.world, Ownership.base, Ownership.server, Ownership.demo_runs = world, base, server, demo_runs
     Ownership.seen = Counter()
+    stages, sim_stage._run_stages = sim_stage._run_stages, SimStages()
+    try:
+        _run(examples, steps)
+    finally:
+        sim_stage._run_stages = stages
+    return Ownership.seen
+
+
+def _run(examples: int, steps: int) -> None:
     run_state_machine_as_test(
         Ownership,
         settings=settings(
@@ -416,4 +477,3 @@ def run_machine(
             suppress_health_check=list(HealthCheck),
         ),
     )
-    return Ownership.seen

@@ -93,13 +93,16 @@ def test_with_the_split_option_episodes_take_both_sides_each_keeping_one_and_a_s
 
 
 def test_an_episode_run_with_its_frames_is_written_as_a_recording(env, tmp_path):
+    from cnep.outputs import is_recorded, writing_as
     from cnep.pipeline.sim.rerun_log import write_episode
     from cnep.sim.tasks.obstacle.drawing import drawing
 
     ep = run_episode(env, scripted_policy(gate=(0.2, 0.8)), seed=5, protocol=ONLINE, record_frames=True)
     assert ep.frames is not None and len(ep.frames) == len(ep.states)
-    path = write_episode(tmp_path / "episode.rrd", "episode", ep, 2, drawing(ep))
+    with writing_as("sim eval"):
+        path = write_episode(tmp_path / "episode.rrd", "episode", ep, 2, drawing(ep))
     assert path == tmp_path / "episode.rrd" and path.read_bytes()[:4] == b"RRF2"
+    assert is_recorded(path, "sim eval")  # the command's output, named in its folder's record
 
 
 def test_the_step_limit_truncates_every_episode_and_leaves_the_plan_spanning_the_task(monkeypatch):

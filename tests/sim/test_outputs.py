@@ -1,6 +1,7 @@
-"""`cnep sim TASK --out O` and `cnep sim eval --out E` write their folder as every command writes one
-(pipeline.folders): assembled beside it and renamed into place when complete. Stopped (SIGTERM, Ctrl-C, a full disk)
-they leave the folder as it was, a user's files in it included, and nothing half-made; run again, they finish; `eval`
+"""`cnep sim TASK --out O` and `cnep sim eval --out E` write their folder as every command writes one: assembled
+beside it and renamed into place when complete. Stopped (SIGTERM, Ctrl-C, a full disk) before a stage finished, they
+leave the folder as it was, a user's files in it included, and nothing half-made; run again, they finish (a stopped
+`cnep sim` that finished stages keeps them: tests/sim/test_resume.py); `eval`
 never writes inside the policy it reads. The stages' own work is stood in for here (tests/sim/test_stage.py runs them
 for real)."""
 
@@ -18,20 +19,20 @@ if not all(importlib.util.find_spec(name) for name in cnep.sim.EXTRA):
 
 import cnep.pipeline.sim.evaluate as sim_eval  # noqa: E402
 import cnep.pipeline.sim.stage as sim_stage  # noqa: E402
-from cnep.outputs import write_atomically  # noqa: E402
+from cnep.outputs import write_output, writing_as  # noqa: E402
 from cnep.pipeline.contract import Terminated  # noqa: E402
 from cnep.pipeline.sim.figure import FIGURE_FILE  # noqa: E402
-from cnep.pipeline.sim.stage import SUMMARY_FILE  # noqa: E402
+from cnep.pipeline.sim.partial import SUMMARY_FILE  # noqa: E402
 from tests.outputs.test_outputs import dead_pid  # noqa: E402
 from tests.pipeline.test_contract import assert_one_line, run_cli  # noqa: E402
 
 
 def half_done(folder, stop: BaseException | None):
     """What a stage leaves in `folder` before `stop` is raised (None: it finishes): a recording and a figure, each
-    written as the closed loop writes them (atomically)."""
+    written as the closed loop writes them (atomically, named in their folder's record)."""
     (folder / "episodes").mkdir(exist_ok=True)
-    write_atomically(folder / "episodes" / "CNEP-seed0-planned-seed0.rrd", b"RRF2" + bytes(60))
-    write_atomically(folder / FIGURE_FILE, b"\x89PNG" + bytes(60))
+    write_output(folder / "episodes" / "CNEP-seed0-planned-seed0.rrd", b"RRF2" + bytes(60))
+    write_output(folder / FIGURE_FILE, b"\x89PNG" + bytes(60))
     if stop is not None:
         raise stop
     return {"table": "the table", "features": "random", "models": {}}
@@ -63,23 +64,24 @@ def test_a_stopped_sim_leaves_its_folder_as_it_was_with_the_users_files_and_runs
     out = tmp_path / "sim"
     error, status, said = STOPS[stop]
 
-    def stages(config, task, work):
+    def stages(config, task, run):
         out.mkdir(exist_ok=True)
         (out / "notes.txt").write_text("mine")  # the user, while it runs
-        return half_done(work, error)
+        return half_done(run.work, error)
 
     monkeypatch.setattr(sim_stage, "_run_stages", stages)
     code, err = run_cli(["sim", "obstacle", "--out", out], capsys)
     assert code == status and said in assert_one_line(err, "sim")
     assert names(tmp_path) == ["sim", "sim/notes.txt"] and (out / "notes.txt").read_text() == "mine"
     (out / "notes.txt").unlink()
-    monkeypatch.setattr(sim_stage, "_run_stages", lambda config, task, work: half_done(work, None))
+    monkeypatch.setattr(sim_stage, "_run_stages", lambda config, task, run: half_done(run.work, None))
     code, err = run_cli(["sim", "obstacle", "--out", out], capsys)  # again, into the folder left empty
     assert code == 0, err
     assert names(out) == [
         ".cnep-record.json",
         FIGURE_FILE,
         "episodes",
+        "episodes/.cnep-record.json",
         "episodes/CNEP-seed0-planned-seed0.rrd",
         SUMMARY_FILE,
     ]
@@ -91,9 +93,9 @@ def test_a_file_put_into_the_folder_while_the_sim_ran_keeps_it_in_place(tmp_path
     out = tmp_path / "sim"
     out.mkdir()  # new and empty: the sim may write it
 
-    def stages(config, task, work):
+    def stages(config, task, run):
         (out / "notes.txt").write_text("mine")
-        return half_done(work, None)
+        return half_done(run.work, None)
 
     monkeypatch.setattr(sim_stage, "_run_stages", stages)
     code, err = run_cli(["sim", "obstacle", "--out", out], capsys)
@@ -101,17 +103,19 @@ def test_a_file_put_into_the_folder_while_the_sim_ran_keeps_it_in_place(tmp_path
     assert names(tmp_path) == ["sim", "sim/notes.txt"]
 
 
-def test_the_work_folder_a_killed_sim_left_goes_with_the_next_run(tmp_path, capsys, monkeypatch):
+def test_the_work_folder_a_sim_killed_in_its_first_stage_left_goes_with_the_next_run(tmp_path, capsys, monkeypatch):
     out = tmp_path / "sim"
-    left = tmp_path / f".sim.{dead_pid()}-abcdef.tmp"  # kill -9 in the middle of the closed loop
-    left.mkdir()
-    (left / "episodes").mkdir()
-    (left / "episodes" / "half.rrd").write_bytes(b"RRF2")
+    left = tmp_path / ".sim.partial"  # kill -9 in the middle of generating: no stage finished
+    (left / "recorded").mkdir(parents=True)
+    with writing_as("sim obstacle"):
+        write_output(left / "recorded" / "poses.csv", b"t,x")
+    (left / "recorded" / f".frame.png.{dead_pid()}-abcdef.tmp").write_bytes(b"\x89PNG")
     (tmp_path / ".sim.lock").write_text(json.dumps({"pid": dead_pid()}))
-    monkeypatch.setattr(sim_stage, "_run_stages", lambda config, task, work: half_done(work, None))
+    monkeypatch.setattr(sim_stage, "_run_stages", lambda config, task, run: half_done(run.work, None))
     code, err = run_cli(["sim", "obstacle", "--out", out], capsys)
     assert code == 0, err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["sim"] and (out / SUMMARY_FILE).is_file()
+    assert not (out / "recorded").exists()  # the killed run's files went; nothing of theirs is in the new output
 
 
 @pytest.mark.parametrize("stop", STOPS)

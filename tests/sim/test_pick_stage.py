@@ -20,7 +20,8 @@ if not all(importlib.util.find_spec(name) for name in cnep.sim.EXTRA):
 from cnep.pipeline.cli.main import main  # noqa: E402
 from cnep.pipeline.sim.baselines import COMPARED  # noqa: E402
 from cnep.pipeline.sim.config import ENV_VERSIONS, PROTOCOLS, PickPlaceConfig  # noqa: E402
-from cnep.pipeline.sim.stage import SUMMARY_FILE, run_sim  # noqa: E402
+from cnep.pipeline.sim.partial import SUMMARY_FILE  # noqa: E402
+from cnep.pipeline.sim.stage import run_sim  # noqa: E402
 from cnep.pipeline.sim.validation import SelectionSettings  # noqa: E402
 from cnep.recordings import read_demonstration  # noqa: E402
 from cnep.runtime import ConditioningPolicy  # noqa: E402

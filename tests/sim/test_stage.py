@@ -7,6 +7,9 @@ this process (tests/sim/conftest.py)."""
 
 import importlib.util
 import json
+import os
+import signal
+from dataclasses import replace
 
 import pytest
 
@@ -17,7 +20,8 @@ if not all(importlib.util.find_spec(name) for name in cnep.sim.EXTRA):
 
 from cnep.pipeline.cli.main import main  # noqa: E402
 from cnep.pipeline.sim.config import ENV_VERSIONS, MODELS, PROTOCOLS, SimConfig  # noqa: E402
-from cnep.pipeline.sim.stage import SUMMARY_FILE, run_sim  # noqa: E402
+from cnep.pipeline.sim.partial import SUMMARY_FILE  # noqa: E402
+from cnep.pipeline.sim.stage import run_sim  # noqa: E402
 from cnep.pipeline.sim.validation import SelectionSettings  # noqa: E402
 from tests.test_examples import load  # noqa: E402
 
@@ -78,3 +82,66 @@ def test_cnep_sim_obstacle_writes_the_documented_summary_and_its_policies_repeat
     assert [(r["model"], r["protocol"]) for r in rows] == [(m, p) for m in MODELS for p in PROTOCOLS]
     assert rows[0]["success"] == summary["models"]["CNEP"]["0"][PROTOCOLS[0]]["success"] and rows[0]["set"] == 0
     assert len(rows[0]["usage"].split("/")) == config.experts and rows[-1]["usage"] == "1.00"
+
+
+def without_timings(summary: dict) -> dict:
+    """A summary without what the clock measures: the stages' seconds, each episode's milliseconds and the table's
+    last column (the policy's milliseconds)."""
+    table = [line.rsplit(maxsplit=1)[0] for line in summary["table"].splitlines()]
+    summary = json.loads(json.dumps({**summary, "table": table}).replace('"ms":', '"_ms":'), object_hook=_drop_timings)
+    return summary
+
+
+def _drop_timings(entry: dict) -> dict:
+    return {k: v for k, v in entry.items() if k not in ("_ms", "seconds")}
+
+
+@pytest.mark.slow  # the pipeline twice, once stopped after the selection and in the closed loop, and resumed
+def test_cnep_sim_stopped_after_a_stage_and_in_the_closed_loop_resumes_to_the_summary_of_a_straight_run(
+    tmp_path, monkeypatch, few_calibration_frames, sim_pools_in_process
+):
+    import cnep.pipeline.sim.stage as sim_stage
+    from cnep.pipeline.sim.partial import STAGES_FILE, PartialRun, partial_folder
+
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    monkeypatch.setenv("TORCH_HOME", str(tmp_path / "torch"))
+    config = SimConfig(
+        out=tmp_path / "straight", demonstrations=2, train_steps=20, episodes=1, max_steps=16, record=1,
+        offline=True, quiet=True, selection=SelectionSettings(candidates=2, selection_episodes=1),
+    )  # fmt: skip
+    straight = run_sim(config)
+    out = tmp_path / "resumed"
+    select = sim_stage.select_checkpoints
+
+    def stopped(*args, **kwargs):
+        chosen = select(*args, **kwargs)  # the trained checkpoints changed: Ctrl-C now waits until that is recorded
+        os.kill(os.getpid(), signal.SIGINT)
+        return chosen
+
+    monkeypatch.setattr(sim_stage, "select_checkpoints", stopped)
+    with pytest.raises(KeyboardInterrupt, match="run the same command again"):
+        run_sim(replace(config, out=out))
+    assert list(json.loads((partial_folder(out) / STAGES_FILE).read_text())["stages"]) == [
+        "generate", "ingest", "extract", "train", "select"
+    ]  # fmt: skip
+    for finished in ("generate_demonstrations", "train_models", "select_checkpoints"):
+        monkeypatch.setattr(sim_stage, finished, None)  # a finished stage is never run again
+    record_part, evaluate = PartialRun.part, sim_stage.evaluate_one
+
+    def part_then_stopped(run, *args, **kwargs):
+        record_part(run, *args, **kwargs)
+        raise KeyboardInterrupt  # Ctrl-C once the closed loop's first policy is recorded
+
+    monkeypatch.setattr(PartialRun, "part", part_then_stopped)
+    with pytest.raises(KeyboardInterrupt, match="run the same command again"):
+        run_sim(replace(config, out=out))
+    monkeypatch.setattr(PartialRun, "part", record_part)
+    evaluated = []
+    monkeypatch.setattr(sim_stage, "evaluate_one", lambda *a, **k: evaluated.append(a[3]) or evaluate(*a, **k))
+    resumed = run_sim(replace(config, out=out))
+    assert evaluated == ["CNMP-seed0"]  # the CNEP's episodes were kept
+    assert without_timings(resumed) == without_timings(straight)
+    assert json.loads((out / SUMMARY_FILE).read_text()) == json.loads(json.dumps(resumed))
+    assert sorted(p.name for p in (out / "episodes").iterdir()) == sorted(
+        p.name for p in (tmp_path / "straight" / "episodes").iterdir()
+    )
