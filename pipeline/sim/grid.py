@@ -33,6 +33,7 @@ from cnep.pipeline.contract import output_folder
 from cnep.pipeline.demo.stage import quiet_per_file_logs
 from cnep.pipeline.demo.weights import choose_weights
 from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.evaluate.executors import check_cluster
 from cnep.pipeline.folders import assembled_folder
 from cnep.pipeline.sim.baselines import COMPARED
 from cnep.pipeline.sim.config import MODELS, PICK_PLACE, PickPlaceConfig, SimConfig
@@ -66,6 +67,7 @@ def run_grid(config: GridConfig) -> GridResult:
     """Every cell of `config` that OUT does not hold yet, then OUT's CSV and table of all of `config`'s cells (module
     docstring)."""
     require_extras(config, "cnep sim grid")
+    check_cluster(config.executor, config.address)  # before any set is made, not once they are
     out = Path(config.out)
     with writing_as("sim grid"), output_folder(out), output_lock(out, folder=True):
         check_grid_folder(out, config)

@@ -60,6 +60,28 @@ def test_grid_refuses_reported_seeds_among_the_validation_seeds_and_other_bad_se
     assert "which meet the validation seeds" in capsys.readouterr().err and not out.exists()
 
 
+@pytest.mark.skipif(not SIM, reason="the sim extra is not installed")
+def test_a_cluster_where_no_scheduler_answers_is_refused_before_any_set_is_made(tmp_path, capsys, monkeypatch):
+    pytest.importorskip("distributed")
+    import cnep.pipeline.sim.grid as grid
+    from cnep.pipeline.evaluate import addresses
+    from tests.pipeline.test_executors import silent_listener
+
+    def no_work(*args, **kwargs):
+        raise AssertionError("a set was made before the cluster was reached")
+
+    monkeypatch.setattr(addresses, "CONNECT_SECONDS", 1.0)
+    monkeypatch.setattr(grid, "generate_demonstrations", no_work)
+    out = tmp_path / "g"
+    with silent_listener() as port:
+        address = f"tcp://127.0.0.1:{port}"
+        capsys.readouterr()
+        assert main(["-q", "sim", "grid", "--out", str(out), "--executor", "dask", address]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"--executor dask {address}: the listener there sent no Dask handshake" in err[0], err
+    assert not out.exists()
+
+
 def cell(seed: int, successes: int, entropy: float | None) -> dict:
     """A cell file's contents: an obstacle CNEP of 10 online episodes, `successes` of them successful."""
     rows = [{"seed": i, "success": i < successes} for i in range(10)]
