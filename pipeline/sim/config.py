@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import ClassVar
 
 from cnep.models.assignments import ASSIGNMENTS
-from cnep.models.config import SCHEDULE_SHOWN, SEED_MAX, ConditioningOverrides, check_seed, setting
+from cnep.models.config import SCHEDULE_SHOWN, SEED_MAX, ConditioningOverrides, TrainConfig, check_seed, setting
 from cnep.perception.constants import FEATURE_DIM
 from cnep.pipeline.demo.config import AUTO_WEIGHTS
 from cnep.pipeline.errors import PipelineError
@@ -116,16 +116,18 @@ def task_and_version(label: str) -> tuple[str, int | None]:
     return (label, 0) if label in TASKS else ("", None)
 
 
-def check_seeds(seed: int, train_seeds: tuple[int, ...]) -> None:
-    """PipelineError unless the demonstrations' `seed` and every one of `train_seeds` is a seed."""
-    check_seed("--seed", seed, PipelineError)
+def check_seeds(seed: int, train_seeds: tuple[int, ...], seed_option: str = "--seed") -> None:
+    """PipelineError unless the demonstrations' `seed` (given as `seed_option`) and every one of `train_seeds` is a
+    seed."""
+    check_seed(seed_option, seed, PipelineError)
     for train_seed in train_seeds:
         check_seed("--train-seeds", train_seed, PipelineError)
 
 
 def check_training(config: SimConfig | PickPlaceConfig) -> None:
     """PipelineError unless `config` trains on >= 2 demonstrations, for >= 1 step (where given), with >= 2 experts and
-    a training seed."""
+    a training seed; ConfigError, before any work, where its training settings are ones `cnep train` refuses
+    (TrainConfig's own checks, which the models' training would meet only after the demonstrations are made)."""
     if (
         config.demonstrations < 2
         or (config.train_steps is not None and config.train_steps < 1)
@@ -136,6 +138,7 @@ def check_training(config: SimConfig | PickPlaceConfig) -> None:
             f"need >= 2 demonstrations, >= 1 training step, >= 2 experts and a training seed, got "
             f"{config.demonstrations}, {config.train_steps}, {config.experts} and {config.train_seeds}"
         )
+    TrainConfig(steps=config.train_steps, nll_beta=config.nll_beta)
 
 
 @dataclass(frozen=True)
