@@ -253,11 +253,20 @@ def with_task(config: EvalConfig) -> EvalConfig:
 def policy_task(policy: Path) -> str:
     """The task a policy folder was trained on: the one task its training demonstrations name (an export's
     `spec.tasks` in its manifest, a checkpoint's `tasks` in its config.json); "" where they name none or several."""
-    if policy_kind(policy) == CHECKPOINT:
-        tasks = read_json(policy / CONFIG_FILE).get(TASKS_KEY) or []
-    else:
-        tasks = (read_json(policy / MANIFEST_FILE).get("spec") or {}).get("tasks") or []
-    return str(tasks[0]) if len(tasks) == 1 else ""
+    checkpoint = policy_kind(policy) == CHECKPOINT
+    path = policy / (CONFIG_FILE if checkpoint else MANIFEST_FILE)
+    try:
+        data = read_json(path)
+    except (OSError, ValueError) as exc:
+        raise PipelineError(f"{path}: cannot read it ({exc}); export or train the policy again") from None
+    if not isinstance(data, dict):
+        what = "a checkpoint's config" if checkpoint else "a policy's manifest"
+        raise PipelineError(f"{path}: not {what} (a JSON object); export or train the policy again")
+    holder = data if checkpoint else data.get("spec") or {}
+    tasks = (holder.get(TASKS_KEY) if isinstance(holder, dict) else None) or []
+    if not (isinstance(tasks, list) and all(isinstance(task, str) for task in tasks)):
+        raise PipelineError(f"{path}: its tasks are not a list of task names; export or train the policy again")
+    return tasks[0] if len(tasks) == 1 else ""
 
 
 @dataclass(frozen=True, kw_only=True)
