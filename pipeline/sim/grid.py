@@ -45,6 +45,7 @@ from cnep.pipeline.sim.grid_unit import Unit, link_subset, run_grid_unit
 from cnep.pipeline.sim.loop import episodes_of, for_task
 from cnep.pipeline.sim.pool import as_finished
 from cnep.pipeline.sim.stage import extract_features
+from cnep.runtime.jsonfile import read_json
 from cnep.sim.task import Task
 from cnep.sim.tasks import find_task
 
@@ -82,7 +83,7 @@ def run_grid(config: GridConfig) -> GridResult:
                 write_output(
                     out / "cells" / f"{unit.name}-{model}.json", json.dumps(cell(unit, model, result)).encode()
                 )
-        rows = [row for path in cell_files(config, out) for row in cell_rows(json.loads(path.read_text()))]
+        rows = [row for path in cell_files(config, out) for row in rows_of_cell(path)]
         table = pooled_table(rows)
         write_output(out / CSV_FILE, csv_text(rows).encode())
         write_output(out / TABLE_FILE, (table + "\n").encode())
@@ -94,7 +95,7 @@ def check_grid_folder(out: Path, config: GridConfig) -> None:
     `config`'s (GridConfig.shared); in another folder, PipelineError."""
     shared, grid_file = config.shared(), out / GRID_FILE
     if grid_file.is_file():
-        before = json.loads(grid_file.read_text())
+        before = read_grid_file(grid_file, "give another --out for a new grid")
         differ = [name for name in shared if before.get(name) != json.loads(json.dumps(shared[name]))]
         if differ:
             given = ", ".join(f"--{n.replace('_', '-')} {before.get(n)}" for n in differ)
@@ -169,7 +170,34 @@ def make_set(config: GridConfig, task: Task, set_seed: int, folder: Path) -> lis
             extract_features(replace(settings, out=work), work, weights)
             made_set = {"behaviours": made.behaviours, "clean": made.successes, "weights": weights}
             write_output(work / SET_FILE, json.dumps(made_set).encode())
-    return json.loads((folder / SET_FILE).read_text())["behaviours"]
+    behaviours = read_grid_file(folder / SET_FILE, f"delete {folder} to make the set again").get("behaviours")
+    if not (isinstance(behaviours, list) and all(isinstance(b, str) for b in behaviours)):
+        raise PipelineError(
+            f"{folder / SET_FILE}: its behaviours are not a list of names; delete {folder} to make the set again"
+        )
+    return behaviours
+
+
+def read_grid_file(path: Path, fix: str) -> dict:
+    """The JSON object the grid wrote at `path` (grid.json, a set's set.json, a cell's file), read within the bounds of
+    any JSON a user hands cnep (runtime.jsonfile); PipelineError naming the file and `fix` otherwise."""
+    try:
+        data = read_json(path)
+    except (OSError, ValueError) as exc:
+        raise PipelineError(f"{path}: cannot read this file of the grid's ({exc}); {fix}") from None
+    if not isinstance(data, dict):
+        raise PipelineError(f"{path}: not a file of the grid's (a JSON object); {fix}")
+    return data
+
+
+def rows_of_cell(path: Path) -> list[dict]:
+    """The CSV rows of the cell file at `path` (grid_table.cell_rows); PipelineError naming it if it holds no cell."""
+    fix = "delete it to run its cell again"
+    cell = read_grid_file(path, fix)
+    try:
+        return cell_rows(cell)
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
+        raise PipelineError(f"{path}: not a cell of the grid's ({type(exc).__name__}: {exc}); {fix}") from None
 
 
 def trajectory_of(set_folder: Path, i: int) -> Path:

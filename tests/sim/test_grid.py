@@ -6,6 +6,7 @@ no work, and a lost cell made again from the unit's kept checkpoints."""
 
 import importlib.util
 import json
+import re
 from pathlib import Path
 
 import pytest
@@ -80,6 +81,42 @@ def test_a_cluster_where_no_scheduler_answers_is_refused_before_any_set_is_made(
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and f"--executor dask {address}: the listener there sent no Dask handshake" in err[0], err
     assert not out.exists()
+
+
+@pytest.mark.skipif(not SIM, reason="the sim extra is not installed")
+@pytest.mark.parametrize(
+    "text, says",
+    [
+        ("{oops", "cannot read this file of the grid's"),
+        ("[" * 100_000 + "]" * 100_000, "cannot read this file of the grid's \\(nested 100000 levels deep"),
+        ('{"a": "' + "a" * (17 << 20) + '"}', "cannot read this file of the grid's \\(larger than the 16777216 bytes"),
+        ("[1, 2]", "not a file of the grid's \\(a JSON object\\)"),
+    ],
+    ids=["not JSON", "too deep", "17 MB", "a list"],
+)
+def test_a_grid_file_that_cannot_be_read_is_one_line_naming_it(tmp_path, capsys, text, says):
+    import cnep.pipeline.sim.grid as grid
+
+    out = tmp_path / "g"
+    out.mkdir()
+    (out / grid.GRID_FILE).write_text(text)
+    capsys.readouterr()
+    assert main(["-q", "sim", "grid", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and re.search(f"{out / grid.GRID_FILE}: {says}", err[0]), err
+    assert sorted(p.name for p in out.iterdir()) == [grid.GRID_FILE]
+    set_folder = tmp_path / "set"
+    set_folder.mkdir()
+    for set_text in (text, '{"behaviours": 5}'):
+        (set_folder / grid.SET_FILE).write_text(set_text)
+        with pytest.raises(
+            PipelineError, match=f"^{set_folder / grid.SET_FILE}: .*delete {set_folder} to make the set"
+        ):
+            grid.make_set(GridConfig(out=out), None, 0, set_folder)
+    for cell_text in (text, '{"results": {"online": 5}}'):
+        (tmp_path / "cell.json").write_text(cell_text)
+        with pytest.raises(PipelineError, match=f"^{tmp_path / 'cell.json'}: .*delete it to run its cell again"):
+            grid.rows_of_cell(tmp_path / "cell.json")
 
 
 def cell(seed: int, successes: int, entropy: float | None) -> dict:
