@@ -17,13 +17,12 @@ from cnep.models.config import SCHEDULE_SHOWN, SEED_MAX, ConditioningOverrides, 
 from cnep.perception.constants import FEATURE_DIM
 from cnep.pipeline.demo.config import AUTO_WEIGHTS
 from cnep.pipeline.errors import PipelineError
-from cnep.pipeline.inputs import coerce_paths
+from cnep.pipeline.inputs import coerce_paths, read_json_object
 from cnep.pipeline.run.config import CHECKPOINT, CONFIG_FILE, policy_kind
 from cnep.pipeline.sim.validation import SelectionSettings, check_reported
 from cnep.pipeline.train.constants import TASKS as TASKS_KEY
 from cnep.runtime.conditioning import ConditioningPolicy
 from cnep.runtime.constants import MANIFEST_FILE
-from cnep.runtime.jsonfile import read_json
 
 
 def task_names() -> tuple[str, ...]:
@@ -255,13 +254,8 @@ def policy_task(policy: Path) -> str:
     `spec.tasks` in its manifest, a checkpoint's `tasks` in its config.json); "" where they name none or several."""
     checkpoint = policy_kind(policy) == CHECKPOINT
     path = policy / (CONFIG_FILE if checkpoint else MANIFEST_FILE)
-    try:
-        data = read_json(path)
-    except (OSError, ValueError) as exc:
-        raise PipelineError(f"{path}: cannot read it ({exc}); export or train the policy again") from None
-    if not isinstance(data, dict):
-        what = "a checkpoint's config" if checkpoint else "a policy's manifest"
-        raise PipelineError(f"{path}: not {what} (a JSON object); export or train the policy again")
+    what = "the checkpoint's config" if checkpoint else "the policy's manifest"
+    data = read_json_object(path, what, "export or train the policy again")
     holder = data if checkpoint else data.get("spec") or {}
     tasks = (holder.get(TASKS_KEY) if isinstance(holder, dict) else None) or []
     if not (isinstance(tasks, list) and all(isinstance(task, str) for task in tasks)):

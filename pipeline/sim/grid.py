@@ -35,6 +35,7 @@ from cnep.pipeline.demo.weights import choose_weights
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.evaluate.executors import check_cluster
 from cnep.pipeline.folders import assembled_folder
+from cnep.pipeline.inputs import read_json_object
 from cnep.pipeline.sim.baselines import COMPARED
 from cnep.pipeline.sim.config import MODELS, PICK_PLACE, PickPlaceConfig, SimConfig
 from cnep.pipeline.sim.extras import require_extras
@@ -45,7 +46,6 @@ from cnep.pipeline.sim.grid_unit import Unit, link_subset, run_grid_unit
 from cnep.pipeline.sim.loop import episodes_of, for_task
 from cnep.pipeline.sim.pool import as_finished
 from cnep.pipeline.sim.stage import extract_features
-from cnep.runtime.jsonfile import read_json
 from cnep.sim.task import Task
 from cnep.sim.tasks import find_task
 
@@ -181,13 +181,7 @@ def make_set(config: GridConfig, task: Task, set_seed: int, folder: Path) -> lis
 def read_grid_file(path: Path, fix: str) -> dict:
     """The JSON object the grid wrote at `path` (grid.json, a set's set.json, a cell's file), read within the bounds of
     any JSON a user hands cnep (runtime.jsonfile); PipelineError naming the file and `fix` otherwise."""
-    try:
-        data = read_json(path)
-    except (OSError, ValueError) as exc:
-        raise PipelineError(f"{path}: cannot read this file of the grid's ({exc}); {fix}") from None
-    if not isinstance(data, dict):
-        raise PipelineError(f"{path}: not a file of the grid's (a JSON object); {fix}")
-    return data
+    return read_json_object(path, "this file of the grid's", fix)
 
 
 def rows_of_cell(path: Path) -> list[dict]:

@@ -90,7 +90,7 @@ def test_a_cluster_where_no_scheduler_answers_is_refused_before_any_set_is_made(
         ("{oops", "cannot read this file of the grid's"),
         ("[" * 100_000 + "]" * 100_000, "cannot read this file of the grid's \\(nested 100000 levels deep"),
         ('{"a": "' + "a" * (17 << 20) + '"}', "cannot read this file of the grid's \\(larger than the 16777216 bytes"),
-        ("[1, 2]", "not a file of the grid's \\(a JSON object\\)"),
+        ("[1, 2]", "this file of the grid's holds one JSON object, got list"),
     ],
     ids=["not JSON", "too deep", "17 MB", "a list"],
 )
