@@ -117,8 +117,10 @@ def task_and_version(label: str) -> tuple[str, int | None]:
 
 def check_seeds(seed: int, train_seeds: tuple[int, ...], seed_option: str = "--seed") -> None:
     """PipelineError unless the demonstrations' `seed` (given as `seed_option`) and every one of `train_seeds` is a
-    seed."""
+    seed, the training seeds distinct (each names its models' checkpoints)."""
     check_seed(seed_option, seed, PipelineError)
+    if len(set(train_seeds)) < len(train_seeds):
+        raise PipelineError(f"--train-seeds takes distinct values, got {','.join(map(str, train_seeds))}")
     for train_seed in train_seeds:
         check_seed("--train-seeds", train_seed, PipelineError)
 
