@@ -48,6 +48,18 @@ def remove_stale_work(out: Path) -> None:
 
 
 @contextlib.contextmanager
+def said_of_output(work: Path, out: Path) -> Iterator[None]:
+    """An OSError in the block naming a file in the work folder `work` is raised naming the file of `out` it was to
+    become (the work folder's name is the run's own, and gone once the run fails)."""
+    try:
+        yield
+    except OSError as exc:
+        if exc.filename is None or not Path(exc.filename).is_relative_to(work):
+            raise
+        raise OSError(exc.errno, exc.strerror, str(out / Path(exc.filename).relative_to(work))) from None
+
+
+@contextlib.contextmanager
 def assembled_folder(out: Path, refuse: Callable[[], None], owns: Owns | None = None) -> Iterator[Path]:
     """A new work folder for `out` (module docstring), renamed to `out` when the block completes.
 
@@ -62,7 +74,7 @@ def assembled_folder(out: Path, refuse: Callable[[], None], owns: Owns | None = 
         work = temporary_path(out)
         work.mkdir()
         try:
-            with naming(out):  # a full disk: said of the folder the user asked for, not of the work folder
+            with naming(out), said_of_output(work, out):  # a full disk: said of OUT, not of the work folder
                 yield work
             publish_folder(work, out, owns)
         except NotOwned as exc:

@@ -75,3 +75,18 @@ def coerce_paths(config) -> None:
         elif f.type == "tuple[Path, ...]":
             given = (value,) if isinstance(value, (str, Path)) else value
             object.__setattr__(config, f.name, tuple(Path(v) for v in given))
+
+
+def read_json_object(path: Path, what: str, fix: str) -> dict:
+    """The JSON object in the file at `path` (`what` it is, for the error), read within the bounds of any JSON a user
+    hands cnep (runtime.jsonfile); PipelineError naming the file, the problem and `fix` where it cannot be read or
+    holds no JSON object."""
+    from cnep.runtime.jsonfile import read_json
+
+    try:
+        data = read_json(path)
+    except (OSError, ValueError) as exc:
+        raise PipelineError(f"{path}: cannot read {what} ({exc}); {fix}") from None
+    if not isinstance(data, dict):
+        raise PipelineError(f"{path}: {what} holds one JSON object, got {type(data).__name__}; {fix}")
+    return data

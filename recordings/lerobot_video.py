@@ -9,6 +9,7 @@ every frame at `from_timestamp + timestamp` (LeRobot's rule). The encoder's sett
 from __future__ import annotations
 
 import contextlib
+import io
 import os
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -82,6 +83,24 @@ def _encoder_log_quiet() -> Iterator[None]:
         os.environ.pop("SVT_LOG", None)
 
 
+class _Sink:
+    """The file object the muxer writes through: `file` until it is set to None, then nowhere. An aborted muxer still
+    writes its trailer and seeks, and on a full disk each of those fails again; PyAV prints every failure it has no
+    caller to raise to, after the command's error line."""
+
+    def __init__(self, file: io.BufferedWriter) -> None:
+        self.file: io.BufferedWriter | None = file
+
+    def write(self, data: bytes) -> int:
+        return len(data) if self.file is None else self.file.write(data)
+
+    def seek(self, offset: int, whence: int = 0) -> int:
+        return 0 if self.file is None else self.file.seek(offset, whence)
+
+    def tell(self) -> int:
+        return 0 if self.file is None else self.file.tell()
+
+
 class VideoFile:
     """One MP4 being written: frames added at their times (`add`), closed when complete (`close`)."""
 
@@ -90,7 +109,8 @@ class VideoFile:
         self.path = path
         path.parent.mkdir(parents=True, exist_ok=True)
         self._file = open(path, "wb")  # noqa: SIM115 - held by the muxer until close() or abort()
-        self._container = av.open(self._file, "w", format="mp4")
+        self._sink = _Sink(self._file)
+        self._container = av.open(self._sink, "w", format="mp4")
         self._stream = None
         try:
             rate = Fraction(fps).limit_denominator(1001)
@@ -132,6 +152,7 @@ class VideoFile:
         """Close whatever fails (the file is incomplete and will be removed; a full disk frees the space it held only
         once it is closed). The encoder is told the stream ended (SVT-AV1 prints an error when it is not), and what
         it still held is dropped."""
+        self._sink.file = None  # what the muxer still writes goes nowhere: the file is incomplete whatever it holds
         with contextlib.suppress(Exception):
             if self._stream is not None:
                 self._stream.encode()

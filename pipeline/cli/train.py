@@ -59,14 +59,9 @@ def settings(args: argparse.Namespace) -> tuple[dict, set[str]]:
 def read_settings(path: str) -> dict:
     """The settings of a --config JSON file, checked against the settings' names and types."""
     from cnep.pipeline.errors import PipelineError
-    from cnep.runtime.jsonfile import read_json
+    from cnep.pipeline.inputs import read_json_object
 
-    try:
-        data = read_json(path)
-    except (OSError, ValueError) as exc:
-        raise PipelineError(f"{path}: cannot read the --config file ({exc})") from None
-    if not isinstance(data, dict):
-        raise PipelineError(f"{path}: a --config file holds one JSON object of settings, got {type(data).__name__}")
+    data = read_json_object(path, "the --config file", "give the settings as one JSON object")
     known = settings_of()
     unknown = sorted(set(data) - set(known))
     if unknown:

@@ -55,9 +55,20 @@ def parse_address(executor: str, address: str) -> tuple[str, str, int]:
         raise _bad(executor, address, f"no port; give {shape}")
     if not host.strip("[]"):
         raise _bad(executor, address, f"no host; give {shape}")
+    if not host.startswith("[") and not _is_host_name(host):
+        raise _bad(executor, address, f"the host {host[:80]!r} is not a host name or IP address; give {shape}")
     if not (port.isascii() and port.isdigit() and 0 < int(port) < 65536):
         raise _bad(executor, address, f"the port {port!r} is not a number from 1 to 65535; give {shape}")
     return scheme, host.strip("[]"), int(port)
+
+
+def _is_host_name(host: str) -> bool:
+    """True where `host` can be looked up: labels of 1 to 63 characters (an IDNA name's, once encoded), 253 in all."""
+    try:
+        encoded = host.encode("idna")
+    except UnicodeError:  # a label empty or longer than 63 characters, or a character no name may hold
+        return False
+    return 0 < len(encoded) <= 253
 
 
 def reach(executor: str, address: str) -> None:

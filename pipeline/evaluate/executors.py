@@ -16,6 +16,7 @@ unit when it is done (the progress bar moves by whole units), not step by step a
 from __future__ import annotations
 
 import contextlib
+import importlib.util
 from collections.abc import Callable, Iterator, Sequence
 
 from cnep.pipeline.errors import PipelineError
@@ -26,6 +27,7 @@ from cnep.pipeline.workers import SMALL_MODEL_MALLOC, THREAD_VARIABLES, environm
 # Ray gives a starting worker process a time to register (60 s by default); one that registers later leaves the run
 # waiting with no end and no error, and a loaded machine slows a new process's start. The local instance allows more.
 RAY_LOCAL_SETTINGS = {"worker_register_timeout_seconds": 600}
+PACKAGES = {"dask": ("distributed", "dask[distributed]"), "ray": ("ray", "ray")}  # executor: (module, what to install)
 
 
 def run_on_cluster(
@@ -43,6 +45,17 @@ def run_on_cluster(
             raise PipelineError(f"unknown executor {executor!r}; choose one of {', '.join(EXECUTORS)}")
 
 
+def check_cluster(executor: str, address: str | None) -> None:
+    """Before any work: PipelineError, one line, where `executor` ("local", "dask" or "ray") cannot be used: its package
+    is not installed, or no scheduler answers at `address` within the time limit (`addresses.reach`)."""
+    if executor not in PACKAGES:
+        return
+    if importlib.util.find_spec(PACKAGES[executor][0]) is None:
+        raise _missing(executor, PACKAGES[executor][1])
+    if address is not None:
+        addresses.reach(executor, address)
+
+
 def _missing(executor: str, module: str) -> PipelineError:
     return PipelineError(
         f"--executor {executor} needs the {module} package: pip install 'cnep-pipeline[{executor}]' (on every "
@@ -54,7 +67,7 @@ def _on_dask(work: Callable, units: Sequence, address: str | None, workers: int)
     try:
         from distributed import Client, LocalCluster, as_completed
     except ImportError:
-        raise _missing("dask", "dask[distributed]") from None
+        raise _missing("dask", PACKAGES["dask"][1]) from None
     with contextlib.ExitStack() as held:
         if address is None:
             cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
@@ -72,7 +85,7 @@ def _on_ray(work: Callable, units: Sequence, address: str | None, workers: int) 
     try:
         import ray
     except ImportError:
-        raise _missing("ray", "ray") from None
+        raise _missing("ray", PACKAGES["ray"][1]) from None
     if address is None:  # a new instance on this machine, not a cluster that `ray start` left running here
         ray.init(address="local", num_cpus=workers, include_dashboard=False, _system_config=RAY_LOCAL_SETTINGS)
     else:

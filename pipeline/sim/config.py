@@ -13,17 +13,16 @@ from pathlib import Path
 from typing import ClassVar
 
 from cnep.models.assignments import ASSIGNMENTS
-from cnep.models.config import SCHEDULE_SHOWN, SEED_MAX, ConditioningOverrides, check_seed, setting
+from cnep.models.config import SCHEDULE_SHOWN, SEED_MAX, ConditioningOverrides, TrainConfig, check_seed, setting
 from cnep.perception.constants import FEATURE_DIM
 from cnep.pipeline.demo.config import AUTO_WEIGHTS
 from cnep.pipeline.errors import PipelineError
-from cnep.pipeline.inputs import coerce_paths
+from cnep.pipeline.inputs import coerce_paths, read_json_object
 from cnep.pipeline.run.config import CHECKPOINT, CONFIG_FILE, policy_kind
 from cnep.pipeline.sim.validation import SelectionSettings, check_reported
 from cnep.pipeline.train.constants import TASKS as TASKS_KEY
 from cnep.runtime.conditioning import ConditioningPolicy
 from cnep.runtime.constants import MANIFEST_FILE
-from cnep.runtime.jsonfile import read_json
 
 
 def task_names() -> tuple[str, ...]:
@@ -120,16 +119,20 @@ def task_and_version(label: str) -> tuple[str, int | None]:
     return (label, 0) if label in TASKS else ("", None)
 
 
-def check_seeds(seed: int, train_seeds: tuple[int, ...]) -> None:
-    """PipelineError unless the demonstrations' `seed` and every one of `train_seeds` is a seed."""
-    check_seed("--seed", seed, PipelineError)
+def check_seeds(seed: int, train_seeds: tuple[int, ...], seed_option: str = "--seed") -> None:
+    """PipelineError unless the demonstrations' `seed` (given as `seed_option`) and every one of `train_seeds` is a
+    seed, the training seeds distinct (each names its models' checkpoints)."""
+    check_seed(seed_option, seed, PipelineError)
+    if len(set(train_seeds)) < len(train_seeds):
+        raise PipelineError(f"--train-seeds takes distinct values, got {','.join(map(str, train_seeds))}")
     for train_seed in train_seeds:
         check_seed("--train-seeds", train_seed, PipelineError)
 
 
 def check_training(config: SimConfig | PickPlaceConfig) -> None:
     """PipelineError unless `config` trains on >= 2 demonstrations, for >= 1 step (where given), with >= 2 experts and
-    a training seed."""
+    a training seed; ConfigError, before any work, where its training settings are ones `cnep train` refuses
+    (TrainConfig's own checks, which the models' training would meet only after the demonstrations are made)."""
     if (
         config.demonstrations < 2
         or (config.train_steps is not None and config.train_steps < 1)
@@ -140,6 +143,7 @@ def check_training(config: SimConfig | PickPlaceConfig) -> None:
             f"need >= 2 demonstrations, >= 1 training step, >= 2 experts and a training seed, got "
             f"{config.demonstrations}, {config.train_steps}, {config.experts} and {config.train_seeds}"
         )
+    TrainConfig(steps=config.train_steps, nll_beta=config.nll_beta)
 
 
 @dataclass(frozen=True)
@@ -255,11 +259,15 @@ def with_task(config: EvalConfig) -> EvalConfig:
 def policy_task(policy: Path) -> str:
     """The task a policy folder was trained on: the one task its training demonstrations name (an export's
     `spec.tasks` in its manifest, a checkpoint's `tasks` in its config.json); "" where they name none or several."""
-    if policy_kind(policy) == CHECKPOINT:
-        tasks = read_json(policy / CONFIG_FILE).get(TASKS_KEY) or []
-    else:
-        tasks = (read_json(policy / MANIFEST_FILE).get("spec") or {}).get("tasks") or []
-    return str(tasks[0]) if len(tasks) == 1 else ""
+    checkpoint = policy_kind(policy) == CHECKPOINT
+    path = policy / (CONFIG_FILE if checkpoint else MANIFEST_FILE)
+    what = "the checkpoint's config" if checkpoint else "the policy's manifest"
+    data = read_json_object(path, what, "export or train the policy again")
+    holder = data if checkpoint else data.get("spec") or {}
+    tasks = (holder.get(TASKS_KEY) if isinstance(holder, dict) else None) or []
+    if not (isinstance(tasks, list) and all(isinstance(task, str) for task in tasks)):
+        raise PipelineError(f"{path}: its tasks are not a list of task names; export or train the policy again")
+    return tasks[0] if len(tasks) == 1 else ""
 
 
 @dataclass(frozen=True, kw_only=True)

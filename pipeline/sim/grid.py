@@ -33,7 +33,9 @@ from cnep.pipeline.contract import output_folder
 from cnep.pipeline.demo.stage import quiet_per_file_logs
 from cnep.pipeline.demo.weights import choose_weights
 from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.evaluate.executors import check_cluster
 from cnep.pipeline.folders import assembled_folder
+from cnep.pipeline.inputs import read_json_object
 from cnep.pipeline.sim.baselines import COMPARED
 from cnep.pipeline.sim.config import MODELS, PICK_PLACE, PickPlaceConfig, SimConfig
 from cnep.pipeline.sim.extras import require_extras
@@ -66,6 +68,7 @@ def run_grid(config: GridConfig) -> GridResult:
     """Every cell of `config` that OUT does not hold yet, then OUT's CSV and table of all of `config`'s cells (module
     docstring)."""
     require_extras(config, "cnep sim grid")
+    check_cluster(config.executor, config.address)  # before any set is made, not once they are
     out = Path(config.out)
     with writing_as("sim grid"), output_folder(out), output_lock(out, folder=True):
         check_grid_folder(out, config)
@@ -80,7 +83,7 @@ def run_grid(config: GridConfig) -> GridResult:
                 write_output(
                     out / "cells" / f"{unit.name}-{model}.json", json.dumps(cell(unit, model, result)).encode()
                 )
-        rows = [row for path in cell_files(config, out) for row in cell_rows(json.loads(path.read_text()))]
+        rows = [row for path in cell_files(config, out) for row in rows_of_cell(path)]
         table = pooled_table(rows)
         write_output(out / CSV_FILE, csv_text(rows).encode())
         write_output(out / TABLE_FILE, (table + "\n").encode())
@@ -92,7 +95,7 @@ def check_grid_folder(out: Path, config: GridConfig) -> None:
     `config`'s (GridConfig.shared); in another folder, PipelineError."""
     shared, grid_file = config.shared(), out / GRID_FILE
     if grid_file.is_file():
-        before = json.loads(grid_file.read_text())
+        before = read_grid_file(grid_file, "give another --out for a new grid")
         differ = [name for name in shared if before.get(name) != json.loads(json.dumps(shared[name]))]
         if differ:
             given = ", ".join(f"--{n.replace('_', '-')} {before.get(n)}" for n in differ)
@@ -167,7 +170,28 @@ def make_set(config: GridConfig, task: Task, set_seed: int, folder: Path) -> lis
             extract_features(replace(settings, out=work), work, weights)
             made_set = {"behaviours": made.behaviours, "clean": made.successes, "weights": weights}
             write_output(work / SET_FILE, json.dumps(made_set).encode())
-    return json.loads((folder / SET_FILE).read_text())["behaviours"]
+    behaviours = read_grid_file(folder / SET_FILE, f"delete {folder} to make the set again").get("behaviours")
+    if not (isinstance(behaviours, list) and all(isinstance(b, str) for b in behaviours)):
+        raise PipelineError(
+            f"{folder / SET_FILE}: its behaviours are not a list of names; delete {folder} to make the set again"
+        )
+    return behaviours
+
+
+def read_grid_file(path: Path, fix: str) -> dict:
+    """The JSON object the grid wrote at `path` (grid.json, a set's set.json, a cell's file), read within the bounds of
+    any JSON a user hands cnep (runtime.jsonfile); PipelineError naming the file and `fix` otherwise."""
+    return read_json_object(path, "this file of the grid's", fix)
+
+
+def rows_of_cell(path: Path) -> list[dict]:
+    """The CSV rows of the cell file at `path` (grid_table.cell_rows); PipelineError naming it if it holds no cell."""
+    fix = "delete it to run its cell again"
+    cell = read_grid_file(path, fix)
+    try:
+        return cell_rows(cell)
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
+        raise PipelineError(f"{path}: not a cell of the grid's ({type(exc).__name__}: {exc}); {fix}") from None
 
 
 def trajectory_of(set_folder: Path, i: int) -> Path:

@@ -87,7 +87,7 @@ class GridConfig:
             if not values or len(set(values)) < len(values):
                 raise PipelineError(f"{option} takes distinct values, at least one, got {values}")
         for seed in self.sets:
-            check_seeds(seed, self.train_seeds)
+            check_seeds(seed, self.train_seeds, "--sets")
         if min(self.per_behaviour) < 1 or (self.train_steps is not None and self.train_steps < 1):
             raise PipelineError(
                 f"--per-behaviour and --train-steps must be >= 1, got {self.per_behaviour} and {self.train_steps}"

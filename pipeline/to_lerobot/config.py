@@ -6,6 +6,7 @@ input paths before it loads the stage.
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -13,8 +14,11 @@ from cnep.models.config import setting
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.inputs import coerce_paths
 from cnep.recordings.constants import CAMERA_NAME
+from cnep.recordings.csv_motion import PLAUSIBLE_RATE_HZ
 from cnep.recordings.lerobot_video import VideoSettings
 from cnep.runtime.constants import IMAGE_KEY_PREFIX
+
+NAME_MAX = 255  # the longest file or folder name (bytes) of the common file systems
 
 
 @dataclass(frozen=True)
@@ -36,10 +40,16 @@ class ToLerobotConfig:
         coerce_paths(self)
         if not self.demos:
             raise PipelineError("to-lerobot needs at least one demonstration file or folder")
-        if self.fps is not None and not self.fps > 0:
-            raise PipelineError(f"--fps {self.fps}: the dataset's rate must be > 0 Hz")
-        if "/" in self.camera:
-            raise PipelineError(f"--camera {self.camera!r}: a LeRobot feature name has no '/'")
+        low, high = PLAUSIBLE_RATE_HZ
+        if self.fps is not None and not low <= self.fps <= high:
+            raise PipelineError(f"--fps {self.fps:g}: the dataset's rate must be from {low:g} to {high:g} Hz")
+        if "/" in self.camera or "\0" in self.camera:
+            raise PipelineError(f"--camera {self.camera[:80]!r}: a LeRobot feature name has no '/' or NUL")
+        if len(os.fsencode(IMAGE_KEY_PREFIX + self.camera)) > NAME_MAX:
+            raise PipelineError(
+                f"--camera: the feature {IMAGE_KEY_PREFIX}CAMERA names a folder of the dataset, at most {NAME_MAX} "
+                f"bytes, and this one has {len(os.fsencode(IMAGE_KEY_PREFIX + self.camera))}"
+            )
 
     @property
     def camera_key(self) -> str | None:

@@ -80,8 +80,8 @@ def prepare_work_dir(out: Path, resume: bool, force: bool, inputs: Sequence[Path
                 f"that folder to start again"
             )
         if work.exists():  # stopped before its first save: nothing in it can be resumed
-            log.warning("%s: removing the work folder of a run that stopped before saving anything", work)
             remove_work_dir(work)
+            log.warning("%s: removed the work folder of a run that stopped before saving anything", work)
         work.mkdir()
         held.push(_remove_if_failed(out))
         return None

@@ -140,6 +140,8 @@ def test_the_probe_tells_a_scheduler_from_other_listeners():
         ("dask", "tcp://host:99999", "port '99999' is not a number from 1 to 65535"),
         ("dask", "http://host:8786", "scheme 'http'"),
         ("dask", "tcp://host:8786/path", "no port"),
+        ("dask", f"tcp://{'a' * 64}:8786", "is not a host name or IP address"),
+        ("dask", "tcp://a..b:8786", "is not a host name or IP address"),
         ("ray", "ray://host", "no port"),
     ],
 )
@@ -153,7 +155,9 @@ def test_a_malformed_address_is_one_line_before_anything_runs(tmp_path, capsys, 
     assert not (tmp_path / "e").exists()
 
 
-@pytest.mark.parametrize("address", ["tcp://scheduler:8786", "scheduler:8786", "tls://10.0.0.5:8786", "[::1]:8786"])
+@pytest.mark.parametrize(
+    "address", ["tcp://scheduler:8786", "scheduler:8786", "tls://10.0.0.5:8786", "[::1]:8786", f"{'a' * 63}.b:1"]
+)
 def test_a_well_formed_dask_address_is_taken(address):
     assert EvaluateConfig(executor="dask", address=address).address == address
 

@@ -11,6 +11,7 @@ command's input are never deleted or written.
 from __future__ import annotations
 
 import json
+import logging
 import shutil
 from pathlib import Path
 
@@ -304,6 +305,18 @@ def test_a_users_replaced_folder_beside_the_output_is_never_touched(world, tmp_p
     code, err = run_cli(["export", ckpt, "--out", tmp_path / "policy", "--force"], capsys)
     assert code == 0, err
     assert unchanged(mine) and (ckpt / "config.json").is_file() and (tmp_path / "policy" / "manifest.json").is_file()
+
+
+def test_a_users_file_in_the_work_folder_beside_the_checkpoint_is_one_line_and_kept(world, tmp_path, capsys, caplog):  # noqa: F811
+    """A `.CK.partial` folder holding a file training did not write: refused in one line, no word of removing it."""
+    mine = {tmp_path / ".ckpt.partial" / "notes.txt": b"mine"}
+    (tmp_path / ".ckpt.partial").mkdir()
+    (tmp_path / ".ckpt.partial" / "notes.txt").write_bytes(b"mine")
+    code, err = run_cli(["train", world.trajs, "--out", tmp_path / "ckpt", *TINY_TRAINING], capsys)
+    assert code == 2
+    assert_one_line(err, "train", f"{tmp_path / '.ckpt.partial' / 'notes.txt'}: ", "did not write")
+    assert [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING] == []  # the error line alone
+    assert unchanged(mine) and not (tmp_path / "ckpt").exists()
 
 
 INSIDE_INPUT = {  # argv writing into the checkpoint or policy it reads

@@ -3,6 +3,7 @@ value; a set of demonstrations that cannot make one dataset is refused before an
 
 import json
 import logging
+import re
 
 import numpy as np
 import pytest
@@ -128,3 +129,23 @@ def test_the_camera_is_named_as_asked(recorded, tmp_path):
     _, files, _ = recorded
     assert cnep("to-lerobot", files[0], "--out", tmp_path / "ds", "--camera", "front", *LOSSLESS) == 0
     assert (tmp_path / "ds" / "videos" / "observation.images.front").is_dir()
+
+
+@pytest.mark.parametrize(
+    "option, value, says",
+    [
+        ("--fps", "inf", "--fps inf: the dataset's rate must be from 0.1 to 10000 Hz"),
+        ("--fps", "1e300", "--fps 1e\\+300: the dataset's rate must be from 0.1 to 10000 Hz"),
+        ("--fps", "nan", "--fps nan: the dataset's rate must be from 0.1 to 10000 Hz"),
+        ("--fps", "0", "--fps 0: the dataset's rate must be from 0.1 to 10000 Hz"),
+        ("--camera", "a" * 300, "--camera: the feature observation.images.CAMERA names a folder .* this one has 319"),
+    ],
+    ids=["fps inf", "fps 1e300", "fps nan", "fps 0", "camera of 300 characters"],
+)
+def test_an_option_past_what_a_dataset_holds_is_one_line_before_any_work(tmp_path, capsys, option, value, says):
+    demonstration_files(tmp_path / "demos", [recorded_demonstration(0, 3)])
+    capsys.readouterr()
+    assert cnep("to-lerobot", tmp_path / "demos", "--out", tmp_path / "ds", option, value) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and re.search(says, err[0]) and "internal error" not in err[0], err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["demos"]

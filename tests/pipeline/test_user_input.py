@@ -1,7 +1,8 @@
 """Input a user can fix is one line and exit 2 naming the option, found before any work where it can be known: seeds
-outside what the random generators take, a list option that is no list of numbers, integers too large for any
-setting, `expert_labels` of the wrong kind in a checkpoint's config.json, `--pca` past the features' width, and a
-MuJoCo backend that cannot load (before, each was an internal error, some after minutes of work)."""
+outside what the random generators take, a list option that is no list of numbers, integers too large for any setting, a
+training setting `cnep train` refuses given to `cnep sim`, `expert_labels` of the wrong kind in a checkpoint's
+config.json, `--pca` past the features' width, and a MuJoCo backend that cannot load (before, each was an internal
+error, some after minutes of work)."""
 
 import importlib.util
 import json
@@ -58,6 +59,9 @@ SEED_CASES = {  # name -> (arguments, the option named); every one needs no work
     "sim pick-place --train-seeds": (["sim", "pick-place", "--out", "out", "--train-seeds", BIG], "--train-seeds"),
     "sim pick-place --episode-seed": (["sim", "pick-place", "--out", "out", "--episode-seed", "-1"], "--episode-seed"),
     "sim eval --episode-seed": (["sim", "eval", "policy", "--episode-seed", "-1"], "--episode-seed"),
+    "sim grid --sets": (["sim", "grid", "--out", "out", "--sets", "0,-1"], "--sets"),
+    "sim obstacle --train-seeds twice": (["sim", "obstacle", "--out", "out", "--train-seeds", "0,0"], "--train-seeds"),
+    "sim grid --train-seeds": (["sim", "grid", "--out", "out", "--train-seeds", BIG], "--train-seeds"),
 }
 
 
@@ -68,7 +72,8 @@ def test_a_seed_outside_what_the_generators_take_is_one_line_before_any_work(inp
         pytest.skip("the sim extra is not installed")
     monkeypatch.chdir(inputs)
     line = one_line(argv, capsys)
-    assert f"{option} must be a whole number from 0 to {SEED_MAX}" in line, line
+    says = "takes distinct values" if case.endswith("twice") else f"must be a whole number from 0 to {SEED_MAX}"
+    assert f"{option} {says}" in line, line
     assert "internal error" not in line and not (inputs / "out").exists()
 
 
@@ -103,6 +108,23 @@ def test_a_list_of_seeds_that_is_no_list_of_numbers_says_so(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert raised.value.code == 2 and "argument --train-seeds: expected comma-separated whole numbers" in err[-1]
     assert "layer widths" not in err[-1]
+
+
+@pytest.mark.skipif(not SIM, reason="the sim extra is not installed")
+@pytest.mark.parametrize("task, value", [("obstacle", "nan"), ("pick-place", "2")])
+def test_a_training_setting_cnep_train_refuses_is_refused_by_cnep_sim_before_any_work(
+    inputs, capsys, monkeypatch, task, value
+):
+    import cnep.pipeline.sim.stage as sim_stage
+
+    def no_work(*args, **kwargs):
+        raise AssertionError("the stages began")
+
+    monkeypatch.setattr(sim_stage, "_run_stages", no_work)
+    monkeypatch.chdir(inputs)
+    line = one_line(["sim", task, "--out", "out", "--nll-beta", value], capsys)
+    assert f"nll_beta must be in [0, 1] (0: plain NLL; 0.5: the usual beta-NLL), got {value}" in line, line
+    assert not (inputs / "out").exists()
 
 
 @pytest.mark.parametrize("setting", ["steps", "seed", "batch_size", "lr"])

@@ -185,3 +185,24 @@ def test_an_encoder_that_refuses_the_frame_size_says_what_to_choose(tmp_path):
     with pytest.raises(RecordingError, match=r"refuses 33x33 frames in yuv420p .*even width and height"):
         write(tmp_path / "ds", [demo], video=VideoSettings(codec="h264"))
     assert not (tmp_path / "ds").exists()
+
+
+def test_a_video_aborted_on_a_full_disk_prints_nothing(tmp_path, capfd):
+    """The disk fills while another file is written (the parquet data): the aborted muxer's trailer and seeks would
+    fail again, and PyAV would print the failures it drops after the command's error line."""
+    import os
+
+    from cnep.recordings.lerobot_video import VideoFile
+
+    video = VideoFile(tmp_path / "v.mp4", 64, 48, 10.0, VideoSettings(codec="h264"))
+    rng = np.random.default_rng(0)
+    for k in range(30):  # noise, which the encoder cannot shrink: the muxer has bytes left to write
+        video.add(rng.integers(0, 256, (48, 64, 3), dtype=np.uint8), k / 10)
+    full = os.open("/dev/full", os.O_WRONLY)  # every write of the file from now on: No space left on device
+    try:
+        os.dup2(full, video._file.fileno())
+        capfd.readouterr()
+        video.abort()
+    finally:
+        os.close(full)
+    assert capfd.readouterr().err == ""

@@ -177,7 +177,17 @@ BAD = [
     ("gripper 3e38", lambda o: with_state(o, gripper=3e38), "gripper = 3e\\+38 lies outside .* standard deviations"),
     ("gripper 1e300", lambda o: with_state(o, gripper=1e300), "gripper = 1e\\+300 lies outside"),
     ("gripper -3e38", lambda o: with_state(o, gripper=-3e38), "gripper = -3e\\+38 lies outside"),
+    ("gripper inf", lambda o: with_state(o, gripper=np.inf), "not finite \\(gripper\\)"),
+    ("gripper -inf", lambda o: with_state(o, gripper=-np.inf), "not finite \\(gripper\\)"),
+    ("float image with a NaN", lambda o: {**o, CAMERA: nan_pixel(o[CAMERA])}, r"in \[0, 1\], got nan"),
 ]
+
+
+def nan_pixel(image: np.ndarray) -> np.ndarray:
+    """`image` (H, W, 3) uint8 as LeRobot hands it, (3, H, W) float in [0, 1], with one pixel NaN."""
+    floats = image.transpose(2, 0, 1) / 255.0
+    floats[0, 0, 0] = np.nan
+    return floats
 
 
 @pytest.mark.parametrize("case", BAD, ids=[c[0] for c in BAD])

@@ -167,6 +167,29 @@ def test_eval_runs_a_policy_on_the_task_it_was_trained_on_and_refuses_another(tm
         for_task(EvalConfig(policy=pick, task="pick-place", cue=True), find_task("pick-place", 1))
 
 
+@pytest.mark.parametrize("kind, name", [("exported", "manifest.json"), ("checkpoint", "config.json")])
+@pytest.mark.parametrize(
+    "text, says",
+    [
+        ("{oops", "cannot read the (checkpoint's config|policy's manifest)"),
+        ("[" * 100_000 + "]" * 100_000, "cannot read the .* \\(nested 100000 levels deep"),
+        ("[1, 2]", "the .* holds one JSON object, got list"),
+        (json.dumps({"tasks": 5, "spec": {"tasks": 5}}), "its tasks are not a list of task names"),
+        (json.dumps({"tasks": [1], "spec": {"tasks": [1]}}), "its tasks are not a list of task names"),
+    ],
+    ids=["not JSON", "too deep", "a list", "tasks a number", "tasks of numbers"],
+)
+def test_eval_names_a_policy_file_it_cannot_read_the_task_of_in_one_line(tmp_path, capsys, kind, name, text, says):
+    folder = _policy_folder(tmp_path / "policy", "obstacle", kind)
+    (folder / name).write_text(text)
+    with pytest.raises(PipelineError, match=f"^{folder / name}: {says}"):
+        with_task(EvalConfig(policy=folder))
+    capsys.readouterr()
+    assert main(["-q", "sim", "eval", str(folder)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"{folder / name}: " in err[0] and "internal error" not in err[0], err
+
+
 def test_eval_runs_a_policy_on_the_environments_version_it_was_trained_on_unless_given(tmp_path):
     for version in ENV_VERSIONS:
         label = demonstrations_task("pick-place", version)  # the task `cnep sim` names its demonstrations with

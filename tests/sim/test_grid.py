@@ -6,6 +6,7 @@ no work, and a lost cell made again from the unit's kept checkpoints."""
 
 import importlib.util
 import json
+import re
 from pathlib import Path
 
 import pytest
@@ -58,6 +59,64 @@ def test_grid_refuses_reported_seeds_among_the_validation_seeds_and_other_bad_se
     out = tmp_path / "g"
     assert main(["sim", "grid", "--out", str(out), "--episode-seed", str(start)]) == 2
     assert "which meet the validation seeds" in capsys.readouterr().err and not out.exists()
+
+
+@pytest.mark.skipif(not SIM, reason="the sim extra is not installed")
+def test_a_cluster_where_no_scheduler_answers_is_refused_before_any_set_is_made(tmp_path, capsys, monkeypatch):
+    pytest.importorskip("distributed")
+    import cnep.pipeline.sim.grid as grid
+    from cnep.pipeline.evaluate import addresses
+    from tests.pipeline.test_executors import silent_listener
+
+    def no_work(*args, **kwargs):
+        raise AssertionError("a set was made before the cluster was reached")
+
+    monkeypatch.setattr(addresses, "CONNECT_SECONDS", 1.0)
+    monkeypatch.setattr(grid, "generate_demonstrations", no_work)
+    out = tmp_path / "g"
+    with silent_listener() as port:
+        address = f"tcp://127.0.0.1:{port}"
+        capsys.readouterr()
+        assert main(["-q", "sim", "grid", "--out", str(out), "--executor", "dask", address]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"--executor dask {address}: the listener there sent no Dask handshake" in err[0], err
+    assert not out.exists()
+
+
+@pytest.mark.skipif(not SIM, reason="the sim extra is not installed")
+@pytest.mark.parametrize(
+    "text, says",
+    [
+        ("{oops", "cannot read this file of the grid's"),
+        ("[" * 100_000 + "]" * 100_000, "cannot read this file of the grid's \\(nested 100000 levels deep"),
+        ('{"a": "' + "a" * (17 << 20) + '"}', "cannot read this file of the grid's \\(larger than the 16777216 bytes"),
+        ("[1, 2]", "this file of the grid's holds one JSON object, got list"),
+    ],
+    ids=["not JSON", "too deep", "17 MB", "a list"],
+)
+def test_a_grid_file_that_cannot_be_read_is_one_line_naming_it(tmp_path, capsys, text, says):
+    import cnep.pipeline.sim.grid as grid
+
+    out = tmp_path / "g"
+    out.mkdir()
+    (out / grid.GRID_FILE).write_text(text)
+    capsys.readouterr()
+    assert main(["-q", "sim", "grid", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and re.search(f"{out / grid.GRID_FILE}: {says}", err[0]), err
+    assert sorted(p.name for p in out.iterdir()) == [grid.GRID_FILE]
+    set_folder = tmp_path / "set"
+    set_folder.mkdir()
+    for set_text in (text, '{"behaviours": 5}'):
+        (set_folder / grid.SET_FILE).write_text(set_text)
+        with pytest.raises(
+            PipelineError, match=f"^{set_folder / grid.SET_FILE}: .*delete {set_folder} to make the set"
+        ):
+            grid.make_set(GridConfig(out=out), None, 0, set_folder)
+    for cell_text in (text, '{"results": {"online": 5}}'):
+        (tmp_path / "cell.json").write_text(cell_text)
+        with pytest.raises(PipelineError, match=f"^{tmp_path / 'cell.json'}: .*delete it to run its cell again"):
+            grid.rows_of_cell(tmp_path / "cell.json")
 
 
 def cell(seed: int, successes: int, entropy: float | None) -> dict:

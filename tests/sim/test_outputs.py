@@ -139,3 +139,24 @@ def test_sim_eval_never_writes_inside_its_input(world_ckpt, tmp_path, capsys):
     assert code == 2
     assert_one_line(err, "sim", f"{world_ckpt / 'eval'}: ", "inside the input", "--out")
     assert not (world_ckpt / "eval").exists()
+
+
+@pytest.mark.parametrize("command", ["sim", "sim eval"])
+def test_a_full_disk_names_the_file_in_the_folder_asked_for_not_in_the_work_folder(
+    world_ckpt, tmp_path, capsys, monkeypatch, command
+):
+    out = tmp_path / "out"
+
+    def full(folder):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(folder / "episodes" / "CNEP-seed0.rrd"))
+
+    monkeypatch.setattr(sim_stage, "_run_stages", lambda config, task, work: full(work))
+    monkeypatch.setattr(sim_eval, "_evaluate", lambda config, label, folder: full(folder))
+    argv = (
+        ["sim", "obstacle", "--out", out]
+        if command == "sim"
+        else ["sim", "eval", world_ckpt, "--task", "obstacle", "--out", out]
+    )
+    code, err = run_cli(argv, capsys)
+    line = assert_one_line(err, "sim", f"{out / 'episodes' / 'CNEP-seed0.rrd'}: No space left on device")
+    assert code == 2 and ".tmp" not in line and names(tmp_path) == []
