@@ -56,3 +56,41 @@ def test_the_commitment_benchmark_scores_a_short_fit_on_the_paper_s_sines():
     assert np.ptp([y[modes == k, 0].mean() for k in range(3)]) < 0.05 < np.ptp(y[:, 100])  # shared start, then apart
     row = cell("paper", 2, 0, {"steps": 20, "val_every": 10, "warmup_steps": 5})
     assert row["steps"] == 20 and row["experts"] == 2 and row["queries"] >= 2 and 0.0 <= float(row["valid"]) <= 1.0
+
+
+@pytest.mark.slow
+def test_the_quick_evaluate_benchmark_prints_each_rows_mode_accuracy_and_fails_unless_the_networks_separate(
+    tmp_path, monkeypatch, capsys
+):
+    """bench_quick_evaluate runs `cnep evaluate --quick` (here with a few steps) and exits 1 unless the CNEP and the
+    CNMP answer every query in its mode."""
+    import json
+
+    import torch
+
+    import cnep.models.baselines.gmm as gmm_module
+    from benchmarks.bench_quick_evaluate import main as bench
+    from benchmarks.bench_quick_evaluate import rows, separated
+
+    monkeypatch.setattr(gmm_module, "EM_ITERATIONS", 3)  # the GMM rows are not read here
+    threads = torch.get_num_threads()
+    try:
+        status = bench(["--steps", "5", "--out", str(tmp_path)])
+    finally:
+        torch.set_num_threads(threads)  # the evaluation's jobs pin one thread
+    printed = capsys.readouterr().out
+    data = json.loads((tmp_path / "comparison.json").read_text())
+    assert data["settings"]["quick"] and data["settings"]["steps"] == {"bimodal": 5} and data["sets"] == ["bimodal"]
+    assert status == (0 if separated(data) else 1)
+    found = rows(data)
+    assert {(p, r) for p, r, *_ in found} == {
+        (p, r) for p in ("paper", "heldout") for r in ("CNEP", "CNMP", "Nearest demo")
+    }
+    for protocol, row, name, mse, accuracy in found:
+        assert f"| {protocol} | {row} | {name} | {mse:.4f} | {accuracy:.2f} |" in printed
+    for protocol, row in (("paper", "CNEP"), ("heldout", "CNMP")):  # one network's query in another mode: no separation
+        for results in (data["results"][p][r]["bimodal"] for p in ("paper", "heldout") for r in ("CNEP", "CNMP")):
+            results["mode_accuracy"] = 1.0
+        assert separated(data)
+        data["results"][protocol][row]["bimodal"]["mode_accuracy"] = 0.95
+        assert not separated(data)
