@@ -30,19 +30,24 @@ class InProcess(Executor):
 
 
 @contextmanager
-def in_process(workers: int, wait: bool = True):
-    """pipeline.workers.single_thread_processes' stand-in: the jobs run in this process, one after the other."""
+def in_process(workers: int, *args, **kwargs):
+    """pipeline.workers.single_thread_processes' and process_pool's stand-in: the jobs run in this process, one after
+    the other."""
     yield InProcess()
 
 
 @pytest.fixture
 def sim_pools_in_process(monkeypatch, one_thread):
-    """The sim stage's worker pools (training, the closed loop) run their jobs in this process, on one torch thread as
-    in a worker: no process to start, no torch to import again. The pools themselves are pipeline.workers'
-    (tests/pipeline/test_workers.py), and the quick demo trains the same `train` jobs in them."""
+    """The sim stage's worker pools (training, the closed loop, the CNEP-PCA baseline's training) run their jobs in
+    this process, on one torch thread as in a worker: no process to start, no torch to import again. The pools
+    themselves are pipeline.workers' (tests/pipeline/test_workers.py), and the quick demo trains the same `train` jobs
+    in them. (The CNEP-PCA trains in a process of its own because torch's optimiser may crash a process that holds a
+    MuJoCo renderer: a test's process has trained before its closed loop starts, the optimiser already loaded.)"""
     import cnep.pipeline.demo.stage as demo_stage
+    import cnep.pipeline.sim.baselines as sim_baselines
     import cnep.pipeline.sim.pool as sim_pool
 
     # the closed loop's pool and the selection's (pipeline.sim.pool), the training's (demo.stage.train_side_by_side)
     for module in (sim_pool, demo_stage):
         monkeypatch.setattr(module, "single_thread_processes", in_process)
+    monkeypatch.setattr(sim_baselines, "process_pool", in_process)  # the CNEP-PCA's training (baselines.pca_cnep)
