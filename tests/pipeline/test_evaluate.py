@@ -146,33 +146,24 @@ def test_sets_restrict_every_table():
 def test_quick_command_runs_the_comparison_on_its_sets_and_says_what_it_checks(
     tmp_path, capsys, monkeypatch, torch_threads
 ):
-    """The command's behaviour with a few training steps; whether its 1500 steps tell the bimodal modes apart is
-    measured by benchmarks/bench_quick_evaluate.py."""
+    """The command's behaviour with a few training steps and queries (its own counts: test_steps_per_set_unless_given);
+    whether its 1500 steps tell the bimodal modes apart is measured by benchmarks/bench_quick_evaluate.py."""
     monkeypatch.setattr(gmm_module, "EM_ITERATIONS", 3)  # the GMM rows are not read here: a few EM steps
-    argv = ["-q", "evaluate", "--quick", "--sets", "bimodal", "--steps", "20", "--jobs", "0", "--no-figures"]
+    argv = ["-q", "evaluate", "--quick", "--steps", "20", "--queries", "3", "--jobs", "0", "--no-figures"]
     assert main([*argv, "--out", str(tmp_path)]) == 0  # the figures: test_tiny_run_writes_every_table
     said = capsys.readouterr().out
-    assert f"{QUICK_SEEDS} seed(s), 20 training steps, {QUICK_QUERIES} queries per protocol" in said
+    assert f"{QUICK_SEEDS} seed(s), 20 training steps, 3 queries per protocol" in said
     assert "does not reproduce the paper's ordering" in said
     data = json.loads((tmp_path / "comparison.json").read_text())
     settings = data["settings"]
-    assert data["sets"] == ["bimodal"] and settings["quick"] and settings["seeds"] == QUICK_SEEDS
-    assert settings["steps"] == {"bimodal": 20} and settings["queries"] == QUICK_QUERIES
-    for protocol in ("paper", "heldout"):
-        for row in ("CNEP", "CNMP"):
-            assert 0.0 <= data["results"][protocol][row]["bimodal"]["mode_accuracy"] <= 1.0
-    nearest = data["results"]["paper"]["Nearest demo"]["bimodal"]
-    assert nearest["mse"] == pytest.approx(0.0, abs=1e-12) and nearest["mode_accuracy"] == 1.0
-
-
-@pytest.mark.slow
-def test_the_nearest_demo_is_exact_on_the_quick_runs_other_set(tmp_path, monkeypatch, torch_threads):
-    monkeypatch.setattr(gmm_module, "EM_ITERATIONS", 3)  # the networks and baselines only have to run
-    (other,) = set(QUICK_SETS) - {"bimodal"}
-    settings = {"seeds": 1, "steps": 20, "queries": 3, "jobs": 0, "quiet": True, "figures": False}
-    evaluate(EvaluateConfig(tables=("comparison",), sets=(other,), out=tmp_path, **settings))
-    nearest = json.loads((tmp_path / "comparison.json").read_text())["results"]["paper"]["Nearest demo"][other]
-    assert nearest["mse"] == pytest.approx(0.0, abs=1e-12) and nearest["mode_accuracy"] == 1.0
+    assert data["sets"] == list(QUICK_SETS) and settings["quick"] and settings["seeds"] == QUICK_SEEDS
+    assert settings["steps"] == dict.fromkeys(QUICK_SETS, 20) and settings["queries"] == 3
+    for name in QUICK_SETS:
+        for protocol in ("paper", "heldout"):
+            for row in ("CNEP", "CNMP"):
+                assert 0.0 <= data["results"][protocol][row][name]["mode_accuracy"] <= 1.0
+        nearest = data["results"]["paper"]["Nearest demo"][name]  # a demonstration's own points: it returns that one
+        assert nearest["mse"] == pytest.approx(0.0, abs=1e-12) and nearest["mode_accuracy"] == 1.0
 
 
 class _Reports:
