@@ -100,7 +100,7 @@ def torch_threads():
 def test_tiny_run_writes_every_table(tmp_path, monkeypatch, torch_threads):
     monkeypatch.setattr(gmm_module, "EM_ITERATIONS", 3)  # structure only: a few EM steps are enough
     config = EvaluateConfig(
-        tables=TABLES, seeds=1, steps=20, queries=3, sets=("bimodal",), out=tmp_path, jobs=0, quiet=True
+        tables=TABLES, seeds=1, steps=8, queries=3, sets=("bimodal",), out=tmp_path, jobs=0, quiet=True
     )
     written = evaluate(config)
     assert set(written) == set(TABLES)
