@@ -177,16 +177,18 @@ class _Reports:
 
 
 @pytest.mark.slow
-def test_a_network_job_reports_its_steps_and_trains_as_fit(torch_threads):
+def test_a_network_job_reports_its_steps_and_trains_as_fit(monkeypatch, torch_threads):
+    import cnep.pipeline.evaluate.jobs as jobs
     from cnep.models import TrainConfig, fit
     from cnep.models.synthetic import make_set
-    from cnep.pipeline.evaluate.constants import REPORT_STEPS
     from cnep.pipeline.evaluate.jobs import Job, model_config, run_job
 
-    job = Job("bimodal", 1, ModelSpec.of(2, assignment="bounded"), steps=REPORT_STEPS + 30, n_queries=3)
+    report_steps = 40  # a job's chunk of training (jobs.REPORT_STEPS), smaller: fewer steps, driven the same way
+    monkeypatch.setattr(jobs, "REPORT_STEPS", report_steps)
+    job = Job("bimodal", 1, ModelSpec.of(2, assignment="bounded"), steps=report_steps + 30, n_queries=3)
     reports = _Reports()
     result = run_job(job, reports)["cnep-d2-bounded"]
-    assert reports.steps == [REPORT_STEPS, 30] and result["steps"] == job.steps
+    assert reports.steps == [report_steps, 30] and result["steps"] == job.steps
     s = make_set("bimodal", 1)  # the same network trained by one models.fit call: the same validation curve
     _, history = fit(
         list(s.train),
