@@ -227,10 +227,10 @@ def test_units_group_one_network_shape_on_one_set():
 def test_a_unit_trains_each_network_as_alone(torch_threads):
     from cnep.pipeline.evaluate.jobs import Job, run_job, run_unit
 
-    unit = (Job("bimodal", 0, ModelSpec.of(2), 60, 3), Job("bimodal", 1, ModelSpec.of(2, assignment="annealed"), 60, 3))
+    unit = (Job("bimodal", 0, ModelSpec.of(2), 30, 3), Job("bimodal", 1, ModelSpec.of(2, assignment="annealed"), 30, 3))
     reports = _Reports()
     together = run_unit(unit, reports)
-    assert sum(reports.steps) == 120
+    assert sum(reports.steps) == 60
     for job, result in zip(unit, together):
         alone = run_job(job)
         for method, row in alone.items():
@@ -258,12 +258,12 @@ def test_progress_counts_training_steps_in_whole_lines(capsys, torch_threads):
     from cnep.pipeline.evaluate.stage import run_jobs
 
     jobs = [
-        Job("bimodal", 0, ModelSpec.of(2), steps=40, n_queries=3),
-        Job("bimodal", 0, ModelSpec.of(1), steps=40, n_queries=3),
+        Job("bimodal", 0, ModelSpec.of(2), steps=16, n_queries=3),
+        Job("bimodal", 0, ModelSpec.of(1), steps=16, n_queries=3),
     ]
     assert [job for job, _ in run_jobs(jobs, workers=1, quiet=False)] != []
     lines = capsys.readouterr().err.splitlines()
-    assert "\r" not in "".join(lines) and "80/80" in lines[-1] and "2/2 fits" in lines[-1]
+    assert "\r" not in "".join(lines) and "32/32" in lines[-1] and "2/2 fits" in lines[-1]
 
 
 def test_unimodal_has_no_commitment_queries_and_still_scores(tmp_path, monkeypatch, torch_threads):
@@ -292,7 +292,7 @@ def test_a_cluster_gives_the_results_of_the_local_pool(executor, package, torch_
     from cnep.pipeline.evaluate.stage import run_jobs
 
     monkeypatch.setenv("HOME", str(tmp_path))  # Ray keeps its session's token under HOME
-    jobs = [Job("bimodal", 0, ModelSpec.of(2), 30, 3), Job("bimodal", 0, ModelSpec.of(1), 30, 3)]
+    jobs = [Job("bimodal", 0, ModelSpec.of(2), 16, 3), Job("bimodal", 0, ModelSpec.of(1), 16, 3)]
     local = {job.key: result for job, result in run_jobs(jobs, workers=0, quiet=True)}
     on_cluster = {job.key: result for job, result in run_jobs(jobs, workers=1, quiet=True, executor=executor)}
     assert on_cluster.keys() == local.keys()
