@@ -1,3 +1,4 @@
+import pickle
 from concurrent.futures import Executor, Future
 from contextlib import contextmanager
 
@@ -18,22 +19,36 @@ def few_calibration_frames(monkeypatch):
 
 
 class InProcess(Executor):
-    """An executor that runs each job when it is submitted, in this process (concurrent.futures' interface)."""
+    """An executor that runs each job when it is submitted, in this process (concurrent.futures' interface); with
+    `pickled`, it pickles the call and its result as a process pool does: what a worker process would be sent and
+    would send back."""
+
+    def __init__(self, pickled: bool = False):
+        self.pickled = pickled
 
     def submit(self, fn, /, *args, **kwargs) -> Future:
         future = Future()
         try:
-            future.set_result(fn(*args, **kwargs))
+            if self.pickled:
+                fn, args, kwargs = pickle.loads(pickle.dumps((fn, args, kwargs)))
+            result = fn(*args, **kwargs)
+            future.set_result(pickle.loads(pickle.dumps(result)) if self.pickled else result)
         except Exception as error:
             future.set_exception(error)
         return future
 
 
 @contextmanager
-def in_process(workers: int, *args, **kwargs):
-    """pipeline.workers.single_thread_processes' and process_pool's stand-in: the jobs run in this process, one after
-    the other."""
+def in_process(workers: int, wait: bool = True):
+    """pipeline.workers.single_thread_processes' stand-in: the jobs run in this process, one after the other."""
     yield InProcess()
+
+
+@contextmanager
+def pickled_in_process(workers: int, *args, **kwargs):
+    """pipeline.workers.process_pool's stand-in: the jobs run in this process, one after the other, each call and its
+    result pickled as the pool's processes would receive and return them."""
+    yield InProcess(pickled=True)
 
 
 @pytest.fixture
@@ -50,4 +65,4 @@ def sim_pools_in_process(monkeypatch, one_thread):
     # the closed loop's pool and the selection's (pipeline.sim.pool), the training's (demo.stage.train_side_by_side)
     for module in (sim_pool, demo_stage):
         monkeypatch.setattr(module, "single_thread_processes", in_process)
-    monkeypatch.setattr(sim_baselines, "process_pool", in_process)  # the CNEP-PCA's training (baselines.pca_cnep)
+    monkeypatch.setattr(sim_baselines, "process_pool", pickled_in_process)  # the CNEP-PCA's training (pca_cnep)
