@@ -56,3 +56,39 @@ def test_the_commitment_benchmark_scores_a_short_fit_on_the_paper_s_sines():
     assert np.ptp([y[modes == k, 0].mean() for k in range(3)]) < 0.05 < np.ptp(y[:, 100])  # shared start, then apart
     row = cell("paper", 2, 0, {"steps": 20, "val_every": 10, "warmup_steps": 5})
     assert row["steps"] == 20 and row["experts"] == 2 and row["queries"] >= 2 and 0.0 <= float(row["valid"]) <= 1.0
+
+
+def test_the_quick_evaluate_benchmark_prints_each_rows_mode_accuracy_and_fails_unless_the_networks_separate(
+    tmp_path, monkeypatch, capsys
+):
+    """bench_quick_evaluate: `cnep evaluate --quick` on the sets and steps asked (its run: quick_results, the command's
+    evaluation, tests/pipeline/test_evaluate.py), a row per protocol, row and set, exit 1 unless the CNEP and the CNMP
+    answer every query in its mode."""
+    import benchmarks.bench_quick_evaluate as bench
+
+    asked = []
+
+    def results(sets, steps, out):
+        asked.append((sets, steps, out))
+        scores = {"mse": 0.01, "mode_accuracy": 1.0}
+        by_row = {row: {name: dict(scores) for name in sets} for row in (*bench.ROWS, "ProMP")}
+        return {"settings": {"seeds": 1, "steps": dict.fromkeys(sets, steps), "queries": 20}, "results": {
+            protocol: {row: {name: dict(s) for name, s in by_set.items()} for row, by_set in by_row.items()}
+            for protocol in (*bench.PROTOCOLS, "commitment")
+        }}  # fmt: skip
+
+    monkeypatch.setattr(bench, "quick_results", results)
+    assert bench.main(["--sets", "bimodal", "multimodal", "--steps", "30", "--out", str(tmp_path)]) == 0
+    assert asked == [(("bimodal", "multimodal"), 30, tmp_path)]
+    printed = capsys.readouterr().out
+    lines = [line for line in printed.splitlines() if line.startswith("| paper") or line.startswith("| heldout")]
+    assert len(lines) == 2 * 3 * 2 and "| heldout | Nearest demo | multimodal | 0.0100 | 1.00 |" in lines
+    assert "ProMP" not in printed and "the CNEP and the CNMP tell every mode apart" in printed
+    data = results(("bimodal",), None, tmp_path)
+    assert bench.separated(data)
+    data["results"]["paper"]["Nearest demo"]["bimodal"]["mode_accuracy"] = 0.5  # not a network of the claim
+    assert bench.separated(data)
+    data["results"]["heldout"]["CNMP"]["bimodal"]["mode_accuracy"] = 0.95
+    assert not bench.separated(data)
+    monkeypatch.setattr(bench, "quick_results", lambda sets, steps, out: data)
+    assert bench.main([]) == 1 and "do not tell every mode apart" in capsys.readouterr().out

@@ -1,12 +1,13 @@
 """`cnep sim grid`: its options become GridConfig and bad ones are refused in one line (the reported episode seeds
 never the validation seeds); a set's subset takes the first demonstrations of each behaviour; the CSV and the pooled
 table from cells' rates; and a tiny grid end to end (1 task, 1 set, 1 seed, 2 demonstrations per behaviour, a few
-training steps, 1 episode of a few steps, each model's checkpoint chosen on the validation episodes), run again with
-no work, and a lost cell made again from the unit's kept checkpoints."""
+training steps, 1 episode of a few steps, each model's checkpoint chosen from 2 candidates on one validation episode
+per condition), run again with no work, and a lost cell made again from the unit's kept checkpoints."""
 
 import importlib.util
 import json
 import re
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -157,6 +158,10 @@ def test_a_subset_takes_the_first_demonstrations_of_each_behaviour():
 def test_a_tiny_grid_runs_end_to_end_and_a_rerun_does_no_work(tmp_path, monkeypatch, few_calibration_frames):
     import cnep.pipeline.sim.grid as grid
 
+    # the smallest choice, 2 candidates on 1 validation episode per condition: tests/sim/test_selection.py tests it
+    few = SelectionSettings(candidates=2, selection_episodes=1)
+    task_config = grid.task_config
+    monkeypatch.setattr(grid, "task_config", lambda *args: replace(task_config(*args), selection=few))
     monkeypatch.setenv("HOME", str(tmp_path / "home"))
     monkeypatch.setenv("TORCH_HOME", str(tmp_path / "torch"))
     out = tmp_path / "grid"
@@ -175,9 +180,8 @@ def test_a_tiny_grid_runs_end_to_end_and_a_rerun_does_no_work(tmp_path, monkeypa
     assert len(list((run / "trajectories").glob("*.mcap"))) == 4
     for model in ("cnep", "cnmp"):  # each kept checkpoint chosen from its candidates on the validation episodes
         kept = json.loads((run / "checkpoints" / f"{model}-seed0" / "config.json").read_text())["selection"]
-        assert (
-            kept["seeds"]["first"] == VALIDATION_RANGE[0] and len(kept["candidates"]) == SelectionSettings().candidates
-        )
+        assert kept["seeds"] == {"first": VALIDATION_RANGE[0], "last": VALIDATION_RANGE[0]}
+        assert len(kept["candidates"]) == few.candidates
     table = (out / grid.TABLE_FILE).read_text()
     assert read_rows((out / grid.CSV_FILE).read_text()) == read_rows(csv_text(first.rows)) and "| CNMP | 2 |" in table
 
