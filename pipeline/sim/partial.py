@@ -55,6 +55,7 @@ from cnep.outputs.record import RECORD_FILE, file_entry
 from cnep.pipeline.contract import check_writable_folder, output_folder, refuse_file_as_folder
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.export.stage import in_manifest
+from cnep.pipeline.folders import said_of_output
 from cnep.pipeline.progress import StageClock
 from cnep.runtime.constants import MANIFEST_FILE
 from cnep.runtime.jsonfile import read_json
@@ -196,7 +197,7 @@ def partial_run(out: Path, settings: dict, total: int, force: bool) -> Iterator[
         refuse_unless_new(out)
         run = open_partial(work, settings, total, force)
         try:
-            with naming(out):  # a full disk: said of the folder the user asked for
+            with naming(out), said_of_output(work, out):  # a full disk: said of OUT, not of the partial folder
                 yield run
         except BaseException as exc:
             kept = bool(run.finished)

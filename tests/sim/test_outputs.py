@@ -150,7 +150,7 @@ def test_a_full_disk_names_the_file_in_the_folder_asked_for_not_in_the_work_fold
     def full(folder):
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(folder / "episodes" / "CNEP-seed0.rrd"))
 
-    monkeypatch.setattr(sim_stage, "_run_stages", lambda config, task, work: full(work))
+    monkeypatch.setattr(sim_stage, "_run_stages", lambda config, task, run: full(run.work))
     monkeypatch.setattr(sim_eval, "_evaluate", lambda config, label, folder: full(folder))
     argv = (
         ["sim", "obstacle", "--out", out]

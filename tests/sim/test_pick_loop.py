@@ -13,6 +13,7 @@ import cnep.sim
 if not all(importlib.util.find_spec(name) for name in cnep.sim.EXTRA):
     pytest.skip("the sim extra is not installed", allow_module_level=True)
 
+from cnep.outputs import writing_as  # noqa: E402
 from cnep.pipeline.sim.config import LoopSettings  # noqa: E402
 from cnep.pipeline.sim.loop import evaluate_policy  # noqa: E402
 from cnep.pipeline.sim.summary import format_table  # noqa: E402
@@ -166,7 +167,8 @@ def test_the_loop_runs_each_protocol_and_condition_and_records_the_first_episode
     policy = pick_policy(gate=(0.4, 0.3, 0.2, 0.1), waypoints=P.MAX_STEPS)
     task = replace(find_task("pick-place", 0), conditions=(P.CHANGED,))
     settings = LoopSettings(episodes=1, max_steps=P.MAX_STEPS, record=1)
-    results = evaluate_policy(policy, task, settings, label="scripted", recordings=tmp_path)
+    with writing_as("sim eval"):  # a recording is the command's output, named in its folder's record
+        results = evaluate_policy(policy, task, settings, label="scripted", recordings=tmp_path)
     assert list(results) == [PLANNED, ONLINE]
     planned, online = results[PLANNED][P.CHANGED], results[ONLINE][P.CHANGED]
     assert planned["episodes"] == online["episodes"] == 1
