@@ -101,7 +101,8 @@ def test_cnep_sim_stopped_after_a_stage_and_in_the_closed_loop_resumes_to_the_su
     tmp_path, monkeypatch, few_calibration_frames, sim_pools_in_process
 ):
     import cnep.pipeline.sim.stage as sim_stage
-    from cnep.pipeline.sim.partial import STAGES_FILE, PartialRun, partial_folder
+    from cnep.outputs import RECORD_FILE
+    from cnep.pipeline.sim.partial import PARTS_DIR, STAGES_FILE, PartialRun, partial_folder
 
     monkeypatch.setenv("HOME", str(tmp_path / "home"))
     monkeypatch.setenv("TORCH_HOME", str(tmp_path / "torch"))
@@ -136,10 +137,12 @@ def test_cnep_sim_stopped_after_a_stage_and_in_the_closed_loop_resumes_to_the_su
     with pytest.raises(KeyboardInterrupt, match="run the same command again"):
         run_sim(replace(config, out=out))
     monkeypatch.setattr(PartialRun, "part", record_part)
+    kept = [p.stem for p in (partial_folder(out) / PARTS_DIR).glob("*/*.json") if p.name != RECORD_FILE]  # the first
+    assert len(kept) == 1 and kept[0] in ("CNEP-seed0", "CNMP-seed0")
     evaluated = []
     monkeypatch.setattr(sim_stage, "evaluate_one", lambda *a, **k: evaluated.append(a[3]) or evaluate(*a, **k))
     resumed = run_sim(replace(config, out=out))
-    assert evaluated == ["CNMP-seed0"]  # the CNEP's episodes were kept
+    assert evaluated == [{"CNEP-seed0", "CNMP-seed0"}.difference(kept).pop()]  # the kept policy's episodes not rerun
     assert without_timings(resumed) == without_timings(straight)
     assert json.loads((out / SUMMARY_FILE).read_text()) == json.loads(json.dumps(resumed))
     assert sorted(p.name for p in (out / "episodes").iterdir()) == sorted(
