@@ -9,15 +9,24 @@ A small network runs fastest on one thread of a busy machine (models.threads say
   in an ONNX Runtime session whose idle threads sleep instead of spinning (perception.backends), so two
   extractors, or an extractor beside a trainer, do not starve each other;
 - an explicit thread count (`cnep extract --threads N`) always wins.
+
+Ctrl-C belongs to the command's own process (pipeline.contract): a terminal sends SIGINT to every process of its
+group, so the processes started here (a pool's workers, `report_manager`'s server) start with it ignored and are
+stopped by the process that started them.
 """
 
 from __future__ import annotations
 
 import os
+import signal
+import threading
 from collections.abc import Iterator
 from concurrent.futures import ProcessPoolExecutor
 from contextlib import contextmanager
-from multiprocessing import get_context
+from multiprocessing.context import SpawnContext, SpawnProcess
+from multiprocessing.managers import SyncManager
+
+from cnep.pipeline.contract import deferred_interrupts, interruption
 
 THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 # glibc's malloc settings for small-model worker processes (read at their start; other allocators ignore
@@ -61,7 +70,7 @@ def process_pool(
     With `wait` False a block that ends normally does not wait for the idle workers to exit (a worker that has
     loaded torch takes seconds to): they exit beside what comes next."""
     pool = ProcessPoolExecutor(
-        workers, mp_context=get_context("spawn"), initializer=_worker_start, initargs=(initializer, initargs)
+        workers, mp_context=_DEAF_SPAWN, initializer=_worker_start, initargs=(initializer, initargs)
     )
     try:
         yield pool
@@ -74,6 +83,55 @@ def process_pool(
             process.join()
         raise
     pool.shutdown(wait=wait)
+
+
+class _DeafProcess(SpawnProcess):
+    """A spawned process that starts deaf to Ctrl-C (`_children_deaf`)."""
+
+    def start(self) -> None:
+        with _children_deaf():
+            super().start()
+
+
+class _DeafSpawn(SpawnContext):
+    """The spawn context whose processes start deaf to Ctrl-C: the pools' and `report_manager`'s."""
+
+    Process = _DeafProcess
+
+
+_DEAF_SPAWN = _DeafSpawn()
+
+
+@contextmanager
+def report_manager() -> Iterator[SyncManager]:
+    """A spawned multiprocessing Manager for the block (its `Queue()`s carry workers' reports: pipeline.progress),
+    deaf to Ctrl-C, shut down when the block ends. SIGINT and SIGTERM wait while it starts (a second one does not):
+    a server whose start is given up writes its address to no one, with a traceback."""
+    manager = SyncManager(ctx=_DEAF_SPAWN)
+    with deferred_interrupts() as received:
+        manager.start()
+    with manager:
+        if received() is not None:
+            raise interruption(received())
+        yield manager
+
+
+@contextmanager
+def _children_deaf() -> Iterator[None]:
+    """Processes started in the block ignore SIGINT from their first instruction (an ignored signal stays ignored
+    across exec, and Python then installs no KeyboardInterrupt of its own): a terminal's Ctrl-C, which reaches the
+    whole process group, leaves them to the process that started them instead of interrupting their start-up with a
+    traceback. A code block of theirs may still take the signal (`contract.deferred_interrupts`). This process
+    ignores SIGINT for the block too (keep it to the start of a process, milliseconds: a Ctrl-C then is lost);
+    outside the main thread, where signals cannot be set, or under a handler not set from Python, nothing changes."""
+    if threading.current_thread() is not threading.main_thread() or signal.getsignal(signal.SIGINT) is None:
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def _worker_start(initializer, initargs: tuple) -> None:

@@ -28,7 +28,6 @@ import time
 from concurrent.futures import FIRST_COMPLETED, wait
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, replace
-from multiprocessing import get_context
 from pathlib import Path
 
 import numpy as np
@@ -61,7 +60,7 @@ from cnep.pipeline.replay.decisions import read_decisions
 from cnep.pipeline.replay.stage import replay
 from cnep.pipeline.train.constants import SCENE
 from cnep.pipeline.train.stage import BAR_LEGEND, TrainStageConfig, train
-from cnep.pipeline.workers import single_thread_processes
+from cnep.pipeline.workers import report_manager, single_thread_processes
 from cnep.recordings import read_demonstration, read_trajectory
 
 log = logging.getLogger(__name__)
@@ -383,7 +382,7 @@ def train_side_by_side(
     for i, bar in enumerate(bars.values()):
         bar.set_postfix_str("starting (loading torch and the trajectories)" if i < workers else "waiting for a worker")
     try:
-        with get_context("spawn").Manager() as manager, single_thread_processes(workers, wait=False) as pool:
+        with report_manager() as manager, single_thread_processes(workers, wait=False) as pool:
             reports = manager.Queue()
             pending = {pool.submit(train, job, RemoteBar(reports, name)): name for name, job in jobs.items()}
             while pending:

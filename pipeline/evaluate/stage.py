@@ -20,7 +20,6 @@ import time
 from collections.abc import Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, wait
 from dataclasses import dataclass
-from multiprocessing import get_context
 from pathlib import Path
 from queue import Empty
 
@@ -52,7 +51,7 @@ from cnep.pipeline.evaluate.constants import (
 from cnep.pipeline.evaluate.executors import run_on_cluster
 from cnep.pipeline.evaluate.jobs import PROTOCOLS, Job, ModelSpec, run_unit, unit_key
 from cnep.pipeline.inputs import coerce_paths
-from cnep.pipeline.workers import single_thread_processes
+from cnep.pipeline.workers import report_manager, single_thread_processes
 
 log = logging.getLogger(__name__)
 
@@ -253,7 +252,7 @@ def run_jobs(
                     done(job)
                     yield job, result
             return
-        with get_context("spawn").Manager() as manager, single_thread_processes(workers) as pool:
+        with report_manager() as manager, single_thread_processes(workers) as pool:
             reports = manager.Queue()
             pending = {pool.submit(run_unit, unit, reports): unit for unit in units(jobs)}
             while pending:

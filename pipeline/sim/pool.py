@@ -11,7 +11,6 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator
 from concurrent.futures import FIRST_COMPLETED, wait
-from multiprocessing import get_context
 from queue import SimpleQueue
 from typing import TypeVar
 
@@ -20,7 +19,7 @@ from tqdm import tqdm
 from cnep.pipeline.evaluate.constants import LOCAL
 from cnep.pipeline.evaluate.executors import run_on_cluster
 from cnep.pipeline.progress import REPORT_INTERVAL_S, RemoteBar, follow_total, progress_bar
-from cnep.pipeline.workers import single_thread_processes
+from cnep.pipeline.workers import report_manager, single_thread_processes
 
 T = TypeVar("T")
 
@@ -75,7 +74,7 @@ def _finishing(
             follow_total(reports, bar, counts)
             yield label, result
         return
-    with get_context("spawn").Manager() as manager, single_thread_processes(workers) as pool:
+    with report_manager() as manager, single_thread_processes(workers) as pool:
         reports = manager.Queue()
         pending = {pool.submit(call, bar=RemoteBar(reports, label)): label for label, call in calls.items()}
         while pending:

@@ -1,5 +1,7 @@
 import errno
+import multiprocessing
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -7,7 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from cnep.pipeline.workers import SMALL_MODEL_MALLOC, THREAD_VARIABLES, single_thread_processes
+from cnep.pipeline import workers
+from cnep.pipeline.workers import SMALL_MODEL_MALLOC, THREAD_VARIABLES, report_manager, single_thread_processes
 
 
 def threads_seen() -> tuple[dict, int]:
@@ -94,3 +97,32 @@ def test_the_error_line_of_a_failed_pool_is_the_last_line(tmp_path):
     assert done.returncode == 2 and done.stderr.strip().splitlines() == [
         "cnep sim: error: out/state.pt: No space left on device; free some disk space, or choose a path on another disk"
     ], done.stderr
+
+
+def ctrl_c_ignored() -> bool:
+    """A worker's job: whether SIGINT is ignored in its process."""
+    return signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+
+
+def test_pool_workers_start_deaf_to_ctrl_c():
+    """A terminal's Ctrl-C reaches every process of the group: a worker leaves it to the process that started it
+    (from its first instruction, so not even its start-up prints a traceback), which keeps its own handler."""
+    handler = signal.getsignal(signal.SIGINT)
+    with single_thread_processes(1) as pool:
+        assert pool.submit(ctrl_c_ignored).result()
+    assert signal.getsignal(signal.SIGINT) is handler
+
+
+def test_a_signal_while_the_report_manager_starts_waits_for_its_start(monkeypatch):
+    """Ctrl-C while the Manager's server starts is raised once it has started, and the server is shut down: given up
+    halfway, it would write its address to no one, with a traceback."""
+    start = workers._DeafProcess.start
+
+    def start_then_ctrl_c(process) -> None:
+        start(process)
+        os.kill(os.getpid(), signal.SIGINT)
+
+    monkeypatch.setattr(workers._DeafProcess, "start", start_then_ctrl_c)
+    with pytest.raises(KeyboardInterrupt), report_manager():
+        pytest.fail("the block ran")
+    assert not multiprocessing.active_children()
