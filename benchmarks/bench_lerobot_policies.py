@@ -2,7 +2,7 @@
 
 Run on demand:
     python -m benchmarks lerobot_policies [--run RUN] [--task obstacle] [--policies act,diffusion]
-        [--variants features,images] [--steps N] [--episodes 10] [--venv DIR] [--out DIR]
+        [--variants features,images] [--steps N | --minutes M] [--episodes 10] [--venv DIR] [--out DIR]
 
 LeRobot runs in a virtual environment of its own (--venv: made with `python3 -m venv` and pip on first use, reused
 after): lerobot 0.4.4 pins torch below 2.11 and rerun-sdk below 0.27, cnep needs rerun-sdk 0.41, so one environment
@@ -13,15 +13,16 @@ cannot hold both. The venv gets lerobot, MuJoCo and ONNX Runtime, then this repo
    RUN/trajectories their 1280-d features, RUN/policies the exported CNEP.
 2. The datasets, `cnep to-lerobot RUN/demos`: `images` (the camera as video) and `features` (motion only, with the
    trajectories' features as `observation.environment_state` beside the pose: the CNEP's inputs).
-3. `lerobot-train` of each policy on each dataset, LeRobot's defaults but two: the steps (--steps, else as many passes
-   over these frames as LeRobot's default steps and batch make over REFERENCE_FRAMES) and no data-loading worker
-   processes (the training's memory is then one process's peak RSS); ACT's image encoder from random weights unless
+3. `lerobot-train` of each policy on each dataset on one CPU thread, LeRobot's defaults but two: the steps (--steps;
+   with --minutes as many as fit in them at the time per step a short run measures; else as many passes over these
+   frames as LeRobot's default steps and batch make over REFERENCE_FRAMES) and no data-loading worker processes (the
+   training's memory is then one process's peak RSS); ACT's image encoder from random weights unless
    --pretrained-backbone (Diffusion Policy's default); its wall time and the seconds per step.
-4. The closed loop (benchmarks.lerobot_loop, in the venv): every policy and the CNEP on the task's seeds, online,
-   on one thread.
-Writes OUT/results.json and prints, per policy and variant, success, collisions, behaviour entropy, step time p50/p99,
-training time and memory, and the training time extrapolated to LeRobot's default steps (an estimate: seconds per step
-measured times the steps).
+4. The closed loop (benchmarks.lerobot_loop, in the venv): every policy and the CNEP on the run's task, environment
+   version and reported episode seeds (its summary.json), online, on one thread.
+Writes OUT/results.json and OUT/results.csv (a row per policy and condition) and prints, per policy and variant,
+success, collisions, behaviour entropy, step time p50/p99, training time and memory, and the training time extrapolated
+to LeRobot's default steps (an estimate: seconds per step measured times the steps).
 """
 
 from __future__ import annotations
@@ -55,6 +56,9 @@ RANDOM_BACKBONE = "--policy.pretrained_backbone_weights=null"
 ENV_STATE_KEY = "observation.environment_state"
 FEATURES = slice(0, 1280)  # the trajectory's feature columns (docs/architecture.md)
 STATE = slice(1280, 1288)  # and its pose and gripper: observation.state's entries
+# Every policy trains on one CPU thread, as `cnep train` does (models.threads): the same budget for each.
+ONE_THREAD = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+TIMING_STEPS = 10  # --minutes: the steps of the run that measures a training step's time
 STEP_LOG = re.compile(r"updt_s:([0-9.]+) data_s:([0-9.]+)")  # lerobot-train's log line of a training step's time
 
 
@@ -122,7 +126,7 @@ def train(python: Path, policy: str, dataset: Path, out: Path, steps: int, optio
     log = out.parent / f"{out.name}.log"
     start = time.perf_counter()
     with open(log, "w") as sink:
-        process = subprocess.Popen(command, stdout=sink, stderr=subprocess.STDOUT, cwd=ROOT)
+        process = subprocess.Popen(command, stdout=sink, stderr=subprocess.STDOUT, cwd=ROOT, env=ONE_THREAD)
         _, status, usage = os.wait4(process.pid, 0)
     wall = time.perf_counter() - start
     if status != 0:
@@ -136,6 +140,18 @@ def train(python: Path, policy: str, dataset: Path, out: Path, steps: int, optio
         "peak_mib": round(usage.ru_maxrss / 1024),
         "folder": str(out / "checkpoints" / "last" / "pretrained_model"),
     }
+
+
+def training_steps(args: argparse.Namespace, python: Path, policy: str, dataset: Path, frames: int, options) -> int:
+    """--steps; else with --minutes as many steps as fit in them at the seconds per step a TIMING_STEPS run measures
+    (at most LeRobot's passes); else LeRobot's passes over these frames at its default batch."""
+    passes = round(DEFAULT_STEPS * frames / REFERENCE_FRAMES)
+    if args.steps or not args.minutes:
+        return args.steps or passes
+    timing = train(python, policy, dataset, args.out / f"timing-{policy}-{dataset.name}", TIMING_STEPS, options)
+    steps = min(passes, int(args.minutes * 60 / timing["s_per_step"]))
+    print(f"{policy} on {dataset.name}: {timing['s_per_step']} s/step, so {steps} steps in {args.minutes} minutes")
+    return steps
 
 
 def closed_loop(python: Path, args: list[str], out: Path) -> dict:
@@ -155,13 +171,37 @@ def row(name: str, rates: dict, training: dict | None) -> str:
     )
 
 
+CSV_COLUMNS = (
+    "policy", "condition", "episodes", "success", "success_lo", "success_hi", "collision", "entropy", "step_ms_p50",
+    "step_ms_p99", "train_steps", "train_wall_s", "train_peak_mib",
+)  # fmt: skip
+
+
+def write_csv(results: dict, path: Path) -> None:
+    """One row per policy and condition of `results` (main's), the CSV a results page quotes."""
+    lines = [",".join(CSV_COLUMNS)]
+    for name, result in results.items():
+        t = result.get("training") or {}
+        for condition, r in result["rates"].items():
+            values = (
+                name, condition, r["episodes"], r["success"], *r["success_ci"], r["collision"],
+                "" if r.get("entropy") is None else round(r["entropy"], 3), r["ms"]["policy"]["p50"],
+                r["ms"]["policy"]["p99"], t.get("steps", ""), t.get("wall_s", ""), t.get("peak_mib", ""),
+            )  # fmt: skip
+            lines.append(",".join(map(str, values)))
+    path.write_text("\n".join(lines) + "\n")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--run", type=Path, help="a `cnep sim TASK` output folder to reuse (default: one is made)")
-    parser.add_argument("--task", default="obstacle")
+    parser.add_argument("--task", default="obstacle", help="the task of the run made without --run")
     parser.add_argument("--policies", default="act,diffusion", help="LeRobot policy types, comma-separated")
     parser.add_argument("--variants", default="features,images", help="features, images or both")
     parser.add_argument("--steps", type=int, help="training steps (default: LeRobot's passes over these frames)")
+    parser.add_argument(
+        "--minutes", type=float, help="train each policy as many steps as fit in this many minutes (measured first)"
+    )
     parser.add_argument("--episodes", type=int, default=10, help="closed-loop episodes per policy (and condition)")
     parser.add_argument(
         "--venv", type=Path, default=ROOT / "runs" / "lerobot-venv", help="LeRobot's virtual environment"
@@ -177,7 +217,11 @@ def main() -> None:
     if args.run is None and not (run / "policies").is_dir():
         cnep("sim", args.task, "--offline", "--out", str(run), "--episodes", str(args.episodes))
     cnep_policy = sorted((run / "policies").glob("cnep-seed*"))[0]
-    loop = ["--task", args.task, "--episodes", str(args.episodes)]
+    summary = json.loads((run / "summary.json").read_text())  # the run's task, environment and reported seeds
+    loop = [
+        *("--task", summary["task"], "--env-version", str(summary["env_version"])),
+        *("--episodes", str(args.episodes), "--episode-seed", str(summary["seeds"]["reported"]["first"])),
+    ]
     results = {
         "cnep": {"rates": closed_loop(python, ["--policy", str(cnep_policy), "--cnep", *loop], args.out / "cnep.json")}
     }
@@ -190,10 +234,10 @@ def main() -> None:
                 cnep("to-lerobot", str(run / "demos"), "--out", str(dataset), "--camera", "front")
             frames = None
         frames = frames or json.loads((dataset / "meta" / "info.json").read_text())["total_frames"]
-        steps = args.steps or round(DEFAULT_STEPS * frames / REFERENCE_FRAMES)  # the same passes at the same batch
         for policy in args.policies.split(","):
             name = f"{policy}-{variant}"
             options = [] if args.pretrained_backbone or policy != "act" else [RANDOM_BACKBONE]
+            steps = training_steps(args, python, policy, dataset, frames, options)
             training = train(python, policy, dataset, args.out / f"train-{name}", steps, options)
             training["default_steps_s_estimate"] = (
                 round(training["s_per_step"] * DEFAULT_STEPS) if training["s_per_step"] else None
@@ -216,6 +260,7 @@ def main() -> None:
                 f"loaded during the run: about {t['default_steps_s_estimate']} s (an estimate)"
             )
     (args.out / "results.json").write_text(json.dumps(results, indent=1) + "\n")
+    write_csv(results, args.out / "results.csv")
 
 
 if __name__ == "__main__":

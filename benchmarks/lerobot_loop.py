@@ -1,7 +1,7 @@
 """A trained LeRobot policy (or an exported CNEP) in the project's closed loop, run inside LeRobot's environment.
 
-    python -m benchmarks.lerobot_loop --policy DIR --task obstacle --episodes 10 --out rates.json \
-        [--features-from CNEP_POLICY_DIR] [--cnep]
+    python -m benchmarks.lerobot_loop --policy DIR --task obstacle --env-version 1 --episodes 10 --episode-seed 5000 \
+        --out rates.json [--features-from CNEP_POLICY_DIR] [--cnep]
 
 bench_lerobot_policies runs this with the Python of LeRobot's environment, where lerobot and torch 2.10 import and the
 project is installed without its dependencies (cnep.sim and cnep.runtime need none of them). Every policy runs
@@ -91,12 +91,13 @@ def main() -> None:
     parser.add_argument("--cnep", action="store_true", help="--policy is a `cnep export` folder")
     parser.add_argument("--features-from", type=Path, help="the CNEP export whose feature graph makes the features")
     parser.add_argument("--task", default="obstacle")
+    parser.add_argument("--env-version", type=int, required=True, help="the version of the task's environment")
     parser.add_argument("--episodes", type=int, default=10)
     parser.add_argument("--episode-seed", type=int, default=0)
     parser.add_argument("--out", type=Path, required=True, help="the rates as JSON")
     args = parser.parse_args()
     torch.set_num_threads(1)
-    task = find_task(args.task)
+    task = find_task(args.task, args.env_version)
     if args.cnep:
         policy = load_policy(args.policy, threads=1, waypoints=task.max_steps)
     else:
