@@ -101,7 +101,7 @@ class CNEP(nn.Module):
         K = config.components()
         if K is not None:  # the observed-only context values are read as K principal components (models.projection)
             projected = [i for a, b in self.observed_only_columns() for i in range(a, b)]
-            kept = [i for i in range(1, 1 + lay.obs_dim) if i not in set(projected)]
+            kept = sorted(set(range(1, 1 + lay.obs_dim)) - set(projected))
             self.register_buffer("projected_values", torch.tensor(projected, dtype=torch.long), persistent=False)
             self.register_buffer("kept_values", torch.tensor([0, *kept], dtype=torch.long), persistent=False)
             self.register_buffer("feature_projection", torch.zeros(len(projected), K))  # fitted: build_model
