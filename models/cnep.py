@@ -7,6 +7,8 @@ Shapes (B batch, N observations, M queries, d experts, H latent, dy predicted co
     mean, std (B, d, M, dy)
     gate      (B, d)                 softmax over experts
 All experts run as one batched matrix product (stacked weights), never a Python loop over experts.
+With `feature_components` K, the encoder reads a context's observed-only columns (such as image features) as their
+top K principal components over the training rows (`project`, models.projection); the contexts stay as above.
 """
 
 from __future__ import annotations
@@ -135,7 +137,7 @@ class CNEP(nn.Module):
         return 1 + self.config.columns.obs_dim if K is None else len(self.kept_values) + K
 
     def observed_only_inputs(self) -> list[tuple[int, int]]:
-        """Spans of the encoder's inputs (`encoder_inputs`: t's 1 + 2K time features, then the projected context's
+        """Spans of the encoder's inputs (`encoder_inputs`: t's 1 + 2 time_frequencies features, then the projected
         values) that carry the observed-only columns (`observed_only_columns`), or their principal components."""
         shift = 2 * self.config.time_frequencies
         if self.config.feature_components is not None:
@@ -154,13 +156,13 @@ class CNEP(nn.Module):
         return torch.cat([obs.index_select(-1, self.kept_values), components], dim=-1)
 
     def encoder_inputs(self, obs: torch.Tensor, keep: torch.Tensor | None = None) -> torch.Tensor:
-        """The encoder's inputs (..., 2K + context_width) of contexts (..., 1 + obs_dim): `project`ed, then the
-        time's Fourier features, then `dropped`."""
+        """The encoder's inputs (..., 2 time_frequencies + context_width) of contexts (..., 1 + obs_dim): `project`ed,
+        then the time's Fourier features, then `dropped`."""
         return self.dropped(self.embed_time(self.project(obs)), keep)
 
     def dropped(self, x: torch.Tensor, keep: torch.Tensor | None) -> torch.Tensor:
-        """Encoder inputs `x` (..., 2K + context_width) with their `observed_only_inputs` times `keep` (..., their
-        width): the observed-only dropout of training (models.train.dropout_keep); None: `x` as it is."""
+        """Encoder inputs `x` (..., 2 time_frequencies + context_width) with their `observed_only_inputs` times `keep`
+        (..., their width): the observed-only dropout of training (models.train.dropout_keep); None: `x` as it is."""
         if keep is None:
             return x
         factor = torch.ones_like(x)
