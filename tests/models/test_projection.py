@@ -30,10 +30,11 @@ def test_the_components_are_the_training_rows_principal_coordinates_at_unit_vari
     assert torch.equal(projected[:, :3], context[:, [0, 7, 8]].double())  # t and the predicted columns, as they were
     components = projected[:, 3:].numpy()
     np.testing.assert_allclose(np.cov(components.T, bias=True), np.eye(3), atol=1e-4)  # uncorrelated, unit variance
-    raw = np.concatenate(trajectories)[:, :6].astype(np.float64)  # the features in their own units
-    _, _, vt = np.linalg.svd(raw - raw.mean(0), full_matrices=False)
+    raw = np.concatenate(trajectories)[:, :6].astype(np.float64)
+    standardised = (raw - raw.mean(0)) / raw.std(0)  # every feature alike, whatever its spread
+    _, _, vt = np.linalg.svd(standardised, full_matrices=False)
     directions = vt[:3] * np.sign(vt[:3][np.arange(3), np.abs(vt[:3]).argmax(1)])[:, None]  # largest entry positive
-    expected = (raw - raw.mean(0)) @ directions.T
+    expected = standardised @ directions.T
     np.testing.assert_allclose(components, expected / expected.std(0), atol=1e-3)
 
 
@@ -53,7 +54,7 @@ def test_the_projection_from_summed_moments_of_shares_is_the_one_from_the_trajec
 
 def test_each_direction_is_signed_by_its_largest_entry():
     model = build_model(feature_config(components=4), feature_trajectories(seed=1), seed=0)
-    directions = model.feature_projection / model.normaliser.scale[:6, None]  # (6, 4), each column a scaled direction
+    directions = model.feature_projection  # (6, 4), each column a direction over its component's std
     largest = directions.abs().argmax(0)
     assert (directions[largest, torch.arange(4)] > 0).all()
 
