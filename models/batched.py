@@ -49,7 +49,15 @@ from cnep.models.train import (
 )
 
 # What must agree for two networks to stack (the loss weights a_rec, a_batch, a_ind may differ).
-ARCHITECTURE_FIELDS = ("columns", "n_experts", "encoder_widths", "expert_widths", "min_std", "time_frequencies")
+ARCHITECTURE_FIELDS = (
+    "columns",
+    "n_experts",
+    "encoder_widths",
+    "expert_widths",
+    "min_std",
+    "time_frequencies",
+    "feature_components",
+)
 MAX_MODELS = 8  # models per batched computation in `fit_many`
 
 
@@ -99,24 +107,36 @@ class StackedCNEP:
         per_model = [dict(m.named_parameters()) for m in models]
         self.params = {n: torch.stack([p[n].detach() for p in per_model]).requires_grad_() for n in self.names}
         self.encoder_layers = [i for i, layer in enumerate(self.base.encoder) if isinstance(layer, nn.Linear)]
+        # each model's own projection of its observed-only columns (fitted on its own data): (n, K) each, or none
+        self.projections = [m.feature_projection for m in models if m.config.feature_components is not None]
 
     def __len__(self) -> int:
         return len(next(iter(self.params.values())))
 
-    def __call__(self, obs: torch.Tensor, obs_mask: torch.Tensor, query: torch.Tensor, latent: bool = False):
+    def __call__(
+        self,
+        obs: torch.Tensor,
+        obs_mask: torch.Tensor,
+        query: torch.Tensor,
+        latent: bool = False,
+        keep: torch.Tensor | None = None,
+    ):
         """obs (k, B, N, 1+obs_dim), obs_mask (k, B, N), query (k, B, M, 1+dq) -> mean, std (k, B, d, M, dy),
-        gate (k, B, d); with `latent`, the latent r (k, B, H) too (as CNEP.forward)."""
-        r = self.encode(obs, obs_mask)  # (k, B, H)
+        gate (k, B, d); with `latent`, the latent r (k, B, H) too; keep (k, B, N, ...): the observed-only dropout
+        (as CNEP.forward)."""
+        r = self.encode(obs, obs_mask, keep)  # (k, B, H)
         logits = StackedLinear.apply(r, self.params["gate.weight"], self.params["gate.bias"])  # (k, B, d)
         mean, std = self.decode(r, query)
         gate = torch.softmax(logits, dim=-1)
         return (mean, std, gate, r) if latent else (mean, std, gate)
 
-    def encode(self, obs: torch.Tensor, obs_mask: torch.Tensor) -> torch.Tensor:
+    def encode(self, obs: torch.Tensor, obs_mask: torch.Tensor, keep: torch.Tensor | None = None) -> torch.Tensor:
         """CNEP.encode for k models: masked mean of the encodings, (k, B, N, 1+obs_dim) -> (k, B, H)."""
         k, B, N, _ = obs.shape
         w = obs_mask.to(obs.dtype).unsqueeze(-1)  # (k, B, N, 1)
-        x = self.base.embed_time(obs).view(k, B * N, -1)  # (k, B*N, in)
+        if self.projections:  # each model's product as the lone model computes it
+            obs = torch.stack([self.base.project(o, p) for o, p in zip(obs, self.projections)])  # (k, B, N, width)
+        x = self.base.dropped(self.base.embed_time(obs), keep).view(k, B * N, -1)  # (k, B*N, in)
         for j, i in enumerate(self.encoder_layers):
             if j:
                 x = F.relu(x)
@@ -223,7 +243,8 @@ class BatchedTrainer:
             f: torch.stack([getattr(b, f) for b in batches])
             for f in ("obs", "obs_mask", "query", "target", "target_mask")
         }
-        mean, std, gate, r = self.net(stacked["obs"], stacked["obs_mask"], stacked["query"], latent=True)
+        keep = None if batches[0].keep is None else torch.stack([b.keep for b in batches])  # the same for every model
+        mean, std, gate, r = self.net(stacked["obs"], stacked["obs_mask"], stacked["query"], latent=True, keep=keep)
         posterior = None
         if any(a.uses_demonstration for a in self.assignments):  # each from its own model's demonstrations
             parts = zip(*(self.trainers[i].demonstration(b) for i, b in zip(self.active, batches)))

@@ -7,6 +7,8 @@ Shapes (B batch, N observations, M queries, d experts, H latent, dy predicted co
     mean, std (B, d, M, dy)
     gate      (B, d)                 softmax over experts
 All experts run as one batched matrix product (stacked weights), never a Python loop over experts.
+With `feature_components` K, the encoder reads a context's observed-only columns (such as image features) as their
+top K principal components over the training rows (`project`, models.projection); the contexts stay as above.
 """
 
 from __future__ import annotations
@@ -98,7 +100,14 @@ class CNEP(nn.Module):
         H, dy = config.latent_dim, lay.out_dim
         time_dim = 1 + 2 * config.time_frequencies
         self.register_buffer("frequencies", math.pi * torch.arange(1, config.time_frequencies + 1.0), persistent=False)
-        self.encoder = mlp([time_dim + lay.obs_dim, *config.encoder_widths])
+        K = config.components()
+        if K is not None:  # the observed-only context values are read as K principal components (models.projection)
+            projected = [i for a, b in self.observed_only_columns() for i in range(a, b)]
+            kept = sorted(set(range(1, 1 + lay.obs_dim)) - set(projected))
+            self.register_buffer("projected_values", torch.tensor(projected, dtype=torch.long), persistent=False)
+            self.register_buffer("kept_values", torch.tensor([0, *kept], dtype=torch.long), persistent=False)
+            self.register_buffer("feature_projection", torch.zeros(len(projected), K))  # fitted: build_model
+        self.encoder = mlp([time_dim + self.context_width - 1, *config.encoder_widths])
         self.gate = nn.Linear(H, config.n_experts)
         self.experts = Experts(config.n_experts, H, time_dim + lay.query_dim, [*config.expert_widths, 2 * dy])
 
@@ -109,10 +118,10 @@ class CNEP(nn.Module):
     def observed_only_columns(self) -> list[tuple[int, int]]:
         """Spans (start, stop) of a context's values (..., 1 + obs_dim), t first, that carry a column the model
         observes but does not predict (such as image features)."""
-        predicted = set(span_indices(self.config.columns.predicted))
+        observed_only = set(self.config.columns.observed_only)
         spans: list[tuple[int, int]] = []
         for i, column in enumerate(span_indices(self.config.columns.observed), start=1):
-            if column in predicted:
+            if column not in observed_only:
                 continue
             if spans and spans[-1][1] == i:
                 spans[-1] = (spans[-1][0], i + 1)
@@ -120,11 +129,48 @@ class CNEP(nn.Module):
                 spans.append((i, i + 1))
         return spans
 
+    @property
+    def context_width(self) -> int:
+        """Width of a context as the encoder reads it (`project`): 1 + obs_dim, or with `feature_components` = K, t,
+        the observed columns it predicts, then the K components."""
+        K = self.config.feature_components
+        return 1 + self.config.columns.obs_dim if K is None else len(self.kept_values) + K
+
     def observed_only_inputs(self) -> list[tuple[int, int]]:
-        """`observed_only_columns` among the encoder's inputs (`embed_time`'s: t's 1 + 2K time features, then the
-        observed columns)."""
+        """Spans of the encoder's inputs (`encoder_inputs`: t's 1 + 2 time_frequencies features, then the projected
+        values) that carry the observed-only columns (`observed_only_columns`), or their principal components."""
         shift = 2 * self.config.time_frequencies
+        if self.config.feature_components is not None:
+            return [(shift + self.context_width - self.config.feature_components, shift + self.context_width)]
         return [(a + shift, b + shift) for a, b in self.observed_only_columns()]
+
+    def project(self, obs: torch.Tensor, projection: torch.Tensor | None = None) -> torch.Tensor:
+        """Contexts (..., 1 + obs_dim) as the encoder reads them (..., context_width): as they are, or with the
+        observed-only values replaced by their `feature_components` principal components (models.projection), after
+        the others. projection: (n, K), default this model's `feature_projection` (models.batched passes each
+        stacked model's own)."""
+        if self.config.feature_components is None:
+            return obs
+        projection = self.feature_projection if projection is None else projection
+        components = obs.index_select(-1, self.projected_values) @ projection  # (..., K)
+        return torch.cat([obs.index_select(-1, self.kept_values), components], dim=-1)
+
+    def encoder_inputs(self, obs: torch.Tensor, keep: torch.Tensor | None = None) -> torch.Tensor:
+        """The encoder's inputs (..., 2 time_frequencies + context_width) of contexts (..., 1 + obs_dim): `project`ed,
+        then the time's Fourier features, then `dropped`."""
+        return self.dropped(self.embed_time(self.project(obs)), keep)
+
+    def dropped(self, x: torch.Tensor, keep: torch.Tensor | None) -> torch.Tensor:
+        """Encoder inputs `x` (..., 2 time_frequencies + context_width) with their `observed_only_inputs` times `keep`
+        (..., their width): the observed-only dropout of training (models.train.dropout_keep); None: `x` as it is."""
+        if keep is None:
+            return x
+        factor = torch.ones_like(x)
+        at = 0
+        for a, b in self.observed_only_inputs():
+            factor[..., a:b] = keep[..., at : at + b - a]
+            at += b - a
+        return x * factor
 
     def embed_time(self, x: torch.Tensor) -> torch.Tensor:
         """(..., 1 + k) with t first -> (..., 1 + 2K + k) with the time's Fourier features."""
@@ -133,10 +179,11 @@ class CNEP(nn.Module):
         angle = x[..., :1] * self.frequencies  # (..., K)
         return torch.cat([x[..., :1], angle.sin(), angle.cos(), x[..., 1:]], dim=-1)
 
-    def encode(self, obs: torch.Tensor, obs_mask: torch.Tensor) -> torch.Tensor:
-        """Masked mean of the observation encodings: (B, N, 1+obs_dim), (B, N) -> (B, H)."""
+    def encode(self, obs: torch.Tensor, obs_mask: torch.Tensor, keep: torch.Tensor | None = None) -> torch.Tensor:
+        """Masked mean of the observation encodings: (B, N, 1+obs_dim), (B, N) -> (B, H); keep: as in
+        `encoder_inputs`."""
         w = obs_mask.to(obs.dtype).unsqueeze(-1)  # (B, N, 1)
-        enc = self.encoder(self.embed_time(obs)) * w  # (B, N, H); padded rows contribute exactly 0
+        enc = self.encoder(self.encoder_inputs(obs, keep)) * w  # (B, N, H); padded rows contribute exactly 0
         return enc.sum(1) / w.sum(1).clamp_min(1.0)  # (B, H)
 
     def decode(self, r: torch.Tensor, query: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -148,9 +195,17 @@ class CNEP(nn.Module):
         mean, raw = out.split(dy, dim=-1)  # (B, d, M, dy) each
         return mean, self.config.min_std + F.softplus(raw)
 
-    def forward(self, obs: torch.Tensor, obs_mask: torch.Tensor, query: torch.Tensor, latent: bool = False):
-        """Normalised inputs -> (mean, std (B, d, M, dy), gate (B, d)); with `latent`, the latent r (B, H) too."""
-        r = self.encode(obs, obs_mask)  # (B, H)
+    def forward(
+        self,
+        obs: torch.Tensor,
+        obs_mask: torch.Tensor,
+        query: torch.Tensor,
+        latent: bool = False,
+        keep: torch.Tensor | None = None,
+    ):
+        """Normalised inputs -> (mean, std (B, d, M, dy), gate (B, d)); with `latent`, the latent r (B, H) too; keep:
+        the training contexts' observed-only dropout (`encoder_inputs`)."""
+        r = self.encode(obs, obs_mask, keep)  # (B, H)
         gate = torch.softmax(self.gate(r), dim=-1)  # (B, d)
         mean, std = self.decode(r, query)
         return (mean, std, gate, r) if latent else (mean, std, gate)

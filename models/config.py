@@ -74,6 +74,12 @@ class ColumnRoles:
     def out_dim(self) -> int:
         return len(span_indices(self.predicted))
 
+    @property
+    def observed_only(self) -> tuple[int, ...]:
+        """The columns observed but never predicted (such as a camera's image features), in the order observed."""
+        predicted = set(span_indices(self.predicted))
+        return tuple(c for c in span_indices(self.observed) if c not in predicted)
+
 
 def setting(
     default: object,
@@ -157,6 +163,14 @@ class CNEPConfig:
         + " (docs/concepts.md)",
         choices=tuple(ASSIGNMENTS),
     )
+    # A few hundred training scenes spread over a handful of directions of the image features' 1280; the encoder
+    # reading only those directions cannot tell its training scenes apart by the rest (docs/concepts.md).
+    feature_components: int | None = setting(
+        None,
+        "the encoder reads the columns it observes but does not predict (such as image features) as their top K "
+        "principal components over the training rows, each scaled to unit variance; none: every column",
+        shown="none",
+    )
 
     def __post_init__(self) -> None:
         assignment_named(self.assignment)
@@ -173,6 +187,14 @@ class CNEPConfig:
             )
         if self.time_frequencies < 0:
             raise ConfigError(f"time_frequencies must be >= 0, got {self.time_frequencies}.")
+        if self.feature_components is not None and (
+            isinstance(self.feature_components, bool)
+            or not isinstance(self.feature_components, int)
+            or self.feature_components < 1
+        ):
+            raise ConfigError(
+                f"feature_components must be a whole number >= 1 (or none), got {in_message(self.feature_components)}."
+            )
         if not self.min_std > 0:
             raise ConfigError(f"min_std must be > 0 (it keeps the likelihood finite), got {self.min_std}.")
         defaults = authors_coefficients(self.n_experts)
@@ -185,6 +207,29 @@ class CNEPConfig:
     @property
     def latent_dim(self) -> int:
         return self.encoder_widths[-1]
+
+    @property
+    def projected_columns(self) -> tuple[int, ...]:
+        """The columns the encoder reads as principal components (`components`): the observed-only ones where
+        `feature_components` is set, else none. Their scatter matrix is what the training rows' moments must carry."""
+        return self.columns.observed_only if self.components() is not None else ()
+
+    def components(self) -> int | None:
+        """`feature_components` checked against the columns: None, or K with 1 <= K <= the columns observed but not
+        predicted (`ColumnRoles.observed_only`); a ConfigError otherwise."""
+        K, n = self.feature_components, len(self.columns.observed_only)
+        if K is None:
+            return None
+        if n == 0:
+            raise ConfigError(
+                f"feature_components={K} projects the columns the model observes but does not predict (such as image "
+                f"features), and this model predicts every column it observes; leave it unset"
+            )
+        if n < K:
+            raise ConfigError(
+                f"feature_components must be at most the {n} columns the model observes but does not predict, got {K}"
+            )
+        return K
 
     @property
     def assigned(self) -> Assignment:

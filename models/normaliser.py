@@ -4,7 +4,9 @@ Normalisation statistics travel with the weights (they are buffers of the model)
 can never be used with statistics from another data set. They are fitted from `Moments`: each
 trajectory's row count, column means and sums of squared deviations in float64, combined pairwise
 (Chan, Golub and LeVeque's update), so that files read one at a time, or shares of them on several
-processes, give the statistics of all their rows without ever holding them together.
+processes, give the statistics of all their rows without ever holding them together. Where a model projects some
+columns onto their principal components (models.projection), the moments carry those columns' scatter matrix too,
+combined by the same update; only then, as it grows with the square of their number.
 """
 
 from __future__ import annotations
@@ -22,33 +24,45 @@ from cnep.models.errors import ConfigError
 @dataclass(frozen=True)
 class Moments:
     """Per-column statistics of `count` rows: mean, sum of squared deviations from it (m2) and largest magnitude,
-    each (C,) float64."""
+    each (C,) float64; on the columns `co`, the scatter matrix (len(co), len(co)) float64: the sum over the rows of
+    the outer product of their deviations from the mean (none where `co` is empty)."""
 
     count: int
     mean: np.ndarray
     m2: np.ndarray
     largest: np.ndarray
+    co: tuple[int, ...] = ()
+    scatter: np.ndarray | None = None
 
     @classmethod
-    def of(cls, rows: np.ndarray) -> Moments:
-        """The moments of (T, C) `rows` (any float dtype; computed in float64)."""
+    def of(cls, rows: np.ndarray, co: Sequence[int] = ()) -> Moments:
+        """The moments of (T, C) `rows` (any float dtype; computed in float64), with the scatter matrix of columns
+        `co`."""
         x = np.asarray(rows, dtype=np.float64)  # (T, C)
         mean = x.mean(axis=0)  # (C,)
         with np.errstate(over="ignore", invalid="ignore"):  # reported by `Normaliser.fit_moments`, naming the column
             m2 = ((x - mean) ** 2).sum(axis=0)
-        return cls(len(x), mean, m2, np.abs(x).max(axis=0, initial=0.0))
+            deviations = x[:, list(co)] - mean[list(co)]  # (T, len(co))
+            scatter = deviations.T @ deviations if co else None  # (len(co), len(co))
+        return cls(len(x), mean, m2, np.abs(x).max(axis=0, initial=0.0), tuple(co), scatter)
 
     def __add__(self, other: Moments) -> Moments:
         """The moments of both sets of rows together."""
+        if other.co != self.co:
+            raise ConfigError("Moments carrying the scatter matrices of different columns cannot be combined.")
         if other.count == 0:
             return self
         if self.count == 0:
             return other
         n = self.count + other.count
         delta = other.mean - self.mean  # (C,)
+        weight = self.count * other.count / n
         with np.errstate(over="ignore", invalid="ignore"):
-            m2 = self.m2 + other.m2 + delta**2 * (self.count * other.count / n)
-        return Moments(n, self.mean + delta * (other.count / n), m2, np.maximum(self.largest, other.largest))
+            m2 = self.m2 + other.m2 + delta**2 * weight
+            d = delta[list(self.co)]  # (len(co),)
+            scatter = self.scatter + other.scatter + np.outer(d, d) * weight if self.co else None
+        mean = self.mean + delta * (other.count / n)
+        return Moments(n, mean, m2, np.maximum(self.largest, other.largest), self.co, scatter)
 
     @staticmethod
     def total(parts: Iterable[Moments]) -> Moments:

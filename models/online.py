@@ -51,14 +51,15 @@ class OnlineStep:
 
 
 class Encoder(nn.Module):
-    """The model's per-observation encoder: [t, normalised observed columns] (N, 1 + obs_dim) -> (N, H)."""
+    """The model's per-observation encoder: [t, normalised observed columns] (N, 1 + obs_dim) -> (N, H), its
+    projection of the observed-only columns (`CNEPConfig.feature_components`) included."""
 
     def __init__(self, model: CNEP) -> None:
         super().__init__()
         self.model = model
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
-        return self.model.encoder(self.model.embed_time(obs))  # (N, H)
+        return self.model.encoder(self.model.encoder_inputs(obs))  # (N, H)
 
 
 class Decoder(nn.Module):

@@ -38,10 +38,13 @@ class Batch:
     target: torch.Tensor  # (B, m_max, dy)
     target_mask: torch.Tensor  # (B, m_max) bool
     trajectory: torch.Tensor  # (B,) long: the stack index of each sample's trajectory
+    # (B, n_max, observed-only inputs): the training contexts' dropout (models.train.dropout_keep); None: none
+    keep: torch.Tensor | None = None
 
     def to(self, device: torch.device) -> Batch:
         """This batch on `device` (itself, not a copy, where it is there already)."""
-        return Batch(*(getattr(self, f.name).to(device) for f in dataclasses.fields(self)))
+        fields = (getattr(self, f.name) for f in dataclasses.fields(self))
+        return Batch(*(None if x is None else x.to(device) for x in fields))
 
 
 class TrajectoryStack:

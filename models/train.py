@@ -32,6 +32,7 @@ from cnep.models.config import CNEPConfig, TrainConfig
 from cnep.models.errors import ConfigError
 from cnep.models.loss import cnep_loss, expert_nll
 from cnep.models.normaliser import Moments
+from cnep.models.projection import principal_projection
 from cnep.models.sampler import Batch, TrajectoryStack, sample_batch
 from cnep.models.schedule import scheduled
 from cnep.models.split import split_if_idle, split_steps
@@ -57,18 +58,27 @@ VAL_FRACTION = 0.2
 
 
 def build_model(config: CNEPConfig, train: Sequence[np.ndarray] | Moments, seed: int) -> CNEP:
-    """A freshly initialised model (seeded) whose normaliser is fitted on `train`: (T_i, width) trajectories, or
-    their `Moments`."""
+    """A freshly initialised model (seeded) whose normaliser (and with `feature_components`, its projection:
+    models.projection) is fitted on `train`: (T_i, width) trajectories, or their `Moments` (with the scatter matrix
+    of `config.columns.observed_only` where the model projects them)."""
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(seed)
         model = CNEP(config)
     with torch.no_grad():  # the gate starts uniform: zero weights, zero bias
         model.gate.weight.zero_()
         model.gate.bias.zero_()
-    if isinstance(train, Moments):
-        model.normaliser.fit_moments(train)
-    else:
-        model.normaliser.fit(train)
+    co = config.projected_columns
+    moments = train if isinstance(train, Moments) else Moments.total(Moments.of(t, co) for t in train)
+    model.normaliser.fit_moments(moments)
+    if co:
+        if moments.co != co:
+            raise ConfigError(
+                f"feature_components needs the moments' scatter matrix of the {len(co)} columns the model observes but "
+                f"does not predict (Moments.of(rows, co)); these carry it for {len(moments.co)} columns."
+            )
+        scale = model.normaliser.scale.double().numpy()[list(co)]
+        projection = principal_projection(moments, scale, config.feature_components)
+        model.feature_projection.copy_(torch.from_numpy(projection))
     return model
 
 
@@ -103,15 +113,12 @@ def set_learning_rate(optimizer: torch.optim.Optimizer, step: int, cfg: TrainCon
         group["lr"] = cfg.lr * lr_factor(step, cfg) * group["lr_scale"]
 
 
-def drop_observed_only(obs: torch.Tensor, spans: Sequence[tuple[int, int]], share: float, g: torch.Generator) -> None:
-    """`TrainConfig.observed_only_dropout` on a batch's contexts (B, n, 1 + obs_dim), in place: each value on the
-    `spans` (`CNEP.observed_only_columns`) is zeroed with probability `share`, the others scaled by 1 / (1 - share)."""
+def dropout_keep(obs: torch.Tensor, spans: Sequence[tuple[int, int]], share: float, g: torch.Generator) -> torch.Tensor:
+    """`TrainConfig.observed_only_dropout` of a batch's contexts (B, n, 1 + obs_dim): multipliers (B, n, width of
+    `spans`) of the encoder's inputs on `spans` (`CNEP.observed_only_inputs`), each 0 with probability `share`, else
+    1 / (1 - share); the model applies them (`CNEP.encoder_inputs`)."""
     width = sum(b - a for a, b in spans)
-    keep = (torch.rand((*obs.shape[:-1], width), generator=g) >= share).float() / (1 - share)
-    at = 0
-    for a, b in spans:
-        obs[..., a:b] *= keep[..., at : at + b - a]
-        at += b - a
+    return (torch.rand((*obs.shape[:-1], width), generator=g) >= share).float() / (1 - share)
 
 
 @torch.no_grad()
@@ -187,7 +194,7 @@ class Trainer:
         )
         self.generator = torch.Generator().manual_seed(self.cfg.seed)
         self.dropout_generator = torch.Generator().manual_seed(self.cfg.seed + DROPOUT_SEED_OFFSET)
-        self.dropped = self.model.observed_only_columns() if self.cfg.observed_only_dropout else []
+        self.dropped = self.model.observed_only_inputs() if self.cfg.observed_only_dropout else []
         val_gen = torch.Generator().manual_seed(self.cfg.seed + 1)
         self.val_batches = [
             sample_batch(
@@ -238,7 +245,7 @@ class Trainer:
             self.first_steps,
         )
         if self.dropped:
-            drop_observed_only(batch.obs, self.dropped, self.cfg.observed_only_dropout, self.dropout_generator)
+            batch.keep = dropout_keep(batch.obs, self.dropped, self.cfg.observed_only_dropout, self.dropout_generator)
         return batch.to(self.device)
 
     def demonstration(self, batch: Batch) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -267,7 +274,7 @@ class Trainer:
             self.split_idle(params, {name: self.optimizer.state.get(p, {}) for name, p in params.items()})
         batch = self.next_batch()
         set_learning_rate(self.optimizer, self.step, self.cfg)
-        mean, std, gate, r = self.model(batch.obs, batch.obs_mask, batch.query, latent=True)
+        mean, std, gate, r = self.model(batch.obs, batch.obs_mask, batch.query, latent=True, keep=batch.keep)
         posterior = (
             demonstration_nll(self.model, r, self.demonstration(batch))
             if self.model.config.assigned.uses_demonstration

@@ -65,10 +65,11 @@ class PackedColumns:
         a, b = span
         return {i: np.array(self.rows[s : s + n, a:b]) for i, s, n in zip(part, starts.tolist(), lengths.tolist())}
 
-    def moments(self, part: Sequence[int]) -> Moments:
-        """The normaliser's moments of files `part`, file by file (float64, one file's rows converted at a time)."""
+    def moments(self, part: Sequence[int], co: Sequence[int] = ()) -> Moments:
+        """The normaliser's moments of files `part`, file by file (float64, one file's rows converted at a time), with
+        the scatter matrix of model columns `co` (`CNEPConfig.projected_columns`)."""
         starts, lengths = self.span(part)
-        return Moments.total(Moments.of(self.rows[a : a + n]) for a, n in zip(starts.tolist(), lengths.tolist()))
+        return Moments.total(Moments.of(self.rows[a : a + n], co) for a, n in zip(starts.tolist(), lengths.tolist()))
 
 
 def pack_columns(data: TrainingSet, indices: Sequence[int], layout: TrainingColumns, base: Path) -> PackedColumns:

@@ -161,8 +161,15 @@ class PlacedModel:
             ids = [device.index] if device.type == "cuda" else None
             self.net = torch.nn.parallel.DistributedDataParallel(self.cnep, device_ids=ids)
 
-    def __call__(self, obs: torch.Tensor, obs_mask: torch.Tensor, query: torch.Tensor, latent: bool = False):
-        return self.net(obs, obs_mask, query, latent)
+    def __call__(
+        self,
+        obs: torch.Tensor,
+        obs_mask: torch.Tensor,
+        query: torch.Tensor,
+        latent: bool = False,
+        keep: torch.Tensor | None = None,
+    ):
+        return self.net(obs, obs_mask, query, latent, keep)
 
     def train(self, mode: bool = True) -> PlacedModel:
         self.net.train(mode)

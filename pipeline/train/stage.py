@@ -206,6 +206,7 @@ def _load(config: TrainStageConfig, procs: Processes, held: ExitStack) -> _Run:
     data = load_training_set(find_trajectory_files(config.inputs))
     layout = resolve_preset(config.layout, data.width, data.files[0].path)
     model_config = replace(config.model, columns=layout.roles)
+    model_config.components()  # feature_components against the layout's columns, before anything is packed
     if config.matched_cnmp:
         model_config = matched_cnmp(model_config)
     train_idx, val_idx = split_validation(list(range(len(data.files))), config.val_fraction, config.training.seed)
@@ -247,7 +248,8 @@ def _build(
 ) -> tuple[torch.nn.Module, StageTrainer, float]:
     """The model (its normaliser fitted on the training demonstrations), its trainer, and the seconds trained so far
     (restored from the saved state when resuming)."""
-    moments = gather(procs, run.packed.moments(run.my_train))  # each rank's training share, in rank order
+    co = run.model_config.projected_columns
+    moments = gather(procs, run.packed.moments(run.my_train, co))  # each rank's training share, in rank order
     fitted_on = Moments.total(moments) if disjoint(run.train_idx, procs) else moments[0]
     model = build_model(run.model_config, fitted_on, config.training.seed)
     train_stack = TrajectoryStack.from_rows(run.packed.rows, *run.packed.span(run.my_train), model)

@@ -37,3 +37,34 @@ def two_mode_trajectories(n: int = 16, T: int = 50, seed: int = 0) -> tuple[list
     modes = np.arange(n) % 2
     trajs = [((1 if k else -1) * np.sin(np.pi * t) + 0.02 * rng.standard_normal())[:, None] for k in modes]
     return [x.astype(np.float32) for x in trajs], modes
+
+
+def feature_config(features: int = 6, components: int | None = 3, out_dim: int = 2) -> CNEPConfig:
+    """A small model observing `features` columns it never predicts (as a camera's features), read as `components`
+    principal components, and the `out_dim` columns after them, which it predicts."""
+    width = features + out_dim
+    columns = ColumnRoles(width=width, observed=((0, width),), predicted=((features, width),))
+    return CNEPConfig(
+        columns=columns,
+        encoder_widths=(16, 16),
+        expert_widths=(16, 16),
+        time_frequencies=2,
+        feature_components=components,
+    )
+
+
+def feature_trajectories(
+    n: int = 6, T: int = 20, features: int = 6, out_dim: int = 2, seed: int = 0
+) -> list[np.ndarray]:
+    """(T, features + out_dim) trajectories whose features vary mostly along two directions, on scales from 0.01 to
+    100 around different centres, and whose predicted columns follow the first direction."""
+    rng = np.random.default_rng(seed)
+    directions = rng.standard_normal((2, features))  # (2, features)
+    scales, centres = np.logspace(-2, 2, features), rng.uniform(-5, 5, features)
+    trajectories = []
+    for _ in range(n):
+        latent = rng.standard_normal((T, 2)) * [3.0, 1.0]  # (T, 2)
+        values = centres + scales * (latent @ directions + 0.05 * rng.standard_normal((T, features)))
+        predicted = latent[:, :1] + 0.1 * rng.standard_normal((T, out_dim))
+        trajectories.append(np.concatenate([values, predicted], axis=1).astype(np.float32))
+    return trajectories

@@ -7,7 +7,7 @@ from cnep.models.batched import BatchedTrainer, FitRun, fit_many
 from cnep.models.config import TrainConfig
 from cnep.models.errors import ConfigError
 from cnep.models.train import fit, prepare_fit
-from tests.models.factories import tiny_config, two_mode_trajectories
+from tests.models.factories import feature_config, feature_trajectories, tiny_config, two_mode_trajectories
 
 # Steps cross the gate's freeze (30% = step 12), validations every 10 steps; lr high enough that gradients
 # exceed the clipping norm (3) on some steps and not on others, so each model's own clipping norm matters.
@@ -87,3 +87,19 @@ def test_models_of_different_shapes_or_schedules_are_not_batched_together():
     other_steps = dataclasses.replace(runs[1], train_config=dataclasses.replace(runs[1].train_config, steps=30))
     results = fit_many([runs[0], other_steps])  # fit_many trains them apart
     assert [h[-1]["step"] for _, h in results] == [40, 30]
+
+
+def test_models_reading_feature_components_train_together_each_with_its_own_projection_as_alone():
+    config = feature_config(components=3)
+    schedule = dataclasses.replace(SCHEDULE, steps=20, val_every=10)
+    runs = [
+        FitRun(feature_trajectories(n=8, seed=seed), config, dataclasses.replace(schedule, seed=seed))
+        for seed in (0, 1)
+    ]
+    together = fit_many(runs)
+    for run, (model, history) in zip(runs, together):
+        alone, alone_history = fit(run.trajectories, run.config, run.train_config, progress=False)
+        assert history == alone_history
+        assert all(torch.equal(model.state_dict()[k], v) for k, v in alone.state_dict().items())
+    first, second = (model.feature_projection for model, _ in together)
+    assert not torch.allclose(first, second)  # each fitted on its own data

@@ -15,7 +15,7 @@ from cnep.models.checkpoint import (
 )
 from cnep.models.errors import ConfigError
 from cnep.models.train import build_model
-from tests.models.factories import random_inputs, tiny_config
+from tests.models.factories import feature_config, feature_trajectories, random_inputs, tiny_config
 
 
 @pytest.fixture
@@ -103,3 +103,15 @@ def test_checkpoint_files_are_readable_by_others_as_the_umask_allows(model, tmp_
     for name in (CONFIG_FILE, WEIGHTS_FILE):
         mode = stat.S_IMODE((tmp_path / "ckpt" / name).stat().st_mode)
         assert mode == 0o666 & ~mask
+
+
+def test_a_models_feature_projection_is_saved_and_restored(tmp_path):
+    model = build_model(feature_config(components=3), feature_trajectories(), seed=0).eval()
+    save_checkpoint(model, tmp_path / "ckpt")
+    assert json.loads((tmp_path / "ckpt" / CONFIG_FILE).read_text())["model"]["feature_components"] == 3
+    loaded = load_checkpoint(tmp_path / "ckpt")
+    assert loaded.feature_projection.abs().sum() > 0
+    assert torch.equal(loaded.feature_projection, model.feature_projection)
+    obs, mask, query = random_inputs(model.config)
+    for a, b in zip(model(obs, mask, query), loaded(obs, mask, query)):
+        torch.testing.assert_close(a, b, rtol=0, atol=0)

@@ -32,3 +32,12 @@ def test_parameter_count_counts_the_built_network():
 def test_matched_cnmp_needs_a_hidden_expert_layer():
     with pytest.raises(ConfigError, match="expert_widths"):
         matched_cnmp(CNEPConfig(expert_widths=()))
+
+
+def test_an_encoder_reading_feature_components_has_k_inputs_for_the_features_and_its_cnmp_too():
+    scene = CNEPConfig(columns=ROLES["scene-1288"])
+    projected = CNEPConfig(columns=ROLES["scene-1288"], feature_components=32)
+    width = projected.encoder_widths[0]
+    assert parameter_count(scene) - parameter_count(projected) == (1280 - 32) * width
+    assert matched_cnmp(projected).feature_components == 32
+    assert 1.0 <= parameter_count(matched_cnmp(projected)) / parameter_count(projected) < 1.01

@@ -221,21 +221,23 @@ def test_the_observed_only_spans_are_the_context_values_and_encoder_inputs_of_co
     assert spans(observed=((0, 6),), predicted=((0, 6),)) == ([], [])  # a model that predicts all it observes
 
 
-def test_observed_only_dropout_zeroes_or_scales_those_context_values_and_leaves_the_batch_as_it_was():
+def test_observed_only_dropout_zeroes_or_scales_those_encoder_inputs_and_leaves_the_batch_as_it_was():
     trajs = [np.random.default_rng(i).standard_normal((20, 5)).astype(np.float32) for i in range(6)]
     columns = ColumnRoles(width=5, observed=((0, 2), (3, 5)), query=((2, 3),), predicted=((3, 5),))
-    config = CNEPConfig(columns=columns, n_experts=2, **SMALL)  # context: t, columns 0-1 (observed only), 3-4
+    config = CNEPConfig(columns=columns, n_experts=2, **{**SMALL, "time_frequencies": 0})  # t, 0-1 (observed only), 3-4
 
     def batch(share: float):
         cfg = TrainConfig(steps=10, warmup_steps=2, val_every=10, batch_size=64, observed_only_dropout=share)
         trainer, _ = prepare_fit(trajs, config, cfg)
-        return trainer.next_batch()
+        return trainer.model, trainer.next_batch()
 
-    plain, dropped = batch(0.0), batch(0.25)
+    (model, plain), (_, dropped) = batch(0.0), batch(0.25)
+    assert plain.keep is None and dropped.keep.shape == (*dropped.obs.shape[:-1], 2)
+    assert all(torch.equal(getattr(dropped, f), getattr(plain, f)) for f in ("obs", "obs_mask", "query", "target"))
+    seen, full = model.encoder_inputs(dropped.obs, dropped.keep), model.encoder_inputs(plain.obs)
     mask = plain.obs_mask
-    assert torch.equal(dropped.obs[..., [0, 3, 4]], plain.obs[..., [0, 3, 4]])  # t and the predicted columns
-    assert all(torch.equal(getattr(dropped, f), getattr(plain, f)) for f in ("obs_mask", "query", "target"))
-    ratio = dropped.obs[..., 1:3][mask] / plain.obs[..., 1:3][mask]
+    assert torch.equal(seen[..., [0, 3, 4]], full[..., [0, 3, 4]])  # t and the predicted columns
+    ratio = seen[..., 1:3][mask] / full[..., 1:3][mask]
     assert torch.allclose(ratio[ratio != 0], torch.tensor(1 / 0.75))  # the kept values, scaled up
     assert 0.2 < (ratio == 0).float().mean() < 0.3  # about a quarter zeroed, value by value
     with pytest.raises(ConfigError, match=r"observed_only_dropout must be in \[0, 1\)"):

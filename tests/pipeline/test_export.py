@@ -78,6 +78,23 @@ def test_the_encoder_graph_takes_any_number_of_context_points(policy_world):
         np.testing.assert_allclose(graph({ENCODER_INPUT: obs})[0], TorchNetwork(model).encode(obs), atol=1e-5)
 
 
+def test_an_exported_policy_reading_feature_components_encodes_as_its_checkpoint(policy_world, tmp_path):
+    trajectories = policy_world.checkpoint.parents[1] / "trajectories" / "train"
+    checkpoint, folder = tmp_path / "ckpt", tmp_path / "policy"
+    tiny = ["--steps", "4", "--val-every", "2", "--warmup-steps", "1", "--encoder-widths", "8", "--expert-widths", "8"]
+    assert main(["-q", "train", str(trajectories), "--out", str(checkpoint), *tiny, "--feature-components", "3"]) == 0
+    assert (
+        main(["-q", "export", str(checkpoint), "--out", str(folder), "--extractor", str(policy_world.extractor)]) == 0
+    )
+    model = load_checkpoint(checkpoint)
+    graph = onnxruntime_graph(str(folder / "encoder.onnx"), 1)
+    obs = np.random.default_rng(0).standard_normal((5, 1 + model.config.columns.obs_dim), dtype=np.float32)
+    encoded = graph({ENCODER_INPUT: obs})[0]
+    np.testing.assert_allclose(encoded, TorchNetwork(model).encode(obs), atol=1e-5)
+    model.feature_projection.zero_()  # the graph holds the projection: without it, the encodings differ
+    assert np.abs(encoded - TorchNetwork(model).encode(obs)).max() > 1e-3
+
+
 def test_the_runtime_requirements_are_the_packages_bounds():
     tomllib = pytest.importorskip("tomllib")
     project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]

@@ -13,7 +13,7 @@ from safetensors.torch import load_file
 from cnep.models import CNEPConfig, TrainConfig, Trainer, load_checkpoint, read_checkpoint_config
 from cnep.models.assignments import ASSIGNMENTS
 from cnep.models.sampler import TrajectoryStack
-from cnep.models.train import LEARNED_RATIO
+from cnep.models.train import LEARNED_RATIO, build_model
 from cnep.outputs import RECORD_FILE
 from cnep.pipeline.cli.main import main
 from cnep.pipeline.contract import Terminated
@@ -108,6 +108,31 @@ def test_cli_trains_a_checkpoint_that_loads_and_generates(full_set, tmp_path, ca
     traj = read_trajectory(full_set[1])
     prediction = model.generate(np.array([0.0, 0.5]), traj.data[[0, 13]], np.linspace(0, 1, 5))  # scene: t only
     assert prediction.mean.shape == (5, 8) and np.isfinite(prediction.mean).all()
+
+
+def test_feature_components_from_the_command_line_reach_the_checkpoint_fitted_on_the_training_files(
+    full_set, tmp_path, capsys
+):
+    out = tmp_path / "ckpt"
+    args = ["-q", "train", str(full_set[0].parent), "--out", str(out), "--steps", "10", "--val-every", "5"]
+    args += ["--warmup-steps", "2", "--batch-size", "4", "--encoder-widths", "16,16", "--expert-widths", "16,16"]
+    assert main([*args, "--feature-components", "4"]) == 0
+    config = read_checkpoint_config(out)
+    assert config["model"]["feature_components"] == 4
+    model = load_checkpoint(out)
+    assert model.encoder[0].weight.shape[1] == 1 + 2 * 8 + 8 + 4  # t and its features, pose and gripper, components
+    train = [read_trajectory(f["path"]).data for f in config["files"] if f["split"] == "train"]
+    expected = build_model(model.config, train, seed=0)  # from the trajectories; the stage sums per-file moments
+    torch.testing.assert_close(model.feature_projection, expected.feature_projection, rtol=1e-6, atol=1e-6)
+    torch.testing.assert_close(model.normaliser.scale, expected.normaliser.scale, rtol=1e-6, atol=0)
+    capsys.readouterr()
+    for components, says in (("1281", "at most the 1280 columns"), ("0", "a whole number >= 1")):
+        assert main([*args, "--force", "--feature-components", components]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and says in err[0], err
+    assert main([*args, "--force", "--layout", "motion", "--feature-components", "2"]) == 2
+    assert "predicts every column it observes" in capsys.readouterr().err
+    assert read_checkpoint_config(out) == config  # refused before anything was replaced
 
 
 def test_released_weights_are_the_best_validated(full_set, tmp_path):
