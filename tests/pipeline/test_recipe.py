@@ -13,7 +13,6 @@ from cnep.pipeline.cli.main import main
 from cnep.pipeline.cli.train import settings_of
 from cnep.pipeline.export.policy import checkpoint_policy
 from cnep.runtime import load_policy, read_manifest
-from tests.pipeline.test_train import write_set
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -44,13 +43,14 @@ def flag_words(option: Option, value: object) -> list[str]:
 
 
 @pytest.fixture(scope="module")
-def trained(tmp_path_factory) -> tuple[Path, dict[str, dict]]:
-    """A motion checkpoint trained with every recipe setting away from its default; config.json key -> the settings
-    given (field name -> value as JSON holds it)."""
+def trained(tmp_path_factory, policy_world) -> tuple[Path, dict[str, dict]]:
+    """A checkpoint of the demo's trajectories (image features beside the motion, so that every setting applies)
+    trained with every recipe setting away from its default; config.json key -> the settings given (field name ->
+    value as JSON holds it)."""
     root = tmp_path_factory.mktemp("recipe")
-    data = write_set(root / "data", features=False)
+    data = policy_world.checkpoint.parents[1] / "trajectories" / "train"
     chosen = {option: other_value(option) for option in recipe_options()}
-    argv = ["-q", "train", str(data[0].parent), "--out", str(root / "ckpt"), "--layout", "motion"]
+    argv = ["-q", "train", str(data), "--out", str(root / "ckpt")]
     assert main(argv + [word for option, value in chosen.items() for word in flag_words(option, value)]) == 0
     given: dict[str, dict] = {key: {} for key in RECIPE.values()}
     for option, value in chosen.items():
@@ -65,12 +65,13 @@ def test_the_recipe_walks_the_model_training_and_conditioning_settings():
     assert {"assignment", "nll_beta", "steps", "warmup_steps", "val_every", "patience", "window"} <= names
 
 
-def test_every_recipe_setting_reaches_config_json_the_manifest_and_the_policies(trained, tmp_path):
+def test_every_recipe_setting_reaches_config_json_the_manifest_and_the_policies(trained, policy_world, tmp_path):
     checkpoint, given = trained
     config = read_checkpoint_config(checkpoint)
-    assert main(["-q", "export", str(checkpoint), "--out", str(tmp_path / "policy")]) == 0
+    extractor = str(policy_world.extractor)
+    assert main(["-q", "export", str(checkpoint), "--out", str(tmp_path / "policy"), "--extractor", extractor]) == 0
     spec = read_manifest(tmp_path / "policy").spec
-    policies = (load_policy(tmp_path / "policy", threads=1), checkpoint_policy(checkpoint, threads=1))
+    policies = (load_policy(tmp_path / "policy", threads=1), checkpoint_policy(checkpoint, extractor, threads=1))
     for key, settings in given.items():
         for name, value in settings.items():
             assert config[key][name] == value, (key, name)
