@@ -10,12 +10,17 @@ import pytest
 FEW_CALIBRATION_FRAMES = 32
 
 
-@pytest.fixture
-def few_calibration_frames(monkeypatch):
-    """`cnep extract` calibrates random weights on FEW_CALIBRATION_FRAMES frames while the test runs."""
+def calibrate_on_few_frames(monkeypatch: pytest.MonkeyPatch) -> None:
+    """`cnep extract` calibrates random weights on FEW_CALIBRATION_FRAMES frames while `monkeypatch` holds."""
     import cnep.pipeline.extract.stage as extract_stage
 
     monkeypatch.setattr(extract_stage, "CALIBRATION_FRAMES", FEW_CALIBRATION_FRAMES)
+
+
+@pytest.fixture
+def few_calibration_frames(monkeypatch):
+    """`calibrate_on_few_frames` while the test runs."""
+    calibrate_on_few_frames(monkeypatch)
 
 
 class InProcess(Executor):
@@ -53,11 +58,16 @@ def pickled_in_process(workers: int, *args, **kwargs):
 
 @pytest.fixture
 def sim_pools_in_process(monkeypatch, one_thread):
+    """`pools_in_process` while the test runs, on one torch thread as in a worker."""
+    pools_in_process(monkeypatch)
+
+
+def pools_in_process(monkeypatch: pytest.MonkeyPatch) -> None:
     """The sim stage's worker pools (training, the closed loop, the CNEP-PCA baseline's training) run their jobs in
-    this process, on one torch thread as in a worker: no process to start, no torch to import again. The pools
-    themselves are pipeline.workers' (tests/pipeline/test_workers.py), and the quick demo trains the same `train` jobs
-    in them. (The CNEP-PCA trains in a process of its own because torch's optimiser may crash a process that holds a
-    MuJoCo renderer: a test's process has trained before its closed loop starts, the optimiser already loaded.)"""
+    this process while `monkeypatch` holds: no process to start, no torch to import again. The pools themselves are
+    pipeline.workers' (tests/pipeline/test_workers.py), and the quick demo trains the same `train` jobs in them. (The
+    CNEP-PCA trains in a process of its own because torch's optimiser may crash a process that holds a MuJoCo
+    renderer: a test's process has trained before its closed loop starts, the optimiser already loaded.)"""
     import cnep.pipeline.demo.stage as demo_stage
     import cnep.pipeline.sim.baselines as sim_baselines
     import cnep.pipeline.sim.pool as sim_pool

@@ -1,15 +1,18 @@
 """`cnep sim obstacle` end to end on the smallest data that runs every stage (2 demonstrations, random features
-calibrated on one batch of frames, 20 training steps, one episode per protocol cut after 16 steps) on the environments'
-latest version: summary.json holds the documented keys and the version, `cnep sim eval` of each exported policy (its
-task and version read from the policy) repeats the run's rows with the same settings and episode seeds, and
-examples/closed_loop_csv.py turns the run into its rows. The stage's pools (training, closed loop) run their jobs in
-this process (tests/sim/conftest.py)."""
+calibrated on one batch of frames, 20 training steps, 2 candidate checkpoints chosen on one validation episode, one
+episode per protocol cut after 16 steps, recorded) on the environments' latest version, run straight once for the
+module: summary.json holds the documented keys and the version, `cnep sim eval` of each exported policy (its task and
+version read from the policy) repeats the run's rows with the same settings and episode seeds,
+examples/closed_loop_csv.py turns the run into its rows, and a run stopped after a stage and in the closed loop
+resumes to the straight run's summary. The stage's pools (training, closed loop) run their jobs in this process
+(tests/sim/conftest.py)."""
 
 import importlib.util
 import json
 import os
 import signal
 from dataclasses import replace
+from pathlib import Path
 
 import pytest
 
@@ -23,7 +26,14 @@ from cnep.pipeline.sim.config import ENV_VERSIONS, MODELS, PROTOCOLS, SimConfig 
 from cnep.pipeline.sim.partial import SUMMARY_FILE  # noqa: E402
 from cnep.pipeline.sim.stage import run_sim  # noqa: E402
 from cnep.pipeline.sim.validation import SelectionSettings  # noqa: E402
+from tests.sim.conftest import calibrate_on_few_frames, pools_in_process  # noqa: E402
 from tests.test_examples import load  # noqa: E402
+
+# The run's settings, straight and resumed: a choice between 2 candidates, every episode recorded.
+SMALL = {
+    "demonstrations": 2, "train_steps": 20, "episodes": 1, "max_steps": 16, "record": 1, "offline": True,
+    "quiet": True, "selection": SelectionSettings(candidates=2, selection_episodes=1),
+}  # fmt: skip
 
 
 def episode_rows(rates: dict) -> list[dict]:
@@ -31,31 +41,45 @@ def episode_rows(rates: dict) -> list[dict]:
     return [{k: v for k, v in row.items() if k != "ms"} for row in rates["per_episode"]]
 
 
-@pytest.mark.slow  # MobileNet-v2 features, two trainings, two exports, two policies in the loop
+def own_home(monkeypatch: pytest.MonkeyPatch, root: Path) -> None:
+    """HOME and the torch hub's folder under `root` while `monkeypatch` holds."""
+    monkeypatch.setenv("HOME", str(root / "home"))
+    monkeypatch.setenv("TORCH_HOME", str(root / "torch"))
+
+
+@pytest.fixture(scope="module")
+def straight(tmp_path_factory) -> tuple[SimConfig, dict]:
+    """The run straight through, once for the module (its features calibrated on few frames, its pools in this
+    process, on one torch thread): its config and summary."""
+    import torch
+
+    root, threads = tmp_path_factory.mktemp("sim"), torch.get_num_threads()
+    config = SimConfig(out=root / "straight", **SMALL)
+    with pytest.MonkeyPatch.context() as monkeypatch:
+        own_home(monkeypatch, root)
+        calibrate_on_few_frames(monkeypatch)
+        pools_in_process(monkeypatch)
+        torch.set_num_threads(1)
+        try:
+            return config, run_sim(config)
+        finally:
+            torch.set_num_threads(threads)
+
+
+@pytest.mark.slow  # MobileNet-v2 features, four trainings, two exports, two policies in the loop
 def test_cnep_sim_obstacle_writes_the_documented_summary_and_its_policies_repeat_their_episodes(
-    tmp_path, monkeypatch, few_calibration_frames, sim_pools_in_process
+    straight, tmp_path, monkeypatch, sim_pools_in_process
 ):
-    monkeypatch.setenv("HOME", str(tmp_path / "home"))
-    monkeypatch.setenv("TORCH_HOME", str(tmp_path / "torch"))
-    out = tmp_path / "sim"
-    config = SimConfig(
-        out=out,
-        demonstrations=2,
-        train_steps=20,
-        episodes=1,
-        max_steps=16,
-        record=0,
-        offline=True,
-        quiet=True,
-        selection=SelectionSettings(candidates=1),  # no choice: tests/sim/test_selection.py tests it
-    )
-    summary = run_sim(config)
+    config, summary = straight
+    out = config.out
+    own_home(monkeypatch, tmp_path)
     assert json.loads((out / SUMMARY_FILE).read_text()) == json.loads(json.dumps(summary))
     assert summary["demonstrations"] == {"n": 2, "left": 1, "right": 1, "clean": 2}
     assert summary["features"].startswith("random") and summary["settings"]["assignment"] == config.assignment
     assert summary["settings"]["max_steps"] == config.max_steps
-    assert summary["seeds"]["reported"] == {"first": 0, "last": 0} and summary["seeds"]["validation"] is None
-    assert summary["selection"] == {}
+    assert summary["seeds"]["reported"] == {"first": 0, "last": 0}
+    assert summary["seeds"]["validation"]["first"] > 0  # the choice's episodes are never the reported ones
+    assert set(summary["selection"]) == {f"{model}-seed0" for model in MODELS}
     assert summary["env_version"] == summary["settings"]["env_version"] == ENV_VERSIONS[-1]
     assert set(summary["models"]) == set(MODELS) and all(set(seeds) == {"0"} for seeds in summary["models"].values())
     for model, seeds in summary["models"].items():
@@ -73,7 +97,7 @@ def test_cnep_sim_obstacle_writes_the_documented_summary_and_its_policies_repeat
         )
         again = json.loads((evaluated / SUMMARY_FILE).read_text())
         assert again["settings"]["task"] == "obstacle" and again["settings"]["max_steps"] == config.max_steps
-        assert again["seeds"] == summary["seeds"]  # the same reported seeds; neither chose anything
+        assert again["seeds"]["reported"] == summary["seeds"]["reported"]  # the same reported seeds
         assert again["settings"]["env_version"] == ENV_VERSIONS[-1]  # the version it was trained on
         assert {p: episode_rows(r) for p, r in again["results"].items()} == {
             p: episode_rows(r) for p, r in seeds["0"].items()
@@ -96,21 +120,16 @@ def _drop_timings(entry: dict) -> dict:
     return {k: v for k, v in entry.items() if k not in ("_ms", "seconds")}
 
 
-@pytest.mark.slow  # the pipeline twice, once stopped after the selection and in the closed loop, and resumed
+@pytest.mark.slow  # the pipeline once more, stopped after the selection and in the closed loop, and resumed
 def test_cnep_sim_stopped_after_a_stage_and_in_the_closed_loop_resumes_to_the_summary_of_a_straight_run(
-    tmp_path, monkeypatch, few_calibration_frames, sim_pools_in_process
+    straight, tmp_path, monkeypatch, few_calibration_frames, sim_pools_in_process
 ):
     import cnep.pipeline.sim.stage as sim_stage
     from cnep.outputs import RECORD_FILE
     from cnep.pipeline.sim.partial import PARTS_DIR, STAGES_FILE, PartialRun, partial_folder
 
-    monkeypatch.setenv("HOME", str(tmp_path / "home"))
-    monkeypatch.setenv("TORCH_HOME", str(tmp_path / "torch"))
-    config = SimConfig(
-        out=tmp_path / "straight", demonstrations=2, train_steps=20, episodes=1, max_steps=16, record=1,
-        offline=True, quiet=True, selection=SelectionSettings(candidates=2, selection_episodes=1),
-    )  # fmt: skip
-    straight = run_sim(config)
+    config, straight_summary = straight
+    own_home(monkeypatch, tmp_path)
     out = tmp_path / "resumed"
     select = sim_stage.select_checkpoints
 
@@ -143,8 +162,8 @@ def test_cnep_sim_stopped_after_a_stage_and_in_the_closed_loop_resumes_to_the_su
     monkeypatch.setattr(sim_stage, "evaluate_one", lambda *a, **k: evaluated.append(a[3]) or evaluate(*a, **k))
     resumed = run_sim(replace(config, out=out))
     assert evaluated == [{"CNEP-seed0", "CNMP-seed0"}.difference(kept).pop()]  # the kept policy's episodes not rerun
-    assert without_timings(resumed) == without_timings(straight)
+    assert without_timings(resumed) == without_timings(straight_summary)
     assert json.loads((out / SUMMARY_FILE).read_text()) == json.loads(json.dumps(resumed))
     assert sorted(p.name for p in (out / "episodes").iterdir()) == sorted(
-        p.name for p in (tmp_path / "straight" / "episodes").iterdir()
+        p.name for p in (config.out / "episodes").iterdir()
     )
