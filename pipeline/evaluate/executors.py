@@ -4,7 +4,7 @@
 
 A unit is self-contained and `work(unit)` (a function importable on the workers) runs it: `cnep evaluate`'s
 (`pipeline.evaluate.jobs.run_unit`) names the set, the seed and the model, and builds its data, seeds and threads
-itself; `cnep sim grid`'s (`pipeline.sim.grid_unit.run_grid_unit`, through pipeline.sim.pool) names its folders,
+itself; `cnep sim grid`'s (`pipeline.sim.grid_unit.run_grid_unit`, through pipeline.evaluate.pool) names its folders,
 which every worker reaches on a shared file system. So any engine that can call a Python function on another machine
 runs it and returns the same numbers as the local pool. The engines are optional extras (`pip install
 'cnep-pipeline[dask]'` or `[ray]`), imported only when asked for. Without an address each starts a cluster on this
