@@ -2,15 +2,15 @@
 
     for unit, results in run_on_cluster(run_unit, units, "dask", "tcp://scheduler:8786", workers=2): ...
 
-A unit is self-contained and `work(unit)` (a function importable on the workers) runs it: `cnep evaluate`'s
-(`pipeline.evaluate.jobs.run_unit`) names the set, the seed and the model, and builds its data, seeds and threads
-itself; `cnep sim grid`'s (`pipeline.sim.grid_unit.run_grid_unit`, through pipeline.sim.pool) names its folders,
-which every worker reaches on a shared file system. So any engine that can call a Python function on another machine
-runs it and returns the same numbers as the local pool. The engines are optional extras (`pip install
+A unit is self-contained and `work(unit)` (a function importable on the workers) runs it; both commands' units come
+through pipeline.evaluate.pool. `cnep evaluate`'s (`pipeline.evaluate.jobs.run_unit`) names the set, the seed and the
+model, and builds its data, seeds and threads itself; `cnep sim grid`'s (`pipeline.sim.grid_unit.run_grid_unit`) names
+its folders, which every worker reaches on a shared file system. So any engine that can call a Python function on
+another machine runs it and returns the same numbers as the local pool. The engines are optional extras (`pip install
 'cnep-pipeline[dask]'` or `[ray]`), imported only when asked for. Without an address each starts a cluster on this
 machine of `workers` one-thread processes (Dask's `LocalCluster`, a new Ray instance even where one that `ray start`
-began is running); with one, it joins the user's cluster, whose workers need cnep installed. The engines report a
-unit when it is done (the progress bar moves by whole units), not step by step as the local pool does.
+began is running); with one, it joins the user's cluster, whose workers need cnep installed. The engines report a unit
+when it is done (the progress bar moves by whole units), not step by step as the local pool does.
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
 A job is picklable and self-contained, so it runs the same in this process or in a worker process
 (spawned with one BLAS and one torch thread). A network job trains one network (models.fit's steps,
-driven in chunks of REPORT_STEPS so that the caller's progress moves while it trains; the same
+driven in chunks of REPORT_STEPS so that the caller's bar moves while it trains; the same
 model as one `fit` call). Network jobs of one shape and schedule on one set (`unit_key`: the seeds,
 loss ablations and assignments of one network) run as a unit of up to UNIT_NETWORKS, trained as one
 batched computation (models.batched.BatchedTrainer; each network bit-identical to training it alone,
@@ -27,21 +27,15 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Protocol
 
 import numpy as np
 
 from cnep.models.config import CNEPConfig
 from cnep.models.threads import SMALL_MODEL_THREADS
 from cnep.pipeline.evaluate.constants import GMM_COMPONENTS, PROMP_WEIGHTS, REPORT_STEPS, SAMPLES_IN_FIGURE
+from cnep.pipeline.progress import RemoteBar
 
 PROTOCOLS = ("paper", "heldout")
-
-
-class Progress(Protocol):
-    """Where a network job reports its training steps as it goes (a worker's queue, or the bar's feed here)."""
-
-    def put(self, steps: int) -> None: ...
 
 
 @dataclass(frozen=True)
@@ -169,18 +163,18 @@ def unit_key(job: Job) -> tuple | None:
     )
 
 
-def run_job(job: Job, progress: Progress | None = None) -> dict:
+def run_job(job: Job, bar: RemoteBar | None = None) -> dict:
     """Fit and score one job; returns {method name: results} (see the module docstring and `run_unit`)."""
-    return run_unit((job,), progress)[0]
+    return run_unit((job,), bar=bar)[0]
 
 
-def run_unit(unit: Sequence[Job], progress: Progress | None = None) -> list[dict]:
+def run_unit(unit: Sequence[Job], *, bar: RemoteBar | None = None) -> list[dict]:
     """Fit and score every job of `unit` (one baselines job, or network jobs of one `unit_key`); returns each
     job's {method name: results}, in order.
 
-    Networks put the number of steps they have trained (summed over the unit) on `progress` every
-    REPORT_STEPS steps, and at the end the steps early stops left out, so that the reports add up to the
-    jobs' steps.
+    Networks report on `bar` the number of steps they have trained so far (summed over the unit) every
+    REPORT_STEPS steps (at most every REPORT_INTERVAL_S of pipeline.progress), and at the end, finally, all the
+    steps they were planned (an early stop credits those it skipped), so that the bar reaches the jobs' steps.
     """
     import torch
 
@@ -189,7 +183,7 @@ def run_unit(unit: Sequence[Job], progress: Progress | None = None) -> list[dict
         raise ValueError(f"not one unit of work: {[job.label for job in unit]}")
     data = [queries(job.set_name, job.seed, job.n_queries) for job in unit]
     if unit[0].spec is not None:
-        return _fit_networks(unit, data, progress)
+        return _fit_networks(unit, data, bar)
     ((s, qs),) = data
     out = {}
     for name, method in baselines(unit[0].set_name, unit[0].seed).items():
@@ -200,7 +194,7 @@ def run_unit(unit: Sequence[Job], progress: Progress | None = None) -> list[dict
     return [out]
 
 
-def _fit_networks(unit: Sequence[Job], data: list, progress: Progress | None) -> list[dict]:
+def _fit_networks(unit: Sequence[Job], data: list, bar: RemoteBar | None) -> list[dict]:
     """Train the unit's networks as `models.fit` does (each validated on its set's validation split), together,
     reporting steps, and score each. fit_seconds: the unit's training time over its number of networks."""
     from cnep.models import TrainConfig
@@ -218,12 +212,11 @@ def _fit_networks(unit: Sequence[Job], data: list, progress: Progress | None) ->
     trainer = BatchedTrainer([t for t, _ in prepared])
     planned, trained = sum(job.steps for job in unit), lambda: sum(t.step for t, _ in prepared)
     while trainer.active and trainer.step < unit[0].steps:
-        before = trained()
         trainer.run(until=trainer.step + REPORT_STEPS)
-        if progress is not None:
-            progress.put(trained() - before)
-    if progress is not None and trained() < planned:
-        progress.put(planned - trained())
+        if bar is not None:
+            bar.update(trained())
+    if bar is not None:
+        bar.update(planned, final=True)
     fit_seconds = (time.perf_counter() - start) / len(unit)
     return [
         _scored_network(job, s, qs, config, *finish_fit(t, split), fit_seconds, t.step, t.best_error)

@@ -18,10 +18,9 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Iterator, Sequence
-from concurrent.futures import FIRST_COMPLETED, wait
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
-from queue import Empty
 
 import numpy as np
 
@@ -48,10 +47,9 @@ from cnep.pipeline.evaluate.constants import (
     TABLES,
     UNIT_NETWORKS,
 )
-from cnep.pipeline.evaluate.executors import run_on_cluster
 from cnep.pipeline.evaluate.jobs import PROTOCOLS, Job, ModelSpec, run_unit, unit_key
+from cnep.pipeline.evaluate.pool import as_finished
 from cnep.pipeline.inputs import coerce_paths
-from cnep.pipeline.workers import report_manager, single_thread_processes
 
 log = logging.getLogger(__name__)
 
@@ -189,9 +187,6 @@ def needs(table: str, config: EvaluateConfig) -> set[tuple]:
     }
 
 
-PROGRESS_POLL_S = 1.0  # how often the parent reads the workers' step reports
-
-
 def units(jobs: Sequence[Job]) -> list[tuple[Job, ...]]:
     """Jobs in units of work, in plan order: network jobs of one `unit_key` (seeds, loss ablations, assignments of
     one network on one set) together, up to UNIT_NETWORKS, each unit placed where its first job was; baselines alone."""
@@ -209,71 +204,25 @@ def units(jobs: Sequence[Job]) -> list[tuple[Job, ...]]:
     return [tuple(unit) for unit in out]
 
 
-class _BarFeed:
-    """run_unit's progress when it runs in this process: each report advances the bar at once."""
-
-    def __init__(self, bar) -> None:
-        self.put = bar.update
-
-
 def run_jobs(
     jobs: Sequence[Job], workers: int, quiet: bool, executor: str = LOCAL, address: str | None = None
 ) -> Iterator[tuple[Job, dict]]:
     """Yield (job, result) as jobs finish, in `units` of work run by `workers` spawned processes with one thread each
-    (or here when 0), or on a Dask or Ray cluster (`executor`, `address`: pipeline.evaluate.executors).
+    (or here when 0), or on a Dask or Ray cluster (`executor`, `address`: pipeline.evaluate.executors), through
+    pipeline.evaluate.pool.
 
     The bar counts training steps (every network's planned steps; an early stop credits the rest), so it
-    moves while networks train and its time left is an estimate from the steps' rate; the fits done and
+    moves while networks train and its time left is an estimate from the steps' rate; the units done and
     the last one finished follow it.
     """
-    from cnep.pipeline.progress import progress_bar
-
+    by_label = {"+".join(job.label for job in unit): unit for unit in units(jobs)}
+    calls = {label: partial(run_unit, unit) for label, unit in by_label.items()}
     total = sum(job.steps for job in jobs if job.spec is not None)
-    bar = progress_bar(total=total, quiet=quiet, desc="evaluate", unit="step")
-    finished = 0
-
-    def done(job: Job) -> None:
-        nonlocal finished
-        finished += 1
-        log.debug("done %s", job.label)
-        bar.set_postfix_str(f"{finished}/{len(jobs)} fits, last {job.label}")
-
-    try:
-        if executor != LOCAL:
-            for unit, results in run_on_cluster(run_unit, units(jobs), executor, address, workers):
-                bar.update(sum(job.steps for job in unit if job.spec is not None))
-                for job, result in zip(unit, results):
-                    done(job)
-                    yield job, result
-            return
-        if workers == 0:
-            for unit in units(jobs):
-                for job, result in zip(unit, run_unit(unit, _BarFeed(bar))):
-                    done(job)
-                    yield job, result
-            return
-        with report_manager() as manager, single_thread_processes(workers) as pool:
-            reports = manager.Queue()
-            pending = {pool.submit(run_unit, unit, reports): unit for unit in units(jobs)}
-            while pending:
-                finished_now, _ = wait(pending, timeout=PROGRESS_POLL_S, return_when=FIRST_COMPLETED)
-                _drain(reports, bar)
-                for future in finished_now:
-                    unit = pending.pop(future)
-                    for job, result in zip(unit, future.result()):
-                        done(job)
-                        yield job, result
-    finally:
-        bar.close()
-
-
-def _drain(reports, bar) -> None:
-    """Advance the bar by every step count the workers have reported so far."""
-    while True:
-        try:
-            bar.update(reports.get_nowait())
-        except Empty:
-            return
+    finished = as_finished(calls, total, "evaluate", workers, quiet, executor, address, unit="step", noun="units")
+    for label, results in finished:
+        for job, result in zip(by_label[label], results):
+            log.debug("done %s", job.label)
+            yield job, result
 
 
 def pooled(per_seed: Sequence[dict]) -> dict:

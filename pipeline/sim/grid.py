@@ -34,6 +34,7 @@ from cnep.pipeline.demo.stage import quiet_per_file_logs
 from cnep.pipeline.demo.weights import choose_weights
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.evaluate.executors import check_cluster
+from cnep.pipeline.evaluate.pool import as_finished
 from cnep.pipeline.folders import assembled_folder
 from cnep.pipeline.inputs import read_json_object
 from cnep.pipeline.sim.baselines import COMPARED
@@ -44,7 +45,6 @@ from cnep.pipeline.sim.grid_config import GridConfig, subset
 from cnep.pipeline.sim.grid_table import cell_rows, csv_text, pooled_table
 from cnep.pipeline.sim.grid_unit import Unit, link_subset, run_grid_unit
 from cnep.pipeline.sim.loop import episodes_of, for_task
-from cnep.pipeline.sim.pool import as_finished
 from cnep.pipeline.sim.stage import extract_features
 from cnep.sim.task import Task
 from cnep.sim.tasks import find_task
@@ -205,13 +205,15 @@ def trajectory_of(set_folder: Path, i: int) -> Path:
 def run_units(units: list[Unit], config: GridConfig) -> Iterator[tuple[Unit, dict[str, dict]]]:
     """Yield (unit, its results) as the units finish, `config.workers` at a time here (0: in this process, one after
     another) or on the cluster `config.executor` names, one bar counting the episodes of their cells
-    (pipeline.sim.pool)."""
+    (pipeline.evaluate.pool)."""
     if not units:
         return
     by_name = {unit.name: unit for unit in units}
     calls = {unit.name: partial(run_grid_unit, unit) for unit in units}
     total = sum(episodes_of(find_task(u.task, u.config.env_version), u.config) * len(u.models) for u in units)
-    finished = as_finished(calls, total, "grid", config.workers, config.quiet, config.executor, config.address)
+    finished = as_finished(
+        calls, total, "grid", config.workers, config.quiet, config.executor, config.address, unit="episode"
+    )
     for name, results in finished:
         yield by_name[name], results
 

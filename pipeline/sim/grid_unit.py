@@ -77,7 +77,7 @@ def link_subset(run: Path, set_folder: Path, trajectories: list[Path]) -> None:
 
 def run_grid_unit(unit: Unit, bar: RemoteBar) -> dict[str, dict]:
     """The unit's cells (module docstring): model -> its results (pipeline.sim.loop.evaluate_policy's). bar: where
-    the episodes done go, each cell's under its part MODEL (pipeline.sim.pool)."""
+    the episodes done go, each cell's under its part MODEL (pipeline.evaluate.pool)."""
     run = unit.run
     models = set(unit.models)
     wanted = (models & {"CNMP"}) | ({"CNEP"} if models - {"CNMP"} else set())  # a baseline is fitted beside the CNEP

@@ -24,11 +24,11 @@ from types import SimpleNamespace
 
 from cnep.models import load_checkpoint, read_checkpoint_config, save_checkpoint
 from cnep.outputs import signals_held
+from cnep.pipeline.evaluate.pool import run_counted
 from cnep.pipeline.export.config import ExportConfig
 from cnep.pipeline.export.stage import export
 from cnep.pipeline.sim.config import ONLINE, PickPlaceConfig, SimConfig
 from cnep.pipeline.sim.loop import episodes_of, evaluate_policy, open_task_policy
-from cnep.pipeline.sim.pool import run_counted
 from cnep.pipeline.sim.validation import seeds_record, validation_seeds
 from cnep.pipeline.train.constants import CANDIDATES_DIR
 from cnep.sim.task import Task
@@ -160,7 +160,7 @@ def _score_all(
     (out / SELECTION_DIR).mkdir()
     total = episodes_of(task, validation_settings(config, task)) * len(jobs)
     calls = {name: partial(_score, config, task.name, out, name, path, extractor) for name, path in jobs.items()}
-    return run_counted(calls, total, "select", workers, config.quiet)
+    return run_counted(calls, total, "select", workers, config.quiet, unit="episode")
 
 
 def _score(

@@ -44,6 +44,7 @@ from cnep.models import CNEPConfig, TrainConfig
 from cnep.outputs import writing_as
 from cnep.pipeline.demo.stage import CNMP_ASSIGNMENT, LAYOUT, quiet_per_file_logs, train_side_by_side
 from cnep.pipeline.demo.weights import WeightsChoice, choose_weights
+from cnep.pipeline.evaluate.pool import as_finished
 from cnep.pipeline.export.config import ExportConfig
 from cnep.pipeline.export.stage import export
 from cnep.pipeline.extract.stage import ExtractConfig, extract
@@ -55,7 +56,6 @@ from cnep.pipeline.sim.figure import FIGURE_FILE
 from cnep.pipeline.sim.generate import generate_demonstrations, ingest_demonstrations
 from cnep.pipeline.sim.loop import episodes_of, evaluate_policy, for_task, open_task_policy
 from cnep.pipeline.sim.partial import PartialRun, partial_run
-from cnep.pipeline.sim.pool import as_finished
 from cnep.pipeline.sim.selection import run_seeds, select_checkpoints
 from cnep.pipeline.sim.summary import format_table
 from cnep.pipeline.train.stage import TrainStageConfig
@@ -220,7 +220,9 @@ def _closed_loop(
     for label, results in (
         []
         if not calls
-        else as_finished(calls, episodes_of(task, config) * len(calls), CLOSED_LOOP, WORKERS, config.quiet)
+        else as_finished(
+            calls, episodes_of(task, config) * len(calls), CLOSED_LOOP, WORKERS, config.quiet, unit="episode"
+        )
     ):
         files = sorted((out / "episodes").glob(f"{label}-*.rrd")) + [
             p for p in [figure.get(label)] if p and p.is_file()

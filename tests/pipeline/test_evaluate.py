@@ -7,11 +7,13 @@ import pytest
 import torch
 
 import cnep.models.baselines.gmm as gmm_module
+import cnep.pipeline.progress as progress
 from cnep.pipeline.cli.main import main
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.evaluate.constants import PAPER, QUICK_QUERIES, QUICK_SEEDS, QUICK_SETS, QUICK_STEPS, TABLES
 from cnep.pipeline.evaluate.jobs import ModelSpec
 from cnep.pipeline.evaluate.stage import EvaluateConfig, evaluate, plan, pooled, table_rows
+from cnep.pipeline.progress import RemoteBar
 
 
 def test_plan_trains_each_shared_network_once():
@@ -167,13 +169,15 @@ def test_quick_command_runs_the_comparison_on_its_sets_and_says_what_it_checks(
 
 
 class _Reports:
-    """Collects a job's progress reports."""
+    """The queue of a job's RemoteBar: the counts of trained steps it reports, in order."""
 
     def __init__(self):
-        self.steps = []
+        self.counts = []
+        self.bar = RemoteBar(self, "unit")
 
-    def put(self, steps):
-        self.steps.append(steps)
+    def put(self, report):
+        _, n, _ = report
+        self.counts.append(n)
 
 
 @pytest.mark.slow
@@ -185,10 +189,12 @@ def test_a_network_job_reports_its_steps_and_trains_as_fit(monkeypatch, torch_th
 
     report_steps = 40  # a job's chunk of training (jobs.REPORT_STEPS), smaller: fewer steps, driven the same way
     monkeypatch.setattr(jobs, "REPORT_STEPS", report_steps)
+    monkeypatch.setattr(progress, "REPORT_INTERVAL_S", 0.0)  # every chunk's report is sent
     job = Job("bimodal", 1, ModelSpec.of(2, assignment="bounded"), steps=report_steps + 30, n_queries=3)
     reports = _Reports()
-    result = run_job(job, reports)["cnep-d2-bounded"]
-    assert reports.steps == [report_steps, 30] and result["steps"] == job.steps
+    result = run_job(job, reports.bar)["cnep-d2-bounded"]
+    # the steps trained after each chunk, then the final report of all the planned steps
+    assert reports.counts == [report_steps, job.steps, job.steps] and result["steps"] == job.steps
     s = make_set("bimodal", 1)  # the same network trained by one models.fit call: the same validation curve
     _, history = fit(
         list(s.train),
@@ -229,8 +235,8 @@ def test_a_unit_trains_each_network_as_alone(torch_threads):
 
     unit = (Job("bimodal", 0, ModelSpec.of(2), 30, 3), Job("bimodal", 1, ModelSpec.of(2, assignment="annealed"), 30, 3))
     reports = _Reports()
-    together = run_unit(unit, reports)
-    assert sum(reports.steps) == 60
+    together = run_unit(unit, bar=reports.bar)
+    assert reports.counts[-1] == 60
     for job, result in zip(unit, together):
         alone = run_job(job)
         for method, row in alone.items():
@@ -247,9 +253,9 @@ def test_an_early_stop_credits_the_steps_it_skipped(monkeypatch, torch_threads):
     # patience 2 stops at step 3
     monkeypatch.setattr(Trainer, "validate", lambda self: validate(self) + self.step)
     reports = _Reports()
-    result = run_job(Job("bimodal", 0, ModelSpec.of(1), steps=150, n_queries=3, patience=2), reports)["cnmp"]
+    result = run_job(Job("bimodal", 0, ModelSpec.of(1), steps=150, n_queries=3, patience=2), reports.bar)["cnmp"]
     assert result["steps"] == 3 and [step for step, _ in result["val_curve"]] == [1, 2, 3]
-    assert sum(reports.steps) == 150 and reports.steps[-1] == 147
+    assert reports.counts == [3, 150]  # the steps it trained, then all it was planned: the bar reaches its total
 
 
 @pytest.mark.slow
@@ -263,7 +269,8 @@ def test_progress_counts_training_steps_in_whole_lines(capsys, torch_threads):
     ]
     assert [job for job, _ in run_jobs(jobs, workers=1, quiet=False)] != []
     lines = capsys.readouterr().err.splitlines()
-    assert "\r" not in "".join(lines) and "32/32" in lines[-1] and "2/2 fits" in lines[-1]
+    # two units (a CNEP and a CNMP do not train together)
+    assert "\r" not in "".join(lines) and "32/32" in lines[-1] and "2/2 units" in lines[-1]
 
 
 def test_unimodal_has_no_commitment_queries_and_still_scores(tmp_path, monkeypatch, torch_threads):

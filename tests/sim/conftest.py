@@ -69,10 +69,10 @@ def pools_in_process(monkeypatch: pytest.MonkeyPatch) -> None:
     CNEP-PCA trains in a process of its own because torch's optimiser may crash a process that holds a MuJoCo
     renderer: a test's process has trained before its closed loop starts, the optimiser already loaded.)"""
     import cnep.pipeline.demo.stage as demo_stage
+    import cnep.pipeline.evaluate.pool as pool
     import cnep.pipeline.sim.baselines as sim_baselines
-    import cnep.pipeline.sim.pool as sim_pool
 
-    # the closed loop's pool and the selection's (pipeline.sim.pool), the training's (demo.stage.train_side_by_side)
-    for module in (sim_pool, demo_stage):
+    # the closed loop's and the selection's (pipeline.evaluate.pool), the training's (demo.stage.train_side_by_side)
+    for module in (pool, demo_stage):
         monkeypatch.setattr(module, "single_thread_processes", in_process)
     monkeypatch.setattr(sim_baselines, "process_pool", pickled_in_process)  # the CNEP-PCA's training (pca_cnep)

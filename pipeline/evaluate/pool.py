@@ -1,10 +1,12 @@
-"""Closed-loop work spread over workers under one bar of episodes: `as_finished` runs calls (a policy's episodes, a
-candidate's validation episodes, a grid unit's cells) in single-threaded processes here or on a Dask or Ray cluster
-(pipeline.evaluate.executors), yielding each result as its call finishes; `run_counted` collects them in order.
+"""Work spread over workers under one bar: `as_finished` runs calls (`cnep evaluate`'s units of fits, the closed
+loop's policies' episodes, a candidate's validation episodes, a grid unit's cells) in single-threaded processes here or
+on a Dask or Ray cluster (pipeline.evaluate.executors), yielding each result as its call finishes; `run_counted`
+collects them in order.
 
-A call takes `bar=`, a RemoteBar its episodes go to (the count so far under its label, or under labels of its parts:
-`RemoteBar.part`), and ends with a final report of them all. The bar shows the sum of the latest counts: while the
-calls run on this machine, and when each one ends on a cluster (whose workers return their reports with the result).
+A call takes `bar=`, a RemoteBar its work done goes to (the count so far of the bar's unit, training steps or
+episodes, under its label, or under labels of its parts: `RemoteBar.part`), and ends with a final report of it all.
+The bar shows the sum of the latest counts: as they come while the calls run on this machine, and when each one ends
+on a cluster (whose workers return their reports with the result).
 """
 
 from __future__ import annotations
@@ -24,11 +26,13 @@ from cnep.pipeline.workers import report_manager, single_thread_processes
 T = TypeVar("T")
 
 
-def run_counted(calls: dict[str, Callable[..., T]], total: int, desc: str, workers: int, quiet: bool) -> dict[str, T]:
+def run_counted(
+    calls: dict[str, Callable[..., T]], total: int, desc: str, workers: int, quiet: bool, *, unit: str
+) -> dict[str, T]:
     """Every call of `calls` (label -> a picklable callable taking `bar=`) in `workers` single-threaded processes (0:
-    in this one, one after another), one bar `desc` of `total` episodes; label -> its result, in the order of
+    in this one, one after another), one bar `desc` of `total` `unit`s; label -> its result, in the order of
     `calls`."""
-    results = dict(as_finished(calls, total, desc, workers, quiet))
+    results = dict(as_finished(calls, total, desc, workers, quiet, unit=unit))
     return {label: results[label] for label in calls}
 
 
@@ -40,14 +44,18 @@ def as_finished(
     quiet: bool,
     executor: str = LOCAL,
     address: str | None = None,
+    *,
+    unit: str,
+    noun: str = "done",
 ) -> Iterator[tuple[str, T]]:
     """Yield (label, result) of every call of `calls` (label -> a picklable callable taking `bar=`) as it finishes:
     `workers` at a time in single-threaded processes here (0: in this process, one after another), or on the
     cluster `executor` names at `address` (pipeline.evaluate.executors: None starts one of `workers` processes here).
-    One bar `desc` of `total` episodes; its postfix, how many calls are done and the last one's label."""
-    with progress_bar(total=total, desc=desc, unit="episode", quiet=quiet) as bar:
+    One bar `desc` of `total` `unit`s (what the calls count: "episode", "step"); its postfix, how many calls are
+    done (`3/8 done`, or `noun` for "done": `3/8 units`) and the last one's label."""
+    with progress_bar(total=total, desc=desc, unit=unit, quiet=quiet) as bar:
         for done, (label, result) in enumerate(_finishing(calls, workers, executor, address, bar), 1):
-            bar.set_postfix_str(f"{done}/{len(calls)} done, last {label}")
+            bar.set_postfix_str(f"{done}/{len(calls)} {noun}, last {label}")
             yield label, result
 
 
@@ -68,11 +76,9 @@ def _finishing(
             yield label, result
         return
     if workers == 0:
-        reports = SimpleQueue()
+        followed = _Followed(bar, counts)
         for label, call in calls.items():
-            result = call(bar=RemoteBar(reports, label))
-            follow_total(reports, bar, counts)
-            yield label, result
+            yield label, call(bar=RemoteBar(followed, label))
         return
     with report_manager() as manager, single_thread_processes(workers) as pool:
         reports = manager.Queue()
@@ -90,6 +96,17 @@ def _reporting(labelled: tuple[str, Callable[..., T]]) -> tuple[T, list[tuple]]:
     reports: list[tuple] = []
     result = call(bar=RemoteBar(_Appending(reports), label))
     return result, reports
+
+
+class _Followed:
+    """The queue of the RemoteBars of calls run in this process: each report moves `bar` to the new sum at once."""
+
+    def __init__(self, bar: tqdm, counts: dict[str, int]) -> None:
+        self.bar, self.counts, self.reports = bar, counts, SimpleQueue()
+
+    def put(self, report: tuple[str, int, dict[str, str]]) -> None:
+        self.reports.put(report)
+        follow_total(self.reports, self.bar, self.counts)
 
 
 class _Appending:
