@@ -13,7 +13,15 @@ from pathlib import Path
 from typing import ClassVar
 
 from cnep.models.assignments import ASSIGNMENTS
-from cnep.models.config import SCHEDULE_SHOWN, SEED_MAX, ConditioningOverrides, TrainConfig, check_seed, setting
+from cnep.models.config import (
+    SCHEDULE_SHOWN,
+    SEED_MAX,
+    CNEPConfig,
+    ConditioningOverrides,
+    TrainConfig,
+    check_seed,
+    setting,
+)
 from cnep.perception.constants import FEATURE_DIM
 from cnep.pipeline.demo.config import AUTO_WEIGHTS
 from cnep.pipeline.errors import PipelineError
@@ -192,11 +200,10 @@ class SimConfig(LoopSettings):
     train_seeds: tuple[int, ...] = setting((0,), "training seeds: one CNEP and one matched CNMP trained per seed")
     train_steps: int | None = setting(None, TRAIN_STEPS_HELP, shown=SCHEDULE_SHOWN)
     experts: int = setting(2, "the CNEP's experts (the CNMP: one, parameter-matched)")
-    # The demonstrations pass left and right alike, and an expert that reads the side from a start it has memorised
-    # takes both sides where a share left free to drift allows it: equal shares until the experts commit keep them
-    # one side each (docs/results-closed-loop.md).
     assignment: str = setting(
-        "annealed", "the CNEP's assignment, as `cnep train --assignment` takes it", choices=tuple(ASSIGNMENTS)
+        CNEPConfig().assignment,
+        "the CNEP's assignment, as `cnep train --assignment` takes it",
+        choices=tuple(ASSIGNMENTS),
     )
     nll_beta: float = setting(0.0, "the training loss's beta-NLL power, as `cnep train --nll-beta` takes it")
     weights: str = setting(AUTO_WEIGHTS, "the feature network's weights, as `cnep demo --weights` takes them")
