@@ -329,8 +329,9 @@ def evaluate(config: EvaluateConfig) -> dict[str, Path]:
     start = time.perf_counter()
     jobs = plan(config)
     log.info(
-        "evaluate: %d fits (%s), steps %s, %d seed(s), %d queries per protocol, %d worker(s)",
+        "evaluate: %d fits in %d units of work (%s), steps %s, %d seed(s), %d queries per protocol, %d worker(s)",
         len(jobs),
+        len(units(jobs)),
         ", ".join(config.tables),
         config.steps_by_set(),
         config.n_seeds,
