@@ -292,7 +292,9 @@ class PickPlaceConfig:
     experts: int = setting(4, "the CNEP's experts (the CNMP: one, parameter-matched)")
     env_version: int = setting(ENV_VERSIONS[-1], ENV_VERSION_HELP, choices=ENV_VERSIONS)
     assignment: str = setting(
-        "annealed", "the CNEP's assignment, as `cnep train --assignment` takes it", choices=tuple(ASSIGNMENTS)
+        CNEPConfig().assignment,
+        "the CNEP's assignment, as `cnep train --assignment` takes it",
+        choices=tuple(ASSIGNMENTS),
     )
     # Where a motion heads (which mat) is read from the context, beside values the model predicts closely (the
     # heights, the gripper): with plain NLL those outweigh it and the place's mean stops being learned.
