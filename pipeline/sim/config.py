@@ -137,6 +137,15 @@ def check_seeds(seed: int, train_seeds: tuple[int, ...], seed_option: str = "--s
         check_seed("--train-seeds", train_seed, PipelineError)
 
 
+def assignment_setting() -> object:
+    """The CNEP's assignment as a `cnep sim` task's setting: `cnep train`'s default."""
+    return setting(
+        CNEPConfig().assignment,
+        "the CNEP's assignment, as `cnep train --assignment` takes it",
+        choices=tuple(ASSIGNMENTS),
+    )
+
+
 def check_training(config: SimConfig | PickPlaceConfig) -> None:
     """PipelineError unless `config` trains on >= 2 demonstrations, for >= 1 step (where given), with >= 2 experts and
     a training seed; ConfigError, before any work, where its training settings are ones `cnep train` refuses
@@ -200,11 +209,7 @@ class SimConfig(LoopSettings):
     train_seeds: tuple[int, ...] = setting((0,), "training seeds: one CNEP and one matched CNMP trained per seed")
     train_steps: int | None = setting(None, TRAIN_STEPS_HELP, shown=SCHEDULE_SHOWN)
     experts: int = setting(2, "the CNEP's experts (the CNMP: one, parameter-matched)")
-    assignment: str = setting(
-        CNEPConfig().assignment,
-        "the CNEP's assignment, as `cnep train --assignment` takes it",
-        choices=tuple(ASSIGNMENTS),
-    )
+    assignment: str = assignment_setting()
     nll_beta: float = setting(0.0, "the training loss's beta-NLL power, as `cnep train --nll-beta` takes it")
     weights: str = setting(AUTO_WEIGHTS, "the feature network's weights, as `cnep demo --weights` takes them")
     offline: bool = setting(False, "never download the ImageNet weights (also: environment variable CNEP_OFFLINE=1)")
@@ -291,11 +296,7 @@ class PickPlaceConfig:
     train_steps: int | None = setting(None, TRAIN_STEPS_HELP, shown=SCHEDULE_SHOWN)
     experts: int = setting(4, "the CNEP's experts (the CNMP: one, parameter-matched)")
     env_version: int = setting(ENV_VERSIONS[-1], ENV_VERSION_HELP, choices=ENV_VERSIONS)
-    assignment: str = setting(
-        CNEPConfig().assignment,
-        "the CNEP's assignment, as `cnep train --assignment` takes it",
-        choices=tuple(ASSIGNMENTS),
-    )
+    assignment: str = assignment_setting()
     # Where a motion heads (which mat) is read from the context, beside values the model predicts closely (the
     # heights, the gripper): with plain NLL those outweigh it and the place's mean stops being learned.
     nll_beta: float = setting(0.5, "the training loss's beta-NLL power, as `cnep train --nll-beta` takes it")
