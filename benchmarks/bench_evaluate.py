@@ -22,7 +22,7 @@ import torch
 
 from cnep.models import TrainConfig
 from cnep.models.train import prepare_fit
-from cnep.pipeline.evaluate.constants import JOBS, TABLES
+from cnep.pipeline.evaluate.constants import JOBS, PAPER_NLL_BETA, TABLES
 from cnep.pipeline.evaluate.jobs import Job, _scored_network, model_config, queries, run_job
 from cnep.pipeline.evaluate.stage import EvaluateConfig, plan
 
@@ -33,7 +33,9 @@ def network_rate(job: Job, steps: int) -> tuple[float, float]:
     """(training steps/s, seconds to score) of `job`'s network on its set, seed 0."""
     s, qs = queries(job.set_name, 0, job.n_queries)
     config = model_config(job.spec, job.cnmp_matches)
-    trainer, _ = prepare_fit(list(s.train), config, TrainConfig(steps=job.steps, seed=0), list(s.val))
+    trainer, _ = prepare_fit(
+        list(s.train), config, TrainConfig(steps=job.steps, seed=0, nll_beta=PAPER_NLL_BETA), list(s.val)
+    )
     for _ in range(WARMUP_STEPS):
         trainer.train_step()
     start = time.perf_counter()

@@ -1,6 +1,6 @@
 """The authors' Baxter obstacle-avoidance recordings through CNEP and CNMP (pipeline.evaluate.baxter).
 
-    python examples/baxter_obstacle.py PATH/TO/data/baxter/first [--goal] [--steps N] [--seed N]
+    python examples/baxter_obstacle.py PATH/TO/data/baxter/first [--goal] [--steps N] [--seed N] [--nll-beta B]
 
 PATH holds `start_end/*.csv` (the two demonstrations) and the test recordings `0.csv` ... `6.csv`;
 it is only read. Trains a CNMP and a 2-expert CNEP per loss assignment (paper, mixture, annealed, bounded), and prints,
@@ -18,6 +18,8 @@ from pathlib import Path
 
 
 def main(argv: list[str] | None = None) -> int:
+    from cnep.models.config import TrainConfig  # no torch
+
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("data", help="the folder with start_end/*.csv and the test CSVs (read only)")
     parser.add_argument(
@@ -27,6 +29,10 @@ def main(argv: list[str] | None = None) -> int:
         "--steps", type=int, default=None, help="training steps per model (default: the training schedule's, 4000 here)"
     )
     parser.add_argument("--seed", type=int, default=0, help="training seed (default 0)")
+    default = TrainConfig().nll_beta
+    parser.add_argument(
+        "--nll-beta", type=float, default=default, help=f"the loss's beta-NLL power (default {default:g})"
+    )
     parser.add_argument("--work", default=None, help="keep the ingested files in this folder (default: temporary)")
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
     args = parser.parse_args(argv)
@@ -45,6 +51,7 @@ def main(argv: list[str] | None = None) -> int:
         work=Path(args.work) if args.work else None,
         steps=args.steps,
         seed=args.seed,
+        nll_beta=args.nll_beta,
         goal=args.goal,
         quiet=args.quiet,
     )
@@ -55,7 +62,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     conditioned = "start (t = 0) and goal (t = 1)" if args.goal else "start (t = 0)"
     steps = "the schedule's steps" if args.steps is None else f"{args.steps} steps"
-    print(f"conditioned on each test recording's {conditioned}; {steps}, seed {args.seed}")
+    print(
+        f"conditioned on each test recording's {conditioned}; {steps}, beta-NLL {config.nll_beta:g}, seed {config.seed}"
+    )
     print(format_table(results))
     return 0
 

@@ -6,9 +6,10 @@ from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
 
-from cnep.models.config import CNEPConfig, check_seed, setting
+from cnep.models.config import CNEPConfig, TrainConfig, check_seed, setting
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.inputs import coerce_paths
+from cnep.pipeline.train.config import nll_beta_setting
 
 # `weights` by name (anything else is the path of a state dict): `auto` is ImageNet's where they can be had, else
 # seeded random ones (pipeline.demo.weights); the other two are `cnep extract --weights`'s names (perception.weights).
@@ -63,7 +64,8 @@ class DemoConfig:
     """out: folder for everything (created; must be empty or absent unless `force`, which first deletes what an
     earlier demo recorded writing there, and refuses a folder holding anything else); quick: the small CI variant;
     seed: all draws; model: the CNEP's network and loss (models.CNEPConfig; the CNMP is the one-expert network of its
-    parameter count, trained with the paper's term); precision: the feature extraction's, `fp32` or `int8`
+    parameter count, trained with the paper's term); nll_beta: the training loss's beta-NLL power (both
+    models); precision: the feature extraction's, `fp32` or `int8`
     (pipeline.extract.stage.ExtractConfig); weights: the feature network's (pipeline.demo.weights): `auto` (ImageNet
     weights where they can be had, else seeded random weights, with a warning), `imagenet`, `random` or the path of
     a MobileNet-v2 state dict; offline: never download ImageNet weights (as the environment variable CNEP_OFFLINE).
@@ -81,6 +83,7 @@ class DemoConfig:
     )
     quiet: bool = False
     model: CNEPConfig = field(default_factory=partial(CNEPConfig, n_experts=CNEP_EXPERTS))
+    nll_beta: float = nll_beta_setting()
     precision: str = setting(
         "fp32", "feature extraction precision (int8 as `cnep extract --precision int8`)", choices=("fp32", "int8")
     )
@@ -96,6 +99,7 @@ class DemoConfig:
     def __post_init__(self) -> None:
         coerce_paths(self)
         check_seed("--seed", self.seed, PipelineError)
+        TrainConfig(nll_beta=self.nll_beta)  # ConfigError, before any work, for a value `cnep train` refuses
 
     @property
     def size(self) -> DemoSize:

@@ -229,6 +229,7 @@ def _train(config: DemoConfig, out: Path, size: DemoSize, started: float) -> dic
         warmup_steps=size.warmup_steps,
         val_every=size.val_every,
         seed=config.seed,
+        nll_beta=config.nll_beta,
     )
     checkpoints = {"CNEP": out / "checkpoints" / CHECKPOINT_NAMES[0], "CNMP": out / "checkpoints" / CHECKPOINT_NAMES[1]}
     networks = {

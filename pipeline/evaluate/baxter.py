@@ -52,13 +52,15 @@ COLUMNS_XY = ColumnRoles(width=2, observed=((0, 2),), query=(), predicted=((0, 2
 @dataclass(frozen=True)
 class BaxterConfig:
     """data: the folder with `start_end/*.csv` and the test CSVs; work: where ingested files go (a temporary
-    folder when None); steps / seed: training (steps None: the training schedule's, models.schedule); goal: also
-    condition on each test recording's last sample."""
+    folder when None); steps / seed / nll_beta: training (steps None: the training schedule's, models.schedule;
+    nll_beta: the loss's beta-NLL power, `cnep train`'s default); goal: also condition on each test recording's last
+    sample."""
 
     data: Path
     work: Path | None = None
     steps: int | None = None
     seed: int = 0
+    nll_beta: float = TrainConfig().nll_beta
     samples: int = SAMPLES
     goal: bool = False
     quiet: bool = False
@@ -132,7 +134,8 @@ def load_recordings(config: BaxterConfig, work: Path) -> tuple[list[Path], list[
 def train_models(demos: np.ndarray, config: BaxterConfig) -> dict:
     """A 2-expert CNEP per assignment ("CNEP (paper)", "CNEP (mixture)", "CNEP (annealed)", "CNEP (bounded)") and
     a parameter-matched "CNMP" on (N, T, 2) paths; all seeded."""
-    train = TrainConfig(steps=config.steps, seed=config.seed)  # the rest the training schedule's (models.schedule)
+    # the rest the training schedule's (models.schedule)
+    train = TrainConfig(steps=config.steps, seed=config.seed, nll_beta=config.nll_beta)
     trajectories = list(demos)
     models = {}
     configs = {"CNMP": matched_cnmp(CNEPConfig(columns=COLUMNS_XY, n_experts=2, assignment="paper"))}

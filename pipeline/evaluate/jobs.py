@@ -32,7 +32,13 @@ import numpy as np
 
 from cnep.models.config import CNEPConfig
 from cnep.models.threads import SMALL_MODEL_THREADS
-from cnep.pipeline.evaluate.constants import GMM_COMPONENTS, PROMP_WEIGHTS, REPORT_STEPS, SAMPLES_IN_FIGURE
+from cnep.pipeline.evaluate.constants import (
+    GMM_COMPONENTS,
+    PAPER_NLL_BETA,
+    PROMP_WEIGHTS,
+    REPORT_STEPS,
+    SAMPLES_IN_FIGURE,
+)
 from cnep.pipeline.progress import RemoteBar
 
 PROTOCOLS = ("paper", "heldout")
@@ -205,7 +211,10 @@ def _fit_networks(unit: Sequence[Job], data: list, bar: RemoteBar | None) -> lis
     configs = [model_config(job.spec, job.cnmp_matches) for job in unit]
     prepared = [
         prepare_fit(
-            list(s.train), config, TrainConfig(steps=job.steps, patience=job.patience, seed=job.seed), list(s.val)
+            list(s.train),
+            config,
+            TrainConfig(steps=job.steps, patience=job.patience, seed=job.seed, nll_beta=PAPER_NLL_BETA),
+            list(s.val),
         )
         for job, (s, _), config in zip(unit, data, configs)
     ]

@@ -28,6 +28,7 @@ from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.inputs import coerce_paths, read_json_object
 from cnep.pipeline.run.config import CHECKPOINT, CONFIG_FILE, policy_kind
 from cnep.pipeline.sim.validation import SelectionSettings, check_reported
+from cnep.pipeline.train.config import nll_beta_setting
 from cnep.pipeline.train.constants import TASKS as TASKS_KEY
 from cnep.runtime.conditioning import ConditioningPolicy
 from cnep.runtime.constants import MANIFEST_FILE
@@ -210,7 +211,7 @@ class SimConfig(LoopSettings):
     train_steps: int | None = setting(None, TRAIN_STEPS_HELP, shown=SCHEDULE_SHOWN)
     experts: int = setting(2, "the CNEP's experts (the CNMP: one, parameter-matched)")
     assignment: str = assignment_setting()
-    nll_beta: float = setting(0.0, "the training loss's beta-NLL power, as `cnep train --nll-beta` takes it")
+    nll_beta: float = nll_beta_setting()
     weights: str = setting(AUTO_WEIGHTS, "the feature network's weights, as `cnep demo --weights` takes them")
     offline: bool = setting(False, "never download the ImageNet weights (also: environment variable CNEP_OFFLINE=1)")
     baselines: bool = setting(False, BASELINES_HELP)

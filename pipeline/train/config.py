@@ -16,6 +16,12 @@ from cnep.pipeline.train.constants import CONDITIONING, DEVICES, PRESET_NAMES, S
 from cnep.runtime.errors import PolicyError
 
 
+def nll_beta_setting() -> object:
+    """The training loss's beta-NLL power as the setting of a command that trains (`cnep demo`, `cnep sim`):
+    `cnep train`'s default."""
+    return setting(TrainConfig().nll_beta, "the training loss's beta-NLL power, as `cnep train --nll-beta` takes it")
+
+
 @dataclass(frozen=True)
 class TrainStageConfig:
     """inputs: trajectory files or folders (read only); out: checkpoint folder (must not exist unless `force`).

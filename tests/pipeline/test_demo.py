@@ -2,6 +2,7 @@
 
 import json
 import time
+from collections import deque
 from pathlib import Path
 
 import numpy as np
@@ -27,9 +28,11 @@ from cnep.pipeline.demo.stage import (
 )
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.replay.decisions import read_decisions
+from cnep.pipeline.train.config import checkpoint_conditioning
 from cnep.pipeline.train.constants import SCENE
 from cnep.recordings import read_demonstration, read_trajectory
 from cnep.recordings.constants import STEP_DIM
+from cnep.runtime.conditioning import ConditioningPolicy, hand_over
 from tests.conftest import PROGRESS_LOG
 from tests.pipeline.test_train import stage_config, write_set
 
@@ -175,6 +178,16 @@ def test_the_replayed_free_choice_is_the_one_the_rule_picks(demo_run):
     assert episode["census"] == gate_census(traces)
 
 
+def active_experts(gates: np.ndarray, policy: ConditioningPolicy) -> list[int]:
+    """The active expert of each step of `gates` (T, d) by `policy`'s rule: the first gate's winner, then
+    runtime.conditioning.hand_over."""
+    recent, experts = deque(maxlen=policy.switch_window + 1), []
+    for gate in gates:
+        recent.append(gate)
+        experts.append(hand_over(policy, recent, experts[-1]) if experts else int(gate.argmax()))
+    return experts
+
+
 def test_the_rrd_holds_each_replayed_recording(demo_run):
     files = [demo_run / RRD_FILE, *sorted((demo_run / REPLAYS_RRD).parent.glob("*.rrd"))]
     assert [p.name for p in demo_run.glob("*.rrd")] == [RRD_FILE]  # one file to open: the scene change
@@ -185,6 +198,8 @@ def test_the_rrd_holds_each_replayed_recording(demo_run):
     summary = json.loads((demo_run / SUMMARY_FILE).read_text())
     (choice,) = summary["free_choice_replay"]
     labels = expert_labels(summary["behaviours"])
+    checkpoint = demo_run / "checkpoints" / "cnep"
+    policy = checkpoint_conditioning(read_checkpoint_config(checkpoint), checkpoint)
     assert labels and all(name in BEHAVIOURS for names in labels.values() for name in names.split(", "))
     replayed = sorted((demo_run / "trajectories" / "heldout").glob("*.mcap")) + [
         demo_run / "trajectories" / "scene_change" / "demo_000.mcap",
@@ -203,7 +218,7 @@ def test_the_rrd_holds_each_replayed_recording(demo_run):
         np.testing.assert_allclose(rec["gates"].sum(1), 1.0, atol=1e-5)
         assert rec["names"] == [L.expert_names(4, labels)]  # each expert named by the behaviours it takes
         experts = decisions[f"{path.parent.name}/{path.name}"]["experts"]
-        assert experts == rec["gates"].argmax(1).tolist()
+        assert experts == active_experts(rec["gates"], policy)
 
 
 def test_the_summary_figure_is_a_png(demo_run):
