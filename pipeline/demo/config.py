@@ -64,12 +64,12 @@ class DemoConfig:
     """out: folder for everything (created; must be empty or absent unless `force`, which first deletes what an
     earlier demo recorded writing there, and refuses a folder holding anything else); quick: the small CI variant;
     seed: all draws; model: the CNEP's network and loss (models.CNEPConfig; the CNMP is the one-expert network of its
-    parameter count, trained with the paper's term); nll_beta: the training loss's beta-NLL power (both
-    models); precision: the feature extraction's, `fp32` or `int8`
-    (pipeline.extract.stage.ExtractConfig); weights: the feature network's (pipeline.demo.weights): `auto` (ImageNet
-    weights where they can be had, else seeded random weights, with a warning), `imagenet`, `random` or the path of
-    a MobileNet-v2 state dict; offline: never download ImageNet weights (as the environment variable CNEP_OFFLINE).
-    The training follows the size (`FULL`, `QUICK`). A failed or interrupted demo leaves a new folder empty."""
+    parameter count, trained with the paper's term); nll_beta: both models' beta-NLL power; precision: the feature
+    extraction's, `fp32` or `int8` (pipeline.extract.stage.ExtractConfig); weights: the feature network's
+    (pipeline.demo.weights): `auto` (ImageNet weights where they can be had, else seeded random weights, with a
+    warning), `imagenet`, `random` or the path of a MobileNet-v2 state dict; offline: never download ImageNet weights
+    (as the environment variable CNEP_OFFLINE). The training follows the size (`FULL`, `QUICK`). A failed or
+    interrupted demo leaves a new folder empty."""
 
     out: Path
     quick: bool = setting(

@@ -67,6 +67,7 @@ class BaxterConfig:
 
     def __post_init__(self) -> None:
         coerce_paths(self)
+        TrainConfig(steps=self.steps, seed=self.seed, nll_beta=self.nll_beta)  # ConfigError before the ingest
 
 
 @dataclass(frozen=True)

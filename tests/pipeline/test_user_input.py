@@ -127,6 +127,20 @@ def test_a_training_setting_cnep_train_refuses_is_refused_by_cnep_sim_before_any
     assert not (inputs / "out").exists()
 
 
+def test_a_beta_nll_cnep_train_refuses_is_refused_by_cnep_demo_and_the_baxter_example_before_any_work(
+    inputs, capsys, monkeypatch
+):
+    from cnep.models.errors import ConfigError
+    from cnep.pipeline.evaluate.baxter import BaxterConfig
+
+    monkeypatch.chdir(inputs)
+    line = one_line(["demo", "--out", "out", "--nll-beta", "2"], capsys)
+    assert "nll_beta must be in [0, 1] (0: plain NLL; 0.5: the usual beta-NLL), got 2" in line, line
+    assert not (inputs / "out").exists()
+    with pytest.raises(ConfigError, match=r"nll_beta must be in \[0, 1\]"):
+        BaxterConfig(data=inputs, nll_beta=-1.0)
+
+
 @pytest.mark.parametrize("setting", ["steps", "seed", "batch_size", "lr"])
 def test_a_giant_integer_in_train_config_is_one_short_line_naming_the_setting(inputs, capsys, monkeypatch, setting):
     monkeypatch.chdir(inputs)
