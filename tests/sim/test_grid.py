@@ -16,7 +16,7 @@ import cnep.sim
 from cnep.pipeline.cli.main import build_parser, main
 from cnep.pipeline.cli.sim import config_of
 from cnep.pipeline.errors import PipelineError
-from cnep.pipeline.sim.config import SIM_TASKS
+from cnep.pipeline.sim.config import SIM_TASKS, policy_task, task_and_version
 from cnep.pipeline.sim.grid_config import GridConfig, subset
 from cnep.pipeline.sim.grid_table import cell_rows, csv_text, pooled_table, read_rows
 from cnep.pipeline.sim.validation import VALIDATION_RANGE, SelectionSettings
@@ -182,6 +182,8 @@ def test_a_tiny_grid_runs_end_to_end_and_a_rerun_does_no_work(tmp_path, monkeypa
         kept = json.loads((run / "checkpoints" / f"{model}-seed0" / "config.json").read_text())["selection"]
         assert kept["seeds"] == {"first": VALIDATION_RANGE[0], "last": VALIDATION_RANGE[0]}
         assert len(kept["candidates"]) == few.candidates
+    # the policies name the task's version, which `cnep sim eval` runs them on
+    assert task_and_version(policy_task(run / "policies" / "cnep-seed0")) == ("obstacle", config.env_version)
     table = (out / grid.TABLE_FILE).read_text()
     assert read_rows((out / grid.CSV_FILE).read_text()) == read_rows(csv_text(first.rows)) and "| CNMP | 2 |" in table
 
