@@ -44,7 +44,7 @@ CALIBRATION_BATCH = 32  # frames per forward pass while re-estimating
 
 DEFAULT_BATCH_SIZE = 4  # frames per forward pass: small batches stay in cache, the fastest on a CPU
 # Frames per forward pass on a GPU: a GPU wants large batches, and most of the gain comes by this one
-# (docs/results.md).
+# (docs/results-scale.md).
 CUDA_BATCH_SIZE = 64
 # Fastest first: a CUDA device when torch sees one, then as `python -m benchmarks.bench_perception` ranks them on
 # a CPU. OpenVINO (the `openvino` extra) ties ONNX Runtime on fp32 (benchmarks/bench_threads.py), so `auto` keeps
