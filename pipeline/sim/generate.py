@@ -16,6 +16,7 @@ import cv2
 from cnep.outputs import record_written, temporary_path, writer
 from cnep.pipeline.ingest.stage import IngestConfig, ingest
 from cnep.pipeline.progress import progress_bar
+from cnep.pipeline.sim.config import demonstrations_task
 from cnep.recordings.csv_motion import CsvColumns
 from cnep.runtime import STATE_NAMES
 from cnep.sim import scene as S
@@ -48,11 +49,13 @@ def generate_demonstrations(task: Task, out: Path, n: int, seed: int, quiet: boo
     return Generated(folders, behaviours, successes)
 
 
-def ingest_demonstrations(recorded: Path, out: Path, task: str, quiet: bool = False) -> None:
+def ingest_demonstrations(recorded: Path, out: Path, task: Task, quiet: bool = False) -> None:
     """`cnep ingest` of the folders `generate_demonstrations` wrote into `recorded`, into `out`: the CSV's time unit
-    stated (nothing to infer, nothing said per file), each demonstration's task `task`."""
+    stated (nothing to infer, nothing said per file), each demonstration's task `task` and its environments' version
+    (demonstrations_task: what the trained policies record and `cnep sim eval` runs them on)."""
     columns = CsvColumns(time_unit=TIME_UNIT)
-    ingest(IngestConfig(src=recorded, out=out, columns=columns, task=task, quiet=quiet))
+    label = demonstrations_task(task.name, task.version)
+    ingest(IngestConfig(src=recorded, out=out, columns=columns, task=label, quiet=quiet))
 
 
 def _write(folder: Path, demo: Demonstration) -> None:

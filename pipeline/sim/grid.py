@@ -38,7 +38,7 @@ from cnep.pipeline.evaluate.pool import as_finished
 from cnep.pipeline.folders import assembled_folder
 from cnep.pipeline.inputs import read_json_object
 from cnep.pipeline.sim.baselines import COMPARED
-from cnep.pipeline.sim.config import MODELS, PICK_PLACE, PickPlaceConfig, SimConfig, demonstrations_task
+from cnep.pipeline.sim.config import MODELS, PICK_PLACE, PickPlaceConfig, SimConfig
 from cnep.pipeline.sim.extras import require_extras
 from cnep.pipeline.sim.generate import generate_demonstrations, ingest_demonstrations
 from cnep.pipeline.sim.grid_config import GridConfig, subset
@@ -166,9 +166,7 @@ def make_set(config: GridConfig, task: Task, set_seed: int, folder: Path) -> lis
         settings = task_config(config, task, folder, set_seed, config.train_seeds[0], n)
         with quiet_per_file_logs(), assembled_folder(folder, lambda: None) as work:
             made = generate_demonstrations(task, work / "recorded", n, set_seed, config.quiet)
-            ingest_demonstrations(
-                work / "recorded", work / "demos", demonstrations_task(task.name, task.version), config.quiet
-            )
+            ingest_demonstrations(work / "recorded", work / "demos", task, config.quiet)
             extract_features(replace(settings, out=work), work, weights)
             made_set = {"behaviours": made.behaviours, "clean": made.successes, "weights": weights}
             write_output(work / SET_FILE, json.dumps(made_set).encode())

@@ -50,7 +50,7 @@ from cnep.pipeline.export.stage import export
 from cnep.pipeline.extract.stage import ExtractConfig, extract
 from cnep.pipeline.progress import RemoteBar
 from cnep.pipeline.sim.baselines import CHECKPOINTS, baseline_jobs, baseline_policy, environment_pose_noise
-from cnep.pipeline.sim.config import PickPlaceConfig, SimConfig, demonstrations_task, trained_conditioning
+from cnep.pipeline.sim.config import PickPlaceConfig, SimConfig, trained_conditioning
 from cnep.pipeline.sim.extras import require_extras
 from cnep.pipeline.sim.figure import FIGURE_FILE
 from cnep.pipeline.sim.generate import generate_demonstrations, ingest_demonstrations
@@ -98,9 +98,7 @@ def _run_stages(config: SimConfig | PickPlaceConfig, task: Task, run: PartialRun
     chosen = None if run.done("extract") else choose_weights(config.weights, config.offline)
     variants = {name: getattr(config, name) for name in task.variants}
     made = run.stage("generate", 1, lambda: generate(config, task, out, variants))
-    run.stage("ingest", 2, lambda: ingest_demonstrations(
-        out / "recorded", out / "demos", demonstrations_task(task.name, task.version), config.quiet
-    ))  # fmt: skip
+    run.stage("ingest", 2, lambda: ingest_demonstrations(out / "recorded", out / "demos", task, config.quiet))
     weights = run.stage("extract", 3, lambda: extract_chosen(config, out, chosen))
     checkpoints = {label: Path(job.out) for label, job in training_jobs(config, out).items()}
     run.stage("train", 4, lambda: train_models(config, out, started=run.seconds["train"]))

@@ -25,7 +25,7 @@ def test_generated_demonstrations_are_balanced_clean_and_ingested_as_a_users_rec
     rows = (folder / CSV_FILE).read_text().splitlines()
     assert rows[0] == "t,x,y,z,qx,qy,qz,qw,gripper" and len(rows) == len(frames) + 1
     with caplog.at_level(logging.INFO, logger="cnep.recordings"):
-        ingest_demonstrations(tmp_path / "recorded", tmp_path / "demos", "obstacle-v1", quiet=True)
+        ingest_demonstrations(tmp_path / "recorded", tmp_path / "demos", find_task("obstacle", 1), quiet=True)
     assert not caplog.records  # the time unit is stated: no line per file about inferring it
     demo = read_demonstration(tmp_path / "demos" / f"{folder.name}.mcap")
     assert demo.frames is not None and len(demo.frames) == len(frames) and demo.episode.task == "obstacle-v1"
