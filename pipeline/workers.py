@@ -12,7 +12,7 @@ A small network runs fastest on one thread of a busy machine (models.threads say
 
 Ctrl-C belongs to the command's own process (pipeline.contract): a terminal sends SIGINT to every process of its
 group, so the processes started here (a pool's workers, `report_manager`'s server) start with it ignored and are
-stopped by the process that started them.
+stopped by the process that started them; where that process is killed outright, they end by themselves.
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ from __future__ import annotations
 import os
 import signal
 import threading
+import time
 from collections.abc import Iterator
 from concurrent.futures import ProcessPoolExecutor
 from contextlib import contextmanager
@@ -35,6 +36,8 @@ THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"
 # every step; with these thresholds they stay mapped, the faults all but vanish and batching pays more
 # (`python -m benchmarks.bench_allocator` measures both). One model alone faults a few pages a step either way.
 SMALL_MODEL_MALLOC = {"MALLOC_MMAP_THRESHOLD_": str(256 << 20), "MALLOC_TRIM_THRESHOLD_": str(512 << 20)}
+PARENT_CHECK_S = 1.0  # how often a worker checks that the process that started it is still there
+ORPHANED_EXIT = 70  # a worker's exit status when it ends because that process is gone (sysexits' EX_SOFTWARE)
 
 
 def cpu_cores() -> int:
@@ -86,11 +89,16 @@ def process_pool(
 
 
 class _DeafProcess(SpawnProcess):
-    """A spawned process that starts deaf to Ctrl-C (`_children_deaf`)."""
+    """A spawned process that starts deaf to Ctrl-C (`_children_deaf`) and ends when the process that started it is
+    gone (`_ends_with_parent`)."""
 
     def start(self) -> None:
         with _children_deaf():
             super().start()
+
+    def run(self) -> None:
+        _ends_with_parent()
+        super().run()
 
 
 class _DeafSpawn(SpawnContext):
@@ -132,6 +140,22 @@ def _children_deaf() -> Iterator[None]:
         yield
     finally:
         signal.signal(signal.SIGINT, previous)
+
+
+def _ends_with_parent(interval_s: float = PARENT_CHECK_S) -> None:
+    """End this process (exit ORPHANED_EXIT) within `interval_s` of the process that started it ending. A parent that
+    is killed outright (SIGKILL, the out-of-memory killer) stops no one: its workers would go on with their jobs for
+    minutes, writing into folders a rerun of the command is writing too. Orphaned, a process gets a new parent
+    (init, or a subreaper), which a daemon thread of it notices."""
+    parent = os.getppid()
+
+    def watch() -> None:
+        while True:
+            time.sleep(interval_s)
+            if os.getppid() != parent:
+                os._exit(ORPHANED_EXIT)
+
+    threading.Thread(target=watch, name="ends-with-parent", daemon=True).start()
 
 
 def _worker_start(initializer, initargs: tuple) -> None:

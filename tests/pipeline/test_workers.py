@@ -99,6 +99,56 @@ def test_the_error_line_of_a_failed_pool_is_the_last_line(tmp_path):
     ], done.stderr
 
 
+def pid_then_wait(ready: str) -> None:
+    """A worker's job that writes its process id to the file `ready` (whole: written, then renamed) and waits."""
+    Path(ready + ".part").write_text(str(os.getpid()))
+    os.rename(ready + ".part", ready)
+    time.sleep(120)
+
+
+ORPHANED = """
+import sys, time
+from pathlib import Path
+from cnep.pipeline.workers import report_manager, single_thread_processes
+from tests.pipeline.test_workers import pid_then_wait
+
+with report_manager() as manager, single_thread_processes(1) as pool:
+    Path(sys.argv[1]).write_text(str(manager._process.pid))
+    pool.submit(pid_then_wait, sys.argv[2])
+    time.sleep(120)
+"""
+
+
+def running(pid: int) -> bool:
+    """Whether process `pid` exists and has not ended (a zombie waiting for its new parent to reap it has)."""
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except FileNotFoundError:
+        return False
+    return state not in ("Z", "X")
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads process states from /proc")
+def test_workers_end_when_the_process_that_started_them_is_killed(tmp_path):
+    """Killed outright (SIGKILL: nothing of it runs), a command stops no one: its pool's worker and its report
+    manager's server end by themselves within seconds instead of going on with their jobs."""
+    manager_pid, worker_pid = tmp_path / "manager", tmp_path / "worker"
+    command = subprocess.Popen([sys.executable, "-c", ORPHANED, str(manager_pid), str(worker_pid)], cwd=ROOT)
+    try:
+        deadline = time.monotonic() + 60
+        while not worker_pid.exists() and time.monotonic() < deadline and command.poll() is None:
+            time.sleep(0.05)
+        pids = [int(manager_pid.read_text()), int(worker_pid.read_text())]
+        assert all(running(pid) for pid in pids)
+    finally:
+        command.kill()
+        command.wait()
+    deadline = time.monotonic() + 10 * workers.PARENT_CHECK_S
+    while any(running(pid) for pid in pids) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not any(running(pid) for pid in pids)
+
+
 def ctrl_c_ignored() -> bool:
     """A worker's job: whether SIGINT is ignored in its process."""
     return signal.getsignal(signal.SIGINT) is signal.SIG_IGN
