@@ -142,8 +142,8 @@ def _children_deaf() -> Iterator[None]:
         signal.signal(signal.SIGINT, previous)
 
 
-def _ends_with_parent(interval_s: float = PARENT_CHECK_S) -> None:
-    """End this process (exit ORPHANED_EXIT) within `interval_s` of the process that started it ending. A parent that
+def _ends_with_parent() -> None:
+    """End this process (exit ORPHANED_EXIT) within PARENT_CHECK_S of the process that started it ending. A parent that
     is killed outright (SIGKILL, the out-of-memory killer) stops no one: its workers would go on with their jobs for
     minutes, writing into folders a rerun of the command is writing too. Orphaned, a process gets a new parent
     (init, or a subreaper), which a daemon thread of it notices."""
@@ -151,7 +151,7 @@ def _ends_with_parent(interval_s: float = PARENT_CHECK_S) -> None:
 
     def watch() -> None:
         while True:
-            time.sleep(interval_s)
+            time.sleep(PARENT_CHECK_S)
             if os.getppid() != parent:
                 os._exit(ORPHANED_EXIT)
 
