@@ -108,7 +108,7 @@ class StackedCNEP:
         self.params = {n: torch.stack([p[n].detach() for p in per_model]).requires_grad_() for n in self.names}
         self.encoder_layers = [i for i, layer in enumerate(self.base.encoder) if isinstance(layer, nn.Linear)]
         # each model's own projection of its observed-only columns (fitted on its own data): (n, K) each, or none
-        self.projections = [m.feature_projection for m in models if m.config.feature_components is not None]
+        self.projections = [m.feature_projection for m in models if m.components is not None]
 
     def __len__(self) -> int:
         return len(next(iter(self.params.values())))

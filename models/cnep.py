@@ -100,7 +100,7 @@ class CNEP(nn.Module):
         H, dy = config.latent_dim, lay.out_dim
         time_dim = 1 + 2 * config.time_frequencies
         self.register_buffer("frequencies", math.pi * torch.arange(1, config.time_frequencies + 1.0), persistent=False)
-        K = config.components()
+        self.components = K = config.components()
         if K is not None:  # the observed-only context values are read as K principal components (models.projection)
             projected = [i for a, b in self.observed_only_columns() for i in range(a, b)]
             kept = sorted(set(range(1, 1 + lay.obs_dim)) - set(projected))
@@ -133,15 +133,15 @@ class CNEP(nn.Module):
     def context_width(self) -> int:
         """Width of a context as the encoder reads it (`project`): 1 + obs_dim, or with `feature_components` = K, t,
         the observed columns it predicts, then the K components."""
-        K = self.config.feature_components
+        K = self.components
         return 1 + self.config.columns.obs_dim if K is None else len(self.kept_values) + K
 
     def observed_only_inputs(self) -> list[tuple[int, int]]:
         """Spans of the encoder's inputs (`encoder_inputs`: t's 1 + 2 time_frequencies features, then the projected
         values) that carry the observed-only columns (`observed_only_columns`), or their principal components."""
         shift = 2 * self.config.time_frequencies
-        if self.config.feature_components is not None:
-            return [(shift + self.context_width - self.config.feature_components, shift + self.context_width)]
+        if self.components is not None:
+            return [(shift + self.context_width - self.components, shift + self.context_width)]
         return [(a + shift, b + shift) for a, b in self.observed_only_columns()]
 
     def project(self, obs: torch.Tensor, projection: torch.Tensor | None = None) -> torch.Tensor:
@@ -149,7 +149,7 @@ class CNEP(nn.Module):
         observed-only values replaced by their `feature_components` principal components (models.projection), after
         the others. projection: (n, K), default this model's `feature_projection` (models.batched passes each
         stacked model's own)."""
-        if self.config.feature_components is None:
+        if self.components is None:
             return obs
         projection = self.feature_projection if projection is None else projection
         components = obs.index_select(-1, self.projected_values) @ projection  # (..., K)

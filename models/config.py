@@ -129,6 +129,10 @@ def optional_settings(cls: type, name: str, shown: str) -> type:
 ConditioningOverrides = optional_settings(ConditioningPolicy, "ConditioningOverrides", "the policy's own")
 
 
+# How `cnep train --help` shows the default of a setting the training schedule fills (models.schedule).
+SCHEDULE_SHOWN = "the training schedule's, a rule of the training demonstrations (docs/reference/training-recipe.md)"
+
+
 def authors_coefficients(n_experts: int) -> tuple[float, float, float]:
     """(a_rec, a_batch, a_ind) as the authors rescaled their d=2 sweep: a1*d/2, a2/log2(d), a3/log2(d)."""
     if n_experts == 1:
@@ -163,13 +167,15 @@ class CNEPConfig:
         + " (docs/concepts.md)",
         choices=tuple(ASSIGNMENTS),
     )
-    # A few hundred training scenes spread over a handful of directions of the image features' 1280; the encoder
-    # reading only those directions cannot tell its training scenes apart by the rest (docs/concepts.md).
+    # A few dozen training scenes spread over at most as many directions of the image features' 1280; the encoder
+    # reading only those directions cannot tell its training scenes apart by the rest (docs/concepts.md). None: the
+    # schedule's where a model is trained (models.schedule.with_components), every column in a model built with it;
+    # 0: every column, given.
     feature_components: int | None = setting(
         None,
         "the encoder reads the columns it observes but does not predict (such as image features) as their top K "
-        "principal components over the training rows, each scaled to unit variance; none: every column",
-        shown="none",
+        "principal components over the training rows, each scaled to unit variance (0: every column as it is)",
+        shown=SCHEDULE_SHOWN,
     )
 
     def __post_init__(self) -> None:
@@ -190,10 +196,11 @@ class CNEPConfig:
         if self.feature_components is not None and (
             isinstance(self.feature_components, bool)
             or not isinstance(self.feature_components, int)
-            or self.feature_components < 1
+            or self.feature_components < 0
         ):
             raise ConfigError(
-                f"feature_components must be a whole number >= 1 (or none), got {in_message(self.feature_components)}."
+                f"feature_components must be a whole number >= 0 (0 or none: every column), got "
+                f"{in_message(self.feature_components)}."
             )
         if not self.min_std > 0:
             raise ConfigError(f"min_std must be > 0 (it keeps the likelihood finite), got {self.min_std}.")
@@ -215,10 +222,10 @@ class CNEPConfig:
         return self.columns.observed_only if self.components() is not None else ()
 
     def components(self) -> int | None:
-        """`feature_components` checked against the columns: None, or K with 1 <= K <= the columns observed but not
-        predicted (`ColumnRoles.observed_only`); a ConfigError otherwise."""
+        """`feature_components` checked against the columns: None (unset, or 0: every column as it is), or K with
+        1 <= K <= the columns observed but not predicted (`ColumnRoles.observed_only`); a ConfigError otherwise."""
         K, n = self.feature_components, len(self.columns.observed_only)
-        if K is None:
+        if not K:
             return None
         if n == 0:
             raise ConfigError(
@@ -247,10 +254,6 @@ class CNEPConfig:
         if "layout" in data and "columns" not in data:
             data["columns"] = data.pop("layout")
         return cls(**{"assignment": "paper", **_known(cls, data)})
-
-
-# How `cnep train --help` shows the default of a setting the training schedule fills (models.schedule).
-SCHEDULE_SHOWN = "the training schedule's, a rule of the training demonstrations (docs/reference/training-recipe.md)"
 
 
 @dataclass(frozen=True)

@@ -1,13 +1,21 @@
-"""The training schedule: steps, learning-rate warm-up and validation interval as one rule of the training data.
+"""The training schedule: steps, learning-rate warm-up, validation interval and the feature components as one rule of
+the training data.
 
 Every trainer (`models.fit`, `cnep train`, `cnep sim`, the demo, the Baxter example) leaves `TrainConfig.steps`,
-`warmup_steps` and `val_every` unset (None) unless they are given, and `scheduled` fills them from the number of
-demonstrations the model trains on (those not held out for validation, over every process):
+`warmup_steps`, `val_every` and `CNEPConfig.feature_components` unset (None) unless they are given, and `scheduled`
+and `with_components` fill them from the number of demonstrations the model trains on (those not held out for
+validation, over every process):
 
 - steps: BASE_STEPS, or more where the data is larger, so that each training demonstration is drawn into a batch
   DRAWS_PER_DEMONSTRATION times on average (rounded up to a multiple of ROUND_STEPS);
 - warm-up: WARMUP_SHARE of the steps, at most MAX_WARMUP;
-- validation: VALIDATIONS times over the steps, at most every MAX_VAL_EVERY steps.
+- validation: VALIDATIONS times over the steps, at most every MAX_VAL_EVERY steps;
+- feature components: where a model trains on fewer than FEW_DEMONSTRATIONS demonstrations and observes more columns
+  that it does not predict (a camera's 1280 features), the encoder reads those columns as their principal components,
+  as many as the demonstrations (`components_for`). A few dozen scenes differ along at most that many directions of
+  the features; read whole, the rest tells each training scene apart by its own clutter, and the model recalls its
+  training scenes instead of reading a new one. With more demonstrations every column is read as it is, as the
+  demo's and the obstacle's larger sets read best (docs/concepts.md).
 
 The warm-up and the validation interval follow the steps whether those were given or scheduled. Patience is counted
 in validations (`TrainConfig.patience`, not scheduled): its default is more than the validations of BASE_STEPS, so it
@@ -20,7 +28,7 @@ import logging
 import math
 from dataclasses import dataclass, replace
 
-from cnep.models.config import TrainConfig
+from cnep.models.config import CNEPConfig, TrainConfig
 
 log = logging.getLogger(__name__)
 
@@ -32,20 +40,22 @@ DRAWS_PER_DEMONSTRATION = 400
 ROUND_STEPS = 100
 WARMUP_SHARE, MAX_WARMUP = 0.5, 2_000
 VALIDATIONS, MAX_VAL_EVERY = 8, 500
+FEW_DEMONSTRATIONS = 64  # fewer training demonstrations than this read image features as as many components
 SCHEDULED = ("steps", "warmup_steps", "val_every")  # the TrainConfig fields the schedule fills when None
 
 
 @dataclass(frozen=True)
 class Schedule:
     """What the rule gave a training run: its input (`demonstrations`: training demonstrations, `batch_size`: samples
-    per step over every process), the values it trains with and the names of those given rather than scheduled.
-    config.json holds it under `training.schedule`."""
+    per step over every process), the values it trains with (`feature_components`: None or 0, every column as it is) and
+    the names of those given rather than scheduled. config.json holds it under `training.schedule`."""
 
     demonstrations: int
     batch_size: int
     steps: int
     warmup_steps: int
     val_every: int
+    feature_components: int | None
     given: tuple[str, ...]
 
     def to_dict(self) -> dict:
@@ -54,6 +64,7 @@ class Schedule:
             "steps": self.steps,
             "warmup_steps": self.warmup_steps,
             "val_every": self.val_every,
+            "feature_components": self.feature_components,
             "given": list(self.given),
         }
 
@@ -74,17 +85,39 @@ def val_every_for(steps: int) -> int:
     return max(1, min(steps // VALIDATIONS, MAX_VAL_EVERY))
 
 
-def schedule_of(training: TrainConfig, demonstrations: int, world_size: int = 1) -> Schedule:
-    """The schedule of `training` for `demonstrations` training demonstrations (every process's), `world_size`
-    processes each drawing `training.batch_size` samples a step: its given values kept, the others the rule's."""
+def components_for(observed_only: int, demonstrations: int) -> int | None:
+    """The principal components the encoder reads `observed_only` columns (observed, never predicted) as, trained on
+    `demonstrations` demonstrations: as many as the demonstrations where those are fewer than FEW_DEMONSTRATIONS and
+    than the columns, else None (every column as it is)."""
+    return demonstrations if demonstrations < min(FEW_DEMONSTRATIONS, observed_only) else None
+
+
+def with_components(model: CNEPConfig, demonstrations: int) -> CNEPConfig:
+    """`model` with its `feature_components` the rule's (`components_for`) for `demonstrations` training
+    demonstrations where unset; unchanged where given."""
+    if model.feature_components is not None:
+        return model
+    return replace(model, feature_components=components_for(len(model.columns.observed_only), demonstrations))
+
+
+def schedule_of(
+    training: TrainConfig, demonstrations: int, world_size: int = 1, model: CNEPConfig | None = None
+) -> Schedule:
+    """The schedule of `training` and `model` (None: one that observes nothing it does not predict) for
+    `demonstrations` training demonstrations (every process's), `world_size` processes each drawing
+    `training.batch_size` samples a step: its given values kept, the others the rule's."""
+    model = CNEPConfig() if model is None else model
     batch = training.batch_size * world_size
     steps = training.steps if training.steps is not None else scheduled_steps(demonstrations, batch)
     warmup = training.warmup_steps if training.warmup_steps is not None else warmup_for(steps)
     val_every = training.val_every if training.val_every is not None else val_every_for(steps)
+    components = with_components(model, demonstrations).feature_components
     given = tuple(name for name in SCHEDULED if getattr(training, name) is not None)
+    if model.feature_components is not None:
+        given += ("feature_components",)
     if warmup >= steps:
         log.warning("a warm-up of %d steps in %d steps: the learning rate never reaches its peak", warmup, steps)
-    return Schedule(demonstrations, batch, steps, warmup, val_every, given)
+    return Schedule(demonstrations, batch, steps, warmup, val_every, components, given)
 
 
 def scheduled(training: TrainConfig, demonstrations: int, world_size: int = 1) -> TrainConfig:

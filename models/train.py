@@ -34,7 +34,7 @@ from cnep.models.loss import cnep_loss, expert_nll
 from cnep.models.normaliser import Moments
 from cnep.models.projection import principal_projection
 from cnep.models.sampler import Batch, TrajectoryStack, sample_batch
-from cnep.models.schedule import scheduled
+from cnep.models.schedule import scheduled, with_components
 from cnep.models.split import split_if_idle, split_steps
 from cnep.models.threads import torch_threads
 
@@ -453,7 +453,7 @@ def prepare_fit(
     for t in train + val:
         if np.ndim(t) != 2 or np.shape(t)[1] != config.columns.width:
             raise ConfigError(f"Trajectories must be (T, {config.columns.width}) arrays, got shape {np.shape(t)}.")
-    model = build_model(config, train, train_config.seed)
+    model = build_model(with_components(config, len(train)), train, train_config.seed)
     trainer = Trainer(model, TrajectoryStack(train, model), TrajectoryStack(val, model), train_config)
     return trainer, {"n_train": len(train), "n_val": len(val), "validation": validation}
 

@@ -28,7 +28,7 @@ from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.inputs import coerce_paths, read_json_object
 from cnep.pipeline.run.config import CHECKPOINT, CONFIG_FILE, policy_kind
 from cnep.pipeline.sim.validation import SelectionSettings, check_reported
-from cnep.pipeline.train.config import nll_beta_setting
+from cnep.pipeline.train.config import feature_components_setting, nll_beta_setting
 from cnep.pipeline.train.constants import TASKS as TASKS_KEY
 from cnep.runtime.conditioning import ConditioningPolicy
 from cnep.runtime.constants import MANIFEST_FILE
@@ -150,7 +150,8 @@ def assignment_setting() -> object:
 def check_training(config: SimConfig | PickPlaceConfig) -> None:
     """PipelineError unless `config` trains on >= 2 demonstrations, for >= 1 step (where given), with >= 2 experts and
     a training seed; ConfigError, before any work, where its training settings are ones `cnep train` refuses
-    (TrainConfig's own checks, which the models' training would meet only after the demonstrations are made)."""
+    (TrainConfig's and CNEPConfig's own checks, which the models' training would meet only after the demonstrations
+    are made)."""
     if (
         config.demonstrations < 2
         or (config.train_steps is not None and config.train_steps < 1)
@@ -162,6 +163,7 @@ def check_training(config: SimConfig | PickPlaceConfig) -> None:
             f"{config.demonstrations}, {config.train_steps}, {config.experts} and {config.train_seeds}"
         )
     TrainConfig(steps=config.train_steps, nll_beta=config.nll_beta)
+    CNEPConfig(feature_components=config.feature_components)
 
 
 @dataclass(frozen=True)
@@ -212,6 +214,7 @@ class SimConfig(LoopSettings):
     experts: int = setting(2, "the CNEP's experts (the CNMP: one, parameter-matched)")
     assignment: str = assignment_setting()
     nll_beta: float = nll_beta_setting()
+    feature_components: int | None = feature_components_setting()
     weights: str = setting(AUTO_WEIGHTS, "the feature network's weights, as `cnep demo --weights` takes them")
     offline: bool = setting(False, "never download the ImageNet weights (also: environment variable CNEP_OFFLINE=1)")
     baselines: bool = setting(False, BASELINES_HELP)
@@ -301,6 +304,7 @@ class PickPlaceConfig:
     # Where a motion heads (which mat) is read from the context, beside values the model predicts closely (the
     # heights, the gripper): with plain NLL those outweigh it and the place's mean stops being learned.
     nll_beta: float = setting(0.5, "the training loss's beta-NLL power, as `cnep train --nll-beta` takes it")
+    feature_components: int | None = feature_components_setting()
     weights: str = setting(AUTO_WEIGHTS, "the feature network's weights, as `cnep demo --weights` takes them")
     offline: bool = setting(False, "never download the ImageNet weights (also: environment variable CNEP_OFFLINE=1)")
     # A cup can move during the motion: the start's frame, kept in the context for the whole episode, would go on

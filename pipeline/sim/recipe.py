@@ -15,6 +15,7 @@ from cnep.models.config import CNEPConfig, ConditioningPolicy, TrainConfig
 from cnep.models.schedule import (
     BASE_STEPS,
     DRAWS_PER_DEMONSTRATION,
+    FEW_DEMONSTRATIONS,
     MAX_VAL_EVERY,
     MAX_WARMUP,
     VALIDATIONS,
@@ -23,9 +24,11 @@ from cnep.models.schedule import (
 )
 from cnep.pipeline.sim.config import PickPlaceConfig, SimConfig, trained_conditioning
 from cnep.pipeline.train.config import TrainStageConfig
+from cnep.pipeline.train.presets import resolve_preset
+from cnep.recordings.constants import FEATURE_DIM, STEP_DIM
 
 SIM_COMMANDS = (SimConfig, PickPlaceConfig)  # `cnep sim TASK`'s configs, one per task with a command of its own
-EXAMPLE_SIZES = (2, 40, 77, 160, 307, 1_000, 5_000)  # training demonstrations the schedule's table shows
+EXAMPLE_SIZES = (8, 36, 63, 64, 160, 307, 1_000, 5_000)  # training demonstrations the schedule's table shows
 
 HEADER = """\
 # The training recipe
@@ -52,12 +55,21 @@ def render() -> str:
         f"([checkpoint format](checkpoint.md)). Early stopping after {training.patience} validations without "
         f"improvement only cuts runs longer than the schedule's {VALIDATIONS} validations.",
         "",
-        "| training demonstrations | steps | warm-up | validation every |",
-        "|---|---|---|---|",
+        f"Left unset, the feature components follow from the same number: trained on fewer than {FEW_DEMONSTRATIONS} "
+        "demonstrations, a model that observes more columns than that which it does not predict (a camera's features) "
+        "reads them as their principal components, as many as the demonstrations; else every column as it is. A few "
+        "dozen scenes differ along at most that many directions of the features, and the rest would tell each "
+        "training scene apart ([concepts](../concepts.md)). `--feature-components K` reads K components whatever the "
+        "data, `--feature-components 0` every column as it is.",
+        "",
+        f"| training demonstrations | steps | warm-up | validation every | components of {FEATURE_DIM} features |",
+        "|---|---|---|---|---|",
     ]
+    images = CNEPConfig(columns=resolve_preset(TrainStageConfig.layout, STEP_DIM, Path("trajectories")).roles)
     for size in EXAMPLE_SIZES:
-        made = schedule_of(training, size)
-        lines.append(f"| {size} | {made.steps} | {made.warmup_steps} | {made.val_every} |")
+        made = schedule_of(training, size, model=images)
+        components = made.feature_components or "all, as they are"
+        lines.append(f"| {size} | {made.steps} | {made.warmup_steps} | {made.val_every} | {components} |")
     lines += [
         "",
         "## `cnep sim`: what differs per task",

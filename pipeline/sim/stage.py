@@ -164,7 +164,9 @@ def train_models(config: SimConfig | PickPlaceConfig, out: Path, started: float)
 def training_jobs(config: SimConfig | PickPlaceConfig, out: Path) -> dict[str, TrainStageConfig]:
     """The training of the CNEP and the matched CNMP for every training seed, on OUT/trajectories: label
     (`MODEL-seedN`) -> its job, the checkpoint OUT/checkpoints/`model-seedN`."""
-    model = CNEPConfig(n_experts=config.experts, assignment=config.assignment)
+    model = CNEPConfig(
+        n_experts=config.experts, assignment=config.assignment, feature_components=config.feature_components
+    )
     networks = {
         "CNEP": {"model": model},
         "CNMP": {"model": replace(model, assignment=CNMP_ASSIGNMENT), "matched_cnmp": True},

@@ -9,7 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from cnep.models.config import CNEPConfig, ConditioningPolicy, TrainConfig, setting
+from cnep.models.config import SCHEDULE_SHOWN, CNEPConfig, ConditioningPolicy, TrainConfig, setting
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.inputs import coerce_paths
 from cnep.pipeline.train.constants import CONDITIONING, DEVICES, PRESET_NAMES, SCENE
@@ -20,6 +20,17 @@ def nll_beta_setting() -> object:
     """The training loss's beta-NLL power as the setting of a command that trains (`cnep demo`, `cnep sim`):
     `cnep train`'s default."""
     return setting(TrainConfig().nll_beta, "the training loss's beta-NLL power, as `cnep train --nll-beta` takes it")
+
+
+def feature_components_setting() -> object:
+    """The CNEP's feature components as the setting of a command that trains (`cnep sim`): `cnep train`'s default,
+    the training schedule's."""
+    return setting(
+        CNEPConfig().feature_components,
+        "principal components of the image features the CNEP and the CNMP read, as `cnep train "
+        "--feature-components` takes them",
+        shown=SCHEDULE_SHOWN,
+    )
 
 
 @dataclass(frozen=True)

@@ -4,10 +4,10 @@
 
 Steps: find the trajectory files and read their summaries (one width, one feature extractor, else an
 error naming the files); pick the model's columns by layout preset (pipeline.train.presets); split whole
-demonstrations into training and validation; fill in the training schedule the settings leave unset from the number
-of training demonstrations (models.schedule); pack the model's columns of this process's share of them
-into one memory-mapped file in the work folder (pipeline.train.packed: each file read once, its frames
-left unread); fit the normaliser on the training demonstrations from running moments;
+demonstrations into training and validation; fill in the training schedule the settings leave unset (the feature
+components among them) from the number of training demonstrations (models.schedule); pack the model's columns of
+this process's share of them into one memory-mapped file in the work folder (pipeline.train.packed: each file read
+once, its frames left unread); fit the normaliser on the training demonstrations from running moments;
 train with `models.Trainer` (time normalised per demonstration to [0, 1] by its sampler), saving a
 resumable state every `save_every` steps; keep the weights with the lowest validation error; stop
 early after `patience` validations without improvement. Under torchrun the same call trains with
@@ -44,7 +44,7 @@ from cnep.models.candidates import Kept
 from cnep.models.matched import matched_cnmp
 from cnep.models.normaliser import Moments
 from cnep.models.sampler import TrajectoryStack
-from cnep.models.schedule import Schedule, schedule_of, scheduled
+from cnep.models.schedule import Schedule, schedule_of, scheduled, with_components
 from cnep.models.threads import torch_threads
 from cnep.models.train import split_validation
 from cnep.outputs import record_written, writing_as
@@ -205,12 +205,13 @@ def _load(config: TrainStageConfig, procs: Processes, held: ExitStack) -> _Run:
     """Read the inputs, split them, claim the work folder (resuming what it holds) and pack this rank's share."""
     data = load_training_set(find_trajectory_files(config.inputs))
     layout = resolve_preset(config.layout, data.width, data.files[0].path)
+    train_idx, val_idx = split_validation(list(range(len(data.files))), config.val_fraction, config.training.seed)
     model_config = replace(config.model, columns=layout.roles)
+    schedule = schedule_of(config.training, len(train_idx), procs.world_size, model_config)
+    model_config = with_components(model_config, len(train_idx))
     model_config.components()  # feature_components against the layout's columns, before anything is packed
     if config.matched_cnmp:
         model_config = matched_cnmp(model_config)
-    train_idx, val_idx = split_validation(list(range(len(data.files))), config.val_fraction, config.training.seed)
-    schedule = schedule_of(config.training, len(train_idx), procs.world_size)
     config = replace(config, training=scheduled(config.training, len(train_idx), procs.world_size))
     inputs = [f.path for f in data.files]
     given = [*map(Path, config.inputs), *inputs]  # no output inside a folder given as input either

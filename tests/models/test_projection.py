@@ -60,8 +60,8 @@ def test_each_direction_is_signed_by_its_largest_entry():
 
 
 def test_k_out_of_range_or_without_observed_only_columns_is_one_clear_error():
-    for bad in (0, -3, True, 2.5):
-        with pytest.raises(ConfigError, match="feature_components must be a whole number >= 1"):
+    for bad in (-3, True, 2.5):
+        with pytest.raises(ConfigError, match="feature_components must be a whole number >= 0"):
             CNEPConfig(feature_components=bad)
     with pytest.raises(ConfigError, match="at most the 6 columns the model observes but does not predict, got 7"):
         CNEP(feature_config(features=6, components=7))
@@ -69,10 +69,12 @@ def test_k_out_of_range_or_without_observed_only_columns_is_one_clear_error():
     with pytest.raises(ConfigError, match="this model predicts every column it observes"):
         CNEP(predicts_all)
     CNEP(feature_config(features=6, components=6))  # every column as a component: allowed
+    CNEP(dataclasses.replace(predicts_all, feature_components=0))  # 0: every column as it is, whatever the columns
 
 
 def test_without_components_the_model_is_built_as_before_and_old_configs_load_so():
     plain, projected = CNEP(feature_config(components=None)), CNEP(feature_config(components=3))
+    assert set(CNEP(feature_config(components=0)).state_dict()) == set(plain.state_dict())  # 0: every column, given
     assert CNEPConfig().feature_components is None
     assert set(projected.state_dict()) == set(plain.state_dict()) | {"feature_projection"}
     assert plain.encoder[0].weight.shape == (16, 5 + 8) and projected.encoder[0].weight.shape == (16, 5 + 2 + 3)

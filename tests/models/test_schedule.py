@@ -1,19 +1,23 @@
-"""The training schedule: one rule of the training data for the steps, the warm-up and the validation interval."""
+"""The training schedule: one rule of the training data for the steps, the warm-up, the validation interval and the
+feature components."""
 
 import logging
 
 import numpy as np
 import pytest
 
-from cnep.models.config import CNEPConfig, TrainConfig
+from cnep.models.config import CNEPConfig, ColumnRoles, ConfigError, TrainConfig
 from cnep.models.schedule import (
     BASE_STEPS,
     DRAWS_PER_DEMONSTRATION,
+    FEW_DEMONSTRATIONS,
     MAX_VAL_EVERY,
     MAX_WARMUP,
     SCHEDULED,
+    components_for,
     schedule_of,
     scheduled,
+    with_components,
 )
 from cnep.models.train import prepare_fit
 
@@ -49,8 +53,52 @@ def test_the_record_names_its_input_values_and_what_was_given():
         "steps": BASE_STEPS,
         "warmup_steps": MAX_WARMUP,
         "val_every": 7,
+        "feature_components": None,
         "given": ["val_every"],
     }
+
+
+# A model that predicts the pose and gripper (8 columns) and observes 1280 image features besides.
+IMAGES = ColumnRoles(width=1288, observed=((0, 1288),), query=((1280, 1288),), predicted=((1280, 1288),))
+
+
+def test_fewer_demonstrations_than_features_read_as_many_components():
+    few = FEW_DEMONSTRATIONS
+    assert [components_for(1280, n) for n in (1, 8, few - 1, few, 5_000)] == [1, 8, few - 1, None, None]
+    assert components_for(0, 8) is None  # a motion-only model observes nothing it does not predict
+    assert components_for(6, 8) is None and components_for(9, 8) == 8
+    model = CNEPConfig(columns=IMAGES)
+    assert with_components(model, 40).feature_components == 40
+    assert with_components(CNEPConfig(columns=IMAGES, feature_components=16), 40).feature_components == 16
+    record = schedule_of(TrainConfig(), 40, model=model).to_dict()
+    assert (record["feature_components"], record["given"]) == (40, [])
+    record = schedule_of(TrainConfig(), 40, model=CNEPConfig(columns=IMAGES, feature_components=16)).to_dict()
+    assert (record["feature_components"], record["given"]) == (16, ["feature_components"])
+
+
+def test_a_trainer_reads_the_features_as_components_of_its_demonstrations():
+    rng = np.random.default_rng(0)
+    features = [np.hstack([rng.normal(size=(12, 20)), np.linspace(0, 1, 12)[:, None] + i]) for i in range(10)]
+    roles = ColumnRoles(width=21, observed=((0, 21),), query=((20, 21),), predicted=((20, 21),))
+    trainer, split = prepare_fit(
+        features, CNEPConfig(columns=roles, encoder_widths=(8,), expert_widths=(8,)), TrainConfig()
+    )
+    assert trainer.model.config.feature_components == split["n_train"] == 8
+    assert trainer.model.feature_projection.shape == (20, 8)
+
+
+def test_zero_components_read_every_feature_whatever_the_demonstrations():
+    rng = np.random.default_rng(0)
+    features = [np.hstack([rng.normal(size=(12, 20)), np.linspace(0, 1, 12)[:, None] + i]) for i in range(10)]
+    roles = ColumnRoles(width=21, observed=((0, 21),), query=((20, 21),), predicted=((20, 21),))
+    config = CNEPConfig(columns=roles, encoder_widths=(8,), expert_widths=(8,), feature_components=0)
+    trainer, _ = prepare_fit(features, config, TrainConfig())
+    assert trainer.model.config.feature_components == 0
+    assert trainer.model.context_width == 1 + roles.obs_dim and not hasattr(trainer.model, "feature_projection")
+    record = schedule_of(TrainConfig(), 8, model=config).to_dict()
+    assert (record["feature_components"], record["given"]) == (0, ["feature_components"])
+    with pytest.raises(ConfigError, match="whole number >= 0"):
+        CNEPConfig(feature_components=-1)
 
 
 def test_a_trainer_fills_the_schedule_from_the_demonstrations_it_trains_on():

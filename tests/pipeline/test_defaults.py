@@ -70,7 +70,8 @@ def option_help(text: str, flag: str) -> str:
 
 
 @pytest.mark.parametrize("option", sorted(name for name, o in settings_of().items() if not o.is_flag))
-def test_cnep_train_help_shows_each_dataclass_default(option, capsys):
+def test_cnep_train_help_shows_each_dataclass_default(option, capsys, monkeypatch):
+    monkeypatch.setenv("COLUMNS", "10000")  # one line per option: argparse wraps a long one at its hyphens
     with pytest.raises(SystemExit):
         build_parser().parse_args(["train", "--help"])
     shown = option_help(capsys.readouterr().out, f"--{option.replace('_', '-')}")

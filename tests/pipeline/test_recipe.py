@@ -81,4 +81,5 @@ def test_every_recipe_setting_reaches_config_json_the_manifest_and_the_policies(
                 carried = [spec.recipe[key]] + [p.spec.recipe[key] for p in policies]
             assert all(entry[name] == value for entry in carried), (key, name)
     schedule = config["training"]["schedule"]
-    assert set(schedule["given"]) == {"steps", "warmup_steps", "val_every"} and spec.recipe["training"]["schedule"]
+    assert set(schedule["given"]) == {"steps", "warmup_steps", "val_every", "feature_components"}
+    assert spec.recipe["training"]["schedule"]

@@ -111,9 +111,21 @@ def test_a_list_of_seeds_that_is_no_list_of_numbers_says_so(tmp_path, capsys):
 
 
 @pytest.mark.skipif(not SIM, reason="the sim extra is not installed")
-@pytest.mark.parametrize("task, value", [("obstacle", "nan"), ("pick-place", "2")])
+@pytest.mark.parametrize(
+    "task, option, value, message",
+    [
+        (
+            "obstacle",
+            "--nll-beta",
+            "nan",
+            "nll_beta must be in [0, 1] (0: plain NLL; 0.5: the usual beta-NLL), got nan",
+        ),
+        ("pick-place", "--nll-beta", "2", "nll_beta must be in [0, 1] (0: plain NLL; 0.5: the usual beta-NLL), got 2"),
+        ("obstacle", "--feature-components", "-1", "feature_components must be a whole number >= 0"),
+    ],
+)
 def test_a_training_setting_cnep_train_refuses_is_refused_by_cnep_sim_before_any_work(
-    inputs, capsys, monkeypatch, task, value
+    inputs, capsys, monkeypatch, task, option, value, message
 ):
     import cnep.pipeline.sim.stage as sim_stage
 
@@ -122,8 +134,8 @@ def test_a_training_setting_cnep_train_refuses_is_refused_by_cnep_sim_before_any
 
     monkeypatch.setattr(sim_stage, "_run_stages", no_work)
     monkeypatch.chdir(inputs)
-    line = one_line(["sim", task, "--out", "out", "--nll-beta", value], capsys)
-    assert f"nll_beta must be in [0, 1] (0: plain NLL; 0.5: the usual beta-NLL), got {value}" in line, line
+    line = one_line(["sim", task, "--out", "out", option, value], capsys)
+    assert message in line, line
     assert not (inputs / "out").exists()
 
 

@@ -24,7 +24,7 @@ if not all(importlib.util.find_spec(name) for name in cnep.sim.EXTRA):
 from cnep.pipeline.cli.main import main  # noqa: E402
 from cnep.pipeline.sim.config import ENV_VERSIONS, MODELS, PROTOCOLS, SimConfig  # noqa: E402
 from cnep.pipeline.sim.partial import SUMMARY_FILE  # noqa: E402
-from cnep.pipeline.sim.stage import run_sim  # noqa: E402
+from cnep.pipeline.sim.stage import run_sim, training_jobs  # noqa: E402
 from cnep.pipeline.sim.validation import SelectionSettings  # noqa: E402
 from tests.sim.conftest import calibrate_on_few_frames, pools_in_process  # noqa: E402
 from tests.test_examples import load  # noqa: E402
@@ -167,3 +167,16 @@ def test_cnep_sim_stopped_after_a_stage_and_in_the_closed_loop_resumes_to_the_su
     assert sorted(p.name for p in (out / "episodes").iterdir()) == sorted(
         p.name for p in (config.out / "episodes").iterdir()
     )
+
+
+def test_the_training_settings_given_reach_every_model_the_run_trains(tmp_path):
+    config = SimConfig(
+        out=tmp_path / "out", train_seeds=(0, 1), assignment="annealed", nll_beta=0.5, feature_components=0,
+        train_steps=20, offline=True, quiet=True,
+    )  # fmt: skip
+    jobs = training_jobs(config, config.out)
+    assert sorted(jobs) == ["CNEP-seed0", "CNEP-seed1", "CNMP-seed0", "CNMP-seed1"]
+    for label, job in jobs.items():
+        assert (job.model.feature_components, job.training.nll_beta, job.training.steps) == (0, 0.5, 20)
+        assert job.training.seed == int(label[-1]) and job.matched_cnmp == label.startswith("CNMP")
+    assert jobs["CNEP-seed0"].model.assignment == "annealed"
