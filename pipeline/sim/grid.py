@@ -143,13 +143,14 @@ def task_config(
     config: GridConfig, task: Task, run: Path, set_seed: int, seed: int, demonstrations: int
 ) -> SimConfig | PickPlaceConfig:
     """The task's `cnep sim` settings for a unit: its defaults but for the grid's (the training steps where given, the
-    episodes, their seeds, the protocol, no recordings) and the unit's (its folder, set, seed)."""
+    feature components, the episodes, their seeds, the protocol, no recordings) and the unit's (its folder, set,
+    seed)."""
     cls = PickPlaceConfig if task.name == PICK_PLACE else SimConfig
     given = {"train_steps": config.train_steps} if config.train_steps is not None else {}
     settings = cls(
         out=run, demonstrations=max(2, demonstrations), seed=set_seed, train_seeds=(seed,), episodes=config.episodes,
         episode_seed=config.episode_seed, max_steps=config.max_steps, protocol=config.protocol, record=0,
-        env_version=config.env_version,
+        env_version=config.env_version, feature_components=config.feature_components,
         baselines=config.baselines, weights=config.weights, offline=config.offline, quiet=True, **given,
     )  # fmt: skip
     return for_task(settings, task)

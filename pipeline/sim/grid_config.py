@@ -8,7 +8,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-from cnep.models.config import setting
+from cnep.models.config import CNEPConfig, setting
 from cnep.pipeline.demo.config import AUTO_WEIGHTS
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.evaluate.addresses import check_executor
@@ -29,10 +29,14 @@ from cnep.pipeline.sim.config import (
     protocols_of,
 )
 from cnep.pipeline.sim.validation import VALIDATION_RANGE
+from cnep.pipeline.train.config import feature_components_setting
 
 # The settings every cell of one grid folder shares (GRID_FILE): a rerun into the folder with another value of one
 # would mix cells of two benchmarks in its table.
-SHARED = ("env_version", "per_behaviour", "train_steps", "episodes", "episode_seed", "max_steps", "protocol", "weights")
+SHARED = (
+    "env_version", "per_behaviour", "train_steps", "feature_components", "episodes", "episode_seed", "max_steps",
+    "protocol", "weights",
+)  # fmt: skip
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -54,6 +58,7 @@ class GridConfig:
         "behaviour in the set, which holds the largest number of each",
     )
     train_steps: int | None = setting(None, "training steps of each model")
+    feature_components: int | None = feature_components_setting()
     env_version: int = setting(ENV_VERSIONS[-1], ENV_VERSION_HELP, choices=ENV_VERSIONS)
     episodes: int = setting(100, "closed-loop episodes per cell, protocol and condition")
     episode_seed: int = setting(
@@ -97,6 +102,7 @@ class GridConfig:
                 f"episodes and max_steps must be >= 1 and workers >= 0, got {self.episodes}, {self.max_steps} and "
                 f"{self.workers}"
             )
+        CNEPConfig(feature_components=self.feature_components)  # ConfigError for a value `cnep train` refuses
         protocols_of(self.protocol)
         check_env_version(self.env_version)
         check_episode_seeds(self.episode_seed, self.episodes)  # refuses the validation seeds too

@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 
 import cnep.sim
+from cnep.models.errors import ConfigError
 from cnep.pipeline.cli.main import build_parser, main
 from cnep.pipeline.cli.sim import config_of
 from cnep.pipeline.errors import PipelineError
@@ -40,6 +41,20 @@ def test_grid_arguments_become_its_settings_and_the_executor_its_address():
     assert GridConfig(out=Path("g")).tasks == SIM_TASKS  # the tasks with settings of their own
 
 
+@pytest.mark.skipif(not SIM, reason="the sim extra is not installed")
+def test_the_grids_feature_components_train_every_units_models(tmp_path):
+    from cnep.pipeline.sim.grid import task_config
+    from cnep.pipeline.sim.stage import training_jobs
+    from cnep.sim.tasks import find_task
+
+    config = GridConfig(out=tmp_path, tasks=("obstacle",), feature_components=0)
+    unit = task_config(config, find_task("obstacle", config.env_version), tmp_path / "run", 0, 3, 10)
+    jobs = training_jobs(unit, unit.out)
+    assert set(jobs) == {"CNEP-seed3", "CNMP-seed3"}
+    assert all(job.model.feature_components == 0 for job in jobs.values())
+    assert config.shared()["feature_components"] == 0  # a rerun into the grid's folder with another value is refused
+
+
 def test_grid_refuses_reported_seeds_among_the_validation_seeds_and_other_bad_settings(tmp_path, capsys):
     start = VALIDATION_RANGE[0]
     with pytest.raises(
@@ -53,6 +68,8 @@ def test_grid_refuses_reported_seeds_among_the_validation_seeds_and_other_bad_se
         GridConfig(out=Path("g"), address="tcp://h:1")
     with pytest.raises(PipelineError, match="--executor dask tcp://h: no port"):
         GridConfig(out=Path("g"), executor="dask", address="tcp://h")
+    with pytest.raises(ConfigError, match="feature_components must be a whole number >= 0"):
+        GridConfig(out=Path("g"), feature_components=-1)
     with pytest.raises(PipelineError, match="--tasks must name tasks"):
         GridConfig(out=Path("g"), tasks=("juggling",))
     with pytest.raises(PipelineError, match="--tasks must name tasks among obstacle, pick-place"):
