@@ -40,7 +40,7 @@ DRAWS_PER_DEMONSTRATION = 400
 ROUND_STEPS = 100
 WARMUP_SHARE, MAX_WARMUP = 0.5, 2_000
 VALIDATIONS, MAX_VAL_EVERY = 8, 500
-FEW_DEMONSTRATIONS = 64  # fewer training demonstrations than this read image features as as many components
+FEW_DEMONSTRATIONS = 64  # under this many training demonstrations, image features are read as one component each
 SCHEDULED = ("steps", "warmup_steps", "val_every")  # the TrainConfig fields the schedule fills when None
 
 
