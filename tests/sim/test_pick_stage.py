@@ -1,5 +1,5 @@
 """`cnep sim pick-place` end to end on the smallest data that runs every stage (2 demonstrations, random features
-calibrated on one batch of frames, 20 training steps, one episode per protocol and condition, each cut after 8
+calibrated on one batch of frames, 20 training steps, one episode per protocol and condition, each cut after 4
 steps) on the environments' latest version: summary.json holds per model, protocol and condition the documented rates
 and records the version, `cnep sim eval` of the exported CNEP (its task and version read from the policy) repeats the
 run's rows with the same settings and episode seeds, and the examples turn the run into its table and probe its
@@ -56,7 +56,7 @@ def test_cnep_sim_pick_place_writes_the_documented_summary(
         window=own.window,
         anchors=own.anchors,
         episodes=1,
-        max_steps=8,
+        max_steps=4,
         record=1,
         offline=True,
         quiet=True,
