@@ -16,6 +16,7 @@ from gymnasium.utils.env_checker import check_env  # noqa: E402
 
 from cnep.runtime import STATE_KEY  # noqa: E402
 from cnep.sim import PICK_ENV_ID, PICK_IMAGE_KEY, PickPlaceEnv, draw_pick, grasp_places, pick_path  # noqa: E402
+from cnep.sim.scene import GRIPPER_BODY  # noqa: E402
 from cnep.sim.tasks.pick_place import scene as P  # noqa: E402
 from cnep.sim.tasks.pick_place.demonstrator import phase_steps  # noqa: E402
 
@@ -81,6 +82,19 @@ def test_the_demonstrator_puts_the_bar_on_a_free_mat_it_fits_and_the_same_seed_r
     first = env.data.body(P.OBJECT_BODY).xpos.copy()
     _demonstrate(env, 3)
     np.testing.assert_array_equal(first, env.data.body(P.OBJECT_BODY).xpos)
+
+
+def test_the_grasp_offset_is_how_far_the_gripper_was_from_the_bar_when_first_told_to_close(env):
+    _, info = env.reset(seed=5)
+    assert info["grasp_offset_m"] is None
+    gripper, bar = env.data.body(GRIPPER_BODY).xpos.copy(), env.data.body(P.OBJECT_BODY).xpos[:2].copy()
+    close_here = np.array([*gripper, 0, 0, 0, 0, 0.0], np.float32)  # a zero quaternion keeps the home orientation
+    _, _, _, _, info = env.step(close_here)
+    offset = float(np.linalg.norm(gripper[:2] - bar))
+    assert info["grasp_offset_m"] == pytest.approx(offset, abs=1e-9) and offset > 0.05
+    env.step(np.array([*gripper, 0, 0, 0, 0, P.FINGER_OPEN], np.float32))
+    assert env.step(close_here)[4]["grasp_offset_m"] == info["grasp_offset_m"]  # the first close counts
+    assert _demonstrate(env, 3)["grasp_offset_m"] < 0.01  # the demonstrator closes over the bar's centre
 
 
 @pytest.mark.slow

@@ -40,7 +40,7 @@ def obstacle_row(side: str, success: bool = True, cue_side: str | None = None, s
 def pick_row(place: str | None, valid: list[str], success: bool = True, **changed) -> dict:
     row = {"success": success, "collision": False, "lifted": True, "dropped": False, "place": place, "valid": valid,
            "switches": 0, "change_step": None, "first_switch_step": None, "switch_step": None,
-           "valid_switch_step": None, "ms": MS}  # fmt: skip
+           "valid_switch_step": None, "grasp_offset_m": None, "ms": MS}  # fmt: skip
     return {**row, **changed}
 
 
@@ -71,6 +71,12 @@ def test_the_pick_place_entropy_is_over_the_free_scenes_valid_places_per_grasp()
     assert pick_rates([*free, pick_row(None, along_x, success=False)])["entropy"] == 0.5
     decided = pick_rates([pick_row("left", ["left"]), pick_row("right", ["right"])])
     assert decided["entropy"] is None and decided["switched_within"] is None and decided["switched_within_ci"] is None
+
+
+def test_the_pick_place_grasp_offset_is_the_median_of_the_episodes_whose_gripper_closed():
+    rows = [pick_row("left", ["left"], grasp_offset_m=m) for m in (0.01, 0.05, 0.02)]
+    assert pick_rates([*rows, pick_row(None, ["left"], success=False)])["grasp_offset_p50_m"] == 0.02
+    assert pick_rates([pick_row(None, ["left"], success=False)])["grasp_offset_p50_m"] is None
 
 
 def test_the_pick_place_switching_has_its_interval_with_and_without_a_change():

@@ -17,7 +17,9 @@ gripper or the bar touched a cup), `place` (the mat whose footprint holds the ba
 or None), `valid` (the places free now that fit the bar's orientation), `is_success` (lifted, not dropped, no
 collision, at rest in a valid place, released); the change: `change_step` (v0: the step drawn; v1: the step at which
 the cup moved, None until it does: the table changes before that step's action acts) and `valid_after_change` (the
-valid places right after it, None before). `env.timings` holds the last step's physics and render seconds.
+valid places right after it, None before); the grasp: `grasp_offset_m` (how far the gripper was from the bar's centre,
+horizontally, when it was first commanded to close; None before). `env.timings` holds the last step's physics and
+render seconds.
 
 `version` (0 or 1) chooses the robot and the scenes (sim.tasks.pick_place.versions); `latency_steps` and `frames`
 are sim.tabletop's.
@@ -109,7 +111,7 @@ class PickPlaceEnv(TabletopEnv):
         self._set_cups(scene["taken"])
         mujoco.mj_forward(m, d)
         self._steps, self._lifted, self._dropped, self._collision = 0, False, False, False
-        self._lift_xy, self._valid_after_change = None, None
+        self._lift_xy, self._valid_after_change, self._grasp_offset = None, None, None
         return self.observe(0.0), {**self._info(), "start": start.copy()}
 
     def _draw_scene(self, options: dict) -> dict:
@@ -142,6 +144,9 @@ class PickPlaceEnv(TabletopEnv):
         if self._changes_now():
             self._change_scene()
         fingers = 0.0 if action[7] < P.CLOSE_BELOW else P.FINGER_OPEN
+        if not fingers and self._grasp_offset is None:
+            offset = self.data.body(S.GRIPPER_BODY).xpos[:2] - self.data.body(P.OBJECT_BODY).xpos[:2]
+            self._grasp_offset = float(np.linalg.norm(offset))
         physics_s = self.drive(action, fingers, self._judge)
         self._steps += 1
         observation = self.observe(physics_s)
@@ -258,4 +263,5 @@ class PickPlaceEnv(TabletopEnv):
             "taken": list(self.scene["taken"]),
             "change_step": self.scene["change_step"],
             "valid_after_change": self._valid_after_change,
+            "grasp_offset_m": self._grasp_offset,
         }

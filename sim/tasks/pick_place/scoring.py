@@ -5,7 +5,8 @@ and what the summary says of the demonstrations (`describe_demonstrations`).
 A row: the episode's seed, success, collision, lifted, dropped, the place the bar ended on and the valid ones, the
 change's step (the changed condition, once the table changed), the first switch of the active expert, the first at
 or after the change and the first after it to the expert of a valid place (`valid_switch_step`), the expert
-switches, the steps and the policy / render / physics time per step (p50, p99, ms). The rates over `episodes`:
+switches, how far the gripper was from the bar's centre when first commanded to close (`grasp_offset_m`; None: it
+never closed), the steps and the policy / render / physics time per step (p50, p99, ms). The rates over `episodes`:
 success (the bar at rest on a valid place), collision (with a cup), lifted, dropped, the places used (episode
 counts by place), the share of episodes with an expert switch (`switching`), and sim.scoring.change_rates': the
 share that switched while nothing had changed (`switched_unchanged`: in decided and free scenes every switch; in
@@ -13,7 +14,8 @@ changed scenes a switch before the policy could see the change), the share of th
 a valid place's expert within SWITCH_WITHIN steps of the change (`switched_within`) and the median latency of such
 switches. Each share has its Wilson 95% interval under `NAME_ci` (sim.scoring.shares). `entropy`: the behaviour
 entropy of the place (sim.statistics.behaviour_entropy) over the successful episodes whose scene left two valid
-places (free scenes, a context per grasp); None where the scene left one (decided, changed).
+places (free scenes, a context per grasp); None where the scene left one (decided, changed). `grasp_offset_p50_m`:
+the median grasp offset of the episodes whose gripper closed (None: none did).
 """
 
 from __future__ import annotations
@@ -50,7 +52,8 @@ class PickEpisode(EpisodeResult):
     the end (a bool each); change_step, the step at which the table changed (None: it did not); switch_step, the
     first step at or after the change at which the active expert changed (None: none did, no change, or PLANNED);
     valid_after_change, the valid places' names right after the change (None without one); valid_switch_step, the
-    first switch after the change to an expert whose plan ends on one of them (switching.counted_switch; None: none).
+    first switch after the change to an expert whose plan ends on one of them (switching.counted_switch; None: none);
+    grasp_offset_m, the gripper's horizontal distance from the bar's centre when first commanded to close (None: never).
     """
 
     lifted: bool
@@ -63,6 +66,7 @@ class PickEpisode(EpisodeResult):
     switch_step: int | None
     valid_after_change: list[str] | None = None
     valid_switch_step: int | None = None
+    grasp_offset_m: float | None = None
 
 
 def judge(infos: list[dict], layout: PickLayout = P.BAR, **recorded) -> PickEpisode:
@@ -85,6 +89,7 @@ def judge(infos: list[dict], layout: PickLayout = P.BAR, **recorded) -> PickEpis
         switch_step=switch_after(recorded["experts"], change),
         valid_after_change=None if after is None else [names[i] for i in after],
         valid_switch_step=counted_switch(recorded["experts"], recorded["predicted"], change, after, layout),
+        grasp_offset_m=info["grasp_offset_m"],
     )
 
 
@@ -113,6 +118,7 @@ def pick_row(ep: PickEpisode) -> dict:
         "switch_step": ep.switch_step,
         "valid_switch_step": ep.valid_switch_step,
         "switches": ep.switches,
+        "grasp_offset_m": ep.grasp_offset_m,
         "steps": ep.steps,
         "ms": timings_ms(ep),
     }
@@ -120,6 +126,7 @@ def pick_row(ep: PickEpisode) -> dict:
 
 def pick_rates(rows: list[dict]) -> dict:
     """The rates over episode rows (module docstring), with the rows under `per_episode`."""
+    offsets = [r["grasp_offset_m"] for r in rows if r.get("grasp_offset_m") is not None]  # rows of older runs lack it
     places: dict[str, int] = {}
     for r in rows:
         if r["place"] is not None:
@@ -137,6 +144,7 @@ def pick_rates(rows: list[dict]) -> dict:
         **shares(rows, switching=lambda r: r["switches"] > 0),
         **change_rates(rows, change="change_step", switch="valid_switch_step"),
         "entropy": behaviour_entropy((tuple(r["valid"]), r["place"]) for r in rows if r["success"]),
+        "grasp_offset_p50_m": float(np.median(offsets)) if offsets else None,
         "ms": pooled_ms(rows),
         "per_episode": rows,
     }
@@ -146,6 +154,7 @@ COLUMNS = (
     Column("success", PERCENT_CI_WIDTH, percent_ci("success")),
     Column("collision", 9, percent("collision")),
     Column("lifted", 7, percent("lifted")),
+    Column("grasp cm", 8, lambda r: "-" if r["grasp_offset_p50_m"] is None else f"{100 * r['grasp_offset_p50_m']:.1f}"),
     *CHANGE_COLUMNS,
     Column("entropy", 7, decimals("entropy")),
     Column("places", 0, lambda r: " ".join(f"{k}:{v}" for k, v in r["places"].items())),
