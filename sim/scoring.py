@@ -125,6 +125,11 @@ def decimals(key: str) -> Callable[[dict], str]:
     return lambda rates: "-" if rates[key] is None else f"{rates[key]:.2f}"
 
 
+def centimetres(key: str) -> Callable[[dict], str]:
+    """A column's value: the length under `key` (m) in cm to 1 decimal ("-" where it is None)."""
+    return lambda rates: "-" if rates[key] is None else f"{100 * rates[key]:.1f}"
+
+
 def latency_p50(rates: dict) -> str:
     """A column's value: the median steps from the change to the counted switch ("-" where none switched)."""
     return "-" if rates["switch_latency_p50"] is None else f"{rates['switch_latency_p50']:.0f}"
