@@ -51,9 +51,14 @@ def full_set(tmp_path) -> list[Path]:
     return write_set(tmp_path / "full")
 
 
-def stage_config(inputs, out, steps=30, assignment="bounded", **overrides) -> TrainStageConfig:
+def stage_config(
+    inputs, out, steps=30, assignment="bounded", feature_components: int | None = 0, **overrides
+) -> TrainStageConfig:
+    """A tiny model's training job. Its encoder reads every feature (`feature_components` 0) unless a test asks for
+    the rule (None): fitting the projection costs a second of eigendecomposition, which the stage's mechanics never
+    need."""
     training = TrainConfig(steps=steps, batch_size=8, warmup_steps=5, val_every=10, patience=None, seed=3)
-    model = CNEPConfig(assignment=assignment, **TINY)
+    model = CNEPConfig(assignment=assignment, feature_components=feature_components, **TINY)
     return TrainStageConfig(
         inputs=tuple(inputs), out=out, model=model, training=training, save_every=10, quiet=True, **overrides
     )
@@ -234,17 +239,19 @@ def interrupt_at(monkeypatch, step: int) -> None:
 
 @pytest.mark.slow
 def test_resume_after_interruption_gives_the_same_weights(full_set, tmp_path, monkeypatch):
-    whole = train(stage_config(full_set, tmp_path / "whole", steps=40))
+    rule = {"steps": 40, "feature_components": None}  # the projection the rule fits, refitted on resume
+    whole = train(stage_config(full_set, tmp_path / "whole", **rule))
+    assert read_checkpoint_config(whole)["model"]["feature_components"] == len(LENGTHS) - 1  # one held out
     out = tmp_path / "resumed"
     with monkeypatch.context() as patch:
         interrupt_at(patch, 25)  # the last save was at step 20
         with pytest.raises(KeyboardInterrupt):
-            train(stage_config(full_set, out, steps=40))
+            train(stage_config(full_set, out, **rule))
     assert not out.exists() and (work_dir(out) / STATE_FILE).is_file()
     assert [json.loads(line)["step"] for line in (work_dir(out) / LOG_FILE).read_text().splitlines()] == [10, 20]
     with pytest.raises(PipelineError, match="unfinished run.*--resume"):
-        train(stage_config(full_set, out, steps=40))
-    resume = stage_config(full_set, out, steps=40, resume=True)
+        train(stage_config(full_set, out, **rule))
+    resume = stage_config(full_set, out, resume=True, **rule)
     with pytest.raises(PipelineError, match=r"cannot resume.*training: saved .*\"lr\": 0.001"):
         train(replace(resume, training=replace(resume.training, lr=0.01)))
 
