@@ -138,10 +138,10 @@ def test_a_folder_set_aside_by_a_killed_run_is_restored_or_removed_and_any_other
     assert live.is_dir() and (live / "config.json").is_file()
 
 
-def test_signals_held_take_effect_when_the_block_ends():
+def test_signals_held_take_effect_when_the_block_ends(ctrl_c_raises):
     done = []
     with pytest.raises(KeyboardInterrupt), signals_held():
-        os.kill(os.getpid(), signal.SIGINT)
+        signal.raise_signal(signal.SIGINT)  # to this thread, now: Ctrl-C at this point
         done.append("renamed")
         done.append("recorded")
     assert done == ["renamed", "recorded"]

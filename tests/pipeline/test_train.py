@@ -1,6 +1,5 @@
 import hashlib
 import json
-import os
 import signal
 from dataclasses import replace
 from pathlib import Path
@@ -280,7 +279,7 @@ def test_a_signal_saves_the_step_it_arrived_in_and_resume_loses_nothing(full_set
 
     def train_step(self):
         if self.step == 25:
-            os.kill(os.getpid(), signum)  # delivered while the step runs
+            signal.raise_signal(signum)  # delivered to this thread while the step runs
         return original(self)
 
     with monkeypatch.context() as patch:

@@ -170,7 +170,7 @@ def test_a_signal_while_the_report_manager_starts_waits_for_its_start(monkeypatc
 
     def start_then_ctrl_c(process) -> None:
         start(process)
-        os.kill(os.getpid(), signal.SIGINT)
+        signal.raise_signal(signal.SIGINT)  # to this thread, now: Ctrl-C at this point
 
     monkeypatch.setattr(workers._DeafProcess, "start", start_then_ctrl_c)
     with pytest.raises(KeyboardInterrupt), report_manager():

@@ -9,7 +9,6 @@ resumes to the straight run's summary. The stage's pools (training, closed loop)
 
 import importlib.util
 import json
-import os
 import signal
 from dataclasses import replace
 from pathlib import Path
@@ -122,7 +121,7 @@ def _drop_timings(entry: dict) -> dict:
 
 @pytest.mark.slow  # the pipeline once more, stopped after the selection and in the closed loop, and resumed
 def test_cnep_sim_stopped_after_a_stage_and_in_the_closed_loop_resumes_to_the_summary_of_a_straight_run(
-    straight, tmp_path, monkeypatch, few_calibration_frames, sim_pools_in_process
+    straight, tmp_path, monkeypatch, few_calibration_frames, sim_pools_in_process, ctrl_c_raises
 ):
     import cnep.pipeline.sim.stage as sim_stage
     from cnep.outputs import RECORD_FILE
@@ -135,7 +134,7 @@ def test_cnep_sim_stopped_after_a_stage_and_in_the_closed_loop_resumes_to_the_su
 
     def stopped(*args, **kwargs):
         chosen = select(*args, **kwargs)  # the trained checkpoints changed: Ctrl-C now waits until that is recorded
-        os.kill(os.getpid(), signal.SIGINT)
+        signal.raise_signal(signal.SIGINT)  # to this thread, now: Ctrl-C at this point
         return chosen
 
     monkeypatch.setattr(sim_stage, "select_checkpoints", stopped)
