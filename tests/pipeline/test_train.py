@@ -54,8 +54,8 @@ def stage_config(
     inputs, out, steps=30, assignment="bounded", feature_components: int | None = 0, **overrides
 ) -> TrainStageConfig:
     """A tiny model's training job. Its encoder reads every feature (`feature_components` 0) unless a test asks for
-    the rule (None): fitting the projection costs a second of eigendecomposition, which the stage's mechanics never
-    need."""
+    the rule (None): the projection's fit, an eigendecomposition of the features' correlation matrix, is work the
+    stage's mechanics never need."""
     training = TrainConfig(steps=steps, batch_size=8, warmup_steps=5, val_every=10, patience=None, seed=3)
     model = CNEPConfig(assignment=assignment, feature_components=feature_components, **TINY)
     return TrainStageConfig(
