@@ -168,7 +168,7 @@ class FeatureExtractor:
         """Features of frames already resized to (N, 224, 224, 3) uint8: (N, 1280) float32."""
         if self._needs_calibration:
             raise PerceptionError(
-                f"weights {self.weights_name} are freshly initialised: their features are ~1e-9 "
+                f"weights {self.weights_name} are freshly initialised: their features are below 1e-5 "
                 f"and carry no signal; call calibrate(frames) with frames of the recordings first"
             )
         if self.needs_quantisation:

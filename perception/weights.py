@@ -29,6 +29,7 @@ import torch
 from tqdm import tqdm
 
 from cnep.outputs import atomic_file, write_atomically
+from cnep.perception.calibration import low_pass
 from cnep.perception.constants import (
     ARCHITECTURES,
     CONNECT_TIMEOUT_S,
@@ -201,10 +202,13 @@ def connection_refused(url: str, timeout_s: float = CONNECT_TIMEOUT_S) -> str | 
 
 
 def random_state_dict(seed: int) -> dict[str, torch.Tensor]:
-    """torchvision's initialisation of MobileNet-v2 `features`, seeded, without touching the global RNG."""
+    """torchvision's initialisation of MobileNet-v2 `features`, seeded, without touching the global RNG, its 3x3
+    kernels made low-pass (perception.calibration.low_pass)."""
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(seed)
-        return mobilenet_v2_features().state_dict()
+        features = mobilenet_v2_features()
+    low_pass(features)
+    return features.state_dict()
 
 
 def load_state_dict(path: Path) -> dict[str, torch.Tensor]:

@@ -86,11 +86,10 @@ needs_openvino = pytest.mark.skipif(
 @pytest.mark.parametrize("precision", ["fp32", "int8"])
 def test_openvino_features_equal_onnxruntime_ones(precision):
     # Seeded random weights (calibrated on two synthetic scenes), the same ONNX graph on both runtimes.
-    # fp32: the same numbers (relative L2 error <= 3.3e-7 measured). int8: each runtime rounds with its own
-    # int8 kernels, whose results depend on the processor's instructions (AVX2 alone or VNNI), so the two
-    # agree only as closely as each agrees with fp32. Random weights pool by cells, one map location per channel,
-    # so int8's rounding is not averaged away: measured on an AVX2-only AMD EPYC, 4.6e-2 to 4.8e-2 against fp32 on
-    # ONNX Runtime and 1.2e-1 at most on OpenVINO (2.4e-2 to 2.8e-2 on both when pooled globally).
+    # fp32: the same numbers. int8: each runtime rounds with its own int8 kernels, whose results depend on the
+    # processor's instructions (AVX2 alone or VNNI), so the two agree only as closely as each agrees with fp32.
+    # Random weights pool by cells, one map location per channel, so int8's rounding is not averaged away
+    # (measured: docs/results.md, the extract stage's speed).
     frames = np.concatenate([scene_frames(k, n=3, seed=k) for k in range(2)])  # (6, 60, 80, 3)
     reference = FeatureExtractor("random", backend="onnxruntime", threads=1)
     reference.calibrate(frames)

@@ -1,11 +1,12 @@
+import cv2
 import numpy as np
 import pytest
 import torch
 
 from cnep.perception import FeatureExtractor, PerceptionError, compatibility_key
-from cnep.perception.calibration import recalibrate_batchnorm
+from cnep.perception.calibration import calibrate_random_network, recalibrate_batchnorm
 from cnep.perception.constants import ARCHITECTURES, PREPROCESSING
-from cnep.perception.network import FeatureNet
+from cnep.perception.network import FeatureNet, mobilenet_v2_features
 
 from .conftest import scene_frames
 
@@ -56,7 +57,7 @@ def test_uncalibrated_features_are_dead_and_calibration_revives_them(two_scenes)
     extractor = FeatureExtractor("random", backend="eager", threads=1)
     with torch.inference_mode():  # look under the hood: the raw network before calibration
         raw = extractor.net(torch.from_numpy(_pixels(two_scenes[0]))).numpy()  # (4, 1280)
-    assert np.abs(raw).max() < 1e-6
+    assert np.abs(raw).max() < 1e-5
     extractor.calibrate(np.concatenate(two_scenes))
     assert extractor(two_scenes[0]).std() > 1e-2
 
@@ -106,6 +107,42 @@ def test_statistics_re_estimation_alone_separates_scenes_worse(calibrated, six_s
     assert plain_ratio > 1.3 * biased_ratio, (plain_ratio, biased_ratio)
 
 
+def _tiles() -> tuple[np.ndarray, np.ndarray]:
+    """24 frames (60x80) of a 10-pixel tile in one of three colours, 8 each, anywhere on a grey table under a light
+    of drawn brightness, with sensor noise; and each frame's colour (24,)."""
+    rng = np.random.default_rng(0)
+    frames, colours = [], []
+    for colour, rgb in enumerate(((200, 40, 40), (40, 170, 70), (220, 200, 50))):
+        for _ in range(8):
+            image = np.full((60, 80, 3), 150.0 + rng.uniform(-20, 20), dtype=np.float32)
+            x, y = (int(v) for v in rng.integers((10, 10), (50, 30)))
+            cv2.rectangle(image, (x, y), (x + 10, y + 10), rgb, -1)
+            frames.append(np.clip(image + rng.normal(0, 6, image.shape), 0, 255).astype(np.uint8))
+            colours.append(colour)
+    return np.stack(frames), np.array(colours)
+
+
+def _colour_read(net: torch.nn.Module, frames: np.ndarray, colours: np.ndarray) -> float:
+    """Leave-one-out nearest-neighbour accuracy of the tiles' colour from `net`'s globally pooled features."""
+    x = _pooled_globally(net, frames)
+    distance = np.linalg.norm(x[:, None] - x[None], axis=-1)
+    np.fill_diagonal(distance, np.inf)
+    return float(np.mean(colours[distance.argmin(axis=1)] == colours))
+
+
+def test_low_pass_random_weights_keep_a_small_tile_s_colour_that_torchvision_s_kernels_cancel():
+    # Random 3x3 kernels of either sign are high-pass filters: a flat tile's colour cancels (perception.calibration).
+    frames, colours = _tiles()
+    default = FeatureExtractor("random", backend="eager", threads=1)
+    default.calibrate(frames)
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(0)
+        plain = FeatureNet(mobilenet_v2_features(), "cells")  # torchvision's kernels, the same seed
+    calibrate_random_network(plain, [_pixels(frames)])
+    assert _colour_read(default.net, frames, colours) >= 0.75
+    assert _colour_read(plain, frames, colours) <= 0.5  # chance is 1/3
+
+
 def test_only_random_weights_are_calibrated(tmp_path, calibrated, two_scenes):
     calibrated.save_weights(tmp_path / "w.pt")
     with pytest.raises(PerceptionError, match=r"calibrate\(\) is for seeded random weights"):
@@ -120,7 +157,7 @@ def test_calibration_changes_the_weights_hash_deterministically(two_scenes):
     second.calibrate(frames)
     assert first.identity["weights_sha256"] != before
     assert first.identity == second.identity
-    assert first.identity["weights"] == "random:seed=0+calibrated:bias=2.0,frames=8"
+    assert first.identity["weights"] == "random:seed=0+calibrated:bias=3.0,frames=8"
 
 
 def test_identity_names_architecture_weights_preprocessing_and_backend(calibrated):

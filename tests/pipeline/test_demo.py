@@ -278,8 +278,8 @@ def test_the_printed_summary_counts_the_scenes_read_wrong_apart_and_names_the_we
     assert header.startswith("model  read wrong  position RMSE (cm)  RMSE of those read right (cm)")
     assert cnep[:6] == ["CNEP", "2", "of", "20", "8.64", "3.01"] and cnmp[:6] == ["CNMP", "20", "of", "20", "8.64", "-"]
     assert all(len(line) <= len(header) for line in lines[3:])  # the columns line up under the header
-    said = features_line("random:seed=3+calibrated:bias=2.0,frames=256")
-    assert "seeded random weights" in said and "(random:seed=3+calibrated:bias=2.0,frames=256)" in said
+    said = features_line("random:seed=3+calibrated:bias=3.0,frames=256")
+    assert "seeded random weights" in said and "(random:seed=3+calibrated:bias=3.0,frames=256)" in said
     assert "ImageNet weights (imagenet:mobilenet_v2-b0353104.pth)" in features_line(
         "imagenet:mobilenet_v2-b0353104.pth"
     )

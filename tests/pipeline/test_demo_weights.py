@@ -153,7 +153,7 @@ def test_imagenet_weights_that_cannot_be_had_stop_the_demo_before_it_makes_anyth
 
 
 def test_the_summary_line_says_which_weights_and_why_not_imagenet():
-    random = "random:seed=0+calibrated:bias=2.0,frames=256"
+    random = "random:seed=0+calibrated:bias=3.0,frames=256"
     line = features_line(random, OFF)
     assert line == (
         "features: MobileNet-v2 with seeded random weights calibrated on the training frames, ImageNet weights not "
