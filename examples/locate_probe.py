@@ -1,6 +1,6 @@
 """Can a task's first frames say where things are? Ridge probes from the frames to the positions its scenes draw.
 
-    python examples/locate_probe.py TASK [--scenes N] [--fit K] [--clean] [--weights W] [--json FILE]
+    python examples/locate_probe.py TASK [--scenes N] [--fit K] [--clean] [--weights W] [--ablation] [--json FILE]
 
 TASK is a `cnep sim` task (obstacle, pick-place, pick-cube, pick-can) on its latest environment. N fresh scenes
 (reset seeds from SCENE_SEED, which no demonstration or evaluation episode uses) are rendered at their first step,
@@ -13,7 +13,9 @@ the predicted and the true position, beside predicting the fitting scenes' mean 
 
 A policy conditioned on those frames cannot place the gripper more precisely than its features locate the
 target. --clean turns the robot's sensing off (the camera's and the light's draws, the pixel noise) to show what it
-costs. Prints one markdown row per position and readout; --json FILE writes them.
+costs. --ablation adds the seeded random weights built without parts of their construction (perception.calibration:
+the low-pass kernels, the activation bias), to show what each part keeps. Prints one markdown row per position and
+readout; --json FILE writes them.
 """
 
 from __future__ import annotations
@@ -25,9 +27,12 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import torch
 
 import cnep.sim
-from cnep.perception import FeatureExtractor
+from cnep.perception import FeatureExtractor, resize_frames
+from cnep.perception.calibration import ACTIVATION_BIAS, LOW_PASS_CHANNELS, calibrate_random_network, low_pass
+from cnep.perception.network import FeatureNet, mobilenet_v2_features
 from cnep.pipeline.sim.config import ENV_VERSIONS
 from cnep.sim.tasks import TASK_NAMES, find_task
 
@@ -36,6 +41,13 @@ LAMBDAS = 10.0 ** np.arange(-1, 7)  # the ridge penalties cross-validation choos
 FOLDS = 5
 PIXELS = 32  # the reference readout: the frame resized to PIXELS x PIXELS (area), RGB
 SENSING = ("camera_shift_m", "camera_turn_deg", "light_jitter", "pixel_noise")  # what --clean turns off
+EVERY_BLOCK = 320  # the widest block's channels: low-pass depthwise kernels in every block
+ABLATION = {  # readout -> (the blocks' channels up to which depthwise kernels are low-pass, None: no low_pass; bias)
+    "random, torchvision's kernels": (None, ACTIVATION_BIAS),
+    "random, low-pass first convolution only": (0, ACTIVATION_BIAS),
+    "random, low-pass in every block": (EVERY_BLOCK, ACTIVATION_BIAS),
+    "random, activation bias 2": (LOW_PASS_CHANNELS, 2.0),
+}
 
 
 def scenes(name: str, n: int, clean: bool) -> tuple[np.ndarray, dict[str, np.ndarray]]:
@@ -103,6 +115,24 @@ def readouts(frames: np.ndarray, k: int, weights: str) -> dict[str, np.ndarray]:
     }
 
 
+def ablated(frames: np.ndarray, k: int, variants: dict = ABLATION) -> dict[str, np.ndarray]:
+    """name -> (m, f) float64: the features of seed 0's random weights built as each of `variants` says (as
+    ABLATION's entries), calibrated on the first k frames (run eagerly: the network `cnep extract` runs)."""
+    pixels = resize_frames(frames)
+    out = {}
+    for name, (channels, bias) in variants.items():
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(0)
+            features = mobilenet_v2_features()
+        if channels is not None:
+            low_pass(features, channels)
+        net = FeatureNet(features, "cells")
+        calibrate_random_network(net, [pixels[:k]], activation_bias=bias)
+        with torch.inference_mode():
+            out[name] = net(torch.from_numpy(pixels)).numpy().astype(np.float64)
+    return out
+
+
 def main(argv: list[str] | None = None) -> list[dict]:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("task", choices=TASK_NAMES, help="the task whose scenes are probed")
@@ -110,15 +140,17 @@ def main(argv: list[str] | None = None) -> list[dict]:
     parser.add_argument("--fit", type=int, default=40, help="scenes the probe is fitted on (default 40)")
     parser.add_argument("--clean", action="store_true", help="without the robot's camera, light and pixel noise")
     parser.add_argument("--weights", default="random", help="the feature network's, as `cnep extract` takes them")
+    parser.add_argument("--ablation", action="store_true", help="also random weights without parts of their making")
     parser.add_argument("--json", type=Path, help="write the rows here")
     args = parser.parse_args(argv)
     if not FOLDS <= args.fit < args.scenes:
         parser.error(f"--fit must be at least {FOLDS} and below --scenes, got {args.fit} of {args.scenes}")
     cnep.sim.require_extra()
     frames, positions = scenes(args.task, args.scenes, args.clean)
+    inputs = readouts(frames, args.fit, args.weights) | (ablated(frames, args.fit) if args.ablation else {})
     rows = [
         {"position": key, "readout": name, **probe(x, y, args.fit)}
-        for name, x in readouts(frames, args.fit, args.weights).items()
+        for name, x in inputs.items()
         for key, y in positions.items()
     ]
     sensing = "without the robot's sensing" if args.clean else "with the robot's sensing"

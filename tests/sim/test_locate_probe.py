@@ -39,3 +39,15 @@ def test_every_drawn_position_is_probed_with_each_readout_and_the_seeds_repeat(t
     assert example.main(["obstacle", "--scenes", "8", "--fit", "5"]) == rows
     with pytest.raises(SystemExit):
         example.main(["obstacle", "--scenes", "8", "--fit", "8"])  # nothing left to score on
+
+
+@pytest.mark.skipif(not SIM, reason="the sim extra is not installed")
+def test_the_ablation_builds_the_default_weights_as_cnep_extract_does_and_adds_a_row_per_variant(one_thread):
+    example = load("locate_probe")
+    frames, positions = example.scenes("obstacle", 6, clean=False)
+    default = example.ablated(frames, 5, {"default": (example.LOW_PASS_CHANNELS, example.ACTIVATION_BIAS)})
+    np.testing.assert_allclose(
+        default["default"], example.readouts(frames, 5, "random")["features (random)"], atol=1e-5
+    )
+    rows = example.main(["obstacle", "--scenes", "6", "--fit", "5", "--ablation"])
+    assert [r["readout"] for r in rows[4:]] == [name for name in example.ABLATION for _ in positions]
