@@ -5,9 +5,11 @@ Three problems, three fixes (measurements in docs/results.md):
 
 1. Flat regions lost. torchvision initialises each 3x3 kernel with weights of random sign, so every kernel is a
    random high-pass filter: across the network's 17 blocks a flat region (a coloured tile, an object's face) cancels
-   out and only its edges and the sensor's noise come through. Fix (`low_pass`, part of the seeded weights): every
-   depthwise kernel takes its weights' magnitudes, and the first convolution's kernels become a positive spatial
-   kernel times colour weights of either sign, so colour differences pass and the spatial filters smooth.
+   out and only its edges and the sensor's noise come through. Fix (`low_pass`, part of the seeded weights): the
+   first convolution's kernels become a positive spatial kernel times colour weights of either sign, and the
+   depthwise kernels of the early blocks (up to LOW_PASS_CHANNELS channels, at 112 to 14 pixels) take their
+   weights' magnitudes, so colour differences pass and the spatial filters smooth. The later blocks keep kernels
+   of either sign: made low-pass too, they keep less and their int8 rounding error grows several-fold.
 2. Dead features. A freshly initialised MobileNet-v2 keeps torchvision's running statistics (mean 0,
    variance 1) in every batch norm while its random convolutions shrink the signal layer after layer:
    in eval mode the 1280-d features come out below 1e-5. Fix: re-estimate each batch norm's running

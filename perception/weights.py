@@ -202,8 +202,8 @@ def connection_refused(url: str, timeout_s: float = CONNECT_TIMEOUT_S) -> str | 
 
 
 def random_state_dict(seed: int) -> dict[str, torch.Tensor]:
-    """torchvision's initialisation of MobileNet-v2 `features`, seeded, without touching the global RNG, its 3x3
-    kernels made low-pass (perception.calibration.low_pass)."""
+    """torchvision's initialisation of MobileNet-v2 `features`, seeded, without touching the global RNG, its early
+    3x3 kernels made low-pass (perception.calibration.low_pass)."""
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(seed)
         features = mobilenet_v2_features()
