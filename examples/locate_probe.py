@@ -32,7 +32,9 @@ import torch
 import cnep.sim
 from cnep.perception import FeatureExtractor, resize_frames
 from cnep.perception.calibration import ACTIVATION_BIAS, LOW_PASS_CHANNELS, calibrate_random_network, low_pass
-from cnep.perception.network import FeatureNet, mobilenet_v2_features
+from cnep.perception.constants import CALIBRATION_BATCH
+from cnep.perception.network import FeatureNet
+from cnep.perception.weights import seeded_features
 from cnep.pipeline.sim.config import ENV_VERSIONS
 from cnep.sim.tasks import TASK_NAMES, find_task
 
@@ -120,14 +122,13 @@ def ablated(frames: np.ndarray, k: int, variants: dict = ABLATION) -> dict[str, 
     ABLATION's entries), calibrated on the first k frames (run eagerly: the network `cnep extract` runs)."""
     pixels = resize_frames(frames)
     out = {}
+    batches = [pixels[i : min(i + CALIBRATION_BATCH, k)] for i in range(0, k, CALIBRATION_BATCH)]
     for name, (channels, bias) in variants.items():
-        with torch.random.fork_rng(devices=[]):
-            torch.manual_seed(0)
-            features = mobilenet_v2_features()
+        features = seeded_features(0)
         if channels is not None:
             low_pass(features, channels)
         net = FeatureNet(features, "cells")
-        calibrate_random_network(net, [pixels[:k]], activation_bias=bias)
+        calibrate_random_network(net, batches, activation_bias=bias)
         with torch.inference_mode():
             out[name] = net(torch.from_numpy(pixels)).numpy().astype(np.float64)
     return out

@@ -201,12 +201,16 @@ def connection_refused(url: str, timeout_s: float = CONNECT_TIMEOUT_S) -> str | 
     return f"no connection to {host} port {port} within {timeout_s:.0f} s: no network here?"
 
 
-def random_state_dict(seed: int) -> dict[str, torch.Tensor]:
-    """torchvision's initialisation of MobileNet-v2 `features`, seeded, without touching the global RNG, its early
-    3x3 kernels made low-pass (perception.calibration.low_pass)."""
+def seeded_features(seed: int) -> torch.nn.Module:
+    """MobileNet-v2 `features` as torchvision initialises them, seeded, without touching the global RNG."""
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(seed)
-        features = mobilenet_v2_features()
+        return mobilenet_v2_features()
+
+
+def random_state_dict(seed: int) -> dict[str, torch.Tensor]:
+    """`seeded_features(seed)` with their early 3x3 kernels made low-pass (perception.calibration.low_pass)."""
+    features = seeded_features(seed)
     low_pass(features)
     return features.state_dict()
 

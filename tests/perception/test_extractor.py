@@ -6,7 +6,8 @@ import torch
 from cnep.perception import FeatureExtractor, PerceptionError, compatibility_key
 from cnep.perception.calibration import calibrate_random_network, recalibrate_batchnorm
 from cnep.perception.constants import ARCHITECTURES, PREPROCESSING
-from cnep.perception.network import FeatureNet, mobilenet_v2_features
+from cnep.perception.network import FeatureNet
+from cnep.perception.weights import seeded_features
 
 from .conftest import scene_frames
 
@@ -135,9 +136,7 @@ def test_low_pass_random_weights_keep_a_small_tile_s_colour_that_torchvision_s_k
     frames, colours = _tiles()
     default = FeatureExtractor("random", backend="eager", threads=1)
     default.calibrate(frames)
-    with torch.random.fork_rng(devices=[]):
-        torch.manual_seed(0)
-        plain = FeatureNet(mobilenet_v2_features(), "cells")  # torchvision's kernels, the same seed
+    plain = FeatureNet(seeded_features(0), "cells")  # torchvision's kernels, the same seed
     calibrate_random_network(plain, [_pixels(frames)])
     assert _colour_read(default.net, frames, colours) >= 0.75
     assert _colour_read(plain, frames, colours) <= 0.5  # chance is 1/3
