@@ -33,7 +33,7 @@ from torch import nn
 
 from cnep.models.assignments import Assignment
 from cnep.models.cnep import CNEP
-from cnep.models.config import CNEPConfig, TrainConfig
+from cnep.models.config import CNEPConfig, ConditioningPolicy, TrainConfig
 from cnep.models.errors import ConfigError
 from cnep.models.loss import loss_terms
 from cnep.models.sampler import DEMONSTRATION_STEPS
@@ -69,6 +69,7 @@ def batch_key(trainer: Trainer) -> tuple:
     return (
         tuple(getattr(trainer.model.config, f) for f in ARCHITECTURE_FIELDS),
         dataclasses.replace(cfg, seed=0, gate_lr_scale=None),
+        trainer.online[1:],
         min(cfg.n_max, T),
         min(cfg.m_max, T),
         min(DEMONSTRATION_STEPS, T),
@@ -366,6 +367,7 @@ class FitRun:
     config: CNEPConfig
     train_config: TrainConfig = TrainConfig()
     val_trajectories: Sequence[np.ndarray] | None = None
+    conditioning: ConditioningPolicy = ConditioningPolicy()
 
 
 def fit_many(runs: Sequence[FitRun], max_models: int = MAX_MODELS) -> list[tuple[CNEP, list[dict]]]:
@@ -374,7 +376,7 @@ def fit_many(runs: Sequence[FitRun], max_models: int = MAX_MODELS) -> list[tuple
 
     Returns, in order, what `fit` returns for each run: the best model and its history.
     """
-    prepared = [prepare_fit(r.trajectories, r.config, r.train_config, r.val_trajectories) for r in runs]
+    prepared = [prepare_fit(r.trajectories, r.config, r.train_config, r.val_trajectories, r.conditioning) for r in runs]
     groups: dict[tuple, list[Trainer]] = {}
     for trainer, _ in prepared:
         groups.setdefault(batch_key(trainer), []).append(trainer)

@@ -289,6 +289,16 @@ class TrainConfig:
         0.0, "share of training and validation contexts that are a trajectory's first k ~ U{1..first_steps_max} steps"
     )
     first_steps_max: int = setting(4, "most steps in such a first-steps context")
+    # A deployed policy conditions on its first steps and its latest ones, never on steps ahead of it, and queries the
+    # steps ahead (runtime.ConditioningPolicy). The paper's random contexts hold steps from anywhere, so they teach a
+    # model to read where a motion goes from the late steps it was shown; a context shaped like the policy's teaches
+    # it to read that from what the policy has seen by then (models.sampler).
+    online_contexts: float | None = setting(
+        None,
+        "share of training and validation contexts that are what the deployed policy conditions on at a random step "
+        "(its anchors and latest window of observations), their targets the steps after it",
+        shown=SCHEDULE_SHOWN,
+    )
     # Plain NLL lets the well-predicted values outweigh a hard one by the ratio of their variances, and the hard one's
     # mean stops being learned (its std grows instead): where a model must read a value from its context, such as
     # the place a motion heads for, beta > 0 keeps that mean learning (models.loss.expert_nll).
@@ -321,6 +331,8 @@ class TrainConfig:
             raise ConfigError(
                 f"nll_beta must be in [0, 1] (0: plain NLL; 0.5: the usual beta-NLL), got {self.nll_beta}."
             )
+        if self.online_contexts is not None and not 0 <= self.online_contexts <= 1:
+            raise ConfigError(f"online_contexts must be in [0, 1], got {self.online_contexts}.")
         if not 0 <= self.first_steps_fraction <= 1 or self.first_steps_max < 1:
             raise ConfigError(
                 f"first_steps_fraction must be in [0, 1] and first_steps_max >= 1, got {self.first_steps_fraction} "

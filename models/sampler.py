@@ -4,8 +4,12 @@ Each sample: a trajectory i, n ~ U{1..min(n_max, T_i)} observation steps and m ~
 target steps, each set drawn without replacement (the two sets are independent). Time of step k of a
 trajectory of length T is k / (T - 1), so 0 and 1 are both reachable. A share of the samples
 (`TrainConfig.first_steps_fraction`) observe the trajectory's first k ~ U{1..first_steps_max} steps instead: the
-context a robot has before it moves, from which a deployed model reads which behaviour to follow. Training batches may
-add noise to the observed values (`TrainConfig.obs_noise`); the targets always stay clean.
+context a robot has before it moves, from which a deployed model reads which behaviour to follow. Another share
+(`TrainConfig.online_contexts`) observe what the deployed policy conditions on at a step k (its first `anchors` steps
+and the latest `window` steps after them, runtime.ConditioningPolicy) and target steps after k, as the policy queries
+its next waypoints; k is 0, the policy's first read, in FIRST_READ_SHARE of them, else k ~ U{0..T_i - 2}, and their
+context holds up to max(n_max, anchors + window) steps. Training batches may add noise to the observed values
+(`TrainConfig.obs_noise`); the targets always stay clean.
 
 Each sample also names its trajectory (`Batch.trajectory`), so that the loss can read the whole demonstration a
 context came from (`TrajectoryStack.demonstration`: the steps that decide which expert learns the sample,
@@ -24,6 +28,8 @@ from collections.abc import Sequence
 
 import numpy as np
 import torch
+
+from cnep.models.schedule import FIRST_READ_SHARE
 
 # The most steps of a demonstration that decide which expert learns a sample of it (`TrajectoryStack.demonstration`),
 # evenly spaced over a longer one: enough to tell behaviours apart, a bounded cost per training step.
@@ -147,6 +153,37 @@ def _first_steps(
     return torch.where(first[:, None], order, steps), torch.where(first[:, None], first_mask, mask)
 
 
+def _online_steps(
+    obs: tuple[torch.Tensor, torch.Tensor],
+    tgt: tuple[torch.Tensor, torch.Tensor],
+    lengths: torch.Tensor,
+    online: tuple[float, int, int],
+    g: torch.Generator,
+) -> tuple[tuple[torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.Tensor]]:
+    """(steps, mask) of the observations (B, n) and targets (B, m) with each sample, at probability `online[0]`,
+    observing what the deployed policy conditions on at a step k (0, its first read, at probability FIRST_READ_SHARE,
+    else k ~ U{0..T_i - 2}): its first `anchors` steps and the latest `window` after them (online = (fraction,
+    window, anchors), anchors + window <= n); and targeting m' ~ U{1..min(m, T_i - 1 - k)} steps drawn from those
+    after k (step 0 for a one-step trajectory)."""
+    (obs_steps, obs_mask), (tgt_steps, tgt_mask) = obs, tgt
+    fraction, window, anchors = online
+    (B, n), m = obs_steps.shape, tgt_steps.shape[1]
+    chosen = (torch.rand(B, generator=g) < fraction)[:, None]  # (B, 1)
+    k = (torch.rand(B, generator=g) * (lengths - 1).clamp_min(1)).long()  # (B,) the step reached
+    k = torch.where(torch.rand(B, generator=g) < FIRST_READ_SHARE, 0, k)[:, None]  # (B, 1)
+    order = torch.arange(n)  # columns: the anchors, then the window's oldest to newest
+    first = torch.minimum(torch.tensor(anchors), k + 1)  # (B, 1) anchors seen by step k
+    steps = torch.where(order < anchors, order, k - (anchors + window - 1) + order)  # (B, n)
+    mask = torch.where(order < anchors, order < first, (steps >= first) & (order < anchors + window))
+    after = (lengths[:, None] - 1 - k).clamp_min(1)  # (B, 1) steps after k (1: the step itself, one-step trajectory)
+    future = torch.minimum(k + 1, lengths[:, None] - 1) + (torch.rand(B, m, generator=g) * after).long()  # (B, m)
+    count = 1 + (torch.rand(B, 1, generator=g) * torch.clamp(after, max=m)).long()  # (B, 1) ~ U{1..min(m, after)}
+    return (
+        (torch.where(chosen, steps.clamp_min(0), obs_steps), torch.where(chosen, mask, obs_mask)),
+        (torch.where(chosen, future, tgt_steps), torch.where(chosen, torch.arange(m) < count, tgt_mask)),
+    )
+
+
 def sample_batch(
     stack: TrajectoryStack,
     batch_size: int,
@@ -155,16 +192,28 @@ def sample_batch(
     g: torch.Generator,
     obs_noise: float = 0.0,
     first_steps: tuple[float, int] = (0.0, 1),
+    online: tuple[float, int, int] = (0.0, 1, 0),
 ) -> Batch:
     """A batch; `obs_noise` > 0 adds Gaussian noise of that std to the observed values (not the times);
-    `first_steps` (fraction, k_max): the share of samples that observe their trajectory's first k ~ U{1..k_max} steps
-    (fraction 0 draws nothing for it, so the batches are those drawn without it)."""
+    `first_steps` (fraction, k_max): the share of samples that observe their trajectory's first k ~ U{1..k_max} steps;
+    `online` (fraction, window, anchors): the share of samples that observe what the deployed policy does at a random
+    step and target the steps after it (`_online_steps`; the context then holds max(n_max, anchors + window) steps).
+    A fraction of 0 draws nothing for it, so the batches are those drawn without it."""
     traj = torch.randint(len(stack), (batch_size,), generator=g)  # (B,)
     lengths, T = stack.lengths[traj], stack.longest
     obs_steps, obs_mask = _random_steps(lengths, n_max, T, g)  # (B, n)
     tgt_steps, tgt_mask = _random_steps(lengths, m_max, T, g)  # (B, m)
     if first_steps[0] > 0:
         obs_steps, obs_mask = _first_steps(obs_steps, obs_mask, lengths, *first_steps, g)
+    if online[0] > 0:
+        width = online[1] + online[2]
+        if width > obs_steps.shape[1]:  # room for the deployed set: masked columns after the random contexts
+            pad = width - obs_steps.shape[1]
+            obs_steps = torch.cat([obs_steps, torch.zeros(batch_size, pad, dtype=obs_steps.dtype)], 1)
+            obs_mask = torch.cat([obs_mask, torch.zeros(batch_size, pad, dtype=torch.bool)], 1)
+        (obs_steps, obs_mask), (tgt_steps, tgt_mask) = _online_steps(
+            (obs_steps, obs_mask), (tgt_steps, tgt_mask), lengths, online, g
+        )
     values = stack.values(traj, obs_steps, stack.observed)  # (B, n, obs_dim)
     if obs_noise:
         values = values + obs_noise * torch.randn(values.shape, generator=g)

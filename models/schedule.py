@@ -1,5 +1,5 @@
-"""The training schedule: steps, learning-rate warm-up, validation interval and the feature components as one rule of
-the training data.
+"""The training schedule: steps, learning-rate warm-up, validation interval, the feature components and the online
+contexts as one rule of the training data.
 
 Every trainer (`models.fit`, `cnep train`, `cnep sim`, the demo, the Baxter example) leaves `TrainConfig.steps`,
 `warmup_steps`, `val_every` and `CNEPConfig.feature_components` unset (None) unless they are given, and `scheduled`
@@ -16,6 +16,10 @@ validation, over every process):
   the features; read whole, the rest tells each training scene apart by its own clutter, and the model recalls its
   training scenes instead of reading a new one. With more demonstrations every column is read as it is, as the
   demo's and the obstacle's larger sets read best (docs/concepts.md).
+- online contexts: a model that observes columns it does not predict (a camera's features) is a policy, conditioned
+  step by step on what it has seen so far (runtime.ConditioningPolicy); ONLINE_SHARE of its training contexts are
+  that (`TrainConfig.online_contexts`, models.sampler). A motion-only model keeps the paper's random contexts, the
+  via-points it is conditioned on (`online_contexts_for`).
 
 The warm-up and the validation interval follow the steps whether those were given or scheduled. Patience is counted
 in validations (`TrainConfig.patience`, not scheduled): its default is more than the validations of BASE_STEPS, so it
@@ -41,14 +45,19 @@ ROUND_STEPS = 100
 WARMUP_SHARE, MAX_WARMUP = 0.5, 2_000
 VALIDATIONS, MAX_VAL_EVERY = 8, 500
 FEW_DEMONSTRATIONS = 64  # under this many training demonstrations, image features are read as one component each
-SCHEDULED = ("steps", "warmup_steps", "val_every")  # the TrainConfig fields the schedule fills when None
+ONLINE_SHARE = 1.0  # the training contexts shaped as the policy's conditioning, where a model reads a camera
+# The share of those contexts at step 0 (models.sampler): the policy's first read, from which it takes its first expert
+# and commits, drawn that much more often than any later step.
+FIRST_READ_SHARE = 0.25
+SCHEDULED = ("steps", "warmup_steps", "val_every", "online_contexts")  # the TrainConfig fields filled when None
 
 
 @dataclass(frozen=True)
 class Schedule:
     """What the rule gave a training run: its input (`demonstrations`: training demonstrations, `batch_size`: samples
-    per step over every process), the values it trains with (`feature_components`: None or 0, every column as it is) and
-    the names of those given rather than scheduled. config.json holds it under `training.schedule`."""
+    per step over every process), the values it trains with (`feature_components`: None or 0, every column as it is;
+    `online_contexts`: the share of contexts shaped as the policy's conditioning) and the names of those given rather
+    than scheduled. config.json holds it under `training.schedule`."""
 
     demonstrations: int
     batch_size: int
@@ -56,6 +65,7 @@ class Schedule:
     warmup_steps: int
     val_every: int
     feature_components: int | None
+    online_contexts: float
     given: tuple[str, ...]
 
     def to_dict(self) -> dict:
@@ -65,6 +75,7 @@ class Schedule:
             "warmup_steps": self.warmup_steps,
             "val_every": self.val_every,
             "feature_components": self.feature_components,
+            "online_contexts": self.online_contexts,
             "given": list(self.given),
         }
 
@@ -92,6 +103,12 @@ def components_for(observed_only: int, demonstrations: int) -> int | None:
     return demonstrations if demonstrations < min(FEW_DEMONSTRATIONS, observed_only) else None
 
 
+def online_contexts_for(observed_only: int) -> float:
+    """The share of training contexts shaped as the policy's conditioning for a model that observes `observed_only`
+    columns it does not predict: ONLINE_SHARE where it observes any (a camera), else 0 (the paper's contexts)."""
+    return ONLINE_SHARE if observed_only else 0.0
+
+
 def with_components(model: CNEPConfig, demonstrations: int) -> CNEPConfig:
     """`model` with its `feature_components` the rule's (`components_for`) for `demonstrations` training
     demonstrations where unset; unchanged where given."""
@@ -112,15 +129,27 @@ def schedule_of(
     warmup = training.warmup_steps if training.warmup_steps is not None else warmup_for(steps)
     val_every = training.val_every if training.val_every is not None else val_every_for(steps)
     components = with_components(model, demonstrations).feature_components
+    online = training.online_contexts
+    if online is None:
+        online = online_contexts_for(len(model.columns.observed_only))
     given = tuple(name for name in SCHEDULED if getattr(training, name) is not None)
     if model.feature_components is not None:
         given += ("feature_components",)
     if warmup >= steps:
         log.warning("a warm-up of %d steps in %d steps: the learning rate never reaches its peak", warmup, steps)
-    return Schedule(demonstrations, batch, steps, warmup, val_every, components, given)
+    return Schedule(demonstrations, batch, steps, warmup, val_every, components, online, given)
 
 
-def scheduled(training: TrainConfig, demonstrations: int, world_size: int = 1) -> TrainConfig:
-    """`training` with its unset schedule settings filled in (schedule_of); unchanged where all are set."""
-    made = schedule_of(training, demonstrations, world_size)
-    return replace(training, steps=made.steps, warmup_steps=made.warmup_steps, val_every=made.val_every)
+def scheduled(
+    training: TrainConfig, demonstrations: int, world_size: int = 1, model: CNEPConfig | None = None
+) -> TrainConfig:
+    """`training` with its unset schedule settings filled in (schedule_of, for `model`); unchanged where all are
+    set."""
+    made = schedule_of(training, demonstrations, world_size, model)
+    return replace(
+        training,
+        steps=made.steps,
+        warmup_steps=made.warmup_steps,
+        val_every=made.val_every,
+        online_contexts=made.online_contexts,
+    )

@@ -28,7 +28,7 @@ import torch
 
 from cnep.models.candidates import Candidates
 from cnep.models.cnep import CNEP
-from cnep.models.config import CNEPConfig, TrainConfig
+from cnep.models.config import CNEPConfig, ConditioningPolicy, TrainConfig
 from cnep.models.errors import ConfigError
 from cnep.models.loss import cnep_loss, expert_nll
 from cnep.models.normaliser import Moments
@@ -181,9 +181,13 @@ class Trainer:
     diverged: str | None = None  # why training stopped on a validation error that is not finite or far too large
     # candidates kept besides the best weights (models.candidates): the best of each of this many parts of training
     keep_candidates: int = 0
+    # how the deployed policy conditions the model: the shape of the online contexts (TrainConfig.online_contexts)
+    conditioning: ConditioningPolicy = field(default_factory=ConditioningPolicy)
 
     def __post_init__(self) -> None:
-        self.cfg = scheduled(self.cfg.for_assignment(self.model.config.assigned), len(self.train))
+        self.cfg = scheduled(
+            self.cfg.for_assignment(self.model.config.assigned), len(self.train), model=self.model.config
+        )
         gate = {id(p) for p in self.model.gate.parameters()}
         self.optimizer = make_optimizer(
             [
@@ -198,7 +202,13 @@ class Trainer:
         val_gen = torch.Generator().manual_seed(self.cfg.seed + 1)
         self.val_batches = [
             sample_batch(
-                self.val, VAL_BATCH_SIZE, self.cfg.n_max, self.cfg.m_max, val_gen, first_steps=self.first_steps
+                self.val,
+                VAL_BATCH_SIZE,
+                self.cfg.n_max,
+                self.cfg.m_max,
+                val_gen,
+                first_steps=self.first_steps,
+                online=self.online,
             )
             for _ in range(VAL_BATCHES)
         ]
@@ -229,6 +239,11 @@ class Trainer:
         return self.cfg.first_steps_fraction, self.cfg.first_steps_max
 
     @property
+    def online(self) -> tuple[float, int, int]:
+        """The sampler's share of online contexts and their shape (`TrainConfig.online_contexts`, `conditioning`)."""
+        return self.cfg.online_contexts, self.conditioning.window, self.conditioning.anchors
+
+    @property
     def device(self) -> torch.device:
         """Where the model's parameters are: batches are drawn on the CPU (seeded) and moved there."""
         return next(self.model.parameters()).device
@@ -243,6 +258,7 @@ class Trainer:
             self.generator,
             self.cfg.obs_noise,
             self.first_steps,
+            self.online,
         )
         if self.dropped:
             batch.keep = dropout_keep(batch.obs, self.dropped, self.cfg.observed_only_dropout, self.dropout_generator)
@@ -426,6 +442,7 @@ def fit(
     train_config: TrainConfig = TrainConfig(),
     val_trajectories: Sequence[np.ndarray] | None = None,
     progress: bool = True,
+    conditioning: ConditioningPolicy = ConditioningPolicy(),
 ) -> tuple[CNEP, list[dict]]:
     """Train a CNEP on `(T_i, width)` trajectories; returns the best model (by validation) and the history.
 
@@ -435,9 +452,10 @@ def fit(
     says which: `n_train`, `n_val` and `validation` ("given", "held out" or "training set").
     `models.batched.fit_many` trains several such runs together, each with this function's result.
     Runs on `train_config.threads` torch threads (one by default: models.threads), restored afterwards.
+    `conditioning`: how the deployed policy will condition the model (the shape of `TrainConfig.online_contexts`).
     """
     with torch_threads(train_config.threads):
-        trainer, split = prepare_fit(trajectories, config, train_config, val_trajectories)
+        trainer, split = prepare_fit(trajectories, config, train_config, val_trajectories, conditioning)
         trainer.run(progress=progress)
         return finish_fit(trainer, split)
 
@@ -447,6 +465,7 @@ def prepare_fit(
     config: CNEPConfig,
     train_config: TrainConfig,
     val_trajectories: Sequence[np.ndarray] | None = None,
+    conditioning: ConditioningPolicy = ConditioningPolicy(),
 ) -> tuple[Trainer, dict]:
     """`fit` up to training: the checked data, the seeded model and its Trainer, and the split's description."""
     train, val, validation = _validation_split(list(trajectories), val_trajectories, train_config.seed)
@@ -454,7 +473,9 @@ def prepare_fit(
         if np.ndim(t) != 2 or np.shape(t)[1] != config.columns.width:
             raise ConfigError(f"Trajectories must be (T, {config.columns.width}) arrays, got shape {np.shape(t)}.")
     model = build_model(with_components(config, len(train)), train, train_config.seed)
-    trainer = Trainer(model, TrajectoryStack(train, model), TrajectoryStack(val, model), train_config)
+    trainer = Trainer(
+        model, TrajectoryStack(train, model), TrajectoryStack(val, model), train_config, conditioning=conditioning
+    )
     return trainer, {"n_train": len(train), "n_val": len(val), "validation": validation}
 
 

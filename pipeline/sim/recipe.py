@@ -16,8 +16,10 @@ from cnep.models.schedule import (
     BASE_STEPS,
     DRAWS_PER_DEMONSTRATION,
     FEW_DEMONSTRATIONS,
+    FIRST_READ_SHARE,
     MAX_VAL_EVERY,
     MAX_WARMUP,
+    ONLINE_SHARE,
     VALIDATIONS,
     WARMUP_SHARE,
     schedule_of,
@@ -61,6 +63,13 @@ def render() -> str:
         "dozen scenes differ along at most that many directions of the features, and the rest would tell each "
         "training scene apart ([concepts](../concepts.md)). `--feature-components K` reads K components whatever the "
         "data, `--feature-components 0` every column as it is.",
+        "",
+        "Left unset, the online contexts follow from the columns: a model that observes columns it does not predict "
+        "(a camera's features) is a policy, conditioned step by step on its first `anchors` and latest `window` "
+        f"observations; {ONLINE_SHARE:.0%} of its training contexts are that set at a step (the first, its first "
+        f"read, in {FIRST_READ_SHARE:.0%} of them), their targets the steps after it. A motion-only model keeps the "
+        "paper's random contexts (0%). `--online-contexts S` gives the share "
+        "([concepts](../concepts.md#online-conditioning-the-gate-over-time)).",
         "",
         f"| training demonstrations | steps | warm-up | validation every | components of {FEATURE_DIM} features |",
         "|---|---|---|---|---|",

@@ -212,7 +212,7 @@ def _load(config: TrainStageConfig, procs: Processes, held: ExitStack) -> _Run:
     model_config.components()  # feature_components against the layout's columns, before anything is packed
     if config.matched_cnmp:
         model_config = matched_cnmp(model_config)
-    config = replace(config, training=scheduled(config.training, len(train_idx), procs.world_size))
+    config = replace(config, training=scheduled(config.training, len(train_idx), procs.world_size, model_config))
     inputs = [f.path for f in data.files]
     given = [*map(Path, config.inputs), *inputs]  # no output inside a folder given as input either
     saved = from_main(procs, lambda: prepare_work_dir(config.out, config.resume, config.force, given, held))
@@ -257,7 +257,12 @@ def _build(
     val_stack = TrajectoryStack.from_rows(run.packed.rows, *run.packed.span(run.my_val), model)
     keep = config.candidates if config.candidates > 1 else 0
     trainer = StageTrainer(
-        PlacedModel(model, device, procs), train_stack, val_stack, config.training, keep_candidates=keep
+        PlacedModel(model, device, procs),
+        train_stack,
+        val_stack,
+        config.training,
+        keep_candidates=keep,
+        conditioning=config.conditioning,
     )
     if procs.distributed and disjoint(run.val_idx, procs):  # validation errors are means over the ranks' shares
         trainer.ranks = procs

@@ -3,6 +3,7 @@ import torch
 
 from cnep.models.cnep import CNEP
 from cnep.models.sampler import TrajectoryStack, sample_batch
+from cnep.models.schedule import FIRST_READ_SHARE
 from tests.models.factories import tiny_config
 
 
@@ -92,6 +93,40 @@ def test_no_first_steps_draws_the_batches_drawn_without_them():
         a = sample_batch(stack, 16, 10, 10, g, first_steps=(0.0, 4))
         b = sample_batch(stack, 16, 10, 10, h)
         torch.testing.assert_close(a.obs, b.obs)
+
+
+def test_online_contexts_are_the_deployed_policys_set_at_a_step_and_target_the_steps_after_it():
+    stack, lengths = _stack(lengths=(1, 12, 30))
+    b = sample_batch(stack, 3000, 10, 6, torch.Generator().manual_seed(9), online=(0.5, 10, 2))
+    assert b.obs.shape[1] == 12  # anchors + window columns, more than n_max
+    online, reached, first = 0, set(), 0
+    for i in range(3000):
+        step, T = b.obs[i, b.obs_mask[i], 1], lengths[int(b.obs[i, b.obs_mask[i], 2][0])]
+        target = (b.query[i, b.target_mask[i], 0] * max(T - 1, 1)).round()  # time = step / (T - 1)
+        k = int(step.max())
+        deployed = torch.tensor([*range(min(2, k + 1)), *range(max(2, k - 9), k + 1)], dtype=step.dtype)
+        if T > 1 and torch.equal(step, deployed) and (target > k).all():
+            online += 1
+            first += k == 0
+            reached.add(k)
+            assert len(target) <= 6 and (target < T).all()
+        if T == 1:  # a one-step trajectory: its step observed and targeted
+            assert step.tolist() == [0] and target.tolist() == [0]
+    # half the samples of the two longer trajectories (a random context is such a set with later targets rarely)
+    assert 0.28 < online / 3000 < 0.4 and reached == set(range(29))
+    # the first read, a FIRST_READ_SHARE of them beside its share of the uniform draw
+    assert FIRST_READ_SHARE < first / online < FIRST_READ_SHARE + 0.15
+    assert (b.obs_mask.sum(1) <= 12).all()
+
+
+def test_no_online_contexts_draws_the_batches_drawn_without_them():
+    stack, _ = _stack()
+    g, h = torch.Generator().manual_seed(10), torch.Generator().manual_seed(10)
+    for _ in range(3):
+        a = sample_batch(stack, 16, 10, 10, g, online=(0.0, 10, 1))
+        b = sample_batch(stack, 16, 10, 10, h)
+        torch.testing.assert_close(a.obs, b.obs)
+        torch.testing.assert_close(a.target, b.target)
 
 
 def test_a_demonstration_is_every_step_of_a_short_one_and_evenly_spaced_steps_of_a_long_one():

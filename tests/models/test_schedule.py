@@ -13,8 +13,10 @@ from cnep.models.schedule import (
     FEW_DEMONSTRATIONS,
     MAX_VAL_EVERY,
     MAX_WARMUP,
+    ONLINE_SHARE,
     SCHEDULED,
     components_for,
+    online_contexts_for,
     schedule_of,
     scheduled,
     with_components,
@@ -36,7 +38,7 @@ def test_given_values_win_and_the_rest_follow_the_steps():
     assert (made.steps, made.warmup_steps, made.val_every, made.given) == (60, 30, 7, ("steps",))
     made = schedule_of(TrainConfig(warmup_steps=10, val_every=3), 500)
     assert (made.warmup_steps, made.val_every, made.given) == (10, 3, ("warmup_steps", "val_every"))
-    given = TrainConfig(steps=5, warmup_steps=1, val_every=2)
+    given = TrainConfig(steps=5, warmup_steps=1, val_every=2, online_contexts=0.5)
     assert scheduled(given, 10_000) == given
 
 
@@ -54,6 +56,7 @@ def test_the_record_names_its_input_values_and_what_was_given():
         "warmup_steps": MAX_WARMUP,
         "val_every": 7,
         "feature_components": None,
+        "online_contexts": 0.0,
         "given": ["val_every"],
     }
 
@@ -74,6 +77,16 @@ def test_fewer_demonstrations_than_features_read_as_many_components():
     assert (record["feature_components"], record["given"]) == (40, [])
     record = schedule_of(TrainConfig(), 40, model=CNEPConfig(columns=IMAGES, feature_components=16)).to_dict()
     assert (record["feature_components"], record["given"]) == (16, ["feature_components"])
+
+
+def test_a_model_that_reads_a_camera_trains_on_its_policys_contexts_and_a_motion_model_on_the_papers():
+    assert online_contexts_for(1280) == ONLINE_SHARE > 0 and online_contexts_for(0) == 0.0
+    record = schedule_of(TrainConfig(), 40, model=CNEPConfig(columns=IMAGES)).to_dict()
+    assert (record["online_contexts"], record["given"]) == (ONLINE_SHARE, [])
+    assert scheduled(TrainConfig(), 40, model=CNEPConfig(columns=IMAGES)).online_contexts == ONLINE_SHARE
+    assert scheduled(TrainConfig(), 40).online_contexts == 0.0  # observes only what it predicts
+    record = schedule_of(TrainConfig(online_contexts=0.25), 40, model=CNEPConfig(columns=IMAGES)).to_dict()
+    assert (record["online_contexts"], record["given"]) == (0.25, ["online_contexts"])
 
 
 def test_a_trainer_reads_the_features_as_components_of_its_demonstrations():

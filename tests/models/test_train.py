@@ -6,7 +6,7 @@ import torch
 
 from cnep.models.assignments import ASSIGNMENTS
 from cnep.models.cnep import CNEP
-from cnep.models.config import CNEPConfig, ColumnRoles, TrainConfig
+from cnep.models.config import CNEPConfig, ColumnRoles, ConditioningPolicy, TrainConfig
 from cnep.models.errors import ConfigError
 from cnep.models.sampler import TrajectoryStack
 from cnep.models.schedule import scheduled
@@ -185,6 +185,22 @@ def test_first_steps_contexts_reach_the_training_and_validation_batches():
         assert (batch.obs_mask.sum(1) == 1).all() and (batch.obs[:, 0, 0] == 0).all()
     plain, _ = prepare_fit(trajs, CNEPConfig(**SMALL), QUICK)
     assert (plain.next_batch().obs_mask.sum(1) > 1).any()
+
+
+def test_online_contexts_take_the_shape_of_the_conditioning_the_model_is_trained_for():
+    trajs, _ = two_mode_trajectories()
+    cfg = dataclasses.replace(QUICK, online_contexts=1.0)
+    trainer, _ = prepare_fit(trajs, CNEPConfig(**SMALL), cfg, conditioning=ConditioningPolicy(window=3, anchors=0))
+    T = len(trajs[0])
+    assert all(len(t) == T for t in trajs)
+    for batch in [trainer.next_batch(), *trainer.val_batches]:  # the latest 3 steps at most, in a row
+        count = batch.obs_mask.sum(1)
+        times = batch.obs[..., 0]
+        latest = times.masked_fill(~batch.obs_mask, -1.0).amax(1)
+        earliest = times.masked_fill(~batch.obs_mask, 2.0).amin(1)
+        assert (count <= 3).all() and batch.obs.shape[1] == QUICK.n_max
+        torch.testing.assert_close((latest - earliest) * (T - 1), (count - 1).to(times.dtype))
+        assert (batch.query[..., 0] > latest[:, None])[batch.target_mask].all()
 
 
 def test_the_demonstrations_nll_reads_the_latent_of_the_training_steps_forward_pass(monkeypatch):

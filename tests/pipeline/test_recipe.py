@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 
 from cnep.models import read_checkpoint_config
+from cnep.models.schedule import ONLINE_SHARE
 from cnep.pipeline.cli.fields import Option
 from cnep.pipeline.cli.main import main
 from cnep.pipeline.cli.train import settings_of
@@ -81,5 +82,12 @@ def test_every_recipe_setting_reaches_config_json_the_manifest_and_the_policies(
                 carried = [spec.recipe[key]] + [p.spec.recipe[key] for p in policies]
             assert all(entry[name] == value for entry in carried), (key, name)
     schedule = config["training"]["schedule"]
-    assert set(schedule["given"]) == {"steps", "warmup_steps", "val_every", "feature_components"}
+    assert set(schedule["given"]) == {"steps", "warmup_steps", "val_every", "feature_components", "online_contexts"}
     assert spec.recipe["training"]["schedule"]
+
+
+def test_a_camera_model_trains_on_its_policys_contexts_and_a_motion_model_on_the_papers(policy_world, motion_world):
+    for checkpoint, share in ((policy_world.checkpoint, ONLINE_SHARE), (motion_world.ckpt, 0.0)):
+        training = read_checkpoint_config(checkpoint)["training"]
+        assert training["online_contexts"] == training["schedule"]["online_contexts"] == share, checkpoint
+        assert "online_contexts" not in training["schedule"]["given"]
