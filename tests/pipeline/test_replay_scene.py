@@ -1,6 +1,6 @@
 """On-the-fly adaptation: when the scene changes mid-episode, the replay's gate moves to another expert.
 
-A 2-expert CNEP is trained (600 steps) on 1288-d trajectories of two synthetic scenes whose
+A 2-expert CNEP is trained (a few hundred steps) on 1288-d trajectories of two synthetic scenes whose
 feature columns differ (scene 0 lights up the first half of the features, scene 1 the second half) and
 whose motions differ (the arm bends up or down). A recording that switches scene halfway is then
 replayed through the checkpoint with online conditioning.
@@ -53,7 +53,9 @@ def checkpoint(tmp_path_factory):
     config = CNEPConfig(
         columns=columns, n_experts=2, encoder_widths=(32, 32), expert_widths=(32, 32), time_frequencies=2
     )
-    train = TrainConfig(steps=600, batch_size=32, warmup_steps=100, gate_freeze_fraction=0.3, val_every=100, seed=0)
+    train = TrainConfig(
+        steps=300, batch_size=32, warmup_steps=100, gate_freeze_fraction=0.3, val_every=100, seed=0, lr=3e-3
+    )
     model, _ = fit(demos, config, train, progress=False)
     return save_checkpoint(
         model,
