@@ -13,6 +13,8 @@ EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
 
 def load(name: str):
+    if str(EXAMPLES) not in sys.path:  # as `python examples/NAME.py` runs it: the examples import each other
+        sys.path.insert(0, str(EXAMPLES))
     spec = importlib.util.spec_from_file_location(name, EXAMPLES / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
     sys.modules[name] = module  # as `python examples/NAME.py` runs it: dataclasses look their module up

@@ -14,7 +14,7 @@ SIM = all(importlib.util.find_spec(name) for name in cnep.sim.EXTRA)
 
 
 def test_the_probe_locates_what_the_rows_carry_and_falls_to_the_mean_without_it():
-    probe = load("locate_probe").probe
+    probe = load("probes").probe
     rng = np.random.default_rng(0)
     y = rng.uniform(-0.05, 0.05, (120, 2))  # (m, 2) positions within +-5 cm
     x = np.concatenate([y @ rng.normal(size=(2, 100)), 0.1 * rng.normal(size=(120, 100))], axis=1)  # (m, 200)
@@ -34,7 +34,7 @@ def test_every_drawn_position_is_probed_with_each_readout_and_the_seeds_repeat(t
         for readout in ("features (random)", "pixels 32x32")
         for position in ("box_xy", "goal_xy")  # what the v1 obstacle scene moves
     ]
-    assert all(r["probe_cm"] >= 0 and r["mean_cm"] > 0 and r["lambda"] in example.LAMBDAS for r in rows)
+    assert all(r["probe_cm"] >= 0 and r["mean_cm"] > 0 and r["lambda"] in load("probes").LAMBDAS for r in rows)
     assert json.loads(out.read_text()) == rows and "| goal_xy | pixels 32x32 |" in capsys.readouterr().out
     assert example.main(["obstacle", "--scenes", "8", "--fit", "5"]) == rows
     with pytest.raises(SystemExit):
