@@ -148,3 +148,36 @@ def test_demonstrators_reports_each_versions_scenes(capsys):
     assert all(r["version"] == 1 and r["episodes"] == 1 and r["success"] == 1 for r in rows)
     assert [r["changed"] for r in rows] == [0, 0, 1, 0, 1]  # the changed scene and the cue that shows
     assert "| pick-place | changed | v1 | 1 | 1 | 1 |" in capsys.readouterr().out
+
+
+def test_grasp_probe_finds_the_first_step_its_gripper_command_reads_closed():
+    from cnep.runtime.gripper import HIGH, GripperCommand
+
+    grasp_step = load("grasp_probe").grasp_step
+    opening = GripperCommand.from_levels(0.028, 0.08)  # an opening: the low value closes, below fall 0.041
+    assert grasp_step(np.array([0.08, 0.08, 0.05, 0.03, 0.028]), opening) == 3  # 0.05 is within the hysteresis
+    assert grasp_step(np.array([0.08, 0.06, 0.05, 0.08]), opening) is None
+    command = GripperCommand.from_levels(0.0, 1.0, closed=HIGH)  # a command in [0, 1]: 1 closes, above rise 0.75
+    assert grasp_step(np.array([0.0, 0.2, 0.7, 1.0, 1.0]), command) == 3
+
+
+def test_grasp_probe_reads_a_checkpoint_on_its_held_out_demonstrations(quick_demo, tmp_path, capsys, one_thread):
+    module = load("grasp_probe")
+    out = tmp_path / "rows.json"
+    checkpoint, held_out = quick_demo / "checkpoints" / "cnep", quick_demo / "trajectories" / "heldout"
+    rows = module.main([str(checkpoint), str(held_out), "--before", "1", "--json", str(out)])
+    assert json.loads(out.read_text()) == rows
+    assert [r["read"] for r in rows] == ["the first step", "1 step before the grasp"]
+    printed = capsys.readouterr().out.splitlines()
+    assert len(printed) == 2 + len(rows) and printed[2].startswith("| the first step |")
+    # The mean is the training demonstrations' mean grasp (config.json's training split), scored on the held-out ones.
+    trained = module.load_trained(checkpoint)
+    command = module.GripperCommand.from_dict(trained.config["gripper"])
+    fitted = [Path(f["path"]) for f in trained.config["files"] if f["split"] == "train"]
+    mean = np.mean([d.xy for d in module.demonstrations(fitted, trained, command)], axis=0)
+    tests = module.demonstrations([held_out], trained, command)
+    assert rows[0]["demonstrations"] == len(tests) == len(list(held_out.glob("*.mcap")))  # every demo scene grasps
+    assert rows[0]["mean_cm"] == round(100 * float(np.median([np.linalg.norm(d.xy - mean) for d in tests])), 2)
+    # The demo's behaviours grasp 20 cm apart, and the first frame shows which: the features locate the grasp.
+    assert rows[0]["probe_cm"] < 0.5 * rows[0]["mean_cm"]
+    assert all(np.isfinite(r["model_cm"]) and r["model_cm"] >= 0 for r in rows)
