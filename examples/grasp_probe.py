@@ -30,7 +30,7 @@ import numpy as np
 from probes import probe
 
 from cnep.models import OnlineConditioner
-from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.errors import USER_ERRORS, PipelineError
 from cnep.pipeline.inputs import TRAJECTORIES, mcap_files
 from cnep.pipeline.train.checkpoint import TrainedModel, load_trained
 from cnep.pipeline.train.config import checkpoint_conditioning
@@ -119,6 +119,20 @@ def demonstrations(paths, trained: TrainedModel, command: GripperCommand) -> lis
     return [d for d in (Demonstration(f, trained, command) for f in files) if d.grasp is not None]
 
 
+def probe_checkpoint(checkpoint: Path, held_out: list[Path], before) -> list[dict]:
+    """The rows (`measure`) of the checkpoint on the held-out trajectory files or folders; PipelineError for a
+    checkpoint without a pose or a gripper command, as for any input the stages refuse."""
+    trained = load_trained(checkpoint)
+    if not trained.config.get("gripper") or trained.mapping.predicted_xyz(trained.model) is None:
+        raise PipelineError(f"{checkpoint}: the model predicts no pose or has no gripper command; the probe needs both")
+    command = GripperCommand.from_dict(trained.config["gripper"])
+    fitted = [Path(f["path"]) for f in trained.config.get("files", []) if f.get("split") == "train"]
+    tests = demonstrations(held_out, trained, command)
+    if not tests:
+        raise PipelineError(f"no demonstration in {', '.join(map(str, held_out))} closes the gripper: nothing to probe")
+    return measure(trained, tests, demonstrations(fitted, trained, command), before)
+
+
 def main(argv: list[str] | None = None) -> list[dict]:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("checkpoint", type=Path, help="a `cnep train` folder")
@@ -126,14 +140,12 @@ def main(argv: list[str] | None = None) -> list[dict]:
     parser.add_argument("--before", type=int, nargs="+", default=list(BEFORE), help="steps before the grasp to read at")
     parser.add_argument("--json", type=Path, help="write the rows here")
     args = parser.parse_args(argv)
-    trained = load_trained(args.checkpoint)
-    if not trained.config.get("gripper") or trained.mapping.predicted_xyz(trained.model) is None:
-        parser.error(f"{args.checkpoint}: the model predicts no pose or has no gripper command; the probe needs both")
-    command = GripperCommand.from_dict(trained.config["gripper"])
-    fitted = [Path(f["path"]) for f in trained.config.get("files", []) if f.get("split") == "train"]
-    rows = measure(
-        trained, demonstrations(args.held_out, trained, command), demonstrations(fitted, trained, command), args.before
-    )
+    if min(args.before) < 0:
+        parser.error(f"--before counts steps before the grasp, >= 0; got {min(args.before)}")
+    try:
+        rows = probe_checkpoint(args.checkpoint, args.held_out, args.before)
+    except USER_ERRORS as exc:
+        parser.error(str(exc))
     print("| read | held out | model | ridge on the features | the mean |")
     print("|---|---|---|---|---|")
     for r in rows:

@@ -181,3 +181,16 @@ def test_grasp_probe_reads_a_checkpoint_on_its_held_out_demonstrations(quick_dem
     # The demo's behaviours grasp 20 cm apart, and the first frame shows which: the features locate the grasp.
     assert rows[0]["probe_cm"] < 0.5 * rows[0]["mean_cm"]
     assert all(np.isfinite(r["model_cm"]) and r["model_cm"] >= 0 for r in rows)
+
+
+def test_grasp_probe_refuses_what_it_cannot_probe_in_one_line(quick_demo, tmp_path, capsys):
+    module = load("grasp_probe")
+    for argv, message in (
+        ([str(tmp_path), str(quick_demo / "trajectories" / "heldout")], f"{tmp_path}/config.json: no checkpoint"),
+        ([str(quick_demo / "checkpoints" / "cnep"), str(tmp_path)], f"{tmp_path}"),
+    ):
+        with pytest.raises(SystemExit) as exit:
+            module.main(argv)
+        printed = capsys.readouterr()
+        assert exit.value.code == 2 and printed.out == ""
+        assert message in printed.err and "Traceback" not in printed.err
