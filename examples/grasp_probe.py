@@ -27,7 +27,7 @@ import json
 from pathlib import Path
 
 import numpy as np
-from probes import probe
+from probes import FOLDS, probe
 
 from cnep.models import OnlineConditioner
 from cnep.pipeline.errors import USER_ERRORS, PipelineError
@@ -61,7 +61,7 @@ class Demonstration:
         if missing:
             raise PipelineError(f"{path}: the trajectory has no {', '.join(missing)} columns; the probe needs them")
         block = {name: trajectory.data[:, a:b] for name, (a, b) in trajectory.blocks.items()}
-        self.path, self.rows = path, trained.rows(trajectory, path)
+        self.rows = trained.rows(trajectory, path)
         self.features = block[BLOCK_FEATURES].astype(np.float64)
         self.grasp = grasp_step(block[BLOCK_GRIPPER][:, 0], command)
         self.xy = block[BLOCK_POSE_XYZ][self.grasp, :2].astype(np.float64) if self.grasp is not None else None
@@ -86,13 +86,14 @@ def planned_grasp(trained: TrainedModel, online: OnlineConditioner, demo: Demons
 
 def measure(trained: TrainedModel, held_out: list[Demonstration], training: list[Demonstration], before) -> list:
     """One row per read (the first step, then each of `before`): the model's, the probe's and the mean's median
-    errors (cm) over the held-out demonstrations that reach that read."""
+    errors (cm) over the held-out demonstrations that reach that read (a read that fewer than FOLDS training
+    demonstrations reach, which the probe's cross-validation needs, has no row)."""
     policy = checkpoint_conditioning(trained.config, trained.path)
     rows = []
     for b in (None, *before):
         tests = [d for d in held_out if d.read_at(b) is not None]
         fits = [d for d in training if d.read_at(b) is not None]
-        if not tests or len(fits) < 2:
+        if not tests or len(fits) < FOLDS:
             continue
         errors = [
             np.linalg.norm(
