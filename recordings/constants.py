@@ -23,6 +23,8 @@ CAMERA_NAME = "rgb"  # that camera as an observation or a LeRobot dataset names 
 TOPIC_POSE = "/ee/pose"  # foxglove.PoseInFrame, xyz in m + quaternion xyzw
 TOPIC_GRIPPER = "/gripper"  # foxglove.JointStates with one joint named GRIPPER_JOINT
 TOPIC_TRAJECTORY = "/trajectory"  # cnep.FeatureVector, packed float32, width = the column blocks' width
+# cnep.FeatureVector: a step's feature block under each view (perception.views), V x 1280 packed float32
+TOPIC_VIEWS = "/trajectory/views"
 TOPIC_EVENTS = "/events"  # foxglove.Event, metadata key/value pairs (e.g. expert switches)
 
 # Schema names (protobuf full names).
@@ -49,6 +51,7 @@ NO_CAMERA = "none"  # its value for a recording without a camera
 CHANNEL_KEY_BLOCKS = "layout"  # JSON {block: [start, stop]}: the column blocks (the key in the file is "layout")
 CHANNEL_KEY_WIDTH = "width"
 CHANNEL_KEY_DTYPE = "dtype"
+CHANNEL_KEY_VIEWS = "views"  # of TOPIC_VIEWS: how many views each step holds
 
 # The per-step vector [features(1280) | pose_xyz(3) | pose_quat_xyzw(4) | gripper(1)].
 FEATURE_DIM = 1280

@@ -21,7 +21,9 @@ from typing import Any
 import numpy as np
 
 from cnep.recordings.constants import (
+    BLOCK_FEATURES,
     CHANNEL_KEY_BLOCKS,
+    CHANNEL_KEY_VIEWS,
     CHANNEL_KEY_WIDTH,
     IMAGE_FORMAT,
     KIND_DEMONSTRATION,
@@ -33,6 +35,7 @@ from cnep.recordings.constants import (
     TOPIC_IMAGE,
     TOPIC_POSE,
     TOPIC_TRAJECTORY,
+    TOPIC_VIEWS,
 )
 from cnep.recordings.container import CORRUPTION_ERRORS, McapContents, read_mcap
 from cnep.recordings.errors import RecordingError
@@ -169,7 +172,30 @@ def trajectory_from(contents: McapContents, frames: bool = True) -> Trajectory:
             blocks=blocks,
             extractor=contents.metadata.get(METADATA_EXTRACTOR, {}),
             frames=_frames(contents, ts) if frames else None,
+            views=_views(contents, ts, blocks),
         )
+
+
+def _views(contents: McapContents, ts: np.ndarray, blocks: dict[str, tuple[int, int]]) -> np.ndarray | None:
+    """The feature block's views (V, T, F) on `/trajectory/views`, one message per step at `ts`; None without it."""
+    channel = contents.channel_of_topic(TOPIC_VIEWS)
+    if channel is None:
+        return None
+    path = contents.path
+    try:
+        count = int(channel.metadata[CHANNEL_KEY_VIEWS])
+    except (KeyError, ValueError):
+        raise RecordingError(f"{path}: {TOPIC_VIEWS} channel metadata lacks a valid view count") from None
+    a, b = blocks.get(BLOCK_FEATURES, (0, 0))
+    msgs, times = _timestamps(contents, TOPIC_VIEWS)
+    if not np.array_equal(times, ts):
+        raise RecordingError(f"{path}: {TOPIC_VIEWS} has {len(times)} steps at other times than {TOPIC_TRAJECTORY}'s")
+    payloads = [vector_payload(m.data) for m in msgs]
+    for i, p in enumerate(payloads):
+        if len(p) != 4 * count * (b - a):
+            raise RecordingError(f"{path}: wrong view width {len(p) // 4} at step {i}; {count} views of {b - a}")
+    views = np.frombuffer(bytearray().join(payloads), dtype="<f4").reshape(len(msgs), count, b - a)
+    return views.transpose(1, 0, 2)  # (V, T, F)
 
 
 def channel_blocks(contents: McapContents) -> tuple[dict[str, tuple[int, int]], int]:

@@ -37,6 +37,7 @@ from cnep.recordings.validation import (
     check_matrix,
     check_pose,
     check_timestamps,
+    check_views,
 )
 
 # Keys of the `episode` metadata record that `Episode.extra` may not use.
@@ -112,6 +113,7 @@ class Trajectory:
 
     blocks: block -> [start, stop) column range; defaults to the blocks of the width (1288 or 8).
     extractor: identity of the feature extractor (str -> str); required iff there is a feature block.
+    views: (V, T, 1280) float32, the feature block under V views of the frames (perception.views), or None.
     """
 
     episode: Episode
@@ -120,6 +122,7 @@ class Trajectory:
     blocks: Mapping[str, tuple[int, int]] | None = None
     extractor: Mapping[str, str] = field(default_factory=dict)
     frames: list[bytes] | None = None
+    views: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         where = f"Trajectory {self.episode.episode_id!r}"
@@ -128,6 +131,7 @@ class Trajectory:
         self.blocks = check_blocks(self.blocks, self.data.shape[1], where)
         self.extractor = check_extractor(self.extractor, self.blocks, where)
         self.frames = check_frames(self.frames, self.n_steps, where)
+        self.views = check_views(self.views, self.n_steps, self.blocks, where)
         check_pose(self.pose, self.n_steps, where)  # non-zero quaternions
 
     @classmethod
@@ -137,8 +141,10 @@ class Trajectory:
         features: np.ndarray | None = None,
         extractor: Mapping[str, str] | None = None,
         keep_frames: bool = True,
+        views: np.ndarray | None = None,
     ) -> Trajectory:
-        """Build the trajectory of `demo`: features (T, 1280) or None for the 8-wide motion-only layout."""
+        """Build the trajectory of `demo`: features (T, 1280) or None for the 8-wide motion-only layout, and the
+        features' views (V, T, 1280) or None."""
         motion = np.concatenate([demo.pose, demo.gripper[:, None]], axis=1)  # (T, 8)
         if features is None:
             data, blocks = motion, BLOCKS_MOTION
@@ -157,6 +163,7 @@ class Trajectory:
             blocks=blocks,
             extractor=extractor or {},
             frames=demo.frames if keep_frames else None,
+            views=views,
         )
 
     @property

@@ -25,6 +25,7 @@ from cnep.recordings.constants import (
     TOPIC_IMAGE,
     TOPIC_POSE,
     TOPIC_TRAJECTORY,
+    TOPIC_VIEWS,
 )
 from cnep.recordings.container import McapContents, read_mcap, refuse_overwrite_input, rewrite_mcap
 from cnep.recordings.errors import RecordingError
@@ -73,7 +74,8 @@ class RepairReport:
 
 def _trim_steps(contents: McapContents, kind: str) -> list[int]:
     """Keep only steps present on every per-step topic; returns the kept step times (ns)."""
-    topics = [t for t in (*STEP_TOPICS[kind], TOPIC_IMAGE) if contents.channel_of_topic(t) is not None]
+    optional = (TOPIC_IMAGE, TOPIC_VIEWS)  # per-step topics a file may hold
+    topics = [t for t in (*STEP_TOPICS[kind], *optional) if contents.channel_of_topic(t) is not None]
     if len(topics) < len(STEP_TOPICS[kind]) or not topics:
         missing = [t for t in STEP_TOPICS[kind] if contents.channel_of_topic(t) is None]
         raise RecordingError(

@@ -27,6 +27,7 @@ from mcap.records import Channel, Metadata, MetadataIndex
 
 from cnep.recordings.chunks import CORRUPTION_ERRORS, RECORD_HEAD
 from cnep.recordings.constants import (
+    CHANNEL_KEY_VIEWS,
     CHANNEL_KEY_WIDTH,
     MAX_METADATA_BYTES,
     MAX_SUMMARY_BYTES,
@@ -35,6 +36,7 @@ from cnep.recordings.constants import (
     METADATA_STEPS,
     TOPIC_IMAGE,
     TOPIC_TRAJECTORY,
+    TOPIC_VIEWS,
 )
 from cnep.recordings.container import MCAP_MAGIC, McapContents, read_mcap
 from cnep.recordings.errors import RecordingError
@@ -77,6 +79,11 @@ class FileSummary:
     def width(self) -> int:
         """Columns of a trajectory file's per-step vector (0 for a file without one)."""
         return int(self.topics.get(TOPIC_TRAJECTORY, {}).get(CHANNEL_KEY_WIDTH, 0))
+
+    @property
+    def views(self) -> int:
+        """Views of the feature block a trajectory file holds per step (perception.views), 0 for none."""
+        return int(self.topics.get(TOPIC_VIEWS, {}).get(CHANNEL_KEY_VIEWS, 0))
 
 
 def read_summary(path: str | os.PathLike, kind: str) -> FileSummary:

@@ -164,6 +164,22 @@ def check_matrix(data: object, n_steps: int, where: str) -> np.ndarray:
     return arr
 
 
+def check_views(views: object, n_steps: int, blocks: Mapping[str, tuple[int, int]], where: str) -> np.ndarray | None:
+    """Return a trajectory's feature views as C-contiguous float32 (V, T, F) with finite values, F the feature
+    block's width, or None for none (perception.views)."""
+    if views is None:
+        return None
+    if BLOCK_FEATURES not in blocks:
+        raise RecordingError(f"{where}: feature views need a feature block; this trajectory is motion-only")
+    a, b = blocks[BLOCK_FEATURES]
+    with np.errstate(over="ignore"):
+        arr = np.ascontiguousarray(np.asarray(views, dtype=np.float32))
+    if arr.ndim != 3 or arr.shape[0] < 1 or arr.shape[1:] != (n_steps, b - a):
+        raise RecordingError(f"{where}: feature views must have shape (V >= 1, {n_steps}, {b - a}), got {arr.shape}")
+    check_finite(arr, "feature views (float32)", where)
+    return arr
+
+
 def check_extractor(extractor: Mapping[str, str] | None, blocks: Mapping[str, object], where: str) -> dict[str, str]:
     """Return the extractor identity: required (non-empty) with a feature block, empty without one."""
     ident = {} if extractor is None else dict(extractor)

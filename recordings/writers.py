@@ -27,10 +27,12 @@ import numpy as np
 
 from cnep.outputs import atomic_file
 from cnep.recordings.constants import (
+    BLOCK_FEATURES,
     BLOCK_POSE_QUAT,
     BLOCK_POSE_XYZ,
     CHANNEL_KEY_BLOCKS,
     CHANNEL_KEY_DTYPE,
+    CHANNEL_KEY_VIEWS,
     CHANNEL_KEY_WIDTH,
     COMPRESSION_BY_KIND,
     FORMAT_VERSION,
@@ -47,6 +49,7 @@ from cnep.recordings.constants import (
     TOPIC_IMAGE,
     TOPIC_POSE,
     TOPIC_TRAJECTORY,
+    TOPIC_VIEWS,
 )
 from cnep.recordings.container import new_writer
 from cnep.recordings.errors import RecordingError
@@ -68,6 +71,7 @@ from cnep.recordings.validation import (
     check_matrix,
     check_pose,
     check_timestamps,
+    check_views,
 )
 
 
@@ -241,7 +245,8 @@ class TrajectoryWriter(_StepWriter):
     """Writes a trajectory file: `/trajectory` (one packed float32 vector per step), frames optional.
 
     width: 1288 ([features|pose|gripper]) or 8 ([pose|gripper]); the column blocks go into the channel
-    metadata. extractor: feature extractor identity (str -> str), required iff width is 1288.
+    metadata. extractor: feature extractor identity (str -> str), required iff width is 1288. views: how many views
+    of the feature block each step also holds on `/trajectory/views` (perception.views), 0 for none.
     """
 
     kind = KIND_TRAJECTORY
@@ -253,11 +258,15 @@ class TrajectoryWriter(_StepWriter):
         width: int,
         extractor: Mapping[str, str] | None = None,
         attachments: Mapping[str, bytes] | None = None,
+        views: int = 0,
     ):
         super().__init__(path, episode, attachments)
         self.blocks = check_blocks(None, width, str(self.path))
         self.extractor = check_extractor(extractor, self.blocks, str(self.path))
         self.width = width
+        if views and BLOCK_FEATURES not in self.blocks:
+            raise RecordingError(f"{self.path}: feature views need a feature block; this trajectory is motion-only")
+        self.views = views
 
     def _open(self, f: _McapFile) -> None:
         meta = {
@@ -266,6 +275,8 @@ class TrajectoryWriter(_StepWriter):
             CHANNEL_KEY_DTYPE: "float32",
         }
         self._vec_ch = f.channel(TOPIC_TRAJECTORY, SCHEMA_TRAJECTORY, meta)
+        if self.views:
+            self._views_ch = f.channel(TOPIC_VIEWS, SCHEMA_TRAJECTORY, {CHANNEL_KEY_VIEWS: str(self.views)})
         if self.extractor:  # at open, like `episode`: a salvaged file still says where its features came from
             f.writer.add_metadata(METADATA_EXTRACTOR, self.extractor)
 
@@ -273,14 +284,25 @@ class TrajectoryWriter(_StepWriter):
         """One step at `t_ns` (ns): `vector` (width,) float32, JPEG frame or None."""
         self.write_steps(np.asarray([t_ns]), np.asarray(vector)[None], None if frame is None else [frame])
 
-    def write_steps(self, timestamps_ns: np.ndarray, data: np.ndarray, frames: Sequence[bytes] | None = None) -> None:
-        """Several steps: timestamps (N,) int ns, data (N, width) float32, frames N JPEGs or None."""
+    def write_steps(
+        self,
+        timestamps_ns: np.ndarray,
+        data: np.ndarray,
+        frames: Sequence[bytes] | None = None,
+        views: np.ndarray | None = None,
+    ) -> None:
+        """Several steps: timestamps (N,) int ns, data (N, width) float32, frames N JPEGs or None, and the feature
+        block's views (V, N, 1280) float32, V this file's views (None where it holds none)."""
         f = self._open_file()
         where = self._where()
         ts = check_timestamps(timestamps_ns, where)
         rows = check_matrix(data, ts.shape[0], where)
         if rows.shape[1] != self.width:
             raise RecordingError(f"{where}: vector width {rows.shape[1]} does not match this file's width {self.width}")
+        views = check_views(views, ts.shape[0], self.blocks, where)
+        if (0 if views is None else len(views)) != self.views:
+            given = "none" if views is None else len(views)
+            raise RecordingError(f"{where}: {given} feature views for a file of {self.views} per step")
         pose_cols = slice(self.blocks[BLOCK_POSE_XYZ][0], self.blocks[BLOCK_POSE_QUAT][1])
         check_pose(rows[:, pose_cols], ts.shape[0], where)
         check_frames(frames, ts.shape[0], where)
@@ -288,6 +310,8 @@ class TrajectoryWriter(_StepWriter):
         for i, t in enumerate(ts.tolist()):
             self._frame(t, None if frames is None else frames[i])
             f.add(self._vec_ch, t, encode_vector(t, rows[i]))
+            if views is not None:
+                f.add(self._views_ch, t, encode_vector(t, views[:, i]))
         self._times.extend(ts.tolist())
 
 
@@ -302,6 +326,7 @@ def write_demonstration(path: str | os.PathLike, demo: Demonstration) -> Path:
 
 def write_trajectory(path: str | os.PathLike, traj: Trajectory) -> Path:
     """Write `traj` to `path` atomically; returns the path."""
-    with TrajectoryWriter(path, traj.episode, traj.width, traj.extractor) as w:
-        w.write_steps(traj.timestamps_ns, traj.data, traj.frames)
+    views = 0 if traj.views is None else len(traj.views)
+    with TrajectoryWriter(path, traj.episode, traj.width, traj.extractor, views=views) as w:
+        w.write_steps(traj.timestamps_ns, traj.data, traj.frames, traj.views)
     return Path(path)

@@ -37,6 +37,17 @@ def test_repair_salvages_complete_chunks_of_a_truncated_trajectory(tmp_path, lon
         assert back.n_steps >= long_traj.n_steps * 0.6
 
 
+def test_repair_keeps_only_steps_whose_feature_views_survived_too(tmp_path):
+    traj = trajectory_factory(steps=300)
+    traj.views = np.random.default_rng(0).normal(size=(2, 300, 1280)).astype(np.float32)
+    src = write_trajectory(tmp_path / "t.mcap", traj)
+    truncate(src, 0.5)
+    back = read_trajectory(repair(src, tmp_path / "fixed.mcap").dst)
+    assert 0 < back.n_steps < traj.n_steps
+    np.testing.assert_array_equal(back.data, traj.data[: back.n_steps])
+    np.testing.assert_array_equal(back.views, traj.views[:, : back.n_steps])
+
+
 def test_repair_skips_a_damaged_chunk_in_the_middle(tmp_path, long_traj):
     from tests.recordings.test_bad_input import chunk_offsets
 

@@ -64,6 +64,26 @@ def test_trajectory_round_trip(tmp_path, features, frames):
     assert back.frames == traj.frames
     assert back.width == (1288 if features else 8)
     assert (back.features is not None) is features
+    assert back.views is None
+
+
+def test_a_trajectory_s_feature_views_round_trip_and_a_wrong_shape_is_refused(tmp_path):
+    traj = trajectory_factory(steps=7)
+    views = np.random.default_rng(3).normal(size=(3, 7, 1280)).astype(np.float32)
+    viewed = Trajectory.from_demonstration(demonstration_factory(7), traj.features, traj.extractor, views=views)
+    path = write_trajectory(tmp_path / "t.mcap", viewed)
+    back = read_trajectory(path)
+    np.testing.assert_array_equal(back.views, views)
+    np.testing.assert_array_equal(back.data, viewed.data)
+    assert recordings.read_summary(path, "trajectory").views == 3
+    with pytest.raises(recordings.RecordingError, match=r"feature views must have shape \(V >= 1, 7, 1280\)"):
+        Trajectory.from_demonstration(demonstration_factory(7), traj.features, traj.extractor, views=views[:, :6])
+    with pytest.raises(recordings.RecordingError, match="feature views need a feature block"):
+        Trajectory.from_demonstration(demonstration_factory(7), views=views)
+    writer = TrajectoryWriter(tmp_path / "w.mcap", viewed.episode, 1288, viewed.extractor, views=3)
+    with pytest.raises(recordings.RecordingError, match="2 feature views for a file of 3 per step"), writer as w:
+        w.write_steps(viewed.timestamps_ns, viewed.data, views=views[:2])
+    assert not (tmp_path / "w.mcap").exists()  # a failed writer leaves nothing
 
 
 def test_trajectory_blocks_view_the_right_columns():
