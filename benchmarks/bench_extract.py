@@ -84,11 +84,16 @@ def main() -> None:
         largest = max(jobs, key=lambda job: job[0] * job[1])
         extract(
             ExtractConfig(
-                inputs=tuple(demos[largest]), out=root / "calibrate", weights="random", save_weights=weights, quiet=True
+                inputs=tuple(demos[largest]),
+                out=root / "calibrate",
+                weights="random",
+                save_weights=weights,
+                quiet=True,
+                views=0,
             )
         )
-        variants = {
-            (precision, workers): {"precision": precision, "workers": workers}
+        variants = {  # the network's throughput: each frame once, without views (perception.views)
+            (precision, workers): {"precision": precision, "workers": workers, "views": 0}
             for precision in args.precisions
             for workers in (1, 2)
         }

@@ -38,6 +38,11 @@ CONNECT_TIMEOUT_S = (
     5.0  # seconds for the download's server (or proxy) to accept a connection, all its addresses together
 )
 
+# Views of each demonstration's frames `cnep extract` also extracts where it extracts a few demonstrations
+# (perception.views; pipeline.extract.stage.views_for), and the most it takes: a file holds its features once per view.
+DEFAULT_VIEWS = 3
+MAX_VIEWS = 16
+
 # Batch-norm re-estimation for seeded random weights (see docs/concepts.md).
 CALIBRATION_FRAMES = 256  # frames used to re-estimate the statistics (spread over the inputs)
 CALIBRATION_BATCH = 32  # frames per forward pass while re-estimating

@@ -8,6 +8,9 @@ HELP = "turn demonstration files into trajectory files of MobileNet-v2 features 
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from cnep.models.schedule import FEW_DEMONSTRATIONS
+    from cnep.perception.constants import DEFAULT_VIEWS, MAX_VIEWS
+
     parser.add_argument("inputs", nargs="+", metavar="IN", help="demonstration files or folders of them (read only)")
     parser.add_argument("--out", required=True, help="folder for the trajectory files (created if missing)")
     parser.add_argument(
@@ -17,7 +20,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "`random` (seeded, calibrated on the inputs' frames) or the path of a MobileNet-v2 state "
         "dict (default: imagenet)",
     )
-    parser.add_argument("--seed", type=int, default=0, help="seed of the random weights (default 0)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the random weights and the views (default 0)")
+    parser.add_argument(
+        "--views",
+        type=int,
+        default=None,
+        help=f"also extract each demonstration's features under this many views of its frames (the camera a few "
+        f"pixels moved, other light and pixel noise; at most {MAX_VIEWS}), which `cnep train` trains on beside "
+        f"them; 0: none (default {DEFAULT_VIEWS} where fewer than {FEW_DEMONSTRATIONS} demonstrations are "
+        f"extracted, else 0)",
+    )
     parser.add_argument(
         "--save-weights",
         metavar="PATH",
@@ -119,6 +131,7 @@ def run(args: argparse.Namespace) -> int:
         precision=args.precision,
         calibrate_on=tuple(Path(p) for p in args.calibrate_on),
         shard=args.shard,
+        views=args.views,
         **options,
     )
     done = extract(config)

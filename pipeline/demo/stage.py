@@ -53,8 +53,9 @@ from cnep.pipeline.demo.measures import (
 from cnep.pipeline.demo.scene import BEHAVIOURS
 from cnep.pipeline.demo.weights import WeightsChoice, choose_weights
 from cnep.pipeline.errors import PipelineError
-from cnep.pipeline.extract.stage import ExtractConfig, extract
+from cnep.pipeline.extract.stage import ExtractConfig, extract, views_for
 from cnep.pipeline.ingest.stage import IngestConfig, ingest
+from cnep.pipeline.inputs import DEMONSTRATIONS, mcap_files
 from cnep.pipeline.progress import REPORT_INTERVAL_S, BarQueue, RemoteBar, StageClock, follow_reports, progress_bar
 from cnep.pipeline.replay.decisions import read_decisions
 from cnep.pipeline.replay.stage import replay
@@ -195,7 +196,8 @@ def _generate(config: DemoConfig, out: Path, size: DemoSize) -> DemoSet:
 
 def _extract(config: DemoConfig, out: Path, chosen_weights: str) -> None:
     """Stage 3: the training split's features with the chosen weights (random ones calibrated on its frames), saved to
-    EXTRACTOR_FILE, which then extracts the other splits."""
+    EXTRACTOR_FILE, which then extracts the other splits; every split with the views the training split's size
+    gives (`views_for`)."""
     weights = out / EXTRACTOR_FILE
     common = {
         "seed": config.seed,
@@ -203,6 +205,7 @@ def _extract(config: DemoConfig, out: Path, chosen_weights: str) -> None:
         "precision": config.precision,
         "calibrate_on": (out / "demos" / "train",),
         "offline": config.offline,
+        "views": views_for(len(mcap_files(out / "demos" / "train", DEMONSTRATIONS))),
     }  # int8: every split quantised on the training frames
     extract(
         ExtractConfig(

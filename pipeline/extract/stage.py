@@ -32,7 +32,7 @@ import math
 import os
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor, as_completed
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -40,10 +40,12 @@ from tqdm import tqdm
 from tqdm.contrib.logging import logging_redirect_tqdm
 
 from cnep.models.config import check_seed
+from cnep.models.schedule import FEW_DEMONSTRATIONS
 from cnep.outputs import output_file, output_lock, writing_as
 from cnep.perception import FeatureExtractor, PerceptionError, compatibility_key
-from cnep.perception.constants import CALIBRATION_FRAMES, FEATURE_DIM
+from cnep.perception.constants import CALIBRATION_FRAMES, DEFAULT_VIEWS, FEATURE_DIM
 from cnep.perception.frames import decode_image, resize_frames
+from cnep.perception.views import View, Views
 from cnep.perception.weights import find_imagenet_weights
 from cnep.pipeline.contract import output_folder, raise_if_skipped, refuse_existing, refuse_inputs
 from cnep.pipeline.errors import PipelineError
@@ -84,7 +86,8 @@ class ExtractConfig:
     ImageNet weights; shard: (i, n), extract only the i-th of n shares of the inputs (`shard_of`);
     calibrate_on: demonstration files or folders whose frames calibrate random weights
     and quantise int8, instead of the inputs (so that later runs over other files share the first run's
-    int8 identity).
+    int8 identity); views: each demonstration's features also under this many views of its frames, drawn with
+    `seed` (perception.views); None: the rule's for the number of inputs (`views_for`).
     """
 
     inputs: tuple[Path, ...]
@@ -103,9 +106,12 @@ class ExtractConfig:
     precision: str = "fp32"
     calibrate_on: tuple[Path, ...] = ()
     shard: tuple[int, int] = (0, 1)
+    views: int | None = None
 
     def __post_init__(self) -> None:
         coerce_paths(self)
+        if self.views is not None:
+            Views(self.views, self.seed)  # checks the count
         index, count = self.shard
         if not 0 <= index < count:
             raise PipelineError(f"--shard I/N needs 0 <= I < N, got {index}/{count}")
@@ -133,6 +139,8 @@ def extract(config: ExtractConfig) -> list[Extracted]:
     """
     refuse_inputs([config.out], config.inputs, what="the output folder", whole=False)
     all_pairs = plan_outputs(config.inputs, config.out)
+    if config.views is None:  # every shard and rank counts every input alike
+        config = replace(config, views=views_for(len(all_pairs)))
     rank, world_size = torchrun_rank()
     pairs = shard_of(all_pairs, *config.shard)[rank::world_size]  # this job's share; all calibrate on every input
     first = rank == 0 and config.shard[0] == 0  # the one job that saves the weights
@@ -168,6 +176,13 @@ def extract(config: ExtractConfig) -> list[Extracted]:
     return [done[i] for i in sorted(done)]
 
 
+def views_for(demonstrations: int) -> int:
+    """The views of each demonstration's frames extracted with `demonstrations` of them: DEFAULT_VIEWS where they
+    are fewer than the training schedule's few (models.schedule.FEW_DEMONSTRATIONS), under which each view is one
+    more scene the image features are seen in; else none."""
+    return DEFAULT_VIEWS if demonstrations < FEW_DEMONSTRATIONS else 0
+
+
 def _lazy_extractor(config: ExtractConfig, inputs: list[Path]) -> Callable[[], FeatureExtractor]:
     """A function returning the run's one extractor, built (and calibrated, on `config.calibrate_on` or else on
     `inputs`) at its first call."""
@@ -194,13 +209,13 @@ def _current_outputs(
     write it."""
     for _, dst in pairs:  # nested input folders keep their sub-folders under --out
         dst.parent.mkdir(parents=True, exist_ok=True)
-    current = {dst: None if config.force else up_to_date_steps(src, dst, extractor) for src, dst in pairs}
+    current = {dst: None if config.force else up_to_date_steps(src, dst, extractor, config.views) for src, dst in pairs}
     stale = {dst for src, dst in pairs if current[dst] is None and not _newer_than(dst, src)}
     refuse_existing(
         [dst for _, dst in pairs if current[dst] is None and dst not in stale],
         config.force,
         "output",
-        " and is not this input's trajectory file from these weights",
+        " and is not this input's trajectory file from these weights and views",
     )
     refuse_existing(sorted(stale), True)  # redone without --force, but only if cnep wrote it
     return current
@@ -223,7 +238,7 @@ def _extract_todo(
     """Extract pairs[i] for each i in `todo`, in worker processes when the job pays for them (`workers`), else here;
     a file that fails goes to `failed`."""
     done: dict[int, Extracted] = {}
-    frames = frame_counts([pairs[i][0] for i in todo])
+    frames = [count * (1 + config.views) for count in frame_counts([pairs[i][0] for i in todo])]
     with (
         logging_redirect_tqdm(),
         progress_bar(total=sum(frames), unit="frame", desc=f"extract {config.out.name}", quiet=config.quiet) as bar,
@@ -235,7 +250,7 @@ def _extract_todo(
         else:
             for i in todo:
                 try:
-                    done[i] = extract_file(*pairs[i], extractor, bar)
+                    done[i] = extract_file(*pairs[i], extractor, bar, Views(config.views, config.seed))
                 except (RecordingError, PerceptionError) as exc:
                     failed(pairs[i][0], exc)
     return done
@@ -309,7 +324,9 @@ def extract_in_processes(
     done = {}
     with (
         thread_environment(threads),
-        process_pool(workers, initializer=_set_worker_extractor, initargs=(shared, threads)) as pool,
+        process_pool(
+            workers, initializer=_set_worker_extractor, initargs=(shared, threads, Views(config.views, config.seed))
+        ) as pool,
     ):
         futures = {
             pool.submit(_extract_in_worker, src, dst): (key, src, frames) for key, (src, dst, frames) in zip(keys, jobs)
@@ -326,17 +343,18 @@ def extract_in_processes(
     return done
 
 
-_WORKER_EXTRACTOR: list[FeatureExtractor | None] = []  # the extractor a worker process was given
+_WORKER: list[tuple[FeatureExtractor | None, Views]] = []  # the extractor and views a worker process was given
 
 
-def _set_worker_extractor(extractor: FeatureExtractor | None, threads: int) -> None:
+def _set_worker_extractor(extractor: FeatureExtractor | None, threads: int, views: Views) -> None:
     if extractor is not None:
         extractor.threads = threads  # this worker's share of the cores
-    _WORKER_EXTRACTOR.append(extractor)
+    _WORKER.append((extractor, views))
 
 
 def _extract_in_worker(src: Path, dst: Path) -> Extracted:
-    return extract_file(src, dst, lambda: _WORKER_EXTRACTOR[0])
+    extractor, views = _WORKER[0]
+    return extract_file(src, dst, lambda: extractor, views=views)
 
 
 def build_extractor(config: ExtractConfig, sources: Sequence[Path]) -> FeatureExtractor:
@@ -366,8 +384,15 @@ def build_extractor(config: ExtractConfig, sources: Sequence[Path]) -> FeatureEx
     return extractor
 
 
-def extract_file(src: Path, dst: Path, extractor: Callable[[], FeatureExtractor], bar: tqdm | None = None) -> Extracted:
-    """Extract demonstration file `src` into trajectory file `dst` (atomic); `extractor()` gives the network."""
+def extract_file(
+    src: Path,
+    dst: Path,
+    extractor: Callable[[], FeatureExtractor],
+    bar: tqdm | None = None,
+    views: Views | None = None,
+) -> Extracted:
+    """Extract demonstration file `src` into trajectory file `dst` (atomic); `extractor()` gives the network, and
+    `views` the views of the frames whose features the file also holds."""
     demo = read_demonstration(src)
     if demo.frames is None:
         log.info("%s has no frames: writing a motion-only trajectory", src)
@@ -378,8 +403,12 @@ def extract_file(src: Path, dst: Path, extractor: Callable[[], FeatureExtractor]
         if bar is not None and bar.n == 0:
             bar.reset(total=bar.total)  # frames/s and the time left from here: the backend's set-up is done
         features = features_of_frames(demo.frames, extractor(), src, bar)  # (T, 1280)
+        drawn = [] if views is None else views.of(demo.episode.episode_id)
+        seen = [features_of_frames(demo.frames, extractor(), src, bar, view) for view in drawn]  # each (T, 1280)
         with in_file(src):
-            trajectory = Trajectory.from_demonstration(demo, features, extractor().identity)
+            trajectory = Trajectory.from_demonstration(
+                demo, features, extractor().identity, views=np.stack(seen) if seen else None
+            )
     with output_file(dst) as staged:
         write_trajectory(staged, trajectory)
     log.info("%s -> %s (%d steps)", src, dst, demo.n_steps)
@@ -387,9 +416,10 @@ def extract_file(src: Path, dst: Path, extractor: Callable[[], FeatureExtractor]
 
 
 def features_of_frames(
-    frames: Sequence[bytes], extractor: FeatureExtractor, src: Path, bar: tqdm | None = None
+    frames: Sequence[bytes], extractor: FeatureExtractor, src: Path, bar: tqdm | None = None, view: View | None = None
 ) -> np.ndarray:
-    """Features of JPEG frames: (T, 1280) float32. Decoding of the next batch overlaps inference of this one."""
+    """Features of JPEG frames (under `view`, perception.views): (T, 1280) float32. Decoding of the next batch
+    overlaps inference of this one."""
     out = np.empty((len(frames), FEATURE_DIM), dtype=np.float32)  # (T, 1280)
     starts = range(0, len(frames), extractor.batch_size)
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="decode") as pool:  # OpenCV releases the GIL
@@ -398,6 +428,8 @@ def features_of_frames(
             pixels = pending.result()  # (B, 224, 224, 3) uint8
             if start + extractor.batch_size < len(frames):
                 pending = pool.submit(decode_batch, frames, start + extractor.batch_size, extractor.batch_size, src)
+            if view is not None:
+                pixels = view.apply(pixels, start)
             out[start : start + len(pixels)] = extractor.features(pixels)
             if bar is not None:
                 bar.update(len(pixels))
@@ -445,9 +477,9 @@ def calibration_frames(sources: Sequence[Path], count: int) -> np.ndarray:
     return np.concatenate(frames[:count])  # (N, 224, 224, 3)
 
 
-def up_to_date_steps(src: Path, dst: Path, extractor: Callable[[], FeatureExtractor]) -> int | None:
+def up_to_date_steps(src: Path, dst: Path, extractor: Callable[[], FeatureExtractor], views: int = 0) -> int | None:
     """Step count of `dst` if it is newer than `src` and its features come from an extractor compatible with ours,
-    read from its summary alone (`recordings.read_summary`)."""
+    under `views` views, read from its summary alone (`recordings.read_summary`)."""
     if not dst.is_file() or dst.stat().st_mtime < src.stat().st_mtime:
         return None
     try:
@@ -458,7 +490,7 @@ def up_to_date_steps(src: Path, dst: Path, extractor: Callable[[], FeatureExtrac
     if not summary.extractor:  # motion-only: its source had no frames, and the source did not change
         return summary.n_steps
     same = compatibility_key(summary.extractor) == compatibility_key(extractor().identity)
-    return summary.n_steps if same else None
+    return summary.n_steps if same and summary.views == views else None
 
 
 def plan_outputs(inputs: Sequence[Path], out: Path) -> list[tuple[Path, Path]]:

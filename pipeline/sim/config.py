@@ -22,7 +22,8 @@ from cnep.models.config import (
     check_seed,
     setting,
 )
-from cnep.perception.constants import FEATURE_DIM
+from cnep.models.schedule import FEW_DEMONSTRATIONS
+from cnep.perception.constants import DEFAULT_VIEWS, FEATURE_DIM, MAX_VIEWS
 from cnep.pipeline.demo.config import AUTO_WEIGHTS
 from cnep.pipeline.errors import PipelineError
 from cnep.pipeline.inputs import coerce_paths, read_json_object
@@ -59,6 +60,17 @@ ENV_VERSION_HELP = (
     "scene changing during the motion); 0 the first (the gripper jumping to each waypoint, exact sensing), as its "
     "results were measured"
 )
+
+
+def views_setting() -> object:
+    """Views of each demonstration's frames the features are also extracted under, as a setting of a command that
+    extracts (`cnep sim`): `cnep extract --views`'s default, the rule of the demonstrations' number."""
+    return setting(
+        None,
+        "views of each demonstration's frames whose features the models also train on, as `cnep extract --views` "
+        "takes them",
+        shown=f"{DEFAULT_VIEWS} where fewer than {FEW_DEMONSTRATIONS} demonstrations are extracted, else 0",
+    )
 
 
 TRAIN_STEPS_HELP = "training steps of each model, as `cnep train --steps` takes them"
@@ -151,7 +163,7 @@ def check_training(config: SimConfig | PickPlaceConfig) -> None:
     """PipelineError unless `config` trains on >= 2 demonstrations, for >= 1 step (where given), with >= 2 experts and
     a training seed; ConfigError, before any work, where its training settings are ones `cnep train` refuses
     (TrainConfig's and CNEPConfig's own checks, which the models' training would meet only after the demonstrations
-    are made)."""
+    are made), or where its views are more than `cnep extract` takes."""
     if (
         config.demonstrations < 2
         or (config.train_steps is not None and config.train_steps < 1)
@@ -164,6 +176,8 @@ def check_training(config: SimConfig | PickPlaceConfig) -> None:
         )
     TrainConfig(steps=config.train_steps, nll_beta=config.nll_beta)
     CNEPConfig(feature_components=config.feature_components)
+    if config.views is not None and not 0 <= config.views <= MAX_VIEWS:
+        raise PipelineError(f"--views must be a whole number from 0 to {MAX_VIEWS}, got {config.views}")
 
 
 @dataclass(frozen=True)
@@ -215,6 +229,7 @@ class SimConfig(LoopSettings):
     assignment: str = assignment_setting()
     nll_beta: float = nll_beta_setting()
     feature_components: int | None = feature_components_setting()
+    views: int | None = views_setting()
     weights: str = setting(AUTO_WEIGHTS, "the feature network's weights, as `cnep demo --weights` takes them")
     offline: bool = setting(False, "never download the ImageNet weights (also: environment variable CNEP_OFFLINE=1)")
     baselines: bool = setting(False, BASELINES_HELP)
@@ -305,6 +320,7 @@ class PickPlaceConfig:
     # heights, the gripper): with plain NLL those outweigh it and the place's mean stops being learned.
     nll_beta: float = setting(0.5, "the training loss's beta-NLL power, as `cnep train --nll-beta` takes it")
     feature_components: int | None = feature_components_setting()
+    views: int | None = views_setting()
     weights: str = setting(AUTO_WEIGHTS, "the feature network's weights, as `cnep demo --weights` takes them")
     offline: bool = setting(False, "never download the ImageNet weights (also: environment variable CNEP_OFFLINE=1)")
     # A cup can move during the motion: the start's frame, kept in the context for the whole episode, would go on

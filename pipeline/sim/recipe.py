@@ -24,6 +24,7 @@ from cnep.models.schedule import (
     WARMUP_SHARE,
     schedule_of,
 )
+from cnep.perception.constants import DEFAULT_VIEWS
 from cnep.pipeline.sim.config import PickPlaceConfig, SimConfig, trained_conditioning
 from cnep.pipeline.train.config import TrainStageConfig
 from cnep.pipeline.train.presets import resolve_preset
@@ -61,8 +62,11 @@ def render() -> str:
         "demonstrations, a model that observes more columns than that which it does not predict (a camera's features) "
         "reads them as their principal components, as many as the demonstrations; else every column as it is. A few "
         "dozen scenes differ along at most that many directions of the features, and the rest would tell each "
-        "training scene apart ([concepts](../concepts.md)). `--feature-components K` reads K components whatever the "
-        "data, `--feature-components 0` every column as it is.",
+        "training scene apart ([concepts](../concepts.md)). Each view of a demonstration's frames its trajectory file "
+        "holds (`cnep extract --views`) counts as one more: the table's training demonstrations are those and their "
+        f"views. `cnep extract` draws {DEFAULT_VIEWS} views of each where it extracts fewer than {FEW_DEMONSTRATIONS} "
+        "demonstrations at once, none where more. `--feature-components K` reads K components whatever the data, "
+        "`--feature-components 0` every column as it is.",
         "",
         "Left unset, the online contexts follow from the columns: a model that observes columns it does not predict "
         "(a camera's features) is a policy, conditioned step by step on its first `anchors` and latest `window` "

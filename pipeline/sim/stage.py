@@ -148,6 +148,7 @@ def extract_features(config: SimConfig | PickPlaceConfig, out: Path, weights: st
             seed=config.seed,
             quiet=config.quiet,
             offline=config.offline,
+            views=config.views,
         )
     )
 

@@ -34,6 +34,7 @@ class TrainingFile:
     duration_s: float
     task: str = ""
     camera: str = ""
+    views: int = 0  # views of its features it also holds (perception.views)
 
     def describe(self, sha256: str) -> dict:
         """JSON-able entry for config.json, with the file's `sha256` (hex)."""
@@ -43,6 +44,7 @@ class TrainingFile:
             "episode_id": self.episode_id,
             "n_steps": self.n_steps,
             "task": self.task,
+            **({"views": self.views} if self.views else {}),
         }
 
 
@@ -90,7 +92,13 @@ def load_training_set(paths: Sequence[Path]) -> TrainingSet:
         camera = episode.extra.get(EPISODE_CAMERA, "")
         files.append(
             TrainingFile(
-                Path(path), episode.episode_id, summary.n_steps, summary.duration_ns / 1e9, episode.task, camera
+                Path(path),
+                episode.episode_id,
+                summary.n_steps,
+                summary.duration_ns / 1e9,
+                episode.task,
+                camera,
+                summary.views,
             )
         )
         extractors[path] = summary.extractor

@@ -10,6 +10,9 @@ dropped; `<name>.json` records which files, with their sha256 and the sha256 of 
 training then maps the file read-only: the rows live in the page cache, shared with any other process mapping them,
 and a batch reads only the rows it draws (models.sampler). A resumed run whose files and columns did not change
 maps the pack it wrote before instead of reading the files again.
+
+A file holding views of its features (perception.views) packs each view's rows after its own, the feature block
+replaced by the view's: `span` gives the files' own rows, `seen` those and every view's, the rows a model trains on.
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ from cnep.pipeline.train.data import TrainingFile, TrainingSet
 from cnep.pipeline.train.presets import TrainingColumns
 from cnep.pipeline.workers import cpu_cores
 from cnep.recordings import read_trajectory
+from cnep.recordings.constants import BLOCK_FEATURES
 from cnep.runtime.manifest import file_sha256
 
 log = logging.getLogger(__name__)
@@ -44,20 +48,32 @@ DTYPE = np.dtype("<f4")  # the files' own float32: batches read exactly the valu
 @dataclass(frozen=True)
 class PackedColumns:
     """Files `indices` (of the training set) packed: rows (R, width) float32 read-only memory map, each file's first
-    row and steps (starts, lengths: (n,) int64, in `indices` order), its sha256 and the sha256 of its packed rows."""
+    row, steps and views (starts, lengths, views: (n,) int64, in `indices` order; a file's views follow its own
+    rows), its sha256 and the sha256 of its packed rows."""
 
     indices: tuple[int, ...]
     rows: np.ndarray
     starts: np.ndarray
     lengths: np.ndarray
+    views: np.ndarray
     sha256: tuple[str, ...]
     digests: tuple[str, ...]
 
     def span(self, part: Sequence[int]) -> tuple[np.ndarray, np.ndarray]:
-        """(starts, lengths) of training-set files `part` (each one of `indices`), in `part`'s order."""
+        """(starts, lengths) of training-set files `part` (each one of `indices`), in `part`'s order: their own
+        rows."""
         at = {index: k for k, index in enumerate(self.indices)}
         order = [at[index] for index in part]
         return self.starts[order], self.lengths[order]
+
+    def seen(self, part: Sequence[int]) -> tuple[np.ndarray, np.ndarray]:
+        """(starts, lengths) of the rows of files `part` and of each of their views, file by file in `part`'s
+        order."""
+        at = {index: k for k, index in enumerate(self.indices)}
+        order = [at[index] for index in part]
+        starts = [self.starts[k] + v * self.lengths[k] for k in order for v in range(1 + self.views[k])]
+        lengths = [self.lengths[k] for k in order for _ in range(1 + self.views[k])]
+        return np.array(starts, dtype=np.int64), np.array(lengths, dtype=np.int64)
 
     def columns(self, part: Sequence[int], span: tuple[int, int]) -> dict[int, np.ndarray]:
         """Training-set index -> the values (T, b - a) on model columns `span` (a, b) of each of files `part`."""
@@ -66,9 +82,9 @@ class PackedColumns:
         return {i: np.array(self.rows[s : s + n, a:b]) for i, s, n in zip(part, starts.tolist(), lengths.tolist())}
 
     def moments(self, part: Sequence[int], co: Sequence[int] = ()) -> Moments:
-        """The normaliser's moments of files `part`, file by file (float64, one file's rows converted at a time), with
-        the scatter matrix of model columns `co` (`CNEPConfig.projected_columns`)."""
-        starts, lengths = self.span(part)
+        """The normaliser's moments of the rows files `part` train on (`seen`), file by file (float64, one file's
+        rows converted at a time), with the scatter matrix of model columns `co` (`CNEPConfig.projected_columns`)."""
+        starts, lengths = self.seen(part)
         return Moments.total(Moments.of(self.rows[a : a + n], co) for a, n in zip(starts.tolist(), lengths.tolist()))
 
 
@@ -93,11 +109,14 @@ def pack_columns(data: TrainingSet, indices: Sequence[int], layout: TrainingColu
     else:
         log.info("%s: the columns of these %d files are packed already", rows_file, len(files))
     lengths = np.array([f.n_steps for f in files], dtype=np.int64)
+    views = np.array([f.views for f in files], dtype=np.int64)
+    packed = lengths * (1 + views)  # each file's rows with its views'
     return PackedColumns(
         indices=tuple(indices),
         rows=np.load(rows_file, mmap_mode="r"),
-        starts=np.concatenate([[0], np.cumsum(lengths)[:-1]]).astype(np.int64),
+        starts=np.concatenate([[0], np.cumsum(packed)[:-1]]).astype(np.int64),
         lengths=lengths,
+        views=views,
         sha256=tuple(sha256),
         digests=tuple(digests),
     )
@@ -116,7 +135,7 @@ def _reusable(table: Path, rows_file: Path, index: dict) -> list[str] | None:
 
 def _write(files: Sequence[TrainingFile], layout: TrainingColumns, stream: IO[bytes]) -> list[str]:
     """Write each file's layout columns to `stream` as one .npy array; returns the sha256 of each file's rows."""
-    width, total = sum(b - a for a, b in layout.columns), sum(f.n_steps for f in files)
+    width, total = sum(b - a for a, b in layout.columns), sum(f.n_steps * (1 + f.views) for f in files)
     digests = []
     threads = cpu_cores()
     with ThreadPoolExecutor(threads, thread_name_prefix="pack") as pool:
@@ -130,12 +149,21 @@ def _write(files: Sequence[TrainingFile], layout: TrainingColumns, stream: IO[by
 
 
 def _rows(f: TrainingFile, layout: TrainingColumns) -> tuple[bytes, str]:
-    """File `f`'s layout columns as float32 bytes, and their sha256."""
+    """File `f`'s layout columns as float32 bytes, then each view's, and their sha256."""
     trajectory = read_trajectory(f.path, frames=False)
-    if trajectory.width != layout.recording_width or trajectory.n_steps != f.n_steps:
+    views = trajectory.views if trajectory.views is not None else np.empty((0, trajectory.n_steps, 0), DTYPE)
+    if trajectory.width != layout.recording_width or trajectory.n_steps != f.n_steps or len(views) != f.views:
         raise PipelineError(
-            f"{f.path}: holds {trajectory.n_steps} steps of {trajectory.width} columns, its summary says "
-            f"{f.n_steps} of {layout.recording_width}; the file changed while training started"
+            f"{f.path}: holds {trajectory.n_steps} steps of {trajectory.width} columns and {len(views)} views, its "
+            f"summary says {f.n_steps} of {layout.recording_width} and {f.views}; the file changed while training "
+            f"started"
         )
-    rows = np.ascontiguousarray(layout.select(trajectory.data), dtype=DTYPE).tobytes()  # (T, width)
+    tables = [trajectory.data]  # (T, recording width) each
+    if len(views):
+        a, b = trajectory.blocks[BLOCK_FEATURES]
+        for view in views:
+            seen = trajectory.data.copy()
+            seen[:, a:b] = view
+            tables.append(seen)
+    rows = b"".join(np.ascontiguousarray(layout.select(table), dtype=DTYPE).tobytes() for table in tables)
     return rows, hashlib.sha256(rows).hexdigest()

@@ -207,8 +207,9 @@ def _load(config: TrainStageConfig, procs: Processes, held: ExitStack) -> _Run:
     layout = resolve_preset(config.layout, data.width, data.files[0].path)
     train_idx, val_idx = split_validation(list(range(len(data.files))), config.val_fraction, config.training.seed)
     model_config = replace(config.model, columns=layout.roles)
+    # each view of a training demonstration is one more scene its features are seen in (perception.views)
+    model_config = with_components(model_config, sum(1 + data.files[i].views for i in train_idx))
     schedule = schedule_of(config.training, len(train_idx), procs.world_size, model_config)
-    model_config = with_components(model_config, len(train_idx))
     model_config.components()  # feature_components against the layout's columns, before anything is packed
     if config.matched_cnmp:
         model_config = matched_cnmp(model_config)
@@ -253,7 +254,7 @@ def _build(
     moments = gather(procs, run.packed.moments(run.my_train, co))  # each rank's training share, in rank order
     fitted_on = Moments.total(moments) if disjoint(run.train_idx, procs) else moments[0]
     model = build_model(run.model_config, fitted_on, config.training.seed)
-    train_stack = TrajectoryStack.from_rows(run.packed.rows, *run.packed.span(run.my_train), model)
+    train_stack = TrajectoryStack.from_rows(run.packed.rows, *run.packed.seen(run.my_train), model)
     val_stack = TrajectoryStack.from_rows(run.packed.rows, *run.packed.span(run.my_val), model)
     keep = config.candidates if config.candidates > 1 else 0
     trainer = StageTrainer(

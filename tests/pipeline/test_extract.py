@@ -4,12 +4,22 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cnep.models.schedule import FEW_DEMONSTRATIONS
 from cnep.outputs import RECORD_FILE
 from cnep.perception import FeatureExtractor, PerceptionError, decode_image
-from cnep.perception.constants import WEIGHTS_ENV_VAR
+from cnep.perception.constants import DEFAULT_VIEWS, WEIGHTS_ENV_VAR
+from cnep.perception.frames import resize_frames
+from cnep.perception.views import Views
 from cnep.pipeline.cli.main import main
 from cnep.pipeline.errors import PipelineError
-from cnep.pipeline.extract.stage import ExtractConfig, calibration_frames, extract, plan_outputs, shard_of
+from cnep.pipeline.extract.stage import (
+    ExtractConfig,
+    calibration_frames,
+    extract,
+    plan_outputs,
+    shard_of,
+    views_for,
+)
 from cnep.pipeline.identity import check_identities, check_same_extractor
 from cnep.recordings import read_trajectory, write_demonstration
 from tests.recordings.factories import cut_after_header, demonstration_factory
@@ -73,7 +83,8 @@ def test_up_to_date_outputs_are_skipped_and_stale_ones_redone(demos, tmp_path):
     before = {p.name: p.read_bytes() for p in out.iterdir()}
     with pytest.raises(
         PipelineError,
-        match="already exists and is not this input's trajectory file from these weights .and 1 more.; add --force",
+        match="already exists and is not this input's trajectory file from these weights and views .and 1 more.; "
+        "add --force",
     ):
         extract(_config(demos, out, seed=1))  # other weights: their features are not replaced silently
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before
@@ -205,6 +216,36 @@ def test_nested_input_folders_are_extracted_into_matching_sub_folders(tmp_path):
 
 
 @pytest.mark.slow  # two spawned processes import torch: ~15 s on 2 idle cores
+@pytest.mark.slow
+def test_views_are_the_features_of_each_view_of_the_frames_beside_the_demonstration_s_own(demos, tmp_path):
+    plain = extract(_config(demos, tmp_path / "plain", views=0))
+    done = extract(_config(demos, tmp_path / "out", views=2, workers=2))
+    reference = FeatureExtractor("random", backend="eager", threads=1)
+    reference.calibrate(calibration_frames(demos, 256))
+    for item, plain_item, demo_path in zip(done, plain, demos):
+        traj, own = read_trajectory(item.output), read_trajectory(plain_item.output)
+        np.testing.assert_array_equal(traj.data, own.data)  # the demonstration's own features are unchanged
+        assert traj.views.shape == (2, 6, 1280)
+        pixels = resize_frames(np.stack([decode_image(f) for f in traj.frames]))
+        for view, features in zip(Views(2, seed=0).of(demo_path.stem), traj.views):
+            np.testing.assert_allclose(features, reference(view.apply(pixels, 0)), atol=1e-4)
+        assert not np.allclose(traj.views[0], traj.views[1], atol=1e-3)
+        assert own.views is None
+    again = extract(_config(demos, tmp_path / "out", views=2))
+    assert all(item.skipped for item in again)
+    before = {p.name: p.read_bytes() for p in (tmp_path / "out").glob("*.mcap")}
+    with pytest.raises(PipelineError, match="is not this input's trajectory file from these weights and views"):
+        extract(_config(demos, tmp_path / "out", views=0))  # the files holding views are not replaced silently
+    assert {p.name: p.read_bytes() for p in (tmp_path / "out").glob("*.mcap")} == before
+
+
+def test_a_few_demonstrations_get_the_default_views_and_many_none(monkeypatch, demos, tmp_path):
+    assert views_for(FEW_DEMONSTRATIONS - 1) == DEFAULT_VIEWS > 0 and views_for(FEW_DEMONSTRATIONS) == 0
+    monkeypatch.setattr("cnep.pipeline.extract.stage.DEFAULT_VIEWS", 1)  # one view: a quicker extraction
+    done = extract(_config(demos, tmp_path / "out"))
+    assert [read_trajectory(item.output).views.shape for item in done] == [(1, 6, 1280)] * 2
+
+
 def test_two_worker_processes_give_the_same_files_as_one(demos, tmp_path):
     one = extract(_config(demos, tmp_path / "one"))
     two = extract(_config(demos, tmp_path / "two", workers=2))

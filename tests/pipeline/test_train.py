@@ -236,6 +236,28 @@ def interrupt_at(monkeypatch, step: int) -> None:
     monkeypatch.setattr(StageTrainer, "train_step", train_step)
 
 
+def test_views_of_the_training_files_are_trained_on_and_count_as_scenes_for_the_projection(tmp_path):
+    folder = tmp_path / "viewed"
+    folder.mkdir()
+    for k, steps in enumerate(LENGTHS):
+        traj = trajectory_factory(steps, seed=k)
+        traj.views = np.random.default_rng(k).normal(size=(2, steps, 1280)).astype(np.float32)
+        write_trajectory(folder / f"demo-{k}.mcap", traj)
+    out = train(stage_config([folder], tmp_path / "ckpt", steps=10, feature_components=None))
+    config = read_checkpoint_config(out)
+    fitted = [f for f in config["files"] if f["split"] == "train"]
+    assert [f["views"] for f in config["files"]] == [2] * len(LENGTHS)
+    assert config["model"]["feature_components"] == 3 * len(fitted)  # each training file and its 2 views
+    seen = []
+    for f in fitted:
+        traj = read_trajectory(f["path"])
+        seen += [traj.data] + [np.concatenate([view, traj.data[:, 1280:]], axis=1) for view in traj.views]
+    model = load_checkpoint(out)
+    expected = build_model(model.config, seen, seed=0)  # the normaliser and the projection fitted on every view
+    torch.testing.assert_close(model.feature_projection, expected.feature_projection, rtol=1e-5, atol=1e-5)
+    torch.testing.assert_close(model.normaliser.loc, expected.normaliser.loc, rtol=1e-5, atol=1e-5)
+
+
 @pytest.mark.slow
 def test_resume_after_interruption_gives_the_same_weights(full_set, tmp_path, monkeypatch):
     rule = {"steps": 40, "feature_components": None}  # the projection the rule fits, refitted on resume

@@ -48,6 +48,30 @@ def test_packing_reads_the_columns_without_parsing_a_frame(with_frames, tmp_path
     np.testing.assert_allclose(packed.moments([2, 0]).mean, expected.mean, rtol=1e-12)
 
 
+def test_a_file_s_views_are_packed_after_its_own_rows_and_trained_on_beside_them(tmp_path):
+    plain = trajectory_factory(5, seed=0)
+    views = np.random.default_rng(9).normal(size=(2, 4, 1280)).astype(np.float32)
+    viewed = trajectory_factory(4, seed=1)
+    viewed.views = views
+    paths = [write_trajectory(tmp_path / "plain.mcap", plain), write_trajectory(tmp_path / "viewed.mcap", viewed)]
+    data = load_training_set(paths)
+    assert [f.views for f in data.files] == [0, 2]
+    layout = resolve_preset("wine-glass", data.width, paths[0])
+    packed = pack_columns(data, [1, 0], layout, tmp_path / "pack")
+    assert packed.rows.shape == (4 * 3 + 5, 1288)
+    starts, lengths = packed.span([0, 1])  # the files' own rows: what validation reads
+    np.testing.assert_array_equal(packed.rows[starts[1] : starts[1] + 4], viewed.data)
+    np.testing.assert_array_equal(packed.rows[starts[0] : starts[0] + 5], plain.data)
+    starts, lengths = packed.seen([1, 0])  # and every view's: what training reads
+    assert lengths.tolist() == [4, 4, 4, 5]
+    for k, view in enumerate(views):
+        rows = packed.rows[starts[1 + k] : starts[1 + k] + 4]
+        np.testing.assert_array_equal(rows[:, :1280], view)  # the view's features
+        np.testing.assert_array_equal(rows[:, 1280:], viewed.data[:, 1280:])  # the demonstration's motion
+    expected = Moments.of(np.concatenate([packed.rows[a : a + n] for a, n in zip(starts, lengths)]))
+    np.testing.assert_allclose(packed.moments([1, 0]).mean, expected.mean, rtol=1e-12)
+
+
 def test_a_pack_is_written_once_and_redone_when_a_file_changes(with_frames, tmp_path, monkeypatch):
     data = load_training_set(with_frames)
     layout = resolve_preset("motion", data.width, with_frames[0])
