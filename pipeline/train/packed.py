@@ -151,19 +151,18 @@ def _write(files: Sequence[TrainingFile], layout: TrainingColumns, stream: IO[by
 def _rows(f: TrainingFile, layout: TrainingColumns) -> tuple[bytes, str]:
     """File `f`'s layout columns as float32 bytes, then each view's, and their sha256."""
     trajectory = read_trajectory(f.path, frames=False)
-    views = trajectory.views if trajectory.views is not None else np.empty((0, trajectory.n_steps, 0), DTYPE)
+    views = () if trajectory.views is None else trajectory.views  # (V, T, feature width)
     if trajectory.width != layout.recording_width or trajectory.n_steps != f.n_steps or len(views) != f.views:
         raise PipelineError(
             f"{f.path}: holds {trajectory.n_steps} steps of {trajectory.width} columns and {len(views)} views, its "
             f"summary says {f.n_steps} of {layout.recording_width} and {f.views}; the file changed while training "
             f"started"
         )
-    tables = [trajectory.data]  # (T, recording width) each
-    if len(views):
+    tables = [trajectory.data]  # (T, recording width) each: its own, then each view's
+    for view in views:
         a, b = trajectory.blocks[BLOCK_FEATURES]
-        for view in views:
-            seen = trajectory.data.copy()
-            seen[:, a:b] = view
-            tables.append(seen)
+        seen = trajectory.data.copy()
+        seen[:, a:b] = view
+        tables.append(seen)
     rows = b"".join(np.ascontiguousarray(layout.select(table), dtype=DTYPE).tobytes() for table in tables)
     return rows, hashlib.sha256(rows).hexdigest()
