@@ -15,6 +15,7 @@ standard library, numpy, MuJoCo, Gymnasium and cnep.runtime only (tests/test_arc
 """
 
 import importlib
+import importlib.util
 import os
 
 from cnep.sim.errors import SimError
