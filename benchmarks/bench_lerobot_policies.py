@@ -2,24 +2,29 @@
 
 Run on demand:
     python -m benchmarks lerobot_policies [--run RUN] [--task obstacle] [--policies act,diffusion]
-        [--variants features,images] [--steps N | --minutes M] [--episodes 10] [--venv DIR] [--out DIR]
+        [--variants features,images] [--steps N | --minutes M] [--episodes 10] [--venv DIR | --python PATH]
+        [--device cpu] [--data-workers 0] [--loop-workers 1] [--latency-episodes 2] [--out DIR]
 
 LeRobot runs in a virtual environment of its own (--venv: made with `python3 -m venv` and pip on first use, reused
 after): lerobot 0.4.4 pins torch below 2.11 and rerun-sdk below 0.27, cnep needs rerun-sdk 0.41, so one environment
 cannot hold both. The venv gets lerobot, MuJoCo and ONNX Runtime, then this repository and its LeRobot plugin
 (integrations/lerobot_policy_cnep) without their dependencies: cnep.sim and cnep.runtime import none of cnep's others.
+--python names an interpreter that imports all of them already instead (a prepared environment, a GPU machine's).
 
 1. The CNEP's run, `cnep sim TASK --out RUN` (--run reuses one): RUN/demos are the demonstrations the CNEP trained on,
    RUN/trajectories their 1280-d features, RUN/policies the exported CNEP.
 2. The datasets, `cnep to-lerobot RUN/demos`: `images` (the camera as video) and `features` (motion only, with the
    trajectories' features as `observation.environment_state` beside the pose: the CNEP's inputs).
-3. `lerobot-train` of each policy on each dataset on one CPU thread, LeRobot's defaults but two: the steps (--steps;
-   with --minutes as many as fit in them at the time per step a short run measures; else as many passes over these
-   frames as LeRobot's default steps and batch make over REFERENCE_FRAMES) and no data-loading worker processes (the
-   training's memory is then one process's peak RSS); ACT's image encoder from random weights unless
-   --pretrained-backbone (Diffusion Policy's default); its wall time and the seconds per step.
+3. `lerobot-train` of each policy on each dataset on --device (cpu: one CPU thread), LeRobot's defaults but two: the
+   steps (--steps; with --minutes as many as fit in them at the time per step a short run measures; else as many
+   passes over these frames as LeRobot's default steps and batch make over REFERENCE_FRAMES) and the data-loading
+   worker processes (--data-workers, default none: the training's memory is then one process's peak RSS); ACT's
+   image encoder from random weights unless --pretrained-backbone (Diffusion Policy's default); its wall time and the
+   seconds per step.
 4. The closed loop (benchmarks.lerobot_loop, in the venv): every policy and the CNEP on the run's task, environment
-   version and reported episode seeds (its summary.json), online, on one thread.
+   version and reported episode seeds (its summary.json), online, on one thread per process (--loop-workers
+   processes), a LeRobot policy on --device. Off the CPU, --latency-episodes more episodes of each LeRobot policy on
+   one CPU thread give its step times (`cpu_ms`), the ones printed and written.
 Writes OUT/results.json and OUT/results.csv (a row per policy and condition) and prints, per policy and variant,
 success, collisions, behaviour entropy, step time p50/p99, training time and memory, and the training time extrapolated
 to LeRobot's default steps (an estimate: seconds per step measured times the steps).
@@ -37,9 +42,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-
-from cnep.recordings import read_trajectory
-from cnep.recordings.lerobot_stats import vector_stats
 
 IN_ALL = False  # `python -m benchmarks all` leaves it out: its defaults train for hours on a CPU
 ROOT = Path(__file__).resolve().parents[1]
@@ -62,10 +64,13 @@ TIMING_STEPS = 10  # --minutes: the steps of the run that measures a training st
 STEP_LOG = re.compile(r"updt_s:([0-9.]+) data_s:([0-9.]+)")  # lerobot-train's log line of a training step's time
 
 
+IMPORTS = "import lerobot, lerobot_policy_cnep, cnep.runtime, mujoco, onnxruntime"  # what LeRobot's side runs on
+
+
 def ensure_venv(venv: Path) -> Path:
     """The Python of LeRobot's venv, made and installed if it does not import lerobot and the plugin yet."""
     python = venv / "bin" / "python"
-    check = [str(python), "-c", "import lerobot, lerobot_policy_cnep, cnep.runtime, mujoco, onnxruntime"]
+    check = [str(python), "-c", IMPORTS]
     if python.exists() and subprocess.run(check, capture_output=True, cwd="/").returncode == 0:
         return python
     if not python.exists():
@@ -87,6 +92,9 @@ def features_dataset(run: Path, out: Path) -> int:
     trajectories' features, each episode matched to its trajectory by the pose; its number of frames."""
     import pyarrow as pa
     import pyarrow.parquet as pq
+
+    from cnep.recordings import read_trajectory  # here, not above: a prepared --out needs none of cnep's packages
+    from cnep.recordings.lerobot_stats import vector_stats
 
     cnep("to-lerobot", str(run / "demos"), "--out", str(out), "--camera", "")
     trajectories = [read_trajectory(p, frames=False).data for p in sorted((run / "trajectories").glob("*.mcap"))]
@@ -118,10 +126,10 @@ def train(python: Path, policy: str, dataset: Path, out: Path, steps: int, optio
     start included), seconds per step (lerobot-train's own update and data times, averaged over its log lines), peak
     RSS in MiB, the folder."""
     command = [
-        str(python), "-m", "lerobot.scripts.lerobot_train", f"--policy.type={policy}", "--policy.device=cpu",
+        str(python), "-m", "lerobot.scripts.lerobot_train", f"--policy.type={policy}",
         "--policy.push_to_hub=false", f"--dataset.repo_id=local/{dataset.name}", f"--dataset.root={dataset}",
         "--dataset.video_backend=pyav", f"--output_dir={out}", f"--steps={steps}", f"--save_freq={steps}",
-        f"--log_freq={max(1, steps // 10)}", "--num_workers=0", "--wandb.enable=false", "--eval_freq=0", *options,
+        f"--log_freq={max(1, steps // 10)}", "--wandb.enable=false", "--eval_freq=0", *options,
     ]  # fmt: skip
     log = out.parent / f"{out.name}.log"
     start = time.perf_counter()
@@ -160,9 +168,18 @@ def closed_loop(python: Path, args: list[str], out: Path) -> dict:
     return json.loads(out.read_text())
 
 
+def lerobot_python(args: argparse.Namespace) -> Path:
+    """--python, checked to import what LeRobot's side needs, else --venv's (made on first use)."""
+    if args.python is None:
+        return ensure_venv(args.venv)
+    if subprocess.run([str(args.python), "-c", IMPORTS], cwd="/").returncode != 0:
+        raise SystemExit(f"{args.python}: does not import what the benchmark runs ({IMPORTS})")
+    return args.python
+
+
 def row(name: str, rates: dict, training: dict | None) -> str:
     """One line of the printed table."""
-    ms = rates["ms"]["policy"]
+    ms = cpu_ms(rates)
     entropy = "-" if rates.get("entropy") is None else f"{rates['entropy']:.2f}"
     trained = "-" if training is None else f"{training['wall_s']:.0f} s / {training['peak_mib']} MiB"
     return (
@@ -177,6 +194,12 @@ CSV_COLUMNS = (
 )  # fmt: skip
 
 
+def cpu_ms(rates: dict) -> dict:
+    """The policy's step time p50 and p99 on one CPU thread: the loop's own, or the timing episodes' off the CPU."""
+    ms = rates.get("cpu_ms", rates["ms"])["policy"]
+    return {"p50": ms["p50"], "p99": ms["p99"]}
+
+
 def write_csv(results: dict, path: Path) -> None:
     """One row per policy and condition of `results` (main's), the CSV a results page quotes."""
     lines = [",".join(CSV_COLUMNS)]
@@ -185,8 +208,8 @@ def write_csv(results: dict, path: Path) -> None:
         for condition, r in result["rates"].items():
             values = (
                 name, condition, r["episodes"], r["success"], *r["success_ci"], r["collision"],
-                "" if r.get("entropy") is None else round(r["entropy"], 3), r["ms"]["policy"]["p50"],
-                r["ms"]["policy"]["p99"], t.get("steps", ""), t.get("wall_s", ""), t.get("peak_mib", ""),
+                "" if r.get("entropy") is None else round(r["entropy"], 3), *cpu_ms(r).values(), t.get("steps", ""),
+                t.get("wall_s", ""), t.get("peak_mib", ""),
             )  # fmt: skip
             lines.append(",".join(map(str, values)))
     path.write_text("\n".join(lines) + "\n")
@@ -206,21 +229,29 @@ def main() -> None:
     parser.add_argument(
         "--venv", type=Path, default=ROOT / "runs" / "lerobot-venv", help="LeRobot's virtual environment"
     )
+    parser.add_argument("--python", type=Path, help="an interpreter with LeRobot's side installed (instead of --venv)")
+    parser.add_argument("--device", default="cpu", help="the torch device LeRobot's policies train and run on")
+    parser.add_argument("--data-workers", type=int, default=0, help="lerobot-train's data-loading processes")
+    parser.add_argument("--loop-workers", type=int, default=1, help="processes the closed-loop episodes run in")
+    parser.add_argument(
+        "--latency-episodes", type=int, default=2, help="off the CPU: episodes that time each policy on one CPU thread"
+    )
     parser.add_argument("--out", type=Path, default=ROOT / "runs" / "lerobot-policies")
     parser.add_argument(
         "--pretrained-backbone", action="store_true", help="ACT's ImageNet ResNet-18 (downloaded; default: random)"
     )
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
-    python = ensure_venv(args.venv)
+    python = lerobot_python(args)
     run = args.run or args.out / "cnep-run"
     if args.run is None and not (run / "policies").is_dir():
         cnep("sim", args.task, "--offline", "--out", str(run), "--episodes", str(args.episodes))
     cnep_policy = sorted((run / "policies").glob("cnep-seed*"))[0]
     summary = json.loads((run / "summary.json").read_text())  # the run's task, environment and reported seeds
+    first = str(summary["seeds"]["reported"]["first"])
     loop = [
-        *("--task", summary["task"], "--env-version", str(summary["env_version"])),
-        *("--episodes", str(args.episodes), "--episode-seed", str(summary["seeds"]["reported"]["first"])),
+        *("--task", summary["task"], "--env-version", str(summary["env_version"]), "--episode-seed", first),
+        *("--episodes", str(args.episodes), "--workers", str(args.loop_workers)),
     ]
     results = {
         "cnep": {"rates": closed_loop(python, ["--policy", str(cnep_policy), "--cnep", *loop], args.out / "cnep.json")}
@@ -236,7 +267,8 @@ def main() -> None:
         frames = frames or json.loads((dataset / "meta" / "info.json").read_text())["total_frames"]
         for policy in args.policies.split(","):
             name = f"{policy}-{variant}"
-            options = [] if args.pretrained_backbone or policy != "act" else [RANDOM_BACKBONE]
+            options = [f"--policy.device={args.device}", f"--num_workers={args.data_workers}"]
+            options += [] if args.pretrained_backbone or policy != "act" else [RANDOM_BACKBONE]
             steps = training_steps(args, python, policy, dataset, frames, options)
             training = train(python, policy, dataset, args.out / f"train-{name}", steps, options)
             training["default_steps_s_estimate"] = (
@@ -245,8 +277,12 @@ def main() -> None:
             results[name] = {"frames": frames, "training": training, "rates": {}}
             (args.out / "results.json").write_text(json.dumps(results, indent=1) + "\n")  # kept if the loop stops
             extra = ["--features-from", str(cnep_policy)] if variant == "features" else []
-            loop_args = ["--policy", training["folder"], *extra, *loop]
+            loop_args = ["--policy", training["folder"], *extra, *loop, "--device", args.device]
             results[name]["rates"] = closed_loop(python, loop_args, args.out / f"{name}.json")
+            if args.device != "cpu":
+                timed = [*loop_args[:-1], "cpu", "--episodes", str(args.latency_episodes), "--workers", "1"]
+                for condition, rates in closed_loop(python, timed, args.out / f"{name}-cpu.json").items():
+                    results[name]["rates"][condition]["cpu_ms"] = rates["ms"]
     print(f"{'policy':<22} {'success':>7} {'collision':>9} {'entropy':>7} {'step ms p50/p99':>17} training")
     for name, result in results.items():
         for condition, rates in result["rates"].items():

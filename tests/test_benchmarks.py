@@ -92,3 +92,30 @@ def test_the_quick_evaluate_benchmark_prints_each_rows_mode_accuracy_and_fails_u
     assert not bench.separated(data)
     monkeypatch.setattr(bench, "quick_results", lambda sets, steps, out: data)
     assert bench.main([]) == 1 and "do not tell every mode apart" in capsys.readouterr().out
+
+
+def test_the_loops_episodes_dealt_to_processes_come_back_together_in_seed_order():
+    from benchmarks.lerobot_loop import merged, shared_out
+
+    parts = shared_out(list(range(5000, 5007)), 3)
+    assert parts == [[5000, 5003, 5006], [5001, 5004], [5002, 5005]]
+    assert shared_out([5000, 5001], 8) == [[5000], [5001]]  # no process without an episode
+    rows = [{"all": [{"seed": s, "success": s % 2 == 0} for s in part]} for part in parts]
+    assert [r["seed"] for r in merged(rows)["all"]] == list(range(5000, 5007))
+
+
+def test_the_table_gives_one_cpu_threads_step_times_where_the_policy_ran_on_a_gpu(tmp_path):
+    from benchmarks.bench_lerobot_policies import write_csv
+
+    def rates(ms, **more):
+        return {"episodes": 2, "success": 0.5, "success_ci": [0.1, 0.9], "collision": 0.0, "ms": ms, **more}
+
+    gpu, one_thread = {"policy": {"p50": 4.0, "p99": 9.0}}, {"policy": {"p50": 30.0, "p99": 6000.0}}
+    results = {
+        "cnep": {"rates": {"all": rates({"policy": {"p50": 7.0, "p99": 12.0}}, entropy=0.9)}},
+        "diffusion-features": {"training": {"steps": 10}, "rates": {"all": rates(gpu, cpu_ms=one_thread)}},
+    }
+    write_csv(results, tmp_path / "results.csv")
+    lines = (tmp_path / "results.csv").read_text().splitlines()
+    assert lines[1] == "cnep,all,2,0.5,0.1,0.9,0.0,0.9,7.0,12.0,,,"
+    assert lines[2] == "diffusion-features,all,2,0.5,0.1,0.9,0.0,,30.0,6000.0,10,,"
