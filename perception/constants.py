@@ -40,7 +40,7 @@ CONNECT_TIMEOUT_S = (
 
 # Views of each demonstration's frames `cnep extract` also extracts where it extracts a few demonstrations
 # (perception.views; pipeline.extract.stage.views_for), and the most it takes: a file holds its features once per view.
-DEFAULT_VIEWS = 3
+DEFAULT_VIEWS = 7
 MAX_VIEWS = 16
 
 # Batch-norm re-estimation for seeded random weights (see docs/concepts.md).

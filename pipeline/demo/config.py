@@ -25,7 +25,9 @@ class DemoSize:
     per cup side; train_steps, val_every, warmup_steps: the training's, None where the training schedule's
     (models.schedule: a rule of the training demonstrations, as `cnep train` without those options);
     side_by_side: train the CNEP and the CNMP at once, in a process each (a process takes seconds to start, more than
-    a few training steps take: a small size trains them one after the other in the demo's own process).
+    a few training steps take: a small size trains them one after the other in the demo's own process); views: the
+    views of each demonstration's frames extracted, None where `cnep extract`'s rule for the training split's size
+    gives them (pipeline.extract.stage.views_for).
     """
 
     per_behaviour: int
@@ -37,6 +39,7 @@ class DemoSize:
     val_every: int | None = None
     warmup_steps: int | None = None
     side_by_side: bool = True
+    views: int | None = None
 
 
 FULL = DemoSize(
@@ -56,6 +59,7 @@ QUICK = DemoSize(
     val_every=20,
     warmup_steps=6,
     side_by_side=False,
+    views=1,  # the views' path exercised in a quarter of the rule's extraction (two passes over the frames, not eight)
 )
 
 

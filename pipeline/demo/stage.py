@@ -196,8 +196,8 @@ def _generate(config: DemoConfig, out: Path, size: DemoSize) -> DemoSet:
 
 def _extract(config: DemoConfig, out: Path, chosen_weights: str) -> None:
     """Stage 3: the training split's features with the chosen weights (random ones calibrated on its frames), saved to
-    EXTRACTOR_FILE, which then extracts the other splits; every split with the views the training split's size
-    gives (`views_for`)."""
+    EXTRACTOR_FILE, which then extracts the other splits; every split with the size's views, else those the training
+    split's size gives (`views_for`)."""
     weights = out / EXTRACTOR_FILE
     common = {
         "seed": config.seed,
@@ -205,7 +205,9 @@ def _extract(config: DemoConfig, out: Path, chosen_weights: str) -> None:
         "precision": config.precision,
         "calibrate_on": (out / "demos" / "train",),
         "offline": config.offline,
-        "views": views_for(len(mcap_files(out / "demos" / "train", DEMONSTRATIONS))),
+        "views": views_for(len(mcap_files(out / "demos" / "train", DEMONSTRATIONS)))
+        if config.size.views is None
+        else config.size.views,
     }  # int8: every split quantised on the training frames
     extract(
         ExtractConfig(
