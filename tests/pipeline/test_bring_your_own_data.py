@@ -38,6 +38,13 @@ def quiet_rerun(tmp_path, monkeypatch, one_thread):
     monkeypatch.setenv("HOME", str(tmp_path / "home"))
 
 
+@pytest.fixture(autouse=True)
+def one_view(monkeypatch):
+    """One view of the frames where `cnep extract` draws its default: the views' path at a quarter of the rule's
+    extraction (tests/pipeline/test_extract.py tests the views themselves)."""
+    monkeypatch.setattr("cnep.pipeline.extract.stage.DEFAULT_VIEWS", 1)
+
+
 def run_pipeline(src: Path, work: Path, *ingest_args: str) -> list[Path]:
     """Run the four stages as a user would; returns the trajectory files."""
     assert main(["-q", "ingest", str(src), "--out", str(work / "demos"), *ingest_args]) == 0

@@ -269,7 +269,8 @@ def test_torchrun_ranks_extract_disjoint_shares_with_one_identity(demos, tmp_pat
 
 
 @pytest.mark.slow
-def test_two_shards_write_the_files_of_one_unsharded_run_byte_for_byte(tmp_path):
+def test_two_shards_write_the_files_of_one_unsharded_run_byte_for_byte(tmp_path, monkeypatch):
+    monkeypatch.setattr("cnep.pipeline.extract.stage.DEFAULT_VIEWS", 1)  # one view: a quicker extraction
     folder = tmp_path / "demos"
     folder.mkdir()
     demos = [

@@ -177,6 +177,7 @@ def test_a_tiny_grid_runs_end_to_end_and_a_rerun_does_no_work(tmp_path, monkeypa
 
     # the smallest choice, 2 candidates on 1 validation episode per condition: tests/sim/test_selection.py tests it
     few = SelectionSettings(candidates=2, selection_episodes=1)
+    monkeypatch.setattr("cnep.pipeline.extract.stage.DEFAULT_VIEWS", 1)  # one view: a quicker extraction
     task_config = grid.task_config
     monkeypatch.setattr(grid, "task_config", lambda *args: replace(task_config(*args), selection=few))
     monkeypatch.setenv("HOME", str(tmp_path / "home"))

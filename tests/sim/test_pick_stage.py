@@ -61,6 +61,7 @@ def test_cnep_sim_pick_place_writes_the_documented_summary(
         offline=True,
         quiet=True,
         selection=SelectionSettings(candidates=1),  # no choice: tests/sim/test_selection.py tests it
+        views=1,  # the views' path at a quarter of the rule's extraction
     )
     summary = run_sim(config)
     assert json.loads((out / SUMMARY_FILE).read_text()) == json.loads(json.dumps(summary))

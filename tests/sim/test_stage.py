@@ -28,10 +28,11 @@ from cnep.pipeline.sim.validation import SelectionSettings  # noqa: E402
 from tests.sim.conftest import calibrate_on_few_frames, pools_in_process  # noqa: E402
 from tests.test_examples import load  # noqa: E402
 
-# The run's settings, straight and resumed: a choice between 2 candidates, every episode recorded.
+# The run's settings, straight and resumed: a choice between 2 candidates, every episode recorded, one view of the
+# frames (the views' path at a quarter of the rule's extraction).
 SMALL = {
     "demonstrations": 2, "train_steps": 20, "episodes": 1, "max_steps": 16, "record": 1, "offline": True,
-    "quiet": True, "selection": SelectionSettings(candidates=2, selection_episodes=1),
+    "quiet": True, "selection": SelectionSettings(candidates=2, selection_episodes=1), "views": 1,
 }  # fmt: skip
 
 
