@@ -4,11 +4,14 @@ behaviour x model evaluated on the same reported episode seeds (pipeline.sim.gri
 Under OUT:
 
     grid.json        the settings every cell shares (a rerun with others is refused)
-    sets/TASK-setS/  a demonstration set, made once for every cell that uses it: `cnep sim TASK`'s generate, ingest
-                     and extract (pipeline.sim.stage), the largest number of demonstrations per behaviour of each
+    sets/TASK-setS/  a demonstration set, made once for every cell that uses it: `cnep sim TASK`'s generate and
+                     ingest (pipeline.sim.stage), the largest number of demonstrations per behaviour of each
                      behaviour; set.json, what each demonstration did
-    runs/TASK-setS-dD-seedN/   a unit (pipeline.sim.grid_unit): the set's first D demonstrations of each behaviour,
-                     the CNEP and the CNMP of training seed N trained, exported and run in closed loop
+    sets/TASK-setS-dD/  the set's first D demonstrations of each behaviour, extracted as `cnep extract` extracts
+                     that many recordings of a user's (the extractor calibrated on them, their views by its rule),
+                     once for every training seed
+    runs/TASK-setS-dD-seedN/   a unit (pipeline.sim.grid_unit): that subset's trajectories, the CNEP and the CNMP of
+                     training seed N trained, exported and run in closed loop
     cells/TASK-setS-dD-seedN-MODEL.json   a finished cell: its rates on the reported episodes
     grid.csv, grid.md   every cell's rows, and the table pooled over sets and seeds (pipeline.sim.grid_table)
 
@@ -43,7 +46,7 @@ from cnep.pipeline.sim.extras import require_extras
 from cnep.pipeline.sim.generate import generate_demonstrations, ingest_demonstrations
 from cnep.pipeline.sim.grid_config import GridConfig, subset
 from cnep.pipeline.sim.grid_table import cell_rows, csv_text, pooled_table
-from cnep.pipeline.sim.grid_unit import Unit, link_subset, run_grid_unit
+from cnep.pipeline.sim.grid_unit import Unit, link_or_copy, link_subset, run_grid_unit
 from cnep.pipeline.sim.loop import episodes_of, for_task
 from cnep.pipeline.sim.stage import extract_features
 from cnep.sim.task import Task
@@ -131,9 +134,10 @@ def plan(config: GridConfig, out: Path) -> dict[str, Unit]:
                     if behaviours is None:
                         behaviours = make_set(config, task, set_seed, set_folder)
                     chosen = subset(behaviours, task.behaviours, d)
-                    trajectories = [trajectory_of(set_folder, i) for i in chosen]
+                    subset_folder = make_subset(config, task, set_folder, set_seed, d, chosen)
+                    trajectories = [trajectory_of(subset_folder, i) for i in chosen]
                     run = out / "runs" / name
-                    link_subset(run, set_folder, trajectories)
+                    link_subset(run, subset_folder, trajectories)
                     settings = task_config(config, task, run, set_seed, seed, len(chosen))
                     units[name] = Unit(name, task.name, d, len(chosen), run, settings, missing)
     return units
@@ -157,26 +161,56 @@ def task_config(
 
 
 def make_set(config: GridConfig, task: Task, set_seed: int, folder: Path) -> list[str]:
-    """The demonstration set `folder` (made now where it is missing: generate, ingest, extract with the weights
-    `config.weights` chooses, SET_FILE: each demonstration's behaviour, the clean ones, the weights); returns what
-    each of its demonstrations did (Task.behaviours' names), in order."""
+    """The demonstration set `folder` (made now where it is missing: generate, ingest, SET_FILE: each demonstration's
+    behaviour, the clean ones, the weights its subsets are extracted with); returns what each of its demonstrations
+    did (Task.behaviours' names), in order."""
+    if (folder / "trajectories").is_dir():
+        raise PipelineError(
+            f"{folder}: this set holds the features of all its demonstrations extracted at once, where the grid's "
+            f"cells train on each subset extracted on its own; give another --out for a new grid"
+        )
     if not folder.is_dir():
         weights = choose_weights(config.weights, config.offline).weights  # before anything is made
         n = max(config.per_behaviour) * len(task.behaviours)
         log.info("demonstration set %s: %d demonstrations", folder.name, n)
-        settings = task_config(config, task, folder, set_seed, config.train_seeds[0], n)
         with quiet_per_file_logs(), assembled_folder(folder, lambda: None) as work:
             made = generate_demonstrations(task, work / "recorded", n, set_seed, config.quiet)
             ingest_demonstrations(work / "recorded", work / "demos", task, config.quiet)
-            extract_features(replace(settings, out=work), work, weights)
             made_set = {"behaviours": made.behaviours, "clean": made.successes, "weights": weights}
             write_output(work / SET_FILE, json.dumps(made_set).encode())
-    behaviours = read_grid_file(folder / SET_FILE, f"delete {folder} to make the set again").get("behaviours")
+    behaviours = set_record(folder).get("behaviours")
     if not (isinstance(behaviours, list) and all(isinstance(b, str) for b in behaviours)):
         raise PipelineError(
             f"{folder / SET_FILE}: its behaviours are not a list of names; delete {folder} to make the set again"
         )
     return behaviours
+
+
+def make_subset(config: GridConfig, task: Task, set_folder: Path, set_seed: int, d: int, chosen: list[int]) -> Path:
+    """The folder `set_folder`-dD holding the set's demonstrations `chosen` (its first `d` of each behaviour) and their
+    features, made now where it is missing: extracted with the set's weights and seed as `cnep extract` extracts as
+    many recordings (the random weights calibrated on these, the views the rule gives their number), the weights saved
+    beside them. A user who records that many demonstrations trains on what this holds."""
+    folder = set_folder.with_name(f"{set_folder.name}-d{d}")
+    if not folder.is_dir():
+        weights = set_record(set_folder).get("weights")
+        if not isinstance(weights, str):
+            fix = f"delete {set_folder} to make the set again"
+            raise PipelineError(f"{set_folder / SET_FILE}: it names no feature weights; {fix}")
+        log.info("subset %s: extracting its %d demonstrations", folder.name, len(chosen))
+        settings = task_config(config, task, folder, set_seed, config.train_seeds[0], len(chosen))
+        with quiet_per_file_logs(), assembled_folder(folder, lambda: None) as work:
+            (work / "demos").mkdir()
+            for i in chosen:
+                source = demonstration_of(set_folder, i)
+                link_or_copy(source, work / "demos" / source.name)
+            extract_features(replace(settings, out=work), work, weights)
+    return folder
+
+
+def set_record(folder: Path) -> dict:
+    """The set's SET_FILE, read (read_grid_file)."""
+    return read_grid_file(folder / SET_FILE, f"delete {folder} to make the set again")
 
 
 def read_grid_file(path: Path, fix: str) -> dict:
@@ -195,11 +229,22 @@ def rows_of_cell(path: Path) -> list[dict]:
         raise PipelineError(f"{path}: not a cell of the grid's ({type(exc).__name__}: {exc}); {fix}") from None
 
 
-def trajectory_of(set_folder: Path, i: int) -> Path:
-    """The trajectory file of demonstration `i` of a set (generate's folder `demo_NNN`, ingested and extracted)."""
-    found = sorted((set_folder / "trajectories").glob(f"demo_{i:03d}*.mcap"))
+def trajectory_of(folder: Path, i: int) -> Path:
+    """The trajectory file of demonstration `i` of a set in a subset's `folder` (generate's `demo_NNN`, ingested and
+    extracted)."""
+    return only_file(folder / "trajectories", i)
+
+
+def demonstration_of(set_folder: Path, i: int) -> Path:
+    """The ingested demonstration `i` of a set (generate's folder `demo_NNN`)."""
+    return only_file(set_folder / "demos", i)
+
+
+def only_file(folder: Path, i: int) -> Path:
+    """The one MCAP file of demonstration `i` (`demo_NNN`) in `folder`; PipelineError unless there is exactly one."""
+    found = sorted(folder.glob(f"demo_{i:03d}*.mcap"))
     if len(found) != 1:
-        raise PipelineError(f"{set_folder}/trajectories: expected one trajectory of demo_{i:03d}, found {len(found)}")
+        raise PipelineError(f"{folder}: expected one file of demo_{i:03d}, found {len(found)}")
     return found[0]
 
 

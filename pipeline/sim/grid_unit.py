@@ -5,13 +5,13 @@ set) and one training seed, its cells the models evaluated on it.
     results = run_grid_unit(unit, bar)  # model -> protocol -> rates (or -> condition -> rates), as `cnep sim` has
 
 It composes `cnep sim TASK`'s stages (pipeline.sim.stage) in the unit's folder, RUN: the trajectories of the subset
-(linked from the set's folder, as is its extractor), then train (`training_jobs`: the CNEP and the matched CNMP of
-the seed, one after the other in this process, each keeping its candidate checkpoints), the choice of each model's
-kept checkpoint on the validation episodes (pipeline.sim.selection, in this process), export and the closed loop
-(`evaluate_one`: each model, and each baseline fitted beside the CNEP). A checkpoint or a policy folder already in
-RUN is complete (each stage renames its work folder into place when done) and is used as it is (a checkpoint still
-holding its candidates is chosen from first), so a unit interrupted after training resumes at the choice or the
-export.
+(linked from the subset's folder, as is the extractor they were extracted with), then train (`training_jobs`: the
+CNEP and the matched CNMP of the seed, one after the other in this process, each keeping its candidate checkpoints),
+the choice of each model's kept checkpoint on the validation episodes (pipeline.sim.selection, in this process),
+export and the closed loop (`evaluate_one`: each model, and each baseline fitted beside the CNEP). A checkpoint or a
+policy folder already in RUN is complete (each stage renames its work folder into place when done) and is used as it
+is (a checkpoint still holding its candidates is chosen from first), so a unit interrupted after training resumes at
+the choice or the export.
 """
 
 from __future__ import annotations
@@ -58,21 +58,26 @@ class Unit:
         return f"{model}-seed{self.seed}"
 
 
-def link_subset(run: Path, set_folder: Path, trajectories: list[Path]) -> None:
-    """RUN/trajectories holding `trajectories` (files of `set_folder`/trajectories) and RUN/extractor.pt the set's,
-    as hard links (copies where the file system has none); made under a temporary name and renamed, so RUN is
-    complete or absent. Nothing to do where RUN exists."""
+def link_subset(run: Path, subset_folder: Path, trajectories: list[Path]) -> None:
+    """RUN/trajectories holding `trajectories` (files of `subset_folder`/trajectories) and RUN/extractor.pt the
+    subset's, as hard links (copies where the file system has none); made under a temporary name and renamed, so RUN
+    is complete or absent. Nothing to do where RUN exists."""
     if run.is_dir():
         return
     work = temporary_path(run)
     (work / "trajectories").mkdir(parents=True)
     pairs = [(path, work / "trajectories" / path.name) for path in trajectories]
-    for source, target in [*pairs, (set_folder / EXTRACTOR_FILE, work / EXTRACTOR_FILE)]:
-        try:
-            os.link(source, target)
-        except OSError:
-            shutil.copy2(source, target)
+    for source, target in [*pairs, (subset_folder / EXTRACTOR_FILE, work / EXTRACTOR_FILE)]:
+        link_or_copy(source, target)
     work.rename(run)
+
+
+def link_or_copy(source: Path, target: Path) -> None:
+    """`target` a hard link to `source`, or a copy where the file system has no links."""
+    try:
+        os.link(source, target)
+    except OSError:
+        shutil.copy2(source, target)
 
 
 def run_grid_unit(unit: Unit, bar: RemoteBar) -> dict[str, dict]:

@@ -1,6 +1,7 @@
 """`cnep sim grid`: its options become GridConfig and bad ones are refused in one line (the reported episode seeds
-never the validation seeds); a set's subset takes the first demonstrations of each behaviour; the CSV and the pooled
-table from cells' rates; and a tiny grid end to end (1 task, 1 set, 1 seed, 2 demonstrations per behaviour, a few
+never the validation seeds); a set's subset takes the first demonstrations of each behaviour; a set holding the
+features of all its demonstrations is refused; the CSV and the pooled table from cells' rates; and a tiny grid end to
+end, its subset extracted on its own (1 task, 1 set, 1 seed, 2 demonstrations per behaviour, a few
 training steps, 1 episode of a few steps, each model's checkpoint chosen from 2 candidates on one validation episode
 per condition), run again with no work, and a lost cell made again from the unit's kept checkpoints."""
 
@@ -17,10 +18,13 @@ from cnep.models.errors import ConfigError
 from cnep.pipeline.cli.main import build_parser, main
 from cnep.pipeline.cli.sim import config_of
 from cnep.pipeline.errors import PipelineError
+from cnep.pipeline.extract.stage import views_for
 from cnep.pipeline.sim.config import SIM_TASKS, policy_task, task_and_version
 from cnep.pipeline.sim.grid_config import GridConfig, subset
 from cnep.pipeline.sim.grid_table import cell_rows, csv_text, pooled_table, read_rows
 from cnep.pipeline.sim.validation import VALIDATION_RANGE, SelectionSettings
+from cnep.recordings import read_summary
+from cnep.recordings.constants import KIND_TRAJECTORY
 from cnep.sim.statistics import wilson
 
 SIM = all(importlib.util.find_spec(name) for name in cnep.sim.EXTRA)
@@ -171,6 +175,18 @@ def test_a_subset_takes_the_first_demonstrations_of_each_behaviour():
 
 
 @needs_sim
+def test_a_set_holding_features_of_all_its_demonstrations_is_refused_in_one_line(tmp_path):
+    import cnep.pipeline.sim.grid as grid
+
+    folder = tmp_path / "sets/obstacle-set0"
+    (folder / "trajectories").mkdir(parents=True)
+    config = GridConfig(out=tmp_path, tasks=("obstacle",), sets=(0,), train_seeds=(0,), per_behaviour=(2,))
+    with pytest.raises(PipelineError, match=r"obstacle-set0: this set holds the features of all its demonstrations"):
+        grid.make_set(config, None, 0, folder)
+    assert sorted(p.name for p in folder.iterdir()) == ["trajectories"]
+
+
+@needs_sim
 @pytest.mark.slow  # a demonstration set, two trainings, two exports, two policies in the loop
 def test_a_tiny_grid_runs_end_to_end_and_a_rerun_does_no_work(tmp_path, monkeypatch, few_calibration_frames):
     import cnep.pipeline.sim.grid as grid
@@ -195,7 +211,12 @@ def test_a_tiny_grid_runs_end_to_end_and_a_rerun_does_no_work(tmp_path, monkeypa
     ]
     assert json.loads((out / "sets/obstacle-set0/set.json").read_text())["behaviours"].count("left") == 2
     run = out / "runs/obstacle-set0-d2-seed0"
-    assert len(list((run / "trajectories").glob("*.mcap"))) == 4
+    trajectories = sorted((run / "trajectories").glob("*.mcap"))
+    assert len(trajectories) == 4
+    # the subset extracted as `cnep extract` extracts 4 recordings: the rule's views, its own calibrated weights
+    assert [read_summary(path, KIND_TRAJECTORY).views for path in trajectories] == [views_for(4)] * 4
+    assert (run / "extractor.pt").samefile(out / "sets/obstacle-set0-d2/extractor.pt")
+    assert not (out / "sets/obstacle-set0/trajectories").exists()
     for model in ("cnep", "cnmp"):  # each kept checkpoint chosen from its candidates on the validation episodes
         kept = json.loads((run / "checkpoints" / f"{model}-seed0" / "config.json").read_text())["selection"]
         assert kept["seeds"] == {"first": VALIDATION_RANGE[0], "last": VALIDATION_RANGE[0]}
@@ -210,6 +231,7 @@ def test_a_tiny_grid_runs_end_to_end_and_a_rerun_does_no_work(tmp_path, monkeypa
 
     with monkeypatch.context() as patched:
         patched.setattr(grid, "generate_demonstrations", no_work)
+        patched.setattr(grid, "extract_features", no_work)
         patched.setattr(grid, "run_grid_unit", no_work)
         again = grid.run_grid(config)
     assert (again.cells, again.ran, again.table) == (2, 0, first.table)
