@@ -55,12 +55,14 @@ SCHEDULED = ("steps", "warmup_steps", "val_every", "online_contexts")  # the Tra
 @dataclass(frozen=True)
 class Schedule:
     """What the rule gave a training run: its input (`demonstrations`: training demonstrations, `batch_size`: samples
-    per step over every process), the values it trains with (`feature_components`: None or 0, every column as it is;
+    per step over every process, `scenes`: the training demonstrations and their views, perception.views), the values
+    it trains with (`feature_components`: None or 0, every column as it is;
     `online_contexts`: the share of contexts shaped as the policy's conditioning) and the names of those given rather
     than scheduled. config.json holds it under `training.schedule`."""
 
     demonstrations: int
     batch_size: int
+    scenes: int
     steps: int
     warmup_steps: int
     val_every: int
@@ -70,7 +72,7 @@ class Schedule:
 
     def to_dict(self) -> dict:
         return {
-            "inputs": {"demonstrations": self.demonstrations, "batch_size": self.batch_size},
+            "inputs": {"demonstrations": self.demonstrations, "batch_size": self.batch_size, "scenes": self.scenes},
             "steps": self.steps,
             "warmup_steps": self.warmup_steps,
             "val_every": self.val_every,
@@ -118,17 +120,23 @@ def with_components(model: CNEPConfig, demonstrations: int) -> CNEPConfig:
 
 
 def schedule_of(
-    training: TrainConfig, demonstrations: int, world_size: int = 1, model: CNEPConfig | None = None
+    training: TrainConfig,
+    demonstrations: int,
+    world_size: int = 1,
+    model: CNEPConfig | None = None,
+    scenes: int | None = None,
 ) -> Schedule:
     """The schedule of `training` and `model` (None: one that observes nothing it does not predict) for
     `demonstrations` training demonstrations (every process's), `world_size` processes each drawing
-    `training.batch_size` samples a step: its given values kept, the others the rule's."""
+    `training.batch_size` samples a step, the features seen in `scenes` scenes (the demonstrations and their views;
+    None: the demonstrations alone): its given values kept, the others the rule's."""
+    scenes = demonstrations if scenes is None else scenes
     model = CNEPConfig() if model is None else model
     batch = training.batch_size * world_size
     steps = training.steps if training.steps is not None else scheduled_steps(demonstrations, batch)
     warmup = training.warmup_steps if training.warmup_steps is not None else warmup_for(steps)
     val_every = training.val_every if training.val_every is not None else val_every_for(steps)
-    components = with_components(model, demonstrations).feature_components
+    components = with_components(model, scenes).feature_components
     online = training.online_contexts
     if online is None:
         online = online_contexts_for(len(model.columns.observed_only))
@@ -137,7 +145,7 @@ def schedule_of(
         given += ("feature_components",)
     if warmup >= steps:
         log.warning("a warm-up of %d steps in %d steps: the learning rate never reaches its peak", warmup, steps)
-    return Schedule(demonstrations, batch, steps, warmup, val_every, components, online, given)
+    return Schedule(demonstrations, batch, scenes, steps, warmup, val_every, components, online, given)
 
 
 def scheduled(

@@ -208,8 +208,9 @@ def _load(config: TrainStageConfig, procs: Processes, held: ExitStack) -> _Run:
     train_idx, val_idx = split_validation(list(range(len(data.files))), config.val_fraction, config.training.seed)
     model_config = replace(config.model, columns=layout.roles)
     # each view of a training demonstration is one more scene its features are seen in (perception.views)
-    model_config = with_components(model_config, sum(1 + data.files[i].views for i in train_idx))
-    schedule = schedule_of(config.training, len(train_idx), procs.world_size, model_config)
+    scenes = sum(1 + data.files[i].views for i in train_idx)
+    schedule = schedule_of(config.training, len(train_idx), procs.world_size, model_config, scenes)
+    model_config = with_components(model_config, scenes)
     model_config.components()  # feature_components against the layout's columns, before anything is packed
     if config.matched_cnmp:
         model_config = matched_cnmp(model_config)

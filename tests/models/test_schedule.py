@@ -51,7 +51,7 @@ def test_a_warm_up_longer_than_the_run_is_warned_about(caplog):
 def test_the_record_names_its_input_values_and_what_was_given():
     record = schedule_of(TrainConfig(val_every=7), 40).to_dict()
     assert record == {
-        "inputs": {"demonstrations": 40, "batch_size": 32},
+        "inputs": {"demonstrations": 40, "batch_size": 32, "scenes": 40},
         "steps": BASE_STEPS,
         "warmup_steps": MAX_WARMUP,
         "val_every": 7,
@@ -77,6 +77,10 @@ def test_fewer_demonstrations_than_features_read_as_many_components():
     assert (record["feature_components"], record["given"]) == (40, [])
     record = schedule_of(TrainConfig(), 40, model=CNEPConfig(columns=IMAGES, feature_components=16)).to_dict()
     assert (record["feature_components"], record["given"]) == (16, ["feature_components"])
+    # views of the demonstrations' frames are more scenes: 40 demonstrations seen in 80 read every column
+    record = schedule_of(TrainConfig(), 40, model=model, scenes=80).to_dict()
+    assert (record["inputs"]["scenes"], record["feature_components"], record["given"]) == (80, None, [])
+    assert record["steps"] == schedule_of(TrainConfig(), 40).steps  # the steps follow the demonstrations alone
 
 
 def test_a_model_that_reads_a_camera_trains_on_its_policys_contexts_and_a_motion_model_on_the_papers():

@@ -248,6 +248,9 @@ def test_views_of_the_training_files_are_trained_on_and_count_as_scenes_for_the_
     fitted = [f for f in config["files"] if f["split"] == "train"]
     assert [f["views"] for f in config["files"]] == [2] * len(LENGTHS)
     assert config["model"]["feature_components"] == 3 * len(fitted)  # each training file and its 2 views
+    schedule = config["training"]["schedule"]  # the record says what the model reads, from what
+    assert (schedule["inputs"]["scenes"], schedule["feature_components"]) == (3 * len(fitted), 3 * len(fitted))
+    assert "feature_components" not in schedule["given"]  # the rule's, not given
     seen = []
     for f in fitted:
         traj = read_trajectory(f["path"])
@@ -396,7 +399,8 @@ def test_settings_precedence_is_defaults_then_config_file_then_command_line(full
     # the schedule fills the warm-up from the steps given, and says from what and which values were given
     assert training["warmup_steps"] == 5 and training["schedule"]["given"] == ["steps", "val_every"]
     trained = sum(f["split"] == "train" for f in config["files"])
-    assert training["schedule"]["inputs"] == {"demonstrations": trained, "batch_size": training["batch_size"]}
+    inputs = {"demonstrations": trained, "batch_size": training["batch_size"], "scenes": trained}  # no views
+    assert training["schedule"]["inputs"] == inputs
     assert config["model"]["encoder_widths"] == [8, 8] and config["model"]["n_experts"] == 2
     assert config["model"]["assignment"] == "mixture"  # the loss's assignment travels with the checkpoint
 
