@@ -110,6 +110,20 @@ def test_only_a_switch_to_a_valid_places_expert_after_the_change_counts_and_one_
     assert r["switched_unchanged"] == 0.3333 and r["switched_unchanged_ci"] == rounded(wilson(1, 3))
 
 
+def test_a_re_route_within_an_expert_counts_beside_the_switches_and_older_rows_have_none():
+    changed = [
+        pick_row("right", ["right"], change_step=10, reroute_step=14),  # the same expert's plan moved
+        pick_row("right", ["right"], switches=1, change_step=10, first_switch_step=12, valid_switch_step=12,
+                 reroute_step=12),
+        pick_row("left", ["right"], success=False, change_step=10, reroute_step=20),  # too late
+        pick_row("left", ["right"], success=False, change_step=10),  # an older run's row
+    ]  # fmt: skip
+    r = pick_rates([*changed, pick_row("left", ["left"], reroute_step=None)])
+    assert r["switched_within"] == 0.25 and r["rerouted_within"] == 0.5  # over the 4 changed rows
+    assert r["rerouted_within_ci"] == rounded(wilson(2, 4))
+    assert pick_rates([pick_row("left", ["left"])])["rerouted_within"] is None  # nothing changed
+
+
 def test_the_obstacle_cue_during_the_motion_is_its_change_and_a_cue_from_the_reset_is_none():
     rows = [
         obstacle_row("left", cue_side="left", switches=1, cue_step=6, first_switch_step=8, cue_switch_step=8),

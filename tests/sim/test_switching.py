@@ -19,7 +19,7 @@ from cnep.sim.tasks.obstacle.switching import side_of  # noqa: E402
 from cnep.sim.tasks.pick_place import scene as P  # noqa: E402
 from cnep.sim.tasks.pick_place.demonstrator import pick_expert  # noqa: E402
 from cnep.sim.tasks.pick_place.env import PickPlaceEnv  # noqa: E402
-from cnep.sim.tasks.pick_place.switching import counted_switch, plan_place  # noqa: E402
+from cnep.sim.tasks.pick_place.switching import counted_switch, plan_place, rerouted  # noqa: E402
 
 LEFT, RIGHT, FAR_LEFT = 0, 1, 2  # indices of P.PLACES
 
@@ -48,6 +48,16 @@ def test_only_a_switch_after_the_change_to_a_valid_places_plan_counts():
     assert counted_switch(experts, predicted, 6, [LEFT]) is None  # switches the read of step 6 made are not after it
     assert counted_switch(experts, predicted, None, [LEFT]) is None  # no change, nothing to count
     assert counted_switch(experts[:1], predicted[:1], 0, [LEFT]) is None  # one read (planned): no switch
+
+
+def test_a_re_route_is_the_first_plan_after_the_change_to_a_valid_place_whichever_expert_made_it():
+    # One expert covers two places: after the change its plan moves from right to left through the middle, no switch.
+    predicted = np.stack([_plan_to(RIGHT)] * 4 + [_plan_to(None)] * 2 + [_plan_to(LEFT)] * 2)
+    experts = np.zeros(len(predicted), dtype=int)
+    assert counted_switch(experts, predicted, 3, [LEFT]) is None and rerouted(predicted, 3, [LEFT]) == 6
+    assert rerouted(predicted, 3, [FAR_LEFT]) is None  # its plan never ends there
+    assert rerouted(predicted, 6, [LEFT]) == 7  # the read of the change's step is not after it
+    assert rerouted(predicted, None, [LEFT]) is None
 
 
 def test_a_path_passes_on_the_side_of_the_box_it_is_on_where_it_comes_nearest_the_boxs_y():
@@ -107,5 +117,5 @@ def test_an_episode_records_the_places_valid_after_the_change_and_the_switch_to_
     ep = run_episode(env, _ExpertPolicy(env), seed=3, protocol=ONLINE)
     assert ep.success and ep.change_step is not None
     assert ep.valid_after_change == ep.valid and ep.place in ep.valid_after_change
-    assert ep.switch_step == ep.valid_switch_step == ep.change_step + 1  # it saw the change at its next read
+    assert ep.switch_step == ep.valid_switch_step == ep.reroute_step == ep.change_step + 1  # at its next read
     env.close()

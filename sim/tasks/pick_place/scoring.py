@@ -3,19 +3,21 @@
 and what the summary says of the demonstrations (`describe_demonstrations`).
 
 A row: the episode's seed, success, collision, lifted, dropped, the place the bar ended on and the valid ones, the
-change's step (the changed condition, once the table changed), the first switch of the active expert, the first at
-or after the change and the first after it to the expert of a valid place (`valid_switch_step`), the expert
-switches, how far the gripper was from the bar's centre when first commanded to close (`grasp_offset_m`; None: it
-never closed), the steps and the policy / render / physics time per step (p50, p99, ms). The rates over `episodes`:
-success (the bar at rest on a valid place), collision (with a cup), lifted, dropped, the places used (episode
-counts by place), the share of episodes with an expert switch (`switching`), and sim.scoring.change_rates': the
-share that switched while nothing had changed (`switched_unchanged`: in decided and free scenes every switch; in
-changed scenes a switch before the policy could see the change), the share of the changed episodes that switched to
-a valid place's expert within SWITCH_WITHIN steps of the change (`switched_within`) and the median latency of such
-switches. Each share has its Wilson 95% interval under `NAME_ci` (sim.scoring.shares). `entropy`: the behaviour
-entropy of the place (sim.statistics.behaviour_entropy) over the successful episodes whose scene left two valid
-places (free scenes, a context per grasp); None where the scene left one (decided, changed). `grasp_offset_p50_m`:
-the median grasp offset of the episodes whose gripper closed (None: none did).
+change's step (the changed condition, once the table changed), the first switch of the active expert, the first at or
+after the change and the first after it to the expert of a valid place (`valid_switch_step`), the first read after it
+whose plan ends on a valid place, by a switch or within an expert (`reroute_step`), the expert switches, how far the
+gripper was from the bar's centre when first commanded to close (`grasp_offset_m`; None: it never closed), the steps and
+the policy / render / physics time per step (p50, p99, ms). The rates over `episodes`: success (the bar at rest on a
+valid place), collision (with a cup), lifted, dropped, the places used (episode counts by place), the share of episodes
+with an expert switch (`switching`), and sim.scoring.change_rates': the share that switched while nothing had changed
+(`switched_unchanged`: in decided and free scenes every switch; in changed scenes a switch before the policy could see
+the change), the share of the changed episodes that switched to a valid place's expert within SWITCH_WITHIN steps of the
+change (`switched_within`) and the median latency of such switches; the share of the changed episodes whose plan ended
+on a valid place within SWITCH_WITHIN steps of the change, by either path (`rerouted_within`). Each share has its Wilson
+95% interval under `NAME_ci` (sim.scoring.shares). `entropy`: the behaviour entropy of the place
+(sim.statistics.behaviour_entropy) over the successful episodes whose scene left two valid places (free scenes, a
+context per grasp); None where the scene left one (decided, changed). `grasp_offset_p50_m`: the median grasp offset of
+the episodes whose gripper closed (None: none did).
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ from cnep.sim.episode import EpisodeResult
 from cnep.sim.scoring import (
     CHANGE_COLUMNS,
     PERCENT_CI_WIDTH,
+    SWITCH_WITHIN,
     Column,
     centimetres,
     change_rates,
@@ -42,7 +45,7 @@ from cnep.sim.scoring import (
 from cnep.sim.statistics import behaviour_entropy
 from cnep.sim.tasks.pick_place import scene as P
 from cnep.sim.tasks.pick_place.layout import PickLayout
-from cnep.sim.tasks.pick_place.switching import counted_switch
+from cnep.sim.tasks.pick_place.switching import counted_switch, rerouted
 
 
 @dataclass(kw_only=True)
@@ -54,6 +57,7 @@ class PickEpisode(EpisodeResult):
     first step at or after the change at which the active expert changed (None: none did, no change, or PLANNED);
     valid_after_change, the valid places' names right after the change (None without one); valid_switch_step, the
     first switch after the change to an expert whose plan ends on one of them (switching.counted_switch; None: none);
+    reroute_step, the first read after the change whose plan ends on one of them (switching.rerouted; None: none);
     grasp_offset_m, the gripper's horizontal distance from the bar's centre when first commanded to close (None: never).
     """
 
@@ -67,6 +71,7 @@ class PickEpisode(EpisodeResult):
     switch_step: int | None
     valid_after_change: list[str] | None = None
     valid_switch_step: int | None = None
+    reroute_step: int | None = None
     grasp_offset_m: float | None = None
 
 
@@ -90,6 +95,7 @@ def judge(infos: list[dict], layout: PickLayout = P.BAR, **recorded) -> PickEpis
         switch_step=switch_after(recorded["experts"], change),
         valid_after_change=None if after is None else [names[i] for i in after],
         valid_switch_step=counted_switch(recorded["experts"], recorded["predicted"], change, after, layout),
+        reroute_step=rerouted(recorded["predicted"], change, after, layout),
         grasp_offset_m=info["grasp_offset_m"],
     )
 
@@ -102,6 +108,13 @@ def switch_after(experts: np.ndarray, change: int | None) -> int | None:
         return None
     after = np.flatnonzero(np.diff(experts[change:]) != 0)
     return int(change + 1 + after[0]) if len(after) else None
+
+
+def rerouted_within(row: dict) -> bool:
+    """Whether a changed episode's plan ended on a valid place within SWITCH_WITHIN steps of the change (rows of older
+    runs lack `reroute_step`: never)."""
+    step = row.get("reroute_step")
+    return step is not None and step - row["change_step"] <= SWITCH_WITHIN
 
 
 def pick_row(ep: PickEpisode) -> dict:
@@ -118,6 +131,7 @@ def pick_row(ep: PickEpisode) -> dict:
         "first_switch_step": first_switch(ep.experts),
         "switch_step": ep.switch_step,
         "valid_switch_step": ep.valid_switch_step,
+        "reroute_step": ep.reroute_step,
         "switches": ep.switches,
         "grasp_offset_m": ep.grasp_offset_m,
         "steps": ep.steps,
@@ -144,6 +158,7 @@ def pick_rates(rows: list[dict]) -> dict:
         "places": dict(sorted(places.items())),
         **shares(rows, switching=lambda r: r["switches"] > 0),
         **change_rates(rows, change="change_step", switch="valid_switch_step"),
+        **shares([r for r in rows if r["change_step"]], rerouted_within=rerouted_within),
         "entropy": behaviour_entropy((tuple(r["valid"]), r["place"]) for r in rows if r["success"]),
         "grasp_offset_p50_m": float(np.median(offsets)) if offsets else None,
         "ms": pooled_ms(rows),
@@ -157,6 +172,7 @@ COLUMNS = (
     Column("lifted", 7, percent("lifted")),
     Column("grasp cm", 8, centimetres("grasp_offset_p50_m")),
     *CHANGE_COLUMNS,
+    Column(f"reroute<={SWITCH_WITHIN}", PERCENT_CI_WIDTH, percent_ci("rerouted_within")),
     Column("entropy", 7, decimals("entropy")),
     Column("places", 0, lambda r: " ".join(f"{k}:{v}" for k, v in r["places"].items())),
 )
