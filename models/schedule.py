@@ -12,9 +12,10 @@ validation, over every process):
 - validation: VALIDATIONS times over the steps, at most every MAX_VAL_EVERY steps;
 - feature components: where a model trains on fewer than FEW_DEMONSTRATIONS demonstrations and observes more columns
   that it does not predict (a camera's 1280 features), the encoder reads those columns as their principal components,
-  as many as the demonstrations (`components_for`). A few dozen scenes differ along at most that many directions of
-  the features; read whole, the rest tells each training scene apart by its own clutter, and the model recalls its
-  training scenes instead of reading a new one. With more demonstrations every column is read as it is, as the
+  as many as the demonstrations (`components_for`; each view of a demonstration's frames counts as one more,
+  `schedule_of`'s `scenes`). A few dozen scenes differ along at most that many directions of the features; read
+  whole, the rest tells each training scene apart by its own clutter, and the model recalls its training scenes
+  instead of reading a new one. With more demonstrations every column is read as it is, as the
   demo's and the obstacle's larger sets read best (docs/concepts.md).
 - online contexts: a model that observes columns it does not predict (a camera's features) is a policy, conditioned
   step by step on what it has seen so far (runtime.ConditioningPolicy); ONLINE_SHARE of its training contexts are
@@ -56,9 +57,9 @@ SCHEDULED = ("steps", "warmup_steps", "val_every", "online_contexts")  # the Tra
 class Schedule:
     """What the rule gave a training run: its input (`demonstrations`: training demonstrations, `batch_size`: samples
     per step over every process, `scenes`: the training demonstrations and their views, perception.views), the values
-    it trains with (`feature_components`: None or 0, every column as it is;
-    `online_contexts`: the share of contexts shaped as the policy's conditioning) and the names of those given rather
-    than scheduled. config.json holds it under `training.schedule`."""
+    it trains with (`feature_components`: None or 0, every column as it is; `online_contexts`: the share of contexts
+    shaped as the policy's conditioning) and the names of those given rather than scheduled. config.json holds it
+    under `training.schedule`."""
 
     demonstrations: int
     batch_size: int
