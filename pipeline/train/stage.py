@@ -44,7 +44,7 @@ from cnep.models.candidates import Kept
 from cnep.models.matched import matched_cnmp
 from cnep.models.normaliser import Moments
 from cnep.models.sampler import TrajectoryStack
-from cnep.models.schedule import Schedule, schedule_of, scheduled, with_components
+from cnep.models.schedule import Schedule, schedule_of, scheduled
 from cnep.models.threads import torch_threads
 from cnep.models.train import split_validation
 from cnep.outputs import record_written, writing_as
@@ -210,7 +210,7 @@ def _load(config: TrainStageConfig, procs: Processes, held: ExitStack) -> _Run:
     # each view of a training demonstration is one more scene its features are seen in (perception.views)
     scenes = sum(1 + data.files[i].views for i in train_idx)
     schedule = schedule_of(config.training, len(train_idx), procs.world_size, model_config, scenes)
-    model_config = with_components(model_config, scenes)
+    model_config = replace(model_config, feature_components=schedule.feature_components)  # what the record says
     model_config.components()  # feature_components against the layout's columns, before anything is packed
     if config.matched_cnmp:
         model_config = matched_cnmp(model_config)
