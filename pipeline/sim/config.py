@@ -316,22 +316,14 @@ class PickPlaceConfig:
     experts: int = setting(4, "the CNEP's experts (the CNMP: one, parameter-matched)")
     env_version: int = setting(ENV_VERSIONS[-1], ENV_VERSION_HELP, choices=ENV_VERSIONS)
     assignment: str = assignment_setting()
-    # Where a motion heads (which mat) is read from the context, beside values the model predicts closely (the
-    # heights, the gripper): with plain NLL those outweigh it and the place's mean stops being learned.
+    # Which mat a motion heads for is read from the context, beside values the model predicts closely (the heights,
+    # the yaw, the gripper): on this task's demonstrations the plain likelihood lets those outweigh it and no bar is
+    # placed, where pick-cube places more cubes with it (docs/results-tuning.md).
     nll_beta: float = setting(0.5, "the training loss's beta-NLL power, as `cnep train --nll-beta` takes it")
     feature_components: int | None = feature_components_setting()
     views: int | None = views_setting()
     weights: str = setting(AUTO_WEIGHTS, "the feature network's weights, as `cnep demo --weights` takes them")
     offline: bool = setting(False, "never download the ImageNet weights (also: environment variable CNEP_OFFLINE=1)")
-    # A cup can move during the motion: the start's frame, kept in the context for the whole episode, would go on
-    # showing the old table, and a long window dilutes the change's evidence; a short window of recent steps alone
-    # switches expert within a few steps of the change.
-    window: int = setting(
-        4,
-        "latest observations in the conditioning set the CNEP and the CNMP are trained with and carry into their "
-        "export (runtime.ConditioningPolicy.window)",
-    )
-    anchors: int = setting(0, "first observations kept in that set for the whole episode (ConditioningPolicy.anchors)")
     episodes: int = setting(20, "closed-loop episodes per policy, protocol and condition (decided, free, changed)")
     max_steps: int | None = setting(None, MAX_STEPS_HELP)
     episode_seed: int = setting(0, "seed of the first episode (episode i is reset with seed + i)")
@@ -340,6 +332,8 @@ class PickPlaceConfig:
     baselines: bool = setting(True, BASELINES_HELP)
     pca: int = setting(8, PCA_HELP)
     selection: SelectionSettings = field(default_factory=SelectionSettings)  # the kept checkpoint's choice
+    # What replaces ConditioningPolicy's defaults in the models it trains (their config.json, their exports).
+    conditioning: ConditioningOverrides = field(default_factory=ConditioningOverrides)
     force: bool = setting(False, FORCE_HELP)
     quiet: bool = False
 
@@ -353,8 +347,6 @@ class PickPlaceConfig:
         protocols_of(self.protocol)
         check_env_version(self.env_version)
         check_training(self)
-        if self.window < 1 or self.anchors < 0:
-            raise PipelineError(f"window must be >= 1 and anchors >= 0, got {self.window} and {self.anchors}")
         if self.episodes < 1 or (self.max_steps is not None and self.max_steps < 1) or self.record < 0 or self.pca < 1:
             raise PipelineError(
                 f"episodes, max_steps and pca must be >= 1 and record >= 0, got {self.episodes}, {self.max_steps}, "
@@ -368,8 +360,5 @@ class PickPlaceConfig:
 
 def trained_conditioning(config: SimConfig | PickPlaceConfig) -> ConditioningPolicy:
     """The conditioning a `cnep sim` run trains into its models (config.json, and so the exported manifest and every
-    Policy of them): ConditioningPolicy's defaults with the run's own settings (the obstacle task's conditioning
-    options, pick-place's window and anchors)."""
-    if isinstance(config, PickPlaceConfig):
-        return replace(ConditioningPolicy(), window=config.window, anchors=config.anchors)
+    Policy of them): ConditioningPolicy's defaults, `cnep train`'s, but for the run's conditioning options."""
     return config.conditioning.applied(ConditioningPolicy())

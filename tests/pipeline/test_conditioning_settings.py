@@ -133,8 +133,11 @@ def test_a_bad_conditioning_setting_is_refused_in_one_line(trained, tmp_path, ca
 def test_a_sim_run_trains_its_conditioning_into_its_policies(tmp_path):
     from cnep.pipeline.sim.config import PickPlaceConfig, SimConfig, trained_conditioning
 
-    pick = trained_conditioning(PickPlaceConfig(out=tmp_path / "p", window=3, anchors=0))
+    pick = trained_conditioning(
+        PickPlaceConfig(out=tmp_path / "p", conditioning=ConditioningOverrides(window=3, anchors=0))
+    )
     assert (pick.window, pick.anchors) == (3, 0)
+    assert trained_conditioning(PickPlaceConfig(out=tmp_path / "q")) == ConditioningPolicy()  # `cnep train`'s
     given = ConditioningOverrides(first_expert="sample", window=6)
     obstacle = trained_conditioning(SimConfig(out=tmp_path / "o", conditioning=given))
     assert obstacle == replace(ConditioningPolicy(), first_expert="sample", window=6)

@@ -50,7 +50,7 @@ def test_obstacle_arguments_become_its_settings_and_the_others_keep_their_defaul
     assert config.protocols == PROTOCOLS
 
 
-def test_pick_place_arguments_become_its_settings_and_bad_ones_are_refused():
+def test_pick_place_arguments_become_its_settings_and_bad_ones_are_refused(tmp_path, capsys):
     args = build_parser().parse_args(["sim", "pick-place", "--out", "x", "--episodes", "3", "--no-baselines"])
     config = config_of(PickPlaceConfig, args, out=args.out)
     assert (config.episodes, config.baselines, config.out) == (3, False, Path("x"))
@@ -62,9 +62,10 @@ def test_pick_place_arguments_become_its_settings_and_bad_ones_are_refused():
         PickPlaceConfig(out=Path("x"), pca=0)
     args = build_parser().parse_args(["sim", "pick-place", "--out", "x", "--window", "6", "--anchors", "1"])
     config = config_of(PickPlaceConfig, args, out=args.out)
-    assert (config.window, config.anchors) == (6, 1)
-    with pytest.raises(PipelineError, match="window must be >= 1 and anchors >= 0, got 0 and 0"):
-        PickPlaceConfig(out=Path("x"), window=0)
+    assert (config.conditioning.window, config.conditioning.anchors) == (6, 1)
+    assert main(["sim", "pick-place", "--out", str(tmp_path / "p"), "--window", "0", "--offline"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "window must be >= 1" in err and len(err.splitlines()) == 1 and not (tmp_path / "p").exists()
     with pytest.raises(PipelineError, match="protocol must be one of both, planned, online"):
         PickPlaceConfig(out=Path("x"), protocol="replanned")
 

@@ -24,7 +24,6 @@ from cnep.pipeline.sim.partial import SUMMARY_FILE  # noqa: E402
 from cnep.pipeline.sim.stage import run_sim  # noqa: E402
 from cnep.pipeline.sim.validation import SelectionSettings  # noqa: E402
 from cnep.recordings import read_demonstration  # noqa: E402
-from cnep.runtime import ConditioningPolicy  # noqa: E402
 from cnep.sim.tasks.pick_place import scene as P  # noqa: E402
 from tests.test_examples import load  # noqa: E402
 
@@ -47,14 +46,10 @@ def test_cnep_sim_pick_place_writes_the_documented_summary(
     monkeypatch.setenv("HOME", str(tmp_path / "home"))
     monkeypatch.setenv("TORCH_HOME", str(tmp_path / "torch"))
     out = tmp_path / "pick"
-    # The conditioning the exported policies carry: `cnep sim eval`, which runs a policy's own, repeats the run's rows.
-    own = ConditioningPolicy()
     config = PickPlaceConfig(
         out=out,
         demonstrations=2,
         train_steps=20,
-        window=own.window,
-        anchors=own.anchors,
         episodes=1,
         max_steps=4,
         record=1,
