@@ -316,9 +316,9 @@ class PickPlaceConfig:
     experts: int = setting(4, "the CNEP's experts (the CNMP: one, parameter-matched)")
     env_version: int = setting(ENV_VERSIONS[-1], ENV_VERSION_HELP, choices=ENV_VERSIONS)
     assignment: str = assignment_setting()
-    # Which mat a motion heads for is read from the context, beside values the model predicts closely (the heights,
-    # the yaw, the gripper): on this task's demonstrations the plain likelihood lets those outweigh it and no bar is
-    # placed, where pick-cube places more cubes with it (docs/results-tuning.md).
+    # With the plain likelihood this task's policies lift the bar but do not let go: where the demonstrations release,
+    # the predicted gripper stays short of the command's threshold; pick-cube places more cubes with it
+    # (docs/results-tuning.md).
     nll_beta: float = setting(0.5, "the training loss's beta-NLL power, as `cnep train --nll-beta` takes it")
     feature_components: int | None = feature_components_setting()
     views: int | None = views_setting()
