@@ -18,7 +18,9 @@ models.loss).
 The trajectories' rows stay as they were given, (R, width) float32 one trajectory after another (a memory-mapped
 file for `pipeline.train`'s data sets: `TrajectoryStack.from_rows`); a batch reads only the rows it draws and
 normalises them then, as a padded copy normalised in advance would: a step past a trajectory's end (drawn where it is
-shorter than the batch's most steps, and masked) reads as a row of zeros.
+shorter than the batch's most steps, and masked) reads as a row of zeros. A trajectory may be held at its last row
+for some steps past its end (`held`; which ones and for how long: pipeline.train.hold): those steps read its last row,
+and its times run over them as over its own.
 """
 
 from __future__ import annotations
@@ -57,26 +59,37 @@ class TrajectoryStack:
     """Trajectories packed into one array of rows, read by (trajectory, step) and normalised by the model's normaliser.
 
     rows: (R, width) float32 (an array or a memory map); starts, lengths: (N,) long, trajectory i's rows are
-    rows[starts[i]:starts[i] + lengths[i]]; `longest`: the most steps of one.
+    rows[starts[i]:starts[i] + lengths[i]]; held: (N,) long or None, steps trajectory i is held at its last row past
+    its end (its steps then number lengths[i] + held[i], the held ones reading its last row: the recording run on with
+    nothing moving); `longest`: the most steps of one.
     """
 
-    def __init__(self, trajectories: Sequence[np.ndarray], model) -> None:
+    def __init__(self, trajectories: Sequence[np.ndarray], model, held: Sequence[int] | None = None) -> None:
         lengths = [len(t) for t in trajectories]
         rows = np.concatenate([np.asarray(t, dtype=np.float32) for t in trajectories])  # (R, width)
         starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
-        self._set(rows, starts, lengths, model)
+        self._set(rows, starts, lengths, model, held)
 
     @classmethod
-    def from_rows(cls, rows: np.ndarray, starts: Sequence[int], lengths: Sequence[int], model) -> TrajectoryStack:
-        """The stack of the trajectories at `starts` (rows) of `lengths` in (R, width) float32 `rows`, kept as given."""
+    def from_rows(
+        cls, rows: np.ndarray, starts: Sequence[int], lengths: Sequence[int], model, held: Sequence[int] | None = None
+    ) -> TrajectoryStack:
+        """The stack of the trajectories at `starts` (rows) of `lengths` in (R, width) float32 `rows`, kept as given,
+        each held `held` steps at its last row."""
         stack = cls.__new__(cls)
-        stack._set(rows, starts, lengths, model)
+        stack._set(rows, starts, lengths, model, held)
         return stack
 
-    def _set(self, rows: np.ndarray, starts: Sequence[int], lengths: Sequence[int], model) -> None:
+    def _set(
+        self, rows: np.ndarray, starts: Sequence[int], lengths: Sequence[int], model, held: Sequence[int] | None
+    ) -> None:
         self.rows = rows  # (R, width)
         self.starts = torch.as_tensor(np.asarray(starts, dtype=np.int64))  # (N,)
-        self.lengths = torch.as_tensor(np.asarray(lengths, dtype=np.int64))  # (N,)
+        self.last = torch.as_tensor(np.asarray(lengths, dtype=np.int64)) - 1  # (N,) each one's last row
+        held = np.zeros(len(self.last), dtype=np.int64) if held is None else np.asarray(held, dtype=np.int64)
+        if held.shape != self.last.shape or (held < 0).any():
+            raise ValueError(f"held must give {len(self.last)} step counts >= 0, got {held.tolist()}")
+        self.lengths = self.last + 1 + torch.as_tensor(held)  # (N,) its steps, the held ones included
         self.longest = int(self.lengths.max())
         self.loc = model.normaliser.loc.detach().cpu().clone()  # (width,)
         self.scale = model.normaliser.scale.detach().cpu().clone()  # (width,)
@@ -88,7 +101,8 @@ class TrajectoryStack:
         spans); a step at or past a trajectory's end reads as a row of zeros."""
         B, k = steps.shape
         valid = steps < self.lengths[traj].unsqueeze(1)  # (B, k)
-        flat = (self.starts[traj].unsqueeze(1) + torch.where(valid, steps, 0)).reshape(-1).numpy()  # (B * k,)
+        row = torch.minimum(torch.where(valid, steps, 0), self.last[traj].unsqueeze(1))  # a held step: the last row
+        flat = (self.starts[traj].unsqueeze(1) + row).reshape(-1).numpy()  # (B * k,)
         raw = np.concatenate([self.rows[flat, a:b] for a, b in spans] or [np.empty((B * k, 0), np.float32)], axis=1)
         x = torch.from_numpy(np.ascontiguousarray(raw, dtype=np.float32)).reshape(B, k, -1)  # (B, k, w)
         x = x.masked_fill(~valid.unsqueeze(-1), 0.0)

@@ -8,7 +8,7 @@ columns themselves are read once, by the process that trains on them (`pipeline.
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -36,8 +36,9 @@ class TrainingFile:
     camera: str = ""
     views: int = 0  # views of its features it also holds (perception.views)
 
-    def describe(self, sha256: str) -> dict:
-        """JSON-able entry for config.json, with the file's `sha256` (hex)."""
+    def describe(self, sha256: str, held: int = 0) -> dict:
+        """JSON-able entry for config.json, with the file's `sha256` (hex) and the steps it is `held` at its last
+        step (pipeline.train.hold)."""
         return {
             "path": str(self.path.resolve()),
             "sha256": sha256,
@@ -45,6 +46,7 @@ class TrainingFile:
             "n_steps": self.n_steps,
             "task": self.task,
             **({"views": self.views} if self.views else {}),
+            **({"held_steps": held} if held else {}),
         }
 
 
@@ -56,11 +58,14 @@ class TrainingSet:
     width: int
     extractor: dict[str, str]
 
-    def time_base(self) -> TimeBase:
+    def time_base(self, holds: Mapping[int, int] | None = None) -> TimeBase:
         """The demonstrations' median duration and step period: how a robot's seconds map to the model's t (of the
-        demonstrations of 2 steps or more: one step has no duration)."""
-        timed = [f for f in self.files if f.n_steps >= 2]
-        return TimeBase.from_demonstrations([f.duration_s for f in timed], [f.n_steps for f in timed])
+        demonstrations of 2 steps or more: one step has no duration); `holds`: file index -> steps it is trained
+        held at its last step (pipeline.train.hold), each lasting its own step period."""
+        holds = holds or {}
+        timed = [(i, f) for i, f in enumerate(self.files) if f.n_steps >= 2]
+        durations = [f.duration_s * (f.n_steps - 1 + holds.get(i, 0)) / (f.n_steps - 1) for i, f in timed]
+        return TimeBase.from_demonstrations(durations, [f.n_steps + holds.get(i, 0) for i, f in timed])
 
     def tasks(self) -> list[str]:
         """The tasks the demonstrations' episodes name, sorted ([] where none names one)."""

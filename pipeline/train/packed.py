@@ -20,7 +20,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -74,6 +74,13 @@ class PackedColumns:
         starts = [self.starts[k] + v * self.lengths[k] for k in order for v in range(1 + self.views[k])]
         lengths = [self.lengths[k] for k in order for _ in range(1 + self.views[k])]
         return np.array(starts, dtype=np.int64), np.array(lengths, dtype=np.int64)
+
+    def held(self, part: Sequence[int], holds: Mapping[int, int], views: bool = True) -> np.ndarray:
+        """(N,) int64 the steps each trajectory of `seen(part)` (`views`) or `span(part)` is held at its last row:
+        its file's in `holds` (training-set index -> steps; 0 where not in it)."""
+        at = {index: k for k, index in enumerate(self.indices)}
+        copies = [1 + int(self.views[at[i]]) if views else 1 for i in part]
+        return np.repeat(np.array([holds.get(i, 0) for i in part], dtype=np.int64), copies)
 
     def columns(self, part: Sequence[int], span: tuple[int, int]) -> dict[int, np.ndarray]:
         """Training-set index -> the values (T, b - a) on model columns `span` (a, b) of each of files `part`."""

@@ -66,6 +66,7 @@ from cnep.pipeline.train.constants import (
 )
 from cnep.pipeline.train.data import TrainingSet, frame_size, load_training_set
 from cnep.pipeline.train.experts import demonstration_experts, expert_labels
+from cnep.pipeline.train.hold import END_HOLD_SHARE, end_holds
 from cnep.pipeline.train.packed import PackedColumns, pack_columns
 from cnep.pipeline.train.parallel import (
     PlacedModel,
@@ -171,6 +172,7 @@ class _Run:
     my_val: list[int]
     packed: PackedColumns
     gripper: GripperCommand | None
+    holds: dict[int, int]
     max_step: dict[str, float]
     identity: dict
     saved: dict | None
@@ -222,9 +224,10 @@ def _load(config: TrainStageConfig, procs: Processes, held: ExitStack) -> _Run:
     packed = pack_columns(data, my_train + my_val, layout, pack_base(config.out, procs))
     hashes = {i: h for part in gather(procs, packed_hashes(packed)) for i, h in part.items()}  # (sha256, rows)
     gripper = gripper_command(packed, layout, procs)
+    holds = end_holds(packed, layout, gripper, procs)
     max_step = largest_steps(packed, layout, procs)
     sha256 = [hashes[i][0] for i in range(len(inputs))]
-    identity = run_identity(config, data, sha256, layout, model_config, train_idx, procs, schedule)
+    identity = run_identity(config, data, sha256, layout, model_config, train_idx, procs, schedule, holds)
     if saved is not None:
         check_same_run(saved["identity"], identity, work_dir(config.out) / STATE_FILE)
     if procs.is_main:
@@ -240,6 +243,7 @@ def _load(config: TrainStageConfig, procs: Processes, held: ExitStack) -> _Run:
         my_val,
         packed,
         gripper,
+        holds,
         max_step,
         identity,
         saved,
@@ -255,8 +259,9 @@ def _build(
     moments = gather(procs, run.packed.moments(run.my_train, co))  # each rank's training share, in rank order
     fitted_on = Moments.total(moments) if disjoint(run.train_idx, procs) else moments[0]
     model = build_model(run.model_config, fitted_on, config.training.seed)
-    train_stack = TrajectoryStack.from_rows(run.packed.rows, *run.packed.seen(run.my_train), model)
-    val_stack = TrajectoryStack.from_rows(run.packed.rows, *run.packed.span(run.my_val), model)
+    train_held, val_held = run.packed.held(run.my_train, run.holds), run.packed.held(run.my_val, run.holds, views=False)
+    train_stack = TrajectoryStack.from_rows(run.packed.rows, *run.packed.seen(run.my_train), model, train_held)
+    val_stack = TrajectoryStack.from_rows(run.packed.rows, *run.packed.span(run.my_val), model, val_held)
     keep = config.candidates if config.candidates > 1 else 0
     trainer = StageTrainer(
         PlacedModel(model, device, procs),
@@ -291,6 +296,15 @@ def _log_start(run: _Run, config: TrainStageConfig, procs: Processes) -> None:
         run.layout.roles.out_dim,
         procs.world_size,
     )
+    if run.holds:
+        log.info(
+            "%d demonstration(s) stop within %d%% of their steps of their gripper's last change: trained held at their "
+            "last step for %d-%d steps (pipeline.train.hold; config.json's files give each one's held_steps)",
+            len(run.holds),
+            round(100 * END_HOLD_SHARE),
+            min(run.holds.values()),
+            max(run.holds.values()),
+        )
     if not config.quiet:
         log.info("%s", BAR_LEGEND)
 
@@ -381,7 +395,7 @@ def _publish(
         "elapsed_s": round(elapsed, 3),
     }
     extra = {key: value for key, value in run.identity.items() if key != "model"}  # save_checkpoint writes "model"
-    time_base = run.data.time_base().to_dict()  # the robot's seconds -> t (runtime.timebase)
+    time_base = run.data.time_base(run.holds).to_dict()  # the robot's seconds -> t (runtime.timebase)
     policy = {"time_base": time_base, "gripper": run.gripper.to_dict() if run.gripper else None}
     policy[EXPERT_LABELS] = {str(expert): label for expert, label in labels.items()}
     policy[TASKS] = run.data.tasks()
@@ -537,12 +551,15 @@ def run_identity(
     train_idx: list[int],
     procs: Processes,
     schedule: Schedule,
+    holds: dict[int, int],
 ) -> dict:
     """What makes a run: saved in config.json and compared on --resume (JSON-able, as JSON reads it back); `sha256`:
-    each file's; `schedule`: the training schedule's inputs, values and the settings given instead."""
+    each file's; `schedule`: the training schedule's inputs, values and the settings given instead; `holds`: the
+    steps each file is held at its last step (pipeline.train.hold)."""
     trained = set(train_idx)
     files = [
-        dict(f.describe(sha256[i]), split="train" if i in trained else "validation") for i, f in enumerate(data.files)
+        dict(f.describe(sha256[i], holds.get(i, 0)), split="train" if i in trained else "validation")
+        for i, f in enumerate(data.files)
     ]
     identity = {
         "stage": "train",

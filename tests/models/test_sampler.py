@@ -1,4 +1,5 @@
 import numpy as np
+import pytest
 import torch
 
 from cnep.models.cnep import CNEP
@@ -172,3 +173,19 @@ def test_steps_past_a_trajectory_end_read_as_zero_rows_normalised():
     values = stack.values(torch.tensor([0]), torch.tensor([[4, 5, 29]]), ((0, 3),))  # trajectory 0 has 5 steps
     assert torch.equal(values[0, 0], (torch.tensor([4.0, 0.0, 0.0]) - stack.loc) / stack.scale)
     assert torch.equal(values[0, 1:], (-stack.loc / stack.scale).expand(2, 3))
+
+
+def test_a_held_trajectory_reads_its_last_row_past_its_end_and_its_times_run_over_the_held_steps():
+    """A trajectory held at its last row, as pipeline.train.hold holds one that stops as its gripper changes."""
+    model = CNEP(tiny_config(n_experts=2))
+    rows = [np.arange(4 * 5, dtype=np.float32).reshape(4, 5), np.ones((3, 5), np.float32)]
+    stack = TrajectoryStack(rows, model, held=[2, 0])
+    assert stack.lengths.tolist() == [6, 3] and stack.longest == 6
+    traj, steps = torch.tensor([0, 1]), torch.tensor([[3, 4, 5], [1, 2, 3]])
+    read = stack.values(traj, steps, [(0, 5)]) * stack.scale + stack.loc  # back to the rows' own values
+    torch.testing.assert_close(read[0], torch.from_numpy(rows[0][[3, 3, 3]]))  # the held steps: its last row
+    torch.testing.assert_close(read[1, :2], torch.from_numpy(rows[1][[1, 2]]))
+    assert (stack.values(traj, steps, [(0, 5)])[1, 2] == 0).all()  # past the unheld one's end: zeros, as before
+    torch.testing.assert_close(stack.times(traj, steps)[0], torch.tensor([3, 4, 5]) / 5)
+    with pytest.raises(ValueError, match="held must give 2 step counts"):
+        TrajectoryStack(rows, model, held=[1])

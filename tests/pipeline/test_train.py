@@ -145,11 +145,15 @@ def test_released_weights_are_the_best_validated(full_set, tmp_path):
     model = load_checkpoint(out)
     layout = resolve_preset("wine-glass", 1288, full_set[0])
     rows = {f["path"]: layout.select(read_trajectory(f["path"]).data) for f in config["files"]}
-    split = {s: [rows[f["path"]] for f in config["files"] if f["split"] == s] for s in ("train", "validation")}
+    split = {s: [f for f in config["files"] if f["split"] == s] for s in ("train", "validation")}
+    stacks = {  # each file as trained: held at its last step as config.json says (pipeline.train.hold)
+        s: TrajectoryStack([rows[f["path"]] for f in files], model, [f.get("held_steps", 0) for f in files])
+        for s, files in split.items()
+    }
     again = Trainer(
         model,
-        TrajectoryStack(split["train"], model),
-        TrajectoryStack(split["validation"], model),
+        stacks["train"],
+        stacks["validation"],
         TrainConfig(**{k: v for k, v in config["training"].items() if k in TrainConfig.__annotations__}),
     )
     assert again.validate() == pytest.approx(config["result"]["best_val_error"], rel=1e-6)
