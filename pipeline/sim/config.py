@@ -316,10 +316,7 @@ class PickPlaceConfig:
     experts: int = setting(4, "the CNEP's experts (the CNMP: one, parameter-matched)")
     env_version: int = setting(ENV_VERSIONS[-1], ENV_VERSION_HELP, choices=ENV_VERSIONS)
     assignment: str = assignment_setting()
-    # With the plain likelihood this task's policies lift the bar but do not let go: where the demonstrations release,
-    # the predicted gripper stays short of the command's threshold; pick-cube places more cubes with it
-    # (docs/results-tuning.md).
-    nll_beta: float = setting(0.5, "the training loss's beta-NLL power, as `cnep train --nll-beta` takes it")
+    nll_beta: float = nll_beta_setting()
     feature_components: int | None = feature_components_setting()
     views: int | None = views_setting()
     weights: str = setting(AUTO_WEIGHTS, "the feature network's weights, as `cnep demo --weights` takes them")

@@ -89,10 +89,10 @@ def render() -> str:
         "",
         "Each task's CNEP and matched CNMP train with `cnep train`'s defaults and schedule "
         f"(layout `{TrainStageConfig.layout}`); what differs per task is in the table: its data (the demonstrations it "
-        "generates, the experts for its behaviours) and, where its demonstrations need it, the loss's beta-NLL "
-        "([how it was chosen](../results-tuning.md#how-a-pick-and-place-policys-loss-and-conditioning-were-chosen)). "
-        "The conditioning is what their policies run with (config.json, the manifest). `cnep train`'s own settings are "
-        "in the first row.",
+        "generates, the experts for its behaviours). The loss and the conditioning are `cnep train`'s ([how they were "
+        "chosen](../results-tuning.md#how-a-pick-and-place-policys-loss-and-conditioning-were-chosen)); the "
+        "conditioning is what their policies run with (config.json, the manifest). `cnep train`'s own settings are in "
+        "the first row.",
         "",
         "| | demonstrations | CNEP experts | assignment | beta-NLL | conditioning window | anchors |",
         "|---|---|---|---|---|---|---|",
