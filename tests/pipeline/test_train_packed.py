@@ -64,6 +64,9 @@ def test_a_file_s_views_are_packed_after_its_own_rows_and_trained_on_beside_them
     np.testing.assert_array_equal(packed.rows[starts[0] : starts[0] + 5], plain.data)
     starts, lengths = packed.seen([1, 0])  # and every view's: what training reads
     assert lengths.tolist() == [4, 4, 4, 5]
+    held = {1: 3}  # a file held at its last step is held in each of its views too (pipeline.train.hold)
+    assert packed.held([1, 0], held).tolist() == [3, 3, 3, 0]
+    assert packed.held([0, 1], held, views=False).tolist() == [0, 3]
     for k, view in enumerate(views):
         rows = packed.rows[starts[1 + k] : starts[1 + k] + 4]
         np.testing.assert_array_equal(rows[:, :1280], view)  # the view's features
