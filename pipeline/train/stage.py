@@ -297,13 +297,13 @@ def _log_start(run: _Run, config: TrainStageConfig, procs: Processes) -> None:
         procs.world_size,
     )
     if run.holds:
+        low, high = min(run.holds.values()), max(run.holds.values())
         log.info(
-            "%d demonstration(s) stop within %d%% of their steps of their gripper's last change: trained held at their "
-            "last step for %d-%d steps (pipeline.train.hold; config.json's files give each one's held_steps)",
+            "%d demonstration(s) end less than %d%% of their steps after their gripper's last change: trained held at "
+            "their last step for %s steps (pipeline.train.hold; config.json's files give each one's held_steps)",
             len(run.holds),
             round(100 * END_HOLD_SHARE),
-            min(run.holds.values()),
-            max(run.holds.values()),
+            low if low == high else f"{low}-{high}",
         )
     if not config.quiet:
         log.info("%s", BAR_LEGEND)

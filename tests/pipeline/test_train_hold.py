@@ -1,5 +1,7 @@
 """Demonstrations whose recording stops as the gripper changes are trained held at their last step."""
 
+import logging
+
 import numpy as np
 import pytest
 
@@ -34,18 +36,20 @@ def test_a_recording_that_stops_as_the_gripper_opens_is_held_until_the_open_stat
     assert held_steps(grasp, OPENING) == int(np.ceil(END_HOLD_SHARE * 60)) - 2
 
 
-def test_the_train_stage_records_each_held_demonstration_and_its_time_base_counts_the_held_steps(tmp_path):
+def test_the_train_stage_records_each_held_demonstration_and_its_time_base_counts_the_held_steps(tmp_path, caplog):
     folder, lengths, ends = tmp_path / "picks", (30, 40, 36), (1, 20, 2)  # the second recorded its withdrawal
     folder.mkdir()
     for k, (steps, open_at_end) in enumerate(zip(lengths, ends)):
         traj = trajectory_factory(steps, seed=k)
         traj.data[:, -1] = pick(steps, open_at_end)
         write_trajectory(folder / f"demo-{k}.mcap", traj)
-    out = train(stage_config([folder], tmp_path / "ckpt", steps=5, val_fraction=0.34))
+    with caplog.at_level(logging.INFO, logger="cnep.pipeline.train.stage"):
+        out = train(stage_config([folder], tmp_path / "ckpt", steps=5, val_fraction=0.34))
     config = read_checkpoint_config(out)
     held = [f.get("held_steps", 0) for f in sorted(config["files"], key=lambda f: f["path"])]
     expected = [held_steps(pick(n, e), OPENING) for n, e in zip(lengths, ends)]
     assert held == expected and expected[0] > 0 and expected[1] == 0
+    assert "2 demonstration(s) end less than 10% of their steps after their gripper's last change" in caplog.text
     period = 0.1  # the factory's step period (s)
     durations = sorted((n - 1 + h) * period for n, h in zip(lengths, expected))
     assert config["time_base"]["duration_s"] == pytest.approx(durations[1])  # the median, with the held steps
