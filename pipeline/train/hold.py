@@ -30,8 +30,7 @@ def held_steps(gripper: np.ndarray, command: GripperCommand) -> int:
     """The steps to hold a demonstration of gripper values `gripper` (T,) (the recordings' unit) at its last step: as
     many as its gripper's last state (`command`'s nearest value) falls short of END_HOLD_SHARE of its steps, 0 where
     the state never changes."""
-    values = np.asarray(gripper, dtype=np.float64).reshape(-1)
-    states = values - command.low > command.high - values  # True: nearer the high value (command.nearest)
+    states = np.array([command.nearest(float(v)) for v in np.asarray(gripper).reshape(-1)])
     changed = np.flatnonzero(states != states[-1]) if len(states) else np.empty(0, dtype=np.int64)
     if not len(changed):
         return 0
